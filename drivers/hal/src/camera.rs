@@ -1,0 +1,54 @@
+use std::future::Future;
+use std::time::Duration;
+
+use crate::{HalError, PointCloud};
+
+/// What a camera says it is.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraInfo {
+    /// Manufacturer name as the device reports it.
+    pub vendor: String,
+    /// Model name.
+    pub model: String,
+    /// Serial number.
+    pub serial: String,
+    /// Firmware/device version string.
+    pub firmware: String,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Pixel formats the device offers (PFNC names, e.g. `Coord3D_ABC32f`).
+    pub pixel_formats: Vec<String>,
+}
+
+/// How to capture.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureSettings {
+    /// Number of frames to capture (fused later by the solver).
+    pub frames: u32,
+    /// Give up on one frame after this long.
+    pub frame_timeout: Duration,
+    /// Exposure time when the camera supports setting it.
+    pub exposure: Option<Duration>,
+}
+
+impl Default for CaptureSettings {
+    fn default() -> Self {
+        Self { frames: 1, frame_timeout: Duration::from_secs(10), exposure: None }
+    }
+}
+
+/// A 3D camera that delivers point clouds in its own frame (metres, OpenCV axes).
+///
+/// Capture is blocking I/O in most backends; implementations run it off the async runtime.
+pub trait DepthCamera: Send + Sync + 'static {
+    /// Identify the device.
+    fn info(&self) -> impl Future<Output = Result<CameraInfo, HalError>> + Send;
+
+    /// Capture `settings.frames` frames; every frame is a complete cloud or the call fails.
+    fn capture(
+        &self,
+        settings: &CaptureSettings,
+    ) -> impl Future<Output = Result<Vec<PointCloud>, HalError>> + Send;
+}

@@ -1,0 +1,24 @@
+//! Hardware abstraction for `handeye`: the [`Robot`] and [`DepthCamera`] traits that separate
+//! the drivers (`handeye-ur`, `handeye-gige`, …) from the calibration core, and the types they
+//! exchange.
+//!
+//! Conventions (see the workspace README): lengths in metres, angles in radians, durations as
+//! [`std::time::Duration`]. Transforms are `Isometry3<f64>` named `<to>_from_<from>`.
+//! Joint order is the URDF chain order (for UR: base, shoulder, elbow, wrist 1, 2, 3).
+#![deny(missing_docs)]
+
+mod cloud;
+mod error;
+#[cfg(feature = "fake")]
+pub mod fake;
+mod robot;
+mod camera;
+pub mod ur_dh;
+
+pub use camera::{CameraInfo, CaptureSettings, DepthCamera};
+pub use cloud::PointCloud;
+pub use error::HalError;
+pub use robot::{JointPositions, MotionLimits, Robot, RobotMode, RobotStatus, SafetyMode};
+
+/// Re-exported so users of the traits name the same math types.
+pub use nalgebra;

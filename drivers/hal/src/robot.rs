@@ -1,0 +1,121 @@
+use std::future::Future;
+use std::time::Duration;
+
+use nalgebra::Isometry3;
+
+use crate::HalError;
+
+/// Joint angles in radians, URDF chain order (for UR: base, shoulder, elbow, wrist 1, 2, 3).
+pub type JointPositions = Vec<f64>;
+
+/// Speed and acceleration caps for a joint move.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionLimits {
+    /// Maximum joint speed, rad/s (the configured safety cap).
+    pub max_joint_speed_rad_s: f64,
+    /// Maximum joint acceleration, rad/s².
+    pub max_joint_accel_rad_s2: f64,
+    /// Give up (and stop the arm) if the move has not arrived within this time.
+    pub timeout: Duration,
+}
+
+impl Default for MotionLimits {
+    fn default() -> Self {
+        Self { max_joint_speed_rad_s: 0.5, max_joint_accel_rad_s2: 1.0, timeout: Duration::from_secs(60) }
+    }
+}
+
+/// Robot mode as UR reports it (RTDE `robot_mode`, dashboard `robotmode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
+#[allow(missing_docs)]
+pub enum RobotMode {
+    NoController,
+    Disconnected,
+    ConfirmSafety,
+    Booting,
+    PowerOff,
+    PowerOn,
+    Idle,
+    Backdrive,
+    Running,
+    UpdatingFirmware,
+}
+
+/// Safety mode as UR reports it (RTDE `safety_mode`, dashboard `safetymode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
+#[allow(missing_docs)]
+pub enum SafetyMode {
+    Normal,
+    Reduced,
+    ProtectiveStop,
+    Recovery,
+    SafeguardStop,
+    SystemEmergencyStop,
+    RobotEmergencyStop,
+    Violation,
+    Fault,
+    ValidateJointId,
+    Undefined,
+    AutomaticModeSafeguardStop,
+    SystemThreePositionEnablingStop,
+}
+
+/// What preflight needs to know before anything moves.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RobotStatus {
+    /// Power/brake state.
+    pub robot_mode: RobotMode,
+    /// Safety state; anything but `Normal`/`Reduced` forbids motion.
+    pub safety_mode: SafetyMode,
+    /// Whether the controller accepts remote commands (e-Series remote control; always true on CB3).
+    pub remote_control: bool,
+    /// Whether a program is running on the controller.
+    pub program_running: bool,
+}
+
+impl RobotStatus {
+    /// Whether the arm can be commanded to move right now.
+    pub fn can_move(&self) -> bool {
+        self.robot_mode == RobotMode::Running
+            && matches!(self.safety_mode, SafetyMode::Normal | SafetyMode::Reduced)
+            && self.remote_control
+    }
+}
+
+/// A UR-class arm. All lengths m, angles rad; joint order = URDF order.
+///
+/// Implementations are cheap handles onto one connection; every method may be called from any
+/// task. A method that moves the arm stops it before returning an error.
+pub trait Robot: Send + Sync + 'static {
+    /// Mode, safety mode, remote-control flag, program-running flag.
+    fn status(&self) -> impl Future<Output = Result<RobotStatus, HalError>> + Send;
+
+    /// The measured joint angles at the latest controller sample.
+    fn joint_positions(&self) -> impl Future<Output = Result<JointPositions, HalError>> + Send;
+
+    /// `base_from_flange` as the controller computes it (its own calibrated kinematics), in the
+    /// controller's `base` frame, with the TCP offset removed.
+    fn flange_pose(&self) -> impl Future<Output = Result<Isometry3<f64>, HalError>> + Send;
+
+    /// Joint move that returns only when the arm has arrived; fails with `ProtectiveStop`,
+    /// `EmergencyStop`, `NotInRemoteControl`, `Timeout` (arm stopped first).
+    fn move_joints(
+        &self,
+        q: &[f64],
+        limits: MotionLimits,
+    ) -> impl Future<Output = Result<(), HalError>> + Send;
+
+    /// Stop any motion now (decelerating within the controller's limits).
+    fn stop(&self) -> impl Future<Output = Result<(), HalError>> + Send;
+
+    /// Set the runtime TCP (`flange_from_tcp`; volatile on UR) and confirm by read-back.
+    fn set_tcp(&self, flange_from_tcp: &Isometry3<f64>) -> impl Future<Output = Result<(), HalError>> + Send;
+
+    /// Write a double input register (e.g. RTDE `input_double_register_N`) for a pendant program.
+    fn write_double_register(&self, index: u32, value: f64) -> impl Future<Output = Result<(), HalError>> + Send;
+
+    /// Read a double register back as the controller reflects it.
+    fn read_double_register(&self, index: u32) -> impl Future<Output = Result<f64, HalError>> + Send;
+}

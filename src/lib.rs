@@ -1,0 +1,23 @@
+//! `handeye`: target-free hand-eye calibration of a Universal Robots arm's 3D camera.
+//!
+//! # Layout
+//! - [`frames`]: frame names and the fixed transforms between them (UR `base` vs URDF `base_link`).
+//! - [`model`]: the robot model from URDF + meshes: kinematics, joint limits, posed meshes.
+//! - [`cloud`]: point-cloud file formats (PLY, PCD) and cloud utilities.
+//! - [`sim`]: the 3D scan simulator (pinhole camera ray-casting the posed robot and its cell,
+//!   with the imperfections of real scans).
+//! - [`plan`]: view generation: joint configurations from which the camera sees the base,
+//!   checked for joint limits and collisions.
+//! - [`calib`]: registration of a scan against the posed model, the hand-eye solve, the
+//!   pass/fail gate and the benchmark protocol.
+//!
+//! The binary (`src/main.rs` and its `src/cli/` modules, which the library does not use) wires
+//! concrete drivers (`handeye-ur`, `handeye-gige`) to this core; the core only knows the traits
+//! in `handeye-hal`.
+
+pub mod calib;
+pub mod cloud;
+pub mod frames;
+pub mod model;
+pub mod plan;
+pub mod sim;

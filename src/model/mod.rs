@@ -1,0 +1,1 @@
+//! The robot model: URDF, meshes (visual and collision), forward kinematics, joint limits.

@@ -1,0 +1,1 @@
+//! View generation: joint configurations from which the camera sees the robot base.
