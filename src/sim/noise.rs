@@ -1,0 +1,163 @@
+//! What makes real scans hard, each with a knob and a realistic default.
+
+use rand::Rng;
+use rand_distr::{Distribution, Normal};
+
+/// Imperfections of a structured-light 3D camera.
+///
+/// Defaults are those of a good industrial camera (Zivid 2+ class) at 0.4–0.8 m; `none()`
+/// gives a perfect sensor for geometry tests.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScanNoise {
+    /// Depth noise standard deviation at 1 m (metres); it grows with z² (triangulation) and
+    /// with 1/cos of the incidence angle.
+    pub depth_sigma_at_1m_m: f64,
+    /// Probability that a pixel on a depth edge becomes a flying pixel (a depth between the
+    /// foreground and the background surfaces).
+    pub flying_pixel_probability: f64,
+    /// A neighbour farther by more than this (metres) makes a pixel a depth edge.
+    pub flying_pixel_edge_m: f64,
+    /// Incidence angle (degrees from the surface normal) where grazing dropouts start.
+    pub dropout_start_deg: f64,
+    /// Incidence angle where every point is lost.
+    pub dropout_full_deg: f64,
+    /// Probability of losing any pixel (specular spots, dark surfaces).
+    pub random_dropout_probability: f64,
+    /// Relative depth-scale error: measured point = true point · (1 + this).
+    pub depth_scale_error: f64,
+    /// Nothing is measured beyond this range (metres).
+    pub max_range_m: f64,
+}
+
+impl Default for ScanNoise {
+    fn default() -> Self {
+        Self {
+            depth_sigma_at_1m_m: 0.000_25,
+            flying_pixel_probability: 0.5,
+            flying_pixel_edge_m: 0.01,
+            dropout_start_deg: 70.0,
+            dropout_full_deg: 85.0,
+            random_dropout_probability: 0.01,
+            depth_scale_error: 0.0015,
+            max_range_m: 2.5,
+        }
+    }
+}
+
+impl ScanNoise {
+    /// A perfect sensor: exact depths, no dropouts, no flying pixels, no scale error.
+    pub fn none() -> Self {
+        Self {
+            depth_sigma_at_1m_m: 0.0,
+            flying_pixel_probability: 0.0,
+            flying_pixel_edge_m: 0.01,
+            dropout_start_deg: 90.0,
+            dropout_full_deg: 90.0,
+            random_dropout_probability: 0.0,
+            depth_scale_error: 0.0,
+            max_range_m: f64::INFINITY,
+        }
+    }
+
+    /// Whether the knobs make sense; the message names the bad one.
+    pub fn validate(&self) -> Result<(), String> {
+        let prob = |name: &str, p: f64| {
+            (0.0..=1.0)
+                .contains(&p)
+                .then_some(())
+                .ok_or_else(|| format!("{name} must be in [0, 1], got {p}"))
+        };
+        prob("flying_pixel_probability", self.flying_pixel_probability)?;
+        prob(
+            "random_dropout_probability",
+            self.random_dropout_probability,
+        )?;
+        if !(self.depth_sigma_at_1m_m >= 0.0 && self.depth_sigma_at_1m_m.is_finite()) {
+            return Err(format!(
+                "depth_sigma_at_1m_m must be ≥ 0, got {}",
+                self.depth_sigma_at_1m_m
+            ));
+        }
+        if !(self.dropout_start_deg <= self.dropout_full_deg && self.dropout_full_deg <= 90.0) {
+            return Err("dropout_start_deg ≤ dropout_full_deg ≤ 90 required".into());
+        }
+        if !(self.depth_scale_error.abs() < 0.2) {
+            return Err(format!(
+                "depth_scale_error must be within ±0.2, got {}",
+                self.depth_scale_error
+            ));
+        }
+        if !(self.max_range_m > 0.0) {
+            return Err(format!("max_range_m must be > 0, got {}", self.max_range_m));
+        }
+        Ok(())
+    }
+
+    /// Probability that a point seen at `incidence_rad` (angle between the ray and the surface
+    /// normal) survives grazing dropout.
+    pub(crate) fn grazing_survival(&self, incidence_rad: f64) -> f64 {
+        let a = incidence_rad.to_degrees();
+        if a <= self.dropout_start_deg {
+            1.0
+        } else if a >= self.dropout_full_deg {
+            0.0
+        } else {
+            1.0 - (a - self.dropout_start_deg) / (self.dropout_full_deg - self.dropout_start_deg)
+        }
+    }
+
+    /// A noisy depth for a true depth `z` (metres) seen at `incidence_rad`.
+    pub(crate) fn noisy_depth(&self, z: f64, incidence_rad: f64, rng: &mut impl Rng) -> f64 {
+        let sigma = self.depth_sigma_at_1m_m * z * z / incidence_rad.cos().max(0.2);
+        let n = if sigma > 0.0 {
+            Normal::new(0.0, sigma).map_or(0.0, |d| d.sample(rng))
+        } else {
+            0.0
+        };
+        (z + n) * (1.0 + self.depth_scale_error)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn defaults_validate_and_bad_knobs_are_named() {
+        ScanNoise::default().validate().expect("defaults are valid");
+        ScanNoise::none().validate().expect("none is valid");
+        let bad = ScanNoise {
+            random_dropout_probability: 1.5,
+            ..ScanNoise::default()
+        };
+        assert!(bad
+            .validate()
+            .unwrap_err()
+            .contains("random_dropout_probability"));
+    }
+
+    #[test]
+    fn depth_noise_grows_with_distance_and_scale_error_is_applied() {
+        let n = ScanNoise {
+            depth_scale_error: 0.01,
+            ..ScanNoise::default()
+        };
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+        let spread = |z: f64, rng: &mut rand::rngs::StdRng| {
+            let s: Vec<f64> = (0..4000).map(|_| n.noisy_depth(z, 0.0, rng)).collect();
+            let mean = s.iter().sum::<f64>() / s.len() as f64;
+            let var = s.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / s.len() as f64;
+            (mean, var.sqrt())
+        };
+        let (m1, s1) = spread(0.5, &mut rng);
+        let (m2, s2) = spread(1.0, &mut rng);
+        assert!((m2 - 1.01).abs() < 2e-5, "{m2}");
+        assert!((m1 - 0.505).abs() < 1e-5, "{m1}");
+        assert!(s2 > 3.0 * s1, "{s1} {s2}");
+        assert!((s2 - 0.000_25 * 1.01).abs() < 2e-5, "{s2}");
+        assert_eq!(n.grazing_survival(0.0), 1.0);
+        assert_eq!(n.grazing_survival(89f64.to_radians()), 0.0);
+    }
+}
