@@ -18,10 +18,46 @@ pub fn ur_base_from_base_link() -> Isometry3<f64> {
     Isometry3::rotation(Vector3::z() * PI)
 }
 
+/// A transform as a 4×4 homogeneous matrix, row-major (metres), as reports and JSON carry it.
+pub fn to_row_major(t: &Isometry3<f64>) -> [[f64; 4]; 4] {
+    let m = t.to_homogeneous();
+    std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
+}
+
+/// A transform from a row-major 4×4 matrix; `None` unless the rotation part is orthonormal
+/// (within 1e-6) with determinant +1 and the last row is `0 0 0 1`.
+pub fn from_row_major(m: &[[f64; 4]; 4]) -> Option<Isometry3<f64>> {
+    let r = nalgebra::Matrix3::from_fn(|i, j| m[i][j]);
+    let ok_rotation =
+        (r.transpose() * r - nalgebra::Matrix3::identity()).norm() < 1e-6 && r.determinant() > 0.0;
+    let ok_last = m[3] == [0.0, 0.0, 0.0, 1.0];
+    if !(ok_rotation && ok_last && m.iter().flatten().all(|v| v.is_finite())) {
+        return None;
+    }
+    let rot = nalgebra::UnitQuaternion::from_matrix(&r);
+    Some(Isometry3::from_parts(
+        nalgebra::Translation3::new(m[0][3], m[1][3], m[2][3]),
+        rot,
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::Point3;
+
+    #[test]
+    fn row_major_round_trip() {
+        let t = Isometry3::new(Vector3::new(0.1, -0.2, 0.3), Vector3::new(0.4, 0.5, -0.6));
+        let m = to_row_major(&t);
+        assert_eq!(m[0][3], 0.1);
+        assert_eq!(m[3], [0.0, 0.0, 0.0, 1.0]);
+        let back = from_row_major(&m).expect("valid");
+        assert!((back.to_homogeneous() - t.to_homogeneous()).norm() < 1e-12);
+        let mut bad = m;
+        bad[0][0] = 2.0;
+        assert!(from_row_major(&bad).is_none());
+    }
 
     #[test]
     fn base_negates_x_and_y_of_base_link() {

@@ -2,6 +2,7 @@
 //! `run` returns the process exit code: 0 success, 1 a completed run whose result was rejected,
 //! 2 an error (bad input, unreachable device, …).
 
+pub(crate) mod args;
 pub(crate) mod bench;
 pub(crate) mod camera;
 pub(crate) mod demo;

@@ -1,0 +1,67 @@
+//! Parsers for values given on the command line.
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+/// Parses `x,y,z,rx,ry,rz` (metres, rotation vector in radians — the UR `p[...]` convention)
+/// into an isometry.
+pub(crate) fn parse_pose(s: &str) -> Result<Isometry3<f64>, String> {
+    let v = parse_numbers(s)?;
+    if v.len() != 6 {
+        return Err(format!(
+            "expected 6 comma-separated numbers x,y,z,rx,ry,rz (metres, rotation vector in radians), got {}",
+            v.len()
+        ));
+    }
+    Ok(Isometry3::from_parts(
+        Translation3::new(v[0], v[1], v[2]),
+        UnitQuaternion::from_scaled_axis(Vector3::new(v[3], v[4], v[5])),
+    ))
+}
+
+/// Parses comma-separated joint angles in radians.
+pub(crate) fn parse_joints(s: &str) -> Result<Vec<f64>, String> {
+    let v = parse_numbers(s)?;
+    if v.is_empty() {
+        return Err("expected comma-separated joint angles in radians".into());
+    }
+    Ok(v)
+}
+
+fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
+    s.split(',')
+        .map(|t| {
+            let t = t.trim();
+            t.parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| format!("`{t}` is not a finite number"))
+        })
+        .collect()
+}
+
+/// Formats an isometry as `x,y,z,rx,ry,rz` (metres, rotation vector), the inverse of [`parse_pose`].
+pub(crate) fn format_pose(t: &Isometry3<f64>) -> String {
+    let p = t.translation.vector;
+    let r = t.rotation.scaled_axis();
+    format!(
+        "{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
+        p.x, p.y, p.z, r.x, r.y, r.z
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn poses_round_trip_and_errors_name_the_problem() {
+        let t = parse_pose("0.1, -0.2,0.3,0,0,1.5").expect("valid");
+        assert!((t.rotation.angle() - 1.5).abs() < 1e-12);
+        let back = parse_pose(&format_pose(&t)).expect("valid");
+        assert!((back.to_homogeneous() - t.to_homogeneous()).norm() < 1e-6);
+        assert!(parse_pose("1,2,3").unwrap_err().contains("expected 6"));
+        assert!(parse_pose("1,2,3,4,5,x").unwrap_err().contains("`x`"));
+        assert!(parse_joints("0,nan").is_err());
+        assert_eq!(parse_joints("0,1.5").expect("valid"), vec![0.0, 1.5]);
+    }
+}
