@@ -28,9 +28,16 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
     let doc = Document::parse(text).map_err(|e| format!("not well-formed XML: {e}"))?;
     let root = doc.root_element();
     if root.tag_name().name() != "COLLADA" {
-        return Err(format!("root element is <{}>, not <COLLADA>", root.tag_name().name()));
+        return Err(format!(
+            "root element is <{}>, not <COLLADA>",
+            root.tag_name().name()
+        ));
     }
-    let mut reader = Reader { ids: HashMap::new(), geometries: HashMap::new(), positions: HashMap::new() };
+    let mut reader = Reader {
+        ids: HashMap::new(),
+        geometries: HashMap::new(),
+        positions: HashMap::new(),
+    };
     for n in root.descendants().filter(Node::is_element) {
         if let Some(id) = n.attribute("id") {
             reader.ids.entry(id).or_insert(n);
@@ -58,7 +65,8 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
 }
 
 fn children<'a, 'i>(node: Node<'a, 'i>, name: &'static str) -> impl Iterator<Item = Node<'a, 'i>> {
-    node.children().filter(move |c| c.is_element() && c.tag_name().name() == name)
+    node.children()
+        .filter(move |c| c.is_element() && c.tag_name().name() == name)
 }
 
 fn child<'a, 'i>(node: Node<'a, 'i>, name: &'static str) -> Option<Node<'a, 'i>> {
@@ -71,22 +79,29 @@ fn scene<'a, 'i>(root: Node<'a, 'i>, reader: &Reader<'a, 'i>) -> Option<Node<'a,
         .and_then(|s| child(s, "instance_visual_scene"))
         .and_then(|i| i.attribute("url"))
         .and_then(|u| reader.lookup(u));
-    named.or_else(|| {
-        child(root, "library_visual_scenes").and_then(|l| child(l, "visual_scene"))
-    })
+    named.or_else(|| child(root, "library_visual_scenes").and_then(|l| child(l, "visual_scene")))
 }
 
 /// Unit scale and up-axis conversion from `<asset>`.
 fn root_transform(root: Node<'_, '_>) -> Result<Matrix4<f64>, String> {
     let asset = child(root, "asset");
-    let meter = match asset.and_then(|a| child(a, "unit")).and_then(|u| u.attribute("meter")) {
-        Some(m) => m.trim().parse::<f64>().map_err(|_| format!("bad <unit meter=\"{m}\">"))?,
+    let meter = match asset
+        .and_then(|a| child(a, "unit"))
+        .and_then(|u| u.attribute("meter"))
+    {
+        Some(m) => m
+            .trim()
+            .parse::<f64>()
+            .map_err(|_| format!("bad <unit meter=\"{m}\">"))?,
         None => 1.0,
     };
     if !(meter.is_finite() && meter > 0.0) {
         return Err(format!("bad <unit meter=\"{meter}\">"));
     }
-    let up = asset.and_then(|a| child(a, "up_axis")).and_then(|u| u.text()).unwrap_or("Z_UP");
+    let up = asset
+        .and_then(|a| child(a, "up_axis"))
+        .and_then(|u| u.text())
+        .unwrap_or("Z_UP");
     let rotation = match up.trim() {
         "Z_UP" => Rotation3::identity(),
         // y → z: +90° about x.
@@ -102,7 +117,10 @@ fn floats(node: Node<'_, '_>) -> Result<Vec<f64>, String> {
     node.text()
         .unwrap_or("")
         .split_ascii_whitespace()
-        .map(|t| t.parse::<f64>().map_err(|_| format!("bad number `{t}` in <{}>", node.tag_name().name())))
+        .map(|t| {
+            t.parse::<f64>()
+                .map_err(|_| format!("bad number `{t}` in <{}>", node.tag_name().name()))
+        })
         .collect()
 }
 
@@ -110,14 +128,21 @@ fn indices(node: Node<'_, '_>) -> Result<Vec<u32>, String> {
     node.text()
         .unwrap_or("")
         .split_ascii_whitespace()
-        .map(|t| t.parse::<u32>().map_err(|_| format!("bad index `{t}` in <{}>", node.tag_name().name())))
+        .map(|t| {
+            t.parse::<u32>()
+                .map_err(|_| format!("bad index `{t}` in <{}>", node.tag_name().name()))
+        })
         .collect()
 }
 
 fn fixed<const N: usize>(node: Node<'_, '_>) -> Result<[f64; N], String> {
     let v = floats(node)?;
     v.try_into().map_err(|v: Vec<f64>| {
-        format!("<{}> has {} numbers, expected {N}", node.tag_name().name(), v.len())
+        format!(
+            "<{}> has {} numbers, expected {N}",
+            node.tag_name().name(),
+            v.len()
+        )
     })
 }
 
@@ -134,9 +159,17 @@ impl<'a, 'i> Reader<'a, 'i> {
         self.ids.get(url.strip_prefix('#')?).copied()
     }
 
-    fn visit(&mut self, node: Node<'a, 'i>, parent: &Matrix4<f64>, depth: usize, out: &mut TriMesh) -> Result<(), String> {
+    fn visit(
+        &mut self,
+        node: Node<'a, 'i>,
+        parent: &Matrix4<f64>,
+        depth: usize,
+        out: &mut TriMesh,
+    ) -> Result<(), String> {
         if depth > MAX_DEPTH {
-            return Err(format!("node hierarchy deeper than {MAX_DEPTH} (an <instance_node> cycle?)"));
+            return Err(format!(
+                "node hierarchy deeper than {MAX_DEPTH} (an <instance_node> cycle?)"
+            ));
         }
         let mut local = Matrix4::identity();
         for c in node.children().filter(Node::is_element) {
@@ -147,12 +180,17 @@ impl<'a, 'i> Reader<'a, 'i> {
                 "rotate" => {
                     let [x, y, z, deg] = fixed::<4>(c)?;
                     match Unit::try_new(Vector3::new(x, y, z), 1e-12) {
-                        Some(axis) => Rotation3::from_axis_angle(&axis, deg.to_radians()).to_homogeneous(),
+                        Some(axis) => {
+                            Rotation3::from_axis_angle(&axis, deg.to_radians()).to_homogeneous()
+                        }
                         None => Matrix4::identity(),
                     }
                 }
                 "lookat" | "skew" => {
-                    return Err(format!("<{}> node transforms are not supported", c.tag_name().name()))
+                    return Err(format!(
+                        "<{}> node transforms are not supported",
+                        c.tag_name().name()
+                    ))
                 }
                 _ => continue,
             };
@@ -163,7 +201,9 @@ impl<'a, 'i> Reader<'a, 'i> {
                 "node" => self.visit(c, &world, depth + 1, out)?,
                 "instance_node" => {
                     let url = c.attribute("url").unwrap_or("");
-                    let target = self.lookup(url).ok_or_else(|| format!("<instance_node url=\"{url}\"> names no node"))?;
+                    let target = self
+                        .lookup(url)
+                        .ok_or_else(|| format!("<instance_node url=\"{url}\"> names no node"))?;
                     self.visit(target, &world, depth + 1, out)?;
                 }
                 "instance_geometry" => {
@@ -171,7 +211,9 @@ impl<'a, 'i> Reader<'a, 'i> {
                     let g = self
                         .lookup(url)
                         .filter(|g| g.has_tag_name("geometry"))
-                        .ok_or_else(|| format!("<instance_geometry url=\"{url}\"> names no geometry"))?;
+                        .ok_or_else(|| {
+                            format!("<instance_geometry url=\"{url}\"> names no geometry")
+                        })?;
                     let mesh = self.geometry(g)?;
                     out.append_transformed(&mesh, &world);
                 }
@@ -192,7 +234,10 @@ impl<'a, 'i> Reader<'a, 'i> {
         if let Some(mesh) = child(g, "mesh") {
             for prim in mesh.children().filter(Node::is_element) {
                 let kind = prim.tag_name().name();
-                if !matches!(kind, "triangles" | "polylist" | "polygons" | "trifans" | "tristrips") {
+                if !matches!(
+                    kind,
+                    "triangles" | "polylist" | "polygons" | "trifans" | "tristrips"
+                ) {
                     continue;
                 }
                 let mut stride = 1usize;
@@ -219,8 +264,10 @@ impl<'a, 'i> Reader<'a, 'i> {
                     Some(&b) => b,
                     None => {
                         let positions = self.positions(source)?;
-                        let base = u32::try_from(out.vertices.len()).map_err(|_| "too many vertices")?;
-                        let count = u32::try_from(positions.len()).map_err(|_| "too many vertices")?;
+                        let base =
+                            u32::try_from(out.vertices.len()).map_err(|_| "too many vertices")?;
+                        let count =
+                            u32::try_from(positions.len()).map_err(|_| "too many vertices")?;
                         out.vertices.extend(positions.iter().copied());
                         bases.insert(vid, (base, count));
                         (base, count)
@@ -230,21 +277,31 @@ impl<'a, 'i> Reader<'a, 'i> {
                     if i < count {
                         Ok(base + i)
                     } else {
-                        Err(format!("vertex index {i} past the {count} positions of `{vid}`"))
+                        Err(format!(
+                            "vertex index {i} past the {count} positions of `{vid}`"
+                        ))
                     }
                 };
                 let pick = |p: &[u32]| -> Result<Vec<u32>, String> {
-                    p.iter().skip(offset).step_by(stride).map(|&i| map(i)).collect()
+                    p.iter()
+                        .skip(offset)
+                        .step_by(stride)
+                        .map(|&i| map(i))
+                        .collect()
                 };
                 match kind {
                     "triangles" => {
                         for p in children(prim, "p") {
                             let v = pick(&indices(p)?)?;
-                            out.triangles.extend(v.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
+                            out.triangles
+                                .extend(v.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
                         }
                     }
                     "polylist" => {
-                        let counts = child(prim, "vcount").map(indices).transpose()?.unwrap_or_default();
+                        let counts = child(prim, "vcount")
+                            .map(indices)
+                            .transpose()?
+                            .unwrap_or_default();
                         let v = match child(prim, "p") {
                             Some(p) => pick(&indices(p)?)?,
                             None => Vec::new(),
@@ -252,7 +309,9 @@ impl<'a, 'i> Reader<'a, 'i> {
                         let mut at = 0usize;
                         for n in counts {
                             let n = n as usize;
-                            let poly = v.get(at..at.saturating_add(n)).ok_or("<vcount> exceeds the indices in <p>")?;
+                            let poly = v
+                                .get(at..at.saturating_add(n))
+                                .ok_or("<vcount> exceeds the indices in <p>")?;
                             fan(poly, &mut out.triangles);
                             at += n;
                         }
@@ -275,7 +334,11 @@ impl<'a, 'i> Reader<'a, 'i> {
                         for p in children(prim, "p") {
                             let v = pick(&indices(p)?)?;
                             for (k, w) in v.windows(3).enumerate() {
-                                out.triangles.push(if k % 2 == 0 { [w[0], w[1], w[2]] } else { [w[1], w[0], w[2]] });
+                                out.triangles.push(if k % 2 == 0 {
+                                    [w[0], w[1], w[2]]
+                                } else {
+                                    [w[1], w[0], w[2]]
+                                });
                             }
                         }
                     }
@@ -307,19 +370,25 @@ impl<'a, 'i> Reader<'a, 'i> {
             .lookup(url)
             .filter(|s| s.has_tag_name("source"))
             .ok_or_else(|| format!("POSITION source `{url}` names no <source>"))?;
-        let array = child(source, "float_array").ok_or_else(|| format!("<source> `{url}` has no <float_array>"))?;
+        let array = child(source, "float_array")
+            .ok_or_else(|| format!("<source> `{url}` has no <float_array>"))?;
         let values = floats(array)?;
         let accessor = child(source, "technique_common").and_then(|t| child(t, "accessor"));
         let attr = |name: &str, default: usize| -> Result<usize, String> {
             match accessor.and_then(|a| a.attribute(name)) {
-                Some(v) => v.trim().parse().map_err(|_| format!("bad <accessor {name}=\"{v}\">")),
+                Some(v) => v
+                    .trim()
+                    .parse()
+                    .map_err(|_| format!("bad <accessor {name}=\"{v}\">")),
                 None => Ok(default),
             }
         };
         let stride = attr("stride", 3)?;
         let start = attr("offset", 0)?;
         if stride < 3 {
-            return Err(format!("position <accessor stride=\"{stride}\"> is below 3"));
+            return Err(format!(
+                "position <accessor stride=\"{stride}\"> is below 3"
+            ));
         }
         let available = values.len().saturating_sub(start) / stride;
         let count = attr("count", available)?.min(available);
@@ -375,7 +444,11 @@ mod tests {
             <node><translate>0 2 0</translate><instance_geometry url="#tri"/></node></node>"##;
         let m = parse(doc("Z_UP", "1", TRI, scene).as_bytes()).expect("parses");
         // p ↦ T(1,0,0)·Rz(90°)·T(0,2,0)·p; (1,0,0) → (1,2,0) → (-2,1,0) → (-1,1,0).
-        let want = [Point3::new(-1.0, 1.0, 0.0), Point3::new(-2.0, 0.0, 0.0), Point3::new(-1.0, 0.0, 1.0)];
+        let want = [
+            Point3::new(-1.0, 1.0, 0.0),
+            Point3::new(-2.0, 0.0, 0.0),
+            Point3::new(-1.0, 0.0, 1.0),
+        ];
         assert_eq!(m.triangles, vec![[0, 1, 2]]);
         for (v, w) in m.vertices.iter().zip(want) {
             assert!((v - w).norm() < 1e-12, "{v} vs {w}");
@@ -388,7 +461,11 @@ mod tests {
             <instance_node url="#lib"/></node>"##;
         let m = parse(doc("Z_UP", "0.001", TRI, scene).as_bytes()).expect("parses");
         // mm: ((1,0,0)+(0,0,5))·2 + (10,0,0) = (12, 0, 10) mm.
-        assert!((m.vertices[0] - Point3::new(0.012, 0.0, 0.010)).norm() < 1e-12, "{}", m.vertices[0]);
+        assert!(
+            (m.vertices[0] - Point3::new(0.012, 0.0, 0.010)).norm() < 1e-12,
+            "{}",
+            m.vertices[0]
+        );
     }
 
     #[test]
@@ -398,11 +475,23 @@ mod tests {
           <vertices id="v"><input semantic="POSITION" source="#pos"/></vertices>
           <polylist count="1"><input semantic="VERTEX" source="#v" offset="0"/><vcount>4</vcount><p>0 1 2 3</p></polylist>
         </mesh></geometry>"##;
-        let m = parse(doc("Y_UP", "1", poly, r##"<node><instance_geometry url="#tri"/></node>"##).as_bytes())
-            .expect("parses");
+        let m = parse(
+            doc(
+                "Y_UP",
+                "1",
+                poly,
+                r##"<node><instance_geometry url="#tri"/></node>"##,
+            )
+            .as_bytes(),
+        )
+        .expect("parses");
         assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]]);
         // (1,1,0) Y-up → (1,0,1) Z-up.
-        assert!((m.vertices[2] - Point3::new(1.0, 0.0, 1.0)).norm() < 1e-12, "{}", m.vertices[2]);
+        assert!(
+            (m.vertices[2] - Point3::new(1.0, 0.0, 1.0)).norm() < 1e-12,
+            "{}",
+            m.vertices[2]
+        );
     }
 
     #[test]
@@ -411,7 +500,9 @@ mod tests {
         let out_of_range = TRI.replace("<p>0 9 1 9 2 9</p>", "<p>0 9 1 9 7 9</p>");
         assert!(parse(doc("Z_UP", "1", &out_of_range, scene).as_bytes()).is_err());
         let cycle = r##"<node id="a"><instance_node url="#a"/></node>"##;
-        assert!(parse(doc("Z_UP", "1", TRI, cycle).as_bytes()).unwrap_err().contains("deeper"));
+        assert!(parse(doc("Z_UP", "1", TRI, cycle).as_bytes())
+            .expect_err("must fail")
+            .contains("deeper"));
         assert!(parse(b"<html/>").is_err());
         assert!(parse(&[0xff, 0xfe, 0x00]).is_err());
         assert!(parse(doc("Z_UP", "nan", TRI, scene).as_bytes()).is_err());

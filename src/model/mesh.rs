@@ -15,7 +15,11 @@ impl TriMesh {
     /// Axis-aligned bounding box `(min, max)` of the vertices, or `None` for an empty mesh.
     pub fn bounding_box(&self) -> Option<(Point3<f64>, Point3<f64>)> {
         let first = *self.vertices.first()?;
-        Some(self.vertices.iter().fold((first, first), |(lo, hi), v| (lo.inf(v), hi.sup(v))))
+        Some(
+            self.vertices
+                .iter()
+                .fold((first, first), |(lo, hi), v| (lo.inf(v), hi.sup(v))),
+        )
     }
 
     /// Whether the mesh has no triangles.
@@ -36,24 +40,38 @@ impl TriMesh {
     /// triangle winding so that it stays counter-clockwise seen from outside.
     pub fn append_transformed(&mut self, other: &TriMesh, self_from_other: &Matrix4<f64>) {
         let base = self.vertices.len() as u32;
-        self.vertices.extend(other.vertices.iter().map(|v| self_from_other.transform_point(v)));
+        self.vertices.extend(
+            other
+                .vertices
+                .iter()
+                .map(|v| self_from_other.transform_point(v)),
+        );
         let mirrored = self_from_other.fixed_view::<3, 3>(0, 0).determinant() < 0.0;
-        self.triangles.extend(other.triangles.iter().map(|&[a, b, c]| {
-            if mirrored {
-                [base + a, base + c, base + b]
-            } else {
-                [base + a, base + b, base + c]
-            }
-        }));
+        self.triangles
+            .extend(other.triangles.iter().map(|&[a, b, c]| {
+                if mirrored {
+                    [base + a, base + c, base + b]
+                } else {
+                    [base + a, base + b, base + c]
+                }
+            }));
     }
 
     /// Checks that every index is in range and every vertex is finite.
     pub fn validate(&self) -> Result<(), String> {
-        if let Some(v) = self.vertices.iter().find(|v| !v.coords.iter().all(|c| c.is_finite())) {
+        if let Some(v) = self
+            .vertices
+            .iter()
+            .find(|v| !v.coords.iter().all(|c| c.is_finite()))
+        {
             return Err(format!("non-finite vertex {v}"));
         }
         let n = self.vertices.len();
-        if let Some(t) = self.triangles.iter().find(|t| t.iter().any(|&i| i as usize >= n)) {
+        if let Some(t) = self
+            .triangles
+            .iter()
+            .find(|t| t.iter().any(|&i| i as usize >= n))
+        {
             return Err(format!("triangle {t:?} indexes past the {n} vertices"));
         }
         Ok(())

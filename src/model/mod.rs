@@ -75,7 +75,9 @@ pub enum ModelError {
         source: std::io::Error,
     },
     /// The URDF is not valid (XML, structure, numbers, tree).
-    #[error("malformed URDF {path}: {reason}; fix the file (a plain URDF, xacro already expanded)")]
+    #[error(
+        "malformed URDF {path}: {reason}; fix the file (a plain URDF, xacro already expanded)"
+    )]
     MalformedUrdf {
         /// The URDF file.
         path: PathBuf,
@@ -162,8 +164,14 @@ pub enum ModelError {
 #[derive(Debug, Clone, Copy)]
 enum Motion {
     Fixed,
-    Revolute { axis: Unit<Vector3<f64>>, q: QSource },
-    Prismatic { axis: Unit<Vector3<f64>>, q: QSource },
+    Revolute {
+        axis: Unit<Vector3<f64>>,
+        q: QSource,
+    },
+    Prismatic {
+        axis: Unit<Vector3<f64>>,
+        q: QSource,
+    },
 }
 
 /// Where a movable joint's value comes from.
@@ -172,7 +180,11 @@ enum QSource {
     /// Index into the chain joint vector.
     Chain(usize),
     /// `multiplier · q[index] + offset` (URDF `<mimic>` of a chain joint).
-    Mimic { index: usize, multiplier: f64, offset: f64 },
+    Mimic {
+        index: usize,
+        multiplier: f64,
+        offset: f64,
+    },
     /// Not in the chain: held at zero.
     Zero,
 }
@@ -181,7 +193,11 @@ impl QSource {
     fn value(self, q: &[f64]) -> f64 {
         match self {
             QSource::Chain(i) => q[i],
-            QSource::Mimic { index, multiplier, offset } => multiplier * q[index] + offset,
+            QSource::Mimic {
+                index,
+                multiplier,
+                offset,
+            } => multiplier * q[index] + offset,
             QSource::Zero => 0.0,
         }
     }
@@ -216,12 +232,18 @@ pub struct RobotModel {
 fn pose_to_isometry(p: &urdf_rs::Pose) -> Isometry3<f64> {
     let [x, y, z] = p.xyz.0;
     let [r, pi, yaw] = p.rpy.0;
-    Isometry3::from_parts(Translation3::new(x, y, z), UnitQuaternion::from_euler_angles(r, pi, yaw))
+    Isometry3::from_parts(
+        Translation3::new(x, y, z),
+        UnitQuaternion::from_euler_angles(r, pi, yaw),
+    )
 }
 
 fn pose_is_finite(p: &urdf_rs::Pose) -> bool {
     p.xyz.0.iter().chain(p.rpy.0.iter()).all(|v| v.is_finite())
 }
+
+/// Tessellates a primitive from its dimensions.
+type Tessellate = fn(&[f64]) -> TriMesh;
 
 /// One geometry element to build: which link, which kind, and what.
 struct Element<'r> {
@@ -234,9 +256,14 @@ struct Element<'r> {
 impl RobotModel {
     /// Loads a URDF and all its meshes (visual and collision).
     pub fn load(urdf_path: &Path) -> Result<Self, ModelError> {
-        let text = std::fs::read_to_string(urdf_path)
-            .map_err(|source| ModelError::ReadUrdf { path: urdf_path.to_path_buf(), source })?;
-        let malformed = |reason: String| ModelError::MalformedUrdf { path: urdf_path.to_path_buf(), reason };
+        let text = std::fs::read_to_string(urdf_path).map_err(|source| ModelError::ReadUrdf {
+            path: urdf_path.to_path_buf(),
+            source,
+        })?;
+        let malformed = |reason: String| ModelError::MalformedUrdf {
+            path: urdf_path.to_path_buf(),
+            reason,
+        };
         let robot = urdf_rs::read_from_string(&text).map_err(|e| malformed(e.to_string()))?;
         let mut model = Self::from_urdf(&robot, urdf_path).map_err(malformed)?;
         let base_dir = urdf_path.parent().unwrap_or(Path::new("."));
@@ -257,7 +284,10 @@ impl RobotModel {
             }
         }
         let find = |name: &str, joint: &str| {
-            link_index.get(name).copied().ok_or_else(|| format!("joint `{joint}` names unknown link `{name}`"))
+            link_index
+                .get(name)
+                .copied()
+                .ok_or_else(|| format!("joint `{joint}` names unknown link `{name}`"))
         };
         // Parent joint of each link.
         let mut parent_joint: Vec<Option<usize>> = vec![None; link_names.len()];
@@ -266,20 +296,28 @@ impl RobotModel {
             let p = find(&joint.parent.link, &joint.name)?;
             let c = find(&joint.child.link, &joint.name)?;
             if parent_joint[c].replace(j).is_some() {
-                return Err(format!("link `{}` is the child of two joints", joint.child.link));
+                return Err(format!(
+                    "link `{}` is the child of two joints",
+                    joint.child.link
+                ));
             }
             kids[p].push(c);
             if !pose_is_finite(&joint.origin) {
                 return Err(format!("joint `{}` has a non-finite <origin>", joint.name));
             }
         }
-        let roots: Vec<usize> = (0..link_names.len()).filter(|&i| parent_joint[i].is_none()).collect();
+        let roots: Vec<usize> = (0..link_names.len())
+            .filter(|&i| parent_joint[i].is_none())
+            .collect();
         let root = match roots.as_slice() {
             [r] => *r,
             [] => return Err("no root link (the joints form a cycle)".into()),
             _ => {
                 let names: Vec<&str> = roots.iter().map(|&r| link_names[r].as_str()).collect();
-                return Err(format!("several root links ({}); join them with fixed joints", names.join(", ")));
+                return Err(format!(
+                    "several root links ({}); join them with fixed joints",
+                    names.join(", ")
+                ));
             }
         };
         // Breadth-first order from the root; links not reached sit on a cycle.
@@ -297,7 +335,9 @@ impl RobotModel {
             parent_joint[l].is_some_and(|j| {
                 matches!(
                     robot.joints[j].joint_type,
-                    urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous | urdf_rs::JointType::Prismatic
+                    urdf_rs::JointType::Revolute
+                        | urdf_rs::JointType::Continuous
+                        | urdf_rs::JointType::Prismatic
                 )
             })
         };
@@ -333,7 +373,11 @@ impl RobotModel {
             l = link_index[&robot.joints[j].parent.link];
         }
         chain_links.reverse();
-        let chain_slot: HashMap<usize, usize> = chain_links.iter().enumerate().map(|(i, &l)| (l, i)).collect();
+        let chain_slot: HashMap<usize, usize> = chain_links
+            .iter()
+            .enumerate()
+            .map(|(i, &l)| (l, i))
+            .collect();
         let joint_slot: HashMap<&str, usize> = chain_links
             .iter()
             .enumerate()
@@ -352,15 +396,22 @@ impl RobotModel {
                 (lim.lower, lim.upper)
             };
             if lower.is_nan() || upper.is_nan() || lower > upper {
-                return Err(format!("joint `{}` has limits lower {lower} > upper {upper}", joint.name));
+                return Err(format!(
+                    "joint `{}` has limits lower {lower} > upper {upper}",
+                    joint.name
+                ));
             }
             joint_names.push(joint.name.clone());
-            joint_limits.push(JointLimit { lower, upper, velocity: lim.velocity });
+            joint_limits.push(JointLimit {
+                lower,
+                upper,
+                velocity: lim.velocity,
+            });
         }
 
         let mut links = Vec::with_capacity(link_names.len());
-        for l in 0..link_names.len() {
-            let Some(j) = parent_joint[l] else {
+        for (l, &parent) in parent_joint.iter().enumerate() {
+            let Some(j) = parent else {
                 links.push(LinkNode {
                     parent: None,
                     parent_from_joint: Isometry3::identity(),
@@ -386,10 +437,14 @@ impl RobotModel {
                 let v = Vector3::from(joint.axis.xyz.0);
                 Unit::try_new(v, 1e-9)
                     .filter(|a| a.iter().all(|c| c.is_finite()))
-                    .ok_or_else(|| format!("joint `{}` has an invalid <axis xyz=\"{v:?}\">", joint.name))
+                    .ok_or_else(|| {
+                        format!("joint `{}` has an invalid <axis xyz=\"{v:?}\">", joint.name)
+                    })
             };
             let motion = match joint.joint_type {
-                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => Motion::Revolute { axis: axis()?, q },
+                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => {
+                    Motion::Revolute { axis: axis()?, q }
+                }
                 urdf_rs::JointType::Prismatic => Motion::Prismatic { axis: axis()?, q },
                 // Floating, planar and spherical joints are held at their zero position.
                 _ => Motion::Fixed,
@@ -403,7 +458,8 @@ impl RobotModel {
         }
         for &l in &order {
             if let Some(p) = links[l].parent {
-                links[l].chain_depth = links[p].chain_depth + usize::from(chain_slot.contains_key(&l));
+                links[l].chain_depth =
+                    links[p].chain_depth + usize::from(chain_slot.contains_key(&l));
             }
         }
 
@@ -427,10 +483,20 @@ impl RobotModel {
         let mut elements = Vec::new();
         for (l, link) in robot.links.iter().enumerate() {
             for v in &link.visual {
-                elements.push(Element { link: l, kind: GeometryKind::Visual, origin: &v.origin, geometry: &v.geometry });
+                elements.push(Element {
+                    link: l,
+                    kind: GeometryKind::Visual,
+                    origin: &v.origin,
+                    geometry: &v.geometry,
+                });
             }
             for c in &link.collision {
-                elements.push(Element { link: l, kind: GeometryKind::Collision, origin: &c.origin, geometry: &c.geometry });
+                elements.push(Element {
+                    link: l,
+                    kind: GeometryKind::Collision,
+                    origin: &c.origin,
+                    geometry: &c.geometry,
+                });
             }
         }
         // Each distinct mesh file once, in parallel.
@@ -451,9 +517,14 @@ impl RobotModel {
         let mut merged: HashMap<(usize, GeometryKind), TriMesh> = HashMap::new();
         for e in &elements {
             let link = &self.link_names[e.link];
-            let bad = |reason: String| ModelError::MalformedUrdf { path: self.urdf_path.clone(), reason };
+            let bad = |reason: String| ModelError::MalformedUrdf {
+                path: self.urdf_path.clone(),
+                reason,
+            };
             if !pose_is_finite(e.origin) {
-                return Err(bad(format!("a geometry <origin> of link `{link}` is not finite")));
+                return Err(bad(format!(
+                    "a geometry <origin> of link `{link}` is not finite"
+                )));
             }
             let link_from_geometry = pose_to_isometry(e.origin).to_homogeneous();
             let out = merged.entry((e.link, e.kind)).or_default();
@@ -462,7 +533,9 @@ impl RobotModel {
                     let path = resolve_mesh_path(filename, base_dir, link)?;
                     let s = scale.as_ref().map_or([1.0; 3], |s| s.0);
                     if !s.iter().all(|v| v.is_finite() && *v != 0.0) {
-                        return Err(bad(format!("mesh scale {s:?} of link `{link}` is not finite and non-zero")));
+                        return Err(bad(format!(
+                            "mesh scale {s:?} of link `{link}` is not finite and non-zero"
+                        )));
                     }
                     let m = link_from_geometry * Matrix4::new_nonuniform_scaling(&Vector3::from(s));
                     if let Some(mesh) = meshes.get(&path) {
@@ -470,31 +543,43 @@ impl RobotModel {
                     }
                 }
                 primitive => {
-                    let (dims, mesh): (Vec<f64>, fn(&[f64]) -> TriMesh) = match primitive {
-                        urdf_rs::Geometry::Box { size } => (size.0.to_vec(), |d| primitives::cuboid([d[0], d[1], d[2]])),
+                    let (dims, mesh): (Vec<f64>, Tessellate) = match primitive {
+                        urdf_rs::Geometry::Box { size } => {
+                            (size.0.to_vec(), |d| primitives::cuboid([d[0], d[1], d[2]]))
+                        }
                         urdf_rs::Geometry::Cylinder { radius, length } => {
                             (vec![*radius, *length], |d| primitives::cylinder(d[0], d[1]))
                         }
                         urdf_rs::Geometry::Capsule { radius, length } => {
                             (vec![*radius, *length], |d| primitives::capsule(d[0], d[1]))
                         }
-                        urdf_rs::Geometry::Sphere { radius } => (vec![*radius], |d| primitives::sphere(d[0])),
+                        urdf_rs::Geometry::Sphere { radius } => {
+                            (vec![*radius], |d| primitives::sphere(d[0]))
+                        }
                         urdf_rs::Geometry::Mesh { .. } => continue,
                     };
                     if !dims.iter().all(|v| v.is_finite() && *v >= 0.0) {
                         return Err(bad(format!("geometry {primitive:?} of link `{link}` has a negative or non-finite size")));
                     }
                     // Zero-size placeholders (`<box size="0 0 0">`, as in the Elite URDFs) add nothing.
-                    if dims.iter().all(|v| *v > 0.0) || matches!(primitive, urdf_rs::Geometry::Capsule { .. } if dims[0] > 0.0) {
+                    if dims.iter().all(|v| *v > 0.0)
+                        || matches!(primitive, urdf_rs::Geometry::Capsule { .. } if dims[0] > 0.0)
+                    {
                         out.append_transformed(&mesh(&dims), &link_from_geometry);
                     }
                 }
             }
         }
         for l in 0..self.link_names.len() {
-            for (kind, list) in [(GeometryKind::Visual, &mut self.visual), (GeometryKind::Collision, &mut self.collision)] {
+            for (kind, list) in [
+                (GeometryKind::Visual, &mut self.visual),
+                (GeometryKind::Collision, &mut self.collision),
+            ] {
                 if let Some(mesh) = merged.remove(&(l, kind)).filter(|m| !m.is_empty()) {
-                    list.push(LinkGeometry { link: self.link_names[l].clone(), mesh: Arc::new(mesh) });
+                    list.push(LinkGeometry {
+                        link: self.link_names[l].clone(),
+                        mesh: Arc::new(mesh),
+                    });
                 }
             }
         }
@@ -547,7 +632,9 @@ impl RobotModel {
     /// Number of chain joints between the root and `link` (base links 0, shoulder 1, upper
     /// arm 2, …), or `None` for an unknown link.
     pub fn chain_depth(&self, link: &str) -> Option<usize> {
-        self.link_index.get(link).map(|&l| self.links[l].chain_depth)
+        self.link_index
+            .get(link)
+            .map(|&l| self.links[l].chain_depth)
     }
 
     fn check_q(&self, q: &[f64]) -> Result<(), ModelError> {
@@ -560,7 +647,11 @@ impl RobotModel {
             });
         }
         if let Some((index, &value)) = q.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-            return Err(ModelError::NonFiniteJoint { index, joint: self.joint_names[index].clone(), value });
+            return Err(ModelError::NonFiniteJoint {
+                index,
+                joint: self.joint_names[index].clone(),
+                value,
+            });
         }
         Ok(())
     }
@@ -575,12 +666,14 @@ impl RobotModel {
             let Some(p) = node.parent else { continue };
             let motion = match node.motion {
                 Motion::Fixed => Isometry3::identity(),
-                Motion::Revolute { axis, q: s } => {
-                    Isometry3::from_parts(Translation3::identity(), UnitQuaternion::from_axis_angle(&axis, s.value(q)))
-                }
-                Motion::Prismatic { axis, q: s } => {
-                    Isometry3::from_parts(Translation3::from(axis.into_inner() * s.value(q)), UnitQuaternion::identity())
-                }
+                Motion::Revolute { axis, q: s } => Isometry3::from_parts(
+                    Translation3::identity(),
+                    UnitQuaternion::from_axis_angle(&axis, s.value(q)),
+                ),
+                Motion::Prismatic { axis, q: s } => Isometry3::from_parts(
+                    Translation3::from(axis.into_inner() * s.value(q)),
+                    UnitQuaternion::identity(),
+                ),
             };
             poses[l] = poses[p] * node.parent_from_joint * motion;
         }
@@ -609,19 +702,32 @@ impl RobotModel {
             .iter()
             .map(|n| {
                 let lower = n.to_ascii_lowercase();
-                let d = if lower.contains(&wanted) || wanted.contains(&lower) { 0 } else { edit_distance(&wanted, &lower) };
+                let d = if lower.contains(&wanted) || wanted.contains(&lower) {
+                    0
+                } else {
+                    edit_distance(&wanted, &lower)
+                };
                 (d, n.as_str())
             })
             .collect();
         scored.sort();
         let limit = (wanted.len() / 2).max(2);
-        let close: Vec<&str> = scored.iter().filter(|(d, _)| *d <= limit).take(5).map(|(_, n)| *n).collect();
+        let close: Vec<&str> = scored
+            .iter()
+            .filter(|(d, _)| *d <= limit)
+            .take(5)
+            .map(|(_, n)| *n)
+            .collect();
         let hint = if close.is_empty() {
             format!("the frames are the links: {}", self.link_names.join(", "))
         } else {
             format!("did you mean {}?", close.join(", "))
         };
-        ModelError::UnknownFrame { name: frame.to_string(), robot: self.name.clone(), hint }
+        ModelError::UnknownFrame {
+            name: frame.to_string(),
+            robot: self.name.clone(),
+            hint,
+        }
     }
 
     /// Geometry of one kind: one entry per link that has any, in link order, vertices in the
@@ -640,13 +746,21 @@ impl RobotModel {
         kind: GeometryKind,
     ) -> Result<Vec<(Isometry3<f64>, &LinkGeometry)>, ModelError> {
         let poses = self.link_poses(q)?;
-        Ok(self.geometry(kind).iter().map(|g| (poses[self.link_index[&g.link]], g)).collect())
+        Ok(self
+            .geometry(kind)
+            .iter()
+            .map(|g| (poses[self.link_index[&g.link]], g))
+            .collect())
     }
 
     /// The Universal Robots model, detected from the robot name, else the URDF file name
     /// (`ur5e`, `UR10e_robot`, …; whole tokens only).
     pub fn ur_model(&self) -> Option<UrModel> {
-        let stem = self.urdf_path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+        let stem = self
+            .urdf_path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or("");
         detect_ur(&self.name).or_else(|| detect_ur(stem))
     }
 }
@@ -662,7 +776,8 @@ fn detect_ur(text: &str) -> Option<UrModel> {
         lower.match_indices(m.name()).any(|(i, s)| {
             let before = i.checked_sub(1).map(|k| bytes[k]);
             let after = bytes.get(i + s.len()).copied();
-            !before.is_some_and(|b| b.is_ascii_alphanumeric()) && !after.is_some_and(|b| b.is_ascii_alphanumeric())
+            !before.is_some_and(|b| b.is_ascii_alphanumeric())
+                && !after.is_some_and(|b| b.is_ascii_alphanumeric())
         })
     })
 }
@@ -686,24 +801,42 @@ fn edit_distance(a: &str, b: &str) -> usize {
 fn resolve_mesh_path(filename: &str, base_dir: &Path, link: &str) -> Result<PathBuf, ModelError> {
     let path = filename.strip_prefix("file://").unwrap_or(filename);
     if path.contains("://") {
-        return Err(ModelError::UnsupportedMeshUri { link: link.to_string(), uri: filename.to_string() });
+        return Err(ModelError::UnsupportedMeshUri {
+            link: link.to_string(),
+            uri: filename.to_string(),
+        });
     }
     let path = Path::new(path);
-    Ok(if path.is_absolute() { path.to_path_buf() } else { base_dir.join(path) })
+    Ok(if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        base_dir.join(path)
+    })
 }
 
 /// Reads one mesh file in its own coordinates (no URDF origin or scale yet).
 fn read_mesh(path: &Path, link: &str) -> Result<TriMesh, ModelError> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
     if !matches!(ext.as_str(), "stl" | "obj" | "dae") {
-        return Err(ModelError::UnsupportedMeshFormat { link: link.to_string(), path: path.to_path_buf() });
+        return Err(ModelError::UnsupportedMeshFormat {
+            link: link.to_string(),
+            path: path.to_path_buf(),
+        });
     }
     let bytes = std::fs::read(path).map_err(|e| ModelError::MissingMesh {
         link: link.to_string(),
         path: path.to_path_buf(),
         reason: e.to_string(),
     })?;
-    let malformed = |reason: String| ModelError::MalformedMesh { link: link.to_string(), path: path.to_path_buf(), reason };
+    let malformed = |reason: String| ModelError::MalformedMesh {
+        link: link.to_string(),
+        path: path.to_path_buf(),
+        reason,
+    };
     let mesh = match ext.as_str() {
         "dae" => collada::parse(&bytes).map_err(malformed)?,
         _ => {
@@ -726,8 +859,13 @@ fn from_scene(scene: &mesh_loader::Scene) -> Result<TriMesh, String> {
     let mut out = TriMesh::default();
     for m in &scene.meshes {
         let base = u32::try_from(out.vertices.len()).map_err(|_| "too many vertices")?;
-        out.vertices.extend(m.vertices.iter().map(|v| nalgebra::Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))));
-        out.triangles.extend(m.faces.iter().map(|f| f.map(|i| base.saturating_add(i))));
+        out.vertices.extend(
+            m.vertices
+                .iter()
+                .map(|v| nalgebra::Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))),
+        );
+        out.triangles
+            .extend(m.faces.iter().map(|f| f.map(|i| base.saturating_add(i))));
     }
     out.validate()?;
     Ok(out)

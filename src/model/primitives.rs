@@ -30,8 +30,14 @@ pub(crate) fn cuboid(size: [f64; 3]) -> TriMesh {
         [0, 4, 6, 2], // -x
         [1, 3, 7, 5], // +x
     ];
-    let triangles = quads.iter().flat_map(|&[a, b, c, d]| [[a, b, c], [a, c, d]]).collect();
-    TriMesh { vertices, triangles }
+    let triangles = quads
+        .iter()
+        .flat_map(|&[a, b, c, d]| [[a, b, c], [a, c, d]])
+        .collect();
+    TriMesh {
+        vertices,
+        triangles,
+    }
 }
 
 /// A closed cylinder of `radius` and `length` along z, centred on the origin.
@@ -120,7 +126,9 @@ mod tests {
         let c = cylinder(0.05, 0.2);
         assert!(rel_err(c.signed_volume(), PI * 0.05 * 0.05 * 0.2) < 0.01);
         let (lo, hi) = c.bounding_box().expect("cylinder");
-        assert!((lo.z + 0.1).abs() < 1e-12 && (hi.z - 0.1).abs() < 1e-12 && (hi.x - 0.05).abs() < 1e-12);
+        assert!(
+            (lo.z + 0.1).abs() < 1e-12 && (hi.z - 0.1).abs() < 1e-12 && (hi.x - 0.05).abs() < 1e-12
+        );
 
         let s = sphere(0.1);
         assert!(rel_err(s.signed_volume(), 4.0 / 3.0 * PI * 1e-3) < 0.03);
