@@ -1,7 +1,7 @@
 //! The robot model: URDF, meshes (visual and collision), forward kinematics, joint limits.
 //!
 //! [`RobotModel::load`] reads a URDF with `urdf-rs`, its STL and OBJ meshes with `mesh-loader`
-//! and its Collada meshes with our own reader ([`collada`], because mesh-loader 0.1.13 composes
+//! and its Collada meshes with our own reader (module `collada`, because mesh-loader 0.1.13 composes
 //! nested Collada transforms in the wrong order). Mesh paths are relative to the URDF file, or
 //! absolute; `package://` URIs are rejected (expand them first). Every mesh is returned in the
 //! frame of the link that carries it, with the URDF `<origin>` and `<mesh scale>` applied.
@@ -627,6 +627,12 @@ impl RobotModel {
     /// Every link, in URDF document order.
     pub fn link_names(&self) -> &[String] {
         &self.link_names
+    }
+
+    /// Position of `link` in [`link_names`](Self::link_names) (and in
+    /// [`link_poses`](Self::link_poses)), or `None` for an unknown link.
+    pub fn link_index(&self, link: &str) -> Option<usize> {
+        self.link_index.get(link).copied()
     }
 
     /// Number of chain joints between the root and `link` (base links 0, shoulder 1, upper

@@ -319,6 +319,8 @@ fn ur5e_joints_limits_depths_and_errors() {
         assert_eq!(m.chain_depth(link), Some(depth), "{link}");
     }
     assert_eq!(m.chain_depth("nope"), None);
+    let tool0 = m.link_index("tool0").expect("tool0");
+    assert_eq!(m.link_names()[tool0], "tool0");
     assert_eq!(
         m.link_poses(&[0.0; 6]).expect("poses").len(),
         m.link_names().len()
