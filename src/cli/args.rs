@@ -18,13 +18,17 @@ pub(crate) fn parse_pose(s: &str) -> Result<Isometry3<f64>, String> {
     ))
 }
 
+/// Joint angles in radians from one command-line value (`q1,q2,...`).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct JointList(pub(crate) Vec<f64>);
+
 /// Parses comma-separated joint angles in radians.
-pub(crate) fn parse_joints(s: &str) -> Result<Vec<f64>, String> {
+pub(crate) fn parse_joints(s: &str) -> Result<JointList, String> {
     let v = parse_numbers(s)?;
     if v.is_empty() {
         return Err("expected comma-separated joint angles in radians".into());
     }
-    Ok(v)
+    Ok(JointList(v))
 }
 
 fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
@@ -62,6 +66,6 @@ mod tests {
         assert!(parse_pose("1,2,3").unwrap_err().contains("expected 6"));
         assert!(parse_pose("1,2,3,4,5,x").unwrap_err().contains("`x`"));
         assert!(parse_joints("0,nan").is_err());
-        assert_eq!(parse_joints("0,1.5").expect("valid"), vec![0.0, 1.5]);
+        assert_eq!(parse_joints("0,1.5").expect("valid").0, vec![0.0, 1.5]);
     }
 }
