@@ -26,7 +26,6 @@ use super::verify::{evidence, score, Tolerances};
 pub(crate) struct Plane {
     pub(crate) n: Vector3<f64>,
     pub(crate) d: f64,
-    pub(crate) support: usize,
 }
 
 /// A scan point with its grid normal (camera frame).
@@ -37,9 +36,19 @@ pub(crate) struct Oriented {
 }
 
 /// Scan points on a coarse grid (about `target` of them) with normals over `radius_m`.
-pub(crate) fn oriented_subsample(range: &RangeImage<'_>, target: usize, radius_m: f64) -> Vec<Oriented> {
+pub(crate) fn oriented_subsample(
+    range: &RangeImage<'_>,
+    target: usize,
+    radius_m: f64,
+) -> Vec<Oriented> {
     let n = range.points.len();
-    let valid = range.points.iter().step_by(97).filter(|p| p.z > 0.0).count() * 97;
+    let valid = range
+        .points
+        .iter()
+        .step_by(97)
+        .filter(|p| p.z > 0.0)
+        .count()
+        * 97;
     let stride = ((valid as f64 / target as f64).sqrt().floor() as usize).max(1);
     let w = range.cam.width;
     let idx: Vec<usize> = (0..range.cam.height)
@@ -51,13 +60,21 @@ pub(crate) fn oriented_subsample(range: &RangeImage<'_>, target: usize, radius_m
         .filter_map(|&i| {
             let p = range.point(i)?;
             let nn = range.normal(i, radius_m)?;
-            Some(Oriented { p: p.cast::<f64>(), n: nn })
+            Some(Oriented {
+                p: p.cast::<f64>(),
+                n: nn,
+            })
         })
         .collect()
 }
 
 /// Up to `max_planes` dominant planes, each supported by at least `min_fraction` of `pts`.
-pub(crate) fn find_planes(pts: &[Oriented], max_planes: usize, min_fraction: f64, seed: u64) -> Vec<Plane> {
+pub(crate) fn find_planes(
+    pts: &[Oriented],
+    max_planes: usize,
+    min_fraction: f64,
+    seed: u64,
+) -> Vec<Plane> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let mut remaining: Vec<usize> = (0..pts.len()).collect();
     let mut planes = Vec::new();
@@ -67,8 +84,9 @@ pub(crate) fn find_planes(pts: &[Oriented], max_planes: usize, min_fraction: f64
         if remaining.len() < 100 {
             break;
         }
-        let probe: Vec<usize> =
-            (0..1500).map(|_| remaining[rng.random_range(0..remaining.len())]).collect();
+        let probe: Vec<usize> = (0..1500)
+            .map(|_| remaining[rng.random_range(0..remaining.len())])
+            .collect();
         let mut best: Option<(usize, Vector3<f64>, f64)> = None;
         for _ in 0..150 {
             let s = &pts[remaining[rng.random_range(0..remaining.len())]];
@@ -91,12 +109,18 @@ pub(crate) fn find_planes(pts: &[Oriented], max_planes: usize, min_fraction: f64
             inliers = remaining
                 .iter()
                 .copied()
-                .filter(|&k| (n.dot(&pts[k].p.coords) + d).abs() < tol && n.dot(&pts[k].n) > cos_tol)
+                .filter(|&k| {
+                    (n.dot(&pts[k].p.coords) + d).abs() < tol && n.dot(&pts[k].n) > cos_tol
+                })
                 .collect::<Vec<_>>();
             if inliers.len() < 3 {
                 break;
             }
-            let c = inliers.iter().map(|&k| pts[k].p.coords).sum::<Vector3<f64>>() / inliers.len() as f64;
+            let c = inliers
+                .iter()
+                .map(|&k| pts[k].p.coords)
+                .sum::<Vector3<f64>>()
+                / inliers.len() as f64;
             let mut cov = Matrix3::zeros();
             for &k in &inliers {
                 let r = pts[k].p.coords - c;
@@ -119,7 +143,7 @@ pub(crate) fn find_planes(pts: &[Oriented], max_planes: usize, min_fraction: f64
             n = -n;
             d = -d;
         }
-        planes.push(Plane { n, d, support: inliers.len() });
+        planes.push(Plane { n, d });
         let set: std::collections::HashSet<usize> = inliers.into_iter().collect();
         remaining.retain(|k| !set.contains(k));
     }
@@ -130,12 +154,19 @@ pub(crate) fn find_planes(pts: &[Oriented], max_planes: usize, min_fraction: f64
 /// camera (x, y arbitrary but deterministic).
 fn camera_from_plane(pl: &Plane) -> Isometry3<f64> {
     let z = pl.n;
-    let helper = if z.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+    let helper = if z.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
     let x = helper.cross(&z).normalize();
     let y = z.cross(&x);
     let rot = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
     let origin = -z * pl.d; // projection of the camera origin onto the plane
-    Isometry3::from_parts(Translation3::from(origin), UnitQuaternion::from_rotation_matrix(&rot))
+    Isometry3::from_parts(
+        Translation3::from(origin),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    )
 }
 
 /// Candidate `camera_from_model` poses, best first, from planes + Hough + yaw sweep.
@@ -148,12 +179,20 @@ pub(crate) fn hypotheses(
 ) -> Vec<(Isometry3<f64>, f64)> {
     let fit_depth = surface.fit_depth;
     // Outline of the base/shoulder in a height band (model frame: z up from the mounting face).
-    let low: Vec<&Point3<f64>> =
-        surface.samples.iter().filter(|s| s.depth <= 1).map(|s| &s.p).collect();
+    let low: Vec<&Point3<f64>> = surface
+        .samples
+        .iter()
+        .filter(|s| s.depth <= 1)
+        .map(|s| &s.p)
+        .collect();
     if low.is_empty() {
         return Vec::new();
     }
-    let ztop = low.iter().map(|p| p.z).fold(f64::NEG_INFINITY, f64::max).min(0.30);
+    let ztop = low
+        .iter()
+        .map(|p| p.z)
+        .fold(f64::NEG_INFINITY, f64::max)
+        .min(0.30);
     let band = (0.025, 0.025 + 0.6 * (ztop - 0.025).max(0.02));
     let cell = 0.005;
     let mut outline: Vec<(i64, i64)> = low
@@ -163,10 +202,16 @@ pub(crate) fn hypotheses(
         .collect();
     outline.sort_unstable();
     outline.dedup();
-    let outline: Vec<(f64, f64)> = outline.iter().map(|&(x, y)| (x as f64 * cell, y as f64 * cell)).collect();
+    let outline: Vec<(f64, f64)> = outline
+        .iter()
+        .map(|&(x, y)| (x as f64 * cell, y as f64 * cell))
+        .collect();
     let radius = outline.iter().map(|o| o.0.hypot(o.1)).fold(0.0, f64::max);
 
-    let tol = Tolerances { matched_m: 0.008, free_m: 0.015 };
+    let tol = Tolerances {
+        matched_m: 0.008,
+        free_m: 0.015,
+    };
     let mut all: Vec<(Isometry3<f64>, f64)> = Vec::new();
     for pl in planes {
         let cam_from_plane = camera_from_plane(pl);
@@ -182,7 +227,9 @@ pub(crate) fn hypotheses(
         }
         if band_pts.len() > 1500 {
             let step = band_pts.len() as f64 / 1500.0;
-            band_pts = (0..1500).map(|k| band_pts[(k as f64 * step) as usize]).collect();
+            band_pts = (0..1500)
+                .map(|k| band_pts[(k as f64 * step) as usize])
+                .collect();
         }
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
         for b in &band_pts {
@@ -200,8 +247,10 @@ pub(crate) fn hypotheses(
                 |mut acc, k| {
                     let a = 2.0 * PI * k as f64 / n_yaw as f64;
                     let (s, c) = a.sin_cos();
-                    let rotated: Vec<(f64, f64)> =
-                        outline.iter().map(|o| (c * o.0 - s * o.1, s * o.0 + c * o.1)).collect();
+                    let rotated: Vec<(f64, f64)> = outline
+                        .iter()
+                        .map(|o| (c * o.0 - s * o.1, s * o.0 + c * o.1))
+                        .collect();
                     for b in &band_pts {
                         for r in &rotated {
                             let ix = ((b.0 - r.0 - x0) / cell) as isize;
@@ -238,7 +287,10 @@ pub(crate) fn hypotheses(
         order.sort_unstable_by(|&a, &b| smooth[b].cmp(&smooth[a]));
         let mut centres: Vec<(f64, f64)> = Vec::new();
         for i in order {
-            let c = (x0 + (i % nx) as f64 * cell + 0.5 * cell, y0 + (i / nx) as f64 * cell + 0.5 * cell);
+            let c = (
+                x0 + (i % nx) as f64 * cell + 0.5 * cell,
+                y0 + (i / nx) as f64 * cell + 0.5 * cell,
+            );
             if centres.iter().all(|o| (o.0 - c.0).hypot(o.1 - c.1) > 0.04) {
                 centres.push(c);
                 if centres.len() >= 4 {
@@ -250,7 +302,9 @@ pub(crate) fn hypotheses(
         let n_sweep = 144;
         let heights = [0.0, 0.012];
         let jobs: Vec<(usize, usize, usize)> = (0..centres.len())
-            .flat_map(|c| (0..heights.len()).flat_map(move |h| (0..n_sweep).map(move |k| (c, h, k))))
+            .flat_map(|c| {
+                (0..heights.len()).flat_map(move |h| (0..n_sweep).map(move |k| (c, h, k)))
+            })
             .collect();
         let scored: Vec<(Isometry3<f64>, f64)> = jobs
             .par_iter()

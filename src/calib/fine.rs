@@ -11,7 +11,9 @@
 //! Parameters: `model_from_camera` is updated by a left perturbation `exp(δ)` in the model frame,
 //! `δ = (ρ, φ)` (metres, radians); scan points are multiplied by `κ` (true = κ · measured).
 
-use nalgebra::{Isometry3, Matrix6, Point3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Matrix6, Point3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3,
+};
 use rayon::prelude::*;
 
 use super::coarse::Oriented;
@@ -42,12 +44,12 @@ pub(crate) struct IcpResult {
     /// Information matrix of the 6 pose parameters (scale marginalised out when estimated),
     /// weighted, not yet scaled by the residual variance.
     pub(crate) info6: Matrix6<f64>,
-    /// Weighted residual variance, m².
-    pub(crate) sigma2: f64,
     /// Covariance of the 6 pose parameters (model-frame left perturbation), m² / rad².
     pub(crate) cov6: Matrix6<f64>,
-    /// Variance of `kappa` when estimated.
-    pub(crate) kappa_var: Option<f64>,
+    /// Weighted centroid of the correspondences, model frame (metres).
+    pub(crate) centroid: Point3<f64>,
+    /// RMS distance of the correspondences from their centroid, metres.
+    pub(crate) spread_m: f64,
     /// Correspondences accepted in the last iteration.
     pub(crate) n_used: usize,
     /// RMS of residuals of correspondences within 3 kernel scales, metres.
@@ -66,6 +68,9 @@ struct Acc {
     close: usize,
     r2_close: f64,
     near: usize,
+    /// Σ w·x and Σ w·|x|² of the model-frame points (centroid and spread).
+    wx: Vector3<f64>,
+    wxx: f64,
 }
 
 impl Acc {
@@ -78,6 +83,8 @@ impl Acc {
         self.close += o.close;
         self.r2_close += o.r2_close;
         self.near += o.near;
+        self.wx += o.wx;
+        self.wxx += o.wxx;
         self
     }
 }
@@ -122,6 +129,8 @@ fn accumulate(
         a.wsum = w;
         a.wr2 = w * r * r;
         a.n = 1;
+        a.wx = x.coords * w;
+        a.wxx = w * x.coords.norm_squared();
         if r.abs() < 3.0 * st.kernel_m {
             a.close = 1;
             a.r2_close = r * r;
@@ -176,7 +185,10 @@ pub(crate) fn icp(
             let delta = -chol.solve(&g);
             let rho = Vector3::new(delta[0], delta[1], delta[2]);
             let phi = Vector3::new(delta[3], delta[4], delta[5]);
-            let step = Isometry3::from_parts(Translation3::from(rho), UnitQuaternion::from_scaled_axis(phi));
+            let step = Isometry3::from_parts(
+                Translation3::from(rho),
+                UnitQuaternion::from_scaled_axis(phi),
+            );
             t = step * t;
             kappa += delta[6];
             last = Some((a, st.scale, st.kernel_m));
@@ -188,7 +200,12 @@ pub(crate) fn icp(
     }
     let (_, scaled, kernel) = last?;
     // Final information at the converged pose.
-    let st = Stage { gate_m: 3.0 * kernel.max(0.001), kernel_m: kernel, scale: scaled, iterations: 1 };
+    let st = Stage {
+        gate_m: 3.0 * kernel.max(0.001),
+        kernel_m: kernel,
+        scale: scaled,
+        iterations: 1,
+    };
     let a = accumulate(pts, surface, &t, kappa, &st);
     if a.n < 12 {
         return None;
@@ -198,22 +215,34 @@ pub(crate) fn icp(
     let h66: Matrix6<f64> = a.h.fixed_view::<6, 6>(0, 0).into_owned();
     let h6: nalgebra::Vector6<f64> = a.h.fixed_view::<6, 1>(0, 6).into_owned();
     let h77 = a.h[(6, 6)];
-    let info6 = if scaled && h77 > 0.0 { h66 - h6 * h6.transpose() / h77 } else { h66 };
-    let cov6 = info6.try_inverse().map(|m| m * sigma2).unwrap_or_else(|| Matrix6::identity() * 1e6);
-    let kappa_var = if scaled {
-        h66.try_inverse().map(|inv| sigma2 / (h77 - (h6.transpose() * inv * h6)[(0, 0)]).max(1e-30))
+    let info6 = if scaled && h77 > 0.0 {
+        h66 - h6 * h6.transpose() / h77
     } else {
-        None
+        h66
     };
+    let cov6 = info6
+        .try_inverse()
+        .map(|m| m * sigma2)
+        .unwrap_or_else(|| Matrix6::identity() * 1e6);
     Some(IcpResult {
         model_from_camera: t,
         kappa,
         info6,
-        sigma2,
         cov6,
-        kappa_var,
+        centroid: Point3::from(a.wx / a.wsum),
+        spread_m: (a.wxx / a.wsum - (a.wx / a.wsum).norm_squared())
+            .max(0.0)
+            .sqrt(),
         n_used: a.n,
-        rmse_m: if a.close > 0 { (a.r2_close / a.close as f64).sqrt() } else { f64::INFINITY },
-        inlier_fraction: if a.near > 0 { a.close as f64 / a.near as f64 } else { 0.0 },
+        rmse_m: if a.close > 0 {
+            (a.r2_close / a.close as f64).sqrt()
+        } else {
+            f64::INFINITY
+        },
+        inlier_fraction: if a.near > 0 {
+            a.close as f64 / a.near as f64
+        } else {
+            0.0
+        },
     })
 }

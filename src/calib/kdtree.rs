@@ -13,7 +13,12 @@ enum Node {
     /// Points `start..end` of the permuted arrays.
     Leaf { start: u32, end: u32 },
     /// Children at `left` and `left + 1`-th subtree index `right`.
-    Split { dim: u8, value: f32, left: u32, right: u32 },
+    Split {
+        dim: u8,
+        value: f32,
+        left: u32,
+        right: u32,
+    },
 }
 
 /// Static k-d tree; `nearest` returns the index the point had in the slice given to [`KdTree::new`].
@@ -32,8 +37,15 @@ impl KdTree {
         if !points.is_empty() {
             build(points, &mut ids, 0, &mut nodes);
         }
-        let pts = ids.iter().map(|&i| points[i as usize].coords.into()).collect();
-        KdTree { nodes, points: pts, ids }
+        let pts = ids
+            .iter()
+            .map(|&i| points[i as usize].coords.into())
+            .collect();
+        KdTree {
+            nodes,
+            points: pts,
+            ids,
+        }
     }
 
     /// Number of points in the tree.
@@ -68,9 +80,18 @@ impl KdTree {
                         }
                     }
                 }
-                Node::Split { dim, value, left, right } => {
+                Node::Split {
+                    dim,
+                    value,
+                    left,
+                    right,
+                } => {
                     let diff = q[dim as usize] - value;
-                    let (near, far) = if diff < 0.0 { (left, right) } else { (right, left) };
+                    let (near, far) = if diff < 0.0 {
+                        (left, right)
+                    } else {
+                        (right, left)
+                    };
                     let far_bound = bound.max(diff * diff);
                     if sp + 2 <= stack.len() {
                         stack[sp] = (far, far_bound);
@@ -87,7 +108,10 @@ impl KdTree {
 fn build(points: &[Point3<f32>], ids: &mut [u32], offset: usize, nodes: &mut Vec<Node>) -> u32 {
     let me = nodes.len() as u32;
     if ids.len() <= LEAF_SIZE {
-        nodes.push(Node::Leaf { start: offset as u32, end: (offset + ids.len()) as u32 });
+        nodes.push(Node::Leaf {
+            start: offset as u32,
+            end: (offset + ids.len()) as u32,
+        });
         return me;
     }
     let mut lo = [f32::INFINITY; 3];
@@ -111,7 +135,12 @@ fn build(points: &[Point3<f32>], ids: &mut [u32], offset: usize, nodes: &mut Vec
     let (l, r) = ids.split_at_mut(mid);
     let left = build(points, l, offset, nodes);
     let right = build(points, r, offset + mid, nodes);
-    nodes[me as usize] = Node::Split { dim: dim as u8, value, left, right };
+    nodes[me as usize] = Node::Split {
+        dim: dim as u8,
+        value,
+        left,
+        right,
+    };
     me
 }
 
@@ -124,12 +153,22 @@ mod tests {
     fn nearest_matches_brute_force() {
         let mut rng = rand::rngs::StdRng::seed_from_u64(7);
         let pts: Vec<Point3<f32>> = (0..5000)
-            .map(|_| Point3::new(rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>()))
+            .map(|_| {
+                Point3::new(
+                    rng.random::<f32>(),
+                    rng.random::<f32>(),
+                    rng.random::<f32>(),
+                )
+            })
             .collect();
         let tree = KdTree::new(&pts);
         assert_eq!(tree.len(), 5000);
         for _ in 0..500 {
-            let q = [rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>()];
+            let q = [
+                rng.random::<f32>(),
+                rng.random::<f32>(),
+                rng.random::<f32>(),
+            ];
             let brute = pts
                 .iter()
                 .enumerate()

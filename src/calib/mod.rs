@@ -14,18 +14,22 @@
 
 mod coarse;
 mod fine;
+pub mod gate;
 mod kdtree;
 mod range;
 pub mod register;
+pub mod solve;
 mod surface;
 mod verify;
 
 #[cfg(test)]
 pub(crate) mod testutil;
 
+pub use gate::{gate, GateThresholds, Verdict};
 pub use register::{
     register_posed, Quality, RegisterOptions, Registration, StageTimings, Uncertainty,
 };
+pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};
 pub use surface::{PosedModel, PosedPart};
 
 /// Errors of registration and solving; each message tells the operator what to do.

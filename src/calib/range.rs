@@ -54,11 +54,17 @@ impl<'a> RangeImage<'a> {
     pub(crate) fn new(scan: &'a PointCloud) -> Result<Self, CalibError> {
         let valid = scan.valid_count();
         if valid < 500 {
-            return Err(CalibError::EmptyScan { valid_points: valid });
+            return Err(CalibError::EmptyScan {
+                valid_points: valid,
+            });
         }
         if scan.is_organized() && scan.width > 1 && scan.height > 1 {
             if let Some(cam) = estimate_intrinsics(scan) {
-                return Ok(RangeImage { cam, points: Cow::Borrowed(&scan.points), organized: true });
+                return Ok(RangeImage {
+                    cam,
+                    points: Cow::Borrowed(&scan.points),
+                    organized: true,
+                });
             }
         }
         Ok(splat(scan))
@@ -148,7 +154,12 @@ fn estimate_intrinsics(scan: &PointCloud) -> Option<Pinhole> {
             if !(p.z > 1e-4 && p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
                 return None;
             }
-            Some(((i % w) as f64, (i / w) as f64, p.x as f64 / p.z as f64, p.y as f64 / p.z as f64))
+            Some((
+                (i % w) as f64,
+                (i / w) as f64,
+                p.x as f64 / p.z as f64,
+                p.y as f64 / p.z as f64,
+            ))
         })
         .collect();
     if samples.len() < 50 {
@@ -187,8 +198,14 @@ fn estimate_intrinsics(scan: &PointCloud) -> Option<Pinhole> {
         .iter()
         .filter(|s| (fx * s.2 + cx - s.0).abs() < 0.5 && (fy * s.3 + cy - s.1).abs() < 0.5)
         .count();
-    (fx > 0.0 && fy > 0.0 && good * 10 >= samples.len() * 8)
-        .then_some(Pinhole { width: w, height: h, fx, fy, cx, cy })
+    (fx > 0.0 && fy > 0.0 && good * 10 >= samples.len() * 8).then_some(Pinhole {
+        width: w,
+        height: h,
+        fx,
+        fy,
+        cx,
+        cy,
+    })
 }
 
 /// Splats an unorganized cloud into a synthetic pinhole image (nearest point per pixel).
@@ -207,7 +224,14 @@ fn splat(scan: &PointCloud) -> RangeImage<'static> {
     let f = (pts.len() as f64 / span).sqrt().clamp(10.0, 4000.0);
     let width = (((hi[0] - lo[0]) * f).ceil() as usize + 1).clamp(2, 8192);
     let height = (((hi[1] - lo[1]) * f).ceil() as usize + 1).clamp(2, 8192);
-    let cam = Pinhole { width, height, fx: f, fy: f, cx: -lo[0] * f, cy: -lo[1] * f };
+    let cam = Pinhole {
+        width,
+        height,
+        fx: f,
+        fy: f,
+        cx: -lo[0] * f,
+        cy: -lo[1] * f,
+    };
     let mut grid = vec![Point3::new(f32::NAN, f32::NAN, f32::NAN); width * height];
     for p in pts {
         if let Some(i) = cam.project(&p.cast::<f64>()) {
@@ -216,7 +240,11 @@ fn splat(scan: &PointCloud) -> RangeImage<'static> {
             }
         }
     }
-    RangeImage { cam, points: Cow::Owned(grid), organized: false }
+    RangeImage {
+        cam,
+        points: Cow::Owned(grid),
+        organized: false,
+    }
 }
 
 #[cfg(test)]
@@ -234,7 +262,13 @@ mod tests {
                 pts.push(Point3::new((a * z) as f32, (b * z) as f32, z as f32));
             }
         }
-        PointCloud { width: w, height: h, points: pts, intensity: None, confidence: None }
+        PointCloud {
+            width: w,
+            height: h,
+            points: pts,
+            intensity: None,
+            confidence: None,
+        }
     }
 
     #[test]
@@ -270,6 +304,9 @@ mod tests {
             intensity: None,
             confidence: None,
         };
-        assert!(matches!(RangeImage::new(&scan), Err(CalibError::EmptyScan { .. })));
+        assert!(matches!(
+            RangeImage::new(&scan),
+            Err(CalibError::EmptyScan { .. })
+        ));
     }
 }

@@ -79,7 +79,7 @@ impl Default for RegisterOptions {
             match_tolerance_m: 0.003,
             free_space_tolerance_m: 0.006,
             covariance_inflation: 25.0,
-            degeneracy_ratio: 2e-4,
+            degeneracy_ratio: 3e-3,
             seed: 1,
         }
     }
@@ -145,8 +145,10 @@ pub struct Registration {
     pub uncertainty: Uncertainty,
     /// Support of the result in the scan.
     pub quality: Quality,
-    /// Unit twists `(ρ, φ)` in the camera frame (rotations scaled by 0.1 m) that the visible
-    /// geometry leaves unconstrained; empty when the pose is fully determined.
+    /// Directions the visible geometry leaves unconstrained, empty when the pose is fully
+    /// determined: unit 6-vectors `(ρ, φ·L)` in camera axes, the rotation `φ` taken about the
+    /// centroid of the fitted points and scaled by their RMS spread `L` (so a pure yaw of a
+    /// round base is `(0, 0, 0, axis)`).
     pub degenerate_directions: Vec<Vector6<f64>>,
     /// Estimated depth scale of the camera (measured / true distance) when estimated.
     pub depth_scale: Option<f64>,
@@ -170,23 +172,55 @@ pub fn register_posed(
         });
     }
     let range = RangeImage::new(scan)?;
-    let surface = ModelSurface::new(model, opts.fit_chain_depth, opts.sample_spacing_m, opts.coarse_spacing_m);
+    let surface = ModelSurface::new(
+        model,
+        opts.fit_chain_depth,
+        opts.sample_spacing_m,
+        opts.coarse_spacing_m,
+    );
     if surface.coarse.is_empty() {
         return Err(CalibError::NoModelGeometry);
     }
     let pool = ScanPool::new(&range, 150_000);
-    let mut timings = StageTimings { preprocess: ms(t0), ..Default::default() };
+    let mut timings = StageTimings {
+        preprocess: ms(t0),
+        ..Default::default()
+    };
 
     let t1 = Instant::now();
     let quick_stages = [
-        Stage { gate_m: 0.03, kernel_m: 0.01, scale: false, iterations: 8 },
-        Stage { gate_m: 0.012, kernel_m: 0.004, scale: false, iterations: 6 },
-        Stage { gate_m: 0.006, kernel_m: 0.002, scale: false, iterations: 6 },
+        Stage {
+            gate_m: 0.03,
+            kernel_m: 0.01,
+            scale: false,
+            iterations: 8,
+        },
+        Stage {
+            gate_m: 0.012,
+            kernel_m: 0.004,
+            scale: false,
+            iterations: 6,
+        },
+        Stage {
+            gate_m: 0.006,
+            kernel_m: 0.002,
+            scale: false,
+            iterations: 6,
+        },
     ];
-    let quick_tol = Tolerances { matched_m: 0.004, free_m: 0.008 };
+    let quick_tol = Tolerances {
+        matched_m: 0.004,
+        free_m: 0.008,
+    };
     let polish = |camera_from_model: &Isometry3<f64>| -> Option<(Isometry3<f64>, Evidence)> {
         let pts = pool.select(&range, &surface, camera_from_model, 1500, 0.03);
-        let r = icp(&pts, &surface, &camera_from_model.inverse(), 1.0, &quick_stages)?;
+        let r = icp(
+            &pts,
+            &surface,
+            &camera_from_model.inverse(),
+            1.0,
+            &quick_stages,
+        )?;
         let pose = r.model_from_camera.inverse();
         let e = evidence(&range, &surface.coarse, &pose, surface.fit_depth, quick_tol);
         Some((pose, e))
@@ -210,7 +244,8 @@ pub fn register_posed(
         planes_found = planes.len();
         let hyps = coarse::hypotheses(&range, &surface, &pts, &planes, opts.max_hypotheses);
         n_hyp += hyps.len();
-        let polished: Vec<(Isometry3<f64>, Evidence)> = hyps.iter().filter_map(|(h, _)| polish(h)).collect();
+        let polished: Vec<(Isometry3<f64>, Evidence)> =
+            hyps.iter().filter_map(|(h, _)| polish(h)).collect();
         for (pose, e) in polished {
             if best.as_ref().is_none_or(|b| score(&e) > score(&b.1)) {
                 best = Some((pose, e));
@@ -223,7 +258,9 @@ pub fn register_posed(
             detail: format!("{planes_found} supporting planes, no pose hypothesis converged"),
         });
     };
-    if coarse_e.coverage() < opts.min_coverage_found || coarse_e.violation_fraction() > opts.max_violation_found {
+    if coarse_e.coverage() < opts.min_coverage_found
+        || coarse_e.violation_fraction() > opts.max_violation_found
+    {
         return Err(CalibError::RobotNotFound {
             detail: format!(
                 "best hypothesis covers {:.0}% of the expected surface with {:.0}% free-space violations",
@@ -236,21 +273,42 @@ pub fn register_posed(
     let t2 = Instant::now();
     let pts = pool.select(&range, &surface, &coarse_pose, opts.max_icp_points, 0.01);
     let fine_stages = [
-        Stage { gate_m: 0.01, kernel_m: 0.003, scale: false, iterations: 8 },
-        Stage { gate_m: 0.005, kernel_m: 0.0015, scale: opts.estimate_depth_scale, iterations: 10 },
-        Stage { gate_m: 0.004, kernel_m: 0.001, scale: opts.estimate_depth_scale, iterations: 15 },
+        Stage {
+            gate_m: 0.01,
+            kernel_m: 0.003,
+            scale: false,
+            iterations: 8,
+        },
+        Stage {
+            gate_m: 0.005,
+            kernel_m: 0.0015,
+            scale: opts.estimate_depth_scale,
+            iterations: 10,
+        },
+        Stage {
+            gate_m: 0.004,
+            kernel_m: 0.001,
+            scale: opts.estimate_depth_scale,
+            iterations: 15,
+        },
     ];
     let fine = icp(&pts, &surface, &coarse_pose.inverse(), 1.0, &fine_stages).ok_or_else(|| {
-        CalibError::RobotNotFound { detail: "fine alignment found too few correspondences".into() }
+        CalibError::RobotNotFound {
+            detail: "fine alignment found too few correspondences".into(),
+        }
     })?;
     timings.fine = ms(t2);
 
     let t3 = Instant::now();
     let camera_from_model = fine.model_from_camera.inverse();
     // The verification looks at the scan as measured: apply the estimated scale to the model.
-    let tol = Tolerances { matched_m: opts.match_tolerance_m, free_m: opts.free_space_tolerance_m };
+    let tol = Tolerances {
+        matched_m: opts.match_tolerance_m,
+        free_m: opts.free_space_tolerance_m,
+    };
     let e = evidence_scaled(&range, &surface, &camera_from_model, 1.0 / fine.kappa, tol);
-    let (covariance_6x6, uncertainty, degenerate_directions) = uncertainty(&fine, &camera_from_model, opts);
+    let (covariance_6x6, uncertainty, degenerate_directions) =
+        uncertainty(&fine, &camera_from_model, opts);
     timings.verify = ms(t3);
     timings.total = ms(t0);
     Ok(Registration {
@@ -288,7 +346,13 @@ fn evidence_scaled(
     tol: Tolerances,
 ) -> Evidence {
     if (s - 1.0).abs() < 1e-12 {
-        return evidence(range, &surface.samples, camera_from_model, surface.fit_depth, tol);
+        return evidence(
+            range,
+            &surface.samples,
+            camera_from_model,
+            surface.fit_depth,
+            tol,
+        );
     }
     // Scaling about the camera origin keeps rays: project the true pose, compare the measured
     // depth divided by s. Equivalent: scale the samples' camera-frame positions by s.
@@ -303,7 +367,13 @@ fn evidence_scaled(
             y
         })
         .collect();
-    evidence(range, &scaled_samples, camera_from_model, surface.fit_depth, tol)
+    evidence(
+        range,
+        &scaled_samples,
+        camera_from_model,
+        surface.fit_depth,
+        tol,
+    )
 }
 
 /// Covariance in the camera frame (inflated), its 1-σ summary and the degenerate directions.
@@ -316,27 +386,41 @@ fn uncertainty(
     let t = camera_from_model.translation.vector;
     let mut ad = Matrix6::zeros();
     ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(0, 3).copy_from(&(t.cross_matrix() * r));
+    ad.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&(t.cross_matrix() * r));
     ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
     let cov = ad * fine.cov6 * ad.transpose() * opts.covariance_inflation;
-    let tr = |k: usize| (cov[(k, k)] + cov[(k + 1, k + 1)] + cov[(k + 2, k + 2)]).max(0.0).sqrt();
-    let unc = Uncertainty { translation_mm: tr(0) * 1000.0, rotation_deg: tr(3).to_degrees() };
-    // Degeneracy: eigen-decomposition of the information with rotations scaled by L.
-    let l = 0.1;
+    let tr = |k: usize| {
+        (cov[(k, k)] + cov[(k + 1, k + 1)] + cov[(k + 2, k + 2)])
+            .max(0.0)
+            .sqrt()
+    };
+    let unc = Uncertainty {
+        translation_mm: tr(0) * 1000.0,
+        rotation_deg: tr(3).to_degrees(),
+    };
+    // Degeneracy: eigen-decomposition of the information about the correspondences' centroid
+    // c (so rotations and translations decouple), rotations scaled by their spread L.
+    // ρ = ρ' + [c]× φ maps the centred parameters to the model-origin ones.
+    let c = fine.centroid.coords;
+    let mut a = Matrix6::identity();
+    a.fixed_view_mut::<3, 3>(0, 3).copy_from(&c.cross_matrix());
+    let l = fine.spread_m.max(0.01);
     let s = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, 1.0 / l, 1.0 / l, 1.0 / l));
-    let info = s * fine.info6 * s;
+    let to_origin = a * s;
+    let info = to_origin.transpose() * fine.info6 * to_origin;
     let eig = info.symmetric_eigen();
     let lmax = eig.eigenvalues.max();
     let mut degenerate = Vec::new();
     for k in 0..6 {
         if eig.eigenvalues[k] < opts.degeneracy_ratio * lmax {
-            let v: Vector6<f64> = s * eig.eigenvectors.column(k);
-            let dc = ad * v;
-            let mut dc_scaled = dc;
-            for j in 3..6 {
-                dc_scaled[j] *= l;
-            }
-            degenerate.push(dc_scaled.normalize());
+            let v = eig.eigenvectors.column(k);
+            let mut dc = Vector6::zeros();
+            dc.fixed_rows_mut::<3>(0)
+                .copy_from(&(r * v.fixed_rows::<3>(0)));
+            dc.fixed_rows_mut::<3>(3)
+                .copy_from(&(r * v.fixed_rows::<3>(3)));
+            degenerate.push(dc.normalize());
         }
     }
     (cov, unc, degenerate)
@@ -350,7 +434,13 @@ struct ScanPool {
 
 impl ScanPool {
     fn new(range: &RangeImage<'_>, target: usize) -> ScanPool {
-        let valid = range.points.iter().step_by(31).filter(|p| p.z > 0.0).count() * 31;
+        let valid = range
+            .points
+            .iter()
+            .step_by(31)
+            .filter(|p| p.z > 0.0)
+            .count()
+            * 31;
         let stride = ((valid as f64 / target as f64).sqrt().floor() as usize).max(1);
         let w = range.cam.width;
         let idx = (0..range.cam.height)
@@ -378,7 +468,12 @@ impl ScanPool {
             .copied()
             .filter(|&i| {
                 let p = model_from_camera * range.points[i].cast::<f64>();
-                p.x >= lo.x && p.y >= lo.y && p.z >= lo.z && p.x <= hi.x && p.y <= hi.y && p.z <= hi.z
+                p.x >= lo.x
+                    && p.y >= lo.y
+                    && p.z >= lo.z
+                    && p.x <= hi.x
+                    && p.y <= hi.y
+                    && p.z <= hi.z
             })
             .collect();
         let step = (near.len() as f64 / n as f64).max(1.0);
@@ -387,7 +482,10 @@ impl ScanPool {
         while (k as usize) < near.len() {
             let i = near[k as usize];
             if let (Some(p), Some(nn)) = (range.point(i), range.normal(i, 0.003)) {
-                out.push(Oriented { p: p.cast::<f64>(), n: nn });
+                out.push(Oriented {
+                    p: p.cast::<f64>(),
+                    n: nn,
+                });
             }
             k += step;
         }
@@ -400,7 +498,11 @@ impl ModelSurface {
     pub(crate) fn fit_bounds(&self, margin_m: f64) -> (Point3<f64>, Point3<f64>) {
         let mut lo = Point3::new(f64::INFINITY, f64::INFINITY, f64::INFINITY);
         let mut hi = Point3::new(f64::NEG_INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY);
-        for s in self.coarse.iter().filter(|s| s.depth as usize <= self.fit_depth) {
+        for s in self
+            .coarse
+            .iter()
+            .filter(|s| s.depth as usize <= self.fit_depth)
+        {
             lo = lo.inf(&s.p);
             hi = hi.sup(&s.p);
         }
@@ -434,5 +536,110 @@ mod tests {
         assert!(t < 1.0 && r < 0.2, "error {t} mm {r} deg");
         assert!(reg.quality.coverage > 0.8, "{:?}", reg.quality);
         assert!(reg.degenerate_directions.is_empty());
+    }
+
+    #[test]
+    fn recovers_pose_with_prior_and_rejects_empty_scene() {
+        let q = [-0.4, -1.5, 1.2];
+        let model = toy_robot(&q);
+        let truth = look_at(Point3::new(-0.2, 0.5, 0.6), Point3::new(0.0, 0.05, 0.1));
+        let scan = render(
+            &model,
+            &truth,
+            &Scene {
+                seed: 3,
+                ..Scene::default()
+            },
+        );
+        let prior = Isometry3::new(
+            Vector3::new(0.01, -0.008, 0.012),
+            Vector3::new(0.02, -0.03, 0.04),
+        ) * truth;
+        let reg =
+            register_posed(&scan, &model, Some(prior), &RegisterOptions::default()).expect("found");
+        assert!(reg.quality.from_prior);
+        let (t, r) = errors(&reg.camera_from_model, &truth);
+        assert!(t < 1.0 && r < 0.2, "error {t} mm {r} deg");
+
+        // A floor and nothing else: not found, with or without a prior.
+        let empty = render(&PosedModel::default(), &truth, &Scene::default());
+        let e = register_posed(&empty, &model, None, &RegisterOptions::default());
+        assert!(matches!(e, Err(CalibError::RobotNotFound { .. })), "{e:?}");
+        let e = register_posed(&empty, &model, Some(truth), &RegisterOptions::default());
+        assert!(matches!(e, Err(CalibError::RobotNotFound { .. })), "{e:?}");
+    }
+
+    #[test]
+    fn wrong_prior_is_recovered_by_the_global_search() {
+        let q = [0.3, -1.0, 0.8];
+        let model = toy_robot(&q);
+        let truth = look_at(Point3::new(0.5, 0.3, 0.5), Point3::new(0.0, 0.0, 0.1));
+        let scan = render(
+            &model,
+            &truth,
+            &Scene {
+                seed: 4,
+                ..Scene::default()
+            },
+        );
+        // 90° of yaw and 10 cm off: the prior cannot be refined into the right pose.
+        let wrong = truth * Isometry3::new(Vector3::new(0.1, 0.0, 0.0), Vector3::z() * 1.57);
+        let reg =
+            register_posed(&scan, &model, Some(wrong), &RegisterOptions::default()).expect("found");
+        assert!(!reg.quality.from_prior);
+        let (t, r) = errors(&reg.camera_from_model, &truth);
+        assert!(t < 1.0 && r < 0.2, "error {t} mm {r} deg");
+    }
+
+    #[test]
+    fn covariance_shrinks_with_points_and_round_base_is_degenerate() {
+        let q = [0.7, -1.2, 1.0];
+        let model = toy_robot(&q);
+        let truth = look_at(Point3::new(0.45, -0.3, 0.55), Point3::new(0.05, 0.0, 0.1));
+        let scan = render(
+            &model,
+            &truth,
+            &Scene {
+                seed: 5,
+                ..Scene::default()
+            },
+        );
+        let few = RegisterOptions {
+            max_icp_points: 1000,
+            ..RegisterOptions::default()
+        };
+        let many = RegisterOptions {
+            max_icp_points: 8000,
+            ..RegisterOptions::default()
+        };
+        let a = register_posed(&scan, &model, Some(truth), &few).expect("found");
+        let b = register_posed(&scan, &model, Some(truth), &many).expect("found");
+        assert!(b.quality.points_used > 2 * a.quality.points_used);
+        assert!(
+            b.uncertainty.translation_mm < a.uncertainty.translation_mm,
+            "{:?} {:?}",
+            a.uncertainty,
+            b.uncertainty
+        );
+        assert!(b.covariance_6x6.trace() < a.covariance_6x6.trace());
+
+        let base = base_only();
+        let scan = render(
+            &base,
+            &truth,
+            &Scene {
+                seed: 6,
+                ..Scene::default()
+            },
+        );
+        let reg =
+            register_posed(&scan, &base, Some(truth), &RegisterOptions::default()).expect("found");
+        // The free direction is a rotation about the base axis (model z) seen in the camera.
+        let axis_cam = truth.rotation * Vector3::z();
+        let about_axis = reg.degenerate_directions.iter().any(|d| {
+            let rot = Vector3::new(d[3], d[4], d[5]);
+            rot.norm() > 0.7 && rot.normalize().dot(&axis_cam).abs() > 0.95
+        });
+        assert!(about_axis, "{:?}", reg.degenerate_directions);
     }
 }

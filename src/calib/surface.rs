@@ -119,14 +119,23 @@ impl ModelSurface {
         let mut seq = 0u64;
         for part in &model.parts {
             let fitted = part.chain_depth <= fit_depth;
-            let area_per_sample = if fitted { spacing_m * spacing_m } else { 4.0 * spacing_m * spacing_m };
+            let area_per_sample = if fitted {
+                spacing_m * spacing_m
+            } else {
+                4.0 * spacing_m * spacing_m
+            };
             let area_per_coarse = coarse_spacing_m * coarse_spacing_m;
             let depth = part.chain_depth.min(255) as u8;
             let (mut acc, mut acc_c) = (0.5, 0.5);
             for t in &part.mesh.triangles {
                 let Some([a, b, c]) = t
                     .iter()
-                    .map(|&i| part.mesh.vertices.get(i as usize).map(|v| part.model_from_link * v))
+                    .map(|&i| {
+                        part.mesh
+                            .vertices
+                            .get(i as usize)
+                            .map(|v| part.model_from_link * v)
+                    })
                     .collect::<Option<Vec<_>>>()
                     .and_then(|v| <[Point3<f64>; 3]>::try_from(v).ok())
                 else {
@@ -146,7 +155,8 @@ impl ModelSurface {
                     while *count >= 1.0 {
                         *count -= 1.0;
                         seq += 1;
-                        let (mut r1, mut r2) = ((seq as f64 * g1).fract(), (seq as f64 * g2).fract());
+                        let (mut r1, mut r2) =
+                            ((seq as f64 * g1).fract(), (seq as f64 * g2).fract());
                         if r1 + r2 > 1.0 {
                             r1 = 1.0 - r1;
                             r2 = 1.0 - r2;
@@ -163,7 +173,13 @@ impl ModelSurface {
         }
         let pts: Vec<Point3<f32>> = samples.iter().map(|s| s.p.cast::<f32>()).collect();
         let tree = KdTree::new(&pts);
-        ModelSurface { triangles, samples, tree, coarse, fit_depth }
+        ModelSurface {
+            triangles,
+            samples,
+            tree,
+            coarse,
+            fit_depth,
+        }
     }
 
     /// Nearest surface sample to `p` (model frame) within `max_dist_m`.

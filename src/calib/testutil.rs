@@ -64,7 +64,11 @@ fn merge(a: TriMesh, b: &TriMesh, b_pose: &Isometry3<f64>) -> TriMesh {
     let mut m = a;
     let off = m.vertices.len() as u32;
     m.vertices.extend(b.vertices.iter().map(|v| b_pose * v));
-    m.triangles.extend(b.triangles.iter().map(|t| [t[0] + off, t[1] + off, t[2] + off]));
+    m.triangles.extend(
+        b.triangles
+            .iter()
+            .map(|t| [t[0] + off, t[1] + off, t[2] + off]),
+    );
     m
 }
 
@@ -81,7 +85,10 @@ pub(crate) fn toy_robot(q: &[f64]) -> PosedModel {
         &cylinder(0.045, 0.0, 0.425, 32),
         &Isometry3::rotation(Vector3::y() * (PI / 2.0)),
     );
-    let fore = cuboid(Point3::new(0.0, -0.035, -0.035), Point3::new(0.39, 0.035, 0.035));
+    let fore = cuboid(
+        Point3::new(0.0, -0.035, -0.035),
+        Point3::new(0.39, 0.035, 0.035),
+    );
     let model_from_shoulder = Isometry3::from_parts(
         Translation3::new(0.0, 0.0, 0.1625),
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), q[0]),
@@ -122,12 +129,18 @@ pub(crate) fn base_only() -> PosedModel {
 /// `camera_from_model` for a camera at `eye` (model frame) looking at `target`.
 pub(crate) fn look_at(eye: Point3<f64>, target: Point3<f64>) -> Isometry3<f64> {
     let z = (target - eye).normalize();
-    let up = if z.cross(&Vector3::z()).norm() < 1e-3 { Vector3::x() } else { Vector3::z() };
+    let up = if z.cross(&Vector3::z()).norm() < 1e-3 {
+        Vector3::x()
+    } else {
+        Vector3::z()
+    };
     let x = z.cross(&(-up)).normalize();
     let y = z.cross(&x);
     let rot = nalgebra::Rotation3::from_basis_unchecked(&[x, y, z]);
-    let model_from_camera =
-        Isometry3::from_parts(Translation3::from(eye.coords), UnitQuaternion::from_rotation_matrix(&rot));
+    let model_from_camera = Isometry3::from_parts(
+        Translation3::from(eye.coords),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    );
     model_from_camera.inverse()
 }
 
@@ -144,18 +157,34 @@ pub(crate) struct Scene {
 
 impl Default for Scene {
     fn default() -> Self {
-        Scene { width: 320, height: 240, f: 260.0, floor: true, noise_m: 0.0003, seed: 1 }
+        Scene {
+            width: 320,
+            height: 240,
+            f: 260.0,
+            floor: true,
+            noise_m: 0.0003,
+            seed: 1,
+        }
     }
 }
 
 /// Ray-casts an organized scan (camera frame) of `model` (+ floor at z = 0) seen from
 /// `camera_from_model`.
-pub(crate) fn render(model: &PosedModel, camera_from_model: &Isometry3<f64>, s: &Scene) -> PointCloud {
+pub(crate) fn render(
+    model: &PosedModel,
+    camera_from_model: &Isometry3<f64>,
+    s: &Scene,
+) -> PointCloud {
     let meshes: Vec<parry3d_f64::shape::TriMesh> = model
         .parts
         .iter()
         .map(|p| {
-            let v = p.mesh.vertices.iter().map(|v| p.model_from_link * v).collect();
+            let v = p
+                .mesh
+                .vertices
+                .iter()
+                .map(|v| p.model_from_link * v)
+                .collect();
             parry3d_f64::shape::TriMesh::new(v, p.mesh.triangles.clone()).expect("valid mesh")
         })
         .collect();
@@ -167,7 +196,10 @@ pub(crate) fn render(model: &PosedModel, camera_from_model: &Isometry3<f64>, s: 
     for v in 0..s.height {
         for u in 0..s.width {
             let d_cam = Vector3::new((u as f64 - cx) / s.f, (v as f64 - cy) / s.f, 1.0);
-            let ray = Ray::new(model_from_camera * Point3::origin(), model_from_camera * d_cam);
+            let ray = Ray::new(
+                model_from_camera * Point3::origin(),
+                model_from_camera * d_cam,
+            );
             let mut best = f64::INFINITY;
             for m in &meshes {
                 if let Some(t) = m.cast_local_ray(&ray, 10.0, false) {
@@ -188,5 +220,11 @@ pub(crate) fn render(model: &PosedModel, camera_from_model: &Isometry3<f64>, s: 
             }
         }
     }
-    PointCloud { width: s.width, height: s.height, points, intensity: None, confidence: None }
+    PointCloud {
+        width: s.width,
+        height: s.height,
+        points,
+        intensity: None,
+        confidence: None,
+    }
 }

@@ -105,10 +105,17 @@ pub(crate) fn evidence(
     if samples.len() > 20_000 {
         samples
             .par_chunks(4096)
-            .map(|c| c.iter().map(classify).fold(Evidence::default(), Evidence::add))
+            .map(|c| {
+                c.iter()
+                    .map(classify)
+                    .fold(Evidence::default(), Evidence::add)
+            })
             .reduce(Evidence::default, Evidence::add)
     } else {
-        samples.iter().map(classify).fold(Evidence::default(), Evidence::add)
+        samples
+            .iter()
+            .map(classify)
+            .fold(Evidence::default(), Evidence::add)
     }
 }
 
