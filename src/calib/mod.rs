@@ -18,6 +18,7 @@ pub mod gate;
 mod kdtree;
 mod range;
 pub mod register;
+pub mod report;
 pub mod solve;
 mod surface;
 mod verify;
@@ -29,6 +30,7 @@ pub use gate::{gate, GateThresholds, Verdict};
 pub use register::{
     register_posed, Quality, RegisterOptions, Registration, StageTimings, Uncertainty,
 };
+pub use report::CalibrationReport;
 pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};
 pub use surface::{PosedModel, PosedPart};
 
