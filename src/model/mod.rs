@@ -1,5 +1,878 @@
 //! The robot model: URDF, meshes (visual and collision), forward kinematics, joint limits.
+//!
+//! [`RobotModel::load`] reads a URDF with `urdf-rs`, its STL and OBJ meshes with `mesh-loader`
+//! and its Collada meshes with our own reader (module `collada`, because mesh-loader 0.1.13 composes
+//! nested Collada transforms in the wrong order). Mesh paths are relative to the URDF file, or
+//! absolute; `package://` URIs are rejected (expand them first). Every mesh is returned in the
+//! frame of the link that carries it, with the URDF `<origin>` and `<mesh scale>` applied.
+//!
+//! Frames: the URDF root link is the frame called `model`; every pose this module returns is
+//! `model_from_<link>`. For UR arms the controller's `base` is a link of the URDF (`base_link`
+//! turned by π about z, see [`crate::frames::ur_base_from_base_link`]).
 
+mod collada;
 mod mesh;
+mod primitives;
+#[cfg(test)]
+mod tests;
+
+use std::collections::{HashMap, VecDeque};
+use std::f64::consts::TAU;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use handeye_hal::ur_dh::UrModel;
+use nalgebra::{Isometry3, Matrix4, Translation3, Unit, UnitQuaternion, Vector3};
+use rayon::prelude::*;
 
 pub use mesh::TriMesh;
+
+/// Which of a link's geometries: what it looks like (`<visual>`, use it to synthesise and
+/// register scans) or its simplified hull (`<collision>`, use it for collision checks).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum GeometryKind {
+    /// `<visual>` elements.
+    Visual,
+    /// `<collision>` elements.
+    Collision,
+}
+
+/// Limits of one movable joint.
+///
+/// Revolute joints: radians and rad/s, from the URDF `<limit>`. Continuous joints (no position
+/// limit in the URDF) get `lower = −2π`, `upper = +2π`, which is what UR controllers allow and
+/// keeps samplers finite. Prismatic joints: metres and m/s.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointLimit {
+    /// Lowest position, rad (m for prismatic joints).
+    pub lower: f64,
+    /// Highest position, rad (m for prismatic joints).
+    pub upper: f64,
+    /// Highest speed, rad/s (m/s for prismatic joints).
+    pub velocity: f64,
+}
+
+/// The merged geometry of one kind of one link.
+#[derive(Debug, Clone)]
+pub struct LinkGeometry {
+    /// Name of the link that carries the mesh.
+    pub link: String,
+    /// All the link's `<visual>` (or `<collision>`) elements merged, vertices in the link frame.
+    pub mesh: Arc<TriMesh>,
+}
+
+/// Why a robot model could not be loaded or evaluated.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ModelError {
+    /// The URDF file could not be read.
+    #[error("cannot read URDF {path}: {source}; check the path and its permissions")]
+    ReadUrdf {
+        /// The URDF file.
+        path: PathBuf,
+        /// The I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The URDF is not valid (XML, structure, numbers, tree).
+    #[error(
+        "malformed URDF {path}: {reason}; fix the file (a plain URDF, xacro already expanded)"
+    )]
+    MalformedUrdf {
+        /// The URDF file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A mesh file named by the URDF does not exist or cannot be read.
+    #[error(
+        "mesh {path} of link `{link}` cannot be read ({reason}); mesh paths are relative to the \
+         URDF file: copy the mesh there or fix the path"
+    )]
+    MissingMesh {
+        /// Link whose geometry names the mesh.
+        link: String,
+        /// Resolved path.
+        path: PathBuf,
+        /// The I/O error, as text.
+        reason: String,
+    },
+    /// A mesh URI we do not resolve (`package://`, `http://`, …).
+    #[error(
+        "mesh URI `{uri}` of link `{link}` is not supported; use a path relative to the URDF file \
+         or an absolute path (expand package:// URIs first)"
+    )]
+    UnsupportedMeshUri {
+        /// Link whose geometry names the mesh.
+        link: String,
+        /// The URI as written in the URDF.
+        uri: String,
+    },
+    /// A mesh file whose format we do not read.
+    #[error("mesh {path} of link `{link}` has an unsupported format; convert it to STL, OBJ or Collada (.dae)")]
+    UnsupportedMeshFormat {
+        /// Link whose geometry names the mesh.
+        link: String,
+        /// The mesh file.
+        path: PathBuf,
+    },
+    /// A mesh file that could not be parsed.
+    #[error("mesh {path} of link `{link}` is malformed: {reason}; re-export it from the CAD tool")]
+    MalformedMesh {
+        /// Link whose geometry names the mesh.
+        link: String,
+        /// The mesh file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A joint vector of the wrong length.
+    #[error("robot `{robot}` has {expected} joints ({joints}), got {got} joint values")]
+    JointCount {
+        /// Robot name.
+        robot: String,
+        /// Number of movable chain joints.
+        expected: usize,
+        /// Length of the vector given.
+        got: usize,
+        /// The joint names, comma-separated.
+        joints: String,
+    },
+    /// A NaN or infinite joint value.
+    #[error("joint value {index} (`{joint}`) is {value}; joint values must be finite")]
+    NonFiniteJoint {
+        /// Index in the joint vector.
+        index: usize,
+        /// Joint name.
+        joint: String,
+        /// The value given.
+        value: f64,
+    },
+    /// A frame name that is not a link of the robot.
+    #[error("unknown frame `{name}` in robot `{robot}`; {hint}")]
+    UnknownFrame {
+        /// The name asked for.
+        name: String,
+        /// Robot name.
+        robot: String,
+        /// Close names, or all names.
+        hint: String,
+    },
+}
+
+/// How a link moves relative to its parent, after the fixed joint origin.
+#[derive(Debug, Clone, Copy)]
+enum Motion {
+    Fixed,
+    Revolute {
+        axis: Unit<Vector3<f64>>,
+        q: QSource,
+    },
+    Prismatic {
+        axis: Unit<Vector3<f64>>,
+        q: QSource,
+    },
+}
+
+/// Where a movable joint's value comes from.
+#[derive(Debug, Clone, Copy)]
+enum QSource {
+    /// Index into the chain joint vector.
+    Chain(usize),
+    /// `multiplier · q[index] + offset` (URDF `<mimic>` of a chain joint).
+    Mimic {
+        index: usize,
+        multiplier: f64,
+        offset: f64,
+    },
+    /// Not in the chain: held at zero.
+    Zero,
+}
+
+impl QSource {
+    fn value(self, q: &[f64]) -> f64 {
+        match self {
+            QSource::Chain(i) => q[i],
+            QSource::Mimic {
+                index,
+                multiplier,
+                offset,
+            } => multiplier * q[index] + offset,
+            QSource::Zero => 0.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+struct LinkNode {
+    parent: Option<usize>,
+    parent_from_joint: Isometry3<f64>,
+    motion: Motion,
+    chain_depth: usize,
+}
+
+/// A robot loaded from a URDF: kinematic tree, chain joints, limits and meshes.
+#[derive(Debug, Clone)]
+pub struct RobotModel {
+    name: String,
+    urdf_path: PathBuf,
+    link_names: Vec<String>,
+    link_index: HashMap<String, usize>,
+    links: Vec<LinkNode>,
+    /// Link indices, parents before children.
+    order: Vec<usize>,
+    root: usize,
+    flange: usize,
+    joint_names: Vec<String>,
+    joint_limits: Vec<JointLimit>,
+    visual: Vec<LinkGeometry>,
+    collision: Vec<LinkGeometry>,
+}
+
+fn pose_to_isometry(p: &urdf_rs::Pose) -> Isometry3<f64> {
+    let [x, y, z] = p.xyz.0;
+    let [r, pi, yaw] = p.rpy.0;
+    Isometry3::from_parts(
+        Translation3::new(x, y, z),
+        UnitQuaternion::from_euler_angles(r, pi, yaw),
+    )
+}
+
+fn pose_is_finite(p: &urdf_rs::Pose) -> bool {
+    p.xyz.0.iter().chain(p.rpy.0.iter()).all(|v| v.is_finite())
+}
+
+/// Tessellates a primitive from its dimensions.
+type Tessellate = fn(&[f64]) -> TriMesh;
+
+/// One geometry element to build: which link, which kind, and what.
+struct Element<'r> {
+    link: usize,
+    kind: GeometryKind,
+    origin: &'r urdf_rs::Pose,
+    geometry: &'r urdf_rs::Geometry,
+}
+
+impl RobotModel {
+    /// Loads a URDF and all its meshes (visual and collision).
+    pub fn load(urdf_path: &Path) -> Result<Self, ModelError> {
+        let text = std::fs::read_to_string(urdf_path).map_err(|source| ModelError::ReadUrdf {
+            path: urdf_path.to_path_buf(),
+            source,
+        })?;
+        let malformed = |reason: String| ModelError::MalformedUrdf {
+            path: urdf_path.to_path_buf(),
+            reason,
+        };
+        let robot = urdf_rs::read_from_string(&text).map_err(|e| malformed(e.to_string()))?;
+        let mut model = Self::from_urdf(&robot, urdf_path).map_err(malformed)?;
+        let base_dir = urdf_path.parent().unwrap_or(Path::new("."));
+        model.load_geometry(&robot, base_dir)?;
+        Ok(model)
+    }
+
+    /// Builds the kinematic tree (no meshes). Errors are reasons for `MalformedUrdf`.
+    fn from_urdf(robot: &urdf_rs::Robot, urdf_path: &Path) -> Result<Self, String> {
+        let link_names: Vec<String> = robot.links.iter().map(|l| l.name.clone()).collect();
+        if link_names.is_empty() {
+            return Err("it has no <link>".into());
+        }
+        let mut link_index = HashMap::new();
+        for (i, n) in link_names.iter().enumerate() {
+            if link_index.insert(n.clone(), i).is_some() {
+                return Err(format!("link `{n}` is defined twice"));
+            }
+        }
+        let find = |name: &str, joint: &str| {
+            link_index
+                .get(name)
+                .copied()
+                .ok_or_else(|| format!("joint `{joint}` names unknown link `{name}`"))
+        };
+        // Parent joint of each link.
+        let mut parent_joint: Vec<Option<usize>> = vec![None; link_names.len()];
+        let mut kids: Vec<Vec<usize>> = vec![Vec::new(); link_names.len()];
+        for (j, joint) in robot.joints.iter().enumerate() {
+            let p = find(&joint.parent.link, &joint.name)?;
+            let c = find(&joint.child.link, &joint.name)?;
+            if parent_joint[c].replace(j).is_some() {
+                return Err(format!(
+                    "link `{}` is the child of two joints",
+                    joint.child.link
+                ));
+            }
+            kids[p].push(c);
+            if !pose_is_finite(&joint.origin) {
+                return Err(format!("joint `{}` has a non-finite <origin>", joint.name));
+            }
+        }
+        let roots: Vec<usize> = (0..link_names.len())
+            .filter(|&i| parent_joint[i].is_none())
+            .collect();
+        let root = match roots.as_slice() {
+            [r] => *r,
+            [] => return Err("no root link (the joints form a cycle)".into()),
+            _ => {
+                let names: Vec<&str> = roots.iter().map(|&r| link_names[r].as_str()).collect();
+                return Err(format!(
+                    "several root links ({}); join them with fixed joints",
+                    names.join(", ")
+                ));
+            }
+        };
+        // Breadth-first order from the root; links not reached sit on a cycle.
+        let mut order = Vec::with_capacity(link_names.len());
+        let mut queue = VecDeque::from([root]);
+        while let Some(l) = queue.pop_front() {
+            order.push(l);
+            queue.extend(kids[l].iter().copied());
+        }
+        if order.len() != link_names.len() {
+            return Err("some links are not connected to the root (a cycle of joints)".into());
+        }
+
+        let is_movable = |l: usize| {
+            parent_joint[l].is_some_and(|j| {
+                matches!(
+                    robot.joints[j].joint_type,
+                    urdf_rs::JointType::Revolute
+                        | urdf_rs::JointType::Continuous
+                        | urdf_rs::JointType::Prismatic
+                )
+            })
+        };
+        // Movable and total joints from the root, to pick the chain tip.
+        let mut movable_depth = vec![0usize; link_names.len()];
+        let mut depth = vec![0usize; link_names.len()];
+        for &l in &order {
+            for &c in &kids[l] {
+                movable_depth[c] = movable_depth[l] + usize::from(is_movable(c));
+                depth[c] = depth[l] + 1;
+            }
+        }
+        let flange = ["tool0", "flange"]
+            .iter()
+            .find_map(|n| link_index.get(*n).copied())
+            .unwrap_or_else(|| {
+                // The first link (document order) with the most movable joints, then the most joints.
+                let mut best = root;
+                for l in 0..link_names.len() {
+                    if (movable_depth[l], depth[l]) > (movable_depth[best], depth[best]) {
+                        best = l;
+                    }
+                }
+                best
+            });
+        // Chain joints: movable joints on the path root → flange.
+        let mut chain_links = Vec::new();
+        let mut l = flange;
+        while let Some(j) = parent_joint[l] {
+            if is_movable(l) {
+                chain_links.push(l);
+            }
+            l = link_index[&robot.joints[j].parent.link];
+        }
+        chain_links.reverse();
+        let chain_slot: HashMap<usize, usize> = chain_links
+            .iter()
+            .enumerate()
+            .map(|(i, &l)| (l, i))
+            .collect();
+        let joint_slot: HashMap<&str, usize> = chain_links
+            .iter()
+            .enumerate()
+            .filter_map(|(i, &l)| parent_joint[l].map(|j| (robot.joints[j].name.as_str(), i)))
+            .collect();
+
+        let mut joint_names = Vec::new();
+        let mut joint_limits = Vec::new();
+        for &l in &chain_links {
+            let Some(j) = parent_joint[l] else { continue };
+            let joint = &robot.joints[j];
+            let lim = &joint.limit;
+            let (lower, upper) = if joint.joint_type == urdf_rs::JointType::Continuous {
+                (-TAU, TAU)
+            } else {
+                (lim.lower, lim.upper)
+            };
+            if lower.is_nan() || upper.is_nan() || lower > upper {
+                return Err(format!(
+                    "joint `{}` has limits lower {lower} > upper {upper}",
+                    joint.name
+                ));
+            }
+            joint_names.push(joint.name.clone());
+            joint_limits.push(JointLimit {
+                lower,
+                upper,
+                velocity: lim.velocity,
+            });
+        }
+
+        let mut links = Vec::with_capacity(link_names.len());
+        for (l, &parent) in parent_joint.iter().enumerate() {
+            let Some(j) = parent else {
+                links.push(LinkNode {
+                    parent: None,
+                    parent_from_joint: Isometry3::identity(),
+                    motion: Motion::Fixed,
+                    chain_depth: 0,
+                });
+                continue;
+            };
+            let joint = &robot.joints[j];
+            let q = match (chain_slot.get(&l), &joint.mimic) {
+                (Some(&i), _) => QSource::Chain(i),
+                (None, Some(m)) => match joint_slot.get(m.joint.as_str()) {
+                    Some(&index) => QSource::Mimic {
+                        index,
+                        multiplier: m.multiplier.unwrap_or(1.0),
+                        offset: m.offset.unwrap_or(0.0),
+                    },
+                    None => QSource::Zero,
+                },
+                (None, None) => QSource::Zero,
+            };
+            let axis = || {
+                let v = Vector3::from(joint.axis.xyz.0);
+                Unit::try_new(v, 1e-9)
+                    .filter(|a| a.iter().all(|c| c.is_finite()))
+                    .ok_or_else(|| {
+                        format!("joint `{}` has an invalid <axis xyz=\"{v:?}\">", joint.name)
+                    })
+            };
+            let motion = match joint.joint_type {
+                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => {
+                    Motion::Revolute { axis: axis()?, q }
+                }
+                urdf_rs::JointType::Prismatic => Motion::Prismatic { axis: axis()?, q },
+                // Floating, planar and spherical joints are held at their zero position.
+                _ => Motion::Fixed,
+            };
+            links.push(LinkNode {
+                parent: Some(link_index[&joint.parent.link]),
+                parent_from_joint: pose_to_isometry(&joint.origin),
+                motion,
+                chain_depth: 0,
+            });
+        }
+        for &l in &order {
+            if let Some(p) = links[l].parent {
+                links[l].chain_depth =
+                    links[p].chain_depth + usize::from(chain_slot.contains_key(&l));
+            }
+        }
+
+        Ok(RobotModel {
+            name: robot.name.clone(),
+            urdf_path: urdf_path.to_path_buf(),
+            link_names,
+            link_index,
+            links,
+            order,
+            root,
+            flange,
+            joint_names,
+            joint_limits,
+            visual: Vec::new(),
+            collision: Vec::new(),
+        })
+    }
+
+    fn load_geometry(&mut self, robot: &urdf_rs::Robot, base_dir: &Path) -> Result<(), ModelError> {
+        let mut elements = Vec::new();
+        for (l, link) in robot.links.iter().enumerate() {
+            for v in &link.visual {
+                elements.push(Element {
+                    link: l,
+                    kind: GeometryKind::Visual,
+                    origin: &v.origin,
+                    geometry: &v.geometry,
+                });
+            }
+            for c in &link.collision {
+                elements.push(Element {
+                    link: l,
+                    kind: GeometryKind::Collision,
+                    origin: &c.origin,
+                    geometry: &c.geometry,
+                });
+            }
+        }
+        // Each distinct mesh file once, in parallel.
+        let mut files: Vec<(PathBuf, usize)> = Vec::new();
+        for e in &elements {
+            if let urdf_rs::Geometry::Mesh { filename, .. } = e.geometry {
+                let path = resolve_mesh_path(filename, base_dir, &self.link_names[e.link])?;
+                if !files.iter().any(|(p, _)| *p == path) {
+                    files.push((path, e.link));
+                }
+            }
+        }
+        let meshes: HashMap<PathBuf, TriMesh> = files
+            .par_iter()
+            .map(|(path, link)| Ok((path.clone(), read_mesh(path, &self.link_names[*link])?)))
+            .collect::<Result<_, ModelError>>()?;
+
+        let mut merged: HashMap<(usize, GeometryKind), TriMesh> = HashMap::new();
+        for e in &elements {
+            let link = &self.link_names[e.link];
+            let bad = |reason: String| ModelError::MalformedUrdf {
+                path: self.urdf_path.clone(),
+                reason,
+            };
+            if !pose_is_finite(e.origin) {
+                return Err(bad(format!(
+                    "a geometry <origin> of link `{link}` is not finite"
+                )));
+            }
+            let link_from_geometry = pose_to_isometry(e.origin).to_homogeneous();
+            let out = merged.entry((e.link, e.kind)).or_default();
+            match e.geometry {
+                urdf_rs::Geometry::Mesh { filename, scale } => {
+                    let path = resolve_mesh_path(filename, base_dir, link)?;
+                    let s = scale.as_ref().map_or([1.0; 3], |s| s.0);
+                    if !s.iter().all(|v| v.is_finite() && *v != 0.0) {
+                        return Err(bad(format!(
+                            "mesh scale {s:?} of link `{link}` is not finite and non-zero"
+                        )));
+                    }
+                    let m = link_from_geometry * Matrix4::new_nonuniform_scaling(&Vector3::from(s));
+                    if let Some(mesh) = meshes.get(&path) {
+                        out.append_transformed(mesh, &m);
+                    }
+                }
+                primitive => {
+                    let (dims, mesh): (Vec<f64>, Tessellate) = match primitive {
+                        urdf_rs::Geometry::Box { size } => {
+                            (size.0.to_vec(), |d| primitives::cuboid([d[0], d[1], d[2]]))
+                        }
+                        urdf_rs::Geometry::Cylinder { radius, length } => {
+                            (vec![*radius, *length], |d| primitives::cylinder(d[0], d[1]))
+                        }
+                        urdf_rs::Geometry::Capsule { radius, length } => {
+                            (vec![*radius, *length], |d| primitives::capsule(d[0], d[1]))
+                        }
+                        urdf_rs::Geometry::Sphere { radius } => {
+                            (vec![*radius], |d| primitives::sphere(d[0]))
+                        }
+                        urdf_rs::Geometry::Mesh { .. } => continue,
+                    };
+                    if !dims.iter().all(|v| v.is_finite() && *v >= 0.0) {
+                        return Err(bad(format!("geometry {primitive:?} of link `{link}` has a negative or non-finite size")));
+                    }
+                    // Zero-size placeholders (`<box size="0 0 0">`, as in the Elite URDFs) add nothing.
+                    if dims.iter().all(|v| *v > 0.0)
+                        || matches!(primitive, urdf_rs::Geometry::Capsule { .. } if dims[0] > 0.0)
+                    {
+                        out.append_transformed(&mesh(&dims), &link_from_geometry);
+                    }
+                }
+            }
+        }
+        for l in 0..self.link_names.len() {
+            for (kind, list) in [
+                (GeometryKind::Visual, &mut self.visual),
+                (GeometryKind::Collision, &mut self.collision),
+            ] {
+                if let Some(mesh) = merged.remove(&(l, kind)).filter(|m| !m.is_empty()) {
+                    list.push(LinkGeometry {
+                        link: self.link_names[l].clone(),
+                        mesh: Arc::new(mesh),
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The URDF robot name (`<robot name>`).
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The URDF file this model was loaded from.
+    pub fn urdf_path(&self) -> &Path {
+        &self.urdf_path
+    }
+
+    /// The URDF root link: the frame called `model`.
+    pub fn root_link(&self) -> &str {
+        &self.link_names[self.root]
+    }
+
+    /// The flange link: `tool0` if present, else `flange`, else the chain tip (the first link
+    /// with the most movable joints between it and the root).
+    pub fn flange_link(&self) -> &str {
+        &self.link_names[self.flange]
+    }
+
+    /// The movable joints (revolute, continuous, prismatic) from the root to the flange, in
+    /// chain order: the order of every joint vector `q`. Other movable joints are held at zero
+    /// (or follow their `<mimic>` chain joint); floating, planar and spherical joints are fixed.
+    pub fn joint_names(&self) -> &[String] {
+        &self.joint_names
+    }
+
+    /// Number of chain joints.
+    pub fn dof(&self) -> usize {
+        self.joint_names.len()
+    }
+
+    /// Limits of the chain joints, in [`joint_names`](Self::joint_names) order.
+    pub fn joint_limits(&self) -> &[JointLimit] {
+        &self.joint_limits
+    }
+
+    /// Every link, in URDF document order.
+    pub fn link_names(&self) -> &[String] {
+        &self.link_names
+    }
+
+    /// Position of `link` in [`link_names`](Self::link_names) (and in
+    /// [`link_poses`](Self::link_poses)), or `None` for an unknown link.
+    pub fn link_index(&self, link: &str) -> Option<usize> {
+        self.link_index.get(link).copied()
+    }
+
+    /// Number of chain joints between the root and `link` (base links 0, shoulder 1, upper
+    /// arm 2, …), or `None` for an unknown link.
+    pub fn chain_depth(&self, link: &str) -> Option<usize> {
+        self.link_index
+            .get(link)
+            .map(|&l| self.links[l].chain_depth)
+    }
+
+    fn check_q(&self, q: &[f64]) -> Result<(), ModelError> {
+        if q.len() != self.dof() {
+            return Err(ModelError::JointCount {
+                robot: self.name.clone(),
+                expected: self.dof(),
+                got: q.len(),
+                joints: self.joint_names.join(", "),
+            });
+        }
+        if let Some((index, &value)) = q.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(ModelError::NonFiniteJoint {
+                index,
+                joint: self.joint_names[index].clone(),
+                value,
+            });
+        }
+        Ok(())
+    }
+
+    /// `model_from_link` of every link at joint values `q` (rad, m for prismatic joints), in
+    /// [`link_names`](Self::link_names) order.
+    pub fn link_poses(&self, q: &[f64]) -> Result<Vec<Isometry3<f64>>, ModelError> {
+        self.check_q(q)?;
+        let mut poses = vec![Isometry3::identity(); self.links.len()];
+        for &l in &self.order {
+            let node = &self.links[l];
+            let Some(p) = node.parent else { continue };
+            let motion = match node.motion {
+                Motion::Fixed => Isometry3::identity(),
+                Motion::Revolute { axis, q: s } => Isometry3::from_parts(
+                    Translation3::identity(),
+                    UnitQuaternion::from_axis_angle(&axis, s.value(q)),
+                ),
+                Motion::Prismatic { axis, q: s } => Isometry3::from_parts(
+                    Translation3::from(axis.into_inner() * s.value(q)),
+                    UnitQuaternion::identity(),
+                ),
+            };
+            poses[l] = poses[p] * node.parent_from_joint * motion;
+        }
+        Ok(poses)
+    }
+
+    /// `model_from_<frame>` at joint values `q`, for any link name. For UR arms whose URDF lacks
+    /// the controller's `base` link, `base` is derived from `base_link`.
+    pub fn frame_pose(&self, frame: &str, q: &[f64]) -> Result<Isometry3<f64>, ModelError> {
+        if let Some(&l) = self.link_index.get(frame) {
+            return Ok(self.link_poses(q)?[l]);
+        }
+        if frame == "base" && self.ur_model().is_some() {
+            if let Some(&l) = self.link_index.get("base_link") {
+                let base_link_from_base = crate::frames::ur_base_from_base_link().inverse();
+                return Ok(self.link_poses(q)?[l] * base_link_from_base);
+            }
+        }
+        Err(self.unknown_frame(frame))
+    }
+
+    fn unknown_frame(&self, frame: &str) -> ModelError {
+        let wanted = frame.to_ascii_lowercase();
+        let mut scored: Vec<(usize, &str)> = self
+            .link_names
+            .iter()
+            .map(|n| {
+                let lower = n.to_ascii_lowercase();
+                let d = if lower.contains(&wanted) || wanted.contains(&lower) {
+                    0
+                } else {
+                    edit_distance(&wanted, &lower)
+                };
+                (d, n.as_str())
+            })
+            .collect();
+        scored.sort();
+        let limit = (wanted.len() / 2).max(2);
+        let close: Vec<&str> = scored
+            .iter()
+            .filter(|(d, _)| *d <= limit)
+            .take(5)
+            .map(|(_, n)| *n)
+            .collect();
+        let hint = if close.is_empty() {
+            format!("the frames are the links: {}", self.link_names.join(", "))
+        } else {
+            format!("did you mean {}?", close.join(", "))
+        };
+        ModelError::UnknownFrame {
+            name: frame.to_string(),
+            robot: self.name.clone(),
+            hint,
+        }
+    }
+
+    /// Geometry of one kind: one entry per link that has any, in link order, vertices in the
+    /// link frame.
+    pub fn geometry(&self, kind: GeometryKind) -> &[LinkGeometry] {
+        match kind {
+            GeometryKind::Visual => &self.visual,
+            GeometryKind::Collision => &self.collision,
+        }
+    }
+
+    /// Every geometry of one kind with its `model_from_link` at joint values `q`.
+    pub fn posed_geometry(
+        &self,
+        q: &[f64],
+        kind: GeometryKind,
+    ) -> Result<Vec<(Isometry3<f64>, &LinkGeometry)>, ModelError> {
+        let poses = self.link_poses(q)?;
+        Ok(self
+            .geometry(kind)
+            .iter()
+            .map(|g| (poses[self.link_index[&g.link]], g))
+            .collect())
+    }
+
+    /// The Universal Robots model, detected from the robot name, else the URDF file name
+    /// (`ur5e`, `UR10e_robot`, …; whole tokens only).
+    pub fn ur_model(&self) -> Option<UrModel> {
+        let stem = self
+            .urdf_path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or("");
+        detect_ur(&self.name).or_else(|| detect_ur(stem))
+    }
+}
+
+/// A UR model name appearing in `text` as a whole token (`ur5e`, `my_ur10e_cell`).
+fn detect_ur(text: &str) -> Option<UrModel> {
+    let lower = text.to_ascii_lowercase();
+    let bytes = lower.as_bytes();
+    let mut models = UrModel::ALL.to_vec();
+    // Longest names first so `ur10e` wins over `ur10`.
+    models.sort_by_key(|m| std::cmp::Reverse(m.name().len()));
+    models.into_iter().find(|m| {
+        lower.match_indices(m.name()).any(|(i, s)| {
+            let before = i.checked_sub(1).map(|k| bytes[k]);
+            let after = bytes.get(i + s.len()).copied();
+            !before.is_some_and(|b| b.is_ascii_alphanumeric())
+                && !after.is_some_and(|b| b.is_ascii_alphanumeric())
+        })
+    })
+}
+
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut prev = row[0];
+        row[0] = i + 1;
+        for (j, &cb) in b.iter().enumerate() {
+            let cur = row[j + 1];
+            row[j + 1] = (prev + usize::from(ca != cb)).min(row[j] + 1).min(cur + 1);
+            prev = cur;
+        }
+    }
+    row[b.len()]
+}
+
+/// Resolves a URDF mesh filename: relative to the URDF directory, absolute, or `file://`.
+fn resolve_mesh_path(filename: &str, base_dir: &Path, link: &str) -> Result<PathBuf, ModelError> {
+    let path = filename.strip_prefix("file://").unwrap_or(filename);
+    if path.contains("://") {
+        return Err(ModelError::UnsupportedMeshUri {
+            link: link.to_string(),
+            uri: filename.to_string(),
+        });
+    }
+    let path = Path::new(path);
+    Ok(if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        base_dir.join(path)
+    })
+}
+
+/// Reads one mesh file in its own coordinates (no URDF origin or scale yet).
+fn read_mesh(path: &Path, link: &str) -> Result<TriMesh, ModelError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    if !matches!(ext.as_str(), "stl" | "obj" | "dae") {
+        return Err(ModelError::UnsupportedMeshFormat {
+            link: link.to_string(),
+            path: path.to_path_buf(),
+        });
+    }
+    let bytes = std::fs::read(path).map_err(|e| ModelError::MissingMesh {
+        link: link.to_string(),
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })?;
+    let malformed = |reason: String| ModelError::MalformedMesh {
+        link: link.to_string(),
+        path: path.to_path_buf(),
+        reason,
+    };
+    let mesh = match ext.as_str() {
+        "dae" => collada::parse(&bytes).map_err(malformed)?,
+        _ => {
+            let loader = mesh_loader::Loader::default();
+            let scene = if ext == "stl" {
+                loader.load_stl_from_slice(&bytes, path)
+            } else {
+                // Materials are not needed: never read the .mtl files.
+                loader.load_obj_from_slice_with_reader(&bytes, path, |_| Ok(Vec::new()))
+            }
+            .map_err(|e| malformed(e.to_string()))?;
+            from_scene(&scene).map_err(malformed)?
+        }
+    };
+    Ok(mesh)
+}
+
+/// Flattens a mesh-loader scene (STL, OBJ) into one [`TriMesh`].
+fn from_scene(scene: &mesh_loader::Scene) -> Result<TriMesh, String> {
+    let mut out = TriMesh::default();
+    for m in &scene.meshes {
+        let base = u32::try_from(out.vertices.len()).map_err(|_| "too many vertices")?;
+        out.vertices.extend(
+            m.vertices
+                .iter()
+                .map(|v| nalgebra::Point3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]))),
+        );
+        out.triangles
+            .extend(m.faces.iter().map(|f| f.map(|i| base.saturating_add(i))));
+    }
+    out.validate()?;
+    Ok(out)
+}
