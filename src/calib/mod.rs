@@ -28,7 +28,8 @@ pub(crate) mod testutil;
 
 pub use gate::{gate, GateThresholds, Verdict};
 pub use register::{
-    register_posed, Quality, RegisterOptions, Registration, StageTimings, Uncertainty,
+    posed_model, register, register_posed, Quality, RegisterOptions, Registration, StageTimings,
+    Uncertainty,
 };
 pub use report::CalibrationReport;
 pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};
@@ -71,6 +72,9 @@ pub enum CalibError {
         /// What the search saw (best coverage, planes, …).
         detail: String,
     },
+    /// The robot model could not be posed.
+    #[error(transparent)]
+    Model(crate::model::ModelError),
     /// Nothing to solve.
     #[error("no registered frames to solve from")]
     NoFrames,

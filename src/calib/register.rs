@@ -24,6 +24,7 @@ use super::range::RangeImage;
 use super::surface::{ModelSurface, PosedModel};
 use super::verify::{evidence, score, Evidence, Tolerances};
 use super::CalibError;
+use crate::model::{GeometryKind, RobotModel};
 
 /// Tuning of [`register`]. `Default` is what the benchmark measures.
 #[derive(Debug, Clone, PartialEq)]
@@ -154,6 +155,42 @@ pub struct Registration {
     pub depth_scale: Option<f64>,
     /// Time per stage.
     pub timings_ms: StageTimings,
+}
+
+/// Registers `scan` (camera frame) against `model` posed at `joints` (radians, URDF order),
+/// using the visual meshes. `prior` is a guess of `camera_from_model` (e.g. the nominal mount
+/// or the last calibration); without it the search is global.
+pub fn register(
+    scan: &PointCloud,
+    model: &RobotModel,
+    joints: &[f64],
+    prior: Option<Isometry3<f64>>,
+    opts: &RegisterOptions,
+) -> Result<Registration, CalibError> {
+    let posed = posed_model(model, joints)?;
+    register_posed(scan, &posed, prior, opts)
+}
+
+/// The model's visual geometry posed at `joints` (radians, URDF order) in the model frame.
+pub fn posed_model(model: &RobotModel, joints: &[f64]) -> Result<PosedModel, CalibError> {
+    if joints.len() != model.dof() {
+        return Err(CalibError::JointCountMismatch {
+            expected: model.dof(),
+            got: joints.len(),
+        });
+    }
+    let parts = model
+        .posed_geometry(joints, GeometryKind::Visual)
+        .map_err(CalibError::Model)?
+        .into_iter()
+        .map(|(model_from_link, g)| super::PosedPart {
+            chain_depth: model.chain_depth(&g.link).unwrap_or(usize::MAX),
+            link: g.link.clone(),
+            model_from_link,
+            mesh: g.mesh.clone(),
+        })
+        .collect();
+    Ok(PosedModel { parts })
 }
 
 /// [`register`] on an already posed model (model frame = the frame of `model`'s parts).
