@@ -18,7 +18,7 @@ use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 
 use super::range::RangeImage;
-use super::surface::ModelSurface;
+use super::surface::{ModelSurface, Sample};
 use super::verify::{evidence, score, Tolerances};
 
 /// A detected plane: unit normal `n` pointing towards the camera, `n·p + d = 0` (camera frame).
@@ -179,32 +179,30 @@ pub(crate) fn hypotheses(
 ) -> Vec<(Isometry3<f64>, f64)> {
     let fit_depth = surface.fit_depth;
     // Outline of the base/shoulder in a height band (model frame: z up from the mounting face).
-    let low: Vec<&Point3<f64>> = surface
-        .samples
-        .iter()
-        .filter(|s| s.depth <= 1)
-        .map(|s| &s.p)
-        .collect();
+    let low: Vec<&Sample> = surface.samples.iter().filter(|s| s.depth <= 1).collect();
     if low.is_empty() {
         return Vec::new();
     }
     let ztop = low
         .iter()
-        .map(|p| p.z)
+        .map(|s| s.p.z)
         .fold(f64::NEG_INFINITY, f64::max)
         .min(0.30);
     let band = (0.025, 0.025 + 0.6 * (ztop - 0.025).max(0.02));
     let cell = 0.005;
+    // Side walls only (top faces and horizontal internals would smear the votes).
     let mut outline: Vec<(i64, i64)> = low
         .iter()
-        .filter(|p| p.z >= band.0 && p.z <= band.1)
-        .map(|p| ((p.x / cell).round() as i64, (p.y / cell).round() as i64))
+        .filter(|s| s.p.z >= band.0 && s.p.z <= band.1 && s.n.z.abs() < 0.5)
+        .map(|s| ((s.p.x / cell).round() as i64, (s.p.y / cell).round() as i64))
         .collect();
     outline.sort_unstable();
     outline.dedup();
-    let outline: Vec<(f64, f64)> = outline
-        .iter()
-        .map(|&(x, y)| (x as f64 * cell, y as f64 * cell))
+    let keep = 160usize;
+    let step = (outline.len() as f64 / keep as f64).max(1.0);
+    let outline: Vec<(f64, f64)> = (0..outline.len().min(keep))
+        .map(|k| outline[(k as f64 * step) as usize])
+        .map(|(x, y)| (x as f64 * cell, y as f64 * cell))
         .collect();
     let radius = outline.iter().map(|o| o.0.hypot(o.1)).fold(0.0, f64::max);
 
@@ -291,16 +289,16 @@ pub(crate) fn hypotheses(
                 x0 + (i % nx) as f64 * cell + 0.5 * cell,
                 y0 + (i / nx) as f64 * cell + 0.5 * cell,
             );
-            if centres.iter().all(|o| (o.0 - c.0).hypot(o.1 - c.1) > 0.04) {
+            if centres.iter().all(|o| (o.0 - c.0).hypot(o.1 - c.1) > 0.025) {
                 centres.push(c);
-                if centres.len() >= 4 {
+                if centres.len() >= 6 {
                     break;
                 }
             }
         }
         // Yaw × height sweep for each centre.
-        let n_sweep = 144;
-        let heights = [0.0, 0.012];
+        let n_sweep = 72;
+        let heights = [0.0, 0.015];
         let jobs: Vec<(usize, usize, usize)> = (0..centres.len())
             .flat_map(|c| {
                 (0..heights.len()).flat_map(move |h| (0..n_sweep).map(move |k| (c, h, k)))
