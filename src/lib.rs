@@ -21,3 +21,6 @@ pub mod frames;
 pub mod model;
 pub mod plan;
 pub mod sim;
+
+#[cfg(test)]
+mod testutil;

@@ -1,1 +1,442 @@
 //! View generation: joint configurations from which the camera sees the robot base.
+//!
+//! A view is accepted when the joints are within limits, the arm is free of self-collision and
+//! of the floor (convex hulls of the collision meshes, parry), the base is in the image at the
+//! requested distance, and the base and shoulder are not hidden by the arm itself (checked by
+//! rendering the posed robot at low resolution).
+
+use std::f64::consts::PI;
+
+use nalgebra::{Isometry3, Point3};
+use parry3d_f64::shape::ConvexPolyhedron;
+use rand::{Rng, SeedableRng};
+
+use crate::model::{GeometryKind, ModelError, RobotModel};
+use crate::sim::raycast::{raycast, SceneMesh};
+use crate::sim::Intrinsics;
+
+/// What a good calibration view must satisfy.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ViewConstraints {
+    /// Nearest allowed camera-to-base distance, metres.
+    pub min_distance_m: f64,
+    /// Farthest allowed camera-to-base distance, metres.
+    pub max_distance_m: f64,
+    /// The base centre must project at least this fraction of the image size from the border.
+    pub image_margin_fraction: f64,
+    /// Fraction of the base and shoulder pixels that must not be hidden by the rest of the arm.
+    pub min_unoccluded_fraction: f64,
+    /// Every link beyond the shoulder and the camera stay this high above the mounting plane, m.
+    pub floor_clearance_m: f64,
+    /// Between two generated views at least one joint changes by this much, radians.
+    pub min_joint_change_rad: f64,
+}
+
+impl Default for ViewConstraints {
+    fn default() -> Self {
+        Self {
+            min_distance_m: 0.4,
+            max_distance_m: 0.8,
+            image_margin_fraction: 0.2,
+            min_unoccluded_fraction: 0.8,
+            floor_clearance_m: 0.03,
+            min_joint_change_rad: 20f64.to_radians(),
+        }
+    }
+}
+
+/// Why a view was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ViewRejection {
+    /// A joint is outside its limits.
+    #[error("joint {joint} at {value_rad:.3} rad is outside its limits [{lower:.3}, {upper:.3}]")]
+    JointLimit {
+        /// Joint name.
+        joint: String,
+        /// Requested angle.
+        value_rad: f64,
+        /// Lower limit.
+        lower: f64,
+        /// Upper limit.
+        upper: f64,
+    },
+    /// Two links collide.
+    #[error("links {a} and {b} collide")]
+    SelfCollision {
+        /// First link.
+        a: String,
+        /// Second link.
+        b: String,
+    },
+    /// A link or the camera is too close to the floor.
+    #[error("{what} comes within {clearance_m:.3} m of the mounting plane")]
+    Floor {
+        /// The link or "camera".
+        what: String,
+        /// The height reached.
+        clearance_m: f64,
+    },
+    /// The base is not in the image, or at the wrong distance.
+    #[error("the base is not in view ({0})")]
+    NotInView(String),
+    /// The arm hides the base.
+    #[error("only {visible_fraction:.0}% of the base and shoulder are visible", visible_fraction = .0 * 100.0)]
+    Occluded(f64),
+}
+
+/// Errors of view generation.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlanError {
+    /// The model refused a request.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    /// Not enough views were found.
+    #[error("found only {found} of {wanted} views after {tries} tries; widen the distance range or check the camera mount")]
+    NotEnoughViews {
+        /// Views found.
+        found: usize,
+        /// Views wanted.
+        wanted: usize,
+        /// Random configurations tried.
+        tries: usize,
+    },
+}
+
+/// Checks views of one robot with one camera mount.
+#[derive(Debug)]
+pub struct ViewPlanner<'a> {
+    model: &'a RobotModel,
+    flange_from_camera: Isometry3<f64>,
+    intrinsics: Intrinsics,
+    constraints: ViewConstraints,
+    /// Per link (index into `model.link_names()`): convex hull of its collision geometry.
+    hulls: Vec<Option<ConvexPolyhedron>>,
+    /// Where the base is: centre of the base (chain depth 0) geometry, model frame.
+    base_centre: Point3<f64>,
+}
+
+impl<'a> ViewPlanner<'a> {
+    /// A planner for a camera at `flange_from_camera` with intrinsics `intrinsics`.
+    pub fn new(
+        model: &'a RobotModel,
+        flange_from_camera: Isometry3<f64>,
+        intrinsics: Intrinsics,
+        constraints: ViewConstraints,
+    ) -> Self {
+        let names = model.link_names();
+        let mut points: Vec<Vec<Point3<f64>>> = vec![Vec::new(); names.len()];
+        for g in model.geometry(GeometryKind::Collision) {
+            if let Some(i) = names.iter().position(|l| *l == g.link) {
+                points[i].extend(g.mesh.vertices.iter().copied());
+            }
+        }
+        let hulls = points
+            .iter()
+            .map(|p| {
+                (p.len() >= 4)
+                    .then(|| ConvexPolyhedron::from_convex_hull(p))
+                    .flatten()
+            })
+            .collect();
+        let zero = vec![0.0; model.dof()];
+        let mut lo = Point3::new(f64::INFINITY, f64::INFINITY, f64::INFINITY);
+        let mut hi = -lo;
+        if let Ok(posed) = model.posed_geometry(&zero, GeometryKind::Visual) {
+            for (t, g) in posed
+                .iter()
+                .filter(|(_, g)| model.chain_depth(&g.link) == Some(0))
+            {
+                for v in &g.mesh.vertices {
+                    let p = t * v;
+                    lo = lo.inf(&p);
+                    hi = hi.sup(&p);
+                }
+            }
+        }
+        let base_centre = if lo.x.is_finite() {
+            nalgebra::center(&lo, &hi)
+        } else {
+            Point3::origin()
+        };
+        Self {
+            model,
+            flange_from_camera,
+            intrinsics,
+            constraints,
+            hulls,
+            base_centre,
+        }
+    }
+
+    /// Checks one joint configuration: joint limits, floor and self-collision first, then that
+    /// the base is in view and not hidden by the arm. `Ok` carries the camera-to-base distance
+    /// in metres.
+    pub fn check(&self, q: &[f64]) -> Result<Result<f64, ViewRejection>, ModelError> {
+        let m = self.model;
+        for ((name, lim), &v) in m.joint_names().iter().zip(m.joint_limits()).zip(q) {
+            if v < lim.lower || v > lim.upper {
+                return Ok(Err(ViewRejection::JointLimit {
+                    joint: name.clone(),
+                    value_rad: v,
+                    lower: lim.lower,
+                    upper: lim.upper,
+                }));
+            }
+        }
+        if let Err(r) = self.collision_free(q)? {
+            return Ok(Err(r));
+        }
+        let distance = match self.base_in_view(q)? {
+            Ok(d) => d,
+            Err(r) => return Ok(Err(r)),
+        };
+        Ok(self.unoccluded(q)?.map(|()| distance))
+    }
+
+    /// The camera pose in the model frame at joints `q`.
+    pub fn model_from_camera(&self, q: &[f64]) -> Result<Isometry3<f64>, ModelError> {
+        Ok(self.model.frame_pose(self.model.flange_link(), q)? * self.flange_from_camera)
+    }
+
+    /// Whether the base centre is in the image at the allowed distance (cheap).
+    fn base_in_view(&self, q: &[f64]) -> Result<Result<f64, ViewRejection>, ModelError> {
+        let c = self.model_from_camera(q)?.inverse() * self.base_centre;
+        let distance = c.coords.norm();
+        if distance < self.constraints.min_distance_m || distance > self.constraints.max_distance_m
+        {
+            return Ok(Err(ViewRejection::NotInView(format!(
+                "base at {distance:.2} m"
+            ))));
+        }
+        let margin = self.constraints.image_margin_fraction
+            * f64::from(self.intrinsics.width.min(self.intrinsics.height));
+        Ok(match self.intrinsics.project(&c) {
+            Some((u, v)) if self.intrinsics.contains(u, v, margin) => Ok(distance),
+            _ => Err(ViewRejection::NotInView(
+                "base centre outside the image".into(),
+            )),
+        })
+    }
+
+    /// Floor clearance of the camera and of every link beyond the shoulder; self-collision of
+    /// non-adjacent links (convex hulls).
+    fn collision_free(&self, q: &[f64]) -> Result<Result<(), ViewRejection>, ModelError> {
+        let m = self.model;
+        let poses = m.link_poses(q)?;
+        let camera_z = self.model_from_camera(q)?.translation.z;
+        if camera_z < self.constraints.floor_clearance_m {
+            return Ok(Err(ViewRejection::Floor {
+                what: "camera".into(),
+                clearance_m: camera_z,
+            }));
+        }
+        let names = m.link_names();
+        let depth: Vec<Option<usize>> = names.iter().map(|l| m.chain_depth(l)).collect();
+        for (i, hull) in self.hulls.iter().enumerate() {
+            let (Some(hull), Some(d)) = (hull, depth[i]) else {
+                continue;
+            };
+            if d >= 2 {
+                let low = hull
+                    .points()
+                    .iter()
+                    .map(|p| (poses[i] * p).z)
+                    .fold(f64::INFINITY, f64::min);
+                if low < self.constraints.floor_clearance_m {
+                    return Ok(Err(ViewRejection::Floor {
+                        what: names[i].clone(),
+                        clearance_m: low,
+                    }));
+                }
+            }
+            for (j, other) in self.hulls.iter().enumerate().skip(i + 1) {
+                let (Some(other), Some(dj)) = (other, depth[j]) else {
+                    continue;
+                };
+                if d.abs_diff(dj) < 2 {
+                    continue; // adjacent links touch by design
+                }
+                if parry3d_f64::query::intersection_test(&poses[i], hull, &poses[j], other)
+                    .unwrap_or(false)
+                {
+                    return Ok(Err(ViewRejection::SelfCollision {
+                        a: names[i].clone(),
+                        b: names[j].clone(),
+                    }));
+                }
+            }
+        }
+        Ok(Ok(()))
+    }
+
+    /// Renders the arm at low resolution and compares the base and shoulder pixels with and
+    /// without the rest of the arm in front of them.
+    fn unoccluded(&self, q: &[f64]) -> Result<Result<(), ViewRejection>, ModelError> {
+        let m = self.model;
+        let low = self
+            .intrinsics
+            .scaled(160.0 / f64::from(self.intrinsics.width));
+        let posed = m.posed_geometry(q, GeometryKind::Collision)?;
+        let world: Vec<(bool, Vec<Point3<f64>>, &[[u32; 3]])> = posed
+            .iter()
+            .map(|(t, g)| {
+                let near = m.chain_depth(&g.link).is_some_and(|d| d <= 1);
+                (
+                    near,
+                    g.mesh.vertices.iter().map(|v| t * v).collect(),
+                    g.mesh.triangles.as_slice(),
+                )
+            })
+            .collect();
+        let meshes = |only_near: bool| -> Vec<SceneMesh<'_>> {
+            world
+                .iter()
+                .filter(|(near, _, _)| *near || !only_near)
+                .map(|(near, v, t)| SceneMesh {
+                    vertices: v,
+                    triangles: t,
+                    object: u32::from(*near),
+                })
+                .collect()
+        };
+        let camera_from_model = self.model_from_camera(q)?.inverse();
+        let count = |only_near| {
+            raycast(&meshes(only_near), &camera_from_model, &low)
+                .object
+                .iter()
+                .filter(|&&o| o == 1)
+                .count()
+        };
+        let alone = count(true);
+        let fraction = if alone == 0 {
+            0.0
+        } else {
+            count(false) as f64 / alone as f64
+        };
+        Ok(
+            if alone == 0 || fraction < self.constraints.min_unoccluded_fraction {
+                Err(ViewRejection::Occluded(fraction))
+            } else {
+                Ok(())
+            },
+        )
+    }
+
+    /// `count` random views (seeded), each at least `min_joint_change_rad` away from the others
+    /// in some joint.
+    pub fn generate(&self, count: usize, seed: u64) -> Result<Vec<Vec<f64>>, PlanError> {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let limits = self.model.joint_limits();
+        let mut views: Vec<Vec<f64>> = Vec::new();
+        let max_tries = 200_000 + 20_000 * count;
+        let mut tries = 0;
+        while views.len() < count && tries < max_tries {
+            tries += 1;
+            let q: Vec<f64> = limits
+                .iter()
+                .map(|l| rng.random_range(l.lower.max(-PI)..=l.upper.min(PI)))
+                .collect();
+            let far_enough = views.iter().all(|v| {
+                v.iter()
+                    .zip(&q)
+                    .any(|(a, b)| (a - b).abs() >= self.constraints.min_joint_change_rad)
+            });
+            if far_enough && self.base_in_view(&q)?.is_ok() && self.check(&q)?.is_ok() {
+                views.push(q);
+            }
+        }
+        if views.len() < count {
+            return Err(PlanError::NotEnoughViews {
+                found: views.len(),
+                wanted: count,
+                tries,
+            });
+        }
+        Ok(views)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::shared_robot;
+    use nalgebra::Vector3;
+
+    /// A wrist camera 8 cm off the tool axis, looking along it, tilted 15° towards it.
+    pub(crate) fn nominal_mount() -> Isometry3<f64> {
+        Isometry3::new(
+            Vector3::new(0.0, -0.08, 0.03),
+            Vector3::new(-15f64.to_radians(), 0.0, 0.0),
+        )
+    }
+
+    #[test]
+    fn generated_views_see_the_base_and_differ_by_20_degrees() {
+        let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+            return;
+        };
+        let planner = ViewPlanner::new(
+            &model,
+            nominal_mount(),
+            Intrinsics::compact_1280x960(),
+            ViewConstraints::default(),
+        );
+        let views = planner.generate(6, 11).expect("views");
+        assert_eq!(views.len(), 6);
+        for (i, a) in views.iter().enumerate() {
+            let d = planner.check(a).expect("fk").expect("accepted");
+            assert!((0.4..=0.8).contains(&d));
+            for b in &views[i + 1..] {
+                assert!(a
+                    .iter()
+                    .zip(b)
+                    .any(|(x, y)| (x - y).abs() >= 20f64.to_radians()));
+            }
+        }
+    }
+
+    #[test]
+    fn bad_views_are_refused_with_the_reason() {
+        let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+            return;
+        };
+        let planner = ViewPlanner::new(
+            &model,
+            nominal_mount(),
+            Intrinsics::compact_1280x960(),
+            ViewConstraints::default(),
+        );
+        // beyond the joint limits
+        let r = planner.check(&[0.0, 0.0, 4.0, 0.0, 0.0, 0.0]).expect("fk");
+        assert!(matches!(r, Err(ViewRejection::JointLimit { .. })), "{r:?}");
+        // arm pointing straight up, camera looking at the sky
+        let r = planner
+            .check(&[0.0, -1.57, 0.0, -1.57, 0.0, 0.0])
+            .expect("fk");
+        assert!(matches!(r, Err(ViewRejection::NotInView(_))), "{r:?}");
+        // the arm folded down through the floor
+        let loose = ViewConstraints {
+            min_distance_m: 0.0,
+            max_distance_m: 10.0,
+            image_margin_fraction: -10.0,
+            ..ViewConstraints::default()
+        };
+        let p = ViewPlanner::new(
+            &model,
+            nominal_mount(),
+            Intrinsics::compact_1280x960(),
+            loose,
+        );
+        let r = p.check(&[0.0, 0.6, 0.0, 0.0, 0.0, 0.0]).expect("fk");
+        assert!(matches!(r, Err(ViewRejection::Floor { .. })), "{r:?}");
+        // forearm folded back onto the upper arm
+        let r = p.check(&[0.0, -1.57, 3.0, 0.0, 0.0, 0.0]).expect("fk");
+        assert!(
+            matches!(r, Err(ViewRejection::SelfCollision { .. })),
+            "{r:?}"
+        );
+    }
+}

@@ -190,6 +190,14 @@ enum QSource {
 }
 
 impl QSource {
+    /// The chain joint this is driven by directly (not through a mimic).
+    fn chain_index(self) -> Option<usize> {
+        match self {
+            QSource::Chain(i) => Some(i),
+            _ => None,
+        }
+    }
+
     fn value(self, q: &[f64]) -> f64 {
         match self {
             QSource::Chain(i) => q[i],
@@ -665,23 +673,80 @@ impl RobotModel {
     /// `model_from_link` of every link at joint values `q` (rad, m for prismatic joints), in
     /// [`link_names`](Self::link_names) order.
     pub fn link_poses(&self, q: &[f64]) -> Result<Vec<Isometry3<f64>>, ModelError> {
+        self.poses(q, None)
+    }
+
+    /// Like [`link_poses`](Self::link_poses) for an arm that differs from this nominal model:
+    /// `joint_origin_errors[i]` (one per chain joint, see [`joint_axes`](Self::joint_axes)) is
+    /// inserted between chain joint `i`'s nominal origin and its motion. This is how the scan
+    /// simulator poses the "true" arm of a robot whose controller has factory calibration.
+    pub fn link_poses_with_errors(
+        &self,
+        q: &[f64],
+        joint_origin_errors: &[Isometry3<f64>],
+    ) -> Result<Vec<Isometry3<f64>>, ModelError> {
+        if joint_origin_errors.len() != self.dof() {
+            return Err(ModelError::JointCount {
+                robot: self.name.clone(),
+                expected: self.dof(),
+                got: joint_origin_errors.len(),
+                joints: self.joint_names.join(", "),
+            });
+        }
+        self.poses(q, Some(joint_origin_errors))
+    }
+
+    /// The axis of each chain joint (unit vector in the joint frame), chain order.
+    pub fn joint_axes(&self) -> Vec<Unit<Vector3<f64>>> {
+        let mut axes = vec![Vector3::z_axis(); self.dof()];
+        for node in &self.links {
+            if let Motion::Revolute {
+                axis,
+                q: QSource::Chain(i),
+            }
+            | Motion::Prismatic {
+                axis,
+                q: QSource::Chain(i),
+            } = node.motion
+            {
+                axes[i] = axis;
+            }
+        }
+        axes
+    }
+
+    fn poses(
+        &self,
+        q: &[f64],
+        errors: Option<&[Isometry3<f64>]>,
+    ) -> Result<Vec<Isometry3<f64>>, ModelError> {
         self.check_q(q)?;
         let mut poses = vec![Isometry3::identity(); self.links.len()];
         for &l in &self.order {
             let node = &self.links[l];
             let Some(p) = node.parent else { continue };
-            let motion = match node.motion {
-                Motion::Fixed => Isometry3::identity(),
-                Motion::Revolute { axis, q: s } => Isometry3::from_parts(
-                    Translation3::identity(),
-                    UnitQuaternion::from_axis_angle(&axis, s.value(q)),
+            let (motion, chain) = match node.motion {
+                Motion::Fixed => (Isometry3::identity(), None),
+                Motion::Revolute { axis, q: s } => (
+                    Isometry3::from_parts(
+                        Translation3::identity(),
+                        UnitQuaternion::from_axis_angle(&axis, s.value(q)),
+                    ),
+                    s.chain_index(),
                 ),
-                Motion::Prismatic { axis, q: s } => Isometry3::from_parts(
-                    Translation3::from(axis.into_inner() * s.value(q)),
-                    UnitQuaternion::identity(),
+                Motion::Prismatic { axis, q: s } => (
+                    Isometry3::from_parts(
+                        Translation3::from(axis.into_inner() * s.value(q)),
+                        UnitQuaternion::identity(),
+                    ),
+                    s.chain_index(),
                 ),
             };
-            poses[l] = poses[p] * node.parent_from_joint * motion;
+            let error = match (errors, chain) {
+                (Some(e), Some(i)) => e[i],
+                _ => Isometry3::identity(),
+            };
+            poses[l] = poses[p] * node.parent_from_joint * error * motion;
         }
         Ok(poses)
     }

@@ -7,24 +7,7 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
 use super::*;
-
-/// `../shared/robots`, or `None` (with a message) when it is absent; panics under CI.
-fn shared_robots() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/robots");
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{} is missing and CI is set",
-        dir.display()
-    );
-    eprintln!(
-        "SKIP: {} not found; robot model tests need ../shared/robots",
-        dir.display()
-    );
-    None
-}
+use crate::testutil::shared_robots;
 
 fn urdfs(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();

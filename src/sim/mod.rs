@@ -1,10 +1,18 @@
-//! The 3D scan simulator.
+//! The 3D scan simulator: a pinhole 3D camera ray-casting the posed robot (true kinematics)
+//! and its cell, with the imperfections of real scans (see [`ScanNoise`], [`CellOptions`],
+//! [`KinematicError`]).
 
 mod camera;
 pub mod cell;
 mod noise;
 pub mod raycast;
+mod scan;
+mod settings;
 
-pub use camera::Intrinsics;
+pub use camera::{look_at, Intrinsics};
 pub use cell::{CellOptions, CellPart};
 pub use noise::ScanNoise;
+pub use scan::{
+    simulate_scan, GroundTruth, KinematicError, Placement, ScanRequest, SimError, SimulatedScan,
+};
+pub use settings::{SettingsError, SimSettings};

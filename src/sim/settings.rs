@@ -41,23 +41,34 @@ pub enum SettingsError {
 impl SimSettings {
     /// A perfect sensor, nothing around the robot, the arm exactly its model.
     pub fn ideal() -> Self {
-        Self { noise: ScanNoise::none(), cell: CellOptions::none(), kinematic_error: KinematicError::none() }
+        Self {
+            noise: ScanNoise::none(),
+            cell: CellOptions::none(),
+            kinematic_error: KinematicError::none(),
+        }
     }
 
     /// Parses settings from TOML text.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, SettingsError> {
-        let s: SimSettings = toml::from_str(text)
-            .map_err(|e| SettingsError::Invalid { path: origin.to_string(), message: e.to_string() })?;
+        let s: SimSettings = toml::from_str(text).map_err(|e| SettingsError::Invalid {
+            path: origin.to_string(),
+            message: e.to_string(),
+        })?;
         s.noise
             .validate()
-            .map_err(|message| SettingsError::Invalid { path: origin.to_string(), message })?;
+            .map_err(|message| SettingsError::Invalid {
+                path: origin.to_string(),
+                message,
+            })?;
         Ok(s)
     }
 
     /// Loads settings from a TOML file.
     pub fn load(path: &Path) -> Result<Self, SettingsError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| SettingsError::Read { path: path.display().to_string(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| SettingsError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
         Self::from_toml(&text, &path.display().to_string())
     }
 }
@@ -70,10 +81,18 @@ mod tests {
     fn the_example_file_loads_and_unknown_keys_are_refused() {
         let example = concat!(env!("CARGO_MANIFEST_DIR"), "/config/simulator.example.toml");
         let s = SimSettings::load(Path::new(example)).expect("example settings load");
-        assert_eq!(s, SimSettings::default(), "the example documents the defaults");
+        assert_eq!(
+            s,
+            SimSettings::default(),
+            "the example documents the defaults"
+        );
         let err = SimSettings::from_toml("[noise]\ndepth_sigma = 1.0\n", "t.toml").unwrap_err();
         assert!(err.to_string().contains("depth_sigma"), "{err}");
-        let err = SimSettings::from_toml("[noise]\nrandom_dropout_probability = 2.0\n", "t.toml").unwrap_err();
-        assert!(err.to_string().contains("random_dropout_probability"), "{err}");
+        let err = SimSettings::from_toml("[noise]\nrandom_dropout_probability = 2.0\n", "t.toml")
+            .unwrap_err();
+        assert!(
+            err.to_string().contains("random_dropout_probability"),
+            "{err}"
+        );
     }
 }
