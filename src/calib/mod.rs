@@ -1,2 +1,89 @@
 //! Registration of a scan against the posed robot model, the hand-eye solve, the pass/fail
-//! gate and the benchmark protocol.
+//! gate and the report.
+//!
+//! - [`register`] / [`register_posed`]: one scan (camera frame) + the model posed at the measured
+//!   joints → `camera_from_model` with covariance, quality and timings. Works without a prior.
+//! - [`solve`]: closes the kinematic chain per frame and fuses frames and views
+//!   (eye-in-hand `flange_from_camera`, eye-to-hand `model_from_camera`).
+//! - [`gate`]: pass/fail with configurable thresholds and reasons.
+//! - [`report`]: the JSON report of a calibration.
+//!
+//! Frames: `model` is the URDF root link (for UR `base_link`), `camera` the optical frame
+//! (OpenCV axes), `flange` the link the caller names. Units: metres and radians inside; reports
+//! say mm/deg in field names.
+
+mod coarse;
+mod fine;
+pub mod gate;
+mod kdtree;
+mod range;
+pub mod register;
+pub mod report;
+pub mod solve;
+mod surface;
+mod verify;
+
+#[cfg(test)]
+pub(crate) mod testutil;
+
+pub use gate::{gate, GateThresholds, Verdict};
+pub use register::{
+    posed_model, register, register_posed, Quality, RegisterOptions, Registration, StageTimings,
+    Uncertainty,
+};
+pub use report::CalibrationReport;
+pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};
+pub use surface::{PosedModel, PosedPart};
+
+/// Errors of registration and solving; each message tells the operator what to do.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CalibError {
+    /// The scan has (almost) no valid points.
+    #[error("the scan has only {valid_points} valid points; check the camera exposure and that the scan file is not empty")]
+    EmptyScan {
+        /// Number of valid (finite) points found.
+        valid_points: usize,
+    },
+    /// The scan's `points.len()` does not match `width × height`.
+    #[error("the scan is malformed: {width}×{height} grid but {points} points")]
+    MalformedScan {
+        /// Grid width.
+        width: u32,
+        /// Grid height.
+        height: u32,
+        /// Number of points present.
+        points: usize,
+    },
+    /// The joint vector does not match the robot model.
+    #[error("{got} joint values given but the robot model has {expected} joints; pass one value per joint in URDF order")]
+    JointCountMismatch {
+        /// Joints of the model.
+        expected: usize,
+        /// Joint values given.
+        got: usize,
+    },
+    /// The model has no geometry for the links registration uses.
+    #[error("the robot model has no meshes on its base and first links; check the URDF's <visual> meshes")]
+    NoModelGeometry,
+    /// No pose of the robot explains the scan.
+    #[error("the robot was not found in the scan ({detail}); make sure the base and the first links are in view, 0.3–1.2 m from the camera")]
+    RobotNotFound {
+        /// What the search saw (best coverage, planes, …).
+        detail: String,
+    },
+    /// The robot model could not be posed.
+    #[error(transparent)]
+    Model(crate::model::ModelError),
+    /// Nothing to solve.
+    #[error("no registered frames to solve from")]
+    NoFrames,
+    /// A frame's input is inconsistent (e.g. eye-in-hand without a flange pose).
+    #[error("frame {frame}: {detail}")]
+    BadFrame {
+        /// Index of the frame in the input.
+        frame: usize,
+        /// What is wrong.
+        detail: String,
+    },
+}

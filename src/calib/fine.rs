@@ -1,0 +1,248 @@
+//! Fine alignment: robust point-to-plane ICP of scan points against the exact model triangles,
+//! optionally with the camera's depth scale as a 7th parameter, and the information matrix of
+//! the result.
+//!
+//! Correspondences go scan → model: the nearest surface sample of *any* link gives the triangle;
+//! a point whose nearest link is beyond the fitted chain depth is explained by the rest of the
+//! arm and dropped, as are points whose normal disagrees with the triangle's (floor next to the
+//! base, edges). The residual is the signed distance to the triangle's plane at its closest
+//! point; a Cauchy kernel down-weights CAD mismatch, cables, bolts and flying pixels.
+//!
+//! Parameters: `model_from_camera` is updated by a left perturbation `exp(δ)` in the model frame,
+//! `δ = (ρ, φ)` (metres, radians); scan points are multiplied by `κ` (true = κ · measured).
+
+use nalgebra::{
+    Isometry3, Matrix6, Point3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3,
+};
+use rayon::prelude::*;
+
+use super::coarse::Oriented;
+use super::surface::ModelSurface;
+
+type Mat7 = SMatrix<f64, 7, 7>;
+type Vec7 = SVector<f64, 7>;
+
+/// One stage of the ICP schedule.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Stage {
+    /// Correspondence gate, metres.
+    pub(crate) gate_m: f64,
+    /// Cauchy kernel scale, metres.
+    pub(crate) kernel_m: f64,
+    /// Whether the depth scale is a free parameter in this stage.
+    pub(crate) scale: bool,
+    /// Iteration cap.
+    pub(crate) iterations: usize,
+}
+
+/// Result of [`icp`].
+#[derive(Debug, Clone)]
+pub(crate) struct IcpResult {
+    pub(crate) model_from_camera: Isometry3<f64>,
+    /// True depth = `kappa` × measured depth.
+    pub(crate) kappa: f64,
+    /// Information matrix of the 6 pose parameters (scale marginalised out when estimated),
+    /// weighted, not yet scaled by the residual variance.
+    pub(crate) info6: Matrix6<f64>,
+    /// Covariance of the 6 pose parameters (model-frame left perturbation), m² / rad².
+    pub(crate) cov6: Matrix6<f64>,
+    /// Weighted centroid of the correspondences, model frame (metres).
+    pub(crate) centroid: Point3<f64>,
+    /// RMS distance of the correspondences from their centroid, metres.
+    pub(crate) spread_m: f64,
+    /// Correspondences accepted in the last iteration.
+    pub(crate) n_used: usize,
+    /// RMS of residuals of correspondences within 3 kernel scales, metres.
+    pub(crate) rmse_m: f64,
+    /// Fraction of scan points (inside the model's neighbourhood) within 3 kernel scales.
+    pub(crate) inlier_fraction: f64,
+}
+
+#[derive(Debug, Clone, Copy, Default)]
+struct Acc {
+    h: Mat7,
+    g: Vec7,
+    wsum: f64,
+    wr2: f64,
+    n: usize,
+    close: usize,
+    r2_close: f64,
+    near: usize,
+    /// Σ w·x and Σ w·|x|² of the model-frame points (centroid and spread).
+    wx: Vector3<f64>,
+    wxx: f64,
+}
+
+impl Acc {
+    fn add(mut self, o: Acc) -> Acc {
+        self.h += o.h;
+        self.g += o.g;
+        self.wsum += o.wsum;
+        self.wr2 += o.wr2;
+        self.n += o.n;
+        self.close += o.close;
+        self.r2_close += o.r2_close;
+        self.near += o.near;
+        self.wx += o.wx;
+        self.wxx += o.wxx;
+        self
+    }
+}
+
+fn accumulate(
+    pts: &[Oriented],
+    surface: &ModelSurface,
+    t: &Isometry3<f64>,
+    kappa: f64,
+    st: &Stage,
+) -> Acc {
+    let cos_min = 0.5;
+    let one = |o: &Oriented| -> Acc {
+        let mut a = Acc::default();
+        let rp = t.rotation * o.p.coords;
+        let x = Point3::from(rp * kappa + t.translation.vector);
+        let Some(s) = surface.nearest(&x, st.gate_m.max(0.01)) else {
+            return a;
+        };
+        if s.depth as usize > surface.fit_depth {
+            return a;
+        }
+        a.near = 1;
+        let tri = &surface.triangles[s.tri as usize];
+        let c = tri.closest_point(&x);
+        if (x - c).norm() > st.gate_m {
+            return a;
+        }
+        if (t.rotation * o.n).dot(&tri.n) < cos_min {
+            return a;
+        }
+        let n = tri.n;
+        let r = n.dot(&(x - c));
+        let u = r / st.kernel_m;
+        let w = 1.0 / (1.0 + u * u);
+        let mut j = Vec7::zeros();
+        j.fixed_rows_mut::<3>(0).copy_from(&n);
+        j.fixed_rows_mut::<3>(3).copy_from(&x.coords.cross(&n));
+        j[6] = n.dot(&rp);
+        a.h = j * j.transpose() * w;
+        a.g = j * (w * r);
+        a.wsum = w;
+        a.wr2 = w * r * r;
+        a.n = 1;
+        a.wx = x.coords * w;
+        a.wxx = w * x.coords.norm_squared();
+        if r.abs() < 3.0 * st.kernel_m {
+            a.close = 1;
+            a.r2_close = r * r;
+        }
+        a
+    };
+    if pts.len() > 2000 {
+        pts.par_chunks(1024)
+            .map(|c| c.iter().map(one).fold(Acc::default(), Acc::add))
+            .reduce(Acc::default, Acc::add)
+    } else {
+        pts.iter().map(one).fold(Acc::default(), Acc::add)
+    }
+}
+
+/// Robust point-to-plane ICP from `init` (`model_from_camera`) through the `stages`.
+pub(crate) fn icp(
+    pts: &[Oriented],
+    surface: &ModelSurface,
+    init: &Isometry3<f64>,
+    kappa0: f64,
+    stages: &[Stage],
+) -> Option<IcpResult> {
+    let mut t = *init;
+    let mut kappa = kappa0;
+    let mut last: Option<(Acc, bool, f64)> = None;
+    for st in stages {
+        for it in 0..st.iterations {
+            let a = accumulate(pts, surface, &t, kappa, st);
+            if a.n < 12 {
+                return None;
+            }
+            let mut h = a.h;
+            let mut g = a.g;
+            if !st.scale {
+                // Pin the scale: zero its row/column, unit diagonal.
+                for k in 0..7 {
+                    h[(6, k)] = 0.0;
+                    h[(k, 6)] = 0.0;
+                }
+                h[(6, 6)] = 1.0;
+                g[6] = 0.0;
+            }
+            // Light Levenberg damping for robustness far from the optimum.
+            let mut hd = h;
+            for k in 0..7 {
+                hd[(k, k)] += 1e-9 + 1e-6 * h[(k, k)];
+            }
+            let Some(chol) = hd.cholesky() else {
+                return None;
+            };
+            let delta = -chol.solve(&g);
+            let rho = Vector3::new(delta[0], delta[1], delta[2]);
+            let phi = Vector3::new(delta[3], delta[4], delta[5]);
+            let step = Isometry3::from_parts(
+                Translation3::from(rho),
+                UnitQuaternion::from_scaled_axis(phi),
+            );
+            t = step * t;
+            kappa += delta[6];
+            last = Some((a, st.scale, st.kernel_m));
+            let small = rho.norm() < 2e-7 && phi.norm() < 2e-7 && delta[6].abs() < 1e-7;
+            if small && it > 0 {
+                break;
+            }
+        }
+    }
+    let (_, scaled, kernel) = last?;
+    // Final information at the converged pose.
+    let st = Stage {
+        gate_m: 3.0 * kernel.max(0.001),
+        kernel_m: kernel,
+        scale: scaled,
+        iterations: 1,
+    };
+    let a = accumulate(pts, surface, &t, kappa, &st);
+    if a.n < 12 {
+        return None;
+    }
+    let dof = if scaled { 7.0 } else { 6.0 };
+    let sigma2 = a.wr2 / a.wsum * (a.n as f64 / (a.n as f64 - dof).max(1.0));
+    let h66: Matrix6<f64> = a.h.fixed_view::<6, 6>(0, 0).into_owned();
+    let h6: nalgebra::Vector6<f64> = a.h.fixed_view::<6, 1>(0, 6).into_owned();
+    let h77 = a.h[(6, 6)];
+    let info6 = if scaled && h77 > 0.0 {
+        h66 - h6 * h6.transpose() / h77
+    } else {
+        h66
+    };
+    let cov6 = info6
+        .try_inverse()
+        .map(|m| m * sigma2)
+        .unwrap_or_else(|| Matrix6::identity() * 1e6);
+    Some(IcpResult {
+        model_from_camera: t,
+        kappa,
+        info6,
+        cov6,
+        centroid: Point3::from(a.wx / a.wsum),
+        spread_m: (a.wxx / a.wsum - (a.wx / a.wsum).norm_squared())
+            .max(0.0)
+            .sqrt(),
+        n_used: a.n,
+        rmse_m: if a.close > 0 {
+            (a.r2_close / a.close as f64).sqrt()
+        } else {
+            f64::INFINITY
+        },
+        inlier_fraction: if a.near > 0 {
+            a.close as f64 / a.near as f64
+        } else {
+            0.0
+        },
+    })
+}

@@ -1,0 +1,280 @@
+//! The report of one calibration: what `handeye solve --json` prints and what the daemon
+//! stores. Poses are 4×4 row-major arrays in metres; angles in degrees only where the field
+//! name says so.
+
+use nalgebra::Isometry3;
+use serde::Serialize;
+
+use super::gate::Verdict;
+use super::register::{Quality, Registration, StageTimings, Uncertainty};
+use super::solve::{HandEyeSolution, Mount, Residual};
+use crate::frames::to_row_major;
+
+/// Quality summed up over all frames (worst case of each figure).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct QualitySummary {
+    /// Lowest coverage of any frame, 0–1.
+    pub coverage: f64,
+    /// Highest free-space violation fraction of any frame, 0–1.
+    pub free_space_violations: f64,
+    /// Highest residual RMS of any frame, mm.
+    pub rmse_mm: f64,
+    /// Lowest inlier fraction of any frame, 0–1.
+    pub inlier_fraction: f64,
+    /// Mean estimated depth scale (measured / true), when estimated.
+    pub depth_scale: Option<f64>,
+    /// Frames used / given.
+    pub frames_used: usize,
+    /// Frames given.
+    pub frames: usize,
+    /// Views used.
+    pub views_used: usize,
+    /// Views given.
+    pub views: usize,
+}
+
+/// One frame in the report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FrameReport {
+    /// Where the scan came from (file name).
+    pub source: String,
+    /// View id (frames of one view were captured without moving).
+    pub view: usize,
+    /// Difference from the fused result and whether the frame was used.
+    pub residual: Residual,
+    /// Registration quality.
+    pub quality: Quality,
+    /// Registration uncertainty (1 σ).
+    pub uncertainty: Uncertainty,
+    /// Estimated depth scale (measured / true).
+    pub depth_scale: Option<f64>,
+    /// Number of degenerate directions of the registration.
+    pub degenerate_directions: usize,
+    /// `camera_from_model` of this frame, 4×4 row-major, metres.
+    pub camera_from_model: [[f64; 4]; 4],
+    /// Registration time per stage, ms.
+    pub timings_ms: StageTimings,
+}
+
+/// Time per stage summed over frames, plus the solve, ms.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct ReportTimings {
+    /// Sum over frames of [`StageTimings::preprocess`].
+    pub preprocess: f64,
+    /// Sum over frames of [`StageTimings::coarse`].
+    pub coarse: f64,
+    /// Sum over frames of [`StageTimings::fine`].
+    pub fine: f64,
+    /// Sum over frames of [`StageTimings::verify`].
+    pub verify: f64,
+    /// Fusion and gate.
+    pub solve: f64,
+    /// Everything after loading the inputs.
+    pub total: f64,
+}
+
+/// The calibration report.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CalibrationReport {
+    /// `"ok"` or `"rejected"`.
+    pub status: &'static str,
+    /// Why it was rejected (empty when ok).
+    pub reasons: Vec<String>,
+    /// Eye-in-hand or eye-to-hand.
+    pub mount: Mount,
+    /// The frame `base_from_camera` is expressed in.
+    pub base_frame: String,
+    /// Camera pose in `base_frame`, 4×4 row-major, metres (eye-in-hand: at the first frame).
+    pub base_from_camera: [[f64; 4]; 4],
+    /// Eye-in-hand: camera pose on the flange, 4×4 row-major, metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flange_from_camera: Option<[[f64; 4]; 4]>,
+    /// 1-σ uncertainty of the fused result.
+    pub uncertainty: Uncertainty,
+    /// Worst-case quality over the frames.
+    pub quality: QualitySummary,
+    /// Time per stage.
+    pub timings_ms: ReportTimings,
+    /// Per frame.
+    pub frames: Vec<FrameReport>,
+    /// Per view.
+    pub views: Vec<Residual>,
+}
+
+impl CalibrationReport {
+    /// Builds the report. `base_from_model` maps the model (URDF root) into `base_frame`;
+    /// `base_from_camera` is the camera in that frame (eye-in-hand: at the first frame).
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        solution: &HandEyeSolution,
+        registrations: &[Registration],
+        sources: &[String],
+        verdict: &Verdict,
+        base_frame: &str,
+        base_from_camera: &Isometry3<f64>,
+        solve_ms: f64,
+        total_ms: f64,
+    ) -> Self {
+        let frames: Vec<FrameReport> = registrations
+            .iter()
+            .zip(&solution.frames)
+            .enumerate()
+            .map(|(i, (r, res))| FrameReport {
+                source: sources.get(i).cloned().unwrap_or_default(),
+                view: res.view,
+                residual: *res,
+                quality: r.quality,
+                uncertainty: r.uncertainty,
+                depth_scale: r.depth_scale,
+                degenerate_directions: r.degenerate_directions.len(),
+                camera_from_model: to_row_major(&r.camera_from_model),
+                timings_ms: r.timings_ms,
+            })
+            .collect();
+        let fold = |f: &dyn Fn(&Registration) -> f64, worst: fn(f64, f64) -> f64, init: f64| {
+            registrations.iter().map(f).fold(init, worst)
+        };
+        let scales: Vec<f64> = registrations.iter().filter_map(|r| r.depth_scale).collect();
+        let views_used: Vec<&Residual> = solution.views.iter().filter(|v| v.used).collect();
+        let quality = QualitySummary {
+            coverage: fold(&|r| r.quality.coverage, f64::min, 1.0),
+            free_space_violations: fold(&|r| r.quality.free_space_violations, f64::max, 0.0),
+            rmse_mm: fold(&|r| r.quality.rmse_mm, f64::max, 0.0),
+            inlier_fraction: fold(&|r| r.quality.inlier_fraction, f64::min, 1.0),
+            depth_scale: (!scales.is_empty())
+                .then(|| scales.iter().sum::<f64>() / scales.len() as f64),
+            frames_used: solution.frames.iter().filter(|f| f.used).count(),
+            frames: solution.frames.len(),
+            views_used: views_used.len(),
+            views: solution.views.len(),
+        };
+        // Fused uncertainty: mean registration variance over the used views (views are
+        // independent, frames of one view are not), plus the spread of the views.
+        let n = views_used.len().max(1) as f64;
+        let used_regs: Vec<&Registration> = registrations
+            .iter()
+            .zip(&solution.frames)
+            .filter(|(_, f)| f.used)
+            .map(|(r, _)| r)
+            .collect();
+        let m = used_regs.len().max(1) as f64;
+        let var_t = used_regs
+            .iter()
+            .map(|r| r.uncertainty.translation_mm.powi(2))
+            .sum::<f64>()
+            / m;
+        let var_r = used_regs
+            .iter()
+            .map(|r| r.uncertainty.rotation_deg.powi(2))
+            .sum::<f64>()
+            / m;
+        let spread_t = views_used
+            .iter()
+            .map(|v| v.translation_mm.powi(2))
+            .sum::<f64>()
+            / n;
+        let spread_r = views_used
+            .iter()
+            .map(|v| v.rotation_deg.powi(2))
+            .sum::<f64>()
+            / n;
+        let uncertainty = Uncertainty {
+            translation_mm: ((var_t + spread_t) / n).sqrt(),
+            rotation_deg: ((var_r + spread_r) / n).sqrt(),
+        };
+        let mut timings = ReportTimings {
+            solve: solve_ms,
+            total: total_ms,
+            ..Default::default()
+        };
+        for r in registrations {
+            timings.preprocess += r.timings_ms.preprocess;
+            timings.coarse += r.timings_ms.coarse;
+            timings.fine += r.timings_ms.fine;
+            timings.verify += r.timings_ms.verify;
+        }
+        CalibrationReport {
+            status: if verdict.passed { "ok" } else { "rejected" },
+            reasons: verdict.reasons.clone(),
+            mount: solution.mount,
+            base_frame: base_frame.to_string(),
+            base_from_camera: to_row_major(base_from_camera),
+            flange_from_camera: solution.flange_from_camera().map(|x| to_row_major(&x)),
+            uncertainty,
+            quality,
+            timings_ms: timings,
+            frames,
+            views: solution.views.clone(),
+        }
+    }
+
+    /// A short human-readable summary (several lines).
+    pub fn summary(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let _ = writeln!(s, "status: {}", self.status);
+        for r in &self.reasons {
+            let _ = writeln!(s, "  reason: {r}");
+        }
+        let pose = |m: &[[f64; 4]; 4]| {
+            crate::frames::from_row_major(m)
+                .map(|p| {
+                    let t = p.translation.vector;
+                    let r = p.rotation.scaled_axis();
+                    format!(
+                        "xyz [{:.5}, {:.5}, {:.5}] m, rotvec [{:.5}, {:.5}, {:.5}] rad",
+                        t.x, t.y, t.z, r.x, r.y, r.z
+                    )
+                })
+                .unwrap_or_default()
+        };
+        if let Some(f) = &self.flange_from_camera {
+            let _ = writeln!(s, "flange_from_camera: {}", pose(f));
+        }
+        let _ = writeln!(
+            s,
+            "{}_from_camera: {}",
+            self.base_frame,
+            pose(&self.base_from_camera)
+        );
+        let _ = writeln!(
+            s,
+            "uncertainty (1σ): {:.3} mm, {:.4}°",
+            self.uncertainty.translation_mm, self.uncertainty.rotation_deg
+        );
+        let q = &self.quality;
+        let _ = writeln!(
+            s,
+            "quality: coverage {:.1}%, free-space violations {:.2}%, rmse {:.3} mm, inliers {:.1}%, frames {}/{}, views {}/{}",
+            100.0 * q.coverage,
+            100.0 * q.free_space_violations,
+            q.rmse_mm,
+            100.0 * q.inlier_fraction,
+            q.frames_used,
+            q.frames,
+            q.views_used,
+            q.views
+        );
+        for f in &self.frames {
+            let _ = writeln!(
+                s,
+                "  frame {} (view {}, {}): residual {:.3} mm / {:.4}°{}, coverage {:.1}%, {:.0} ms",
+                f.residual.index,
+                f.view,
+                f.source,
+                f.residual.translation_mm,
+                f.residual.rotation_deg,
+                if f.residual.used { "" } else { " (dropped)" },
+                100.0 * f.quality.coverage,
+                f.timings_ms.total
+            );
+        }
+        let t = &self.timings_ms;
+        let _ = writeln!(
+            s,
+            "time: preprocess {:.0} ms, coarse {:.0} ms, fine {:.0} ms, verify {:.0} ms, total {:.0} ms",
+            t.preprocess, t.coarse, t.fine, t.verify, t.total
+        );
+        s
+    }
+}
