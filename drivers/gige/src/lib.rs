@@ -9,6 +9,7 @@
 
 pub mod client;
 mod error;
+pub mod genicam;
 pub mod gvcp;
 
 pub use client::{discover, ControlConfig, ControlGuard, Discovered, GvcpClient};
