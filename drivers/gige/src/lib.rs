@@ -11,6 +11,7 @@ pub mod client;
 mod error;
 pub mod genicam;
 pub mod gvcp;
+pub mod gvsp;
 
 pub use client::{discover, ControlConfig, ControlGuard, Discovered, GvcpClient};
 pub use error::{GigeError, Result};
