@@ -8,6 +8,7 @@
 #![deny(missing_docs)]
 
 pub mod client;
+pub mod decode;
 mod error;
 pub mod genicam;
 pub mod gvcp;
