@@ -7,12 +7,15 @@
 //! (a simulated 3D camera that speaks the same protocols).
 #![deny(missing_docs)]
 
+pub mod camera;
 pub mod client;
 pub mod decode;
 mod error;
 pub mod genicam;
 pub mod gvcp;
 pub mod gvsp;
+pub mod sim;
 
+pub use camera::{CaptureStats, GigeCamera, StreamOptions};
 pub use client::{discover, ControlConfig, ControlGuard, Discovered, GvcpClient};
 pub use error::{GigeError, Result};
