@@ -302,7 +302,7 @@ impl GvcpClient {
 
     /// Write device memory (multiple of 4 bytes; split in blocks of at most 536 bytes).
     pub fn write_mem(&self, address: u32, data: &[u8]) -> Result<()> {
-        if data.len() % 4 != 0 {
+        if !data.len().is_multiple_of(4) {
             return Err(GigeError::InvalidArgument(format!(
                 "WRITEMEM of {} bytes: must be a multiple of 4",
                 data.len()

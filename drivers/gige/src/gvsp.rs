@@ -1034,7 +1034,7 @@ mod tests {
                 0 => b.truncate(rng.random_range(0..=b.len())),
                 1 => {
                     for _ in 0..rng.random_range(1..8) {
-                        let j = rng.random_range(0..b.len().min(80).max(1));
+                        let j = rng.random_range(0..b.len().clamp(1, 80));
                         if let Some(x) = b.get_mut(j) {
                             *x = rng.random();
                         }

@@ -164,7 +164,7 @@ impl State {
 
     /// Read one big-endian 32-bit word.
     fn read_word(&self, a: u32) -> Option<u32> {
-        if a % 4 != 0 {
+        if !a.is_multiple_of(4) {
             return None;
         }
         for (base, len, bytes) in &self.strings {
@@ -181,7 +181,7 @@ impl State {
         }
         if let Some(x) = self.float(a & !7) {
             let bits = x.to_bits();
-            return Some(if a % 8 == 0 {
+            return Some(if a.is_multiple_of(8) {
                 (bits >> 32) as u32
             } else {
                 bits as u32
