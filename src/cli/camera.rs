@@ -115,12 +115,25 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 );
             }
             if let Some(path) = out {
-                // PLY writing lives in the core's `handeye::cloud` module (not in this build yet).
-                eprintln!(
-                    "note: cannot write {}: PLY output needs the core's cloud writer, which this build does not have yet",
-                    path.display()
-                );
-                return Ok(ExitCode::from(2));
+                // Several frames go to `<stem>_<i>.ply`; one frame to the path given.
+                for (i, cloud) in clouds.iter().enumerate() {
+                    let file = if clouds.len() == 1 {
+                        path.clone()
+                    } else {
+                        let stem = path
+                            .file_stem()
+                            .map(|s| s.to_string_lossy().into_owned())
+                            .unwrap_or_default();
+                        path.with_file_name(format!("{stem}_{i}.ply"))
+                    };
+                    handeye::cloud::write_ply(
+                        &file,
+                        cloud,
+                        handeye::cloud::PlyEncoding::BinaryLittleEndian,
+                    )
+                    .map_err(|e| anyhow::anyhow!("writing {}: {e}", file.display()))?;
+                    eprintln!("wrote {}", file.display());
+                }
             }
             Ok(ExitCode::SUCCESS)
         }
