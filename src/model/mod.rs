@@ -696,6 +696,26 @@ impl RobotModel {
         self.poses(q, Some(joint_origin_errors))
     }
 
+    /// The nominal origin of each chain joint in its parent link (`parent_from_joint`), chain
+    /// order: its translation is the link vector that a link-length error scales.
+    pub fn joint_origins(&self) -> Vec<Isometry3<f64>> {
+        let mut origins = vec![Isometry3::identity(); self.dof()];
+        for node in &self.links {
+            if let Motion::Revolute {
+                q: QSource::Chain(i),
+                ..
+            }
+            | Motion::Prismatic {
+                q: QSource::Chain(i),
+                ..
+            } = node.motion
+            {
+                origins[i] = node.parent_from_joint;
+            }
+        }
+        origins
+    }
+
     /// The axis of each chain joint (unit vector in the joint frame), chain order.
     pub fn joint_axes(&self) -> Vec<Unit<Vector3<f64>>> {
         let mut axes = vec![Vector3::z_axis(); self.dof()];

@@ -30,25 +30,30 @@ pub enum Placement {
     },
 }
 
-/// How the real arm differs from its nominal model (the controller knows these deltas from
-/// its factory calibration and reports true flange poses; the CAD model we register against is
-/// nominal). Each movable joint's origin gets a random rotation about its own axis (joint zero
-/// offset) and a random translation.
+/// How the real arm differs from its nominal model. The controller knows these deltas from its
+/// factory calibration and reports true flange poses; the CAD model we register against is
+/// nominal. Per chain joint: a zero offset (rotation about the joint axis), a link-length error
+/// (along the link vector leading to the joint), and a small axis misalignment (rotation about
+/// an axis perpendicular to the joint axis).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct KinematicError {
     /// Standard deviation of each joint's zero offset, radians.
     pub joint_offset_sigma_rad: f64,
-    /// Standard deviation of each joint origin's translation error per axis, metres.
-    pub link_offset_sigma_m: f64,
+    /// Standard deviation of each link's length error, metres.
+    pub link_length_sigma_m: f64,
+    /// Standard deviation of each joint axis' misalignment, radians.
+    pub axis_misalignment_sigma_rad: f64,
 }
 
 impl Default for KinematicError {
-    /// Typical UR factory-calibration deltas: ~0.3 mrad joint offsets, ~0.5 mm link errors.
+    /// Typical of UR factory-calibration deltas: 0.3 mrad zero offsets, 0.3 mm link lengths,
+    /// 0.1 mrad axis misalignment.
     fn default() -> Self {
         Self {
             joint_offset_sigma_rad: 0.0003,
-            link_offset_sigma_m: 0.0005,
+            link_length_sigma_m: 0.0003,
+            axis_misalignment_sigma_rad: 0.0001,
         }
     }
 }
@@ -58,13 +63,15 @@ impl KinematicError {
     pub fn none() -> Self {
         Self {
             joint_offset_sigma_rad: 0.0,
-            link_offset_sigma_m: 0.0,
+            link_length_sigma_m: 0.0,
+            axis_misalignment_sigma_rad: 0.0,
         }
     }
 
-    /// One random draw of per-joint origin errors (one isometry per movable joint).
+    /// One random draw of per-joint origin errors (one isometry per chain joint, for
+    /// [`RobotModel::link_poses_with_errors`]).
     pub fn sample(&self, model: &RobotModel, rng: &mut impl Rng) -> Vec<Isometry3<f64>> {
-        let gauss = |s: f64, rng: &mut dyn rand::RngCore| {
+        let mut gauss = |s: f64| {
             if s > 0.0 {
                 Normal::new(0.0, s).map_or(0.0, |d| d.sample(rng))
             } else {
@@ -74,15 +81,25 @@ impl KinematicError {
         model
             .joint_axes()
             .iter()
-            .map(|axis| {
-                let t = Vector3::new(
-                    gauss(self.link_offset_sigma_m, rng),
-                    gauss(self.link_offset_sigma_m, rng),
-                    gauss(self.link_offset_sigma_m, rng),
+            .zip(model.joint_origins())
+            .map(|(axis, origin)| {
+                // The link vector, expressed in the joint frame (where the error is inserted).
+                let link = origin.rotation.inverse() * origin.translation.vector;
+                let along = link.try_normalize(1e-9).unwrap_or_else(Vector3::zeros);
+                let t = along * gauss(self.link_length_sigma_m);
+                let perpendicular = axis
+                    .cross(&if axis.x.abs() < 0.9 {
+                        Vector3::x()
+                    } else {
+                        Vector3::y()
+                    })
+                    .normalize();
+                let twist = UnitQuaternion::from_scaled_axis(
+                    perpendicular * gauss(self.axis_misalignment_sigma_rad),
                 );
-                let r =
-                    UnitQuaternion::from_axis_angle(axis, gauss(self.joint_offset_sigma_rad, rng));
-                Isometry3::from_parts(Translation3::from(t), r)
+                let zero =
+                    UnitQuaternion::from_axis_angle(axis, gauss(self.joint_offset_sigma_rad));
+                Isometry3::from_parts(Translation3::from(t), twist * zero)
             })
             .collect()
     }
