@@ -12,7 +12,9 @@
 
 mod error;
 mod pose;
+pub mod primary;
 pub mod rtde;
+pub mod sim;
 
 pub use error::UrError;
 pub use pose::UrPose;

@@ -781,7 +781,7 @@ impl ServerPackage {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     #[test]
