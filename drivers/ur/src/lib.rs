@@ -12,11 +12,14 @@
 
 mod error;
 mod pose;
+pub mod client;
+pub mod dashboard;
 pub mod primary;
 pub mod rtde;
 pub mod sim;
 
 pub use error::UrError;
+pub use client::{UrConfig, UrRobot};
 pub use pose::UrPose;
 
 /// Standard controller ports.
