@@ -74,3 +74,34 @@ async fn ur_rtde_dashboard_power_brake_play_stop() {
     assert_eq!(out["remote"], true, "{out}");
     assert_eq!(sim.robot_mode(), handeye_ur::sim::RobotModeCode::Running);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn what_our_driver_does_is_what_ur_rtde_reads() {
+    use handeye_hal::{MotionLimits, Robot};
+    use handeye_ur::{UrConfig, UrPose, UrRobot};
+    use nalgebra::Isometry3;
+    let Some(py) = python() else { return };
+    let mut c = config(44);
+    c.start_running = true;
+    let sim = Simulator::start(c).await.expect("sim");
+    let mut cfg = UrConfig::new("127.0.0.44".parse().expect("ip"));
+    cfg.max_joint_speed_rad_s = 2.0;
+    cfg.max_joint_accel_rad_s2 = 8.0;
+    let robot = UrRobot::connect(cfg).await.expect("driver connects");
+    let target = [0.2, -1.4, 1.3, -1.2, -1.6, 0.5];
+    let lim = MotionLimits { max_joint_speed_rad_s: 2.0, max_joint_accel_rad_s2: 8.0, timeout: Duration::from_secs(10) };
+    robot.move_joints(&target, lim).await.expect("move");
+    let flange_from_tcp = UrPose([0.0, 0.0, 0.2, 0.0, 0.0, 0.5]);
+    robot.set_tcp(&Isometry3::from(flange_from_tcp)).await.expect("set_tcp");
+    let out = run_python(&py, "receive.py", "127.0.0.44").await;
+    let q: Vec<f64> = serde_json::from_value(out["q"].clone()).expect("q");
+    for (a, b) in q.iter().zip(target) {
+        assert!((a - b).abs() < 1e-3, "ur_rtde reads {q:?}, we moved to {target:?}");
+    }
+    let tcp: [f64; 6] = serde_json::from_value(out["tcp"].clone()).expect("tcp");
+    let q6: [f64; 6] = q.try_into().expect("6");
+    let expect = UrPose::from(sim.dh().forward(&q6) * Isometry3::from(flange_from_tcp));
+    assert!(UrPose(tcp).approx_eq(&expect, 1e-6, 1e-6), "ur_rtde TCP {tcp:?} vs {expect:?}");
+    let ours = robot.tcp_pose().await.expect("tcp");
+    assert!(UrPose(tcp).approx_eq(&UrPose::from(ours), 1e-6, 1e-6));
+}
