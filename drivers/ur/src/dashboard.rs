@@ -26,10 +26,14 @@ pub struct DashboardClient {
 
 /// Parse `Robotmode: NAME`.
 pub fn parse_robot_mode(reply: &str) -> Result<RobotMode, UrError> {
-    let name = reply
-        .strip_prefix("Robotmode: ")
-        .ok_or_else(|| UrError::malformed("dashboard", format!("expected `Robotmode: <MODE>`, got `{reply}`")))?;
-    robot_mode_from_name(name).ok_or_else(|| UrError::malformed("dashboard", format!("unknown robot mode `{name}`")))
+    let name = reply.strip_prefix("Robotmode: ").ok_or_else(|| {
+        UrError::malformed(
+            "dashboard",
+            format!("expected `Robotmode: <MODE>`, got `{reply}`"),
+        )
+    })?;
+    robot_mode_from_name(name)
+        .ok_or_else(|| UrError::malformed("dashboard", format!("unknown robot mode `{name}`")))
 }
 
 /// Robot mode from its dashboard name.
@@ -107,9 +111,23 @@ pub fn safety_mode_from_code(code: i32) -> SafetyMode {
 
 /// Parse `URSoftware 5.11.1.108318 (…)` into its four numbers.
 pub fn parse_polyscope_version(reply: &str) -> Result<[u32; 4], UrError> {
-    let bad = || UrError::malformed("dashboard", format!("expected `URSoftware <a.b.c.d> (<date>)`, got `{reply}`"));
-    let v = reply.strip_prefix("URSoftware ").ok_or_else(bad)?.split_whitespace().next().ok_or_else(bad)?;
-    let parts: Vec<u32> = v.split('.').map(str::parse).collect::<Result<_, _>>().map_err(|_| bad())?;
+    let bad = || {
+        UrError::malformed(
+            "dashboard",
+            format!("expected `URSoftware <a.b.c.d> (<date>)`, got `{reply}`"),
+        )
+    };
+    let v = reply
+        .strip_prefix("URSoftware ")
+        .ok_or_else(bad)?
+        .split_whitespace()
+        .next()
+        .ok_or_else(bad)?;
+    let parts: Vec<u32> = v
+        .split('.')
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .map_err(|_| bad())?;
     <[u32; 4]>::try_from(parts).map_err(|_| bad())
 }
 
@@ -118,13 +136,27 @@ impl DashboardClient {
     pub async fn connect(addr: SocketAddr, timeout: Duration) -> Result<Self, UrError> {
         let sock = tokio::time::timeout(timeout, TcpStream::connect(addr))
             .await
-            .map_err(|_| UrError::Timeout { what: format!("dashboard connect to {addr}"), after: timeout })?
-            .map_err(|source| UrError::Io { peer: addr.to_string(), source })?;
+            .map_err(|_| UrError::Timeout {
+                what: format!("dashboard connect to {addr}"),
+                after: timeout,
+            })?
+            .map_err(|source| UrError::Io {
+                peer: addr.to_string(),
+                source,
+            })?;
         let (r, w) = sock.into_split();
-        let mut c = Self { addr, r: BufReader::new(r), w, timeout };
+        let mut c = Self {
+            addr,
+            r: BufReader::new(r),
+            w,
+            timeout,
+        };
         let banner = c.read_line("dashboard banner").await?;
         if banner != BANNER {
-            return Err(UrError::malformed("dashboard", format!("unexpected banner `{banner}` (is this port 29999 of a UR controller?)")));
+            return Err(UrError::malformed(
+                "dashboard",
+                format!("unexpected banner `{banner}` (is this port 29999 of a UR controller?)"),
+            ));
         }
         Ok(c)
     }
@@ -134,31 +166,52 @@ impl DashboardClient {
         let mut limited = (&mut self.r).take(MAX_REPLY);
         let n = tokio::time::timeout(self.timeout, limited.read_until(b'\n', &mut buf))
             .await
-            .map_err(|_| UrError::Timeout { what: what.to_string(), after: self.timeout })?
-            .map_err(|source| UrError::Io { peer: self.addr.to_string(), source })?;
+            .map_err(|_| UrError::Timeout {
+                what: what.to_string(),
+                after: self.timeout,
+            })?
+            .map_err(|source| UrError::Io {
+                peer: self.addr.to_string(),
+                source,
+            })?;
         if n == 0 {
             return Err(UrError::Io {
                 peer: self.addr.to_string(),
-                source: std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "dashboard closed the connection"),
+                source: std::io::Error::new(
+                    std::io::ErrorKind::UnexpectedEof,
+                    "dashboard closed the connection",
+                ),
             });
         }
         if buf.last() != Some(&b'\n') {
-            return Err(UrError::malformed("dashboard", "reply line too long or cut off"));
+            return Err(UrError::malformed(
+                "dashboard",
+                "reply line too long or cut off",
+            ));
         }
-        let s = String::from_utf8(buf).map_err(|_| UrError::malformed("dashboard", "reply is not text"))?;
+        let s = String::from_utf8(buf)
+            .map_err(|_| UrError::malformed("dashboard", "reply is not text"))?;
         Ok(s.trim_end_matches(['\n', '\r']).to_string())
     }
 
     /// Send one command and return the reply line (without newline).
     pub async fn request(&mut self, cmd: &str) -> Result<String, UrError> {
         if cmd.contains('\n') {
-            return Err(UrError::InvalidArgument("dashboard commands are single lines".into()));
+            return Err(UrError::InvalidArgument(
+                "dashboard commands are single lines".into(),
+            ));
         }
         let line = format!("{cmd}\n");
         tokio::time::timeout(self.timeout, self.w.write_all(line.as_bytes()))
             .await
-            .map_err(|_| UrError::Timeout { what: format!("dashboard `{cmd}`"), after: self.timeout })?
-            .map_err(|source| UrError::Io { peer: self.addr.to_string(), source })?;
+            .map_err(|_| UrError::Timeout {
+                what: format!("dashboard `{cmd}`"),
+                after: self.timeout,
+            })?
+            .map_err(|source| UrError::Io {
+                peer: self.addr.to_string(),
+                source,
+            })?;
         self.read_line(&format!("dashboard reply to `{cmd}`")).await
     }
 
@@ -167,7 +220,11 @@ impl DashboardClient {
         if reply == ok {
             Ok(())
         } else {
-            Err(UrError::Refused { device: "dashboard", request: cmd.into(), reason: reply })
+            Err(UrError::Refused {
+                device: "dashboard",
+                request: cmd.into(),
+                reason: reply,
+            })
         }
     }
 
@@ -185,11 +242,17 @@ impl DashboardClient {
             None => {
                 let r = self.request("safetymode").await?;
                 r.strip_prefix("Safetymode: ")
-                    .ok_or_else(|| UrError::malformed("dashboard", format!("expected `Safetymode: <MODE>`, got `{r}`")))?
+                    .ok_or_else(|| {
+                        UrError::malformed(
+                            "dashboard",
+                            format!("expected `Safetymode: <MODE>`, got `{r}`"),
+                        )
+                    })?
                     .to_string()
             }
         };
-        safety_mode_from_name(&name).ok_or_else(|| UrError::malformed("dashboard", format!("unknown safety mode `{name}`")))
+        safety_mode_from_name(&name)
+            .ok_or_else(|| UrError::malformed("dashboard", format!("unknown safety mode `{name}`")))
     }
 
     /// `is in remote control` (e-Series 5.6+); `true` on controllers without the command (CB3).
@@ -199,7 +262,10 @@ impl DashboardClient {
             "true" => Ok(true),
             "false" => Ok(false),
             _ if r.starts_with("could not understand") => Ok(true),
-            _ => Err(UrError::malformed("dashboard", format!("expected `true`/`false`, got `{r}`"))),
+            _ => Err(UrError::malformed(
+                "dashboard",
+                format!("expected `true`/`false`, got `{r}`"),
+            )),
         }
     }
 
@@ -209,7 +275,10 @@ impl DashboardClient {
         match r.as_str() {
             "Program running: true" => Ok(true),
             "Program running: false" => Ok(false),
-            _ => Err(UrError::malformed("dashboard", format!("expected `Program running: true|false`, got `{r}`"))),
+            _ => Err(UrError::malformed(
+                "dashboard",
+                format!("expected `Program running: true|false`, got `{r}`"),
+            )),
         }
     }
 
@@ -241,7 +310,11 @@ impl DashboardClient {
         if r.starts_with("Loading program:") {
             Ok(())
         } else {
-            Err(UrError::Refused { device: "dashboard", request: cmd, reason: r })
+            Err(UrError::Refused {
+                device: "dashboard",
+                request: cmd,
+                reason: r,
+            })
         }
     }
 
@@ -262,7 +335,8 @@ impl DashboardClient {
 
     /// `unlock protective stop` (only ever on an explicit operator request).
     pub async fn unlock_protective_stop(&mut self) -> Result<(), UrError> {
-        self.expect("unlock protective stop", "Protective stop releasing").await
+        self.expect("unlock protective stop", "Protective stop releasing")
+            .await
     }
 
     /// `quit`: the server answers `Disconnected` and closes.
@@ -277,14 +351,23 @@ mod tests {
 
     #[test]
     fn strict_reply_parsing() {
-        assert_eq!(parse_robot_mode("Robotmode: RUNNING").expect("ok"), RobotMode::Running);
+        assert_eq!(
+            parse_robot_mode("Robotmode: RUNNING").expect("ok"),
+            RobotMode::Running
+        );
         assert!(parse_robot_mode("robotmode: RUNNING").is_err());
         assert!(parse_robot_mode("Robotmode: SLEEPING").is_err());
-        assert_eq!(parse_polyscope_version("URSoftware 5.19.0.1210631 (Oct 23 2024)").expect("ok"), [5, 19, 0, 1210631]);
+        assert_eq!(
+            parse_polyscope_version("URSoftware 5.19.0.1210631 (Oct 23 2024)").expect("ok"),
+            [5, 19, 0, 1210631]
+        );
         assert!(parse_polyscope_version("URSoftware 5.19 (Oct 23 2024)").is_err());
         assert!(parse_polyscope_version("").is_err());
         let mut rng = crate::rtde::tests::Lcg(11);
-        let seeds = ["Robotmode: RUNNING", "URSoftware 5.19.0.1210631 (Oct 23 2024)"];
+        let seeds = [
+            "Robotmode: RUNNING",
+            "URSoftware 5.19.0.1210631 (Oct 23 2024)",
+        ];
         for _ in 0..5000 {
             let mut b = seeds[rng.below(2)].as_bytes().to_vec();
             let i = rng.below(b.len());

@@ -66,12 +66,18 @@ pub enum UrError {
 impl UrError {
     #[allow(dead_code)]
     pub(crate) fn malformed(protocol: &'static str, detail: impl Into<String>) -> Self {
-        UrError::Malformed { protocol, detail: detail.into() }
+        UrError::Malformed {
+            protocol,
+            detail: detail.into(),
+        }
     }
 
     #[allow(dead_code)]
     pub(crate) fn in_use(name: &str) -> Self {
-        UrError::FieldInUse { name: name.to_string(), hint: in_use_hint(name) }
+        UrError::FieldInUse {
+            name: name.to_string(),
+            hint: in_use_hint(name),
+        }
     }
 }
 
@@ -79,7 +85,8 @@ impl UrError {
 #[allow(dead_code)]
 pub(crate) fn in_use_hint(name: &str) -> &'static str {
     let index = name.rsplit('_').next().and_then(|s| s.parse::<u32>().ok());
-    let is_reg = name.starts_with("input_int_register_") || name.starts_with("input_double_register_");
+    let is_reg =
+        name.starts_with("input_int_register_") || name.starts_with("input_double_register_");
     if name.starts_with("input_bit_registers") || (is_reg && index.is_some_and(|i| i < 24)) {
         " — registers 0–23 (and bits 0–63) are taken by fieldbus adapters (EtherNet/IP, PROFINET, MODBUS) when enabled in the installation, or by another RTDE client such as ur_rtde"
     } else {
@@ -92,14 +99,24 @@ impl From<UrError> for HalError {
         match e {
             UrError::FieldInUse { name, .. } => HalError::RegisterInUse { name },
             UrError::Io { peer, source } => HalError::Connection { peer, source },
-            UrError::Timeout { what, after } => HalError::Timeout { what, timeout: after },
+            UrError::Timeout { what, after } => HalError::Timeout {
+                what,
+                timeout: after,
+            },
             UrError::InvalidArgument(s) => HalError::InvalidArgument(s),
-            UrError::Refused { device, request, reason } => {
-                HalError::Refused { device: device.to_string(), request, reason }
-            }
-            e @ (UrError::Malformed { .. } | UrError::FieldNotFound { .. }) => {
-                HalError::Protocol { peer: "UR controller".into(), detail: e.to_string() }
-            }
+            UrError::Refused {
+                device,
+                request,
+                reason,
+            } => HalError::Refused {
+                device: device.to_string(),
+                request,
+                reason,
+            },
+            e @ (UrError::Malformed { .. } | UrError::FieldNotFound { .. }) => HalError::Protocol {
+                peer: "UR controller".into(),
+                detail: e.to_string(),
+            },
         }
     }
 }

@@ -10,16 +10,16 @@
 //! - [`UrPose`]: the only place that converts UR's `p[x,y,z,rx,ry,rz]`.
 #![deny(missing_docs)]
 
-mod error;
-mod pose;
 pub mod client;
 pub mod dashboard;
+mod error;
+mod pose;
 pub mod primary;
 pub mod rtde;
 pub mod sim;
 
-pub use error::UrError;
 pub use client::{UrConfig, UrRobot};
+pub use error::UrError;
 pub use pose::UrPose;
 
 /// Standard controller ports.
@@ -39,7 +39,13 @@ pub struct Ports {
 
 impl Ports {
     /// The ports a real controller uses.
-    pub const STANDARD: Ports = Ports { dashboard: 29999, primary: 30001, secondary: 30002, realtime: 30003, rtde: 30004 };
+    pub const STANDARD: Ports = Ports {
+        dashboard: 29999,
+        primary: 30001,
+        secondary: 30002,
+        realtime: 30003,
+        rtde: 30004,
+    };
 }
 
 impl Default for Ports {

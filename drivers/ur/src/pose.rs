@@ -21,14 +21,18 @@ impl UrPose {
     pub fn approx_eq(&self, other: &UrPose, tol_m: f64, tol_rad: f64) -> bool {
         let a = Isometry3::from(*self);
         let b = Isometry3::from(*other);
-        (a.translation.vector - b.translation.vector).norm() <= tol_m && a.rotation.angle_to(&b.rotation) <= tol_rad
+        (a.translation.vector - b.translation.vector).norm() <= tol_m
+            && a.rotation.angle_to(&b.rotation) <= tol_rad
     }
 }
 
 impl From<UrPose> for Isometry3<f64> {
     fn from(p: UrPose) -> Self {
         let [x, y, z, rx, ry, rz] = p.0;
-        Isometry3::from_parts(Translation3::new(x, y, z), UnitQuaternion::from_scaled_axis(Vector3::new(rx, ry, rz)))
+        Isometry3::from_parts(
+            Translation3::new(x, y, z),
+            UnitQuaternion::from_scaled_axis(Vector3::new(rx, ry, rz)),
+        )
     }
 }
 
@@ -64,14 +68,25 @@ mod tests {
 
     #[test]
     fn round_trip_near_zero() {
-        for r in [Vector3::zeros(), Vector3::new(1e-12, 0.0, 0.0), Vector3::new(1e-7, -2e-7, 3e-8), Vector3::new(0.0, 0.0, 1e-4)] {
+        for r in [
+            Vector3::zeros(),
+            Vector3::new(1e-12, 0.0, 0.0),
+            Vector3::new(1e-7, -2e-7, 3e-8),
+            Vector3::new(0.0, 0.0, 1e-4),
+        ] {
             round_trip(r);
         }
     }
 
     #[test]
     fn round_trip_near_pi() {
-        let axes = [Vector3::x(), Vector3::y(), Vector3::z(), Vector3::new(1.0, 1.0, 1.0).normalize(), Vector3::new(-0.3, 0.9, 0.1).normalize()];
+        let axes = [
+            Vector3::x(),
+            Vector3::y(),
+            Vector3::z(),
+            Vector3::new(1.0, 1.0, 1.0).normalize(),
+            Vector3::new(-0.3, 0.9, 0.1).normalize(),
+        ];
         for k in axes {
             for a in [PI, PI - 1e-9, PI - 1e-6, PI - 1e-3] {
                 round_trip(k * a);
@@ -89,7 +104,14 @@ mod tests {
     fn documented_flange_pose_of_ur5e_at_zero() {
         let t = handeye_hal::ur_dh::UrModel::Ur5e.dh().forward(&[0.0; 6]);
         let p = UrPose::from(t);
-        let expect = UrPose([-0.8172, -0.2329, 0.0628, std::f64::consts::FRAC_PI_2, 0.0, 0.0]);
+        let expect = UrPose([
+            -0.8172,
+            -0.2329,
+            0.0628,
+            std::f64::consts::FRAC_PI_2,
+            0.0,
+            0.0,
+        ]);
         assert!(p.approx_eq(&expect, 1e-9, 1e-9), "{p:?}");
         assert!(p.to_script().starts_with("p[-0.817200000,"));
     }

@@ -107,7 +107,11 @@ pub struct RobotModeData {
 
 /// ROBOT_STATE with sub-packages 0 (mode data), 1 (joint data, positions only) and 5
 /// (kinematics info: `θ, a, d, α` × 6).
-pub fn encode_robot_state(m: &RobotModeData, q: &[f64; 6], dh: &handeye_hal::ur_dh::DhParams) -> Vec<u8> {
+pub fn encode_robot_state(
+    m: &RobotModeData,
+    q: &[f64; 6],
+    dh: &handeye_hal::ur_dh::DhParams,
+) -> Vec<u8> {
     let mut body = Vec::new();
     let mut sub = |t: u8, p: Vec<u8>| {
         body.extend_from_slice(&((p.len() + 5) as u32).to_be_bytes());
@@ -116,7 +120,15 @@ pub fn encode_robot_state(m: &RobotModeData, q: &[f64; 6], dh: &handeye_hal::ur_
     };
     let mut p = Vec::new();
     p.extend_from_slice(&m.timestamp_us.to_be_bytes());
-    for b in [true, true, m.power_on, m.emergency_stopped, m.protective_stopped, m.program_running, m.program_paused] {
+    for b in [
+        true,
+        true,
+        m.power_on,
+        m.emergency_stopped,
+        m.protective_stopped,
+        m.program_running,
+        m.program_paused,
+    ] {
         p.push(u8::from(b));
     }
     p.push(m.robot_mode as u8);
@@ -207,7 +219,10 @@ pub fn split(buf: &[u8]) -> Result<Option<(PrimaryPackage, usize)>, UrError> {
     }
     let len = i32::from_be_bytes([buf[0], buf[1], buf[2], buf[3]]);
     if len < 5 || len as usize > MAX_PACKAGE {
-        return Err(UrError::malformed(P, format!("package length {len} is impossible")));
+        return Err(UrError::malformed(
+            P,
+            format!("package length {len} is impossible"),
+        ));
     }
     let len = len as usize;
     if buf.len() < len {
@@ -229,7 +244,10 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
             while r.remaining() > 0 {
                 let len = r.u32()? as usize;
                 if len < 5 {
-                    return Err(UrError::malformed(P, format!("sub-package length {len} is impossible")));
+                    return Err(UrError::malformed(
+                        P,
+                        format!("sub-package length {len} is impossible"),
+                    ));
                 }
                 let t = r.u8()?;
                 let mut s = Reader::for_protocol(r.take(len - 5)?, P);
@@ -262,7 +280,12 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
                 3 => {
                     let n = r.u8()? as usize;
                     r.take(n)?;
-                    PrimaryPackage::Version { major: r.u8()?, minor: r.u8()?, bugfix: r.i32()?, build: r.i32()? }
+                    PrimaryPackage::Version {
+                        major: r.u8()?,
+                        minor: r.u8()?,
+                        bugfix: r.i32()?,
+                        build: r.i32()?,
+                    }
                 }
                 6 => {
                     let code = r.i32()?;
@@ -270,19 +293,30 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
                     let level = r.i32()?;
                     let _dt = r.u8()?;
                     let _data = r.u32()?;
-                    PrimaryPackage::ErrorCode { code, level, text: lossy(r.rest()) }
+                    PrimaryPackage::ErrorCode {
+                        code,
+                        level,
+                        text: lossy(r.rest()),
+                    }
                 }
                 7 => {
                     let code = r.i32()?;
                     let _arg = r.i32()?;
                     let n = r.u8()? as usize;
                     let title = lossy(r.take(n)?);
-                    PrimaryPackage::Key { code, title, text: lossy(r.rest()) }
+                    PrimaryPackage::Key {
+                        code,
+                        title,
+                        text: lossy(r.rest()),
+                    }
                 }
                 10 => {
                     let line = r.i32()?;
                     let _col = r.i32()?;
-                    PrimaryPackage::RuntimeException { line, text: lossy(r.rest()) }
+                    PrimaryPackage::RuntimeException {
+                        line,
+                        text: lossy(r.rest()),
+                    }
                 }
                 _ => PrimaryPackage::Other(ROBOT_MESSAGE),
             })
@@ -298,7 +332,13 @@ mod tests {
     #[test]
     fn round_trips_and_fuzz() {
         let dh = handeye_hal::ur_dh::UrModel::Ur5e.dh();
-        let m = RobotModeData { timestamp_us: 5, power_on: true, program_running: true, robot_mode: 7, ..Default::default() };
+        let m = RobotModeData {
+            timestamp_us: 5,
+            power_on: true,
+            program_running: true,
+            robot_mode: 7,
+            ..Default::default()
+        };
         let seeds = vec![
             encode_version(1, 5, 11, 1, 108318),
             encode_text(1, "hello"),
@@ -309,11 +349,21 @@ mod tests {
         ];
         let (p, n) = split(&seeds[0]).expect("ok").expect("whole");
         assert_eq!(n, seeds[0].len());
-        assert_eq!(p, PrimaryPackage::Version { major: 5, minor: 11, bugfix: 1, build: 108318 });
+        assert_eq!(
+            p,
+            PrimaryPackage::Version {
+                major: 5,
+                minor: 11,
+                bugfix: 1,
+                build: 108318
+            }
+        );
         let (p, _) = split(&seeds[5]).expect("ok").expect("whole");
         assert_eq!(p, PrimaryPackage::RobotState(Some(m)));
         let (p, _) = split(&seeds[2]).expect("ok").expect("whole");
-        assert!(matches!(p, PrimaryPackage::Key { ref title, ref text, .. } if title == "PROGRAM_XXX_STARTED" && text == "prog"));
+        assert!(
+            matches!(p, PrimaryPackage::Key { ref title, ref text, .. } if title == "PROGRAM_XXX_STARTED" && text == "prog")
+        );
         assert!(split(&[0, 0, 0, 2, 16]).is_err());
         assert!(split(&[0x7f, 0, 0, 0, 16]).is_err());
         let mut rng = crate::rtde::tests::Lcg(7);

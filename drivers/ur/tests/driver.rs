@@ -29,16 +29,26 @@ async fn start(c: SimConfig) -> (SimHandle, UrRobot) {
     cfg.max_joint_speed_rad_s = 2.0;
     cfg.max_joint_accel_rad_s2 = 8.0;
     cfg.max_backoff = Duration::from_millis(200);
-    let robot = tokio::time::timeout(Duration::from_secs(10), UrRobot::connect(cfg)).await.expect("no hang").expect("connects");
+    let robot = tokio::time::timeout(Duration::from_secs(10), UrRobot::connect(cfg))
+        .await
+        .expect("no hang")
+        .expect("connects");
     (sim, robot)
 }
 
 fn limits(v: f64, timeout_s: u64) -> MotionLimits {
-    MotionLimits { max_joint_speed_rad_s: v, max_joint_accel_rad_s2: 8.0, timeout: Duration::from_secs(timeout_s) }
+    MotionLimits {
+        max_joint_speed_rad_s: v,
+        max_joint_accel_rad_s2: 8.0,
+        timeout: Duration::from_secs(timeout_s),
+    }
 }
 
 fn target_from(q0: [f64; 6], delta: f64) -> Vec<f64> {
-    q0.iter().enumerate().map(|(i, q)| if i == 0 || i == 5 { q + delta } else { *q }).collect()
+    q0.iter()
+        .enumerate()
+        .map(|(i, q)| if i == 0 || i == 5 { q + delta } else { *q })
+        .collect()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -49,7 +59,10 @@ async fn status_move_and_flange_pose() {
     assert_eq!(st.safety_mode, SafetyMode::Normal);
     assert!(st.remote_control && !st.program_running);
     let target = target_from(sim.joint_positions(), 0.3);
-    robot.move_joints(&target, limits(2.0, 10)).await.expect("move");
+    robot
+        .move_joints(&target, limits(2.0, 10))
+        .await
+        .expect("move");
     let q = sim.joint_positions();
     for (a, b) in q.iter().zip(&target) {
         assert!((a - b).abs() < 1e-3, "{q:?} vs {target:?}");
@@ -71,7 +84,9 @@ async fn speed_cap_limits_the_joint_speed_seen_over_rtde() {
         let mut max: f64 = 0.0;
         let mut last = std::time::Instant::now();
         for _ in 0..2000 {
-            let Ok(s) = r2.rtde().next_sample(last, Duration::from_secs(1)).await else { break };
+            let Ok(s) = r2.rtde().next_sample(last, Duration::from_secs(1)).await else {
+                break;
+            };
             last = s.received;
             let qd = s.vec6("actual_qd").expect("qd");
             max = qd.iter().fold(max, |m, v| m.max(v.abs()));
@@ -81,7 +96,10 @@ async fn speed_cap_limits_the_joint_speed_seen_over_rtde() {
         }
         max
     });
-    robot.move_joints(&target, limits(0.5, 20)).await.expect("move");
+    robot
+        .move_joints(&target, limits(0.5, 20))
+        .await
+        .expect("move");
     let max = watcher.await.expect("watcher");
     assert!(max > 0.1 && max <= 0.5 + 1e-6, "max joint speed {max}");
 }
@@ -91,13 +109,25 @@ async fn set_tcp_is_confirmed_and_tcp_pose_follows() {
     let (sim, robot) = start(sim_config()).await;
     let flange_from_tcp = Isometry3::from(UrPose([0.01, -0.02, 0.15, 0.1, 0.2, -0.3]));
     robot.set_tcp(&flange_from_tcp).await.expect("set_tcp");
-    assert!(sim.tcp_offset().approx_eq(&UrPose::from(flange_from_tcp), 1e-9, 1e-9));
+    assert!(sim
+        .tcp_offset()
+        .approx_eq(&UrPose::from(flange_from_tcp), 1e-9, 1e-9));
     let flange = robot.flange_pose().await.expect("flange");
     let tcp = robot.tcp_pose().await.expect("tcp");
     let expect = flange * flange_from_tcp;
     assert!((tcp.translation.vector - expect.translation.vector).norm() < 1e-6);
     assert!(tcp.rotation.angle_to(&expect.rotation) < 1e-6);
-    assert!(robot.set_tcp(&Isometry3::from(UrPose([f64::NAN, 0.0, 0.0, 0.0, 0.0, 0.0]))).await.is_err());
+    assert!(robot
+        .set_tcp(&Isometry3::from(UrPose([
+            f64::NAN,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0
+        ])))
+        .await
+        .is_err());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -108,8 +138,14 @@ async fn registers_round_trip_and_fieldbus_range_is_left_alone() {
     assert_eq!(robot.read_double_register(24).await.expect("read"), 0.125);
     sim.set_output_double_register(30, -2.5);
     tokio::time::sleep(Duration::from_millis(50)).await;
-    assert_eq!(robot.read_output_double_register(30).await.expect("read"), -2.5);
-    assert!(matches!(robot.write_double_register(3, 1.0).await, Err(HalError::InvalidArgument(_))));
+    assert_eq!(
+        robot.read_output_double_register(30).await.expect("read"),
+        -2.5
+    );
+    assert!(matches!(
+        robot.write_double_register(3, 1.0).await,
+        Err(HalError::InvalidArgument(_))
+    ));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -121,8 +157,14 @@ async fn register_held_by_fieldbus_is_a_clear_error() {
     cfg.ports = sim.ports();
     let err = UrRobot::connect(cfg).await.expect_err("IN_USE");
     let msg = err.to_string();
-    assert!(matches!(err, UrError::FieldInUse { ref name, .. } if name == "input_double_register_30"), "{msg}");
-    assert!(msg.contains("IN_USE") && msg.contains("input_double_register_30"), "{msg}");
+    assert!(
+        matches!(err, UrError::FieldInUse { ref name, .. } if name == "input_double_register_30"),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("IN_USE") && msg.contains("input_double_register_30"),
+        "{msg}"
+    );
     let hal: HalError = err.into();
     assert!(matches!(hal, HalError::RegisterInUse { .. }));
 }
@@ -139,7 +181,10 @@ async fn unknown_output_field_is_not_found() {
         max_backoff: Duration::from_millis(200),
     };
     let err = RtdeClient::connect(cfg).await.expect_err("NOT_FOUND");
-    assert!(matches!(err, UrError::FieldNotFound { ref name } if name == "actual_qq"), "{err}");
+    assert!(
+        matches!(err, UrError::FieldNotFound { ref name } if name == "actual_qq"),
+        "{err}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -147,15 +192,27 @@ async fn protective_stop_during_move_fails_the_move() {
     let (sim, robot) = start(sim_config()).await;
     sim.protective_stop_during_next_move(0.3);
     let target = target_from(sim.joint_positions(), 0.5);
-    let err = robot.move_joints(&target, limits(2.0, 10)).await.expect_err("pstop");
+    let err = robot
+        .move_joints(&target, limits(2.0, 10))
+        .await
+        .expect_err("pstop");
     assert!(matches!(err, HalError::ProtectiveStop { .. }), "{err}");
     assert_eq!(sim.safety_mode(), SafetyModeCode::ProtectiveStop);
     assert!(!sim.program_running());
     // A new move is refused until an operator unlocks.
-    let err = robot.move_joints(&target, limits(2.0, 10)).await.expect_err("still stopped");
+    let err = robot
+        .move_joints(&target, limits(2.0, 10))
+        .await
+        .expect_err("still stopped");
     assert!(matches!(err, HalError::ProtectiveStop { .. }), "{err}");
-    robot.dashboard(|d| Box::pin(d.unlock_protective_stop())).await.expect("unlock");
-    robot.move_joints(&target, limits(2.0, 10)).await.expect("moves after unlock");
+    robot
+        .dashboard(|d| Box::pin(d.unlock_protective_stop()))
+        .await
+        .expect("unlock");
+    robot
+        .move_joints(&target, limits(2.0, 10))
+        .await
+        .expect("moves after unlock");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -168,7 +225,10 @@ async fn emergency_stop_during_move_fails_the_move() {
         tokio::time::sleep(Duration::from_millis(200)).await;
         s2.emergency_stop(true);
     });
-    let err = robot.move_joints(&target, limits(0.5, 10)).await.expect_err("estop");
+    let err = robot
+        .move_joints(&target, limits(0.5, 10))
+        .await
+        .expect_err("estop");
     assert!(matches!(err, HalError::EmergencyStop { .. }), "{err}");
 }
 
@@ -182,15 +242,27 @@ async fn remote_control_off_refuses_and_aborts_moves() {
         tokio::time::sleep(Duration::from_millis(200)).await;
         s2.set_remote_control(false);
     });
-    let err = robot.move_joints(&target, limits(0.5, 10)).await.expect_err("local");
+    let err = robot
+        .move_joints(&target, limits(0.5, 10))
+        .await
+        .expect_err("local");
     assert!(matches!(err, HalError::NotInRemoteControl), "{err}");
-    let err = robot.move_joints(&target, limits(0.5, 10)).await.expect_err("local");
+    let err = robot
+        .move_joints(&target, limits(0.5, 10))
+        .await
+        .expect_err("local");
     assert!(matches!(err, HalError::NotInRemoteControl), "{err}");
     assert!(!robot.status().await.expect("status").remote_control);
     // Scripts are refused with C210, dashboard commands that change state are refused.
-    let err = robot.run_program("x", "  textmsg(\"hi\")\n").await.expect_err("C210");
+    let err = robot
+        .run_program("x", "  textmsg(\"hi\")\n")
+        .await
+        .expect_err("C210");
     assert!(err.to_string().contains("C210"), "{err}");
-    let err = robot.dashboard(|d| Box::pin(d.power_off())).await.expect_err("refused");
+    let err = robot
+        .dashboard(|d| Box::pin(d.power_off()))
+        .await
+        .expect_err("refused");
     assert!(matches!(err, UrError::Refused { .. }), "{err}");
 }
 
@@ -204,13 +276,20 @@ async fn timeout_and_cancel_stop_the_arm() {
     assert!(matches!(err, HalError::Timeout { .. }), "{err}");
     wait_until(|| !sim.program_running()).await;
     let err = robot
-        .move_joints_until(&target, limits(0.3, 10), tokio::time::sleep(Duration::from_millis(300)))
+        .move_joints_until(
+            &target,
+            limits(0.3, 10),
+            tokio::time::sleep(Duration::from_millis(300)),
+        )
         .await
         .expect_err("cancel");
     assert!(matches!(err, HalError::Cancelled { .. }), "{err}");
     wait_until(|| !sim.program_running()).await;
     let q = sim.joint_positions();
-    assert!((q[0] - target[0]).abs() > 0.1, "the arm stopped short of the target");
+    assert!(
+        (q[0] - target[0]).abs() > 0.1,
+        "the arm stopped short of the target"
+    );
     // Dropping a move future also stops the arm.
     let fut = robot.move_joints(&target, limits(0.3, 10));
     let _ = tokio::time::timeout(Duration::from_millis(300), fut).await;
@@ -239,7 +318,10 @@ async fn dropped_connections_reconnect_with_recipes() {
     }
     assert!(robot.rtde().reconnects() >= 1);
     // Input recipes were set up again: writes work, and the dashboard reconnects too.
-    robot.write_double_register(25, 7.0).await.expect("write after reconnect");
+    robot
+        .write_double_register(25, 7.0)
+        .await
+        .expect("write after reconnect");
     assert_eq!(sim.input_double_register(25), 7.0);
     assert!(robot.status().await.expect("status").remote_control);
 }
@@ -248,10 +330,18 @@ async fn dropped_connections_reconnect_with_recipes() {
 async fn latency_beyond_the_timeout_is_a_timeout() {
     let (sim, robot) = start(sim_config()).await;
     sim.set_latency(Duration::from_secs(5));
-    let err = tokio::time::timeout(Duration::from_secs(10), robot.status()).await.expect("no hang").expect_err("timeout");
+    let err = tokio::time::timeout(Duration::from_secs(10), robot.status())
+        .await
+        .expect("no hang")
+        .expect_err("timeout");
     assert!(matches!(err, HalError::Timeout { .. }), "{err}");
     sim.set_latency(Duration::from_millis(50));
-    let mut d = DashboardClient::connect(SocketAddr::new(LOCAL, sim.ports().dashboard), Duration::from_secs(2)).await.expect("dash");
+    let mut d = DashboardClient::connect(
+        SocketAddr::new(LOCAL, sim.ports().dashboard),
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("dash");
     assert_eq!(d.robot_mode().await.expect("mode"), RobotMode::Running);
 }
 
@@ -261,7 +351,10 @@ async fn rtde_falls_back_to_protocol_v1() {
     c.rtde_v2 = false;
     let (_sim, robot) = start(c).await;
     assert_eq!(robot.rtde().protocol(), Protocol::V1);
-    let err = robot.write_double_register(26, 4.5).await.expect_err("v1 has no recipe ids");
+    let err = robot
+        .write_double_register(26, 4.5)
+        .await
+        .expect_err("v1 has no recipe ids");
     assert!(err.to_string().contains("protocol 1"), "{err}");
     assert_eq!(robot.joint_positions().await.expect("q").len(), 6);
 }
@@ -269,10 +362,22 @@ async fn rtde_falls_back_to_protocol_v1() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn unsupported_script_is_reported_not_ignored() {
     let sim = Simulator::start(sim_config()).await.expect("sim");
-    let script = ScriptClient::new(SocketAddr::new(LOCAL, sim.ports().primary), Duration::from_secs(2));
-    let err = script.send("def p():\n  force_mode(1)\nend\n", Some("p"), Duration::ZERO).await.expect_err("unsupported");
+    let script = ScriptClient::new(
+        SocketAddr::new(LOCAL, sim.ports().primary),
+        Duration::from_secs(2),
+    );
+    let err = script
+        .send(
+            "def p():\n  force_mode(1)\nend\n",
+            Some("p"),
+            Duration::ZERO,
+        )
+        .await
+        .expect_err("unsupported");
     assert!(err.to_string().contains("force_mode"), "{err}");
-    let err = script.send("def p():\n  x = [1][5]\nend\n", Some("p"), Duration::ZERO).await;
+    let err = script
+        .send("def p():\n  x = [1][5]\nend\n", Some("p"), Duration::ZERO)
+        .await;
     // Started, then a runtime exception: either the start or the error is seen first.
     if let Err(e) = err {
         assert!(e.to_string().contains("index"), "{e}");
@@ -287,7 +392,12 @@ async fn malformed_bytes_close_the_connection_and_the_sim_keeps_serving() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let sim = Simulator::start(sim_config()).await.expect("sim");
     let addr = SocketAddr::new(LOCAL, sim.ports().rtde);
-    for garbage in [&[0u8, 1, b'V'][..], &[0, 5, b'Z', 0, 0], &[0, 4, b'V', 2], &[0xff, 0xff, b'O', 1, 2]] {
+    for garbage in [
+        &[0u8, 1, b'V'][..],
+        &[0, 5, b'Z', 0, 0],
+        &[0, 4, b'V', 2],
+        &[0xff, 0xff, b'O', 1, 2],
+    ] {
         let mut s = tokio::net::TcpStream::connect(addr).await.expect("connect");
         s.write_all(garbage).await.expect("write");
         let _ = s.shutdown().await;
@@ -296,7 +406,9 @@ async fn malformed_bytes_close_the_connection_and_the_sim_keeps_serving() {
         assert!(r.is_ok(), "sim closed the connection for {garbage:?}");
     }
     // Client side: a server that answers garbage gives a clear error, not a hang.
-    let fake = tokio::net::TcpListener::bind((LOCAL, 0)).await.expect("bind");
+    let fake = tokio::net::TcpListener::bind((LOCAL, 0))
+        .await
+        .expect("bind");
     let fake_addr = fake.local_addr().expect("addr");
     tokio::spawn(async move {
         if let Ok((mut s, _)) = fake.accept().await {
@@ -312,12 +424,26 @@ async fn malformed_bytes_close_the_connection_and_the_sim_keeps_serving() {
         timeout: Duration::from_secs(2),
         max_backoff: Duration::from_millis(100),
     };
-    let err = tokio::time::timeout(Duration::from_secs(5), RtdeClient::connect(cfg)).await.expect("no hang").expect_err("malformed");
+    let err = tokio::time::timeout(Duration::from_secs(5), RtdeClient::connect(cfg))
+        .await
+        .expect("no hang")
+        .expect_err("malformed");
     assert!(matches!(err, UrError::Malformed { .. }), "{err}");
     // And the simulator still serves a well-behaved client.
-    let mut d = DashboardClient::connect(SocketAddr::new(LOCAL, sim.ports().dashboard), Duration::from_secs(2)).await.expect("dash");
-    assert_eq!(d.request("robotmode").await.expect("reply"), "Robotmode: RUNNING");
-    assert_eq!(d.request("bogus").await.expect("reply"), "could not understand: 'bogus'");
+    let mut d = DashboardClient::connect(
+        SocketAddr::new(LOCAL, sim.ports().dashboard),
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("dash");
+    assert_eq!(
+        d.request("robotmode").await.expect("reply"),
+        "Robotmode: RUNNING"
+    );
+    assert_eq!(
+        d.request("bogus").await.expect("reply"),
+        "could not understand: 'bogus'"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -325,7 +451,12 @@ async fn dashboard_state_machine() {
     let mut c = sim_config();
     c.start_running = false;
     let sim = Simulator::start(c).await.expect("sim");
-    let mut d = DashboardClient::connect(SocketAddr::new(LOCAL, sim.ports().dashboard), Duration::from_secs(2)).await.expect("dash");
+    let mut d = DashboardClient::connect(
+        SocketAddr::new(LOCAL, sim.ports().dashboard),
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("dash");
     assert_eq!(d.robot_mode().await.expect("m"), RobotMode::PowerOff);
     assert!(d.play().await.is_err(), "nothing loaded");
     d.power_on().await.expect("on");
@@ -333,15 +464,24 @@ async fn dashboard_state_machine() {
     d.brake_release().await.expect("release");
     assert_eq!(d.robot_mode().await.expect("m"), RobotMode::Running);
     d.load("cal.urp").await.expect("load");
-    assert_eq!(d.request("programState").await.expect("r"), "STOPPED cal.urp");
+    assert_eq!(
+        d.request("programState").await.expect("r"),
+        "STOPPED cal.urp"
+    );
     d.play().await.expect("play");
     assert!(d.program_running().await.expect("r"));
     d.pause().await.expect("pause");
-    assert_eq!(d.request("programState").await.expect("r"), "PAUSED cal.urp");
+    assert_eq!(
+        d.request("programState").await.expect("r"),
+        "PAUSED cal.urp"
+    );
     d.stop().await.expect("stop");
     assert!(!d.program_running().await.expect("r"));
     sim.protective_stop();
-    assert_eq!(d.safety_status().await.expect("s"), SafetyMode::ProtectiveStop);
+    assert_eq!(
+        d.safety_status().await.expect("s"),
+        SafetyMode::ProtectiveStop
+    );
     d.unlock_protective_stop().await.expect("unlock");
     assert_eq!(d.safety_status().await.expect("s"), SafetyMode::Normal);
     assert_eq!(d.polyscope_version().await.expect("v")[0], 5);

@@ -63,12 +63,36 @@ async fn ur_rtde_dashboard_power_brake_play_stop() {
     let sim = Simulator::start(config(43)).await.expect("sim");
     let out = run_python(&py, "dashboard.py", "127.0.0.43").await;
     assert_eq!(out["connected"], true, "{out}");
-    assert!(out["mode_before"].as_str().expect("s").contains("POWER_OFF"), "{out}");
-    assert!(out["mode_powered"].as_str().expect("s").contains("IDLE"), "{out}");
-    assert!(out["mode_released"].as_str().expect("s").contains("RUNNING"), "{out}");
-    assert!(out["safety_status"].as_str().expect("s").contains("NORMAL"), "{out}");
+    assert!(
+        out["mode_before"]
+            .as_str()
+            .expect("s")
+            .contains("POWER_OFF"),
+        "{out}"
+    );
+    assert!(
+        out["mode_powered"].as_str().expect("s").contains("IDLE"),
+        "{out}"
+    );
+    assert!(
+        out["mode_released"]
+            .as_str()
+            .expect("s")
+            .contains("RUNNING"),
+        "{out}"
+    );
+    assert!(
+        out["safety_status"].as_str().expect("s").contains("NORMAL"),
+        "{out}"
+    );
     assert_eq!(out["running_after_play"], true, "{out}");
-    assert!(out["program_state"].as_str().expect("s").contains("PLAYING"), "{out}");
+    assert!(
+        out["program_state"]
+            .as_str()
+            .expect("s")
+            .contains("PLAYING"),
+        "{out}"
+    );
     assert_eq!(out["running_after_stop"], false, "{out}");
     assert!(out["version"].as_str().expect("s").contains('5'), "{out}");
     assert_eq!(out["remote"], true, "{out}");
@@ -89,19 +113,32 @@ async fn what_our_driver_does_is_what_ur_rtde_reads() {
     cfg.max_joint_accel_rad_s2 = 8.0;
     let robot = UrRobot::connect(cfg).await.expect("driver connects");
     let target = [0.2, -1.4, 1.3, -1.2, -1.6, 0.5];
-    let lim = MotionLimits { max_joint_speed_rad_s: 2.0, max_joint_accel_rad_s2: 8.0, timeout: Duration::from_secs(10) };
+    let lim = MotionLimits {
+        max_joint_speed_rad_s: 2.0,
+        max_joint_accel_rad_s2: 8.0,
+        timeout: Duration::from_secs(10),
+    };
     robot.move_joints(&target, lim).await.expect("move");
     let flange_from_tcp = UrPose([0.0, 0.0, 0.2, 0.0, 0.0, 0.5]);
-    robot.set_tcp(&Isometry3::from(flange_from_tcp)).await.expect("set_tcp");
+    robot
+        .set_tcp(&Isometry3::from(flange_from_tcp))
+        .await
+        .expect("set_tcp");
     let out = run_python(&py, "receive.py", "127.0.0.44").await;
     let q: Vec<f64> = serde_json::from_value(out["q"].clone()).expect("q");
     for (a, b) in q.iter().zip(target) {
-        assert!((a - b).abs() < 1e-3, "ur_rtde reads {q:?}, we moved to {target:?}");
+        assert!(
+            (a - b).abs() < 1e-3,
+            "ur_rtde reads {q:?}, we moved to {target:?}"
+        );
     }
     let tcp: [f64; 6] = serde_json::from_value(out["tcp"].clone()).expect("tcp");
     let q6: [f64; 6] = q.try_into().expect("6");
     let expect = UrPose::from(sim.dh().forward(&q6) * Isometry3::from(flange_from_tcp));
-    assert!(UrPose(tcp).approx_eq(&expect, 1e-6, 1e-6), "ur_rtde TCP {tcp:?} vs {expect:?}");
+    assert!(
+        UrPose(tcp).approx_eq(&expect, 1e-6, 1e-6),
+        "ur_rtde TCP {tcp:?} vs {expect:?}"
+    );
     let ours = robot.tcp_pose().await.expect("tcp");
     assert!(UrPose(tcp).approx_eq(&UrPose::from(ours), 1e-6, 1e-6));
 }

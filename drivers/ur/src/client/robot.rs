@@ -91,17 +91,26 @@ impl UrRobot {
     /// Connect RTDE (output recipe + one input recipe per register) and check the dashboard.
     pub async fn connect(cfg: UrConfig) -> Result<Self, UrError> {
         if cfg.registers.is_empty() || *cfg.registers.end() > 47 {
-            return Err(UrError::InvalidArgument(format!("register range {:?} must lie within 0..=47", cfg.registers)));
+            return Err(UrError::InvalidArgument(format!(
+                "register range {:?} must lie within 0..=47",
+                cfg.registers
+            )));
         }
         if !(cfg.max_joint_speed_rad_s > 0.0 && cfg.max_joint_accel_rad_s2 > 0.0) {
-            return Err(UrError::InvalidArgument("speed and acceleration caps must be positive".into()));
+            return Err(UrError::InvalidArgument(
+                "speed and acceleration caps must be positive".into(),
+            ));
         }
         let mut outputs: Vec<String> = BASE_OUTPUTS.iter().map(|s| s.to_string()).collect();
         for i in cfg.registers.clone() {
             outputs.push(format!("input_double_register_{i}"));
             outputs.push(format!("output_double_register_{i}"));
         }
-        let inputs = cfg.registers.clone().map(|i| vec![format!("input_double_register_{i}")]).collect();
+        let inputs = cfg
+            .registers
+            .clone()
+            .map(|i| vec![format!("input_double_register_{i}")])
+            .collect();
         let rtde = RtdeClient::connect(RtdeConfig {
             addr: SocketAddr::new(cfg.host, cfg.ports.rtde),
             frequency: cfg.rtde_frequency,
@@ -111,9 +120,18 @@ impl UrRobot {
             max_backoff: cfg.max_backoff,
         })
         .await?;
-        let dash = DashboardClient::connect(SocketAddr::new(cfg.host, cfg.ports.dashboard), cfg.timeout).await?;
+        let dash =
+            DashboardClient::connect(SocketAddr::new(cfg.host, cfg.ports.dashboard), cfg.timeout)
+                .await?;
         let script = ScriptClient::new(SocketAddr::new(cfg.host, cfg.ports.primary), cfg.timeout);
-        let robot = Self { inner: Arc::new(Inner { cfg, rtde, dashboard: Mutex::new(Some(dash)), script }) };
+        let robot = Self {
+            inner: Arc::new(Inner {
+                cfg,
+                rtde,
+                dashboard: Mutex::new(Some(dash)),
+                script,
+            }),
+        };
         robot.sample().await?;
         Ok(robot)
     }
@@ -126,7 +144,10 @@ impl UrRobot {
     /// Run one dashboard exchange, reconnecting once if the connection was lost.
     pub async fn dashboard<T, F>(&self, f: F) -> Result<T, UrError>
     where
-        F: for<'a> Fn(&'a mut DashboardClient) -> std::pin::Pin<Box<dyn Future<Output = Result<T, UrError>> + Send + 'a>>,
+        F: for<'a> Fn(
+            &'a mut DashboardClient,
+        )
+            -> std::pin::Pin<Box<dyn Future<Output = Result<T, UrError>> + Send + 'a>>,
     {
         let mut guard = self.inner.dashboard.lock().await;
         for attempt in 0..2 {
@@ -137,14 +158,19 @@ impl UrRobot {
             let Some(d) = guard.as_mut() else { continue };
             match f(d).await {
                 Err(UrError::Io { .. } | UrError::Timeout { .. }) if attempt == 0 => *guard = None,
-                Err(e @ (UrError::Io { .. } | UrError::Timeout { .. } | UrError::Malformed { .. })) => {
+                Err(
+                    e @ (UrError::Io { .. } | UrError::Timeout { .. } | UrError::Malformed { .. }),
+                ) => {
                     *guard = None;
                     return Err(e);
                 }
                 r => return r,
             }
         }
-        Err(UrError::Timeout { what: "dashboard".into(), after: self.inner.cfg.timeout })
+        Err(UrError::Timeout {
+            what: "dashboard".into(),
+            after: self.inner.cfg.timeout,
+        })
     }
 
     async fn sample(&self) -> Result<Arc<Sample>, UrError> {
@@ -153,7 +179,10 @@ impl UrRobot {
                 return Ok(s);
             }
         }
-        self.inner.rtde.next_sample(Instant::now() - STALE, STALE.max(self.inner.cfg.timeout)).await
+        self.inner
+            .rtde
+            .next_sample(Instant::now() - STALE, STALE.max(self.inner.cfg.timeout))
+            .await
     }
 
     async fn remote_control(&self) -> Result<bool, UrError> {
@@ -163,33 +192,60 @@ impl UrRobot {
     /// Send a `def` program and wait for the controller to report it started.
     pub async fn run_program(&self, name: &str, body: &str) -> Result<(), UrError> {
         let text = format!("def {name}():\n{body}end\n");
-        self.inner.script.send(&text, Some(name), Duration::ZERO).await.map(|_| ())
+        self.inner
+            .script
+            .send(&text, Some(name), Duration::ZERO)
+            .await
+            .map(|_| ())
     }
 
     /// Send a `sec` program (runs alongside a pendant program, no physical time).
     pub async fn run_secondary(&self, name: &str, body: &str) -> Result<(), UrError> {
         let text = format!("sec {name}():\n{body}end\n");
-        self.inner.script.send(&text, None, Duration::from_millis(100)).await.map(|_| ())
+        self.inner
+            .script
+            .send(&text, None, Duration::from_millis(100))
+            .await
+            .map(|_| ())
     }
 
     /// Joint move; returns when arrived or fails (stopping the arm). `cancel` completing aborts
     /// the move with `Cancelled`.
-    pub async fn move_joints_until(&self, q: &[f64], limits: MotionLimits, cancel: impl Future<Output = ()>) -> Result<(), HalError> {
-        let q: [f64; 6] = q.try_into().map_err(|_| HalError::InvalidArgument(format!("expected 6 joint angles, got {}", q.len())))?;
-        if q.iter().any(|x| !x.is_finite() || x.abs() > 2.0 * std::f64::consts::PI) {
-            return Err(HalError::InvalidArgument(format!("joint target {q:?} is outside ±2π")));
+    pub async fn move_joints_until(
+        &self,
+        q: &[f64],
+        limits: MotionLimits,
+        cancel: impl Future<Output = ()>,
+    ) -> Result<(), HalError> {
+        let q: [f64; 6] = q.try_into().map_err(|_| {
+            HalError::InvalidArgument(format!("expected 6 joint angles, got {}", q.len()))
+        })?;
+        if q.iter()
+            .any(|x| !x.is_finite() || x.abs() > 2.0 * std::f64::consts::PI)
+        {
+            return Err(HalError::InvalidArgument(format!(
+                "joint target {q:?} is outside ±2π"
+            )));
         }
         if !(limits.max_joint_speed_rad_s > 0.0 && limits.max_joint_accel_rad_s2 > 0.0) {
-            return Err(HalError::InvalidArgument("speed and acceleration must be positive".into()));
+            return Err(HalError::InvalidArgument(
+                "speed and acceleration must be positive".into(),
+            ));
         }
-        let v = limits.max_joint_speed_rad_s.min(self.inner.cfg.max_joint_speed_rad_s);
-        let a = limits.max_joint_accel_rad_s2.min(self.inner.cfg.max_joint_accel_rad_s2);
+        let v = limits
+            .max_joint_speed_rad_s
+            .min(self.inner.cfg.max_joint_speed_rad_s);
+        let a = limits
+            .max_joint_accel_rad_s2
+            .min(self.inner.cfg.max_joint_accel_rad_s2);
         let during = "joint move";
         let st = self.status().await?;
         check_can_move(&st, during)?;
         let list: Vec<String> = q.iter().map(|x| format!("{x:.9}")).collect();
         let body = format!("  movej([{}], a={a:.6}, v={v:.6})\n", list.join(","));
-        let mut guard = StopGuard { robot: Some(self.clone()) };
+        let mut guard = StopGuard {
+            robot: Some(self.clone()),
+        };
         let started = Instant::now();
         self.run_program("handeye_move", &body).await?;
         let deadline = started + limits.timeout;
@@ -199,17 +255,36 @@ impl UrRobot {
             loop {
                 let left = deadline.saturating_duration_since(Instant::now());
                 if left.is_zero() {
-                    return Err(HalError::Timeout { what: during.into(), timeout: limits.timeout });
+                    return Err(HalError::Timeout {
+                        what: during.into(),
+                        timeout: limits.timeout,
+                    });
                 }
-                let s = self.inner.rtde.next_sample(last, left.min(STALE)).await.map_err(|e| match e {
-                    UrError::Timeout { .. } if Instant::now() >= deadline => HalError::Timeout { what: during.into(), timeout: limits.timeout },
-                    other => other.into(),
-                })?;
+                let s = self
+                    .inner
+                    .rtde
+                    .next_sample(last, left.min(STALE))
+                    .await
+                    .map_err(|e| match e {
+                        UrError::Timeout { .. } if Instant::now() >= deadline => {
+                            HalError::Timeout {
+                                what: during.into(),
+                                timeout: limits.timeout,
+                            }
+                        }
+                        other => other.into(),
+                    })?;
                 last = s.received;
                 match safety_mode_from_code(s.f64("safety_mode").unwrap_or(0.0) as i32) {
-                    SafetyMode::ProtectiveStop => return Err(HalError::ProtectiveStop { during: during.into() }),
+                    SafetyMode::ProtectiveStop => {
+                        return Err(HalError::ProtectiveStop {
+                            during: during.into(),
+                        })
+                    }
                     SafetyMode::RobotEmergencyStop | SafetyMode::SystemEmergencyStop => {
-                        return Err(HalError::EmergencyStop { during: during.into() })
+                        return Err(HalError::EmergencyStop {
+                            during: during.into(),
+                        })
                     }
                     _ => {}
                 }
@@ -217,15 +292,23 @@ impl UrRobot {
                 let qd = s.vec6("actual_qd").unwrap_or([f64::NAN; 6]);
                 let playing = s.f64("runtime_state") == Some(2.0);
                 seen_playing |= playing;
-                let arrived = aq.iter().zip(&q).all(|(x, y)| (x - y).abs() < ARRIVED_RAD) && qd.iter().all(|v| v.abs() < 1e-3);
+                let arrived = aq.iter().zip(&q).all(|(x, y)| (x - y).abs() < ARRIVED_RAD)
+                    && qd.iter().all(|v| v.abs() < 1e-3);
                 if arrived && !playing {
                     return Ok(());
                 }
-                if !playing && (seen_playing || started.elapsed() > Duration::from_millis(500)) && !arrived {
+                if !playing
+                    && (seen_playing || started.elapsed() > Duration::from_millis(500))
+                    && !arrived
+                {
                     if !self.remote_control().await? {
                         return Err(HalError::NotInRemoteControl);
                     }
-                    return Err(HalError::Refused { device: "UR controller".into(), request: during.into(), reason: "the move program stopped before the arm arrived".into() });
+                    return Err(HalError::Refused {
+                        device: "UR controller".into(),
+                        request: during.into(),
+                        reason: "the move program stopped before the arm arrived".into(),
+                    });
                 }
             }
         };
@@ -235,7 +318,11 @@ impl UrRobot {
         };
         match &result {
             Ok(()) => guard.disarm(),
-            Err(HalError::ProtectiveStop { .. } | HalError::EmergencyStop { .. } | HalError::NotInRemoteControl) => guard.disarm(),
+            Err(
+                HalError::ProtectiveStop { .. }
+                | HalError::EmergencyStop { .. }
+                | HalError::NotInRemoteControl,
+            ) => guard.disarm(),
             Err(_) => {
                 guard.disarm();
                 let _ = self.stop().await;
@@ -251,32 +338,50 @@ impl UrRobot {
 
     async fn register(&self, prefix: &str, index: u32) -> Result<f64, HalError> {
         if !self.inner.cfg.registers.contains(&index) {
-            return Err(HalError::InvalidArgument(format!("register {index} is outside the configured range {:?}", self.inner.cfg.registers)));
+            return Err(HalError::InvalidArgument(format!(
+                "register {index} is outside the configured range {:?}",
+                self.inner.cfg.registers
+            )));
         }
         let s = self.sample().await?;
-        s.f64(&format!("{prefix}{index}")).ok_or_else(|| HalError::InvalidArgument(format!("{prefix}{index} not in the recipe")))
+        s.f64(&format!("{prefix}{index}"))
+            .ok_or_else(|| HalError::InvalidArgument(format!("{prefix}{index} not in the recipe")))
     }
 
     /// The active TCP offset (`flange_from_tcp`) as the controller reports it.
     pub async fn tcp_offset(&self) -> Result<Isometry3<f64>, HalError> {
         let s = self.sample().await?;
-        let t = s.vec6("tcp_offset").ok_or_else(|| HalError::Protocol { peer: "RTDE".into(), detail: "no tcp_offset".into() })?;
+        let t = s.vec6("tcp_offset").ok_or_else(|| HalError::Protocol {
+            peer: "RTDE".into(),
+            detail: "no tcp_offset".into(),
+        })?;
         Ok(UrPose(t).into())
     }
 
     /// `actual_TCP_pose` (`base_from_tcp`).
     pub async fn tcp_pose(&self) -> Result<Isometry3<f64>, HalError> {
         let s = self.sample().await?;
-        let t = s.vec6("actual_TCP_pose").ok_or_else(|| HalError::Protocol { peer: "RTDE".into(), detail: "no actual_TCP_pose".into() })?;
+        let t = s
+            .vec6("actual_TCP_pose")
+            .ok_or_else(|| HalError::Protocol {
+                peer: "RTDE".into(),
+                detail: "no actual_TCP_pose".into(),
+            })?;
         Ok(UrPose(t).into())
     }
 }
 
 fn check_can_move(st: &RobotStatus, during: &str) -> Result<(), HalError> {
     match st.safety_mode {
-        SafetyMode::ProtectiveStop => return Err(HalError::ProtectiveStop { during: format!("{during} (before start)") }),
+        SafetyMode::ProtectiveStop => {
+            return Err(HalError::ProtectiveStop {
+                during: format!("{during} (before start)"),
+            })
+        }
         SafetyMode::RobotEmergencyStop | SafetyMode::SystemEmergencyStop => {
-            return Err(HalError::EmergencyStop { during: format!("{during} (before start)") })
+            return Err(HalError::EmergencyStop {
+                during: format!("{during} (before start)"),
+            })
         }
         _ => {}
     }
@@ -284,7 +389,9 @@ fn check_can_move(st: &RobotStatus, during: &str) -> Result<(), HalError> {
         return Err(HalError::NotInRemoteControl);
     }
     if !st.can_move() {
-        return Err(HalError::NotReady { state: format!("{:?}, {:?}", st.robot_mode, st.safety_mode) });
+        return Err(HalError::NotReady {
+            state: format!("{:?}, {:?}", st.robot_mode, st.safety_mode),
+        });
     }
     Ok(())
 }
@@ -318,16 +425,28 @@ impl Robot for UrRobot {
     async fn status(&self) -> Result<RobotStatus, HalError> {
         let s = self.sample().await?;
         let code = s.f64("robot_mode").unwrap_or(-128.0) as i32;
-        let robot_mode = robot_mode_from_code(code)
-            .ok_or_else(|| HalError::Protocol { peer: "RTDE".into(), detail: format!("unknown robot_mode {code}") })?;
+        let robot_mode = robot_mode_from_code(code).ok_or_else(|| HalError::Protocol {
+            peer: "RTDE".into(),
+            detail: format!("unknown robot_mode {code}"),
+        })?;
         let safety_mode = safety_mode_from_code(s.f64("safety_mode").unwrap_or(0.0) as i32);
         let remote_control = self.remote_control().await?;
-        Ok(RobotStatus { robot_mode, safety_mode, remote_control, program_running: s.f64("runtime_state") == Some(2.0) })
+        Ok(RobotStatus {
+            robot_mode,
+            safety_mode,
+            remote_control,
+            program_running: s.f64("runtime_state") == Some(2.0),
+        })
     }
 
     async fn joint_positions(&self) -> Result<Vec<f64>, HalError> {
         let s = self.sample().await?;
-        s.vec6("actual_q").map(|q| q.to_vec()).ok_or_else(|| HalError::Protocol { peer: "RTDE".into(), detail: "no actual_q".into() })
+        s.vec6("actual_q")
+            .map(|q| q.to_vec())
+            .ok_or_else(|| HalError::Protocol {
+                peer: "RTDE".into(),
+                detail: "no actual_q".into(),
+            })
     }
 
     async fn flange_pose(&self) -> Result<Isometry3<f64>, HalError> {
@@ -335,18 +454,25 @@ impl Robot for UrRobot {
         let tcp = s.vec6("actual_TCP_pose");
         let off = s.vec6("tcp_offset");
         match (tcp, off) {
-            (Some(t), Some(o)) => Ok(Isometry3::from(UrPose(t)) * Isometry3::from(UrPose(o)).inverse()),
-            _ => Err(HalError::Protocol { peer: "RTDE".into(), detail: "no actual_TCP_pose/tcp_offset".into() }),
+            (Some(t), Some(o)) => {
+                Ok(Isometry3::from(UrPose(t)) * Isometry3::from(UrPose(o)).inverse())
+            }
+            _ => Err(HalError::Protocol {
+                peer: "RTDE".into(),
+                detail: "no actual_TCP_pose/tcp_offset".into(),
+            }),
         }
     }
 
     async fn move_joints(&self, q: &[f64], limits: MotionLimits) -> Result<(), HalError> {
-        self.move_joints_until(q, limits, std::future::pending()).await
+        self.move_joints_until(q, limits, std::future::pending())
+            .await
     }
 
     async fn stop(&self) -> Result<(), HalError> {
         let a = self.inner.cfg.max_joint_accel_rad_s2.max(2.0);
-        self.run_program("handeye_stop", &format!("  stopj({a:.3})\n")).await?;
+        self.run_program("handeye_stop", &format!("  stopj({a:.3})\n"))
+            .await?;
         Ok(())
     }
 
@@ -355,12 +481,20 @@ impl Robot for UrRobot {
         if p.0.iter().any(|x| !x.is_finite()) {
             return Err(HalError::InvalidArgument("TCP pose is not finite".into()));
         }
-        self.run_secondary("handeye_set_tcp", &format!("  set_tcp({})\n", p.to_script())).await?;
+        self.run_secondary(
+            "handeye_set_tcp",
+            &format!("  set_tcp({})\n", p.to_script()),
+        )
+        .await?;
         let deadline = Instant::now() + self.inner.cfg.timeout;
         let mut last = Instant::now();
         let mut read = UrPose([f64::NAN; 6]);
         while Instant::now() < deadline {
-            let s = self.inner.rtde.next_sample(last, self.inner.cfg.timeout).await?;
+            let s = self
+                .inner
+                .rtde
+                .next_sample(last, self.inner.cfg.timeout)
+                .await?;
             last = s.received;
             if let Some(t) = s.vec6("tcp_offset") {
                 read = UrPose(t);
@@ -369,29 +503,47 @@ impl Robot for UrRobot {
                 }
             }
         }
-        Err(HalError::ReadBackMismatch { what: "TCP offset".into(), wrote: format!("{:?}", p.0), read: format!("{:?}", read.0) })
+        Err(HalError::ReadBackMismatch {
+            what: "TCP offset".into(),
+            wrote: format!("{:?}", p.0),
+            read: format!("{:?}", read.0),
+        })
     }
 
     async fn write_double_register(&self, index: u32, value: f64) -> Result<(), HalError> {
         if !self.inner.cfg.registers.contains(&index) {
-            return Err(HalError::InvalidArgument(format!("register {index} is outside the configured range {:?}", self.inner.cfg.registers)));
+            return Err(HalError::InvalidArgument(format!(
+                "register {index} is outside the configured range {:?}",
+                self.inner.cfg.registers
+            )));
         }
         let recipe = (index - self.inner.cfg.registers.start()) as usize;
         let t0 = Instant::now();
-        self.inner.rtde.write(recipe, vec![Value::Double(value)]).await?;
+        self.inner
+            .rtde
+            .write(recipe, vec![Value::Double(value)])
+            .await?;
         let name = format!("input_double_register_{index}");
         let deadline = t0 + self.inner.cfg.timeout;
         let mut last = t0;
         let mut read = f64::NAN;
         while Instant::now() < deadline {
-            let s = self.inner.rtde.next_sample(last, self.inner.cfg.timeout).await?;
+            let s = self
+                .inner
+                .rtde
+                .next_sample(last, self.inner.cfg.timeout)
+                .await?;
             last = s.received;
             read = s.f64(&name).unwrap_or(f64::NAN);
             if read == value || (read.is_nan() && value.is_nan()) {
                 return Ok(());
             }
         }
-        Err(HalError::ReadBackMismatch { what: name, wrote: value.to_string(), read: read.to_string() })
+        Err(HalError::ReadBackMismatch {
+            what: name,
+            wrote: value.to_string(),
+            read: read.to_string(),
+        })
     }
 
     async fn read_double_register(&self, index: u32) -> Result<f64, HalError> {

@@ -12,7 +12,9 @@ use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
 use tokio::net::TcpStream;
 use tokio::sync::{mpsc, oneshot, watch};
 
-use crate::rtde::{self, ClientPackage, FieldType, FrameReadError, PackageType, Protocol, ServerPackage, Value};
+use crate::rtde::{
+    self, ClientPackage, FieldType, FrameReadError, PackageType, Protocol, ServerPackage, Value,
+};
 use crate::UrError;
 
 /// What to set up.
@@ -44,7 +46,10 @@ pub struct Sample {
 impl Sample {
     /// A field's value.
     pub fn get(&self, name: &str) -> Option<Value> {
-        self.names.iter().position(|n| n == name).map(|i| self.values[i])
+        self.names
+            .iter()
+            .position(|n| n == name)
+            .map(|i| self.values[i])
     }
 
     /// A scalar field as f64.
@@ -62,7 +67,11 @@ impl Sample {
 pub type ControllerVersion = [u32; 4];
 
 enum Cmd {
-    Write { recipe: usize, values: Vec<Value>, done: oneshot::Sender<Result<(), UrError>> },
+    Write {
+        recipe: usize,
+        values: Vec<Value>,
+        done: oneshot::Sender<Result<(), UrError>>,
+    },
 }
 
 /// A running RTDE client. Dropping it closes the connection.
@@ -98,26 +107,48 @@ struct Link {
     input_ids: Vec<u8>,
 }
 
-async fn send(w: &mut OwnedWriteHalf, p: &ClientPackage, proto: Protocol, peer: SocketAddr) -> Result<(), UrError> {
+async fn send(
+    w: &mut OwnedWriteHalf,
+    p: &ClientPackage,
+    proto: Protocol,
+    peer: SocketAddr,
+) -> Result<(), UrError> {
     let b = p.encode(proto)?;
-    w.write_all(&b).await.map_err(|source| UrError::Io { peer: peer.to_string(), source })
+    w.write_all(&b).await.map_err(|source| UrError::Io {
+        peer: peer.to_string(),
+        source,
+    })
 }
 
 /// Wait for the reply of type `kind`, skipping text messages and stray data packages.
-async fn reply(r: &mut BufReader<OwnedReadHalf>, kind: PackageType, proto: Protocol, cfg: &RtdeConfig) -> Result<ServerPackage, UrError> {
+async fn reply(
+    r: &mut BufReader<OwnedReadHalf>,
+    kind: PackageType,
+    proto: Protocol,
+    cfg: &RtdeConfig,
+) -> Result<ServerPackage, UrError> {
     let deadline = Instant::now() + cfg.timeout;
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
         let f = tokio::time::timeout(left, rtde::read_frame(r))
             .await
-            .map_err(|_| UrError::Timeout { what: format!("RTDE reply to {kind:?}"), after: cfg.timeout })?
+            .map_err(|_| UrError::Timeout {
+                what: format!("RTDE reply to {kind:?}"),
+                after: cfg.timeout,
+            })?
             .map_err(|e| match e {
-                FrameReadError::Io(source) => UrError::Io { peer: cfg.addr.to_string(), source },
+                FrameReadError::Io(source) => UrError::Io {
+                    peer: cfg.addr.to_string(),
+                    source,
+                },
                 FrameReadError::Protocol(e) => e,
             })?
             .ok_or_else(|| UrError::Io {
                 peer: cfg.addr.to_string(),
-                source: std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "controller closed the RTDE connection"),
+                source: std::io::Error::new(
+                    std::io::ErrorKind::UnexpectedEof,
+                    "controller closed the RTDE connection",
+                ),
             })?;
         if f.kind == kind {
             return ServerPackage::decode(&f, proto);
@@ -133,14 +164,30 @@ async fn reply(r: &mut BufReader<OwnedReadHalf>, kind: PackageType, proto: Proto
                 return Ok(ServerPackage::Start(true));
             }
             PackageType::DataPackage => {}
-            other => return Err(UrError::malformed("RTDE", format!("expected a {kind:?} reply, got {other:?}"))),
+            other => {
+                return Err(UrError::malformed(
+                    "RTDE",
+                    format!("expected a {kind:?} reply, got {other:?}"),
+                ))
+            }
         }
     }
 }
 
-fn check_types(names: &[String], types: &[String], outputs: bool) -> Result<Vec<FieldType>, UrError> {
+fn check_types(
+    names: &[String],
+    types: &[String],
+    outputs: bool,
+) -> Result<Vec<FieldType>, UrError> {
     if types.len() != names.len() {
-        return Err(UrError::malformed("RTDE", format!("setup reply has {} types for {} fields", types.len(), names.len())));
+        return Err(UrError::malformed(
+            "RTDE",
+            format!(
+                "setup reply has {} types for {} fields",
+                types.len(),
+                names.len()
+            ),
+        ));
     }
     names
         .iter()
@@ -148,7 +195,8 @@ fn check_types(names: &[String], types: &[String], outputs: bool) -> Result<Vec<
         .map(|(n, t)| match t.as_str() {
             "NOT_FOUND" => Err(UrError::FieldNotFound { name: n.clone() }),
             "IN_USE" if !outputs => Err(UrError::in_use(n)),
-            t => FieldType::from_wire_name(t).ok_or_else(|| UrError::malformed("RTDE", format!("unknown type `{t}` for `{n}`"))),
+            t => FieldType::from_wire_name(t)
+                .ok_or_else(|| UrError::malformed("RTDE", format!("unknown type `{t}` for `{n}`"))),
         })
         .collect()
 }
@@ -156,42 +204,85 @@ fn check_types(names: &[String], types: &[String], outputs: bool) -> Result<Vec<
 async fn handshake(cfg: &RtdeConfig) -> Result<Link, UrError> {
     let sock = tokio::time::timeout(cfg.timeout, TcpStream::connect(cfg.addr))
         .await
-        .map_err(|_| UrError::Timeout { what: format!("RTDE connect to {}", cfg.addr), after: cfg.timeout })?
-        .map_err(|source| UrError::Io { peer: cfg.addr.to_string(), source })?;
+        .map_err(|_| UrError::Timeout {
+            what: format!("RTDE connect to {}", cfg.addr),
+            after: cfg.timeout,
+        })?
+        .map_err(|source| UrError::Io {
+            peer: cfg.addr.to_string(),
+            source,
+        })?;
     let _ = sock.set_nodelay(true);
     let (r, mut w) = sock.into_split();
     let mut r = BufReader::new(r);
     let peer = cfg.addr;
     let mut proto = Protocol::V2;
     for v in [2u16, 1] {
-        send(&mut w, &ClientPackage::RequestProtocolVersion(v), Protocol::V2, peer).await?;
-        match reply(&mut r, PackageType::RequestProtocolVersion, Protocol::V2, cfg).await? {
+        send(
+            &mut w,
+            &ClientPackage::RequestProtocolVersion(v),
+            Protocol::V2,
+            peer,
+        )
+        .await?;
+        match reply(
+            &mut r,
+            PackageType::RequestProtocolVersion,
+            Protocol::V2,
+            cfg,
+        )
+        .await?
+        {
             ServerPackage::ProtocolVersionAccepted(true) => {
                 proto = if v == 2 { Protocol::V2 } else { Protocol::V1 };
                 break;
             }
             _ if v == 1 => {
-                return Err(UrError::Refused { device: "RTDE", request: "protocol version 2 or 1".into(), reason: "refused both".into() })
+                return Err(UrError::Refused {
+                    device: "RTDE",
+                    request: "protocol version 2 or 1".into(),
+                    reason: "refused both".into(),
+                })
             }
             _ => tracing::info!("controller refused RTDE protocol 2; trying 1"),
         }
     }
     send(&mut w, &ClientPackage::GetUrcontrolVersion, proto, peer).await?;
     let version = match reply(&mut r, PackageType::GetUrcontrolVersion, proto, cfg).await? {
-        ServerPackage::UrcontrolVersion { major, minor, bugfix, build } => [major, minor, bugfix, build],
+        ServerPackage::UrcontrolVersion {
+            major,
+            minor,
+            bugfix,
+            build,
+        } => [major, minor, bugfix, build],
         other => return Err(UrError::malformed("RTDE", format!("unexpected {other:?}"))),
     };
     let max_hz = if version[0] < 5 { 125.0 } else { 500.0 };
     let hz = cfg.frequency.unwrap_or(max_hz);
     if !(hz > 0.0 && hz <= max_hz) {
-        return Err(UrError::InvalidArgument(format!("RTDE frequency {hz} Hz is outside 0–{max_hz} Hz for controller {version:?}")));
+        return Err(UrError::InvalidArgument(format!(
+            "RTDE frequency {hz} Hz is outside 0–{max_hz} Hz for controller {version:?}"
+        )));
     }
-    send(&mut w, &ClientPackage::SetupOutputs { frequency: Some(hz), names: cfg.outputs.clone() }, proto, peer).await?;
+    send(
+        &mut w,
+        &ClientPackage::SetupOutputs {
+            frequency: Some(hz),
+            names: cfg.outputs.clone(),
+        },
+        proto,
+        peer,
+    )
+    .await?;
     let output_types = match reply(&mut r, PackageType::SetupOutputs, proto, cfg).await? {
         ServerPackage::SetupOutputs { recipe_id, types } => {
             let t = check_types(&cfg.outputs, &types, true)?;
             if recipe_id == Some(0) {
-                return Err(UrError::Refused { device: "RTDE", request: "output recipe".into(), reason: "recipe id 0 (invalid)".into() });
+                return Err(UrError::Refused {
+                    device: "RTDE",
+                    request: "output recipe".into(),
+                    reason: "recipe id 0 (invalid)".into(),
+                });
             }
             t
         }
@@ -199,13 +290,25 @@ async fn handshake(cfg: &RtdeConfig) -> Result<Link, UrError> {
     };
     let mut input_ids = Vec::new();
     for names in &cfg.inputs {
-        send(&mut w, &ClientPackage::SetupInputs { names: names.clone() }, proto, peer).await?;
+        send(
+            &mut w,
+            &ClientPackage::SetupInputs {
+                names: names.clone(),
+            },
+            proto,
+            peer,
+        )
+        .await?;
         match reply(&mut r, PackageType::SetupInputs, proto, cfg).await? {
             ServerPackage::SetupInputs { recipe_id, types } => {
                 check_types(names, &types, false)?;
                 let id = recipe_id.unwrap_or(1);
                 if id == 0 {
-                    return Err(UrError::Refused { device: "RTDE", request: format!("input recipe {names:?}"), reason: "recipe id 0 (invalid)".into() });
+                    return Err(UrError::Refused {
+                        device: "RTDE",
+                        request: format!("input recipe {names:?}"),
+                        reason: "recipe id 0 (invalid)".into(),
+                    });
                 }
                 input_ids.push(id);
             }
@@ -215,9 +318,22 @@ async fn handshake(cfg: &RtdeConfig) -> Result<Link, UrError> {
     send(&mut w, &ClientPackage::Start, proto, peer).await?;
     match reply(&mut r, PackageType::Start, proto, cfg).await? {
         ServerPackage::Start(true) => {}
-        _ => return Err(UrError::Refused { device: "RTDE", request: "start".into(), reason: "start refused".into() }),
+        _ => {
+            return Err(UrError::Refused {
+                device: "RTDE",
+                request: "start".into(),
+                reason: "start refused".into(),
+            })
+        }
     }
-    Ok(Link { reader: r.into_inner(), w, proto, version, output_types, input_ids })
+    Ok(Link {
+        reader: r.into_inner(),
+        w,
+        proto,
+        version,
+        output_types,
+        input_ids,
+    })
 }
 
 impl RtdeClient {
@@ -233,10 +349,23 @@ impl RtdeClient {
         let input_types = cfg
             .inputs
             .iter()
-            .map(|names| names.iter().map(|n| rtde::field_type(n).unwrap_or(FieldType::Double)).collect())
+            .map(|names| {
+                names
+                    .iter()
+                    .map(|n| rtde::field_type(n).unwrap_or(FieldType::Double))
+                    .collect()
+            })
             .collect();
         let task = tokio::spawn(run(cfg, link, latest_tx, cmd_rx, reconnects.clone()));
-        Ok(Self { latest, cmd, reconnects, version, protocol, input_types, task })
+        Ok(Self {
+            latest,
+            cmd,
+            reconnects,
+            version,
+            protocol,
+            input_types,
+            task,
+        })
     }
 
     /// Controller version from the first handshake.
@@ -260,7 +389,11 @@ impl RtdeClient {
     }
 
     /// Wait for a sample that arrived after `after` (at most `timeout`).
-    pub async fn next_sample(&self, after: Instant, timeout: Duration) -> Result<Arc<Sample>, UrError> {
+    pub async fn next_sample(
+        &self,
+        after: Instant,
+        timeout: Duration,
+    ) -> Result<Arc<Sample>, UrError> {
         let mut rx = self.latest.clone();
         let fut = async {
             loop {
@@ -272,19 +405,34 @@ impl RtdeClient {
                 if rx.changed().await.is_err() {
                     return Err(UrError::Io {
                         peer: "RTDE".into(),
-                        source: std::io::Error::new(std::io::ErrorKind::BrokenPipe, "RTDE client stopped"),
+                        source: std::io::Error::new(
+                            std::io::ErrorKind::BrokenPipe,
+                            "RTDE client stopped",
+                        ),
                     });
                 }
             }
         };
-        tokio::time::timeout(timeout, fut).await.map_err(|_| UrError::Timeout { what: "RTDE data".into(), after: timeout })?
+        tokio::time::timeout(timeout, fut)
+            .await
+            .map_err(|_| UrError::Timeout {
+                what: "RTDE data".into(),
+                after: timeout,
+            })?
     }
 
     /// Send values for input recipe `recipe` (index into [`RtdeConfig::inputs`]).
     pub async fn write(&self, recipe: usize, values: Vec<Value>) -> Result<(), UrError> {
-        let types = self.input_types.get(recipe).ok_or_else(|| UrError::InvalidArgument(format!("no input recipe {recipe}")))?;
-        if types.len() != values.len() || types.iter().zip(&values).any(|(t, v)| *t != v.field_type()) {
-            return Err(UrError::InvalidArgument(format!("values do not match input recipe {recipe} ({types:?})")));
+        let types = self
+            .input_types
+            .get(recipe)
+            .ok_or_else(|| UrError::InvalidArgument(format!("no input recipe {recipe}")))?;
+        if types.len() != values.len()
+            || types.iter().zip(&values).any(|(t, v)| *t != v.field_type())
+        {
+            return Err(UrError::InvalidArgument(format!(
+                "values do not match input recipe {recipe} ({types:?})"
+            )));
         }
         if self.protocol == Protocol::V1 && self.input_types.len() > 1 {
             return Err(UrError::InvalidArgument(
@@ -292,38 +440,77 @@ impl RtdeClient {
             ));
         }
         let (done, rx) = oneshot::channel();
-        let gone = || UrError::Io { peer: "RTDE".into(), source: std::io::Error::new(std::io::ErrorKind::BrokenPipe, "RTDE client stopped") };
-        self.cmd.send(Cmd::Write { recipe, values, done }).await.map_err(|_| gone())?;
+        let gone = || UrError::Io {
+            peer: "RTDE".into(),
+            source: std::io::Error::new(std::io::ErrorKind::BrokenPipe, "RTDE client stopped"),
+        };
+        self.cmd
+            .send(Cmd::Write {
+                recipe,
+                values,
+                done,
+            })
+            .await
+            .map_err(|_| gone())?;
         rx.await.map_err(|_| gone())?
     }
 }
 
-async fn read_loop(reader: OwnedReadHalf, proto: Protocol, names: Arc<Vec<String>>, types: Vec<FieldType>, latest: watch::Sender<Option<Arc<Sample>>>) -> UrError {
+async fn read_loop(
+    reader: OwnedReadHalf,
+    proto: Protocol,
+    names: Arc<Vec<String>>,
+    types: Vec<FieldType>,
+    latest: watch::Sender<Option<Arc<Sample>>>,
+) -> UrError {
     let mut r = BufReader::new(reader);
     loop {
         let f = match rtde::read_frame(&mut r).await {
             Ok(Some(f)) => f,
             Ok(None) => {
-                return UrError::Io { peer: "RTDE".into(), source: std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "controller closed the connection") }
+                return UrError::Io {
+                    peer: "RTDE".into(),
+                    source: std::io::Error::new(
+                        std::io::ErrorKind::UnexpectedEof,
+                        "controller closed the connection",
+                    ),
+                }
             }
-            Err(FrameReadError::Io(source)) => return UrError::Io { peer: "RTDE".into(), source },
+            Err(FrameReadError::Io(source)) => {
+                return UrError::Io {
+                    peer: "RTDE".into(),
+                    source,
+                }
+            }
             Err(FrameReadError::Protocol(e)) => return e,
         };
         match ServerPackage::decode(&f, proto) {
             Ok(ServerPackage::Data { body, .. }) => match rtde::decode_values(&types, &body) {
                 Ok(values) => {
-                    latest.send_replace(Some(Arc::new(Sample { names: names.clone(), values, received: Instant::now() })));
+                    latest.send_replace(Some(Arc::new(Sample {
+                        names: names.clone(),
+                        values,
+                        received: Instant::now(),
+                    })));
                 }
                 Err(e) => return e,
             },
-            Ok(ServerPackage::Text(t)) => tracing::warn!(level = t.level, "RTDE controller message: {}", t.message),
+            Ok(ServerPackage::Text(t)) => {
+                tracing::warn!(level = t.level, "RTDE controller message: {}", t.message)
+            }
             Ok(_) => {}
             Err(e) => return e,
         }
     }
 }
 
-async fn run(cfg: RtdeConfig, first: Link, latest: watch::Sender<Option<Arc<Sample>>>, mut cmd: mpsc::Receiver<Cmd>, reconnects: Arc<AtomicU64>) {
+async fn run(
+    cfg: RtdeConfig,
+    first: Link,
+    latest: watch::Sender<Option<Arc<Sample>>>,
+    mut cmd: mpsc::Receiver<Cmd>,
+    reconnects: Arc<AtomicU64>,
+) {
     let names = Arc::new(cfg.outputs.clone());
     let mut link = Some(first);
     let mut backoff = Duration::from_millis(100);
@@ -338,7 +525,10 @@ async fn run(cfg: RtdeConfig, first: Link, latest: watch::Sender<Option<Arc<Samp
                     l
                 }
                 Err(e) => {
-                    tracing::warn!("RTDE reconnect to {} failed: {e}; retrying in {backoff:?}", cfg.addr);
+                    tracing::warn!(
+                        "RTDE reconnect to {} failed: {e}; retrying in {backoff:?}",
+                        cfg.addr
+                    );
                     // Fail writes while disconnected rather than queueing them.
                     let sleep = tokio::time::sleep(backoff);
                     tokio::pin!(sleep);
@@ -361,8 +551,21 @@ async fn run(cfg: RtdeConfig, first: Link, latest: watch::Sender<Option<Arc<Samp
                 }
             },
         };
-        let Link { reader, mut w, proto, output_types, input_ids, .. } = l;
-        let mut reader_task = tokio::spawn(read_loop(reader, proto, names.clone(), output_types, latest.clone()));
+        let Link {
+            reader,
+            mut w,
+            proto,
+            output_types,
+            input_ids,
+            ..
+        } = l;
+        let mut reader_task = tokio::spawn(read_loop(
+            reader,
+            proto,
+            names.clone(),
+            output_types,
+            latest.clone(),
+        ));
         let err = loop {
             tokio::select! {
                 e = &mut reader_task => break e.unwrap_or_else(|j| UrError::malformed("RTDE", format!("reader task failed: {j}"))),

@@ -90,7 +90,10 @@ pub fn all_fields() -> impl Iterator<Item = (&'static str, FieldType)> {
 }
 
 fn lookup(name: &str) -> Option<(&'static str, FieldType, bool)> {
-    fields::FIELDS.binary_search_by(|(n, _, _)| (*n).cmp(name)).ok().map(|i| fields::FIELDS[i])
+    fields::FIELDS
+        .binary_search_by(|(n, _, _)| (*n).cmp(name))
+        .ok()
+        .map(|i| fields::FIELDS[i])
 }
 
 /// A typed RTDE value.
@@ -151,10 +154,18 @@ impl Value {
             Value::Uint64(v) => out.extend_from_slice(&v.to_be_bytes()),
             Value::Int32(v) => out.extend_from_slice(&v.to_be_bytes()),
             Value::Double(v) => out.extend_from_slice(&v.to_be_bytes()),
-            Value::Vector3d(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_be_bytes())),
-            Value::Vector6d(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_be_bytes())),
-            Value::Vector6Int32(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_be_bytes())),
-            Value::Vector6Uint32(v) => v.iter().for_each(|x| out.extend_from_slice(&x.to_be_bytes())),
+            Value::Vector3d(v) => v
+                .iter()
+                .for_each(|x| out.extend_from_slice(&x.to_be_bytes())),
+            Value::Vector6d(v) => v
+                .iter()
+                .for_each(|x| out.extend_from_slice(&x.to_be_bytes())),
+            Value::Vector6Int32(v) => v
+                .iter()
+                .for_each(|x| out.extend_from_slice(&x.to_be_bytes())),
+            Value::Vector6Uint32(v) => v
+                .iter()
+                .for_each(|x| out.extend_from_slice(&x.to_be_bytes())),
         }
     }
 
@@ -225,7 +236,10 @@ pub fn decode_values(types: &[FieldType], body: &[u8]) -> Result<Vec<Value>, UrE
     if body.len() != expected {
         return Err(UrError::malformed(
             P,
-            format!("data package holds {} bytes but its recipe needs {expected}", body.len()),
+            format!(
+                "data package holds {} bytes but its recipe needs {expected}",
+                body.len()
+            ),
         ));
     }
     let mut r = Reader::new(body);
@@ -247,7 +261,10 @@ impl<'a> Reader<'a> {
 
     /// Read from `buf`; errors name `protocol`.
     pub fn for_protocol(buf: &'a [u8], protocol: &'static str) -> Self {
-        Self { buf, what: protocol }
+        Self {
+            buf,
+            what: protocol,
+        }
     }
 
     /// Bytes left.
@@ -260,7 +277,10 @@ impl<'a> Reader<'a> {
         if self.buf.len() < n {
             return Err(UrError::malformed(
                 self.what,
-                format!("truncated: needed {n} more bytes, only {} left", self.buf.len()),
+                format!(
+                    "truncated: needed {n} more bytes, only {} left",
+                    self.buf.len()
+                ),
             ));
         }
         let (a, b) = self.buf.split_at(n);
@@ -337,7 +357,12 @@ impl PackageType {
             b'I' => PackageType::SetupInputs,
             b'S' => PackageType::Start,
             b'P' => PackageType::Pause,
-            other => return Err(UrError::malformed(P, format!("unknown package type {other}"))),
+            other => {
+                return Err(UrError::malformed(
+                    P,
+                    format!("unknown package type {other}"),
+                ))
+            }
         })
     }
 }
@@ -360,8 +385,9 @@ impl Frame {
     /// Encode with header. Fails if the payload does not fit the 16-bit size.
     pub fn encode(&self) -> Result<Vec<u8>, UrError> {
         let size = self.payload.len() + 3;
-        let size16 = u16::try_from(size)
-            .map_err(|_| UrError::InvalidArgument(format!("RTDE package of {size} bytes exceeds 65535")))?;
+        let size16 = u16::try_from(size).map_err(|_| {
+            UrError::InvalidArgument(format!("RTDE package of {size} bytes exceeds 65535"))
+        })?;
         let mut out = Vec::with_capacity(size);
         out.extend_from_slice(&size16.to_be_bytes());
         out.push(self.kind as u8);
@@ -377,19 +403,30 @@ impl Frame {
         }
         let size = usize::from(u16::from_be_bytes([buf[0], buf[1]]));
         if size < 3 {
-            return Err(UrError::malformed(P, format!("package size {size} is smaller than its 3-byte header")));
+            return Err(UrError::malformed(
+                P,
+                format!("package size {size} is smaller than its 3-byte header"),
+            ));
         }
         let kind = PackageType::from_byte(buf[2])?;
         if buf.len() < size {
             return Ok(None);
         }
-        Ok(Some((Frame { kind, payload: buf[3..size].to_vec() }, size)))
+        Ok(Some((
+            Frame {
+                kind,
+                payload: buf[3..size].to_vec(),
+            },
+            size,
+        )))
     }
 }
 
 /// Read one frame from an async stream (cuts by size; several or partial packages per read are
 /// fine). `Ok(None)` on a clean EOF between packages.
-pub async fn read_frame<R: tokio::io::AsyncRead + Unpin>(r: &mut R) -> Result<Option<Frame>, FrameReadError> {
+pub async fn read_frame<R: tokio::io::AsyncRead + Unpin>(
+    r: &mut R,
+) -> Result<Option<Frame>, FrameReadError> {
     use tokio::io::AsyncReadExt;
     let mut hdr = [0u8; 3];
     let mut got = 0;
@@ -399,7 +436,10 @@ pub async fn read_frame<R: tokio::io::AsyncRead + Unpin>(r: &mut R) -> Result<Op
             if got == 0 {
                 return Ok(None);
             }
-            return Err(FrameReadError::Protocol(UrError::malformed(P, "connection closed inside a package header")));
+            return Err(FrameReadError::Protocol(UrError::malformed(
+                P,
+                "connection closed inside a package header",
+            )));
         }
         got += n;
     }
@@ -534,14 +574,22 @@ fn split_names(bytes: &[u8]) -> Result<Vec<String>, UrError> {
     if bytes.len() > MAX_NAMES_BYTES {
         return Err(UrError::malformed(
             P,
-            format!("field-name list of {} bytes exceeds the {MAX_NAMES_BYTES}-byte limit", bytes.len()),
+            format!(
+                "field-name list of {} bytes exceeds the {MAX_NAMES_BYTES}-byte limit",
+                bytes.len()
+            ),
         ));
     }
-    let s = std::str::from_utf8(bytes).map_err(|_| UrError::malformed(P, "field names are not ASCII"))?;
+    let s = std::str::from_utf8(bytes)
+        .map_err(|_| UrError::malformed(P, "field names are not ASCII"))?;
     if !s.is_ascii() {
         return Err(UrError::malformed(P, "field names are not ASCII"));
     }
-    Ok(s.split(',').map(str::trim).filter(|n| !n.is_empty()).map(String::from).collect())
+    Ok(s.split(',')
+        .map(str::trim)
+        .filter(|n| !n.is_empty())
+        .map(String::from)
+        .collect())
 }
 
 fn join(names: &[String]) -> Vec<u8> {
@@ -551,7 +599,10 @@ fn join(names: &[String]) -> Vec<u8> {
 fn one_byte(p: &[u8], what: &str) -> Result<u8, UrError> {
     match p {
         [b] => Ok(*b),
-        _ => Err(UrError::malformed(P, format!("{what} reply must be 1 byte, got {}", p.len()))),
+        _ => Err(UrError::malformed(
+            P,
+            format!("{what} reply must be 1 byte, got {}", p.len()),
+        )),
     }
 }
 
@@ -559,7 +610,10 @@ fn expect_empty(p: &[u8], what: &str) -> Result<(), UrError> {
     if p.is_empty() {
         Ok(())
     } else {
-        Err(UrError::malformed(P, format!("{what} request must be empty, got {} bytes", p.len())))
+        Err(UrError::malformed(
+            P,
+            format!("{what} request must be empty, got {} bytes", p.len()),
+        ))
     }
 }
 
@@ -575,11 +629,19 @@ fn decode_text(p: &[u8], proto: Protocol) -> Result<TextMessage, UrError> {
             if r.remaining() != 0 {
                 return Err(UrError::malformed(P, "trailing bytes after a text message"));
             }
-            Ok(TextMessage { message, source, level })
+            Ok(TextMessage {
+                message,
+                source,
+                level,
+            })
         }
         Protocol::V1 => {
             let level = r.u8()?;
-            Ok(TextMessage { message: String::from_utf8_lossy(r.rest()).into_owned(), source: String::new(), level })
+            Ok(TextMessage {
+                message: String::from_utf8_lossy(r.rest()).into_owned(),
+                source: String::new(),
+                level,
+            })
         }
     }
 }
@@ -613,7 +675,10 @@ impl ClientPackage {
                 let mut r = Reader::new(p);
                 let v = r.u16()?;
                 if r.remaining() != 0 {
-                    return Err(UrError::malformed(P, "protocol-version request must be 2 bytes"));
+                    return Err(UrError::malformed(
+                        P,
+                        "protocol-version request must be 2 bytes",
+                    ));
                 }
                 ClientPackage::RequestProtocolVersion(v)
             }
@@ -626,13 +691,24 @@ impl ClientPackage {
                     let mut r = Reader::new(p);
                     let frequency = r.f64()?;
                     if !frequency.is_finite() || frequency <= 0.0 {
-                        return Err(UrError::malformed(P, format!("output frequency {frequency} Hz is not positive")));
+                        return Err(UrError::malformed(
+                            P,
+                            format!("output frequency {frequency} Hz is not positive"),
+                        ));
                     }
-                    ClientPackage::SetupOutputs { frequency: Some(frequency), names: split_names(r.rest())? }
+                    ClientPackage::SetupOutputs {
+                        frequency: Some(frequency),
+                        names: split_names(r.rest())?,
+                    }
                 }
-                Protocol::V1 => ClientPackage::SetupOutputs { frequency: None, names: split_names(p)? },
+                Protocol::V1 => ClientPackage::SetupOutputs {
+                    frequency: None,
+                    names: split_names(p)?,
+                },
             },
-            PackageType::SetupInputs => ClientPackage::SetupInputs { names: split_names(p)? },
+            PackageType::SetupInputs => ClientPackage::SetupInputs {
+                names: split_names(p)?,
+            },
             PackageType::Start => {
                 expect_empty(p, "start")?;
                 ClientPackage::Start
@@ -645,9 +721,15 @@ impl ClientPackage {
                 Protocol::V2 => {
                     let mut r = Reader::new(p);
                     let id = r.u8()?;
-                    ClientPackage::Data { recipe_id: Some(id), body: r.rest().to_vec() }
+                    ClientPackage::Data {
+                        recipe_id: Some(id),
+                        body: r.rest().to_vec(),
+                    }
                 }
-                Protocol::V1 => ClientPackage::Data { recipe_id: None, body: p.to_vec() },
+                Protocol::V1 => ClientPackage::Data {
+                    recipe_id: None,
+                    body: p.to_vec(),
+                },
             },
             PackageType::TextMessage => ClientPackage::Text(decode_text(p, proto)?),
         })
@@ -656,7 +738,10 @@ impl ClientPackage {
     /// Encode as a frame.
     pub fn encode(&self, proto: Protocol) -> Result<Vec<u8>, UrError> {
         let (kind, payload) = match self {
-            ClientPackage::RequestProtocolVersion(v) => (PackageType::RequestProtocolVersion, v.to_be_bytes().to_vec()),
+            ClientPackage::RequestProtocolVersion(v) => (
+                PackageType::RequestProtocolVersion,
+                v.to_be_bytes().to_vec(),
+            ),
             ClientPackage::GetUrcontrolVersion => (PackageType::GetUrcontrolVersion, vec![]),
             ClientPackage::SetupOutputs { frequency, names } => {
                 let mut p = Vec::new();
@@ -688,11 +773,19 @@ impl ServerPackage {
     pub fn decode(f: &Frame, proto: Protocol) -> Result<Self, UrError> {
         let p = &f.payload[..];
         let types = |b: &[u8]| -> Result<Vec<String>, UrError> {
-            let s = std::str::from_utf8(b).map_err(|_| UrError::malformed(P, "type list is not ASCII"))?;
-            let v: Vec<String> = s.split(',').filter(|t| !t.is_empty()).map(String::from).collect();
+            let s = std::str::from_utf8(b)
+                .map_err(|_| UrError::malformed(P, "type list is not ASCII"))?;
+            let v: Vec<String> = s
+                .split(',')
+                .filter(|t| !t.is_empty())
+                .map(String::from)
+                .collect();
             for t in &v {
                 if FieldType::from_wire_name(t).is_none() && t != "NOT_FOUND" && t != "IN_USE" {
-                    return Err(UrError::malformed(P, format!("unknown field type `{t}` in setup reply")));
+                    return Err(UrError::malformed(
+                        P,
+                        format!("unknown field type `{t}` in setup reply"),
+                    ));
                 }
             }
             Ok(v)
@@ -703,18 +796,26 @@ impl ServerPackage {
             }
             PackageType::GetUrcontrolVersion => {
                 let mut r = Reader::new(p);
-                let v = ServerPackage::UrcontrolVersion { major: r.u32()?, minor: r.u32()?, bugfix: r.u32()?, build: r.u32()? };
+                let v = ServerPackage::UrcontrolVersion {
+                    major: r.u32()?,
+                    minor: r.u32()?,
+                    bugfix: r.u32()?,
+                    build: r.u32()?,
+                };
                 if r.remaining() != 0 {
-                    return Err(UrError::malformed(P, "URControl-version reply must be 16 bytes"));
+                    return Err(UrError::malformed(
+                        P,
+                        "URControl-version reply must be 16 bytes",
+                    ));
                 }
                 v
             }
             PackageType::SetupOutputs | PackageType::SetupInputs => {
                 let (recipe_id, rest) = match proto {
                     Protocol::V2 => {
-                        let (id, rest) = p
-                            .split_first()
-                            .ok_or_else(|| UrError::malformed(P, "setup reply without a recipe id"))?;
+                        let (id, rest) = p.split_first().ok_or_else(|| {
+                            UrError::malformed(P, "setup reply without a recipe id")
+                        })?;
                         (Some(*id), rest)
                     }
                     Protocol::V1 => (None, p),
@@ -730,11 +831,18 @@ impl ServerPackage {
             PackageType::Pause => ServerPackage::Pause(one_byte(p, "pause")? != 0),
             PackageType::DataPackage => match proto {
                 Protocol::V2 => {
-                    let (id, rest) =
-                        p.split_first().ok_or_else(|| UrError::malformed(P, "data package without a recipe id"))?;
-                    ServerPackage::Data { recipe_id: Some(*id), body: rest.to_vec() }
+                    let (id, rest) = p
+                        .split_first()
+                        .ok_or_else(|| UrError::malformed(P, "data package without a recipe id"))?;
+                    ServerPackage::Data {
+                        recipe_id: Some(*id),
+                        body: rest.to_vec(),
+                    }
                 }
-                Protocol::V1 => ServerPackage::Data { recipe_id: None, body: p.to_vec() },
+                Protocol::V1 => ServerPackage::Data {
+                    recipe_id: None,
+                    body: p.to_vec(),
+                },
             },
             PackageType::TextMessage => ServerPackage::Text(decode_text(p, proto)?),
         })
@@ -743,15 +851,23 @@ impl ServerPackage {
     /// Encode as a frame.
     pub fn encode(&self, proto: Protocol) -> Result<Vec<u8>, UrError> {
         let (kind, payload) = match self {
-            ServerPackage::ProtocolVersionAccepted(a) => (PackageType::RequestProtocolVersion, vec![u8::from(*a)]),
-            ServerPackage::UrcontrolVersion { major, minor, bugfix, build } => {
+            ServerPackage::ProtocolVersionAccepted(a) => {
+                (PackageType::RequestProtocolVersion, vec![u8::from(*a)])
+            }
+            ServerPackage::UrcontrolVersion {
+                major,
+                minor,
+                bugfix,
+                build,
+            } => {
                 let mut p = Vec::with_capacity(16);
                 for v in [major, minor, bugfix, build] {
                     p.extend_from_slice(&v.to_be_bytes());
                 }
                 (PackageType::GetUrcontrolVersion, p)
             }
-            ServerPackage::SetupOutputs { recipe_id, types } | ServerPackage::SetupInputs { recipe_id, types } => {
+            ServerPackage::SetupOutputs { recipe_id, types }
+            | ServerPackage::SetupInputs { recipe_id, types } => {
                 let mut p = Vec::new();
                 if proto == Protocol::V2 {
                     p.push(recipe_id.unwrap_or(0));
@@ -792,7 +908,10 @@ pub(crate) mod tests {
         assert_eq!(field_type("robot_mode"), Some(FieldType::Int32));
         assert_eq!(field_type("runtime_state"), Some(FieldType::Uint32));
         assert_eq!(field_type("joint_mode"), Some(FieldType::Vector6Int32));
-        assert_eq!(field_type("input_double_register_47"), Some(FieldType::Double));
+        assert_eq!(
+            field_type("input_double_register_47"),
+            Some(FieldType::Double)
+        );
         assert_eq!(field_type("input_double_register_48"), None);
         assert!(is_input_field("input_int_register_3"));
         assert!(is_input_field("speed_slider_fraction"));
@@ -801,33 +920,60 @@ pub(crate) mod tests {
 
     #[test]
     fn table_matches_the_shared_reference_when_present() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/ref/rtde-field-types.json");
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/ref/rtde-field-types.json");
         let Ok(text) = std::fs::read_to_string(&path) else {
-            assert!(std::env::var_os("CI").is_none(), "{} missing in CI", path.display());
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "{} missing in CI",
+                path.display()
+            );
             eprintln!("skipping: {} not found", path.display());
             return;
         };
-        let map: std::collections::BTreeMap<String, String> = serde_json::from_str(&text).expect("json");
+        let map: std::collections::BTreeMap<String, String> =
+            serde_json::from_str(&text).expect("json");
         assert_eq!(map.len(), fields::FIELDS.len());
         for (name, ty) in map {
-            assert_eq!(field_type(&name).map(FieldType::wire_name), Some(ty.as_str()), "{name}");
+            assert_eq!(
+                field_type(&name).map(FieldType::wire_name),
+                Some(ty.as_str()),
+                "{name}"
+            );
         }
     }
 
     #[test]
     fn documented_wire_examples() {
-        let v = ClientPackage::RequestProtocolVersion(2).encode(Protocol::V2).expect("enc");
-        assert_eq!(v, [0x00, 0x05, 0x56, 0x00, 0x02]);
-        assert_eq!(ClientPackage::GetUrcontrolVersion.encode(Protocol::V2).expect("enc"), [0, 3, 0x76]);
-        let r = ServerPackage::UrcontrolVersion { major: 5, minor: 11, bugfix: 1, build: 108318 }
+        let v = ClientPackage::RequestProtocolVersion(2)
             .encode(Protocol::V2)
             .expect("enc");
+        assert_eq!(v, [0x00, 0x05, 0x56, 0x00, 0x02]);
+        assert_eq!(
+            ClientPackage::GetUrcontrolVersion
+                .encode(Protocol::V2)
+                .expect("enc"),
+            [0, 3, 0x76]
+        );
+        let r = ServerPackage::UrcontrolVersion {
+            major: 5,
+            minor: 11,
+            bugfix: 1,
+            build: 108318,
+        }
+        .encode(Protocol::V2)
+        .expect("enc");
         assert_eq!(r.len(), 19);
         assert_eq!(&r[..3], &[0x00, 0x13, 0x76]);
         assert_eq!(&r[15..], &[0x00, 0x01, 0xa7, 0x1e]);
-        let (f, used) = Frame::split(&[0, 4, b'V', 1, 0xff]).expect("ok").expect("frame");
+        let (f, used) = Frame::split(&[0, 4, b'V', 1, 0xff])
+            .expect("ok")
+            .expect("frame");
         assert_eq!(used, 4);
-        assert_eq!(ServerPackage::decode(&f, Protocol::V2).expect("dec"), ServerPackage::ProtocolVersionAccepted(true));
+        assert_eq!(
+            ServerPackage::decode(&f, Protocol::V2).expect("dec"),
+            ServerPackage::ProtocolVersionAccepted(true)
+        );
         // ur_rtde's trailing comma.
         let f = Frame::new(PackageType::SetupOutputs, {
             let mut p = 500f64.to_be_bytes().to_vec();
@@ -842,10 +988,19 @@ pub(crate) mod tests {
             }
         );
         // Data package of 64 bytes.
-        let vals = [Value::Double(41.5), Value::Vector6d([0.1; 6]), Value::Int32(7)];
+        let vals = [
+            Value::Double(41.5),
+            Value::Vector6d([0.1; 6]),
+            Value::Int32(7),
+        ];
         let mut body = Vec::new();
         encode_values(&vals, &mut body);
-        let pkg = ServerPackage::Data { recipe_id: Some(1), body: body.clone() }.encode(Protocol::V2).expect("e");
+        let pkg = ServerPackage::Data {
+            recipe_id: Some(1),
+            body: body.clone(),
+        }
+        .encode(Protocol::V2)
+        .expect("e");
         assert_eq!(&pkg[..4], &[0x00, 0x40, 0x55, 0x01]);
         let types: Vec<_> = vals.iter().map(Value::field_type).collect();
         assert_eq!(decode_values(&types, &body).expect("dec"), vals);
@@ -853,7 +1008,11 @@ pub(crate) mod tests {
 
     #[test]
     fn round_trips_every_package_in_both_versions() {
-        let text = TextMessage { message: "hello".into(), source: "sim".into(), level: 3 };
+        let text = TextMessage {
+            message: "hello".into(),
+            source: "sim".into(),
+            level: 3,
+        };
         for proto in [Protocol::V1, Protocol::V2] {
             let client = [
                 ClientPackage::RequestProtocolVersion(2),
@@ -862,12 +1021,21 @@ pub(crate) mod tests {
                     frequency: (proto == Protocol::V2).then_some(125.0),
                     names: vec!["a".into(), "b".into()],
                 },
-                ClientPackage::SetupInputs { names: vec!["input_int_register_24".into()] },
+                ClientPackage::SetupInputs {
+                    names: vec!["input_int_register_24".into()],
+                },
                 ClientPackage::Start,
                 ClientPackage::Pause,
-                ClientPackage::Data { recipe_id: (proto == Protocol::V2).then_some(3), body: vec![1, 2, 3] },
+                ClientPackage::Data {
+                    recipe_id: (proto == Protocol::V2).then_some(3),
+                    body: vec![1, 2, 3],
+                },
                 ClientPackage::Text(TextMessage {
-                    source: if proto == Protocol::V2 { "sim".into() } else { String::new() },
+                    source: if proto == Protocol::V2 {
+                        "sim".into()
+                    } else {
+                        String::new()
+                    },
                     ..text.clone()
                 }),
             ];
@@ -879,7 +1047,12 @@ pub(crate) mod tests {
             }
             let server = [
                 ServerPackage::ProtocolVersionAccepted(true),
-                ServerPackage::UrcontrolVersion { major: 3, minor: 15, bugfix: 7, build: 1 },
+                ServerPackage::UrcontrolVersion {
+                    major: 3,
+                    minor: 15,
+                    bugfix: 7,
+                    build: 1,
+                },
                 ServerPackage::SetupOutputs {
                     recipe_id: (proto == Protocol::V2).then_some(0),
                     types: vec!["DOUBLE".into(), "NOT_FOUND".into()],
@@ -890,7 +1063,10 @@ pub(crate) mod tests {
                 },
                 ServerPackage::Start(true),
                 ServerPackage::Pause(false),
-                ServerPackage::Data { recipe_id: (proto == Protocol::V2).then_some(1), body: vec![0; 8] },
+                ServerPackage::Data {
+                    recipe_id: (proto == Protocol::V2).then_some(1),
+                    body: vec![0; 8],
+                },
             ];
             for s in server {
                 let bytes = s.encode(proto).expect("enc");
@@ -907,10 +1083,19 @@ pub(crate) mod tests {
         assert!(Frame::split(&[0, 9, b'V', 0]).expect("ok").is_none());
         let f = Frame::new(PackageType::RequestProtocolVersion, vec![1]);
         assert!(ClientPackage::decode(&f, Protocol::V2).is_err());
-        let f = Frame::new(PackageType::SetupOutputs, vec![0x7f, 0xf8, 0, 0, 0, 0, 0, 0]);
-        assert!(ClientPackage::decode(&f, Protocol::V2).is_err(), "NaN frequency");
+        let f = Frame::new(
+            PackageType::SetupOutputs,
+            vec![0x7f, 0xf8, 0, 0, 0, 0, 0, 0],
+        );
+        assert!(
+            ClientPackage::decode(&f, Protocol::V2).is_err(),
+            "NaN frequency"
+        );
         let f = Frame::new(PackageType::SetupInputs, vec![b'a'; 3000]);
-        assert!(ClientPackage::decode(&f, Protocol::V2).is_err(), "over 2048 bytes");
+        assert!(
+            ClientPackage::decode(&f, Protocol::V2).is_err(),
+            "over 2048 bytes"
+        );
         let f = Frame::new(PackageType::SetupOutputs, b"\x01DOUBLE,FLOAT".to_vec());
         assert!(ServerPackage::decode(&f, Protocol::V2).is_err());
         assert!(decode_values(&[FieldType::Double], &[0; 7]).is_err());
@@ -922,24 +1107,54 @@ pub(crate) mod tests {
     fn fuzz_mutated_packages_never_panic() {
         let mut seeds: Vec<Vec<u8>> = Vec::new();
         for proto in [Protocol::V1, Protocol::V2] {
-            seeds.push(ClientPackage::RequestProtocolVersion(2).encode(proto).expect("e"));
             seeds.push(
-                ClientPackage::SetupOutputs { frequency: Some(500.0), names: vec!["actual_q".into(), "timestamp".into()] }
-                    .encode(proto)
-                    .expect("e"),
-            );
-            seeds.push(ServerPackage::UrcontrolVersion { major: 5, minor: 11, bugfix: 1, build: 9 }.encode(proto).expect("e"));
-            seeds.push(
-                ServerPackage::SetupOutputs { recipe_id: Some(1), types: vec!["VECTOR6D".into(), "DOUBLE".into()] }
+                ClientPackage::RequestProtocolVersion(2)
                     .encode(proto)
                     .expect("e"),
             );
             seeds.push(
-                ServerPackage::Text(TextMessage { message: "m".into(), source: "s".into(), level: 1 })
-                    .encode(proto)
-                    .expect("e"),
+                ClientPackage::SetupOutputs {
+                    frequency: Some(500.0),
+                    names: vec!["actual_q".into(), "timestamp".into()],
+                }
+                .encode(proto)
+                .expect("e"),
             );
-            seeds.push(ServerPackage::Data { recipe_id: Some(1), body: vec![0; 56] }.encode(proto).expect("e"));
+            seeds.push(
+                ServerPackage::UrcontrolVersion {
+                    major: 5,
+                    minor: 11,
+                    bugfix: 1,
+                    build: 9,
+                }
+                .encode(proto)
+                .expect("e"),
+            );
+            seeds.push(
+                ServerPackage::SetupOutputs {
+                    recipe_id: Some(1),
+                    types: vec!["VECTOR6D".into(), "DOUBLE".into()],
+                }
+                .encode(proto)
+                .expect("e"),
+            );
+            seeds.push(
+                ServerPackage::Text(TextMessage {
+                    message: "m".into(),
+                    source: "s".into(),
+                    level: 1,
+                })
+                .encode(proto)
+                .expect("e"),
+            );
+            seeds.push(
+                ServerPackage::Data {
+                    recipe_id: Some(1),
+                    body: vec![0; 56],
+                }
+                .encode(proto)
+                .expect("e"),
+            );
         }
         let mut rng = Lcg(0x5eed);
         for _ in 0..20_000 {
@@ -976,7 +1191,10 @@ pub(crate) mod tests {
     pub(crate) struct Lcg(pub(crate) u64);
     impl Lcg {
         pub(crate) fn next(&mut self) -> u64 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            self.0 = self
+                .0
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             self.0 >> 33
         }
         pub(crate) fn below(&mut self, n: usize) -> usize {

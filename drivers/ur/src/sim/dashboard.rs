@@ -14,7 +14,9 @@ const MAX_LINE: usize = 4096;
 
 pub(crate) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
     loop {
-        let Ok((sock, _)) = listener.accept().await else { continue };
+        let Ok((sock, _)) = listener.accept().await else {
+            continue;
+        };
         let shared = shared.clone();
         tokio::spawn(async move {
             let mut drop_rx = shared.drop_gen.subscribe();
@@ -33,16 +35,21 @@ pub(crate) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
 async fn connection(sock: TcpStream, shared: &Shared) -> std::io::Result<()> {
     let (r, mut w) = sock.into_split();
     let mut r = BufReader::new(r);
-    w.write_all(b"Connected: Universal Robots Dashboard Server\n").await?;
+    w.write_all(b"Connected: Universal Robots Dashboard Server\n")
+        .await?;
     let mut line = Vec::new();
     loop {
         line.clear();
-        let n = (&mut r).take(MAX_LINE as u64 + 1).read_until(b'\n', &mut line).await?;
+        let n = (&mut r)
+            .take(MAX_LINE as u64 + 1)
+            .read_until(b'\n', &mut line)
+            .await?;
         if n == 0 {
             return Ok(());
         }
         if line.len() > MAX_LINE {
-            w.write_all(b"could not understand: command too long\n").await?;
+            w.write_all(b"could not understand: command too long\n")
+                .await?;
             return Ok(());
         }
         let cmd = String::from_utf8_lossy(&line).trim().to_string();
@@ -64,15 +71,33 @@ pub(crate) fn handle(shared: &Shared, cmd: &str) -> (String, bool) {
     let cb3 = shared.config.model.is_cb3();
     let (maj, min, bug, build) = shared.version();
     let lower = cmd.to_ascii_lowercase();
-    let arg = |prefix: &str| cmd.get(prefix.len()..).map(str::trim).unwrap_or("").to_string();
+    let arg = |prefix: &str| {
+        cmd.get(prefix.len()..)
+            .map(str::trim)
+            .unwrap_or("")
+            .to_string()
+    };
     let mut s = shared.lock();
     let remote = s.remote_control;
     const LOCAL: &str = "Command is not allowed due to the robot being in local control. Switch to remote control on the teach pendant";
     let needs_remote = [
-        "power on", "power off", "brake release", "load ", "play", "stop", "pause", "unlock protective stop",
-        "close safety popup", "restart safety", "shutdown",
+        "power on",
+        "power off",
+        "brake release",
+        "load ",
+        "play",
+        "stop",
+        "pause",
+        "unlock protective stop",
+        "close safety popup",
+        "restart safety",
+        "shutdown",
     ];
-    if !remote && needs_remote.iter().any(|c| lower == c.trim() || (c.ends_with(' ') && lower.starts_with(c))) {
+    if !remote
+        && needs_remote
+            .iter()
+            .any(|c| lower == c.trim() || (c.ends_with(' ') && lower.starts_with(c)))
+    {
         return (
             match lower.as_str() {
                 "play" | "stop" | "pause" => format!("Failed to execute: {lower}"),
@@ -92,7 +117,9 @@ pub(crate) fn handle(shared: &Shared, cmd: &str) -> (String, bool) {
         "safetystatus" if !cb3 => format!("Safetystatus: {}", s.safety_mode.name()),
         "is in remote control" if !cb3 => remote.to_string(),
         "power on" => {
-            if s.robot_mode == RobotModeCode::PowerOff && s.safety_mode != SafetyModeCode::RobotEmergencyStop {
+            if s.robot_mode == RobotModeCode::PowerOff
+                && s.safety_mode != SafetyModeCode::RobotEmergencyStop
+            {
                 s.robot_mode = RobotModeCode::Idle;
             }
             "Powering on".into()
@@ -135,7 +162,12 @@ pub(crate) fn handle(shared: &Shared, cmd: &str) -> (String, bool) {
             "Stopped".into()
         }
         "programstate" => {
-            let name = s.loaded_program.as_deref().map(base_name).unwrap_or("<unnamed>").to_string();
+            let name = s
+                .loaded_program
+                .as_deref()
+                .map(base_name)
+                .unwrap_or("<unnamed>")
+                .to_string();
             format!("{} {}", program_state_name(s.dashboard_playing), name)
         }
         "running" => format!("Program running: {}", s.runtime_state == RUNTIME_PLAYING),
@@ -175,22 +207,40 @@ pub(crate) fn handle(shared: &Shared, cmd: &str) -> (String, bool) {
             "Restarting safety".into()
         }
         "isprogramsaved" => {
-            let name = s.loaded_program.as_deref().map(base_name).unwrap_or("<unnamed>").to_string();
+            let name = s
+                .loaded_program
+                .as_deref()
+                .map(base_name)
+                .unwrap_or("<unnamed>")
+                .to_string();
             format!("true {name}")
         }
         "get serial number" => "20235500001".into(),
-        "get robot model" => shared.config.model.name().trim_end_matches('e').to_ascii_uppercase(),
+        "get robot model" => shared
+            .config
+            .model
+            .name()
+            .trim_end_matches('e')
+            .to_ascii_uppercase(),
         "get operational mode" if !cb3 => s.operational_mode.unwrap_or("NONE").into(),
         "clear operational mode" if !cb3 => {
             let prev = s.operational_mode.take().unwrap_or("NONE");
-            format!("No longer controlling the operational mode. Current operational mode: '{prev}'.")
+            format!(
+                "No longer controlling the operational mode. Current operational mode: '{prev}'."
+            )
         }
-        _ if lower.starts_with("load installation ") => format!("Loading installation: {}", arg("load installation ")),
+        _ if lower.starts_with("load installation ") => {
+            format!("Loading installation: {}", arg("load installation "))
+        }
         _ if lower.starts_with("load ") => {
             let file = arg("load ");
             if file.ends_with(".urp") && !file.contains('\0') {
                 s.stop_program(None);
-                let full = if file.starts_with('/') { file.clone() } else { format!("/programs/{file}") };
+                let full = if file.starts_with('/') {
+                    file.clone()
+                } else {
+                    format!("/programs/{file}")
+                };
                 s.loaded_program = Some(full);
                 format!("Loading program: {file}")
             } else {

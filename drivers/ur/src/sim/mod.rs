@@ -11,8 +11,8 @@ mod motion;
 mod realtime;
 mod rtde_server;
 mod script;
-mod urscript;
 mod state;
+mod urscript;
 
 use std::collections::HashSet;
 use std::net::{IpAddr, SocketAddr};
@@ -24,8 +24,8 @@ use tokio::net::TcpListener;
 use tokio::sync::{broadcast, watch};
 
 use crate::{Ports, UrError};
-pub use state::{RobotModeCode, SafetyModeCode};
 pub(crate) use state::State;
+pub use state::{RobotModeCode, SafetyModeCode};
 
 /// How to start a simulator.
 #[derive(Debug, Clone)]
@@ -81,7 +81,13 @@ impl SimConfig {
 
     /// Every port 0 (the OS picks; read them from [`SimHandle::ports`]).
     pub fn ephemeral(mut self) -> Self {
-        self.ports = Ports { dashboard: 0, primary: 0, secondary: 0, realtime: 0, rtde: 0 };
+        self.ports = Ports {
+            dashboard: 0,
+            primary: 0,
+            secondary: 0,
+            realtime: 0,
+            rtde: 0,
+        };
         self
     }
 
@@ -89,10 +95,12 @@ impl SimConfig {
     pub fn with_fieldbus_lower_range(mut self) -> Self {
         for i in 0..24 {
             self.fieldbus_held.push(format!("input_int_register_{i}"));
-            self.fieldbus_held.push(format!("input_double_register_{i}"));
+            self.fieldbus_held
+                .push(format!("input_double_register_{i}"));
         }
         self.fieldbus_held.push("input_bit_registers0_to_31".into());
-        self.fieldbus_held.push("input_bit_registers32_to_63".into());
+        self.fieldbus_held
+            .push("input_bit_registers32_to_63".into());
         self
     }
 }
@@ -110,7 +118,9 @@ pub(crate) struct Shared {
 
 impl std::fmt::Debug for Shared {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Shared").field("config", &self.config).finish_non_exhaustive()
+        f.debug_struct("Shared")
+            .field("config", &self.config)
+            .finish_non_exhaustive()
     }
 }
 
@@ -156,14 +166,31 @@ impl Simulator {
         let bind = |port: u16| {
             let addr = SocketAddr::new(config.bind, port);
             async move {
-                let l = TcpListener::bind(addr).await.map_err(|source| UrError::Io { peer: addr.to_string(), source })?;
+                let l = TcpListener::bind(addr)
+                    .await
+                    .map_err(|source| UrError::Io {
+                        peer: addr.to_string(),
+                        source,
+                    })?;
                 Ok::<_, UrError>(l)
             }
         };
         let p = config.ports;
-        let (ld, lp, ls, lr, lt) = (bind(p.dashboard).await?, bind(p.primary).await?, bind(p.secondary).await?, bind(p.realtime).await?, bind(p.rtde).await?);
+        let (ld, lp, ls, lr, lt) = (
+            bind(p.dashboard).await?,
+            bind(p.primary).await?,
+            bind(p.secondary).await?,
+            bind(p.realtime).await?,
+            bind(p.rtde).await?,
+        );
         let port = |l: &TcpListener| l.local_addr().map(|a| a.port()).unwrap_or(0);
-        let ports = Ports { dashboard: port(&ld), primary: port(&lp), secondary: port(&ls), realtime: port(&lr), rtde: port(&lt) };
+        let ports = Ports {
+            dashboard: port(&ld),
+            primary: port(&lp),
+            secondary: port(&ls),
+            realtime: port(&lr),
+            rtde: port(&lt),
+        };
         let (messages, _) = broadcast::channel(64);
         let (drop_gen, _) = watch::channel(0);
         let shared = Arc::new(Shared {
@@ -192,7 +219,11 @@ impl Simulator {
                 }
             }));
         }
-        Ok(SimHandle { shared, ports, tasks })
+        Ok(SimHandle {
+            shared,
+            ports,
+            tasks,
+        })
     }
 }
 
@@ -288,7 +319,12 @@ impl SimHandle {
 
     /// Value of `input_double_register_i` as the controller holds it.
     pub fn input_double_register(&self, i: usize) -> f64 {
-        self.shared.lock().in_double.get(i).copied().unwrap_or(f64::NAN)
+        self.shared
+            .lock()
+            .in_double
+            .get(i)
+            .copied()
+            .unwrap_or(f64::NAN)
     }
 
     /// Value of `input_int_register_i`.

@@ -26,9 +26,21 @@ impl Profile {
         let (v, a) = (v.max(1e-6), a.max(1e-6));
         if len * a < v * v {
             let t_acc = (len / a).sqrt();
-            Profile { len, v: a * t_acc, a, t_acc, total: 2.0 * t_acc }
+            Profile {
+                len,
+                v: a * t_acc,
+                a,
+                t_acc,
+                total: 2.0 * t_acc,
+            }
         } else {
-            Profile { len, v, a, t_acc: v / a, total: len / v + v / a }
+            Profile {
+                len,
+                v,
+                a,
+                t_acc: v / a,
+                total: len / v + v / a,
+            }
         }
     }
 
@@ -38,7 +50,10 @@ impl Profile {
         if t < self.t_acc {
             (0.5 * self.a * t * t, self.a * t)
         } else if t <= self.total - self.t_acc {
-            (0.5 * self.a * self.t_acc * self.t_acc + self.v * (t - self.t_acc), self.v)
+            (
+                0.5 * self.a * self.t_acc * self.t_acc + self.v * (t - self.t_acc),
+                self.v,
+            )
         } else {
             let r = self.total - t;
             (self.len - 0.5 * self.a * r * r, self.a * r)
@@ -49,20 +64,46 @@ impl Profile {
 /// What the arm is doing.
 #[derive(Debug, Clone)]
 pub(crate) enum Motion {
-    Joint { start: [f64; 6], goal: [f64; 6], profile: Profile, t: f64 },
-    Linear { start: Isometry3<f64>, goal: Isometry3<f64>, profile: Profile, t: f64 },
-    Stop { decel: f64 },
+    Joint {
+        start: [f64; 6],
+        goal: [f64; 6],
+        profile: Profile,
+        t: f64,
+    },
+    Linear {
+        start: Isometry3<f64>,
+        goal: Isometry3<f64>,
+        profile: Profile,
+        t: f64,
+    },
+    Stop {
+        decel: f64,
+    },
 }
 
 impl Motion {
     pub(crate) fn joint(start: [f64; 6], goal: [f64; 6], v: f64, a: f64) -> Self {
-        let len = start.iter().zip(&goal).map(|(s, g)| (g - s).abs()).fold(0.0, f64::max);
-        Motion::Joint { start, goal, profile: Profile::new(len, v, a), t: 0.0 }
+        let len = start
+            .iter()
+            .zip(&goal)
+            .map(|(s, g)| (g - s).abs())
+            .fold(0.0, f64::max);
+        Motion::Joint {
+            start,
+            goal,
+            profile: Profile::new(len, v, a),
+            t: 0.0,
+        }
     }
 
     pub(crate) fn linear(start: Isometry3<f64>, goal: Isometry3<f64>, v: f64, a: f64) -> Self {
         let len = path_len(&start, &goal);
-        Motion::Linear { start, goal, profile: Profile::new(len, v, a), t: 0.0 }
+        Motion::Linear {
+            start,
+            goal,
+            profile: Profile::new(len, v, a),
+            t: 0.0,
+        }
     }
 
     pub(crate) fn stop(_qd: [f64; 6], decel: f64) -> Self {
@@ -72,7 +113,9 @@ impl Motion {
 
 /// Linear path length: metres plus 0.1 m per radian of rotation (so pure rotations move too).
 fn path_len(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
-    (b.translation.vector - a.translation.vector).norm().max(0.1 * a.rotation.angle_to(&b.rotation))
+    (b.translation.vector - a.translation.vector)
+        .norm()
+        .max(0.1 * a.rotation.angle_to(&b.rotation))
 }
 
 /// Advance the state by `dt` seconds.
@@ -84,23 +127,45 @@ pub(crate) fn step(s: &mut State, dt: f64) {
     let done;
     let mut fraction = 0.0;
     match &mut m {
-        Motion::Joint { start, goal, profile, t } => {
+        Motion::Joint {
+            start,
+            goal,
+            profile,
+            t,
+        } => {
             *t += dt;
             let (d, v) = profile.at(*t);
-            fraction = if profile.len > 0.0 { d / profile.len } else { 1.0 };
+            fraction = if profile.len > 0.0 {
+                d / profile.len
+            } else {
+                1.0
+            };
             for i in 0..6 {
                 let delta = goal[i] - start[i];
-                let k = if profile.len > 0.0 { delta / profile.len } else { 0.0 };
+                let k = if profile.len > 0.0 {
+                    delta / profile.len
+                } else {
+                    0.0
+                };
                 s.q[i] = start[i] + k * d;
                 s.qd[i] = k * v;
             }
             s.target_q = *goal;
             done = *t >= profile.total;
         }
-        Motion::Linear { start, goal, profile, t } => {
+        Motion::Linear {
+            start,
+            goal,
+            profile,
+            t,
+        } => {
             *t += dt;
             let (d, _) = profile.at(*t);
-            fraction = if profile.len > 0.0 { d / profile.len } else { 1.0 };
+            fraction = if profile.len > 0.0 {
+                d / profile.len
+            } else {
+                1.0
+            };
             let pose = start.lerp_slerp(goal, fraction);
             match inverse(&s.dh, &pose, &s.q, 50) {
                 Some(q) => {
@@ -122,7 +187,11 @@ pub(crate) fn step(s: &mut State, dt: f64) {
             let mut moving = false;
             for i in 0..6 {
                 let v = s.qd[i];
-                let nv = if v > 0.0 { (v - *decel * dt).max(0.0) } else { (v + *decel * dt).min(0.0) };
+                let nv = if v > 0.0 {
+                    (v - *decel * dt).max(0.0)
+                } else {
+                    (v + *decel * dt).min(0.0)
+                };
                 s.q[i] += 0.5 * (v + nv) * dt;
                 s.qd[i] = nv;
                 moving |= nv != 0.0;
@@ -149,7 +218,12 @@ pub(crate) fn step(s: &mut State, dt: f64) {
 }
 
 /// Damped-least-squares IK from `seed`; `None` if it does not converge to 1e-7 m / rad.
-pub(crate) fn inverse(dh: &DhParams, target: &Isometry3<f64>, seed: &[f64; 6], iters: usize) -> Option<[f64; 6]> {
+pub(crate) fn inverse(
+    dh: &DhParams,
+    target: &Isometry3<f64>,
+    seed: &[f64; 6],
+    iters: usize,
+) -> Option<[f64; 6]> {
     let mut q = SVector::<f64, 6>::from_column_slice(seed);
     let err = |q: &SVector<f64, 6>| -> SVector<f64, 6> {
         let qa: [f64; 6] = (*q).into();
@@ -188,7 +262,11 @@ pub(crate) fn flange_target(tcp_target: &UrPose, tcp: &UrPose) -> Isometry3<f64>
 
 /// The control loop (2 ms e-Series, 8 ms CB3).
 pub(crate) async fn run(shared: Arc<Shared>) {
-    let period = if shared.config.model.is_cb3() { Duration::from_millis(8) } else { Duration::from_millis(2) };
+    let period = if shared.config.model.is_cb3() {
+        Duration::from_millis(8)
+    } else {
+        Duration::from_millis(2)
+    };
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let mut last = Instant::now();

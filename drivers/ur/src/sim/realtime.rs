@@ -15,7 +15,9 @@ const SIZE: usize = 1116;
 
 pub(crate) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
     loop {
-        let Ok((sock, _)) = listener.accept().await else { continue };
+        let Ok((sock, _)) = listener.accept().await else {
+            continue;
+        };
         let shared = shared.clone();
         tokio::spawn(async move {
             let mut drop_rx = shared.drop_gen.subscribe();
@@ -57,7 +59,11 @@ fn packet(shared: &Shared, out: &mut Vec<u8>) {
 async fn connection(sock: TcpStream, shared: &Arc<Shared>) -> std::io::Result<()> {
     let (mut r, mut w) = sock.into_split();
     let opened_remote = shared.lock().remote_control;
-    let period = if shared.config.model.is_cb3() { Duration::from_millis(8) } else { Duration::from_millis(2) };
+    let period = if shared.config.model.is_cb3() {
+        Duration::from_millis(8)
+    } else {
+        Duration::from_millis(2)
+    };
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let mut rx = ScriptReceiver::default();

@@ -9,7 +9,9 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::mpsc;
 
 use super::Shared;
-use crate::rtde::{self, ClientPackage, FieldType, Frame, FrameReadError, Protocol, ServerPackage, TextMessage};
+use crate::rtde::{
+    self, ClientPackage, FieldType, Frame, FrameReadError, Protocol, ServerPackage, TextMessage,
+};
 use crate::UrError;
 
 /// Most input recipes one connection may hold (ur_rtde uses 23).
@@ -17,7 +19,9 @@ const MAX_INPUT_RECIPES: usize = 255;
 
 pub(crate) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
     loop {
-        let Ok((sock, _)) = listener.accept().await else { continue };
+        let Ok((sock, _)) = listener.accept().await else {
+            continue;
+        };
         let shared = shared.clone();
         tokio::spawn(async move {
             let id = {
@@ -48,7 +52,13 @@ struct Conn {
     streaming: bool,
 }
 
-async fn send(w: &mut OwnedWriteHalf, shared: &Shared, proto: Protocol, p: ServerPackage, delay: bool) -> Result<(), UrError> {
+async fn send(
+    w: &mut OwnedWriteHalf,
+    shared: &Shared,
+    proto: Protocol,
+    p: ServerPackage,
+    delay: bool,
+) -> Result<(), UrError> {
     if delay {
         let latency = shared.lock().latency;
         if !latency.is_zero() {
@@ -56,7 +66,10 @@ async fn send(w: &mut OwnedWriteHalf, shared: &Shared, proto: Protocol, p: Serve
         }
     }
     let bytes = p.encode(proto)?;
-    w.write_all(&bytes).await.map_err(|source| UrError::Io { peer: "RTDE client".into(), source })
+    w.write_all(&bytes).await.map_err(|source| UrError::Io {
+        peer: "RTDE client".into(),
+        source,
+    })
 }
 
 async fn connection(sock: TcpStream, shared: &Shared, id: u64) -> Result<(), UrError> {
@@ -80,8 +93,18 @@ async fn connection(sock: TcpStream, shared: &Shared, id: u64) -> Result<(), UrE
         }
     });
     let _reader_guard = AbortOnDrop(reader);
-    let max_hz = if shared.config.model.is_cb3() { 125.0 } else { 500.0 };
-    let mut c = Conn { proto: Protocol::V2, outputs: Vec::new(), period: Duration::from_millis(8), inputs: Vec::new(), streaming: false };
+    let max_hz = if shared.config.model.is_cb3() {
+        125.0
+    } else {
+        500.0
+    };
+    let mut c = Conn {
+        proto: Protocol::V2,
+        outputs: Vec::new(),
+        period: Duration::from_millis(8),
+        inputs: Vec::new(),
+        streaming: false,
+    };
     let mut tick = tokio::time::interval(c.period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let mut body = Vec::new();
@@ -137,7 +160,13 @@ impl Drop for AbortOnDrop {
     }
 }
 
-fn handle(c: &mut Conn, shared: &Shared, id: u64, pkg: ClientPackage, max_hz: f64) -> Result<Option<ServerPackage>, UrError> {
+fn handle(
+    c: &mut Conn,
+    shared: &Shared,
+    id: u64,
+    pkg: ClientPackage,
+    max_hz: f64,
+) -> Result<Option<ServerPackage>, UrError> {
     Ok(Some(match pkg {
         ClientPackage::RequestProtocolVersion(v) => {
             let ok = v == 1 || (v == 2 && shared.config.rtde_v2);
@@ -148,7 +177,12 @@ fn handle(c: &mut Conn, shared: &Shared, id: u64, pkg: ClientPackage, max_hz: f6
         }
         ClientPackage::GetUrcontrolVersion => {
             let (major, minor, bugfix, build) = shared.version();
-            ServerPackage::UrcontrolVersion { major, minor, bugfix, build }
+            ServerPackage::UrcontrolVersion {
+                major,
+                minor,
+                bugfix,
+                build,
+            }
         }
         ClientPackage::SetupOutputs { frequency, names } => {
             let hz = frequency.unwrap_or(max_hz).clamp(1.0, max_hz);
@@ -171,7 +205,10 @@ fn handle(c: &mut Conn, shared: &Shared, id: u64, pkg: ClientPackage, max_hz: f6
                 c.outputs = outputs;
                 c.period = Duration::from_secs_f64(1.0 / hz);
             }
-            ServerPackage::SetupOutputs { recipe_id: Some(u8::from(valid)), types }
+            ServerPackage::SetupOutputs {
+                recipe_id: Some(u8::from(valid)),
+                types,
+            }
         }
         ClientPackage::SetupInputs { names } => {
             let mut s = shared.lock();
@@ -181,7 +218,8 @@ fn handle(c: &mut Conn, shared: &Shared, id: u64, pkg: ClientPackage, max_hz: f6
             for n in &names {
                 match rtde::field_type(n) {
                     Some(t) if rtde::is_input_field(n) => {
-                        let held = shared.fieldbus.contains(n) || s.owners.get(n).is_some_and(|o| *o != id);
+                        let held = shared.fieldbus.contains(n)
+                            || s.owners.get(n).is_some_and(|o| *o != id);
                         if held {
                             types.push("IN_USE".into());
                             valid = false;
@@ -205,7 +243,10 @@ fn handle(c: &mut Conn, shared: &Shared, id: u64, pkg: ClientPackage, max_hz: f6
             } else {
                 0
             };
-            ServerPackage::SetupInputs { recipe_id: Some(recipe_id), types }
+            ServerPackage::SetupInputs {
+                recipe_id: Some(recipe_id),
+                types,
+            }
         }
         ClientPackage::Start => {
             c.streaming = !c.outputs.is_empty();
@@ -217,20 +258,29 @@ fn handle(c: &mut Conn, shared: &Shared, id: u64, pkg: ClientPackage, max_hz: f6
         }
         ClientPackage::Data { recipe_id, body } => {
             let idx = match recipe_id {
-                Some(0) => return Err(UrError::malformed("RTDE", "data package for recipe 0 (an invalid recipe)")),
+                Some(0) => {
+                    return Err(UrError::malformed(
+                        "RTDE",
+                        "data package for recipe 0 (an invalid recipe)",
+                    ))
+                }
                 Some(i) => usize::from(i) - 1,
                 None => c.inputs.len().saturating_sub(1),
             };
-            let (names, types) = c
-                .inputs
-                .get(idx)
-                .ok_or_else(|| UrError::malformed("RTDE", format!("data package for unknown input recipe {}", idx + 1)))?;
+            let (names, types) = c.inputs.get(idx).ok_or_else(|| {
+                UrError::malformed(
+                    "RTDE",
+                    format!("data package for unknown input recipe {}", idx + 1),
+                )
+            })?;
             let values = rtde::decode_values(types, &body)?;
             shared.lock().apply_inputs(names, &values);
             return Ok(None);
         }
         ClientPackage::Text(t) => {
-            shared.lock().push_log(format!("RTDE client says: {}", t.message));
+            shared
+                .lock()
+                .push_log(format!("RTDE client says: {}", t.message));
             return Ok(None);
         }
     }))

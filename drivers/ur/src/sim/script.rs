@@ -23,7 +23,9 @@ const STEP_BUDGET: u32 = 100_000;
 
 pub(crate) async fn serve_primary(listener: TcpListener, shared: Arc<Shared>, primary: bool) {
     loop {
-        let Ok((sock, _)) = listener.accept().await else { continue };
+        let Ok((sock, _)) = listener.accept().await else {
+            continue;
+        };
         let shared = shared.clone();
         tokio::spawn(async move {
             let mut drop_rx = shared.drop_gen.subscribe();
@@ -54,11 +56,22 @@ fn state_package(shared: &Shared) -> Vec<u8> {
     primary::encode_robot_state(&m, &s.q, &s.dh)
 }
 
-async fn connection(sock: TcpStream, shared: &Arc<Shared>, is_primary: bool) -> std::io::Result<()> {
+async fn connection(
+    sock: TcpStream,
+    shared: &Arc<Shared>,
+    is_primary: bool,
+) -> std::io::Result<()> {
     let (mut r, mut w) = sock.into_split();
     let opened_remote = shared.lock().remote_control;
     let (maj, min, bug, build) = shared.version();
-    w.write_all(&primary::encode_version(shared.timestamp_us(), maj as u8, min as u8, bug as i32, build as i32)).await?;
+    w.write_all(&primary::encode_version(
+        shared.timestamp_us(),
+        maj as u8,
+        min as u8,
+        bug as i32,
+        build as i32,
+    ))
+    .await?;
     w.write_all(&state_package(shared)).await?;
     let mut messages = shared.messages.subscribe();
     let mut tick = tokio::time::interval(Duration::from_millis(100));
@@ -101,12 +114,22 @@ pub(crate) struct ScriptReceiver {
 
 impl ScriptReceiver {
     /// Feed bytes; returns packages to send back on this connection (errors for this client).
-    pub(crate) fn feed(&mut self, bytes: &[u8], shared: &Arc<Shared>, opened_remote: bool) -> Vec<Vec<u8>> {
+    pub(crate) fn feed(
+        &mut self,
+        bytes: &[u8],
+        shared: &Arc<Shared>,
+        opened_remote: bool,
+    ) -> Vec<Vec<u8>> {
         let mut replies = Vec::new();
         self.pending.extend_from_slice(bytes);
         if self.pending.len() + self.program.as_ref().map_or(0, String::len) > MAX_PROGRAM {
             self.overflowed = true;
-            replies.push(primary::encode_error_code(shared.timestamp_us(), 0, 3, "script too long (over 1 MiB); connection closed"));
+            replies.push(primary::encode_error_code(
+                shared.timestamp_us(),
+                0,
+                3,
+                "script too long (over 1 MiB); connection closed",
+            ));
             return replies;
         }
         while let Some(pos) = self.pending.iter().position(|b| *b == b'\n') {
@@ -179,29 +202,53 @@ fn start(shared: &Arc<Shared>, prog: Program) {
         }
     };
     if !prog.secondary {
-        shared.publish(primary::encode_key(ts, 0, "PROGRAM_XXX_STARTED", &prog.name));
+        shared.publish(primary::encode_key(
+            ts,
+            0,
+            "PROGRAM_XXX_STARTED",
+            &prog.name,
+        ));
     }
     let shared = shared.clone();
-    let spawned = std::thread::Builder::new().name(format!("urscript-{}", prog.name)).spawn(move || {
-        let mut host = SimHost { shared: &shared, gen, secondary: prog.secondary, steps: 0 };
-        let result = urscript::run(&prog, &mut host);
-        let ts = shared.timestamp_us();
-        if let Err(e) = result {
-            if e.message != STOPPED {
-                shared.lock().push_log(format!("line {}: {}", e.line, e.message));
-                shared.publish(primary::encode_runtime_exception(ts, e.line as i32, 0, &e.message));
+    let spawned = std::thread::Builder::new()
+        .name(format!("urscript-{}", prog.name))
+        .spawn(move || {
+            let mut host = SimHost {
+                shared: &shared,
+                gen,
+                secondary: prog.secondary,
+                steps: 0,
+            };
+            let result = urscript::run(&prog, &mut host);
+            let ts = shared.timestamp_us();
+            if let Err(e) = result {
+                if e.message != STOPPED {
+                    shared
+                        .lock()
+                        .push_log(format!("line {}: {}", e.line, e.message));
+                    shared.publish(primary::encode_runtime_exception(
+                        ts,
+                        e.line as i32,
+                        0,
+                        &e.message,
+                    ));
+                }
             }
-        }
-        if !prog.secondary {
-            let mut s = shared.lock();
-            if s.program_gen == gen {
-                s.runtime_state = RUNTIME_STOPPED;
-                s.program_name = None;
+            if !prog.secondary {
+                let mut s = shared.lock();
+                if s.program_gen == gen {
+                    s.runtime_state = RUNTIME_STOPPED;
+                    s.program_name = None;
+                }
+                drop(s);
+                shared.publish(primary::encode_key(
+                    ts,
+                    0,
+                    "PROGRAM_XXX_STOPPED",
+                    &prog.name,
+                ));
             }
-            drop(s);
-            shared.publish(primary::encode_key(ts, 0, "PROGRAM_XXX_STOPPED", &prog.name));
-        }
-    });
+        });
     if let Err(e) = spawned {
         tracing::warn!("cannot start a script thread: {e}");
     }
@@ -287,14 +334,27 @@ impl Host for SimHost<'_> {
         Ok(())
     }
 
-    fn call(&mut self, name: &str, args: Vec<Val>, named: Vec<(String, Val)>) -> Result<Val, String> {
-        let arg = |i: usize, key: &str| args.get(i).or_else(|| named.iter().find(|(n, _)| n == key).map(|(_, v)| v));
-        let num_or = |i: usize, key: &str, d: f64| arg(i, key).map(num).transpose().map(|v| v.unwrap_or(d));
+    fn call(
+        &mut self,
+        name: &str,
+        args: Vec<Val>,
+        named: Vec<(String, Val)>,
+    ) -> Result<Val, String> {
+        let arg = |i: usize, key: &str| {
+            args.get(i)
+                .or_else(|| named.iter().find(|(n, _)| n == key).map(|(_, v)| v))
+        };
+        let num_or =
+            |i: usize, key: &str, d: f64| arg(i, key).map(num).transpose().map(|v| v.unwrap_or(d));
         let sh = self.shared;
         match name {
             "movej" | "movel" => {
                 let target = arg(0, "q").ok_or(format!("{name} needs a target"))?;
-                let (a, v) = if name == "movej" { (num_or(1, "a", 1.4)?, num_or(2, "v", 1.05)?) } else { (num_or(1, "a", 1.2)?, num_or(2, "v", 0.25)?) };
+                let (a, v) = if name == "movej" {
+                    (num_or(1, "a", 1.4)?, num_or(2, "v", 1.05)?)
+                } else {
+                    (num_or(1, "a", 1.2)?, num_or(2, "v", 0.25)?)
+                };
                 if !(a > 0.0 && v > 0.0 && a.is_finite() && v.is_finite()) {
                     return Err(format!("{name}: speed and acceleration must be positive"));
                 }
@@ -306,11 +366,15 @@ impl Host for SimHost<'_> {
                         let goal = match target {
                             Val::Pose(p) => {
                                 let f = motion::flange_target(&UrPose(*p), &s.tcp);
-                                motion::inverse(&s.dh, &f, &s.q, 300).ok_or("movej: no inverse kinematics solution for the pose")?
+                                motion::inverse(&s.dh, &f, &s.q, 300)
+                                    .ok_or("movej: no inverse kinematics solution for the pose")?
                             }
                             other => joints(other)?,
                         };
-                        if goal.iter().any(|g| !g.is_finite() || g.abs() > 2.0 * std::f64::consts::PI + 1e-9) {
+                        if goal
+                            .iter()
+                            .any(|g| !g.is_finite() || g.abs() > 2.0 * std::f64::consts::PI + 1e-9)
+                        {
                             return Err("movej: joint target outside ±2π".into());
                         }
                         Motion::joint(s.q, goal, v.min(max_v), a)
@@ -330,7 +394,8 @@ impl Host for SimHost<'_> {
             }
             "stopj" | "stopl" => {
                 let a = num_or(0, "a", 2.0)?.max(0.01);
-                sh.lock().stop_motion(if name == "stopl" { a * 4.0 } else { a });
+                sh.lock()
+                    .stop_motion(if name == "stopl" { a * 4.0 } else { a });
                 self.wait_motion()?;
                 Ok(Val::None)
             }
@@ -343,7 +408,11 @@ impl Host for SimHost<'_> {
                 Ok(Val::None)
             }
             "sync" => {
-                self.wait(if sh.config.model.is_cb3() { Duration::from_millis(8) } else { Duration::from_millis(2) })?;
+                self.wait(if sh.config.model.is_cb3() {
+                    Duration::from_millis(8)
+                } else {
+                    Duration::from_millis(2)
+                })?;
                 Ok(Val::None)
             }
             "set_tcp" => {
@@ -355,12 +424,18 @@ impl Host for SimHost<'_> {
                 Ok(Val::None)
             }
             "textmsg" => {
-                let text = format!("{}{}", arg(0, "s1").map(|v| v.to_string()).unwrap_or_default(), arg(1, "s2").map(|v| v.to_string()).unwrap_or_default());
+                let text = format!(
+                    "{}{}",
+                    arg(0, "s1").map(|v| v.to_string()).unwrap_or_default(),
+                    arg(1, "s2").map(|v| v.to_string()).unwrap_or_default()
+                );
                 sh.lock().push_log(text.clone());
                 sh.publish(primary::encode_text(sh.timestamp_us(), &text));
                 Ok(Val::None)
             }
-            "write_output_integer_register" | "write_output_float_register" | "write_output_boolean_register" => {
+            "write_output_integer_register"
+            | "write_output_float_register"
+            | "write_output_boolean_register" => {
                 let max = if name.contains("boolean") { 128 } else { 48 };
                 let i = reg_index(args.first(), max)?;
                 let v = args.get(1).ok_or("missing value")?;
@@ -387,21 +462,37 @@ impl Host for SimHost<'_> {
             "read_input_integer_register" | "read_output_integer_register" => {
                 let i = reg_index(args.first(), 48)?;
                 let s = sh.lock();
-                Ok(Val::Num(f64::from(if name.contains("input") { s.in_int[i] } else { s.out_int[i] })))
+                Ok(Val::Num(f64::from(if name.contains("input") {
+                    s.in_int[i]
+                } else {
+                    s.out_int[i]
+                })))
             }
             "read_input_float_register" | "read_output_float_register" => {
                 let i = reg_index(args.first(), 48)?;
                 let s = sh.lock();
-                Ok(Val::Num(if name.contains("input") { s.in_double[i] } else { s.out_double[i] }))
+                Ok(Val::Num(if name.contains("input") {
+                    s.in_double[i]
+                } else {
+                    s.out_double[i]
+                }))
             }
             "read_input_boolean_register" | "read_output_boolean_register" => {
                 let i = reg_index(args.first(), 128)?;
                 let s = sh.lock();
-                let bits = if name.contains("input") { s.in_bits } else { s.out_bits };
+                let bits = if name.contains("input") {
+                    s.in_bits
+                } else {
+                    s.out_bits
+                };
                 Ok(Val::Bool(bits >> i & 1 == 1))
             }
-            "get_actual_joint_positions" => Ok(Val::List(sh.lock().q.iter().map(|x| Val::Num(*x)).collect())),
-            "get_target_joint_positions" => Ok(Val::List(sh.lock().target_q.iter().map(|x| Val::Num(*x)).collect())),
+            "get_actual_joint_positions" => Ok(Val::List(
+                sh.lock().q.iter().map(|x| Val::Num(*x)).collect(),
+            )),
+            "get_target_joint_positions" => Ok(Val::List(
+                sh.lock().target_q.iter().map(|x| Val::Num(*x)).collect(),
+            )),
             "get_actual_tcp_pose" | "get_target_tcp_pose" => Ok(Val::Pose(sh.lock().tcp_pose().0)),
             "get_tcp_offset" => Ok(Val::Pose(sh.lock().tcp.0)),
             "get_forward_kin" => {
@@ -414,16 +505,22 @@ impl Host for SimHost<'_> {
                     Some(v) => UrPose(pose(v)?),
                     None => s.tcp,
                 };
-                Ok(Val::Pose(UrPose::from(s.dh.forward(&q) * Isometry3::from(tcp)).0))
+                Ok(Val::Pose(
+                    UrPose::from(s.dh.forward(&q) * Isometry3::from(tcp)).0,
+                ))
             }
             "pose_trans" => {
                 let a = pose(args.first().ok_or("missing pose")?)?;
                 let b = pose(args.get(1).ok_or("missing pose")?)?;
-                Ok(Val::Pose(UrPose::from(Isometry3::from(UrPose(a)) * Isometry3::from(UrPose(b))).0))
+                Ok(Val::Pose(
+                    UrPose::from(Isometry3::from(UrPose(a)) * Isometry3::from(UrPose(b))).0,
+                ))
             }
             "pose_inv" => {
                 let a = pose(args.first().ok_or("missing pose")?)?;
-                Ok(Val::Pose(UrPose::from(Isometry3::from(UrPose(a)).inverse()).0))
+                Ok(Val::Pose(
+                    UrPose::from(Isometry3::from(UrPose(a)).inverse()).0,
+                ))
             }
             "sin" | "cos" | "sqrt" | "floor" => {
                 let x = num(args.first().ok_or("missing argument")?)?;
@@ -436,12 +533,24 @@ impl Host for SimHost<'_> {
                 }))
             }
             "norm" => match args.first() {
-                Some(Val::List(l)) => Ok(Val::Num(l.iter().map(num).collect::<Result<Vec<_>, _>>()?.iter().map(|x| x * x).sum::<f64>().sqrt())),
-                Some(Val::Pose(p)) => Ok(Val::Num(p[..3].iter().map(|x| x * x).sum::<f64>().sqrt())),
+                Some(Val::List(l)) => Ok(Val::Num(
+                    l.iter()
+                        .map(num)
+                        .collect::<Result<Vec<_>, _>>()?
+                        .iter()
+                        .map(|x| x * x)
+                        .sum::<f64>()
+                        .sqrt(),
+                )),
+                Some(Val::Pose(p)) => {
+                    Ok(Val::Num(p[..3].iter().map(|x| x * x).sum::<f64>().sqrt()))
+                }
                 Some(v) => Ok(Val::Num(num(v)?.abs())),
                 None => Err("missing argument".into()),
             },
-            "to_str" => Ok(Val::Str(args.first().map(|v| v.to_string()).unwrap_or_default())),
+            "to_str" => Ok(Val::Str(
+                args.first().map(|v| v.to_string()).unwrap_or_default(),
+            )),
             other => Err(format!("name '{other}' is not defined")),
         }
     }

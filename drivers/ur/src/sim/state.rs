@@ -112,9 +112,15 @@ impl State {
         }
         Self {
             // Controllers report seconds since boot; clients (URCL) expect > 40 s.
-            boot: Instant::now().checked_sub(Duration::from_secs(60)).unwrap_or_else(Instant::now),
+            boot: Instant::now()
+                .checked_sub(Duration::from_secs(60))
+                .unwrap_or_else(Instant::now),
             dh,
-            robot_mode: if c.start_running { RobotModeCode::Running } else { RobotModeCode::PowerOff },
+            robot_mode: if c.start_running {
+                RobotModeCode::Running
+            } else {
+                RobotModeCode::PowerOff
+            },
             safety_mode: SafetyModeCode::Normal,
             pstop_since: None,
             remote_control: c.remote_control || c.model.is_cb3(),
@@ -218,7 +224,8 @@ impl State {
     }
 
     fn robot_status_bits(&self) -> u32 {
-        u32::from(self.robot_mode != RobotModeCode::PowerOff) | (u32::from(self.runtime_state == RUNTIME_PLAYING) << 1)
+        u32::from(self.robot_mode != RobotModeCode::PowerOff)
+            | (u32::from(self.runtime_state == RUNTIME_PLAYING) << 1)
     }
 
     fn safety_status_bits(&self) -> u32 {
@@ -243,16 +250,24 @@ impl State {
             "actual_TCP_pose" | "target_TCP_pose" => Value::Vector6d(self.tcp_pose().0),
             "tcp_offset" => Value::Vector6d(self.tcp.0),
             "robot_mode" => Value::Int32(self.robot_mode as i32),
-            "joint_mode" => Value::Vector6Int32([if self.robot_mode == RobotModeCode::Running { 253 } else { 236 }; 6]),
+            "joint_mode" => Value::Vector6Int32(
+                [if self.robot_mode == RobotModeCode::Running {
+                    253
+                } else {
+                    236
+                }; 6],
+            ),
             "safety_mode" | "safety_status" => Value::Int32(self.safety_mode as i32),
             "safety_status_bits" => Value::Uint32(self.safety_status_bits()),
             "robot_status_bits" => Value::Uint32(self.robot_status_bits()),
             "runtime_state" => Value::Uint32(self.runtime_state),
             "speed_scaling" => Value::Double(1.0),
             "target_speed_fraction" => Value::Double(self.speed_slider),
-            "actual_digital_output_bits" => {
-                Value::Uint64(u64::from(self.std_do) | (u64::from(self.conf_do) << 8) | (u64::from(self.tool_do) << 16))
-            }
+            "actual_digital_output_bits" => Value::Uint64(
+                u64::from(self.std_do)
+                    | (u64::from(self.conf_do) << 8)
+                    | (u64::from(self.tool_do) << 16),
+            ),
             "standard_analog_output0" => Value::Double(self.analog_out[0]),
             "standard_analog_output1" => Value::Double(self.analog_out[1]),
             "actual_main_voltage" | "actual_robot_voltage" => Value::Double(48.0),
@@ -272,7 +287,10 @@ impl State {
     }
 
     fn register_value(&self, name: &str) -> Option<Value> {
-        let idx = |prefix: &str| name.strip_prefix(prefix).and_then(|s| s.parse::<usize>().ok());
+        let idx = |prefix: &str| {
+            name.strip_prefix(prefix)
+                .and_then(|s| s.parse::<usize>().ok())
+        };
         let bits = |b: u128, lo: u32| Value::Uint32((b >> lo) as u32);
         Some(match name {
             "input_bit_registers0_to_31" => bits(self.in_bits, 0),
@@ -307,16 +325,22 @@ impl State {
             _ => None,
         };
         for (name, v) in names.iter().zip(values) {
-            let idx = |prefix: &str| name.strip_prefix(prefix).and_then(|s| s.parse::<usize>().ok());
+            let idx = |prefix: &str| {
+                name.strip_prefix(prefix)
+                    .and_then(|s| s.parse::<usize>().ok())
+            };
             match (name.as_str(), *v) {
                 ("input_bit_registers0_to_31", Value::Uint32(b)) => {
                     self.in_bits = (self.in_bits & !0xffff_ffff) | u128::from(b);
                 }
                 ("input_bit_registers32_to_63", Value::Uint32(b)) => {
-                    self.in_bits = (self.in_bits & !(0xffff_ffffu128 << 32)) | (u128::from(b) << 32);
+                    self.in_bits =
+                        (self.in_bits & !(0xffff_ffffu128 << 32)) | (u128::from(b) << 32);
                 }
                 ("speed_slider_fraction", Value::Double(f)) => {
-                    if matches!(get("speed_slider_mask"), Some(Value::Uint32(1))) && (0.0..=1.0).contains(&f) {
+                    if matches!(get("speed_slider_mask"), Some(Value::Uint32(1)))
+                        && (0.0..=1.0).contains(&f)
+                    {
                         self.speed_slider = f;
                     }
                 }
@@ -343,12 +367,15 @@ impl State {
                     }
                 }
                 (_, Value::Int32(x)) => {
-                    if let Some(r) = idx("input_int_register_").and_then(|i| self.in_int.get_mut(i)) {
+                    if let Some(r) = idx("input_int_register_").and_then(|i| self.in_int.get_mut(i))
+                    {
                         *r = x;
                     }
                 }
                 (_, Value::Double(x)) => {
-                    if let Some(r) = idx("input_double_register_").and_then(|i| self.in_double.get_mut(i)) {
+                    if let Some(r) =
+                        idx("input_double_register_").and_then(|i| self.in_double.get_mut(i))
+                    {
                         *r = x;
                     }
                 }

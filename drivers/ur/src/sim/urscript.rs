@@ -83,16 +83,35 @@ pub(crate) enum Expr {
     Index(Box<Expr>, Box<Expr>),
     Unary(&'static str, Box<Expr>),
     Binary(&'static str, Box<Expr>, Box<Expr>),
-    Call { name: String, args: Vec<Expr>, named: Vec<(String, Expr)> },
+    Call {
+        name: String,
+        args: Vec<Expr>,
+        named: Vec<(String, Expr)>,
+    },
 }
 
 /// Statement AST; `line` is 1-based in the received program.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) enum Stmt {
-    Assign { line: usize, name: String, value: Expr },
-    Expr { line: usize, expr: Expr },
-    If { line: usize, arms: Vec<(Expr, Vec<Stmt>)>, otherwise: Vec<Stmt> },
-    While { line: usize, cond: Expr, body: Vec<Stmt> },
+    Assign {
+        line: usize,
+        name: String,
+        value: Expr,
+    },
+    Expr {
+        line: usize,
+        expr: Expr,
+    },
+    If {
+        line: usize,
+        arms: Vec<(Expr, Vec<Stmt>)>,
+        otherwise: Vec<Stmt>,
+    },
+    While {
+        line: usize,
+        cond: Expr,
+        body: Vec<Stmt>,
+    },
     Break,
     Continue,
     Halt,
@@ -114,7 +133,10 @@ pub(crate) struct CompileError {
 }
 
 fn err<T>(line: usize, message: impl Into<String>) -> Result<T, CompileError> {
-    Err(CompileError { line, message: message.into() })
+    Err(CompileError {
+        line,
+        message: message.into(),
+    })
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -125,7 +147,9 @@ enum Tok {
     Op(&'static str),
 }
 
-const OPS: &[&str] = &["==", "!=", "<=", ">=", "+", "-", "*", "/", "%", "<", ">", "=", "(", ")", "[", "]", ",", ":"];
+const OPS: &[&str] = &[
+    "==", "!=", "<=", ">=", "+", "-", "*", "/", "%", "<", ">", "=", "(", ")", "[", "]", ",", ":",
+];
 
 fn lex(line_no: usize, s: &str) -> Result<Vec<Tok>, CompileError> {
     let b = s.as_bytes();
@@ -137,7 +161,8 @@ fn lex(line_no: usize, s: &str) -> Result<Vec<Tok>, CompileError> {
             i += 1;
         } else if c == b'#' {
             break;
-        } else if c.is_ascii_digit() || (c == b'.' && b.get(i + 1).is_some_and(u8::is_ascii_digit)) {
+        } else if c.is_ascii_digit() || (c == b'.' && b.get(i + 1).is_some_and(u8::is_ascii_digit))
+        {
             let start = i;
             while i < b.len() && (b[i].is_ascii_digit() || b[i] == b'.') {
                 i += 1;
@@ -152,7 +177,10 @@ fn lex(line_no: usize, s: &str) -> Result<Vec<Tok>, CompileError> {
                 }
             }
             let t = &s[start..i];
-            out.push(Tok::Num(t.parse().or_else(|_| err(line_no, format!("bad number `{t}`")))?));
+            out.push(Tok::Num(
+                t.parse()
+                    .or_else(|_| err(line_no, format!("bad number `{t}`")))?,
+            ));
         } else if c.is_ascii_alphabetic() || c == b'_' {
             let start = i;
             while i < b.len() && (b[i].is_ascii_alphanumeric() || b[i] == b'_') {
@@ -309,7 +337,9 @@ impl ExprParser<'_> {
         }
     }
     fn atom(&mut self) -> Result<Expr, CompileError> {
-        let Some(t) = self.peek().cloned() else { return err(self.line, "expression expected") };
+        let Some(t) = self.peek().cloned() else {
+            return err(self.line, "expression expected");
+        };
         self.i += 1;
         match t {
             Tok::Num(n) => Ok(Expr::Lit(Val::Num(n))),
@@ -328,7 +358,9 @@ impl ExprParser<'_> {
                     let (mut args, mut named) = (Vec::new(), Vec::new());
                     if !self.eat_op(")") {
                         loop {
-                            if let (Some(Tok::Ident(n)), Some(Tok::Op("="))) = (self.t.get(self.i), self.t.get(self.i + 1)) {
+                            if let (Some(Tok::Ident(n)), Some(Tok::Op("="))) =
+                                (self.t.get(self.i), self.t.get(self.i + 1))
+                            {
                                 let n = n.clone();
                                 self.i += 2;
                                 named.push((n, self.expr()?));
@@ -342,9 +374,16 @@ impl ExprParser<'_> {
                         }
                     }
                     if !BUILTINS.iter().any(|(b, _)| *b == id) {
-                        return err(self.line, format!("name '{id}' is not defined (not supported by the simulator)"));
+                        return err(
+                            self.line,
+                            format!("name '{id}' is not defined (not supported by the simulator)"),
+                        );
                     }
-                    Ok(Expr::Call { name: id, args, named })
+                    Ok(Expr::Call {
+                        name: id,
+                        args,
+                        named,
+                    })
                 }
                 _ => Ok(Expr::Var(id)),
             },
@@ -354,7 +393,12 @@ impl ExprParser<'_> {
 }
 
 fn parse_expr(line: usize, toks: &[Tok]) -> Result<Expr, CompileError> {
-    let mut p = ExprParser { t: toks, i: 0, line, depth: 0 };
+    let mut p = ExprParser {
+        t: toks,
+        i: 0,
+        line,
+        depth: 0,
+    };
     let e = p.expr()?;
     if p.i != toks.len() {
         return err(line, "unexpected text after the expression");
@@ -364,14 +408,27 @@ fn parse_expr(line: usize, toks: &[Tok]) -> Result<Expr, CompileError> {
 
 /// Parse a whole program text (`def name():` … `end`, or a single statement line).
 pub(crate) fn parse_program(text: &str) -> Result<Program, CompileError> {
-    let lines: Vec<(usize, &str)> =
-        text.lines().enumerate().map(|(i, l)| (i + 1, l.trim())).filter(|(_, l)| !l.is_empty() && !l.starts_with('#')).collect();
-    let Some(&(first_no, first)) = lines.first() else { return err(1, "empty program") };
-    let header = first.strip_prefix("def ").map(|r| (r, false)).or_else(|| first.strip_prefix("sec ").map(|r| (r, true)));
+    let lines: Vec<(usize, &str)> = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+        .collect();
+    let Some(&(first_no, first)) = lines.first() else {
+        return err(1, "empty program");
+    };
+    let header = first
+        .strip_prefix("def ")
+        .map(|r| (r, false))
+        .or_else(|| first.strip_prefix("sec ").map(|r| (r, true)));
     let (name, secondary, body_lines) = match header {
         Some((rest, secondary)) => {
-            let name = rest.trim().strip_suffix("():").map(str::trim).filter(|n| n.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') && !n.is_empty());
-            let Some(name) = name else { return err(first_no, "expected `def name():`") };
+            let name = rest.trim().strip_suffix("():").map(str::trim).filter(|n| {
+                n.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') && !n.is_empty()
+            });
+            let Some(name) = name else {
+                return err(first_no, "expected `def name():`");
+            };
             match lines.last() {
                 Some((_, "end")) if lines.len() >= 2 => {}
                 _ => return err(first_no, format!("program `{name}` has no closing `end`")),
@@ -385,7 +442,11 @@ pub(crate) fn parse_program(text: &str) -> Result<Program, CompileError> {
     if i != body_lines.len() {
         return err(body_lines[i].0, format!("unexpected `{}`", body_lines[i].1));
     }
-    let prog = Program { name, secondary, body };
+    let prog = Program {
+        name,
+        secondary,
+        body,
+    };
     if prog.secondary {
         check_secondary(&prog.body)?;
     }
@@ -412,25 +473,38 @@ fn check_secondary(body: &[Stmt]) -> Result<(), CompileError> {
         match s {
             Stmt::Assign { line, value, .. } => walk(value, *line)?,
             Stmt::Expr { line, expr } => walk(expr, *line)?,
-            Stmt::If { line, arms, otherwise } => {
+            Stmt::If {
+                line,
+                arms,
+                otherwise,
+            } => {
                 for (c, b) in arms {
                     walk(c, *line)?;
                     check_secondary(b)?;
                 }
                 check_secondary(otherwise)?;
             }
-            Stmt::While { line, .. } => return err(*line, "loops are not allowed in a secondary (sec) program"),
+            Stmt::While { line, .. } => {
+                return err(*line, "loops are not allowed in a secondary (sec) program")
+            }
             _ => {}
         }
     }
     Ok(())
 }
 
-fn parse_block(lines: &[(usize, &str)], i: &mut usize, stops: &[&str]) -> Result<Vec<Stmt>, CompileError> {
+fn parse_block(
+    lines: &[(usize, &str)],
+    i: &mut usize,
+    stops: &[&str],
+) -> Result<Vec<Stmt>, CompileError> {
     let mut out = Vec::new();
     while *i < lines.len() {
         let (no, l) = lines[*i];
-        let word = l.split(|c: char| !c.is_ascii_alphanumeric() && c != '_').next().unwrap_or("");
+        let word = l
+            .split(|c: char| !c.is_ascii_alphanumeric() && c != '_')
+            .next()
+            .unwrap_or("");
         if stops.contains(&word) {
             return Ok(out);
         }
@@ -444,10 +518,15 @@ fn parse_block(lines: &[(usize, &str)], i: &mut usize, stops: &[&str]) -> Result
         };
         match word {
             "if" => {
-                let mut arms = vec![(cond_of(&toks)?, parse_block(lines, i, &["elif", "else", "end"])?)];
+                let mut arms = vec![(
+                    cond_of(&toks)?,
+                    parse_block(lines, i, &["elif", "else", "end"])?,
+                )];
                 let mut otherwise = Vec::new();
                 loop {
-                    let Some(&(no2, l2)) = lines.get(*i) else { return err(no, "`if` without `end`") };
+                    let Some(&(no2, l2)) = lines.get(*i) else {
+                        return err(no, "`if` without `end`");
+                    };
                     *i += 1;
                     let t2 = lex(no2, l2)?;
                     if l2 == "end" {
@@ -467,7 +546,11 @@ fn parse_block(lines: &[(usize, &str)], i: &mut usize, stops: &[&str]) -> Result
                         break;
                     }
                 }
-                out.push(Stmt::If { line: no, arms, otherwise });
+                out.push(Stmt::If {
+                    line: no,
+                    arms,
+                    otherwise,
+                });
             }
             "while" => {
                 let cond = cond_of(&toks)?;
@@ -476,7 +559,11 @@ fn parse_block(lines: &[(usize, &str)], i: &mut usize, stops: &[&str]) -> Result
                     return err(no, "`while` without `end`");
                 }
                 *i += 1;
-                out.push(Stmt::While { line: no, cond, body });
+                out.push(Stmt::While {
+                    line: no,
+                    cond,
+                    body,
+                });
             }
             "break" => out.push(Stmt::Break),
             "continue" => out.push(Stmt::Continue),
@@ -486,11 +573,23 @@ fn parse_block(lines: &[(usize, &str)], i: &mut usize, stops: &[&str]) -> Result
                 return err(no, format!("`{word}` is not supported by the simulator"));
             }
             _ => {
-                let toks: &[Tok] = if matches!(toks.first(), Some(Tok::Ident(k)) if k == "local" || k == "global") { &toks[1..] } else { &toks };
-                if let (Some(Tok::Ident(name)), Some(Tok::Op("="))) = (toks.first(), toks.get(1)) {
-                    out.push(Stmt::Assign { line: no, name: name.clone(), value: parse_expr(no, &toks[2..])? });
+                let toks: &[Tok] = if matches!(toks.first(), Some(Tok::Ident(k)) if k == "local" || k == "global")
+                {
+                    &toks[1..]
                 } else {
-                    out.push(Stmt::Expr { line: no, expr: parse_expr(no, toks)? });
+                    &toks
+                };
+                if let (Some(Tok::Ident(name)), Some(Tok::Op("="))) = (toks.first(), toks.get(1)) {
+                    out.push(Stmt::Assign {
+                        line: no,
+                        name: name.clone(),
+                        value: parse_expr(no, &toks[2..])?,
+                    });
+                } else {
+                    out.push(Stmt::Expr {
+                        line: no,
+                        expr: parse_expr(no, toks)?,
+                    });
                 }
             }
         }
@@ -501,7 +600,12 @@ fn parse_block(lines: &[(usize, &str)], i: &mut usize, stops: &[&str]) -> Result
 /// What the interpreter asks of the controller.
 pub(crate) trait Host {
     /// Call a built-in; errors are runtime exceptions.
-    fn call(&mut self, name: &str, args: Vec<Val>, named: Vec<(String, Val)>) -> Result<Val, String>;
+    fn call(
+        &mut self,
+        name: &str,
+        args: Vec<Val>,
+        named: Vec<(String, Val)>,
+    ) -> Result<Val, String>;
     /// Called once per statement; `Err` stops the program (stop request, step budget).
     fn tick(&mut self) -> Result<(), String>;
 }
@@ -526,10 +630,17 @@ pub(crate) fn run(prog: &Program, host: &mut dyn Host) -> Result<(), RuntimeErro
     exec(&prog.body, &mut vars, host).map(|_| ())
 }
 
-fn exec(body: &[Stmt], vars: &mut HashMap<String, Val>, host: &mut dyn Host) -> Result<Flow, RuntimeError> {
+fn exec(
+    body: &[Stmt],
+    vars: &mut HashMap<String, Val>,
+    host: &mut dyn Host,
+) -> Result<Flow, RuntimeError> {
     for s in body {
         let line = match s {
-            Stmt::Assign { line, .. } | Stmt::Expr { line, .. } | Stmt::If { line, .. } | Stmt::While { line, .. } => *line,
+            Stmt::Assign { line, .. }
+            | Stmt::Expr { line, .. }
+            | Stmt::If { line, .. }
+            | Stmt::While { line, .. } => *line,
             _ => 0,
         };
         let rt = |message: String| RuntimeError { line, message };
@@ -545,7 +656,9 @@ fn exec(body: &[Stmt], vars: &mut HashMap<String, Val>, host: &mut dyn Host) -> 
             Stmt::Expr { expr, .. } => {
                 eval(expr, vars, host).map_err(rt)?;
             }
-            Stmt::If { arms, otherwise, .. } => {
+            Stmt::If {
+                arms, otherwise, ..
+            } => {
                 let mut taken = None;
                 for (c, b) in arms {
                     if truthy(&eval(c, vars, host).map_err(rt)?).map_err(rt)? {
@@ -595,8 +708,16 @@ pub(crate) fn num(v: &Val) -> Result<f64, String> {
 fn eval(e: &Expr, vars: &HashMap<String, Val>, host: &mut dyn Host) -> Result<Val, String> {
     Ok(match e {
         Expr::Lit(v) => v.clone(),
-        Expr::Var(n) => vars.get(n).cloned().ok_or_else(|| format!("variable `{n}` is not defined"))?,
-        Expr::List(items) => Val::List(items.iter().map(|x| eval(x, vars, host)).collect::<Result<_, _>>()?),
+        Expr::Var(n) => vars
+            .get(n)
+            .cloned()
+            .ok_or_else(|| format!("variable `{n}` is not defined"))?,
+        Expr::List(items) => Val::List(
+            items
+                .iter()
+                .map(|x| eval(x, vars, host))
+                .collect::<Result<_, _>>()?,
+        ),
         Expr::Pose(items) => {
             if items.len() != 6 {
                 return Err(format!("a pose needs 6 values, got {}", items.len()));
@@ -609,7 +730,11 @@ fn eval(e: &Expr, vars: &HashMap<String, Val>, host: &mut dyn Host) -> Result<Va
         }
         Expr::Index(a, i) => {
             let i = num(&eval(i, vars, host)?)?;
-            let idx = if i >= 0.0 && i.fract() == 0.0 { i as usize } else { usize::MAX };
+            let idx = if i >= 0.0 && i.fract() == 0.0 {
+                i as usize
+            } else {
+                usize::MAX
+            };
             match eval(a, vars, host)? {
                 Val::List(v) => v.get(idx).cloned().ok_or("index out of range")?,
                 Val::Pose(p) => Val::Num(*p.get(idx).ok_or("index out of range")?),
@@ -636,7 +761,9 @@ fn eval(e: &Expr, vars: &HashMap<String, Val>, host: &mut dyn Host) -> Result<Va
                 "and" | "or" => Val::Bool(truthy(&r)?),
                 "==" => Val::Bool(l == r),
                 "!=" => Val::Bool(l != r),
-                "+" if matches!((&l, &r), (Val::Str(_), _) | (_, Val::Str(_))) => Val::Str(format!("{l}{r}")),
+                "+" if matches!((&l, &r), (Val::Str(_), _) | (_, Val::Str(_))) => {
+                    Val::Str(format!("{l}{r}"))
+                }
                 _ => {
                     let (x, y) = (num(&l)?, num(&r)?);
                     match *op {
@@ -656,8 +783,14 @@ fn eval(e: &Expr, vars: &HashMap<String, Val>, host: &mut dyn Host) -> Result<Va
             }
         }
         Expr::Call { name, args, named } => {
-            let args = args.iter().map(|x| eval(x, vars, host)).collect::<Result<Vec<_>, _>>()?;
-            let named = named.iter().map(|(n, x)| Ok((n.clone(), eval(x, vars, host)?))).collect::<Result<Vec<_>, String>>()?;
+            let args = args
+                .iter()
+                .map(|x| eval(x, vars, host))
+                .collect::<Result<Vec<_>, _>>()?;
+            let named = named
+                .iter()
+                .map(|(n, x)| Ok((n.clone(), eval(x, vars, host)?)))
+                .collect::<Result<Vec<_>, String>>()?;
             host.call(name, args, named)?
         }
     })
@@ -669,8 +802,19 @@ mod tests {
 
     struct Rec(Vec<String>, usize);
     impl Host for Rec {
-        fn call(&mut self, name: &str, args: Vec<Val>, _named: Vec<(String, Val)>) -> Result<Val, String> {
-            self.0.push(format!("{name}({})", args.iter().map(|a| a.to_string()).collect::<Vec<_>>().join(",")));
+        fn call(
+            &mut self,
+            name: &str,
+            args: Vec<Val>,
+            _named: Vec<(String, Val)>,
+        ) -> Result<Val, String> {
+            self.0.push(format!(
+                "{name}({})",
+                args.iter()
+                    .map(|a| a.to_string())
+                    .collect::<Vec<_>>()
+                    .join(",")
+            ));
             Ok(Val::Num(2.0))
         }
         fn tick(&mut self) -> Result<(), String> {
@@ -689,16 +833,34 @@ mod tests {
         assert!(!prog.secondary);
         let mut h = Rec(Vec::new(), 0);
         run(&prog, &mut h).expect("runs");
-        assert_eq!(h.0, vec!["set_tcp(p[0, 0, 0.1, 0, 0, 0])", "textmsg(i=,3)", "read_input_float_register(24)", "write_output_float_register(24,-2)"]);
+        assert_eq!(
+            h.0,
+            vec![
+                "set_tcp(p[0, 0, 0.1, 0, 0, 0])",
+                "textmsg(i=,3)",
+                "read_input_float_register(24)",
+                "write_output_float_register(24,-2)"
+            ]
+        );
     }
 
     #[test]
     fn unknown_functions_and_syntax_errors_are_compile_errors() {
-        assert!(parse_program("def a():\n  force_mode(1)\nend\n").unwrap_err().message.contains("force_mode"));
-        assert_eq!(parse_program("def a():\n  x = (1\nend\n").unwrap_err().line, 2);
+        assert!(parse_program("def a():\n  force_mode(1)\nend\n")
+            .unwrap_err()
+            .message
+            .contains("force_mode"));
+        assert_eq!(
+            parse_program("def a():\n  x = (1\nend\n").unwrap_err().line,
+            2
+        );
         assert!(parse_program("def a():\n  x = 1\n").is_err());
         assert!(parse_program("sec a():\n  sleep(1)\nend\n").is_err());
-        assert!(parse_program("sec a():\n  set_tcp(p[0,0,0,0,0,0])\nend\n").expect("ok").secondary);
+        assert!(
+            parse_program("sec a():\n  set_tcp(p[0,0,0,0,0,0])\nend\n")
+                .expect("ok")
+                .secondary
+        );
         assert!(parse_program("textmsg(\"hi\")\n").is_ok());
     }
 

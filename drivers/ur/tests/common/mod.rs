@@ -16,13 +16,18 @@ pub fn python() -> Option<PathBuf> {
         "{} is missing in CI: run .ci/install.d/ur-rtde.sh",
         py.display()
     );
-    eprintln!("skipping: {} not found (run .ci/install.d/ur-rtde.sh to test against ur-rtde)", py.display());
+    eprintln!(
+        "skipping: {} not found (run .ci/install.d/ur-rtde.sh to test against ur-rtde)",
+        py.display()
+    );
     None
 }
 
 /// Run `tests/python/<script> <host>` (20 s limit) and parse its last stdout line as JSON.
 pub async fn run_python(py: &std::path::Path, script: &str, host: &str) -> serde_json::Value {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/python").join(script);
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/python")
+        .join(script);
     let child = tokio::process::Command::new(py)
         .arg(&path)
         .arg(host)
@@ -35,6 +40,9 @@ pub async fn run_python(py: &std::path::Path, script: &str, host: &str) -> serde
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{script} failed: {stderr}\n{stdout}");
-    let last = stdout.lines().last().unwrap_or_else(|| panic!("{script} printed nothing: {stderr}"));
+    let last = stdout
+        .lines()
+        .last()
+        .unwrap_or_else(|| panic!("{script} printed nothing: {stderr}"));
     serde_json::from_str(last).unwrap_or_else(|e| panic!("{script}: {e}: {last}"))
 }
