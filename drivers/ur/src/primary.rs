@@ -339,7 +339,7 @@ mod tests {
             robot_mode: 7,
             ..Default::default()
         };
-        let seeds = vec![
+        let seeds = [
             encode_version(1, 5, 11, 1, 108318),
             encode_text(1, "hello"),
             encode_key(1, 0, "PROGRAM_XXX_STARTED", "prog"),

@@ -15,6 +15,7 @@ mod state;
 mod urscript;
 
 use std::collections::HashSet;
+use std::f64::consts::FRAC_PI_2;
 use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
@@ -75,7 +76,7 @@ impl SimConfig {
             drop_connections_every: None,
             unlock_delay: Duration::from_secs(5),
             rtde_v2: true,
-            initial_q: [0.0, -1.5708, 1.5708, -1.5708, -1.5708, 0.0],
+            initial_q: [0.0, -FRAC_PI_2, FRAC_PI_2, -FRAC_PI_2, -FRAC_PI_2, 0.0],
         }
     }
 

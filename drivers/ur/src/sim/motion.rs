@@ -169,8 +169,8 @@ pub(crate) fn step(s: &mut State, dt: f64) {
             let pose = start.lerp_slerp(goal, fraction);
             match inverse(&s.dh, &pose, &s.q, 50) {
                 Some(q) => {
-                    for i in 0..6 {
-                        s.qd[i] = (q[i] - s.q[i]) / dt.max(1e-6);
+                    for ((qd, new), old) in s.qd.iter_mut().zip(q).zip(s.q) {
+                        *qd = (new - old) / dt.max(1e-6);
                     }
                     s.q = q;
                     s.target_q = q;

@@ -337,12 +337,11 @@ impl State {
                     self.in_bits =
                         (self.in_bits & !(0xffff_ffffu128 << 32)) | (u128::from(b) << 32);
                 }
-                ("speed_slider_fraction", Value::Double(f)) => {
+                ("speed_slider_fraction", Value::Double(f))
                     if matches!(get("speed_slider_mask"), Some(Value::Uint32(1)))
-                        && (0.0..=1.0).contains(&f)
-                    {
-                        self.speed_slider = f;
-                    }
+                        && (0.0..=1.0).contains(&f) =>
+                {
+                    self.speed_slider = f;
                 }
                 ("standard_digital_output", Value::Uint8(b)) => {
                     let m = u8_of(get("standard_digital_output_mask")).unwrap_or(0);
@@ -356,15 +355,15 @@ impl State {
                     let m = u8_of(get("tool_digital_output_mask")).unwrap_or(0);
                     self.tool_do = (self.tool_do & !m) | (b & m);
                 }
-                ("standard_analog_output_0", Value::Double(x)) => {
-                    if u8_of(get("standard_analog_output_mask")).unwrap_or(0) & 1 != 0 {
-                        self.analog_out[0] = x;
-                    }
+                ("standard_analog_output_0", Value::Double(x))
+                    if u8_of(get("standard_analog_output_mask")).unwrap_or(0) & 1 != 0 =>
+                {
+                    self.analog_out[0] = x;
                 }
-                ("standard_analog_output_1", Value::Double(x)) => {
-                    if u8_of(get("standard_analog_output_mask")).unwrap_or(0) & 2 != 0 {
-                        self.analog_out[1] = x;
-                    }
+                ("standard_analog_output_1", Value::Double(x))
+                    if u8_of(get("standard_analog_output_mask")).unwrap_or(0) & 2 != 0 =>
+                {
+                    self.analog_out[1] = x;
                 }
                 (_, Value::Int32(x)) => {
                     if let Some(r) = idx("input_int_register_").and_then(|i| self.in_int.get_mut(i))

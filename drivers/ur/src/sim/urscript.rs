@@ -847,11 +847,13 @@ mod tests {
     #[test]
     fn unknown_functions_and_syntax_errors_are_compile_errors() {
         assert!(parse_program("def a():\n  force_mode(1)\nend\n")
-            .unwrap_err()
+            .expect_err("compile error")
             .message
             .contains("force_mode"));
         assert_eq!(
-            parse_program("def a():\n  x = (1\nend\n").unwrap_err().line,
+            parse_program("def a():\n  x = (1\nend\n")
+                .expect_err("compile error")
+                .line,
             2
         );
         assert!(parse_program("def a():\n  x = 1\n").is_err());
