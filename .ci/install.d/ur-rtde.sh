@@ -16,6 +16,15 @@ if ! command -v python3 >/dev/null 2>&1 || ! python3 -c 'import venv, ensurepip'
   fi
 fi
 
+# ur-rtde 1.6.5 ships wheels for CPython 3.7–3.12 only. On a newer Python (Debian 13) pip builds
+# it from source, which needs a compiler, CMake and Boost (untested here: Debian 12 has 3.11).
+if ! python3 -c 'import sys; sys.exit(sys.version_info >= (3, 13))' && command -v apt-get >/dev/null 2>&1; then
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update
+  apt-get install -y --no-install-recommends build-essential cmake python3-dev \
+    libboost-system-dev libboost-thread-dev libboost-program-options-dev
+fi
+
 if [ ! -x "$REPO/.venv/bin/python" ]; then
   python3 -m venv "$REPO/.venv"
 fi

@@ -487,3 +487,68 @@ async fn dashboard_state_machine() {
     assert_eq!(d.polyscope_version().await.expect("v")[0], 5);
     d.quit().await.expect("quit");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cb3_refuses_500_hz_and_has_no_remote_mode() {
+    let mut c = sim_config();
+    c.model = UrModel::Ur5;
+    let sim = Simulator::start(c).await.expect("sim");
+    let cfg = |hz| RtdeConfig {
+        addr: SocketAddr::new(LOCAL, sim.ports().rtde),
+        frequency: hz,
+        outputs: vec!["timestamp".into(), "actual_q".into()],
+        inputs: vec![],
+        timeout: Duration::from_secs(2),
+        max_backoff: Duration::from_millis(100),
+    };
+    let err = RtdeClient::connect(cfg(Some(500.0)))
+        .await
+        .expect_err("500 Hz on CB3");
+    assert!(matches!(err, UrError::InvalidArgument(_)), "{err}");
+    let client = RtdeClient::connect(cfg(None)).await.expect("125 Hz");
+    assert_eq!(client.version()[0], 3);
+    // Timestamps are controller time (> 40 s after boot, like URCL expects) and increase.
+    let first = client
+        .next_sample(std::time::Instant::now(), Duration::from_secs(2))
+        .await
+        .expect("sample");
+    let next = client
+        .next_sample(first.received, Duration::from_secs(2))
+        .await
+        .expect("sample");
+    assert!(first.f64("timestamp").expect("ts") > 40.0);
+    assert!(next.f64("timestamp") > first.f64("timestamp"));
+    let mut d = DashboardClient::connect(
+        SocketAddr::new(LOCAL, sim.ports().dashboard),
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("dash");
+    assert!(d
+        .is_in_remote_control()
+        .await
+        .expect("CB3 is always remote"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn true_kinematics_deviation_shows_in_the_controller_pose() {
+    let mut c = sim_config();
+    let mut delta = UrModel::Ur5e.dh();
+    delta.a = [0.0, 0.002, -0.001, 0.0, 0.0, 0.0];
+    delta.d = [0.001, 0.0, 0.0, 0.0005, 0.0, 0.0];
+    delta.alpha = [0.0, 0.001, 0.0, 0.0, 0.0, 0.0];
+    delta.theta = [0.0, 0.0, 0.002, 0.0, 0.0, 0.0];
+    c.dh_delta = Some(delta);
+    let (sim, robot) = start(c).await;
+    let q: [f64; 6] = robot
+        .joint_positions()
+        .await
+        .expect("q")
+        .try_into()
+        .expect("6");
+    let flange = robot.flange_pose().await.expect("flange");
+    let nominal = UrModel::Ur5e.dh().forward(&q);
+    let truth = sim.dh().forward(&q);
+    assert!((flange.translation.vector - truth.translation.vector).norm() < 1e-9);
+    assert!((flange.translation.vector - nominal.translation.vector).norm() > 1e-3);
+}
