@@ -462,10 +462,17 @@ async fn read_loop(
     names: Arc<Vec<String>>,
     types: Vec<FieldType>,
     latest: watch::Sender<Option<Arc<Sample>>>,
+    silence: Duration,
 ) -> UrError {
     let mut r = BufReader::new(reader);
     loop {
-        let f = match rtde::read_frame(&mut r).await {
+        let Ok(read) = tokio::time::timeout(silence, rtde::read_frame(&mut r)).await else {
+            return UrError::Timeout {
+                what: "RTDE data stream".into(),
+                after: silence,
+            };
+        };
+        let f = match read {
             Ok(Some(f)) => f,
             Ok(None) => {
                 return UrError::Io {
@@ -565,6 +572,7 @@ async fn run(
             names.clone(),
             output_types,
             latest.clone(),
+            cfg.timeout.max(Duration::from_secs(1)),
         ));
         let err = loop {
             tokio::select! {

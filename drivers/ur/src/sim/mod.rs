@@ -48,7 +48,8 @@ pub struct SimConfig {
     pub fieldbus_held: Vec<String>,
     /// Protective stop when the next move reaches this fraction of its path (0..1).
     pub protective_stop_during_move: Option<f64>,
-    /// Delay before each reply (dashboard, RTDE setup) and each streamed package.
+    /// Delay before each request's reply (dashboard commands, RTDE setup packages); streaming
+    /// is not delayed.
     pub latency: Duration,
     /// Close every client connection at this interval.
     pub drop_connections_every: Option<Duration>,
