@@ -171,6 +171,7 @@ pub(crate) fn submit(shared: &Arc<Shared>, text: &str, opened_remote: bool) -> V
         Ok(p) => p,
         Err(e) => {
             let msg = format!("compile error: {}", e.message);
+            tracing::warn!(line = e.line, "URScript program refused: {msg}");
             shared.lock().push_log(format!("line {}: {msg}", e.line));
             let pkg = primary::encode_runtime_exception(ts, e.line as i32, 0, &msg);
             shared.publish(pkg);
@@ -223,6 +224,12 @@ fn start(shared: &Arc<Shared>, prog: Program) {
             let ts = shared.timestamp_us();
             if let Err(e) = result {
                 if e.message != STOPPED {
+                    tracing::warn!(
+                        line = e.line,
+                        "URScript runtime error in `{}`: {}",
+                        prog.name,
+                        e.message
+                    );
                     shared
                         .lock()
                         .push_log(format!("line {}: {}", e.line, e.message));
