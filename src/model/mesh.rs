@@ -15,11 +15,7 @@ impl TriMesh {
     /// Axis-aligned bounding box `(min, max)` of the vertices, or `None` for an empty mesh.
     pub fn bounding_box(&self) -> Option<(Point3<f64>, Point3<f64>)> {
         let first = *self.vertices.first()?;
-        Some(
-            self.vertices
-                .iter()
-                .fold((first, first), |(lo, hi), v| (lo.inf(v), hi.sup(v))),
-        )
+        Some(self.vertices.iter().fold((first, first), |(lo, hi), v| (lo.inf(v), hi.sup(v))))
     }
 }
 

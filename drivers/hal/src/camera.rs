@@ -35,11 +35,7 @@ pub struct CaptureSettings {
 
 impl Default for CaptureSettings {
     fn default() -> Self {
-        Self {
-            frames: 1,
-            frame_timeout: Duration::from_secs(10),
-            exposure: None,
-        }
+        Self { frames: 1, frame_timeout: Duration::from_secs(10), exposure: None }
     }
 }
 

@@ -23,13 +23,7 @@ impl PointCloud {
     /// An unorganized cloud from points (no intensity, no confidence).
     pub fn from_points(points: Vec<Point3<f32>>) -> Self {
         let width = u32::try_from(points.len()).unwrap_or(u32::MAX);
-        Self {
-            width,
-            height: 1,
-            points,
-            intensity: None,
-            confidence: None,
-        }
+        Self { width, height: 1, points, intensity: None, confidence: None }
     }
 
     /// Whether the cloud keeps a sensor pixel grid (more than one row).
@@ -49,9 +43,7 @@ impl PointCloud {
 
     /// Iterator over the valid (finite) points.
     pub fn valid_points(&self) -> impl Iterator<Item = &Point3<f32>> + '_ {
-        self.points
-            .iter()
-            .filter(|p| p.coords.iter().all(|c| c.is_finite()))
+        self.points.iter().filter(|p| p.coords.iter().all(|c| c.is_finite()))
     }
 
     /// Number of valid (finite) points.

@@ -14,17 +14,13 @@ pub enum HalError {
         during: String,
     },
     /// An emergency stop is active.
-    #[error(
-        "emergency stop during {during}; release the e-stop and re-enable the arm on the pendant"
-    )]
+    #[error("emergency stop during {during}; release the e-stop and re-enable the arm on the pendant")]
     EmergencyStop {
         /// What was in progress.
         during: String,
     },
     /// The arm is not powered / brakes not released / not in a state that can move.
-    #[error(
-        "robot is not ready to move ({state}); power it on and release the brakes on the pendant"
-    )]
+    #[error("robot is not ready to move ({state}); power it on and release the brakes on the pendant")]
     NotReady {
         /// The mode the controller reported.
         state: String,

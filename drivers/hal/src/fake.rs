@@ -48,10 +48,7 @@ impl FakeRobot {
             protective_stop_at_move: None,
             registers: HashMap::new(),
         };
-        Self {
-            model,
-            state: Arc::new(Mutex::new(state)),
-        }
+        Self { model, state: Arc::new(Mutex::new(state)) }
     }
 
     fn lock(&self) -> MutexGuard<'_, RobotState> {
@@ -100,10 +97,7 @@ impl Robot for FakeRobot {
     async fn move_joints(&self, q: &[f64], _limits: MotionLimits) -> Result<(), HalError> {
         let mut s = self.lock();
         if q.len() != 6 {
-            return Err(HalError::InvalidArgument(format!(
-                "expected 6 joint angles, got {}",
-                q.len()
-            )));
+            return Err(HalError::InvalidArgument(format!("expected 6 joint angles, got {}", q.len())));
         }
         let index = s.moves.len();
         s.moves.push(q.to_vec());
@@ -111,15 +105,11 @@ impl Robot for FakeRobot {
             return Err(HalError::NotInRemoteControl);
         }
         if !s.status.can_move() {
-            return Err(HalError::NotReady {
-                state: format!("{:?}/{:?}", s.status.robot_mode, s.status.safety_mode),
-            });
+            return Err(HalError::NotReady { state: format!("{:?}/{:?}", s.status.robot_mode, s.status.safety_mode) });
         }
         if s.protective_stop_at_move == Some(index) {
             s.status.safety_mode = SafetyMode::ProtectiveStop;
-            return Err(HalError::ProtectiveStop {
-                during: format!("move {index}"),
-            });
+            return Err(HalError::ProtectiveStop { during: format!("move {index}") });
         }
         s.q = q.to_vec();
         Ok(())
@@ -154,10 +144,7 @@ pub struct FakeCamera {
 impl FakeCamera {
     /// Replays `clouds` in order, wrapping around. Fails to capture if `clouds` is empty.
     pub fn new(clouds: Vec<PointCloud>) -> Self {
-        Self {
-            clouds: Arc::new(clouds),
-            next: Arc::new(Mutex::new(0)),
-        }
+        Self { clouds: Arc::new(clouds), next: Arc::new(Mutex::new(0)) }
     }
 }
 
@@ -177,9 +164,7 @@ impl DepthCamera for FakeCamera {
 
     async fn capture(&self, settings: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
         if self.clouds.is_empty() {
-            return Err(HalError::InvalidArgument(
-                "FakeCamera has no clouds to replay".into(),
-            ));
+            return Err(HalError::InvalidArgument("FakeCamera has no clouds to replay".into()));
         }
         let mut next = self.next.lock().unwrap_or_else(|e| e.into_inner());
         let out = (0..settings.frames)

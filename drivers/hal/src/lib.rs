@@ -7,12 +7,12 @@
 //! Joint order is the URDF chain order (for UR: base, shoulder, elbow, wrist 1, 2, 3).
 #![deny(missing_docs)]
 
-mod camera;
 mod cloud;
 mod error;
 #[cfg(feature = "fake")]
 pub mod fake;
 mod robot;
+mod camera;
 pub mod ur_dh;
 
 pub use camera::{CameraInfo, CaptureSettings, DepthCamera};

@@ -21,11 +21,7 @@ pub struct MotionLimits {
 
 impl Default for MotionLimits {
     fn default() -> Self {
-        Self {
-            max_joint_speed_rad_s: 0.5,
-            max_joint_accel_rad_s2: 1.0,
-            timeout: Duration::from_secs(60),
-        }
+        Self { max_joint_speed_rad_s: 0.5, max_joint_accel_rad_s2: 1.0, timeout: Duration::from_secs(60) }
     }
 }
 
@@ -115,21 +111,11 @@ pub trait Robot: Send + Sync + 'static {
     fn stop(&self) -> impl Future<Output = Result<(), HalError>> + Send;
 
     /// Set the runtime TCP (`flange_from_tcp`; volatile on UR) and confirm by read-back.
-    fn set_tcp(
-        &self,
-        flange_from_tcp: &Isometry3<f64>,
-    ) -> impl Future<Output = Result<(), HalError>> + Send;
+    fn set_tcp(&self, flange_from_tcp: &Isometry3<f64>) -> impl Future<Output = Result<(), HalError>> + Send;
 
     /// Write a double input register (e.g. RTDE `input_double_register_N`) for a pendant program.
-    fn write_double_register(
-        &self,
-        index: u32,
-        value: f64,
-    ) -> impl Future<Output = Result<(), HalError>> + Send;
+    fn write_double_register(&self, index: u32, value: f64) -> impl Future<Output = Result<(), HalError>> + Send;
 
     /// Read a double register back as the controller reflects it.
-    fn read_double_register(
-        &self,
-        index: u32,
-    ) -> impl Future<Output = Result<f64, HalError>> + Send;
+    fn read_double_register(&self, index: u32) -> impl Future<Output = Result<f64, HalError>> + Send;
 }

@@ -78,9 +78,7 @@ impl UrModel {
             UrModel::Ur10 => (0.1273, -0.612, -0.5723, 0.163941, 0.1157, 0.0922),
             UrModel::Ur3e => (0.15185, -0.24355, -0.2132, 0.13105, 0.08535, 0.0921),
             UrModel::Ur5e | UrModel::Ur7e => (0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996),
-            UrModel::Ur10e | UrModel::Ur12e => {
-                (0.1807, -0.6127, -0.57155, 0.17415, 0.11985, 0.11655)
-            }
+            UrModel::Ur10e | UrModel::Ur12e => (0.1807, -0.6127, -0.57155, 0.17415, 0.11985, 0.11655),
             UrModel::Ur16e => (0.1807, -0.4784, -0.36, 0.17415, 0.11985, 0.11655),
             UrModel::Ur15 => (0.2186, -0.6475, -0.5164, 0.1824, 0.1361, 0.1434),
             UrModel::Ur20 => (0.2363, -0.862, -0.7287, 0.201, 0.1593, 0.1543),
@@ -169,10 +167,7 @@ mod tests {
     fn ur5e_zero_pose_matches_the_published_check_vector() {
         let t = UrModel::Ur5e.dh().forward(&[0.0; 6]);
         let p = t.translation.vector;
-        assert!(
-            (p - Vector3::new(-0.8172, -0.2329, 0.0628)).norm() < 1e-9,
-            "{p}"
-        );
+        assert!((p - Vector3::new(-0.8172, -0.2329, 0.0628)).norm() < 1e-9, "{p}");
         let expected = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), FRAC_PI_2);
         assert!(t.rotation.angle_to(&expected) < 1e-9);
     }
