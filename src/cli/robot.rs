@@ -1,11 +1,234 @@
-//! `handeye robot` (under construction).
+//! `handeye robot`: commissioning commands for a UR controller (status, move, set-tcp,
+//! registers). Moves need remote control and are capped in speed.
 
+use std::net::IpAddr;
 use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context;
+use handeye_hal::{MotionLimits, Robot};
+use handeye_ur::{UrConfig, UrPose, UrRobot};
+use nalgebra::Isometry3;
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
-pub(crate) struct Args {}
+pub(crate) struct Args {
+    /// Controller address (e.g. 192.168.56.101, or 127.0.0.1 for `handeye sim robot`).
+    #[arg(long, global = true, default_value = "127.0.0.1")]
+    host: IpAddr,
+    /// Limit for each request to the controller, seconds.
+    #[arg(long, global = true, default_value_t = 3.0)]
+    timeout_s: f64,
+    #[command(subcommand)]
+    command: Command,
+}
 
-pub(crate) fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("this subcommand is not built yet")
+#[derive(Debug, clap::Subcommand)]
+enum Command {
+    /// Robot mode, safety mode, remote control, program state, joints, flange and TCP poses.
+    Status {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Joint move (`movej`); returns when the arm has arrived; Ctrl-C stops the arm.
+    Move {
+        /// Six joint angles, comma-separated (base, shoulder, elbow, wrist 1, 2, 3).
+        #[arg(
+            long,
+            value_delimiter = ',',
+            allow_hyphen_values = true,
+            required = true
+        )]
+        joints: Vec<f64>,
+        /// Joint angles are in degrees instead of radians.
+        #[arg(long)]
+        deg: bool,
+        /// Joint speed cap, rad/s.
+        #[arg(long, default_value_t = 0.25)]
+        speed: f64,
+        /// Joint acceleration, rad/s².
+        #[arg(long, default_value_t = 0.5)]
+        accel: f64,
+        /// Give up (and stop the arm) after this many seconds.
+        #[arg(long, default_value_t = 60.0)]
+        timeout_s: f64,
+    },
+    /// Set the runtime TCP (flange → TCP, UR pose `x,y,z,rx,ry,rz` in m and rad) and read it back.
+    SetTcp {
+        /// `x,y,z,rx,ry,rz`.
+        #[arg(
+            long,
+            value_delimiter = ',',
+            allow_hyphen_values = true,
+            required = true
+        )]
+        pose: Vec<f64>,
+    },
+    /// Read or write RTDE double registers 24–47.
+    Registers {
+        /// Write `INDEX=VALUE` (repeatable) before reading.
+        #[arg(long = "set", value_name = "INDEX=VALUE")]
+        set: Vec<String>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        args.timeout_s > 0.0 && args.timeout_s.is_finite(),
+        "--timeout-s must be positive"
+    );
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    rt.block_on(async move {
+        let mut cfg = UrConfig::new(args.host);
+        cfg.timeout = Duration::from_secs_f64(args.timeout_s);
+        let robot = UrRobot::connect(cfg)
+            .await
+            .with_context(|| format!("connecting to the controller at {}", args.host))?;
+        match args.command {
+            Command::Status { json } => status(&robot, json).await,
+            Command::Move {
+                joints,
+                deg,
+                speed,
+                accel,
+                timeout_s,
+            } => {
+                anyhow::ensure!(
+                    joints.len() == 6,
+                    "--joints needs 6 comma-separated values, got {}",
+                    joints.len()
+                );
+                let q: Vec<f64> = if deg {
+                    joints.iter().map(|d| d.to_radians()).collect()
+                } else {
+                    joints
+                };
+                anyhow::ensure!(
+                    timeout_s > 0.0 && timeout_s.is_finite(),
+                    "--timeout-s must be positive"
+                );
+                let lim = MotionLimits {
+                    max_joint_speed_rad_s: speed,
+                    max_joint_accel_rad_s2: accel,
+                    timeout: Duration::from_secs_f64(timeout_s),
+                };
+                let cancel = async {
+                    let _ = tokio::signal::ctrl_c().await;
+                };
+                robot
+                    .move_joints_until(&q, lim, cancel)
+                    .await
+                    .context("move")?;
+                emit("arrived\n")?;
+                Ok(ExitCode::SUCCESS)
+            }
+            Command::SetTcp { pose } => {
+                anyhow::ensure!(
+                    pose.len() == 6,
+                    "--pose needs 6 comma-separated values x,y,z,rx,ry,rz, got {}",
+                    pose.len()
+                );
+                let p = UrPose([pose[0], pose[1], pose[2], pose[3], pose[4], pose[5]]);
+                robot
+                    .set_tcp(&Isometry3::from(p))
+                    .await
+                    .context("set_tcp")?;
+                emit(&format!("TCP set and confirmed: {}\n", p.to_script()))?;
+                Ok(ExitCode::SUCCESS)
+            }
+            Command::Registers { set, json } => {
+                for s in &set {
+                    let (i, v) = s
+                        .split_once('=')
+                        .with_context(|| format!("`{s}` is not INDEX=VALUE"))?;
+                    let i: u32 = i
+                        .trim()
+                        .parse()
+                        .with_context(|| format!("bad register index in `{s}`"))?;
+                    let v: f64 = v
+                        .trim()
+                        .parse()
+                        .with_context(|| format!("bad value in `{s}`"))?;
+                    robot
+                        .write_double_register(i, v)
+                        .await
+                        .with_context(|| format!("writing register {i}"))?;
+                }
+                let mut rows = Vec::new();
+                for i in 24..=47 {
+                    let input = robot.read_double_register(i).await?;
+                    let output = robot.read_output_double_register(i).await?;
+                    rows.push(serde_json::json!({"index": i, "input": input, "output": output}));
+                }
+                let mut text = String::new();
+                if json {
+                    text = serde_json::to_string_pretty(&rows)? + "\n";
+                } else {
+                    text.push_str("register  input_double  output_double\n");
+                    for r in rows {
+                        text.push_str(&format!(
+                            "{:>8}  {:>12}  {:>13}\n",
+                            r["index"].to_string(),
+                            r["input"].to_string(),
+                            r["output"].to_string()
+                        ));
+                    }
+                }
+                emit(&text)?;
+                Ok(ExitCode::SUCCESS)
+            }
+        }
+    })
+}
+
+async fn status(robot: &UrRobot, json: bool) -> anyhow::Result<ExitCode> {
+    let st = robot.status().await?;
+    let q = robot.joint_positions().await?;
+    let flange = UrPose::from(robot.flange_pose().await?);
+    let tcp = UrPose::from(robot.tcp_pose().await?);
+    let offset = UrPose::from(robot.tcp_offset().await?);
+    let v = robot.rtde().version();
+    if json {
+        let out = serde_json::json!({
+            "controller_version": v,
+            "status": st,
+            "can_move": st.can_move(),
+            "joint_positions_rad": q,
+            "base_from_flange_ur_pose": flange.0,
+            "base_from_tcp_ur_pose": tcp.0,
+            "flange_from_tcp_ur_pose": offset.0,
+        });
+        emit(&(serde_json::to_string_pretty(&out)? + "\n"))?;
+    } else {
+        use std::fmt::Write as _;
+        let mut t = String::new();
+        writeln!(t, "controller      {}.{}.{}.{}", v[0], v[1], v[2], v[3])?;
+        writeln!(t, "robot mode      {:?}", st.robot_mode)?;
+        writeln!(t, "safety mode     {:?}", st.safety_mode)?;
+        writeln!(t, "remote control  {}", st.remote_control)?;
+        writeln!(t, "program running {}", st.program_running)?;
+        writeln!(t, "can move        {}", st.can_move())?;
+        writeln!(t, "joints [rad]    {q:.5?}")?;
+        writeln!(t, "flange (base)   {}", flange.to_script())?;
+        writeln!(t, "TCP (base)      {}", tcp.to_script())?;
+        writeln!(t, "TCP offset      {}", offset.to_script())?;
+        emit(&t)?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Print to stdout; a closed pipe (`| head`) is not an error.
+fn emit(text: &str) -> anyhow::Result<()> {
+    use std::io::Write as _;
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => Ok(r?),
+    }
 }

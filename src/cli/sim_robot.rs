@@ -1,11 +1,124 @@
-//! `handeye sim_robot` (under construction).
+//! `handeye sim robot`: a simulated UR controller on the standard ports (29999, 30001–30004) of
+//! one address, until Ctrl-C or SIGTERM.
 
+use std::net::IpAddr;
 use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::Context;
+use handeye_hal::ur_dh::UrModel;
+use handeye_ur::sim::{SimConfig, Simulator};
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
-pub(crate) struct Args {}
+pub(crate) struct Args {
+    /// Arm model (ur3, ur5, ur10 are CB3: 125 Hz, no remote/local; the rest e-Series: 500 Hz).
+    #[arg(long, default_value = "ur5e")]
+    model: UrModel,
+    /// Address to serve on; use distinct 127.0.0.x to run several simulators side by side.
+    #[arg(long, default_value = "127.0.0.1")]
+    bind: IpAddr,
+    /// Start powered on with brakes released (default: POWER_OFF, like a booted controller).
+    #[arg(long)]
+    powered: bool,
+    /// Start in local control (e-Series): scripts and state-changing dashboard commands refused.
+    #[arg(long)]
+    local_control: bool,
+    /// Hold input registers 0–23 (and bits 0–63) as an active fieldbus adapter does (IN_USE).
+    #[arg(long)]
+    fieldbus: bool,
+    /// Hold this RTDE input field as a fieldbus/other client would (repeatable).
+    #[arg(long = "hold", value_name = "FIELD")]
+    hold: Vec<String>,
+    /// Trigger a protective stop when the next move reaches this fraction of its path (0–1).
+    #[arg(long, value_name = "FRACTION")]
+    protective_stop_during_move: Option<f64>,
+    /// Delay every reply by this many milliseconds.
+    #[arg(long, default_value_t = 0)]
+    latency_ms: u64,
+    /// Close every client connection at this interval, seconds.
+    #[arg(long, value_name = "SECONDS")]
+    drop_connections_every_s: Option<f64>,
+    /// Refuse RTDE protocol version 2 (an old controller; clients must fall back to 1).
+    #[arg(long)]
+    rtde_v1_only: bool,
+    /// Seconds after a protective stop before `unlock protective stop` is accepted.
+    #[arg(long, default_value_t = 5.0)]
+    unlock_delay_s: f64,
+}
 
-pub(crate) fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("this subcommand is not built yet")
+pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let mut c = SimConfig::new(args.model, args.bind);
+    c.start_running = args.powered;
+    c.remote_control = !args.local_control;
+    if args.fieldbus {
+        c = c.with_fieldbus_lower_range();
+    }
+    for f in &args.hold {
+        anyhow::ensure!(
+            handeye_ur::rtde::is_input_field(f),
+            "`{f}` is not an RTDE input field"
+        );
+    }
+    c.fieldbus_held.extend(args.hold);
+    if let Some(f) = args.protective_stop_during_move {
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&f),
+            "--protective-stop-during-move must be within 0–1"
+        );
+        c.protective_stop_during_move = Some(f);
+    }
+    c.latency = Duration::from_millis(args.latency_ms);
+    if let Some(s) = args.drop_connections_every_s {
+        anyhow::ensure!(
+            s > 0.0 && s.is_finite(),
+            "--drop-connections-every-s must be positive"
+        );
+        c.drop_connections_every = Some(Duration::from_secs_f64(s));
+    }
+    c.rtde_v2 = !args.rtde_v1_only;
+    anyhow::ensure!(
+        args.unlock_delay_s >= 0.0 && args.unlock_delay_s.is_finite(),
+        "--unlock-delay-s must be ≥ 0"
+    );
+    c.unlock_delay = Duration::from_secs_f64(args.unlock_delay_s);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    rt.block_on(async move {
+        let model = c.model;
+        let bind = c.bind;
+        let sim = Simulator::start(c).await.with_context(|| format!("starting the simulator on {bind}"))?;
+        let p = sim.ports();
+        eprintln!(
+            "simulated {model} on {bind}: dashboard {}, primary {}, secondary {}, real-time {}, RTDE {} (Ctrl-C to stop)",
+            p.dashboard, p.primary, p.secondary, p.realtime, p.rtde
+        );
+        shutdown_signal().await;
+        drop(sim);
+        eprintln!("simulator stopped");
+        Ok(ExitCode::SUCCESS)
+    })
+}
+
+async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        let mut term =
+            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(s) => s,
+                Err(e) => {
+                    tracing::warn!("cannot listen for SIGTERM: {e}");
+                    let _ = tokio::signal::ctrl_c().await;
+                    return;
+                }
+            };
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = term.recv() => {}
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = tokio::signal::ctrl_c().await;
 }

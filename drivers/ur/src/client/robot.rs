@@ -1,0 +1,552 @@
+//! [`UrRobot`]: the [`handeye_hal::Robot`] implementation over RTDE + dashboard + primary.
+
+use std::future::Future;
+use std::net::{IpAddr, SocketAddr};
+use std::ops::RangeInclusive;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use handeye_hal::{HalError, MotionLimits, Robot, RobotStatus, SafetyMode};
+use nalgebra::Isometry3;
+use tokio::sync::Mutex;
+
+use super::rtde_client::{RtdeClient, RtdeConfig, Sample};
+use super::script::ScriptClient;
+use crate::dashboard::{robot_mode_from_code, safety_mode_from_code, DashboardClient};
+use crate::rtde::Value;
+use crate::{Ports, UrError, UrPose};
+
+/// How to reach and drive one controller.
+#[derive(Debug, Clone)]
+pub struct UrConfig {
+    /// Controller address.
+    pub host: IpAddr,
+    /// Ports (standard unless testing against a simulator on ephemeral ports).
+    pub ports: Ports,
+    /// RTDE output frequency; `None` = 125 Hz CB3 / 500 Hz e-Series.
+    pub rtde_frequency: Option<f64>,
+    /// Hard cap on joint speed for every move, rad/s (the configured safety cap).
+    pub max_joint_speed_rad_s: f64,
+    /// Hard cap on joint acceleration, rad/s².
+    pub max_joint_accel_rad_s2: f64,
+    /// Double registers this client writes (upper range 24–47 by default: 0–23 belong to
+    /// fieldbus adapters).
+    pub registers: RangeInclusive<u32>,
+    /// Limit for each request/reply exchange.
+    pub timeout: Duration,
+    /// Longest pause between RTDE reconnection attempts.
+    pub max_backoff: Duration,
+}
+
+impl UrConfig {
+    /// Defaults for a controller at `host`.
+    pub fn new(host: IpAddr) -> Self {
+        Self {
+            host,
+            ports: Ports::STANDARD,
+            rtde_frequency: None,
+            max_joint_speed_rad_s: 1.0,
+            max_joint_accel_rad_s2: 2.0,
+            registers: 24..=47,
+            timeout: Duration::from_secs(3),
+            max_backoff: Duration::from_secs(5),
+        }
+    }
+}
+
+/// Joint-space arrival tolerance, rad.
+const ARRIVED_RAD: f64 = 1e-3;
+/// A sample older than this means the link is down.
+const STALE: Duration = Duration::from_millis(1000);
+
+const BASE_OUTPUTS: &[&str] = &[
+    "timestamp",
+    "actual_q",
+    "actual_qd",
+    "target_q",
+    "actual_TCP_pose",
+    "tcp_offset",
+    "robot_mode",
+    "safety_mode",
+    "runtime_state",
+    "robot_status_bits",
+    "safety_status_bits",
+];
+
+#[derive(Debug)]
+struct Inner {
+    cfg: UrConfig,
+    rtde: RtdeClient,
+    dashboard: Mutex<Option<DashboardClient>>,
+    script: ScriptClient,
+}
+
+/// A Universal Robots controller (CB3 or e-Series). Cheap to clone; one RTDE connection.
+#[derive(Debug, Clone)]
+pub struct UrRobot {
+    inner: Arc<Inner>,
+}
+
+impl UrRobot {
+    /// Connect RTDE (output recipe + one input recipe per register) and check the dashboard.
+    pub async fn connect(cfg: UrConfig) -> Result<Self, UrError> {
+        if cfg.registers.is_empty() || *cfg.registers.end() > 47 {
+            return Err(UrError::InvalidArgument(format!(
+                "register range {:?} must lie within 0..=47",
+                cfg.registers
+            )));
+        }
+        if !(cfg.max_joint_speed_rad_s > 0.0 && cfg.max_joint_accel_rad_s2 > 0.0) {
+            return Err(UrError::InvalidArgument(
+                "speed and acceleration caps must be positive".into(),
+            ));
+        }
+        let mut outputs: Vec<String> = BASE_OUTPUTS.iter().map(|s| s.to_string()).collect();
+        for i in cfg.registers.clone() {
+            outputs.push(format!("input_double_register_{i}"));
+            outputs.push(format!("output_double_register_{i}"));
+        }
+        let inputs = cfg
+            .registers
+            .clone()
+            .map(|i| vec![format!("input_double_register_{i}")])
+            .collect();
+        let rtde = RtdeClient::connect(RtdeConfig {
+            addr: SocketAddr::new(cfg.host, cfg.ports.rtde),
+            frequency: cfg.rtde_frequency,
+            outputs,
+            inputs,
+            timeout: cfg.timeout,
+            max_backoff: cfg.max_backoff,
+        })
+        .await?;
+        let dash =
+            DashboardClient::connect(SocketAddr::new(cfg.host, cfg.ports.dashboard), cfg.timeout)
+                .await?;
+        let script = ScriptClient::new(SocketAddr::new(cfg.host, cfg.ports.primary), cfg.timeout);
+        let robot = Self {
+            inner: Arc::new(Inner {
+                cfg,
+                rtde,
+                dashboard: Mutex::new(Some(dash)),
+                script,
+            }),
+        };
+        robot.sample().await?;
+        Ok(robot)
+    }
+
+    /// The RTDE client (samples, reconnect count).
+    pub fn rtde(&self) -> &RtdeClient {
+        &self.inner.rtde
+    }
+
+    /// Run one dashboard exchange, reconnecting once if the connection was lost.
+    pub async fn dashboard<T, F>(&self, f: F) -> Result<T, UrError>
+    where
+        F: for<'a> Fn(
+            &'a mut DashboardClient,
+        )
+            -> std::pin::Pin<Box<dyn Future<Output = Result<T, UrError>> + Send + 'a>>,
+    {
+        let mut guard = self.inner.dashboard.lock().await;
+        for attempt in 0..2 {
+            if guard.is_none() {
+                let addr = SocketAddr::new(self.inner.cfg.host, self.inner.cfg.ports.dashboard);
+                *guard = Some(DashboardClient::connect(addr, self.inner.cfg.timeout).await?);
+            }
+            let Some(d) = guard.as_mut() else { continue };
+            match f(d).await {
+                Err(UrError::Io { .. } | UrError::Timeout { .. }) if attempt == 0 => *guard = None,
+                Err(
+                    e @ (UrError::Io { .. } | UrError::Timeout { .. } | UrError::Malformed { .. }),
+                ) => {
+                    *guard = None;
+                    return Err(e);
+                }
+                r => return r,
+            }
+        }
+        Err(UrError::Timeout {
+            what: "dashboard".into(),
+            after: self.inner.cfg.timeout,
+        })
+    }
+
+    async fn sample(&self) -> Result<Arc<Sample>, UrError> {
+        if let Some(s) = self.inner.rtde.latest() {
+            if s.received.elapsed() < STALE {
+                return Ok(s);
+            }
+        }
+        self.inner
+            .rtde
+            .next_sample(Instant::now() - STALE, STALE.max(self.inner.cfg.timeout))
+            .await
+    }
+
+    async fn remote_control(&self) -> Result<bool, UrError> {
+        self.dashboard(|d| Box::pin(d.is_in_remote_control())).await
+    }
+
+    /// Send a `def` program and wait for the controller to report it started.
+    pub async fn run_program(&self, name: &str, body: &str) -> Result<(), UrError> {
+        let text = format!("def {name}():\n{body}end\n");
+        self.inner
+            .script
+            .send(&text, Some(name), Duration::ZERO)
+            .await
+            .map(|_| ())
+    }
+
+    /// Send a `sec` program (runs alongside a pendant program, no physical time).
+    pub async fn run_secondary(&self, name: &str, body: &str) -> Result<(), UrError> {
+        let text = format!("sec {name}():\n{body}end\n");
+        self.inner
+            .script
+            .send(&text, None, Duration::from_millis(100))
+            .await
+            .map(|_| ())
+    }
+
+    /// Joint move; returns when arrived or fails (stopping the arm). `cancel` completing aborts
+    /// the move with `Cancelled`.
+    pub async fn move_joints_until(
+        &self,
+        q: &[f64],
+        limits: MotionLimits,
+        cancel: impl Future<Output = ()>,
+    ) -> Result<(), HalError> {
+        let q: [f64; 6] = q.try_into().map_err(|_| {
+            HalError::InvalidArgument(format!("expected 6 joint angles, got {}", q.len()))
+        })?;
+        if q.iter()
+            .any(|x| !x.is_finite() || x.abs() > 2.0 * std::f64::consts::PI)
+        {
+            return Err(HalError::InvalidArgument(format!(
+                "joint target {q:?} is outside ±2π"
+            )));
+        }
+        if !(limits.max_joint_speed_rad_s > 0.0 && limits.max_joint_accel_rad_s2 > 0.0) {
+            return Err(HalError::InvalidArgument(
+                "speed and acceleration must be positive".into(),
+            ));
+        }
+        let v = limits
+            .max_joint_speed_rad_s
+            .min(self.inner.cfg.max_joint_speed_rad_s);
+        let a = limits
+            .max_joint_accel_rad_s2
+            .min(self.inner.cfg.max_joint_accel_rad_s2);
+        let during = "joint move";
+        let st = self.status().await?;
+        check_can_move(&st, during)?;
+        let list: Vec<String> = q.iter().map(|x| format!("{x:.9}")).collect();
+        let body = format!("  movej([{}], a={a:.6}, v={v:.6})\n", list.join(","));
+        let mut guard = StopGuard {
+            robot: Some(self.clone()),
+        };
+        let started = Instant::now();
+        self.run_program("handeye_move", &body).await?;
+        let deadline = started + limits.timeout;
+        let work = async {
+            let mut seen_playing = false;
+            let mut last = Instant::now();
+            loop {
+                let left = deadline.saturating_duration_since(Instant::now());
+                if left.is_zero() {
+                    return Err(HalError::Timeout {
+                        what: during.into(),
+                        timeout: limits.timeout,
+                    });
+                }
+                let s = self
+                    .inner
+                    .rtde
+                    .next_sample(last, left.min(STALE))
+                    .await
+                    .map_err(|e| match e {
+                        UrError::Timeout { .. } if Instant::now() >= deadline => {
+                            HalError::Timeout {
+                                what: during.into(),
+                                timeout: limits.timeout,
+                            }
+                        }
+                        other => other.into(),
+                    })?;
+                last = s.received;
+                match safety_mode_from_code(s.f64("safety_mode").unwrap_or(0.0) as i32) {
+                    SafetyMode::ProtectiveStop => {
+                        return Err(HalError::ProtectiveStop {
+                            during: during.into(),
+                        })
+                    }
+                    SafetyMode::RobotEmergencyStop | SafetyMode::SystemEmergencyStop => {
+                        return Err(HalError::EmergencyStop {
+                            during: during.into(),
+                        })
+                    }
+                    _ => {}
+                }
+                let aq = s.vec6("actual_q").unwrap_or([f64::NAN; 6]);
+                let qd = s.vec6("actual_qd").unwrap_or([f64::NAN; 6]);
+                let playing = s.f64("runtime_state") == Some(2.0);
+                seen_playing |= playing;
+                let arrived = aq.iter().zip(&q).all(|(x, y)| (x - y).abs() < ARRIVED_RAD)
+                    && qd.iter().all(|v| v.abs() < 1e-3);
+                if arrived && !playing {
+                    return Ok(());
+                }
+                if !playing
+                    && (seen_playing || started.elapsed() > Duration::from_millis(500))
+                    && !arrived
+                {
+                    if !self.remote_control().await? {
+                        return Err(HalError::NotInRemoteControl);
+                    }
+                    return Err(HalError::Refused {
+                        device: "UR controller".into(),
+                        request: during.into(),
+                        reason: "the move program stopped before the arm arrived".into(),
+                    });
+                }
+            }
+        };
+        let result = tokio::select! {
+            r = work => r,
+            _ = cancel => Err(HalError::Cancelled { what: during.into() }),
+        };
+        match &result {
+            Ok(()) => guard.disarm(),
+            Err(
+                HalError::ProtectiveStop { .. }
+                | HalError::EmergencyStop { .. }
+                | HalError::NotInRemoteControl,
+            ) => guard.disarm(),
+            Err(_) => {
+                guard.disarm();
+                let _ = self.stop().await;
+            }
+        }
+        result
+    }
+
+    /// Read `output_double_register_N` (what a pendant program wrote).
+    pub async fn read_output_double_register(&self, index: u32) -> Result<f64, HalError> {
+        self.register("output_double_register_", index).await
+    }
+
+    async fn register(&self, prefix: &str, index: u32) -> Result<f64, HalError> {
+        if !self.inner.cfg.registers.contains(&index) {
+            return Err(HalError::InvalidArgument(format!(
+                "register {index} is outside the configured range {:?}",
+                self.inner.cfg.registers
+            )));
+        }
+        let s = self.sample().await?;
+        s.f64(&format!("{prefix}{index}"))
+            .ok_or_else(|| HalError::InvalidArgument(format!("{prefix}{index} not in the recipe")))
+    }
+
+    /// The active TCP offset (`flange_from_tcp`) as the controller reports it.
+    pub async fn tcp_offset(&self) -> Result<Isometry3<f64>, HalError> {
+        let s = self.sample().await?;
+        let t = s.vec6("tcp_offset").ok_or_else(|| HalError::Protocol {
+            peer: "RTDE".into(),
+            detail: "no tcp_offset".into(),
+        })?;
+        Ok(UrPose(t).into())
+    }
+
+    /// `actual_TCP_pose` (`base_from_tcp`).
+    pub async fn tcp_pose(&self) -> Result<Isometry3<f64>, HalError> {
+        let s = self.sample().await?;
+        let t = s
+            .vec6("actual_TCP_pose")
+            .ok_or_else(|| HalError::Protocol {
+                peer: "RTDE".into(),
+                detail: "no actual_TCP_pose".into(),
+            })?;
+        Ok(UrPose(t).into())
+    }
+}
+
+fn check_can_move(st: &RobotStatus, during: &str) -> Result<(), HalError> {
+    match st.safety_mode {
+        SafetyMode::ProtectiveStop => {
+            return Err(HalError::ProtectiveStop {
+                during: format!("{during} (before start)"),
+            })
+        }
+        SafetyMode::RobotEmergencyStop | SafetyMode::SystemEmergencyStop => {
+            return Err(HalError::EmergencyStop {
+                during: format!("{during} (before start)"),
+            })
+        }
+        _ => {}
+    }
+    if !st.remote_control {
+        return Err(HalError::NotInRemoteControl);
+    }
+    if !st.can_move() {
+        return Err(HalError::NotReady {
+            state: format!("{:?}, {:?}", st.robot_mode, st.safety_mode),
+        });
+    }
+    Ok(())
+}
+
+/// Stops the arm if a move future is dropped (cancelled) before it finished.
+struct StopGuard {
+    robot: Option<UrRobot>,
+}
+
+impl StopGuard {
+    fn disarm(&mut self) {
+        self.robot = None;
+    }
+}
+
+impl Drop for StopGuard {
+    fn drop(&mut self) {
+        if let Some(r) = self.robot.take() {
+            if let Ok(h) = tokio::runtime::Handle::try_current() {
+                h.spawn(async move {
+                    if let Err(e) = r.stop().await {
+                        tracing::error!("could not stop the arm after a cancelled move: {e}");
+                    }
+                });
+            }
+        }
+    }
+}
+
+impl Robot for UrRobot {
+    async fn status(&self) -> Result<RobotStatus, HalError> {
+        let s = self.sample().await?;
+        let code = s.f64("robot_mode").unwrap_or(-128.0) as i32;
+        let robot_mode = robot_mode_from_code(code).ok_or_else(|| HalError::Protocol {
+            peer: "RTDE".into(),
+            detail: format!("unknown robot_mode {code}"),
+        })?;
+        let safety_mode = safety_mode_from_code(s.f64("safety_mode").unwrap_or(0.0) as i32);
+        let remote_control = self.remote_control().await?;
+        Ok(RobotStatus {
+            robot_mode,
+            safety_mode,
+            remote_control,
+            program_running: s.f64("runtime_state") == Some(2.0),
+        })
+    }
+
+    async fn joint_positions(&self) -> Result<Vec<f64>, HalError> {
+        let s = self.sample().await?;
+        s.vec6("actual_q")
+            .map(|q| q.to_vec())
+            .ok_or_else(|| HalError::Protocol {
+                peer: "RTDE".into(),
+                detail: "no actual_q".into(),
+            })
+    }
+
+    async fn flange_pose(&self) -> Result<Isometry3<f64>, HalError> {
+        let s = self.sample().await?;
+        let tcp = s.vec6("actual_TCP_pose");
+        let off = s.vec6("tcp_offset");
+        match (tcp, off) {
+            (Some(t), Some(o)) => {
+                Ok(Isometry3::from(UrPose(t)) * Isometry3::from(UrPose(o)).inverse())
+            }
+            _ => Err(HalError::Protocol {
+                peer: "RTDE".into(),
+                detail: "no actual_TCP_pose/tcp_offset".into(),
+            }),
+        }
+    }
+
+    async fn move_joints(&self, q: &[f64], limits: MotionLimits) -> Result<(), HalError> {
+        self.move_joints_until(q, limits, std::future::pending())
+            .await
+    }
+
+    async fn stop(&self) -> Result<(), HalError> {
+        let a = self.inner.cfg.max_joint_accel_rad_s2.max(2.0);
+        self.run_program("handeye_stop", &format!("  stopj({a:.3})\n"))
+            .await?;
+        Ok(())
+    }
+
+    async fn set_tcp(&self, flange_from_tcp: &Isometry3<f64>) -> Result<(), HalError> {
+        let p = UrPose::from(flange_from_tcp);
+        if p.0.iter().any(|x| !x.is_finite()) {
+            return Err(HalError::InvalidArgument("TCP pose is not finite".into()));
+        }
+        self.run_secondary(
+            "handeye_set_tcp",
+            &format!("  set_tcp({})\n", p.to_script()),
+        )
+        .await?;
+        let deadline = Instant::now() + self.inner.cfg.timeout;
+        let mut last = Instant::now();
+        let mut read = UrPose([f64::NAN; 6]);
+        while Instant::now() < deadline {
+            let s = self
+                .inner
+                .rtde
+                .next_sample(last, self.inner.cfg.timeout)
+                .await?;
+            last = s.received;
+            if let Some(t) = s.vec6("tcp_offset") {
+                read = UrPose(t);
+                if read.approx_eq(&p, 1e-6, 1e-6) {
+                    return Ok(());
+                }
+            }
+        }
+        Err(HalError::ReadBackMismatch {
+            what: "TCP offset".into(),
+            wrote: format!("{:?}", p.0),
+            read: format!("{:?}", read.0),
+        })
+    }
+
+    async fn write_double_register(&self, index: u32, value: f64) -> Result<(), HalError> {
+        if !self.inner.cfg.registers.contains(&index) {
+            return Err(HalError::InvalidArgument(format!(
+                "register {index} is outside the configured range {:?}",
+                self.inner.cfg.registers
+            )));
+        }
+        let recipe = (index - self.inner.cfg.registers.start()) as usize;
+        let t0 = Instant::now();
+        self.inner
+            .rtde
+            .write(recipe, vec![Value::Double(value)])
+            .await?;
+        let name = format!("input_double_register_{index}");
+        let deadline = t0 + self.inner.cfg.timeout;
+        let mut last = t0;
+        let mut read = f64::NAN;
+        while Instant::now() < deadline {
+            let s = self
+                .inner
+                .rtde
+                .next_sample(last, self.inner.cfg.timeout)
+                .await?;
+            last = s.received;
+            read = s.f64(&name).unwrap_or(f64::NAN);
+            if read == value || (read.is_nan() && value.is_nan()) {
+                return Ok(());
+            }
+        }
+        Err(HalError::ReadBackMismatch {
+            what: name,
+            wrote: value.to_string(),
+            read: read.to_string(),
+        })
+    }
+
+    async fn read_double_register(&self, index: u32) -> Result<f64, HalError> {
+        self.register("input_double_register_", index).await
+    }
+}

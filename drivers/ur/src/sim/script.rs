@@ -1,0 +1,564 @@
+//! Primary (30001) and secondary (30002) servers, the script receiver shared with 30003, and
+//! the controller side of running URScript programs.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use nalgebra::Isometry3;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::broadcast::error::RecvError;
+
+use super::motion::{self, Motion};
+use super::state::{RUNTIME_PLAYING, RUNTIME_STOPPED};
+use super::urscript::{self, num, Host, Program, Val};
+use super::Shared;
+use crate::primary;
+use crate::UrPose;
+
+/// Largest program text accepted (ur_rtde's control script is ~42 kB).
+const MAX_PROGRAM: usize = 1 << 20;
+/// Statements a program may run without letting time pass.
+const STEP_BUDGET: u32 = 100_000;
+
+pub(crate) async fn serve_primary(listener: TcpListener, shared: Arc<Shared>, primary: bool) {
+    loop {
+        let Ok((sock, _)) = listener.accept().await else {
+            continue;
+        };
+        let shared = shared.clone();
+        tokio::spawn(async move {
+            let mut drop_rx = shared.drop_gen.subscribe();
+            tokio::select! {
+                r = connection(sock, &shared, primary) => {
+                    if let Err(e) = r {
+                        tracing::debug!("primary connection closed: {e}");
+                    }
+                }
+                _ = super::dropped(&mut drop_rx) => {}
+            }
+        });
+    }
+}
+
+fn state_package(shared: &Shared) -> Vec<u8> {
+    let s = shared.lock();
+    let m = primary::RobotModeData {
+        timestamp_us: (s.timestamp() * 1e6) as u64,
+        power_on: s.robot_mode != super::RobotModeCode::PowerOff,
+        emergency_stopped: s.safety_mode == super::SafetyModeCode::RobotEmergencyStop,
+        protective_stopped: s.safety_mode == super::SafetyModeCode::ProtectiveStop,
+        program_running: s.runtime_state == RUNTIME_PLAYING,
+        program_paused: false,
+        robot_mode: s.robot_mode as i8,
+        target_speed_fraction: s.speed_slider,
+    };
+    primary::encode_robot_state(&m, &s.q, &s.dh)
+}
+
+async fn connection(
+    sock: TcpStream,
+    shared: &Arc<Shared>,
+    is_primary: bool,
+) -> std::io::Result<()> {
+    let (mut r, mut w) = sock.into_split();
+    let opened_remote = shared.lock().remote_control;
+    let (maj, min, bug, build) = shared.version();
+    w.write_all(&primary::encode_version(
+        shared.timestamp_us(),
+        maj as u8,
+        min as u8,
+        bug as i32,
+        build as i32,
+    ))
+    .await?;
+    w.write_all(&state_package(shared)).await?;
+    let mut messages = shared.messages.subscribe();
+    let mut tick = tokio::time::interval(Duration::from_millis(100));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut rx = ScriptReceiver::default();
+    let mut buf = vec![0u8; 8192];
+    loop {
+        tokio::select! {
+            n = r.read(&mut buf) => {
+                let n = n?;
+                if n == 0 {
+                    return Ok(());
+                }
+                for reply in rx.feed(&buf[..n], shared, opened_remote) {
+                    if is_primary {
+                        w.write_all(&reply).await?;
+                    }
+                }
+                if rx.overflowed {
+                    return Ok(());
+                }
+            }
+            _ = tick.tick() => w.write_all(&state_package(shared)).await?,
+            m = messages.recv(), if is_primary => match m {
+                Ok(m) => w.write_all(&m).await?,
+                Err(RecvError::Lagged(_)) => {}
+                Err(RecvError::Closed) => return Ok(()),
+            },
+        }
+    }
+}
+
+/// Cuts a text stream into programs: `def`/`sec` … `end`, or single lines.
+#[derive(Debug, Default)]
+pub(crate) struct ScriptReceiver {
+    pending: Vec<u8>,
+    program: Option<String>,
+    pub(crate) overflowed: bool,
+}
+
+impl ScriptReceiver {
+    /// Feed bytes; returns packages to send back on this connection (errors for this client).
+    pub(crate) fn feed(
+        &mut self,
+        bytes: &[u8],
+        shared: &Arc<Shared>,
+        opened_remote: bool,
+    ) -> Vec<Vec<u8>> {
+        let mut replies = Vec::new();
+        self.pending.extend_from_slice(bytes);
+        if self.pending.len() + self.program.as_ref().map_or(0, String::len) > MAX_PROGRAM {
+            self.overflowed = true;
+            replies.push(primary::encode_error_code(
+                shared.timestamp_us(),
+                0,
+                3,
+                "script too long (over 1 MiB); connection closed",
+            ));
+            return replies;
+        }
+        while let Some(pos) = self.pending.iter().position(|b| *b == b'\n') {
+            let line: Vec<u8> = self.pending.drain(..=pos).collect();
+            let line = String::from_utf8_lossy(&line).trim_end().to_string();
+            let complete = match &mut self.program {
+                Some(p) => {
+                    p.push_str(&line);
+                    p.push('\n');
+                    (line == "end").then(|| self.program.take().unwrap_or_default())
+                }
+                None if line.starts_with("def ") || line.starts_with("sec ") => {
+                    self.program = Some(format!("{line}\n"));
+                    None
+                }
+                None if line.trim().is_empty() => None,
+                None => Some(line),
+            };
+            if let Some(text) = complete {
+                replies.extend(submit(shared, &text, opened_remote));
+            }
+        }
+        replies
+    }
+}
+
+/// Compile and start a program; returns packages for the sender only.
+pub(crate) fn submit(shared: &Arc<Shared>, text: &str, opened_remote: bool) -> Vec<Vec<u8>> {
+    let ts = shared.timestamp_us();
+    if !shared.lock().remote_control || !opened_remote {
+        return vec![primary::encode_error_code(
+            ts,
+            210,
+            3,
+            "C210: socket is read-only: the robot is in local control (switch to remote control and reconnect)",
+        )];
+    }
+    let prog = match urscript::parse_program(text) {
+        Ok(p) => p,
+        Err(e) => {
+            let msg = format!("compile error: {}", e.message);
+            tracing::warn!(line = e.line, "URScript program refused: {msg}");
+            shared.lock().push_log(format!("line {}: {msg}", e.line));
+            let pkg = primary::encode_runtime_exception(ts, e.line as i32, 0, &msg);
+            shared.publish(pkg);
+            return Vec::new();
+        }
+    };
+    start(shared, prog);
+    Vec::new()
+}
+
+fn start(shared: &Arc<Shared>, prog: Program) {
+    let ts = shared.timestamp_us();
+    let gen = {
+        let mut s = shared.lock();
+        if prog.secondary {
+            s.program_gen
+        } else {
+            if let Err(why) = s.can_move() {
+                drop(s);
+                let msg = format!("program {} not started: {why}", prog.name);
+                shared.lock().push_log(msg.clone());
+                shared.publish(primary::encode_error_code(ts, 0, 3, &msg));
+                return;
+            }
+            s.stop_program(None);
+            s.runtime_state = RUNTIME_PLAYING;
+            s.program_name = Some(prog.name.clone());
+            s.program_gen
+        }
+    };
+    if !prog.secondary {
+        shared.publish(primary::encode_key(
+            ts,
+            0,
+            "PROGRAM_XXX_STARTED",
+            &prog.name,
+        ));
+    }
+    let shared = shared.clone();
+    let spawned = std::thread::Builder::new()
+        .name(format!("urscript-{}", prog.name))
+        .spawn(move || {
+            let mut host = SimHost {
+                shared: &shared,
+                gen,
+                secondary: prog.secondary,
+                steps: 0,
+            };
+            let result = urscript::run(&prog, &mut host);
+            let ts = shared.timestamp_us();
+            if let Err(e) = result {
+                if e.message != STOPPED {
+                    tracing::warn!(
+                        line = e.line,
+                        "URScript runtime error in `{}`: {}",
+                        prog.name,
+                        e.message
+                    );
+                    shared
+                        .lock()
+                        .push_log(format!("line {}: {}", e.line, e.message));
+                    shared.publish(primary::encode_runtime_exception(
+                        ts,
+                        e.line as i32,
+                        0,
+                        &e.message,
+                    ));
+                }
+            }
+            if !prog.secondary {
+                let mut s = shared.lock();
+                if s.program_gen == gen {
+                    s.runtime_state = RUNTIME_STOPPED;
+                    s.program_name = None;
+                }
+                drop(s);
+                shared.publish(primary::encode_key(
+                    ts,
+                    0,
+                    "PROGRAM_XXX_STOPPED",
+                    &prog.name,
+                ));
+            }
+        });
+    if let Err(e) = spawned {
+        tracing::warn!("cannot start a script thread: {e}");
+    }
+}
+
+const STOPPED: &str = "program stopped";
+
+struct SimHost<'a> {
+    shared: &'a Shared,
+    gen: u64,
+    secondary: bool,
+    steps: u32,
+}
+
+impl SimHost<'_> {
+    fn alive(&self) -> Result<(), String> {
+        if !self.secondary && self.shared.lock().program_gen != self.gen {
+            return Err(STOPPED.into());
+        }
+        Ok(())
+    }
+
+    fn wait(&mut self, d: Duration) -> Result<(), String> {
+        let end = Instant::now() + d;
+        self.steps = 0;
+        loop {
+            self.alive()?;
+            let now = Instant::now();
+            if now >= end {
+                return Ok(());
+            }
+            std::thread::sleep((end - now).min(Duration::from_millis(2)));
+        }
+    }
+
+    fn wait_motion(&mut self) -> Result<(), String> {
+        self.steps = 0;
+        loop {
+            self.alive()?;
+            if self.shared.lock().motion.is_none() {
+                return Ok(());
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+}
+
+fn joints(v: &Val) -> Result<[f64; 6], String> {
+    match v {
+        Val::List(l) if l.len() == 6 => {
+            let mut q = [0.0; 6];
+            for (o, x) in q.iter_mut().zip(l) {
+                *o = num(x)?;
+            }
+            Ok(q)
+        }
+        other => Err(format!("expected a list of 6 joint angles, got `{other}`")),
+    }
+}
+
+fn pose(v: &Val) -> Result<[f64; 6], String> {
+    match v {
+        Val::Pose(p) => Ok(*p),
+        other => Err(format!("expected a pose p[...], got `{other}`")),
+    }
+}
+
+fn reg_index(v: Option<&Val>, max: usize) -> Result<usize, String> {
+    let i = num(v.ok_or("missing register index")?)?;
+    if i < 0.0 || i.fract() != 0.0 || i as usize >= max {
+        return Err(format!("register index {i} out of range 0..{}", max - 1));
+    }
+    Ok(i as usize)
+}
+
+impl Host for SimHost<'_> {
+    fn tick(&mut self) -> Result<(), String> {
+        self.alive()?;
+        self.steps += 1;
+        if self.steps > STEP_BUDGET {
+            return Err("Runtime is too much behind: a loop runs without sync() or sleep()".into());
+        }
+        Ok(())
+    }
+
+    fn call(
+        &mut self,
+        name: &str,
+        args: Vec<Val>,
+        named: Vec<(String, Val)>,
+    ) -> Result<Val, String> {
+        let arg = |i: usize, key: &str| {
+            args.get(i)
+                .or_else(|| named.iter().find(|(n, _)| n == key).map(|(_, v)| v))
+        };
+        let num_or =
+            |i: usize, key: &str, d: f64| arg(i, key).map(num).transpose().map(|v| v.unwrap_or(d));
+        let sh = self.shared;
+        match name {
+            "movej" | "movel" => {
+                let target = arg(0, "q").ok_or(format!("{name} needs a target"))?;
+                let (a, v) = if name == "movej" {
+                    (num_or(1, "a", 1.4)?, num_or(2, "v", 1.05)?)
+                } else {
+                    (num_or(1, "a", 1.2)?, num_or(2, "v", 0.25)?)
+                };
+                if !(a > 0.0 && v > 0.0 && a.is_finite() && v.is_finite()) {
+                    return Err(format!("{name}: speed and acceleration must be positive"));
+                }
+                {
+                    let mut s = sh.lock();
+                    s.can_move()?;
+                    let max_v = std::f64::consts::PI;
+                    let m = if name == "movej" {
+                        let goal = match target {
+                            Val::Pose(p) => {
+                                let f = motion::flange_target(&UrPose(*p), &s.tcp);
+                                motion::inverse(&s.dh, &f, &s.q, 300)
+                                    .ok_or("movej: no inverse kinematics solution for the pose")?
+                            }
+                            other => joints(other)?,
+                        };
+                        if goal
+                            .iter()
+                            .any(|g| !g.is_finite() || g.abs() > 2.0 * std::f64::consts::PI + 1e-9)
+                        {
+                            return Err("movej: joint target outside ±2π".into());
+                        }
+                        Motion::joint(s.q, goal, v.min(max_v), a)
+                    } else {
+                        let goal = match target {
+                            Val::Pose(p) => motion::flange_target(&UrPose(*p), &s.tcp),
+                            other => s.dh.forward(&joints(other)?),
+                        };
+                        Motion::linear(s.flange_pose(), goal, v.min(3.0), a)
+                    };
+                    s.motion = Some(m);
+                }
+                self.wait_motion()?;
+                let s = sh.lock();
+                s.can_move()?;
+                Ok(Val::None)
+            }
+            "stopj" | "stopl" => {
+                let a = num_or(0, "a", 2.0)?.max(0.01);
+                sh.lock()
+                    .stop_motion(if name == "stopl" { a * 4.0 } else { a });
+                self.wait_motion()?;
+                Ok(Val::None)
+            }
+            "sleep" => {
+                let t = num(arg(0, "t").ok_or("sleep needs a time")?)?;
+                if !(0.0..=86_400.0).contains(&t) {
+                    return Err(format!("sleep: invalid time {t}"));
+                }
+                self.wait(Duration::from_secs_f64(t))?;
+                Ok(Val::None)
+            }
+            "sync" => {
+                self.wait(if sh.config.model.is_cb3() {
+                    Duration::from_millis(8)
+                } else {
+                    Duration::from_millis(2)
+                })?;
+                Ok(Val::None)
+            }
+            "set_tcp" => {
+                let p = pose(arg(0, "pose").ok_or("set_tcp needs a pose")?)?;
+                if p.iter().any(|x| !x.is_finite()) {
+                    return Err("set_tcp: pose is not finite".into());
+                }
+                sh.lock().tcp = UrPose(p);
+                Ok(Val::None)
+            }
+            "textmsg" => {
+                let text = format!(
+                    "{}{}",
+                    arg(0, "s1").map(|v| v.to_string()).unwrap_or_default(),
+                    arg(1, "s2").map(|v| v.to_string()).unwrap_or_default()
+                );
+                sh.lock().push_log(text.clone());
+                sh.publish(primary::encode_text(sh.timestamp_us(), &text));
+                Ok(Val::None)
+            }
+            "write_output_integer_register"
+            | "write_output_float_register"
+            | "write_output_boolean_register" => {
+                let max = if name.contains("boolean") { 128 } else { 48 };
+                let i = reg_index(args.first(), max)?;
+                let v = args.get(1).ok_or("missing value")?;
+                let mut s = sh.lock();
+                match name {
+                    "write_output_integer_register" => {
+                        let x = num(v)?;
+                        if x.fract() != 0.0 || x < f64::from(i32::MIN) || x > f64::from(i32::MAX) {
+                            return Err(format!("{x} is not a 32-bit integer"));
+                        }
+                        s.out_int[i] = x as i32;
+                    }
+                    "write_output_float_register" => s.out_double[i] = num(v)?,
+                    _ => {
+                        if num(v)? != 0.0 {
+                            s.out_bits |= 1 << i;
+                        } else {
+                            s.out_bits &= !(1 << i);
+                        }
+                    }
+                }
+                Ok(Val::None)
+            }
+            "read_input_integer_register" | "read_output_integer_register" => {
+                let i = reg_index(args.first(), 48)?;
+                let s = sh.lock();
+                Ok(Val::Num(f64::from(if name.contains("input") {
+                    s.in_int[i]
+                } else {
+                    s.out_int[i]
+                })))
+            }
+            "read_input_float_register" | "read_output_float_register" => {
+                let i = reg_index(args.first(), 48)?;
+                let s = sh.lock();
+                Ok(Val::Num(if name.contains("input") {
+                    s.in_double[i]
+                } else {
+                    s.out_double[i]
+                }))
+            }
+            "read_input_boolean_register" | "read_output_boolean_register" => {
+                let i = reg_index(args.first(), 128)?;
+                let s = sh.lock();
+                let bits = if name.contains("input") {
+                    s.in_bits
+                } else {
+                    s.out_bits
+                };
+                Ok(Val::Bool(bits >> i & 1 == 1))
+            }
+            "get_actual_joint_positions" => Ok(Val::List(
+                sh.lock().q.iter().map(|x| Val::Num(*x)).collect(),
+            )),
+            "get_target_joint_positions" => Ok(Val::List(
+                sh.lock().target_q.iter().map(|x| Val::Num(*x)).collect(),
+            )),
+            "get_actual_tcp_pose" | "get_target_tcp_pose" => Ok(Val::Pose(sh.lock().tcp_pose().0)),
+            "get_tcp_offset" => Ok(Val::Pose(sh.lock().tcp.0)),
+            "get_forward_kin" => {
+                let s = sh.lock();
+                let q = match arg(0, "q") {
+                    Some(v) => joints(v)?,
+                    None => s.q,
+                };
+                let tcp = match arg(1, "tcp") {
+                    Some(v) => UrPose(pose(v)?),
+                    None => s.tcp,
+                };
+                Ok(Val::Pose(
+                    UrPose::from(s.dh.forward(&q) * Isometry3::from(tcp)).0,
+                ))
+            }
+            "pose_trans" => {
+                let a = pose(args.first().ok_or("missing pose")?)?;
+                let b = pose(args.get(1).ok_or("missing pose")?)?;
+                Ok(Val::Pose(
+                    UrPose::from(Isometry3::from(UrPose(a)) * Isometry3::from(UrPose(b))).0,
+                ))
+            }
+            "pose_inv" => {
+                let a = pose(args.first().ok_or("missing pose")?)?;
+                Ok(Val::Pose(
+                    UrPose::from(Isometry3::from(UrPose(a)).inverse()).0,
+                ))
+            }
+            "sin" | "cos" | "sqrt" | "floor" => {
+                let x = num(args.first().ok_or("missing argument")?)?;
+                Ok(Val::Num(match name {
+                    "sin" => x.sin(),
+                    "cos" => x.cos(),
+                    "floor" => x.floor(),
+                    _ if x < 0.0 => return Err("sqrt of a negative number".into()),
+                    _ => x.sqrt(),
+                }))
+            }
+            "norm" => match args.first() {
+                Some(Val::List(l)) => Ok(Val::Num(
+                    l.iter()
+                        .map(num)
+                        .collect::<Result<Vec<_>, _>>()?
+                        .iter()
+                        .map(|x| x * x)
+                        .sum::<f64>()
+                        .sqrt(),
+                )),
+                Some(Val::Pose(p)) => {
+                    Ok(Val::Num(p[..3].iter().map(|x| x * x).sum::<f64>().sqrt()))
+                }
+                Some(v) => Ok(Val::Num(num(v)?.abs())),
+                None => Err("missing argument".into()),
+            },
+            "to_str" => Ok(Val::Str(
+                args.first().map(|v| v.to_string()).unwrap_or_default(),
+            )),
+            other => Err(format!("name '{other}' is not defined")),
+        }
+    }
+}

@@ -1,0 +1,394 @@
+//! The simulated controller's state and how RTDE fields map onto it.
+
+use std::collections::{HashMap, VecDeque};
+use std::time::{Duration, Instant};
+
+use handeye_hal::ur_dh::DhParams;
+use nalgebra::Isometry3;
+
+use super::motion::Motion;
+use super::SimConfig;
+use crate::rtde::{FieldType, Value};
+use crate::UrPose;
+
+pub(crate) const RUNTIME_STOPPED: u32 = 1;
+pub(crate) const RUNTIME_PLAYING: u32 = 2;
+pub(crate) const RUNTIME_PAUSED: u32 = 4;
+const LOG_LINES: usize = 32;
+
+/// Robot mode codes (RTDE `robot_mode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[allow(missing_docs)]
+pub enum RobotModeCode {
+    PowerOff = 3,
+    PowerOn = 4,
+    Idle = 5,
+    Running = 7,
+}
+
+impl RobotModeCode {
+    /// Dashboard name.
+    pub fn name(self) -> &'static str {
+        match self {
+            RobotModeCode::PowerOff => "POWER_OFF",
+            RobotModeCode::PowerOn => "POWER_ON",
+            RobotModeCode::Idle => "IDLE",
+            RobotModeCode::Running => "RUNNING",
+        }
+    }
+}
+
+/// Safety mode codes (RTDE `safety_mode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[allow(missing_docs)]
+pub enum SafetyModeCode {
+    Normal = 1,
+    ProtectiveStop = 3,
+    RobotEmergencyStop = 7,
+}
+
+impl SafetyModeCode {
+    /// Dashboard name.
+    pub fn name(self) -> &'static str {
+        match self {
+            SafetyModeCode::Normal => "NORMAL",
+            SafetyModeCode::ProtectiveStop => "PROTECTIVE_STOP",
+            SafetyModeCode::RobotEmergencyStop => "ROBOT_EMERGENCY_STOP",
+        }
+    }
+}
+
+/// The controller.
+#[derive(Debug)]
+pub(crate) struct State {
+    pub(crate) boot: Instant,
+    pub(crate) dh: DhParams,
+    pub(crate) robot_mode: RobotModeCode,
+    pub(crate) safety_mode: SafetyModeCode,
+    pub(crate) pstop_since: Option<Instant>,
+    pub(crate) remote_control: bool,
+    pub(crate) q: [f64; 6],
+    pub(crate) qd: [f64; 6],
+    pub(crate) target_q: [f64; 6],
+    pub(crate) motion: Option<Motion>,
+    pub(crate) pstop_at_fraction: Option<f64>,
+    pub(crate) tcp: UrPose,
+    pub(crate) runtime_state: u32,
+    /// Bumped whenever the running program must stop; script threads compare their copy.
+    pub(crate) program_gen: u64,
+    pub(crate) program_name: Option<String>,
+    pub(crate) loaded_program: Option<String>,
+    pub(crate) dashboard_playing: u32,
+    pub(crate) in_int: [i32; 48],
+    pub(crate) in_double: [f64; 48],
+    pub(crate) in_bits: u128,
+    pub(crate) out_int: [i32; 48],
+    pub(crate) out_double: [f64; 48],
+    pub(crate) out_bits: u128,
+    pub(crate) speed_slider: f64,
+    pub(crate) std_do: u8,
+    pub(crate) conf_do: u8,
+    pub(crate) tool_do: u8,
+    pub(crate) analog_out: [f64; 2],
+    pub(crate) latency: Duration,
+    /// RTDE input ownership: field → connection id.
+    pub(crate) owners: HashMap<String, u64>,
+    pub(crate) next_conn: u64,
+    /// Last few robot messages (bounded).
+    pub(crate) log: VecDeque<String>,
+    pub(crate) operational_mode: Option<&'static str>,
+}
+
+impl State {
+    pub(crate) fn new(c: &SimConfig) -> Self {
+        let mut dh = c.model.dh();
+        if let Some(d) = &c.dh_delta {
+            for i in 0..6 {
+                dh.a[i] += d.a[i];
+                dh.d[i] += d.d[i];
+                dh.alpha[i] += d.alpha[i];
+                dh.theta[i] += d.theta[i];
+            }
+        }
+        Self {
+            // Controllers report seconds since boot; clients (URCL) expect > 40 s.
+            boot: Instant::now()
+                .checked_sub(Duration::from_secs(60))
+                .unwrap_or_else(Instant::now),
+            dh,
+            robot_mode: if c.start_running {
+                RobotModeCode::Running
+            } else {
+                RobotModeCode::PowerOff
+            },
+            safety_mode: SafetyModeCode::Normal,
+            pstop_since: None,
+            remote_control: c.remote_control || c.model.is_cb3(),
+            q: c.initial_q,
+            qd: [0.0; 6],
+            target_q: c.initial_q,
+            motion: None,
+            pstop_at_fraction: c.protective_stop_during_move,
+            tcp: UrPose([0.0; 6]),
+            runtime_state: RUNTIME_STOPPED,
+            program_gen: 0,
+            program_name: None,
+            loaded_program: None,
+            dashboard_playing: RUNTIME_STOPPED,
+            in_int: [0; 48],
+            in_double: [0.0; 48],
+            in_bits: 0,
+            out_int: [0; 48],
+            out_double: [0.0; 48],
+            out_bits: 0,
+            speed_slider: 1.0,
+            std_do: 0,
+            conf_do: 0,
+            tool_do: 0,
+            analog_out: [0.0; 2],
+            latency: c.latency,
+            owners: HashMap::new(),
+            next_conn: 1,
+            log: VecDeque::new(),
+            operational_mode: None,
+        }
+    }
+
+    pub(crate) fn timestamp(&self) -> f64 {
+        self.boot.elapsed().as_secs_f64()
+    }
+
+    pub(crate) fn push_log(&mut self, line: String) {
+        if self.log.len() == LOG_LINES {
+            self.log.pop_front();
+        }
+        self.log.push_back(line);
+    }
+
+    pub(crate) fn flange_pose(&self) -> Isometry3<f64> {
+        self.dh.forward(&self.q)
+    }
+
+    pub(crate) fn tcp_pose(&self) -> UrPose {
+        UrPose::from(self.flange_pose() * Isometry3::from(self.tcp))
+    }
+
+    pub(crate) fn can_move(&self) -> Result<(), String> {
+        if self.safety_mode != SafetyModeCode::Normal {
+            return Err(format!("safety mode is {}", self.safety_mode.name()));
+        }
+        if self.robot_mode != RobotModeCode::Running {
+            return Err(format!("robot mode is {}", self.robot_mode.name()));
+        }
+        Ok(())
+    }
+
+    /// Stop the running program (and decelerate the arm).
+    pub(crate) fn stop_program(&mut self, why: Option<&str>) {
+        self.program_gen += 1;
+        if self.runtime_state != RUNTIME_STOPPED {
+            if let Some(w) = why {
+                self.push_log(format!("program stopped: {w}"));
+            }
+        }
+        self.runtime_state = RUNTIME_STOPPED;
+        self.dashboard_playing = RUNTIME_STOPPED;
+        self.program_name = None;
+        self.stop_motion(10.0);
+    }
+
+    pub(crate) fn stop_motion(&mut self, decel: f64) {
+        if self.motion.is_some() || self.qd.iter().any(|v| *v != 0.0) {
+            self.motion = Some(Motion::stop(self.qd, decel));
+        }
+    }
+
+    pub(crate) fn protective_stop(&mut self) {
+        self.safety_mode = SafetyModeCode::ProtectiveStop;
+        self.pstop_since = Some(Instant::now());
+        self.push_log("protective stop".into());
+        self.stop_program(Some("protective stop"));
+        self.motion = Some(Motion::stop(self.qd, 40.0));
+    }
+
+    pub(crate) fn emergency_stop(&mut self, pressed: bool) {
+        if pressed {
+            self.safety_mode = SafetyModeCode::RobotEmergencyStop;
+            self.stop_program(Some("emergency stop"));
+            self.motion = None;
+            self.qd = [0.0; 6];
+            self.robot_mode = RobotModeCode::PowerOff;
+        } else if self.safety_mode == SafetyModeCode::RobotEmergencyStop {
+            self.safety_mode = SafetyModeCode::Normal;
+        }
+    }
+
+    fn robot_status_bits(&self) -> u32 {
+        u32::from(self.robot_mode != RobotModeCode::PowerOff)
+            | (u32::from(self.runtime_state == RUNTIME_PLAYING) << 1)
+    }
+
+    fn safety_status_bits(&self) -> u32 {
+        match self.safety_mode {
+            SafetyModeCode::Normal => 1,
+            SafetyModeCode::ProtectiveStop => 1 << 2,
+            SafetyModeCode::RobotEmergencyStop => (1 << 6) | (1 << 7) | (1 << 10),
+        }
+    }
+
+    /// The value of an output field (any known field; unmodelled ones read zero).
+    pub(crate) fn output(&self, name: &str, t: FieldType) -> Value {
+        if let Some(v) = self.register_value(name) {
+            return v;
+        }
+        let flange = self.flange_pose();
+        match name {
+            "timestamp" => Value::Double(self.timestamp()),
+            "actual_q" => Value::Vector6d(self.q),
+            "target_q" => Value::Vector6d(self.target_q),
+            "actual_qd" | "target_qd" => Value::Vector6d(self.qd),
+            "actual_TCP_pose" | "target_TCP_pose" => Value::Vector6d(self.tcp_pose().0),
+            "tcp_offset" => Value::Vector6d(self.tcp.0),
+            "robot_mode" => Value::Int32(self.robot_mode as i32),
+            "joint_mode" => Value::Vector6Int32(
+                [if self.robot_mode == RobotModeCode::Running {
+                    253
+                } else {
+                    236
+                }; 6],
+            ),
+            "safety_mode" | "safety_status" => Value::Int32(self.safety_mode as i32),
+            "safety_status_bits" => Value::Uint32(self.safety_status_bits()),
+            "robot_status_bits" => Value::Uint32(self.robot_status_bits()),
+            "runtime_state" => Value::Uint32(self.runtime_state),
+            "speed_scaling" => Value::Double(1.0),
+            "target_speed_fraction" => Value::Double(self.speed_slider),
+            "actual_digital_output_bits" => Value::Uint64(
+                u64::from(self.std_do)
+                    | (u64::from(self.conf_do) << 8)
+                    | (u64::from(self.tool_do) << 16),
+            ),
+            "standard_analog_output0" => Value::Double(self.analog_out[0]),
+            "standard_analog_output1" => Value::Double(self.analog_out[1]),
+            "actual_main_voltage" | "actual_robot_voltage" => Value::Double(48.0),
+            "joint_temperatures" => Value::Vector6d([30.0; 6]),
+            "actual_joint_voltage" => Value::Vector6d([48.0; 6]),
+            "elbow_position" => {
+                let e = self.dh.link_poses(&self.q)[2].translation.vector;
+                Value::Vector3d([e.x, e.y, e.z])
+            }
+            "actual_tool_accelerometer" => {
+                let g = flange.rotation.inverse() * nalgebra::Vector3::new(0.0, 0.0, -9.81);
+                Value::Vector3d([g.x, g.y, g.z])
+            }
+            "control_step" => Value::Uint64((self.timestamp() * 500.0) as u64),
+            _ => Value::zero(t),
+        }
+    }
+
+    fn register_value(&self, name: &str) -> Option<Value> {
+        let idx = |prefix: &str| {
+            name.strip_prefix(prefix)
+                .and_then(|s| s.parse::<usize>().ok())
+        };
+        let bits = |b: u128, lo: u32| Value::Uint32((b >> lo) as u32);
+        Some(match name {
+            "input_bit_registers0_to_31" => bits(self.in_bits, 0),
+            "input_bit_registers32_to_63" => bits(self.in_bits, 32),
+            "output_bit_registers0_to_31" => bits(self.out_bits, 0),
+            "output_bit_registers32_to_63" => bits(self.out_bits, 32),
+            _ => {
+                if let Some(i) = idx("input_int_register_") {
+                    Value::Int32(*self.in_int.get(i)?)
+                } else if let Some(i) = idx("input_double_register_") {
+                    Value::Double(*self.in_double.get(i)?)
+                } else if let Some(i) = idx("output_int_register_") {
+                    Value::Int32(*self.out_int.get(i)?)
+                } else if let Some(i) = idx("output_double_register_") {
+                    Value::Double(*self.out_double.get(i)?)
+                } else if let Some(i) = idx("input_bit_register_") {
+                    Value::Bool(i < 128 && self.in_bits >> i & 1 == 1)
+                } else if let Some(i) = idx("output_bit_register_") {
+                    Value::Bool(i < 128 && self.out_bits >> i & 1 == 1)
+                } else {
+                    return None;
+                }
+            }
+        })
+    }
+
+    /// Apply one input recipe's values (masks applied like the controller does).
+    pub(crate) fn apply_inputs(&mut self, names: &[String], values: &[Value]) {
+        let get = |n: &str| names.iter().position(|x| x == n).map(|i| values[i]);
+        let u8_of = |v: Option<Value>| match v {
+            Some(Value::Uint8(b)) => Some(b),
+            _ => None,
+        };
+        for (name, v) in names.iter().zip(values) {
+            let idx = |prefix: &str| {
+                name.strip_prefix(prefix)
+                    .and_then(|s| s.parse::<usize>().ok())
+            };
+            match (name.as_str(), *v) {
+                ("input_bit_registers0_to_31", Value::Uint32(b)) => {
+                    self.in_bits = (self.in_bits & !0xffff_ffff) | u128::from(b);
+                }
+                ("input_bit_registers32_to_63", Value::Uint32(b)) => {
+                    self.in_bits =
+                        (self.in_bits & !(0xffff_ffffu128 << 32)) | (u128::from(b) << 32);
+                }
+                ("speed_slider_fraction", Value::Double(f))
+                    if matches!(get("speed_slider_mask"), Some(Value::Uint32(1)))
+                        && (0.0..=1.0).contains(&f) =>
+                {
+                    self.speed_slider = f;
+                }
+                ("standard_digital_output", Value::Uint8(b)) => {
+                    let m = u8_of(get("standard_digital_output_mask")).unwrap_or(0);
+                    self.std_do = (self.std_do & !m) | (b & m);
+                }
+                ("configurable_digital_output", Value::Uint8(b)) => {
+                    let m = u8_of(get("configurable_digital_output_mask")).unwrap_or(0);
+                    self.conf_do = (self.conf_do & !m) | (b & m);
+                }
+                ("tool_digital_output", Value::Uint8(b)) => {
+                    let m = u8_of(get("tool_digital_output_mask")).unwrap_or(0);
+                    self.tool_do = (self.tool_do & !m) | (b & m);
+                }
+                ("standard_analog_output_0", Value::Double(x))
+                    if u8_of(get("standard_analog_output_mask")).unwrap_or(0) & 1 != 0 =>
+                {
+                    self.analog_out[0] = x;
+                }
+                ("standard_analog_output_1", Value::Double(x))
+                    if u8_of(get("standard_analog_output_mask")).unwrap_or(0) & 2 != 0 =>
+                {
+                    self.analog_out[1] = x;
+                }
+                (_, Value::Int32(x)) => {
+                    if let Some(r) = idx("input_int_register_").and_then(|i| self.in_int.get_mut(i))
+                    {
+                        *r = x;
+                    }
+                }
+                (_, Value::Double(x)) => {
+                    if let Some(r) =
+                        idx("input_double_register_").and_then(|i| self.in_double.get_mut(i))
+                    {
+                        *r = x;
+                    }
+                }
+                (_, Value::Bool(b)) => {
+                    if let Some(i) = idx("input_bit_register_").filter(|i| *i < 128) {
+                        if b {
+                            self.in_bits |= 1 << i;
+                        } else {
+                            self.in_bits &= !(1 << i);
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+}

@@ -1,0 +1,554 @@
+//! Our driver (`UrRobot`, `RtdeClient`, `DashboardClient`, `ScriptClient`) against our
+//! simulator on ephemeral ports, including every fault the simulator can inject.
+
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::time::Duration;
+
+use handeye_hal::ur_dh::UrModel;
+use handeye_hal::{HalError, MotionLimits, Robot, RobotMode, SafetyMode};
+use handeye_ur::client::{RtdeClient, RtdeConfig, ScriptClient};
+use handeye_ur::dashboard::DashboardClient;
+use handeye_ur::rtde::Protocol;
+use handeye_ur::sim::{SafetyModeCode, SimConfig, SimHandle, Simulator};
+use handeye_ur::{UrConfig, UrError, UrPose, UrRobot};
+use nalgebra::Isometry3;
+
+const LOCAL: IpAddr = IpAddr::V4(Ipv4Addr::LOCALHOST);
+
+fn sim_config() -> SimConfig {
+    let mut c = SimConfig::new(UrModel::Ur5e, LOCAL).ephemeral();
+    c.start_running = true;
+    c.unlock_delay = Duration::ZERO;
+    c
+}
+
+async fn start(c: SimConfig) -> (SimHandle, UrRobot) {
+    let sim = Simulator::start(c).await.expect("sim starts");
+    let mut cfg = UrConfig::new(LOCAL);
+    cfg.ports = sim.ports();
+    cfg.max_joint_speed_rad_s = 2.0;
+    cfg.max_joint_accel_rad_s2 = 8.0;
+    cfg.max_backoff = Duration::from_millis(200);
+    let robot = tokio::time::timeout(Duration::from_secs(10), UrRobot::connect(cfg))
+        .await
+        .expect("no hang")
+        .expect("connects");
+    (sim, robot)
+}
+
+fn limits(v: f64, timeout_s: u64) -> MotionLimits {
+    MotionLimits {
+        max_joint_speed_rad_s: v,
+        max_joint_accel_rad_s2: 8.0,
+        timeout: Duration::from_secs(timeout_s),
+    }
+}
+
+fn target_from(q0: [f64; 6], delta: f64) -> Vec<f64> {
+    q0.iter()
+        .enumerate()
+        .map(|(i, q)| if i == 0 || i == 5 { q + delta } else { *q })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn status_move_and_flange_pose() {
+    let (sim, robot) = start(sim_config()).await;
+    let st = robot.status().await.expect("status");
+    assert_eq!(st.robot_mode, RobotMode::Running);
+    assert_eq!(st.safety_mode, SafetyMode::Normal);
+    assert!(st.remote_control && !st.program_running);
+    let target = target_from(sim.joint_positions(), 0.3);
+    robot
+        .move_joints(&target, limits(2.0, 10))
+        .await
+        .expect("move");
+    let q = sim.joint_positions();
+    for (a, b) in q.iter().zip(&target) {
+        assert!((a - b).abs() < 1e-3, "{q:?} vs {target:?}");
+    }
+    let got = robot.joint_positions().await.expect("q");
+    assert!(got.iter().zip(&target).all(|(a, b)| (a - b).abs() < 1e-3));
+    let q6: [f64; 6] = got.try_into().expect("6");
+    let expect = sim.dh().forward(&q6);
+    let flange = robot.flange_pose().await.expect("flange");
+    assert!((flange.translation.vector - expect.translation.vector).norm() < 1e-6);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn speed_cap_limits_the_joint_speed_seen_over_rtde() {
+    let (sim, robot) = start(sim_config()).await;
+    let target = target_from(sim.joint_positions(), 0.4);
+    let r2 = robot.clone();
+    let watcher = tokio::spawn(async move {
+        let mut max: f64 = 0.0;
+        let mut last = std::time::Instant::now();
+        for _ in 0..2000 {
+            let Ok(s) = r2.rtde().next_sample(last, Duration::from_secs(1)).await else {
+                break;
+            };
+            last = s.received;
+            let qd = s.vec6("actual_qd").expect("qd");
+            max = qd.iter().fold(max, |m, v| m.max(v.abs()));
+            if s.f64("runtime_state") == Some(1.0) && max > 0.0 {
+                break;
+            }
+        }
+        max
+    });
+    robot
+        .move_joints(&target, limits(0.5, 20))
+        .await
+        .expect("move");
+    let max = watcher.await.expect("watcher");
+    assert!(max > 0.1 && max <= 0.5 + 1e-6, "max joint speed {max}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn set_tcp_is_confirmed_and_tcp_pose_follows() {
+    let (sim, robot) = start(sim_config()).await;
+    let flange_from_tcp = Isometry3::from(UrPose([0.01, -0.02, 0.15, 0.1, 0.2, -0.3]));
+    robot.set_tcp(&flange_from_tcp).await.expect("set_tcp");
+    assert!(sim
+        .tcp_offset()
+        .approx_eq(&UrPose::from(flange_from_tcp), 1e-9, 1e-9));
+    let flange = robot.flange_pose().await.expect("flange");
+    let tcp = robot.tcp_pose().await.expect("tcp");
+    let expect = flange * flange_from_tcp;
+    assert!((tcp.translation.vector - expect.translation.vector).norm() < 1e-6);
+    assert!(tcp.rotation.angle_to(&expect.rotation) < 1e-6);
+    assert!(robot
+        .set_tcp(&Isometry3::from(UrPose([
+            f64::NAN,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0
+        ])))
+        .await
+        .is_err());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn registers_round_trip_and_fieldbus_range_is_left_alone() {
+    let (sim, robot) = start(sim_config().with_fieldbus_lower_range()).await;
+    robot.write_double_register(24, 0.125).await.expect("write");
+    assert_eq!(sim.input_double_register(24), 0.125);
+    assert_eq!(robot.read_double_register(24).await.expect("read"), 0.125);
+    sim.set_output_double_register(30, -2.5);
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    assert_eq!(
+        robot.read_output_double_register(30).await.expect("read"),
+        -2.5
+    );
+    assert!(matches!(
+        robot.write_double_register(3, 1.0).await,
+        Err(HalError::InvalidArgument(_))
+    ));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn register_held_by_fieldbus_is_a_clear_error() {
+    let mut c = sim_config();
+    c.fieldbus_held.push("input_double_register_30".into());
+    let sim = Simulator::start(c).await.expect("sim");
+    let mut cfg = UrConfig::new(LOCAL);
+    cfg.ports = sim.ports();
+    let err = UrRobot::connect(cfg).await.expect_err("IN_USE");
+    let msg = err.to_string();
+    assert!(
+        matches!(err, UrError::FieldInUse { ref name, .. } if name == "input_double_register_30"),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("IN_USE") && msg.contains("input_double_register_30"),
+        "{msg}"
+    );
+    let hal: HalError = err.into();
+    assert!(matches!(hal, HalError::RegisterInUse { .. }));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unknown_output_field_is_not_found() {
+    let sim = Simulator::start(sim_config()).await.expect("sim");
+    let cfg = RtdeConfig {
+        addr: SocketAddr::new(LOCAL, sim.ports().rtde),
+        frequency: Some(125.0),
+        outputs: vec!["timestamp".into(), "actual_qq".into()],
+        inputs: vec![],
+        timeout: Duration::from_secs(2),
+        max_backoff: Duration::from_millis(200),
+    };
+    let err = RtdeClient::connect(cfg).await.expect_err("NOT_FOUND");
+    assert!(
+        matches!(err, UrError::FieldNotFound { ref name } if name == "actual_qq"),
+        "{err}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn protective_stop_during_move_fails_the_move() {
+    let (sim, robot) = start(sim_config()).await;
+    sim.protective_stop_during_next_move(0.3);
+    let target = target_from(sim.joint_positions(), 0.5);
+    let err = robot
+        .move_joints(&target, limits(2.0, 10))
+        .await
+        .expect_err("pstop");
+    assert!(matches!(err, HalError::ProtectiveStop { .. }), "{err}");
+    assert_eq!(sim.safety_mode(), SafetyModeCode::ProtectiveStop);
+    assert!(!sim.program_running());
+    // A new move is refused until an operator unlocks.
+    let err = robot
+        .move_joints(&target, limits(2.0, 10))
+        .await
+        .expect_err("still stopped");
+    assert!(matches!(err, HalError::ProtectiveStop { .. }), "{err}");
+    robot
+        .dashboard(|d| Box::pin(d.unlock_protective_stop()))
+        .await
+        .expect("unlock");
+    robot
+        .move_joints(&target, limits(2.0, 10))
+        .await
+        .expect("moves after unlock");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn emergency_stop_during_move_fails_the_move() {
+    let (sim, robot) = start(sim_config()).await;
+    let target = target_from(sim.joint_positions(), 1.0);
+    let sim = std::sync::Arc::new(sim);
+    let s2 = sim.clone();
+    tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        s2.emergency_stop(true);
+    });
+    let err = robot
+        .move_joints(&target, limits(0.5, 10))
+        .await
+        .expect_err("estop");
+    assert!(matches!(err, HalError::EmergencyStop { .. }), "{err}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn remote_control_off_refuses_and_aborts_moves() {
+    let (sim, robot) = start(sim_config()).await;
+    let target = target_from(sim.joint_positions(), 1.0);
+    let sim = std::sync::Arc::new(sim);
+    let s2 = sim.clone();
+    tokio::spawn(async move {
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        s2.set_remote_control(false);
+    });
+    let err = robot
+        .move_joints(&target, limits(0.5, 10))
+        .await
+        .expect_err("local");
+    assert!(matches!(err, HalError::NotInRemoteControl), "{err}");
+    let err = robot
+        .move_joints(&target, limits(0.5, 10))
+        .await
+        .expect_err("local");
+    assert!(matches!(err, HalError::NotInRemoteControl), "{err}");
+    assert!(!robot.status().await.expect("status").remote_control);
+    // Scripts are refused with C210, dashboard commands that change state are refused.
+    let err = robot
+        .run_program("x", "  textmsg(\"hi\")\n")
+        .await
+        .expect_err("C210");
+    assert!(err.to_string().contains("C210"), "{err}");
+    let err = robot
+        .dashboard(|d| Box::pin(d.power_off()))
+        .await
+        .expect_err("refused");
+    assert!(matches!(err, UrError::Refused { .. }), "{err}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn timeout_and_cancel_stop_the_arm() {
+    let (sim, robot) = start(sim_config()).await;
+    let target = target_from(sim.joint_positions(), 1.0);
+    let mut lim = limits(0.3, 10);
+    lim.timeout = Duration::from_millis(300);
+    let err = robot.move_joints(&target, lim).await.expect_err("timeout");
+    assert!(matches!(err, HalError::Timeout { .. }), "{err}");
+    wait_until(|| !sim.program_running()).await;
+    let err = robot
+        .move_joints_until(
+            &target,
+            limits(0.3, 10),
+            tokio::time::sleep(Duration::from_millis(300)),
+        )
+        .await
+        .expect_err("cancel");
+    assert!(matches!(err, HalError::Cancelled { .. }), "{err}");
+    wait_until(|| !sim.program_running()).await;
+    let q = sim.joint_positions();
+    assert!(
+        (q[0] - target[0]).abs() > 0.1,
+        "the arm stopped short of the target"
+    );
+    // Dropping a move future also stops the arm.
+    let fut = robot.move_joints(&target, limits(0.3, 10));
+    let _ = tokio::time::timeout(Duration::from_millis(300), fut).await;
+    wait_until(|| !sim.program_running()).await;
+}
+
+async fn wait_until(mut f: impl FnMut() -> bool) {
+    for _ in 0..500 {
+        if f() {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    panic!("condition not reached within 5 s");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn dropped_connections_reconnect_with_recipes() {
+    let (sim, robot) = start(sim_config()).await;
+    sim.drop_connections();
+    for _ in 0..200 {
+        if robot.rtde().reconnects() > 0 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(robot.rtde().reconnects() >= 1);
+    // Input recipes were set up again: writes work, and the dashboard reconnects too.
+    robot
+        .write_double_register(25, 7.0)
+        .await
+        .expect("write after reconnect");
+    assert_eq!(sim.input_double_register(25), 7.0);
+    assert!(robot.status().await.expect("status").remote_control);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn latency_beyond_the_timeout_is_a_timeout() {
+    let (sim, robot) = start(sim_config()).await;
+    sim.set_latency(Duration::from_secs(5));
+    let err = tokio::time::timeout(Duration::from_secs(10), robot.status())
+        .await
+        .expect("no hang")
+        .expect_err("timeout");
+    assert!(matches!(err, HalError::Timeout { .. }), "{err}");
+    sim.set_latency(Duration::from_millis(50));
+    let mut d = DashboardClient::connect(
+        SocketAddr::new(LOCAL, sim.ports().dashboard),
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("dash");
+    assert_eq!(d.robot_mode().await.expect("mode"), RobotMode::Running);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rtde_falls_back_to_protocol_v1() {
+    let mut c = sim_config();
+    c.rtde_v2 = false;
+    let (_sim, robot) = start(c).await;
+    assert_eq!(robot.rtde().protocol(), Protocol::V1);
+    let err = robot
+        .write_double_register(26, 4.5)
+        .await
+        .expect_err("v1 has no recipe ids");
+    assert!(err.to_string().contains("protocol 1"), "{err}");
+    assert_eq!(robot.joint_positions().await.expect("q").len(), 6);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn unsupported_script_is_reported_not_ignored() {
+    let sim = Simulator::start(sim_config()).await.expect("sim");
+    let script = ScriptClient::new(
+        SocketAddr::new(LOCAL, sim.ports().primary),
+        Duration::from_secs(2),
+    );
+    let err = script
+        .send(
+            "def p():\n  force_mode(1)\nend\n",
+            Some("p"),
+            Duration::ZERO,
+        )
+        .await
+        .expect_err("unsupported");
+    assert!(err.to_string().contains("force_mode"), "{err}");
+    let err = script
+        .send("def p():\n  x = [1][5]\nend\n", Some("p"), Duration::ZERO)
+        .await;
+    // Started, then a runtime exception: either the start or the error is seen first.
+    if let Err(e) = err {
+        assert!(e.to_string().contains("index"), "{e}");
+    }
+    let (maj, _, _, _) = script.version().await.expect("version");
+    assert_eq!(maj, 5);
+    assert!(sim.recent_log().iter().any(|l| l.contains("force_mode")));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_bytes_close_the_connection_and_the_sim_keeps_serving() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let sim = Simulator::start(sim_config()).await.expect("sim");
+    let addr = SocketAddr::new(LOCAL, sim.ports().rtde);
+    for garbage in [
+        &[0u8, 1, b'V'][..],
+        &[0, 5, b'Z', 0, 0],
+        &[0, 4, b'V', 2],
+        &[0xff, 0xff, b'O', 1, 2],
+    ] {
+        let mut s = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        s.write_all(garbage).await.expect("write");
+        let _ = s.shutdown().await;
+        let mut buf = Vec::new();
+        let r = tokio::time::timeout(Duration::from_secs(3), s.read_to_end(&mut buf)).await;
+        assert!(r.is_ok(), "sim closed the connection for {garbage:?}");
+    }
+    // Client side: a server that answers garbage gives a clear error, not a hang.
+    let fake = tokio::net::TcpListener::bind((LOCAL, 0))
+        .await
+        .expect("bind");
+    let fake_addr = fake.local_addr().expect("addr");
+    tokio::spawn(async move {
+        if let Ok((mut s, _)) = fake.accept().await {
+            let _ = s.write_all(&[0, 2, b'V', 0, 0, 0]).await;
+            tokio::time::sleep(Duration::from_secs(5)).await;
+        }
+    });
+    let cfg = RtdeConfig {
+        addr: fake_addr,
+        frequency: None,
+        outputs: vec!["timestamp".into()],
+        inputs: vec![],
+        timeout: Duration::from_secs(2),
+        max_backoff: Duration::from_millis(100),
+    };
+    let err = tokio::time::timeout(Duration::from_secs(5), RtdeClient::connect(cfg))
+        .await
+        .expect("no hang")
+        .expect_err("malformed");
+    assert!(matches!(err, UrError::Malformed { .. }), "{err}");
+    // And the simulator still serves a well-behaved client.
+    let mut d = DashboardClient::connect(
+        SocketAddr::new(LOCAL, sim.ports().dashboard),
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("dash");
+    assert_eq!(
+        d.request("robotmode").await.expect("reply"),
+        "Robotmode: RUNNING"
+    );
+    assert_eq!(
+        d.request("bogus").await.expect("reply"),
+        "could not understand: 'bogus'"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn dashboard_state_machine() {
+    let mut c = sim_config();
+    c.start_running = false;
+    let sim = Simulator::start(c).await.expect("sim");
+    let mut d = DashboardClient::connect(
+        SocketAddr::new(LOCAL, sim.ports().dashboard),
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("dash");
+    assert_eq!(d.robot_mode().await.expect("m"), RobotMode::PowerOff);
+    assert!(d.play().await.is_err(), "nothing loaded");
+    d.power_on().await.expect("on");
+    assert_eq!(d.robot_mode().await.expect("m"), RobotMode::Idle);
+    d.brake_release().await.expect("release");
+    assert_eq!(d.robot_mode().await.expect("m"), RobotMode::Running);
+    d.load("cal.urp").await.expect("load");
+    assert_eq!(
+        d.request("programState").await.expect("r"),
+        "STOPPED cal.urp"
+    );
+    d.play().await.expect("play");
+    assert!(d.program_running().await.expect("r"));
+    d.pause().await.expect("pause");
+    assert_eq!(
+        d.request("programState").await.expect("r"),
+        "PAUSED cal.urp"
+    );
+    d.stop().await.expect("stop");
+    assert!(!d.program_running().await.expect("r"));
+    sim.protective_stop();
+    assert_eq!(
+        d.safety_status().await.expect("s"),
+        SafetyMode::ProtectiveStop
+    );
+    d.unlock_protective_stop().await.expect("unlock");
+    assert_eq!(d.safety_status().await.expect("s"), SafetyMode::Normal);
+    assert_eq!(d.polyscope_version().await.expect("v")[0], 5);
+    d.quit().await.expect("quit");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cb3_refuses_500_hz_and_has_no_remote_mode() {
+    let mut c = sim_config();
+    c.model = UrModel::Ur5;
+    let sim = Simulator::start(c).await.expect("sim");
+    let cfg = |hz| RtdeConfig {
+        addr: SocketAddr::new(LOCAL, sim.ports().rtde),
+        frequency: hz,
+        outputs: vec!["timestamp".into(), "actual_q".into()],
+        inputs: vec![],
+        timeout: Duration::from_secs(2),
+        max_backoff: Duration::from_millis(100),
+    };
+    let err = RtdeClient::connect(cfg(Some(500.0)))
+        .await
+        .expect_err("500 Hz on CB3");
+    assert!(matches!(err, UrError::InvalidArgument(_)), "{err}");
+    let client = RtdeClient::connect(cfg(None)).await.expect("125 Hz");
+    assert_eq!(client.version()[0], 3);
+    // Timestamps are controller time (> 40 s after boot, like URCL expects) and increase.
+    let first = client
+        .next_sample(std::time::Instant::now(), Duration::from_secs(2))
+        .await
+        .expect("sample");
+    let next = client
+        .next_sample(first.received, Duration::from_secs(2))
+        .await
+        .expect("sample");
+    assert!(first.f64("timestamp").expect("ts") > 40.0);
+    assert!(next.f64("timestamp") > first.f64("timestamp"));
+    let mut d = DashboardClient::connect(
+        SocketAddr::new(LOCAL, sim.ports().dashboard),
+        Duration::from_secs(2),
+    )
+    .await
+    .expect("dash");
+    assert!(d
+        .is_in_remote_control()
+        .await
+        .expect("CB3 is always remote"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn true_kinematics_deviation_shows_in_the_controller_pose() {
+    let mut c = sim_config();
+    let mut delta = UrModel::Ur5e.dh();
+    delta.a = [0.0, 0.002, -0.001, 0.0, 0.0, 0.0];
+    delta.d = [0.001, 0.0, 0.0, 0.0005, 0.0, 0.0];
+    delta.alpha = [0.0, 0.001, 0.0, 0.0, 0.0, 0.0];
+    delta.theta = [0.0, 0.0, 0.002, 0.0, 0.0, 0.0];
+    c.dh_delta = Some(delta);
+    let (sim, robot) = start(c).await;
+    let q: [f64; 6] = robot
+        .joint_positions()
+        .await
+        .expect("q")
+        .try_into()
+        .expect("6");
+    let flange = robot.flange_pose().await.expect("flange");
+    let nominal = UrModel::Ur5e.dh().forward(&q);
+    let truth = sim.dh().forward(&q);
+    assert!((flange.translation.vector - truth.translation.vector).norm() < 1e-9);
+    assert!((flange.translation.vector - nominal.translation.vector).norm() > 1e-3);
+}
