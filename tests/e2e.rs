@@ -1,1 +1,12 @@
-//! End-to-end tests: the `handeye` binary against the simulators.
+//! End-to-end tests: the `handeye` binary as child processes against its simulators, over the
+//! real protocols (UR dashboard/RTDE/script, GigE Vision), plus the offline commands.
+//!
+//! Robot models come from `../shared/robots`; without it every scenario prints SKIP (and fails
+//! when env `CI` is set). Loopback addresses used here: 127.0.0.110–127.0.0.114.
+
+#[path = "e2e/rig.rs"]
+mod rig;
+#[path = "e2e/scan.rs"]
+mod scan;
+#[path = "e2e/support.rs"]
+mod support;

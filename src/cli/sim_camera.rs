@@ -13,9 +13,9 @@ use handeye::plan::{ViewConstraints, ViewPlanner};
 use handeye::sim::{
     simulate_scan, Intrinsics, KinematicError, Placement, ScanRequest, SimSettings,
 };
-use handeye_ur::client::{RtdeClient, RtdeConfig};
 use handeye_gige::sim::{FrameSource, SceneSource, SimCamera, SimOptions, SourceError};
 use handeye_gige::GvcpClient;
+use handeye_ur::client::{RtdeClient, RtdeConfig};
 
 use super::args::{parse_pose, resolve_robot};
 
@@ -76,16 +76,16 @@ impl LiveJoints {
         match &st.joints {
             Some((q, at)) if at.elapsed() <= MAX_JOINT_AGE => Ok(q.clone()),
             Some((_, at)) => Err(format!(
-                "no joint data from the robot at {} for {:.1} s ({}); not rendering a stale pose",
-                self.robot,
+                "{} (last joints {:.1} s old; not rendering a stale pose)",
+                st.problem
+                    .as_deref()
+                    .unwrap_or("no recent joint data from the robot"),
                 at.elapsed().as_secs_f64(),
-                st.problem.as_deref().unwrap_or("connection lost; reconnecting")
             )),
-            None => Err(format!(
-                "no joint data from the robot at {} yet ({})",
-                self.robot,
-                st.problem.as_deref().unwrap_or("connecting")
-            )),
+            None => Err(st
+                .problem
+                .clone()
+                .unwrap_or_else(|| format!("no joint data from the robot at {} yet", self.robot))),
         }
     }
 
@@ -198,7 +198,9 @@ fn parse_robot_addr(s: &str) -> anyhow::Result<SocketAddr> {
         return Ok(a);
     }
     let ip: IpAddr = s.parse().map_err(|_| {
-        anyhow::anyhow!("--robot `{s}` is not an IP address or IP:PORT (the RTDE port, default 30004)")
+        anyhow::anyhow!(
+            "--robot `{s}` is not an IP address or IP:PORT (the RTDE port, default 30004)"
+        )
     })?;
     Ok(SocketAddr::new(ip, handeye_ur::Ports::STANDARD.rtde))
 }

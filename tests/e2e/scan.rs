@@ -1,0 +1,281 @@
+//! Offline scenarios: the demo, simulated scans with their ground truth, and `handeye solve`.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Isometry3, Point3, Vector3};
+
+use handeye::model::RobotModel;
+use handeye::plan::{ViewConstraints, ViewPlanner};
+use handeye::sim::Intrinsics;
+
+use crate::support::{csv, iso, pose_arg, pose_error, run, secs, shared, Output, TempDir};
+
+/// Accuracy every simulated calibration here must reach.
+const MAX_MM: f64 = 2.0;
+const MAX_DEG: f64 = 0.5;
+
+#[test]
+fn demo_calibrates_a_simulated_ur5e() {
+    if shared("demo_calibrates_a_simulated_ur5e").is_none() {
+        return;
+    }
+    let out = run(
+        &["demo", "--seed", "5", "--camera", "compact", "--json"],
+        secs(60),
+    )
+    .success();
+    let doc = out.json();
+    let trial = &doc["trial"];
+    assert_eq!(trial["outcome"], "accepted", "{out}");
+    let mm = trial["translation_error_mm"]
+        .as_f64()
+        .expect("translation error");
+    let deg = trial["rotation_error_deg"]
+        .as_f64()
+        .expect("rotation error");
+    assert!(
+        mm < MAX_MM && deg < MAX_DEG,
+        "error {mm} mm / {deg}°\n{out}"
+    );
+    assert_eq!(doc["seed"], 5);
+    assert_eq!(doc["joints_rad"].as_array().map(Vec::len), Some(6));
+}
+
+/// A simulated 1280×960 scan of the UR10e from a view that sees its base.
+struct Scan {
+    model: RobotModel,
+    urdf: PathBuf,
+    joints: Vec<f64>,
+    mount: Isometry3<f64>,
+    ply: PathBuf,
+    gt: PathBuf,
+}
+
+fn simulate(dir: &TempDir, shared: &Path, seed: u64) -> Scan {
+    let urdf = shared.join("robots/ur/ur10e/ur10e.urdf");
+    let model = RobotModel::load(&urdf).expect("ur10e loads");
+    let mount = Isometry3::new(
+        Vector3::new(0.01, -0.075, 0.045),
+        Vector3::new(-0.26, 0.02, 0.03),
+    );
+    let planner = ViewPlanner::new(
+        &model,
+        mount,
+        Intrinsics::compact_1280x960(),
+        ViewConstraints::default(),
+    );
+    let joints = planner
+        .generate(1, seed)
+        .expect("a view of the base")
+        .remove(0);
+    let ply = dir.join("scan.ply");
+    let out = run(
+        &[
+            "simulate-scan",
+            "--robot",
+            &urdf.to_string_lossy(),
+            "--mount",
+            &pose_arg(&mount),
+            "--joints",
+            &csv(&joints),
+            "--camera",
+            "compact",
+            "--seed",
+            &seed.to_string(),
+            "--out",
+            &ply.to_string_lossy(),
+        ],
+        secs(30),
+    );
+    out.success();
+    Scan {
+        model,
+        urdf,
+        joints,
+        mount,
+        ply,
+        gt: dir.join("scan.gt.json"),
+    }
+}
+
+fn read_json(path: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("cannot read {}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{} is not JSON: {e}", path.display()))
+}
+
+fn assert_close(what: &str, a: &Isometry3<f64>, b: &Isometry3<f64>, mm: f64, deg: f64) {
+    let (dt, dr) = pose_error(a, b);
+    assert!(
+        dt <= mm && dr <= deg,
+        "{what}: {dt:.4} mm / {dr:.5}° apart (allowed {mm} mm / {deg}°)"
+    );
+}
+
+#[test]
+fn simulate_scan_writes_ply_and_ground_truth() {
+    let Some(shared) = shared("simulate_scan_writes_ply_and_ground_truth") else {
+        return;
+    };
+    let dir = TempDir::new("simulate-scan");
+    let s = simulate(&dir, &shared, 11);
+    let cloud = handeye::cloud::read_cloud(&s.ply).expect("the PLY reads back");
+    assert_eq!((cloud.width, cloud.height), (1280, 960));
+    assert_eq!(cloud.points.len(), 1280 * 960);
+    let valid = cloud.valid_count();
+    assert!(
+        valid > 1280 * 960 / 10,
+        "only {valid} valid points: the view should see the robot and the floor"
+    );
+    assert!(
+        cloud
+            .points
+            .iter()
+            .filter(|p| p.z.is_finite())
+            .all(|p| p.z > 0.0),
+        "points behind the camera"
+    );
+
+    let gt = read_json(&s.gt);
+    let joints: Vec<f64> = serde_json::from_value(gt["joints_rad"].clone()).expect("joints_rad");
+    assert_eq!(joints, s.joints, "joints are echoed exactly");
+    let flange_from_camera = iso(&gt["flange_from_camera"]);
+    let base_from_camera = iso(&gt["base_from_camera"]);
+    assert_close(
+        "flange_from_camera vs --mount",
+        &flange_from_camera,
+        &s.mount,
+        1e-6,
+        1e-6,
+    );
+    let flange = gt["flange_frame"].as_str().expect("flange_frame");
+    assert_eq!(flange, "tool0");
+    let fk = s.model.frame_pose("tool0", &s.joints).expect("FK");
+    assert_close(
+        "base_from_flange_nominal vs URDF FK",
+        &iso(&gt["base_from_flange_nominal"]),
+        &fk,
+        1e-6,
+        1e-6,
+    );
+    // The camera hangs off the arm as it really is (the reported flange, which carries the
+    // simulated kinematic error) ...
+    assert_close(
+        "base_from_camera vs reported flange · mount",
+        &base_from_camera,
+        &(iso(&gt["base_from_flange_reported"]) * flange_from_camera),
+        1e-6,
+        1e-6,
+    );
+    // ... which is within a few tenths of a millimetre of the nominal kinematics.
+    assert_close(
+        "base_from_camera vs URDF FK · mount",
+        &base_from_camera,
+        &(fk * s.mount),
+        3.0,
+        0.2,
+    );
+    // camera_from_base is its inverse.
+    assert_close(
+        "camera_from_base",
+        &iso(&gt["camera_from_base"]),
+        &base_from_camera.inverse(),
+        1e-6,
+        1e-6,
+    );
+}
+
+fn solve(s: &Scan, joints: &str, scan: &Path) -> Output {
+    run(
+        &[
+            "solve",
+            "--robot",
+            &s.urdf.to_string_lossy(),
+            "--joints",
+            joints,
+            "--scan",
+            &scan.to_string_lossy(),
+            "--json",
+        ],
+        secs(60),
+    )
+}
+
+/// A flat patch of floor 0.8 m in front of the camera, as an organized PLY.
+fn write_plane(path: &Path) {
+    let (w, h) = (320u32, 240u32);
+    let f = 300.0f32;
+    let mut points = Vec::new();
+    for v in 0..h {
+        for u in 0..w {
+            let z = 0.8f32;
+            let x = (u as f32 - w as f32 / 2.0) / f * z;
+            let y = (v as f32 - h as f32 / 2.0) / f * z;
+            points.push(Point3::new(
+                x,
+                y,
+                z + 0.0005 * ((u * 7 + v * 13) % 5) as f32,
+            ));
+        }
+    }
+    let cloud = handeye_hal::PointCloud {
+        width: w,
+        height: h,
+        points,
+        intensity: None,
+        confidence: None,
+    };
+    handeye::cloud::write_ply(
+        path,
+        &cloud,
+        handeye::cloud::PlyEncoding::BinaryLittleEndian,
+    )
+    .expect("write plane");
+}
+
+#[test]
+fn solve_recovers_the_mount_from_a_simulated_scan() {
+    let Some(shared) = shared("solve_recovers_the_mount_from_a_simulated_scan") else {
+        return;
+    };
+    let dir = TempDir::new("solve");
+    let s = simulate(&dir, &shared, 11);
+    let out = solve(&s, &csv(&s.joints), &s.ply);
+    assert_eq!(out.code(), 0, "{out}");
+    let doc = out.json();
+    assert_eq!(doc["status"], "ok", "{out}");
+    for key in ["reasons", "uncertainty", "quality", "timings_ms"] {
+        assert!(doc.get(key).is_some(), "no `{key}` in the report:\n{out}");
+    }
+    let truth = iso(&read_json(&s.gt)["flange_from_camera"]);
+    let found = iso(&doc["flange_from_camera"]);
+    let (mm, deg) = pose_error(&found, &truth);
+    assert!(
+        mm < MAX_MM && deg < MAX_DEG,
+        "solve is {mm:.3} mm / {deg:.4}° off the truth\n{out}"
+    );
+
+    // Bad input: exit code 2 and a message that names the problem.
+    let missing = dir.join("missing.ply");
+    let out = solve(&s, &csv(&s.joints), &missing);
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(out.stderr.contains("missing.ply"), "{out}");
+
+    let out = solve(&s, &csv(&s.joints[..5]), &s.ply);
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(
+        out.stderr.contains('6') && out.stderr.contains('5'),
+        "{out}"
+    );
+    assert!(out.stderr.to_lowercase().contains("joint"), "{out}");
+
+    let plane = dir.join("plane.ply");
+    write_plane(&plane);
+    let out = solve(&s, &csv(&s.joints), &plane);
+    assert_eq!(
+        out.code(),
+        2,
+        "a scan without the robot must not calibrate:\n{out}"
+    );
+    assert!(!out.stderr.trim().is_empty(), "{out}");
+}
