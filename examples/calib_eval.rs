@@ -10,7 +10,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use handeye::calib::{
-    gate, register, solve, FrameInput, GateThresholds, Mount, RegisterOptions, SolveOptions,
+    gate, posed_model_with_kinematics, register_posed, solve, FrameInput, GateThresholds, Mount,
+    RegisterOptions, SolveOptions,
 };
 use handeye::model::RobotModel;
 use handeye::plan::{ViewConstraints, ViewPlanner};
@@ -106,7 +107,13 @@ fn main() -> anyhow::Result<()> {
                 let scan = simulate_scan(&req)?;
                 let sim_ms = t0.elapsed().as_secs_f64() * 1e3;
                 let truth = &scan.truth;
-                let reg = match register(&scan.cloud, &model, q, None, &opts) {
+                // CALIBRATED=1: pose the model with the controller's calibration (the truth's
+                // joint-origin errors), as a product reading the factory calibration would.
+                let errs = std::env::var("CALIBRATED")
+                    .is_ok()
+                    .then_some(&truth.joint_origin_errors[..]);
+                let posed = posed_model_with_kinematics(&model, q, errs)?;
+                let reg = match register_posed(&scan.cloud, &posed, None, &opts) {
                     Ok(r) => r,
                     Err(e) => {
                         println!("view {v} scan {k}: registration failed: {e}");

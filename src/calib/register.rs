@@ -171,23 +171,44 @@ pub fn register(
     register_posed(scan, &posed, prior, opts)
 }
 
-/// The model's visual geometry posed at `joints` (radians, URDF order) in the model frame.
+/// The model's visual geometry posed at `joints` (radians, URDF order) in the model frame,
+/// with the nominal kinematics.
 pub fn posed_model(model: &RobotModel, joints: &[f64]) -> Result<PosedModel, CalibError> {
+    posed_model_with_kinematics(model, joints, None)
+}
+
+/// Like [`posed_model`], for an arm whose real kinematics differ from the URDF:
+/// `joint_origin_errors` (one per chain joint, see [`RobotModel::link_poses_with_errors`]) is
+/// the controller's factory calibration relative to the nominal model. Registering against the
+/// calibrated arm removes the kinematic mismatch of the shoulder and upper arm, which otherwise
+/// dominates the error (the base alone is round and cannot give the yaw).
+pub fn posed_model_with_kinematics(
+    model: &RobotModel,
+    joints: &[f64],
+    joint_origin_errors: Option<&[Isometry3<f64>]>,
+) -> Result<PosedModel, CalibError> {
     if joints.len() != model.dof() {
         return Err(CalibError::JointCountMismatch {
             expected: model.dof(),
             got: joints.len(),
         });
     }
+    let poses = match joint_origin_errors {
+        Some(e) => model.link_poses_with_errors(joints, e),
+        None => model.link_poses(joints),
+    }
+    .map_err(CalibError::Model)?;
     let parts = model
-        .posed_geometry(joints, GeometryKind::Visual)
-        .map_err(CalibError::Model)?
-        .into_iter()
-        .map(|(model_from_link, g)| super::PosedPart {
-            chain_depth: model.chain_depth(&g.link).unwrap_or(usize::MAX),
-            link: g.link.clone(),
-            model_from_link,
-            mesh: g.mesh.clone(),
+        .geometry(GeometryKind::Visual)
+        .iter()
+        .filter_map(|g| {
+            let i = model.link_index(&g.link)?;
+            Some(super::PosedPart {
+                chain_depth: model.chain_depth(&g.link).unwrap_or(usize::MAX),
+                link: g.link.clone(),
+                model_from_link: *poses.get(i)?,
+                mesh: g.mesh.clone(),
+            })
         })
         .collect();
     Ok(PosedModel { parts })
