@@ -8,6 +8,7 @@
 //!   with the imperfections of real scans).
 //! - [`plan`]: view generation: joint configurations from which the camera sees the base,
 //!   checked for joint limits and collisions.
+//! - [`bench`]: the accuracy benchmark (the paper's protocol) on simulated scans.
 //! - [`calib`]: registration of a scan against the posed model, the hand-eye solve, the
 //!   pass/fail gate and the benchmark protocol.
 //!
@@ -15,6 +16,7 @@
 //! concrete drivers (`handeye-ur`, `handeye-gige`) to this core; the core only knows the traits
 //! in `handeye-hal`.
 
+pub mod bench;
 pub mod calib;
 pub mod cloud;
 pub mod frames;

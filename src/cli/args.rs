@@ -18,13 +18,17 @@ pub(crate) fn parse_pose(s: &str) -> Result<Isometry3<f64>, String> {
     ))
 }
 
+/// Joint angles in radians from one command-line value (`q1,q2,...`).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct JointList(pub(crate) Vec<f64>);
+
 /// Parses comma-separated joint angles in radians.
-pub(crate) fn parse_joints(s: &str) -> Result<Vec<f64>, String> {
+pub(crate) fn parse_joints(s: &str) -> Result<JointList, String> {
     let v = parse_numbers(s)?;
     if v.is_empty() {
         return Err("expected comma-separated joint angles in radians".into());
     }
-    Ok(v)
+    Ok(JointList(v))
 }
 
 fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
@@ -62,6 +66,53 @@ mod tests {
         assert!(parse_pose("1,2,3").unwrap_err().contains("expected 6"));
         assert!(parse_pose("1,2,3,4,5,x").unwrap_err().contains("`x`"));
         assert!(parse_joints("0,nan").is_err());
-        assert_eq!(parse_joints("0,1.5").expect("valid"), vec![0.0, 1.5]);
+        assert_eq!(parse_joints("0,1.5").expect("valid").0, vec![0.0, 1.5]);
     }
+}
+
+/// Where the robot models are: `$HANDEYE_ROBOTS`, else `../shared/robots` from the current
+/// directory, else `../shared/robots` beside the source tree this binary was built from.
+pub(crate) fn robots_dir() -> Option<std::path::PathBuf> {
+    let candidates = [
+        std::env::var_os("HANDEYE_ROBOTS").map(std::path::PathBuf::from),
+        Some(std::path::PathBuf::from("../shared/robots")),
+        Some(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/robots")),
+    ];
+    candidates.into_iter().flatten().find(|p| p.is_dir())
+}
+
+/// A robot given as a URDF path, or as a name (`ur5e`, `kuka_iiwa7`) looked up as
+/// `<name>.urdf` under [`robots_dir`].
+pub(crate) fn resolve_robot(name_or_path: &str) -> Result<std::path::PathBuf, String> {
+    let p = std::path::Path::new(name_or_path);
+    if p.extension().is_some_and(|e| e == "urdf") || p.is_file() {
+        return Ok(p.to_path_buf());
+    }
+    let dir = robots_dir().ok_or_else(|| {
+        format!("robot `{name_or_path}`: no robot directory found; set HANDEYE_ROBOTS or run from a checkout with ../shared/robots, or give a URDF path")
+    })?;
+    all_robots(&dir)
+        .into_iter()
+        .find(|u| u.file_stem().is_some_and(|s| s == name_or_path))
+        .ok_or_else(|| format!("robot `{name_or_path}` not found under {}", dir.display()))
+}
+
+/// Every `*.urdf` under `dir`, sorted.
+pub(crate) fn all_robots(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&d) else {
+            continue;
+        };
+        for p in entries.flatten().map(|e| e.path()) {
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "urdf") {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    out
 }

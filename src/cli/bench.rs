@@ -1,11 +1,164 @@
-//! `handeye bench` (under construction).
+//! `handeye bench`: the paper's protocol on simulated scans, per robot and overall.
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-/// Arguments of this subcommand.
-#[derive(Debug, clap::Args)]
-pub(crate) struct Args {}
+use anyhow::Context;
 
-pub(crate) fn run(_args: Args) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("this subcommand is not built yet")
+use handeye::bench::{run_robot, BenchConfig, RobotSummary, Stats, Trial};
+use handeye::model::RobotModel;
+use handeye::sim::{Intrinsics, SimSettings};
+
+use super::args::{all_robots, resolve_robot, robots_dir};
+
+/// The UR arms the accuracy targets are stated for.
+const DEFAULT_ROBOTS: &str = "ur3e,ur5e,ur10e,ur16e,ur20,ur30";
+
+/// Accuracy and speed of calibration on simulated scans (release build recommended).
+#[derive(Debug, clap::Args)]
+pub(crate) struct Args {
+    /// Comma-separated robot names (looked up under ../shared/robots) or URDF paths; `all` for
+    /// every robot there.
+    #[arg(long, default_value = DEFAULT_ROBOTS)]
+    robots: String,
+    /// Views per robot (the paper uses 30).
+    #[arg(long, default_value_t = 30)]
+    views: usize,
+    /// Scans per view.
+    #[arg(long, default_value_t = 3)]
+    scans_per_view: usize,
+    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048).
+    #[arg(long, default_value = "compact")]
+    camera: String,
+    /// Simulator settings TOML (default: realistic noise, cell and kinematic error).
+    #[arg(long)]
+    settings: Option<PathBuf>,
+    /// Seed of mounts, views and scans.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Write every trial and the summaries as JSON here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let intrinsics = Intrinsics::preset(&args.camera).with_context(|| {
+        format!(
+            "unknown camera preset `{}`; use compact or zivid2-m60",
+            args.camera
+        )
+    })?;
+    let settings = match &args.settings {
+        Some(p) => SimSettings::load(p)?,
+        None => SimSettings::default(),
+    };
+    let robots: Vec<PathBuf> = if args.robots == "all" {
+        let dir = robots_dir().context("no robot directory; set HANDEYE_ROBOTS")?;
+        all_robots(&dir)
+    } else {
+        args.robots
+            .split(',')
+            .map(|r| resolve_robot(r.trim()).map_err(anyhow::Error::msg))
+            .collect::<Result<_, _>>()?
+    };
+    let mut summaries = Vec::new();
+    for (i, path) in robots.iter().enumerate() {
+        let model = RobotModel::load(path)?;
+        let cfg = BenchConfig {
+            views: args.views,
+            scans_per_view: args.scans_per_view,
+            intrinsics,
+            settings,
+            seed: args.seed.wrapping_add(i as u64 * 7919),
+            ..BenchConfig::default()
+        };
+        eprint!("{:<16}", model.name());
+        let summary = match run_robot(&model, &cfg, |t| eprint!("{}", progress_mark(t))) {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!(" cannot plan views: {e}");
+                RobotSummary::new(model.name(), Vec::new())
+            }
+        };
+        eprintln!();
+        summaries.push(summary);
+    }
+    print_table(&summaries, &args);
+    if let Some(out) = &args.out {
+        let doc = serde_json::json!({
+            "camera": args.camera,
+            "views": args.views,
+            "scans_per_view": args.scans_per_view,
+            "seed": args.seed,
+            "settings": settings,
+            "robots": summaries,
+        });
+        std::fs::write(out, serde_json::to_string_pretty(&doc)?)
+            .with_context(|| format!("writing {}", out.display()))?;
+        println!("wrote {}", out.display());
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn progress_mark(t: &Trial) -> char {
+    match (t.outcome, t.is_wrong()) {
+        ("accepted", false) => '.',
+        ("accepted", true) => 'W',
+        ("rejected", _) => 'r',
+        _ => 'E',
+    }
+}
+
+fn print_table(summaries: &[RobotSummary], args: &Args) {
+    println!(
+        "\nhandeye bench: {} views × {} scans per robot, camera {}, no prior, realistic noise + CAD/kinematic mismatch",
+        args.views, args.scans_per_view, args.camera
+    );
+    println!(
+        "{:<16} {:>6} {:>8} {:>6} {:>5} {:>4} | {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} | {:>8} {:>8}",
+        "robot", "trials", "success", "wrong", "rej", "err", "t_med", "t_p95", "t_max", "r_med", "r_p95", "r_max", "reg_med", "reg_p95"
+    );
+    println!("{:<16} {:>6} {:>8} {:>6} {:>5} {:>4} | {:>7} {:>7} {:>7} | {:>7} {:>7} {:>7} | {:>8} {:>8}", "", "", "", "", "", "", "mm", "mm", "mm", "deg", "deg", "deg", "ms", "ms");
+    let row = |name: &str, s: &RobotSummary| {
+        println!(
+            "{:<16} {:>6} {:>7.1}% {:>6} {:>5} {:>4} | {:>7.3} {:>7.3} {:>7.3} | {:>7.4} {:>7.4} {:>7.4} | {:>8.0} {:>8.0}",
+            name,
+            s.trials,
+            100.0 * s.success_rate,
+            s.wrong_accepted,
+            s.rejected,
+            s.errors,
+            s.translation_mm.median,
+            s.translation_mm.p95,
+            s.translation_mm.max,
+            s.rotation_deg.median,
+            s.rotation_deg.p95,
+            s.rotation_deg.max,
+            s.register_ms.median,
+            s.register_ms.p95,
+        )
+    };
+    for s in summaries {
+        row(&s.robot, s);
+    }
+    let all: Vec<Trial> = summaries
+        .iter()
+        .flat_map(|s| s.details.iter().cloned())
+        .collect();
+    let overall = RobotSummary::new("overall", all);
+    row("overall", &overall);
+    let Stats {
+        mean: tm, std: ts, ..
+    } = overall.translation_mm;
+    let Stats {
+        mean: rm, std: rs, ..
+    } = overall.rotation_deg;
+    println!("overall mean ± std: {tm:.3} ± {ts:.3} mm, {rm:.4} ± {rs:.4}°");
+    println!("\nfor comparison (from the paper and our measurements of its baselines):");
+    println!("  Li et al. 2023, learned registration, simulation   ~1.3 mm / 0.4°, a few seconds");
+    println!("  Li et al. 2023, real robots                          1–2 mm / 0.4–1°");
+    println!("  Open3D FPFH+RANSAC+ICP (1.2 M points, CAD mismatch)  1.6–2 mm / 0.4–0.65°, ~0.7 s, 88–100% success");
+    println!(
+        "  checkerboard AX=XB, 15 poses                         ~0.8 mm / 0.09°, minutes of motion"
+    );
 }

@@ -185,7 +185,11 @@ pub enum CloudError {
 
 impl CloudError {
     fn io(action: &'static str, path: &Path, source: std::io::Error) -> Self {
-        CloudError::Io { action, path: path.to_path_buf(), source }
+        CloudError::Io {
+            action,
+            path: path.to_path_buf(),
+            source,
+        }
     }
 }
 
@@ -195,7 +199,10 @@ impl CloudError {
 /// callers add it as context.
 pub fn read_cloud(path: &Path) -> Result<PointCloud, CloudError> {
     let file = std::fs::File::open(path).map_err(|e| CloudError::io("open", path, e))?;
-    let len = file.metadata().map_err(|e| CloudError::io("open", path, e))?.len();
+    let len = file
+        .metadata()
+        .map_err(|e| CloudError::io("open", path, e))?
+        .len();
     if len == 0 {
         return read_cloud_bytes(&[]);
     }
@@ -229,7 +236,9 @@ pub fn detect(bytes: &[u8]) -> Option<CloudFormat> {
 
 fn no_magic(bytes: &[u8]) -> CloudError {
     let head = &bytes[..bytes.len().min(16)];
-    CloudError::NoMagic { found: String::from_utf8_lossy(head).into_owned() }
+    CloudError::NoMagic {
+        found: String::from_utf8_lossy(head).into_owned(),
+    }
 }
 
 /// Checks a cloud before writing: grid size and attribute lengths agree with `points`.
@@ -244,7 +253,10 @@ fn check_cloud(cloud: &PointCloud) -> Result<(), CloudError> {
             ),
         });
     }
-    for (name, attr) in [("intensity", &cloud.intensity), ("confidence", &cloud.confidence)] {
+    for (name, attr) in [
+        ("intensity", &cloud.intensity),
+        ("confidence", &cloud.confidence),
+    ] {
         if let Some(v) = attr {
             if v.len() != n {
                 return Err(CloudError::InconsistentCloud {
@@ -270,7 +282,10 @@ fn unit_scale(unit: &str) -> Option<f32> {
 /// Whether a property/field name is the per-point intensity.
 fn is_intensity(name: &str) -> bool {
     let n = name.to_ascii_lowercase();
-    matches!(n.strip_prefix("scalar_").unwrap_or(&n), "intensity" | "grey" | "gray")
+    matches!(
+        n.strip_prefix("scalar_").unwrap_or(&n),
+        "intensity" | "grey" | "gray"
+    )
 }
 
 /// Whether a property/field name is the per-point confidence.

@@ -18,7 +18,10 @@ const MAX_HEADER_BYTES: usize = 1 << 16;
 const LZF_MAX_RATIO: u64 = 100;
 
 pub(super) fn has_magic(bytes: &[u8]) -> bool {
-    let start = bytes.iter().position(|b| !b.is_ascii_whitespace()).unwrap_or(bytes.len());
+    let start = bytes
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .unwrap_or(bytes.len());
     let b = &bytes[start..];
     b.starts_with(b"# .PCD") || b.starts_with(b"VERSION") || b.starts_with(b"FIELDS")
 }
@@ -53,7 +56,11 @@ struct Header {
 }
 
 fn bad_header(line: usize, reason: impl Into<String>) -> CloudError {
-    CloudError::BadHeader { format: FMT, line, reason: reason.into() }
+    CloudError::BadHeader {
+        format: FMT,
+        line,
+        reason: reason.into(),
+    }
 }
 
 fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
@@ -82,20 +89,28 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
         let text = std::str::from_utf8(raw)
             .map_err(|_| bad_header(line_no, "header line is not UTF-8 text"))?;
         let mut words = text.split_ascii_whitespace();
-        let Some(keyword) = words.next() else { continue };
+        let Some(keyword) = words.next() else {
+            continue;
+        };
         let words: Vec<&str> = words.collect();
         let num = |w: &str, what: &str| {
             w.parse::<u64>()
                 .map_err(|_| bad_header(line_no, format!("{what} `{w}` is not a whole number")))
         };
         let nums = |what: &str| -> Result<Vec<usize>, CloudError> {
-            words.iter().map(|w| num(w, what).map(|v| v as usize)).collect()
+            words
+                .iter()
+                .map(|w| num(w, what).map(|v| v as usize))
+                .collect()
         };
         match keyword {
             k if k.starts_with('#') => {
                 if let ["unit" | "units", u] = words.as_slice() {
                     scale = unit_scale(u).ok_or_else(|| {
-                        bad_header(line_no, format!("unknown unit `{u}` (expected m, cm, mm or um)"))
+                        bad_header(
+                            line_no,
+                            format!("unknown unit `{u}` (expected m, cm, mm or um)"),
+                        )
                     })?;
                 }
             }
@@ -106,7 +121,10 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
             "COUNT" => counts = Some((line_no, nums("COUNT")?)),
             "WIDTH" | "HEIGHT" | "POINTS" => {
                 let [w] = words.as_slice() else {
-                    return Err(bad_header(line_no, format!("expected `{keyword} <number>`")));
+                    return Err(bad_header(
+                        line_no,
+                        format!("expected `{keyword} <number>`"),
+                    ));
                 };
                 let v = num(w, keyword)?;
                 match keyword {
@@ -130,16 +148,28 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
                     }
                 };
             }
-            other => return Err(bad_header(line_no, format!("unknown header keyword `{other}`"))),
+            other => {
+                return Err(bad_header(
+                    line_no,
+                    format!("unknown header keyword `{other}`"),
+                ))
+            }
         }
     };
     let (_, names) = names.ok_or_else(|| bad_header(line_no, "no `FIELDS` line"))?;
     let (sl, sizes) = sizes.ok_or_else(|| bad_header(line_no, "no `SIZE` line"))?;
     let (tl, types) = types.ok_or_else(|| bad_header(line_no, "no `TYPE` line"))?;
     let (cl, counts) = counts.unwrap_or((0, vec![1; names.len()]));
-    for (l, what, len) in [(sl, "SIZE", sizes.len()), (tl, "TYPE", types.len()), (cl, "COUNT", counts.len())] {
+    for (l, what, len) in [
+        (sl, "SIZE", sizes.len()),
+        (tl, "TYPE", types.len()),
+        (cl, "COUNT", counts.len()),
+    ] {
         if len != names.len() {
-            return Err(bad_header(l, format!("{what} has {len} entries for {} FIELDS", names.len())));
+            return Err(bad_header(
+                l,
+                format!("{what} has {len} entries for {} FIELDS", names.len()),
+            ));
         }
     }
     let mut fields = Vec::with_capacity(names.len());
@@ -166,9 +196,18 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
             }
         };
         if count == 0 || count > 1 << 20 {
-            return Err(bad_header(cl, format!("COUNT {count} of field `{name}` is out of range")));
+            return Err(bad_header(
+                cl,
+                format!("COUNT {count} of field `{name}` is out of range"),
+            ));
         }
-        fields.push(Field { name: name.clone(), size, ty: scalar, count, offset });
+        fields.push(Field {
+            name: name.clone(),
+            size,
+            ty: scalar,
+            count,
+            offset,
+        });
         offset += size * count;
     }
     let width = width.ok_or_else(|| bad_header(line_no, "no `WIDTH` line"))?;
@@ -184,7 +223,16 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
     let (Ok(width), Ok(height)) = (u32::try_from(width), u32::try_from(height)) else {
         return Err(bad_header(line_no, "WIDTH or HEIGHT exceeds 4294967295"));
     };
-    Ok(Header { fields, width, height, points, data, scale, data_offset: pos, lines: line_no })
+    Ok(Header {
+        fields,
+        width,
+        height,
+        points,
+        data,
+        scale,
+        data_offset: pos,
+        lines: line_no,
+    })
 }
 
 /// Parses PCD bytes (ascii, binary or binary_compressed) into a cloud in metres.
@@ -192,7 +240,10 @@ pub fn read_pcd(bytes: &[u8]) -> Result<PointCloud, CloudError> {
     let h = parse_header(bytes)?;
     let field = |name: &str| h.fields.iter().position(|f| f.name == name);
     let axis = |name: &str| {
-        field(name).ok_or_else(|| CloudError::Missing { format: FMT, what: format!("field `{name}`") })
+        field(name).ok_or_else(|| CloudError::Missing {
+            format: FMT,
+            what: format!("field `{name}`"),
+        })
     };
     let xyz = [axis("x")?, axis("y")?, axis("z")?];
     let intensity = h.fields.iter().position(|f| is_intensity(&f.name));
@@ -251,11 +302,20 @@ pub fn read_pcd(bytes: &[u8]) -> Result<PointCloud, CloudError> {
             )
         }
     };
-    Ok(PointCloud { width: h.width, height: h.height, points, intensity, confidence })
+    Ok(PointCloud {
+        width: h.width,
+        height: h.height,
+        points,
+        intensity,
+        confidence,
+    })
 }
 
 fn decompress(h: &Header, data: &[u8], n: usize, stride: usize) -> Result<Vec<u8>, CloudError> {
-    let word = |i: usize| data.get(i..i + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+    let word = |i: usize| {
+        data.get(i..i + 4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
     let (Some(compressed), Some(raw)) = (word(0), word(4)) else {
         return Err(CloudError::Truncated {
             format: FMT,
@@ -282,7 +342,9 @@ fn decompress(h: &Header, data: &[u8], n: usize, stride: usize) -> Result<Vec<u8
         return Err(CloudError::BadData {
             format: FMT,
             location: location(),
-            reason: format!("uncompressed size {raw} differs from {n} points × {stride} bytes = {need}"),
+            reason: format!(
+                "uncompressed size {raw} differs from {n} points × {stride} bytes = {need}"
+            ),
         });
     }
     if raw > compressed.saturating_mul(LZF_MAX_RATIO) + 1024 {
@@ -294,7 +356,11 @@ fn decompress(h: &Header, data: &[u8], n: usize, stride: usize) -> Result<Vec<u8
         });
     }
     lzf_decompress(&data[8..8 + compressed as usize], raw as usize).map_err(|reason| {
-        CloudError::BadData { format: FMT, location: location(), reason: format!("corrupt LZF data: {reason}") }
+        CloudError::BadData {
+            format: FMT,
+            location: location(),
+            reason: format!("corrupt LZF data: {reason}"),
+        }
     })
 }
 
@@ -302,13 +368,20 @@ fn decompress(h: &Header, data: &[u8], n: usize, stride: usize) -> Result<Vec<u8
 pub(super) fn lzf_decompress(input: &[u8], out_len: usize) -> Result<Vec<u8>, String> {
     let mut out = Vec::with_capacity(out_len);
     let mut i = 0;
-    let byte = |i: usize| input.get(i).copied().ok_or_else(|| format!("input ends at byte {i}"));
+    let byte = |i: usize| {
+        input
+            .get(i)
+            .copied()
+            .ok_or_else(|| format!("input ends at byte {i}"))
+    };
     while i < input.len() {
         let ctrl = usize::from(input[i]);
         i += 1;
         if ctrl < 32 {
             let len = ctrl + 1;
-            let lit = input.get(i..i + len).ok_or_else(|| format!("literal run at byte {i} ends past the input"))?;
+            let lit = input
+                .get(i..i + len)
+                .ok_or_else(|| format!("literal run at byte {i} ends past the input"))?;
             if out.len() + len > out_len {
                 return Err(format!("output exceeds the declared {out_len} bytes"));
             }
@@ -324,7 +397,10 @@ pub(super) fn lzf_decompress(input: &[u8], out_len: usize) -> Result<Vec<u8>, St
             let back = ((ctrl & 0x1f) << 8) + usize::from(byte(i)?) + 1;
             i += 1;
             if back > out.len() {
-                return Err(format!("back-reference at byte {} reaches before the start", i - 2));
+                return Err(format!(
+                    "back-reference at byte {} reaches before the start",
+                    i - 2
+                ));
             }
             if out.len() + len > out_len {
                 return Err(format!("output exceeds the declared {out_len} bytes"));
@@ -336,7 +412,10 @@ pub(super) fn lzf_decompress(input: &[u8], out_len: usize) -> Result<Vec<u8>, St
         }
     }
     if out.len() != out_len {
-        return Err(format!("decompressed to {} bytes, the header declares {out_len}", out.len()));
+        return Err(format!(
+            "decompressed to {} bytes, the header declares {out_len}",
+            out.len()
+        ));
     }
     Ok(out)
 }
@@ -370,7 +449,13 @@ fn read_ascii(
             Some(s)
         })
         .collect();
-    let slots = [Some(xyz[0]), Some(xyz[1]), Some(xyz[2]), intensity, confidence];
+    let slots = [
+        Some(xyz[0]),
+        Some(xyz[1]),
+        Some(xyz[2]),
+        intensity,
+        confidence,
+    ];
     let n = h.points as usize;
     let mut points = Vec::with_capacity(n);
     let mut inten = intensity.map(|_| Vec::with_capacity(n));
@@ -409,10 +494,16 @@ fn read_ascii(
             return Err(CloudError::BadData {
                 format: FMT,
                 location: format!("line {line}, point #{k}"),
-                reason: format!("the line has {seen} values, the header declares {values_per_point}"),
+                reason: format!(
+                    "the line has {seen} values, the header declares {values_per_point}"
+                ),
             });
         }
-        points.push(Point3::new(vals[0] * h.scale, vals[1] * h.scale, vals[2] * h.scale));
+        points.push(Point3::new(
+            vals[0] * h.scale,
+            vals[1] * h.scale,
+            vals[2] * h.scale,
+        ));
         if let Some(v) = inten.as_mut() {
             v.push(vals[3]);
         }
@@ -433,8 +524,10 @@ pub fn write_pcd(path: &Path, cloud: &PointCloud, binary: bool) -> Result<(), Cl
     let file = std::fs::File::create(path).map_err(|e| CloudError::io("create", path, e))?;
     let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
     let wr = |e| CloudError::io("write", path, e);
-    let attrs: Vec<&[f32]> =
-        [&cloud.intensity, &cloud.confidence].iter().filter_map(|a| a.as_deref()).collect();
+    let attrs: Vec<&[f32]> = [&cloud.intensity, &cloud.confidence]
+        .iter()
+        .filter_map(|a| a.as_deref())
+        .collect();
     let mut names = String::from("x y z");
     if cloud.intensity.is_some() {
         names.push_str(" intensity");
@@ -461,7 +554,9 @@ pub fn write_pcd(path: &Path, cloud: &PointCloud, binary: bool) -> Result<(), Cl
         buf.clear();
         let base = c * CHUNK;
         for (j, p) in pts.iter().enumerate() {
-            let vals = [p.x, p.y, p.z].into_iter().chain(attrs.iter().map(|a| a[base + j]));
+            let vals = [p.x, p.y, p.z]
+                .into_iter()
+                .chain(attrs.iter().map(|a| a[base + j]));
             if binary {
                 for v in vals {
                     buf.extend_from_slice(&v.to_le_bytes());

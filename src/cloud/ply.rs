@@ -8,8 +8,8 @@ use handeye_hal::PointCloud;
 use nalgebra::Point3;
 
 use super::scalar::{nonblank_lines, read_column, read_points, tokens, Column, Scalar};
-use super::{ascii_f32, check_cloud, is_confidence, is_intensity, unit_scale, CloudError};
 use super::CloudFormat::Ply as FMT;
+use super::{ascii_f32, check_cloud, is_confidence, is_intensity, unit_scale, CloudError};
 
 /// Headers longer than this are refused (real ones are a few hundred bytes).
 const MAX_HEADER_BYTES: usize = 1 << 20;
@@ -89,7 +89,11 @@ struct Header {
 }
 
 fn bad_header(line: usize, reason: impl Into<String>) -> CloudError {
-    CloudError::BadHeader { format: FMT, line, reason: reason.into() }
+    CloudError::BadHeader {
+        format: FMT,
+        line,
+        reason: reason.into(),
+    }
 }
 
 fn parse_type(line: usize, field: &str, t: &str) -> Result<Scalar, CloudError> {
@@ -130,7 +134,9 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
                 line_no,
                 format!(
                     "no `end_header` line {}",
-                    if pos >= bytes.len() { "before the end of the file".to_owned() } else {
+                    if pos >= bytes.len() {
+                        "before the end of the file".to_owned()
+                    } else {
                         format!("within the first {MAX_HEADER_BYTES} bytes")
                     }
                 ),
@@ -146,7 +152,9 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
         let text = std::str::from_utf8(raw)
             .map_err(|_| bad_header(line_no, "header line is not UTF-8 text"))?;
         let mut words = text.split_ascii_whitespace();
-        let Some(keyword) = words.next() else { continue };
+        let Some(keyword) = words.next() else {
+            continue;
+        };
         let words: Vec<&str> = words.collect();
         match keyword {
             "ply" if line_no == 1 => {}
@@ -166,11 +174,14 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
                     }
                 });
             }
-            "comment" | "obj_info" => match words.as_slice() {
-                [key, value] => {
+            "comment" | "obj_info" => {
+                if let [key, value] = words.as_slice() {
                     let dim = |v: &str| {
                         v.parse::<u32>().map_err(|_| {
-                            bad_header(line_no, format!("`{key}` value `{v}` is not a whole number"))
+                            bad_header(
+                                line_no,
+                                format!("`{key}` value `{v}` is not a whole number"),
+                            )
                         })
                     };
                     match key.to_ascii_lowercase().as_str() {
@@ -189,16 +200,22 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
                         _ => {}
                     }
                 }
-                _ => {}
-            },
+            }
             "element" => {
                 let [name, count] = words.as_slice() else {
                     return Err(bad_header(line_no, "expected `element <name> <count>`"));
                 };
                 let count = count.parse::<u64>().map_err(|_| {
-                    bad_header(line_no, format!("element `{name}` count `{count}` is not a whole number"))
+                    bad_header(
+                        line_no,
+                        format!("element `{name}` count `{count}` is not a whole number"),
+                    )
                 })?;
-                elements.push(Element { name: (*name).to_owned(), count, props: Vec::new() });
+                elements.push(Element {
+                    name: (*name).to_owned(),
+                    count,
+                    props: Vec::new(),
+                });
             }
             "property" => {
                 let Some(el) = elements.last_mut() else {
@@ -233,12 +250,24 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
             }
             "end_header" => break,
             other => {
-                return Err(bad_header(line_no, format!("unknown header keyword `{other}`")));
+                return Err(bad_header(
+                    line_no,
+                    format!("unknown header keyword `{other}`"),
+                ));
             }
         }
     }
-    let encoding = encoding.ok_or_else(|| bad_header(line_no, "no `format` line before `end_header`"))?;
-    Ok(Header { encoding, elements, grid, pcl_grid, scale, data_offset: pos, lines: line_no })
+    let encoding =
+        encoding.ok_or_else(|| bad_header(line_no, "no `format` line before `end_header`"))?;
+    Ok(Header {
+        encoding,
+        elements,
+        grid,
+        pcl_grid,
+        scale,
+        data_offset: pos,
+        lines: line_no,
+    })
 }
 
 /// What we take from the vertex element: property indices.
@@ -251,10 +280,13 @@ struct Wanted {
 
 fn wanted(el: &Element) -> Result<Wanted, CloudError> {
     let find = |axis: &str| {
-        el.props.iter().position(|p| p.name == axis).ok_or_else(|| CloudError::Missing {
-            format: FMT,
-            what: format!("vertex property `{axis}`"),
-        })
+        el.props
+            .iter()
+            .position(|p| p.name == axis)
+            .ok_or_else(|| CloudError::Missing {
+                format: FMT,
+                what: format!("vertex property `{axis}`"),
+            })
     };
     let xyz = [find("x")?, find("y")?, find("z")?];
     for &i in &xyz {
@@ -262,22 +294,36 @@ fn wanted(el: &Element) -> Result<Wanted, CloudError> {
             return Err(CloudError::BadHeader {
                 format: FMT,
                 line: 0,
-                reason: format!("vertex property `{}` is a list, expected a number", el.props[i].name),
+                reason: format!(
+                    "vertex property `{}` is a list, expected a number",
+                    el.props[i].name
+                ),
             });
         }
     }
     let scalar_named = |f: fn(&str) -> bool| {
-        el.props.iter().position(|p| f(&p.name) && matches!(p.kind, Kind::Scalar(_)))
+        el.props
+            .iter()
+            .position(|p| f(&p.name) && matches!(p.kind, Kind::Scalar(_)))
     };
-    Ok(Wanted { xyz, intensity: scalar_named(is_intensity), confidence: scalar_named(is_confidence) })
+    Ok(Wanted {
+        xyz,
+        intensity: scalar_named(is_intensity),
+        confidence: scalar_named(is_confidence),
+    })
 }
 
 /// Parses PLY bytes (any of the three encodings) into a cloud in metres.
 pub fn read_ply(bytes: &[u8]) -> Result<PointCloud, CloudError> {
     let h = parse_header(bytes)?;
-    let vi = h.elements.iter().position(|e| e.name == "vertex").ok_or_else(|| {
-        CloudError::Missing { format: FMT, what: "`element vertex` in the header".to_owned() }
-    })?;
+    let vi = h
+        .elements
+        .iter()
+        .position(|e| e.name == "vertex")
+        .ok_or_else(|| CloudError::Missing {
+            format: FMT,
+            what: "`element vertex` in the header".to_owned(),
+        })?;
     let vertex = &h.elements[vi];
     let want = wanted(vertex)?;
     let data = &bytes[h.data_offset..];
@@ -298,7 +344,13 @@ pub fn read_ply(bytes: &[u8]) -> Result<PointCloud, CloudError> {
     };
     debug_assert_eq!(points.len(), n);
     let (width, height) = organization(&h, n)?;
-    Ok(PointCloud { width, height, points, intensity, confidence })
+    Ok(PointCloud {
+        width,
+        height,
+        points,
+        intensity,
+        confidence,
+    })
 }
 
 fn organization(h: &Header, n: usize) -> Result<(u32, u32), CloudError> {
@@ -317,7 +369,10 @@ fn organization(h: &Header, n: usize) -> Result<(u32, u32), CloudError> {
             (Some(w), Some(hh)) if u64::from(w) * u64::from(hh) == n as u64 => Ok((w, hh)),
             _ => Ok((n32, 1)),
         },
-        _ => Err(bad_header(0, "header gives only one of `width`/`height`; give both or neither")),
+        _ => Err(bad_header(
+            0,
+            "header gives only one of `width`/`height`; give both or neither",
+        )),
     }
 }
 
@@ -365,7 +420,12 @@ fn read_binary(
                     Kind::Scalar(s) => s,
                     Kind::List { count, .. } => count,
                 };
-                Column { base: offsets[i], stride, ty, big_endian: big }
+                Column {
+                    base: offsets[i],
+                    stride,
+                    ty,
+                    big_endian: big,
+                }
             };
             let xyz = want.xyz.map(col);
             let points = read_points(block, n, xyz, h.scale);
@@ -387,10 +447,15 @@ fn list_len(
     prop: &Property,
     k: u64,
 ) -> Result<usize, CloudError> {
-    let v = count.read_int(bytes, pos, big).ok_or_else(|| truncated_at(el, k, pos, bytes))?;
+    let v = count
+        .read_int(bytes, pos, big)
+        .ok_or_else(|| truncated_at(el, k, pos, bytes))?;
     usize::try_from(v).map_err(|_| CloudError::BadData {
         format: FMT,
-        location: format!("byte offset {pos}, element `{}` #{k}, list `{}`", el.name, prop.name),
+        location: format!(
+            "byte offset {pos}, element `{}` #{k}, list `{}`",
+            el.name, prop.name
+        ),
         reason: format!("negative list length {v}"),
     })
 }
@@ -406,7 +471,13 @@ fn truncated_at(el: &Element, k: u64, pos: usize, bytes: &[u8]) -> CloudError {
 }
 
 /// Advances over one record of `el` starting at `pos` (any properties, lists included).
-fn skip_record(el: &Element, bytes: &[u8], mut pos: usize, big: bool, k: u64) -> Result<usize, CloudError> {
+fn skip_record(
+    el: &Element,
+    bytes: &[u8],
+    mut pos: usize,
+    big: bool,
+    k: u64,
+) -> Result<usize, CloudError> {
     for p in &el.props {
         match p.kind {
             Kind::Scalar(s) => pos += s.size(),
@@ -435,7 +506,10 @@ fn skip_binary(el: &Element, bytes: &[u8], pos: usize, big: bool) -> Result<usiz
         if need > available {
             return Err(CloudError::Truncated {
                 format: FMT,
-                what: format!("{} records of {stride} bytes (element `{}`)", el.count, el.name),
+                what: format!(
+                    "{} records of {stride} bytes (element `{}`)",
+                    el.count, el.name
+                ),
                 expected_bytes: need,
                 offset: pos as u64,
                 available,
@@ -527,21 +601,36 @@ fn read_ascii(h: &Header, vi: usize, want: &Wanted, data: &[u8]) -> Result<Colum
     let mut intensity = want.intensity.map(|_| Vec::with_capacity(n));
     let mut confidence = want.confidence.map(|_| Vec::with_capacity(n));
     let mut vals = [f32::NAN; 5];
-    let slots = [Some(want.xyz[0]), Some(want.xyz[1]), Some(want.xyz[2]), want.intensity, want.confidence];
+    let slots = [
+        Some(want.xyz[0]),
+        Some(want.xyz[1]),
+        Some(want.xyz[2]),
+        want.intensity,
+        want.confidence,
+    ];
     for k in 0..el.count {
         let (line, text) = lines.next().ok_or_else(|| ascii_short(el, k))?;
         parse_ascii_record(el, text, line, k, &mut |i, tok| {
             for (slot, v) in slots.iter().zip(vals.iter_mut()) {
                 if *slot == Some(i) {
-                    let Kind::Scalar(s) = el.props[i].kind else { return Ok(()) };
+                    let Kind::Scalar(s) = el.props[i].kind else {
+                        return Ok(());
+                    };
                     *v = s.parse_f32(tok).ok_or_else(|| {
-                        format!("`{}` is not a valid {s:?} number", String::from_utf8_lossy(tok))
+                        format!(
+                            "`{}` is not a valid {s:?} number",
+                            String::from_utf8_lossy(tok)
+                        )
                     })?;
                 }
             }
             Ok(())
         })?;
-        points.push(Point3::new(vals[0] * h.scale, vals[1] * h.scale, vals[2] * h.scale));
+        points.push(Point3::new(
+            vals[0] * h.scale,
+            vals[1] * h.scale,
+            vals[2] * h.scale,
+        ));
         if let Some(v) = intensity.as_mut() {
             v.push(vals[3]);
         }
@@ -556,9 +645,16 @@ fn ascii_short(el: &Element, k: u64) -> CloudError {
     CloudError::BadData {
         format: FMT,
         location: format!("end of file, element `{}` #{k}", el.name),
-        reason: format!("the header declares {} `{}` records, the file ends after {k}", el.count, el.name),
+        reason: format!(
+            "the header declares {} `{}` records, the file ends after {k}",
+            el.count, el.name
+        ),
     }
 }
+
+/// Receives `(property index, token)` for each scalar of an ASCII record; an `Err` is the
+/// reason the token is bad.
+type ScalarSink<'a> = dyn FnMut(usize, &[u8]) -> Result<(), String> + 'a;
 
 /// Walks the tokens of one ASCII record, calling `scalar(prop_index, token)` for scalar
 /// properties; errors name the line, record and property.
@@ -567,7 +663,7 @@ fn parse_ascii_record(
     text: &[u8],
     line: usize,
     k: u64,
-    scalar: &mut dyn FnMut(usize, &[u8]) -> Result<(), String>,
+    scalar: &mut ScalarSink<'_>,
 ) -> Result<(), CloudError> {
     let err = |prop: &str, reason: String| CloudError::BadData {
         format: FMT,
@@ -576,19 +672,27 @@ fn parse_ascii_record(
     };
     let mut toks = tokens(text);
     for (i, p) in el.props.iter().enumerate() {
-        let tok = toks.next().ok_or_else(|| err(&p.name, "the line has too few values".to_owned()))?;
+        let tok = toks
+            .next()
+            .ok_or_else(|| err(&p.name, "the line has too few values".to_owned()))?;
         match p.kind {
             Kind::Scalar(_) => scalar(i, tok).map_err(|r| err(&p.name, r))?,
             Kind::List { count, .. } => {
-                let len = count
-                    .parse_int(tok)
-                    .filter(|&v| v >= 0)
-                    .ok_or_else(|| {
-                        err(&p.name, format!("list length `{}` is not a valid count", String::from_utf8_lossy(tok)))
-                    })?;
+                let len = count.parse_int(tok).filter(|&v| v >= 0).ok_or_else(|| {
+                    err(
+                        &p.name,
+                        format!(
+                            "list length `{}` is not a valid count",
+                            String::from_utf8_lossy(tok)
+                        ),
+                    )
+                })?;
                 for _ in 0..len {
                     toks.next().ok_or_else(|| {
-                        err(&p.name, format!("the list declares {len} items, the line has fewer"))
+                        err(
+                            &p.name,
+                            format!("the list declares {len} items, the line has fewer"),
+                        )
                     })?;
                 }
             }
@@ -597,7 +701,10 @@ fn parse_ascii_record(
     if toks.next().is_some() {
         return Err(err(
             &el.props.last().map(|p| p.name.clone()).unwrap_or_default(),
-            format!("the line has more values than the {} properties the header declares", el.props.len()),
+            format!(
+                "the line has more values than the {} properties the header declares",
+                el.props.len()
+            ),
         ));
     }
     Ok(())
@@ -619,7 +726,10 @@ pub fn write_ply(path: &Path, cloud: &PointCloud, encoding: PlyEncoding) -> Resu
         cloud.height,
         cloud.points.len()
     );
-    let attrs: Vec<&[f32]> = [&cloud.intensity, &cloud.confidence].iter().filter_map(|a| a.as_deref()).collect();
+    let attrs: Vec<&[f32]> = [&cloud.intensity, &cloud.confidence]
+        .iter()
+        .filter_map(|a| a.as_deref())
+        .collect();
     if cloud.intensity.is_some() {
         header.push_str("property float intensity\n");
     }

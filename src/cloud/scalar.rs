@@ -51,7 +51,11 @@ impl Scalar {
             }
             Scalar::F64 => {
                 let a = arr::<8>(b, off)?;
-                (if big { f64::from_be_bytes(a) } else { f64::from_le_bytes(a) }) as f32
+                (if big {
+                    f64::from_be_bytes(a)
+                } else {
+                    f64::from_le_bytes(a)
+                }) as f32
             }
             _ => self.read_int(b, off, big)? as f32,
         })
@@ -63,7 +67,11 @@ impl Scalar {
         macro_rules! int {
             ($t:ty, $n:literal) => {{
                 let a = arr::<$n>(b, off)?;
-                i128::from(if big { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) })
+                i128::from(if big {
+                    <$t>::from_be_bytes(a)
+                } else {
+                    <$t>::from_le_bytes(a)
+                })
             }};
         }
         Some(match self {
@@ -135,7 +143,9 @@ impl Column {
     /// only keeps a corrupt layout from panicking).
     #[inline(always)]
     fn get(&self, data: &[u8], i: usize) -> f32 {
-        self.ty.read_f32(data, self.base + i * self.stride, self.big_endian).unwrap_or(f32::NAN)
+        self.ty
+            .read_f32(data, self.base + i * self.stride, self.big_endian)
+            .unwrap_or(f32::NAN)
     }
 }
 
@@ -144,10 +154,18 @@ impl Column {
 pub(crate) fn read_points(data: &[u8], n: usize, xyz: [Column; 3], scale: f32) -> Vec<Point3<f32>> {
     let [cx, cy, cz] = xyz;
     let point = |i: usize| {
-        Point3::new(cx.get(data, i) * scale, cy.get(data, i) * scale, cz.get(data, i) * scale)
+        Point3::new(
+            cx.get(data, i) * scale,
+            cy.get(data, i) * scale,
+            cz.get(data, i) * scale,
+        )
     };
     if n >= PARALLEL_MIN_POINTS {
-        (0..n).into_par_iter().with_min_len(16_384).map(point).collect()
+        (0..n)
+            .into_par_iter()
+            .with_min_len(16_384)
+            .map(point)
+            .collect()
     } else {
         (0..n).map(point).collect()
     }
@@ -156,7 +174,11 @@ pub(crate) fn read_points(data: &[u8], n: usize, xyz: [Column; 3], scale: f32) -
 /// Reads `n` values of one column as `f32`.
 pub(crate) fn read_column(data: &[u8], n: usize, c: Column) -> Vec<f32> {
     if n >= PARALLEL_MIN_POINTS {
-        (0..n).into_par_iter().with_min_len(16_384).map(|i| c.get(data, i)).collect()
+        (0..n)
+            .into_par_iter()
+            .with_min_len(16_384)
+            .map(|i| c.get(data, i))
+            .collect()
     } else {
         (0..n).map(|i| c.get(data, i)).collect()
     }
@@ -164,7 +186,8 @@ pub(crate) fn read_column(data: &[u8], n: usize, c: Column) -> Vec<f32> {
 
 /// Iterator over the whitespace-separated tokens of one ASCII line.
 pub(crate) fn tokens(line: &[u8]) -> impl Iterator<Item = &[u8]> {
-    line.split(|b| matches!(b, b' ' | b'\t' | b'\r' | b'\x0b' | b'\x0c')).filter(|t| !t.is_empty())
+    line.split(|b| matches!(b, b' ' | b'\t' | b'\r' | b'\x0b' | b'\x0c'))
+        .filter(|t| !t.is_empty())
 }
 
 /// Iterator over `(line_number, line)` of an ASCII block, skipping blank lines; line numbers

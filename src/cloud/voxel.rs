@@ -92,7 +92,11 @@ mod tests {
         for i in 0..20 {
             for j in 0..20 {
                 for k in 0..20 {
-                    pts.push(Point3::new(i as f32 * 1e-3 + 5e-4, j as f32 * 1e-3 + 5e-4, k as f32 * 1e-3 + 5e-4));
+                    pts.push(Point3::new(
+                        i as f32 * 1e-3 + 5e-4,
+                        j as f32 * 1e-3 + 5e-4,
+                        k as f32 * 1e-3 + 5e-4,
+                    ));
                 }
             }
         }
@@ -109,8 +113,14 @@ mod tests {
 
     #[test]
     fn bad_voxel_size_keeps_finite_points() {
-        let pts = [Point3::new(1.0, 2.0, 3.0), Point3::new(f32::INFINITY, 0.0, 0.0)];
-        assert_eq!(voxel_downsample(&pts, 0.0), vec![Point3::new(1.0, 2.0, 3.0)]);
+        let pts = [
+            Point3::new(1.0, 2.0, 3.0),
+            Point3::new(f32::INFINITY, 0.0, 0.0),
+        ];
+        assert_eq!(
+            voxel_downsample(&pts, 0.0),
+            vec![Point3::new(1.0, 2.0, 3.0)]
+        );
         assert_eq!(voxel_downsample(&pts, f32::NAN).len(), 1);
     }
 }

@@ -1,3 +1,21 @@
 //! GigE Vision driver: GVCP/GVSP client with GenICam implementing [`handeye_hal::DepthCamera`],
-//! and a simulated GigE Vision 3D camera.
+//! and a simulated GigE Vision 3D camera ([`sim`]).
+//!
+//! Layout: [`gvcp`] (control packets), [`client`] (control channel, discovery, heartbeat),
+//! [`genicam`] (XML fetch and node map), [`gvsp`] (stream packets and the frame receiver),
+//! [`decode`] (PFNC 3D formats to point clouds), [`camera`] (the `DepthCamera`), [`sim`]
+//! (a simulated 3D camera that speaks the same protocols).
 #![deny(missing_docs)]
+
+pub mod camera;
+pub mod client;
+pub mod decode;
+mod error;
+pub mod genicam;
+pub mod gvcp;
+pub mod gvsp;
+pub mod sim;
+
+pub use camera::{CaptureStats, GigeCamera, StreamOptions};
+pub use client::{discover, ControlConfig, ControlGuard, Discovered, GvcpClient};
+pub use error::{GigeError, Result};

@@ -1,0 +1,340 @@
+//! [`GigeCamera`]: a GigE Vision 3D camera behind [`handeye_hal::DepthCamera`].
+
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
+
+use crate::client::{ControlConfig, GvcpClient};
+use crate::decode::{self, Scan3d};
+use crate::error::{GigeError, Result};
+use crate::genicam::{fetch_xml, GvcpPort, NodeMap};
+use crate::gvcp::{cap, reg};
+use crate::gvsp::{Frame, StreamConfig, StreamReceiver, StreamStats};
+
+/// Streaming options of a capture.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StreamOptions {
+    /// GVSP packet size to program (whole IP datagram, bytes). 1500 suits any network;
+    /// jumbo frames (9000) cut the packet rate on networks that allow them.
+    pub packet_size: u32,
+    /// Ask for lost packets when the camera supports it.
+    pub resend: bool,
+    /// Also stream the confidence component (multi-part) when the camera offers it.
+    pub confidence: bool,
+    /// Give up after this many incomplete frames in one capture.
+    pub max_incomplete: u32,
+    /// Receiver tuning (packet size, extended ids and resend are set from the fields above).
+    pub receiver: StreamConfig,
+}
+
+impl Default for StreamOptions {
+    fn default() -> Self {
+        Self {
+            packet_size: 1500,
+            resend: true,
+            confidence: false,
+            max_incomplete: 5,
+            receiver: StreamConfig::default(),
+        }
+    }
+}
+
+/// Statistics of one capture.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct CaptureStats {
+    /// Complete frames delivered.
+    pub complete: u32,
+    /// Incomplete frames dropped.
+    pub incomplete: u32,
+    /// Packets that arrived as retransmissions.
+    pub resent_packets: u64,
+    /// Receiver counters.
+    pub stream: StreamStats,
+}
+
+#[derive(Debug)]
+struct Inner {
+    client: GvcpClient,
+    nodes: NodeMap,
+}
+
+/// A GigE Vision camera (control + stream). Blocking methods end in `_blocking`; the
+/// [`DepthCamera`] implementation runs them on tokio's blocking pool.
+#[derive(Debug, Clone)]
+pub struct GigeCamera {
+    inner: Arc<Mutex<Inner>>,
+    peer: SocketAddr,
+    /// Streaming options used by [`DepthCamera::capture`].
+    pub options: StreamOptions,
+}
+
+fn local_ip_towards(peer: SocketAddr) -> Result<Ipv4Addr> {
+    let s = UdpSocket::bind("0.0.0.0:0").map_err(|e| GigeError::io(peer, e))?;
+    s.connect(peer).map_err(|e| GigeError::io(peer, e))?;
+    match s.local_addr().map_err(|e| GigeError::io(peer, e))?.ip() {
+        IpAddr::V4(ip) => Ok(ip),
+        IpAddr::V6(_) => Err(GigeError::InvalidArgument(
+            "GigE Vision is IPv4 only".into(),
+        )),
+    }
+}
+
+impl GigeCamera {
+    /// Connect to the camera at `addr` (GVCP port, normally 3956) and load its GenICam XML.
+    pub fn connect(addr: SocketAddr, cfg: ControlConfig) -> Result<Self> {
+        let client = GvcpClient::connect(addr, cfg)?;
+        let xml = fetch_xml(&client)?;
+        let nodes = NodeMap::from_xml(&xml)?;
+        Ok(Self {
+            inner: Arc::new(Mutex::new(Inner { client, nodes })),
+            peer: addr,
+            options: StreamOptions::default(),
+        })
+    }
+
+    /// The camera's control address.
+    pub fn peer(&self) -> SocketAddr {
+        self.peer
+    }
+
+    /// Run `f` with the node map and a port to the device (feature access).
+    pub fn with_features<T>(
+        &self,
+        f: impl FnOnce(&mut NodeMap, &mut GvcpPort) -> Result<T>,
+    ) -> Result<T> {
+        let mut g = self.inner.lock().unwrap_or_else(|p| p.into_inner());
+        let mut port = GvcpPort(g.client.clone());
+        f(&mut g.nodes, &mut port)
+    }
+
+    /// The control client (register access).
+    pub fn client(&self) -> GvcpClient {
+        self.inner
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .client
+            .clone()
+    }
+
+    /// Identify the camera (bootstrap strings, size, pixel formats).
+    pub fn info_blocking(&self) -> Result<CameraInfo> {
+        let c = self.client();
+        let vendor = c.read_string(reg::MANUFACTURER, 32)?;
+        let model = c.read_string(reg::MODEL, 32)?;
+        let firmware = c.read_string(reg::DEVICE_VERSION, 32)?;
+        let serial = c.read_string(reg::SERIAL, 16)?;
+        self.with_features(|n, p| {
+            let width = n.integer(p, "Width")?;
+            let height = n.integer(p, "Height")?;
+            let pixel_formats = n.enum_entries("PixelFormat")?;
+            Ok(CameraInfo {
+                vendor,
+                model,
+                serial,
+                firmware,
+                width: u32::try_from(width).unwrap_or(0),
+                height: u32::try_from(height).unwrap_or(0),
+                pixel_formats,
+            })
+        })
+    }
+
+    /// Read the Scan3d conversion parameters (defaults where the camera lacks a feature).
+    pub fn scan3d_blocking(&self) -> Result<Scan3d> {
+        self.with_features(|n, p| {
+            let mut s = Scan3d::default();
+            if n.has("Scan3dDistanceUnit") {
+                s.metres_per_unit = match n.enum_symbol(p, "Scan3dDistanceUnit")?.as_str() {
+                    "Millimeter" => 0.001,
+                    "Inch" => 0.0254,
+                    "Meter" => 1.0,
+                    other => {
+                        return Err(GigeError::feature(
+                            "Scan3dDistanceUnit",
+                            format!("unknown unit `{other}`"),
+                        ))
+                    }
+                };
+            }
+            if n.has("Scan3dCoordinateSelector") {
+                for (k, sym) in ["CoordinateA", "CoordinateB", "CoordinateC"]
+                    .iter()
+                    .enumerate()
+                {
+                    n.set_enum(p, "Scan3dCoordinateSelector", sym)?;
+                    if n.has("Scan3dCoordinateScale") {
+                        s.scale[k] = n.number(p, "Scan3dCoordinateScale")?;
+                    }
+                    if n.has("Scan3dCoordinateOffset") {
+                        s.offset[k] = n.number(p, "Scan3dCoordinateOffset")?;
+                    }
+                }
+            }
+            let flagged =
+                !n.has("Scan3dInvalidDataFlag") || n.boolean(p, "Scan3dInvalidDataFlag")?;
+            if flagged && n.has("Scan3dInvalidDataValue") {
+                s.invalid_value = Some(n.number(p, "Scan3dInvalidDataValue")?);
+            }
+            if n.has("Scan3dFocalLength") {
+                s.focal_length = n.number(p, "Scan3dFocalLength")?;
+                s.principal_point = (
+                    n.number(p, "Scan3dPrincipalPointU")?,
+                    n.number(p, "Scan3dPrincipalPointV")?,
+                );
+            }
+            Ok(s)
+        })
+    }
+
+    /// Take control, stream until `frames` complete frames arrived (incomplete ones are
+    /// counted and dropped), stop and release. Fails on a frame timeout, on too many
+    /// incomplete frames or when control is lost.
+    pub fn capture_raw_blocking(
+        &self,
+        frames: u32,
+        frame_timeout: Duration,
+    ) -> Result<(Vec<Frame>, CaptureStats)> {
+        let o = &self.options;
+        let client = self.client();
+        let control = client.take_control()?;
+        let caps = client.read_reg(reg::GVCP_CAPABILITY)?;
+        client.write_reg(reg::SCPS0, o.packet_size & 0xFFFF)?;
+        let packet_size = (client.read_reg(reg::SCPS0)? & 0xFFFF) as usize;
+        let mut extended = false;
+        if o.confidence {
+            match self.enable_confidence(&client) {
+                Ok(()) => extended = true,
+                Err(e) => tracing::warn!("confidence not available, streaming the range only: {e}"),
+            }
+        }
+        let local_ip = local_ip_towards(self.peer)?;
+        let rcfg = StreamConfig {
+            packet_size,
+            extended,
+            resend: o.resend && caps & cap::PACKET_RESEND != 0,
+            ..o.receiver.clone()
+        };
+        let mut rx = StreamReceiver::bind(local_ip, self.peer, rcfg)?;
+        let port = rx.local_addr()?.port();
+        client.write_reg(reg::SCDA0, u32::from(local_ip))?;
+        client.write_reg(reg::SCP0, u32::from(port))?;
+        self.with_features(|n, p| {
+            if n.has("AcquisitionMode") {
+                n.set_enum(p, "AcquisitionMode", "Continuous")?;
+            }
+            if n.has("TLParamsLocked") {
+                n.set_integer(p, "TLParamsLocked", 1)?;
+            }
+            n.execute(p, "AcquisitionStart")
+        })?;
+        let mut out = Vec::new();
+        let mut stats = CaptureStats::default();
+        let result = (|| {
+            while out.len() < frames as usize {
+                control.check()?;
+                let f = rx.next_frame(frame_timeout)?;
+                stats.resent_packets += u64::from(f.resent_packets);
+                if f.complete {
+                    stats.complete += 1;
+                    out.push(f);
+                } else {
+                    stats.incomplete += 1;
+                    tracing::warn!(
+                        block_id = f.block_id,
+                        missing = f.missing_packets,
+                        "incomplete frame dropped"
+                    );
+                    if stats.incomplete > o.max_incomplete {
+                        return Err(GigeError::FrameTimeout {
+                            timeout: frame_timeout,
+                            detail: format!("{} incomplete frames (packets lost); lower the frame rate or packet size, or raise the receive buffer", stats.incomplete),
+                        });
+                    }
+                }
+            }
+            Ok(())
+        })();
+        stats.stream = rx.stats();
+        // Stop even after an error; report the first error.
+        let stop = self.with_features(|n, p| {
+            n.execute(p, "AcquisitionStop")?;
+            if n.has("TLParamsLocked") {
+                n.set_integer(p, "TLParamsLocked", 0)?;
+            }
+            Ok(())
+        });
+        let close = client.write_reg(reg::SCP0, 0);
+        drop(control);
+        result?;
+        stop?;
+        close?;
+        Ok((out, stats))
+    }
+
+    fn enable_confidence(&self, client: &GvcpClient) -> Result<()> {
+        self.with_features(|n, p| {
+            n.set_enum(p, "ComponentSelector", "Confidence")?;
+            n.set_boolean(p, "ComponentEnable", true)?;
+            n.set_enum(p, "ComponentSelector", "Range")
+        })?;
+        client.write_reg(reg::GVSP_CONFIG, 0x4000_0000)?;
+        client.write_reg(reg::SCCFG0, 0x40)
+    }
+
+    /// Capture and decode `frames` point clouds (metres, camera frame).
+    pub fn capture_blocking(
+        &self,
+        frames: u32,
+        frame_timeout: Duration,
+    ) -> Result<(Vec<PointCloud>, CaptureStats)> {
+        let scan3d = self.scan3d_blocking()?;
+        let (raw, stats) = self.capture_raw_blocking(frames, frame_timeout)?;
+        let clouds = raw
+            .iter()
+            .map(|f| decode::decode(f, &scan3d))
+            .collect::<Result<Vec<_>>>()?;
+        Ok((clouds, stats))
+    }
+}
+
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T> + Send + 'static,
+) -> Result<T, HalError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| HalError::Protocol {
+            peer: "GigE Vision camera".into(),
+            detail: format!("capture thread failed: {e}"),
+        })?
+        .map_err(HalError::from)
+}
+
+impl DepthCamera for GigeCamera {
+    async fn info(&self) -> Result<CameraInfo, HalError> {
+        let cam = self.clone();
+        blocking(move || cam.info_blocking()).await
+    }
+
+    async fn capture(&self, settings: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
+        let cam = self.clone();
+        let (n, t, exposure) = (settings.frames, settings.frame_timeout, settings.exposure);
+        blocking(move || {
+            if let Some(e) = exposure {
+                cam.with_features(|nm, p| {
+                    if nm.has("ExposureTime") {
+                        nm.set_float(p, "ExposureTime", e.as_secs_f64() * 1e6)
+                    } else {
+                        tracing::warn!(
+                            "camera has no ExposureTime feature; exposure setting ignored"
+                        );
+                        Ok(())
+                    }
+                })?;
+            }
+            cam.capture_blocking(n, t).map(|(c, _)| c)
+        })
+        .await
+    }
+}

@@ -1,0 +1,497 @@
+//! GenICam: fetch the device's XML (first/second URL register, `Local:` plain or zipped) and
+//! evaluate its node map.
+//!
+//! Node-map evaluation (Integer, Float, Enumeration, Command, Boolean, String, the register
+//! nodes, Converter/IntConverter/SwissKnife/IntSwissKnife formulas, selectors, pValue/pMin/pMax
+//! indirections, endianness) is done by the `cameleon-genapi` crate; this module adds the
+//! transport, URL parsing, unzipping and a small typed facade with clear errors.
+
+use std::io::Read;
+use std::panic::AssertUnwindSafe;
+
+use cameleon_genapi::builder::GenApiBuilder;
+use cameleon_genapi::prelude::*;
+use cameleon_genapi::store::{CacheSink, DefaultNodeStore, DefaultValueStore, NodeStore};
+use cameleon_genapi::ValueCtxt;
+
+use crate::client::GvcpClient;
+use crate::error::{GigeError, Result};
+use crate::gvcp::reg;
+
+/// Where a device keeps its XML.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum XmlUrl {
+    /// In device memory.
+    Local {
+        /// File name (ends in `.zip` when compressed).
+        file: String,
+        /// Start address.
+        address: u32,
+        /// Length in bytes.
+        length: u32,
+    },
+    /// A file on the host.
+    File(String),
+    /// A web address (not fetched by this driver).
+    Http(String),
+}
+
+impl XmlUrl {
+    /// Parse the URL register text (`Local:name.xml;10000;3e67`, `local:///name;0x10000;3e67`,
+    /// optional `?SchemaVersion=…`).
+    pub fn parse(s: &str) -> Result<Self> {
+        const W: &str = "XML URL";
+        let s = s.trim_matches(|c: char| c == '\0' || c.is_whitespace());
+        let s = s.split('?').next().unwrap_or(s);
+        let (scheme, rest) = s
+            .split_once(':')
+            .ok_or_else(|| GigeError::malformed(W, format!("`{s}` has no scheme")))?;
+        match scheme.to_ascii_lowercase().as_str() {
+            "local" => {
+                let rest = rest.trim_start_matches('/');
+                let parts: Vec<&str> = rest.split(';').collect();
+                if parts.len() != 3 {
+                    return Err(GigeError::malformed(
+                        W,
+                        format!("`{s}`: expected Local:name;address;length"),
+                    ));
+                }
+                let hex = |t: &str| {
+                    let t = t.trim();
+                    let t = t
+                        .strip_prefix("0x")
+                        .or_else(|| t.strip_prefix("0X"))
+                        .unwrap_or(t);
+                    u64::from_str_radix(t, 16)
+                        .ok()
+                        .and_then(|v| u32::try_from(v).ok())
+                        .ok_or_else(|| {
+                            GigeError::malformed(
+                                W,
+                                format!("`{s}`: `{t}` is not a 32-bit hex number"),
+                            )
+                        })
+                };
+                let (address, length) = (hex(parts[1])?, hex(parts[2])?);
+                if length == 0 || length > 64 << 20 {
+                    return Err(GigeError::malformed(
+                        W,
+                        format!("`{s}`: absurd XML length {length}"),
+                    ));
+                }
+                Ok(Self::Local {
+                    file: parts[0].trim().to_owned(),
+                    address,
+                    length,
+                })
+            }
+            "file" => Ok(Self::File(rest.trim_start_matches("///").to_owned())),
+            "http" | "https" => Ok(Self::Http(s.to_owned())),
+            other => Err(GigeError::malformed(
+                W,
+                format!("`{s}`: unknown scheme `{other}`"),
+            )),
+        }
+    }
+}
+
+/// Unzip `bytes` when they are a ZIP archive (first entry), else return them; then UTF-8.
+pub fn xml_text(bytes: &[u8]) -> Result<String> {
+    const W: &str = "GenICam XML";
+    let data = if bytes.starts_with(b"PK\x03\x04") {
+        let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
+            .map_err(|e| GigeError::malformed(W, format!("bad ZIP archive: {e}")))?;
+        let mut entry = zip
+            .by_index(0)
+            .map_err(|e| GigeError::malformed(W, format!("ZIP archive without a file: {e}")))?;
+        let mut out = Vec::new();
+        entry
+            .by_ref()
+            .take(256 << 20)
+            .read_to_end(&mut out)
+            .map_err(|e| GigeError::malformed(W, format!("cannot unzip: {e}")))?;
+        out
+    } else {
+        bytes.to_vec()
+    };
+    let end = data.iter().rposition(|&c| c != 0).map_or(0, |i| i + 1);
+    String::from_utf8(data[..end].to_vec())
+        .map_err(|e| GigeError::malformed(W, format!("not UTF-8: {e}")))
+}
+
+/// Read the XML of a device: first URL register, then the second one as fallback.
+pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
+    let mut last_err = None;
+    for url_reg in [reg::FIRST_URL, reg::SECOND_URL] {
+        let fetched = client
+            .read_string(url_reg, 512)
+            .and_then(|u| XmlUrl::parse(&u))
+            .and_then(|url| match url {
+                XmlUrl::Local {
+                    address, length, ..
+                } => xml_text(&client.read_mem(address, length as usize)?),
+                XmlUrl::File(path) => {
+                    let bytes = std::fs::read(&path).map_err(|e| GigeError::io(path, e))?;
+                    xml_text(&bytes)
+                }
+                XmlUrl::Http(u) => Err(GigeError::malformed(
+                    "XML URL",
+                    format!(
+                        "`{u}`: downloading the XML is not supported; save it and use a File: URL"
+                    ),
+                )),
+            });
+        match fetched {
+            Ok(x) => return Ok(x),
+            Err(e) => last_err = Some(e),
+        }
+    }
+    Err(last_err.unwrap_or_else(|| GigeError::malformed("XML URL", "no URL register")))
+}
+
+/// Register access for the node map over GVCP: 4-byte aligned accesses use READREG/WRITEREG
+/// (always supported), others READMEM/WRITEMEM.
+#[derive(Debug, Clone)]
+pub struct GvcpPort(pub GvcpClient);
+
+impl cameleon_genapi::Device for GvcpPort {
+    fn read_mem(
+        &mut self,
+        address: i64,
+        buf: &mut [u8],
+    ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
+        let a = u32::try_from(address)?;
+        if buf.len() == 4 && a % 4 == 0 {
+            buf.copy_from_slice(&self.0.read_reg(a)?.to_be_bytes());
+        } else {
+            let d = self.0.read_mem(a, buf.len())?;
+            buf.copy_from_slice(&d);
+        }
+        Ok(())
+    }
+
+    fn write_mem(
+        &mut self,
+        address: i64,
+        data: &[u8],
+    ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
+        let a = u32::try_from(address)?;
+        if data.len() == 4 && a % 4 == 0 {
+            self.0
+                .write_reg(a, u32::from_be_bytes([data[0], data[1], data[2], data[3]]))?;
+        } else {
+            self.0.write_mem(a, data)?;
+        }
+        Ok(())
+    }
+}
+
+/// A parsed node map (no register cache: every read goes to the device).
+pub struct NodeMap {
+    store: DefaultNodeStore,
+    cx: ValueCtxt<DefaultValueStore, CacheSink>,
+}
+
+impl std::fmt::Debug for NodeMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NodeMap").finish_non_exhaustive()
+    }
+}
+
+fn gerr(feature: &str, e: impl std::fmt::Display) -> GigeError {
+    GigeError::feature(feature, e.to_string())
+}
+
+impl NodeMap {
+    /// Parse an XML text. Malformed XML is an error (the parser is guarded against panics).
+    pub fn from_xml(xml: &str) -> Result<Self> {
+        let built = std::panic::catch_unwind(AssertUnwindSafe(|| {
+            GenApiBuilder::<
+                DefaultNodeStore,
+                DefaultValueStore,
+                cameleon_genapi::store::DefaultCacheStore,
+            >::default()
+            .no_cache()
+            .build(&xml)
+        }));
+        match built {
+            Ok(Ok((_, store, cx))) => Ok(Self { store, cx }),
+            Ok(Err(e)) => Err(GigeError::malformed("GenICam XML", e.to_string())),
+            Err(_) => Err(GigeError::malformed(
+                "GenICam XML",
+                "the node map is inconsistent (parser aborted)",
+            )),
+        }
+    }
+
+    fn id(&self, name: &str) -> Result<cameleon_genapi::NodeId> {
+        self.store
+            .id_by_name(name)
+            .ok_or_else(|| gerr(name, "the camera has no such feature"))
+    }
+
+    /// Whether the node exists.
+    pub fn has(&self, name: &str) -> bool {
+        self.store.id_by_name(name).is_some()
+    }
+
+    /// Read an integer feature (Integer, IntReg, MaskedIntReg, IntConverter, IntSwissKnife).
+    pub fn integer(&mut self, dev: &mut impl cameleon_genapi::Device, name: &str) -> Result<i64> {
+        let n = self
+            .id(name)?
+            .expect_iinteger_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.value(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Write an integer feature.
+    pub fn set_integer(
+        &mut self,
+        dev: &mut impl cameleon_genapi::Device,
+        name: &str,
+        v: i64,
+    ) -> Result<()> {
+        let n = self
+            .id(name)?
+            .expect_iinteger_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.set_value(v, dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Read a float feature (Float, FloatReg, Converter, SwissKnife).
+    pub fn float(&mut self, dev: &mut impl cameleon_genapi::Device, name: &str) -> Result<f64> {
+        let n = self
+            .id(name)?
+            .expect_ifloat_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.value(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Read an integer or float feature as f64.
+    pub fn number(&mut self, dev: &mut impl cameleon_genapi::Device, name: &str) -> Result<f64> {
+        let id = self.id(name)?;
+        if id.as_iinteger_kind(&self.store).is_some() {
+            return self.integer(dev, name).map(|v| v as f64);
+        }
+        self.float(dev, name)
+    }
+
+    /// Write a float feature.
+    pub fn set_float(
+        &mut self,
+        dev: &mut impl cameleon_genapi::Device,
+        name: &str,
+        v: f64,
+    ) -> Result<()> {
+        let n = self
+            .id(name)?
+            .expect_ifloat_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.set_value(v, dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Read a boolean feature.
+    pub fn boolean(&mut self, dev: &mut impl cameleon_genapi::Device, name: &str) -> Result<bool> {
+        let n = self
+            .id(name)?
+            .expect_iboolean_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.value(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Write a boolean feature.
+    pub fn set_boolean(
+        &mut self,
+        dev: &mut impl cameleon_genapi::Device,
+        name: &str,
+        v: bool,
+    ) -> Result<()> {
+        let n = self
+            .id(name)?
+            .expect_iboolean_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.set_value(v, dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Read a string feature.
+    pub fn string(&mut self, dev: &mut impl cameleon_genapi::Device, name: &str) -> Result<String> {
+        let n = self
+            .id(name)?
+            .expect_istring_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.value(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Current symbolic value of an enumeration.
+    pub fn enum_symbol(
+        &mut self,
+        dev: &mut impl cameleon_genapi::Device,
+        name: &str,
+    ) -> Result<String> {
+        let n = self
+            .id(name)?
+            .expect_ienumeration_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        let e = n
+            .current_entry(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))?;
+        Ok(e.expect_enum_entry(&self.store)
+            .map_err(|e| gerr(name, e))?
+            .symbolic()
+            .to_owned())
+    }
+
+    /// Current integer value of an enumeration.
+    pub fn enum_value(
+        &mut self,
+        dev: &mut impl cameleon_genapi::Device,
+        name: &str,
+    ) -> Result<i64> {
+        let n = self
+            .id(name)?
+            .expect_ienumeration_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.current_value(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Select an enumeration entry by symbolic name.
+    pub fn set_enum(
+        &mut self,
+        dev: &mut impl cameleon_genapi::Device,
+        name: &str,
+        symbol: &str,
+    ) -> Result<()> {
+        let n = self
+            .id(name)?
+            .expect_ienumeration_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        if n.entry_by_symbolic(symbol, &self.store).is_none() {
+            return Err(gerr(
+                name,
+                format!(
+                    "has no entry `{symbol}`; entries: {}",
+                    self.enum_entries(name)?.join(", ")
+                ),
+            ));
+        }
+        n.set_entry_by_symbolic(symbol, dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+
+    /// Symbolic names and values of all entries of an enumeration.
+    pub fn enum_entries(&self, name: &str) -> Result<Vec<String>> {
+        Ok(self
+            .enum_entries_with_values(name)?
+            .into_iter()
+            .map(|(s, _)| s)
+            .collect())
+    }
+
+    /// Symbolic names and integer values of all entries.
+    pub fn enum_entries_with_values(&self, name: &str) -> Result<Vec<(String, i64)>> {
+        let n = self
+            .id(name)?
+            .expect_ienumeration_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        let mut out = Vec::new();
+        for id in n.entries(&self.store) {
+            let e = id
+                .expect_enum_entry(&self.store)
+                .map_err(|e| gerr(name, e))?;
+            out.push((e.symbolic().to_owned(), e.value()));
+        }
+        Ok(out)
+    }
+
+    /// Execute a command feature.
+    pub fn execute(&mut self, dev: &mut impl cameleon_genapi::Device, name: &str) -> Result<()> {
+        let n = self
+            .id(name)?
+            .expect_icommand_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        n.execute(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    #[test]
+    fn url_forms_parse() {
+        assert_eq!(
+            XmlUrl::parse("Local:arv-fake-camera.xml;10000;3e67\0\0").expect("url"),
+            XmlUrl::Local {
+                file: "arv-fake-camera.xml".into(),
+                address: 0x10000,
+                length: 0x3e67
+            }
+        );
+        assert_eq!(
+            XmlUrl::parse("local:///V_M.zip;0xC0000000; 10D4A?SchemaVersion=1.1.0").expect("url"),
+            XmlUrl::Local {
+                file: "V_M.zip".into(),
+                address: 0xC000_0000,
+                length: 0x10D4A
+            }
+        );
+        for bad in [
+            "",
+            "Local:x;zz;10",
+            "Local:x;10",
+            "Local:x;10;0",
+            "gopher:x",
+            "Local:x;100000000;10",
+        ] {
+            assert!(XmlUrl::parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn zipped_and_plain_xml_read_the_same() {
+        let xml = "<RegisterDescription/>";
+        let mut buf = std::io::Cursor::new(Vec::new());
+        {
+            let mut w = zip::ZipWriter::new(&mut buf);
+            w.start_file("a.xml", zip::write::SimpleFileOptions::default())
+                .expect("zip");
+            w.write_all(xml.as_bytes()).expect("zip");
+            w.finish().expect("zip");
+        }
+        assert_eq!(xml_text(&buf.into_inner()).expect("zip"), xml);
+        assert_eq!(xml_text(b"<a/>\0\0\0").expect("plain"), "<a/>");
+        assert!(xml_text(b"PK\x03\x04garbage").is_err());
+        assert!(NodeMap::from_xml("<not xml").is_err());
+    }
+
+    #[test]
+    fn fuzz_url_and_xml_parsers_never_panic() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let seeds = [
+            "Local:a.xml;10000;3e67",
+            "local:///b.zip;0xC0000000;10D4A?x=1",
+            "File:/tmp/x.xml",
+        ];
+        for i in 0..5000 {
+            let mut b = seeds[i % seeds.len()].as_bytes().to_vec();
+            for _ in 0..rng.random_range(1..4) {
+                let j = rng.random_range(0..b.len());
+                b[j] = rng.random_range(0x20..0x7f);
+            }
+            b.truncate(rng.random_range(0..=b.len()));
+            let _ = XmlUrl::parse(&String::from_utf8_lossy(&b));
+            let _ = xml_text(&b);
+        }
+    }
+}

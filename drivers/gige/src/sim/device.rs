@@ -1,0 +1,906 @@
+//! GVCP server and GVSP streamer of the simulated camera.
+
+use std::collections::{HashMap, VecDeque};
+use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use rand::{Rng, SeedableRng};
+
+use super::FrameSource;
+use crate::decode::pfnc;
+use crate::error::{GigeError, Result};
+use crate::gvcp::{self, cap, code, reg, Ack, Command, CommandKind};
+use crate::gvsp::{self, Block, PartInfo};
+
+const XML_ADDRESS: u32 = 0x0010_0000;
+const TEMPLATE: &str = include_str!("camera.xml");
+
+// Feature registers (see camera.xml).
+const WIDTH: u32 = 0xA000;
+const HEIGHT: u32 = 0xA004;
+const PIXEL_FORMAT: u32 = 0xA008;
+const PAYLOAD_SIZE: u32 = 0xA00C;
+const ACQ_MODE: u32 = 0xA010;
+const ACQ_START: u32 = 0xA014;
+const ACQ_STOP: u32 = 0xA018;
+const TL_LOCKED: u32 = 0xA01C;
+const SENSOR_WIDTH: u32 = 0xA020;
+const SENSOR_HEIGHT: u32 = 0xA024;
+const DISTANCE_UNIT: u32 = 0xA028;
+const COORD_SYSTEM: u32 = 0xA02C;
+const OUTPUT_MODE: u32 = 0xA030;
+const COORD_SELECTOR: u32 = 0xA034;
+const INVALID_FLAG: u32 = 0xA038;
+const COMPONENT_SELECTOR: u32 = 0xA03C;
+const COMPONENT_ENABLE: u32 = 0xA040;
+const COMPONENT_ID: u32 = 0xA044;
+const FLOAT_BASE: u32 = 0xA100; // 8-byte doubles: scale, offset, invalid, focal, pu, pv, (A130 unused), rate
+const C16_SCALE_MM: f64 = 0.1;
+
+/// Simulator settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimOptions {
+    /// Manufacturer name in the bootstrap registers and XML.
+    pub vendor: String,
+    /// Model name.
+    pub model: String,
+    /// Serial number.
+    pub serial: String,
+    /// Device version (firmware).
+    pub version: String,
+    /// Fraction of GVSP packets dropped on first transmission (0 = none).
+    pub loss_ratio: f64,
+    /// Frames per second while acquiring.
+    pub frame_rate: f64,
+    /// Pace packets to this many bits per second (`None` = as fast as the socket takes them).
+    pub bandwidth_bps: Option<f64>,
+    /// Seed of the loss injection.
+    pub seed: u64,
+}
+
+impl Default for SimOptions {
+    fn default() -> Self {
+        Self {
+            vendor: "handeye".into(),
+            model: "SimCam3D".into(),
+            serial: "SIM0001".into(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            loss_ratio: 0.0,
+            frame_rate: 10.0,
+            bandwidth_bps: None,
+            seed: 1,
+        }
+    }
+}
+
+/// What the simulator did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct SimStats {
+    /// Frames streamed.
+    pub frames: u64,
+    /// Packets dropped on purpose.
+    pub dropped_packets: u64,
+    /// Packets sent again on request.
+    pub resent_packets: u64,
+    /// GVCP commands handled.
+    pub commands: u64,
+}
+
+#[derive(Debug)]
+struct State {
+    regs: HashMap<u32, u32>,
+    strings: Vec<(u32, usize, Vec<u8>)>,
+    xml: Vec<u8>,
+    sensor: (u32, u32),
+    intrinsics: (f64, f64, f64),
+    controller: Option<SocketAddr>,
+    last_heartbeat: Instant,
+    acquiring: bool,
+    confidence_enabled: bool,
+    history: VecDeque<(u64, Arc<Vec<Vec<u8>>>)>,
+    stats: SimStats,
+    frame_rate: f64,
+}
+
+impl State {
+    fn reg(&self, a: u32) -> u32 {
+        self.regs.get(&a).copied().unwrap_or(0)
+    }
+
+    fn multipart(&self) -> bool {
+        self.confidence_enabled
+            && self.reg(reg::SCCFG0) & 0x40 != 0
+            && self.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0
+    }
+
+    fn payload_size(&self) -> u32 {
+        let (w, h) = (self.reg(WIDTH), self.reg(HEIGHT));
+        let main = gvsp::image_bytes(self.reg(PIXEL_FORMAT), w, h, 0);
+        let conf = if self.multipart() {
+            u64::from(w) * u64::from(h) * 2
+        } else {
+            0
+        };
+        u32::try_from(main + conf).unwrap_or(u32::MAX)
+    }
+
+    fn float(&self, a: u32) -> Option<f64> {
+        if !(FLOAT_BASE..FLOAT_BASE + 0x40).contains(&a) {
+            return None;
+        }
+        let c16 = self.reg(PIXEL_FORMAT) == pfnc::COORD3D_C16;
+        let coord = self.reg(COORD_SELECTOR);
+        let (f, pu, pv) = self.intrinsics;
+        let (w, h) = (self.reg(WIDTH), self.reg(HEIGHT));
+        // The ROI is centred in the sensor: shift the principal point.
+        let ox = f64::from((self.sensor.0 - w) / 2);
+        let oy = f64::from((self.sensor.1 - h) / 2);
+        Some(match (a - FLOAT_BASE) / 8 {
+            0 => {
+                if c16 && coord == 2 {
+                    C16_SCALE_MM
+                } else {
+                    1.0
+                }
+            }
+            1 => 0.0,
+            2 => {
+                if c16 {
+                    0.0
+                } else {
+                    f64::NAN
+                }
+            }
+            3 => f,
+            4 => pu - ox,
+            5 => pv - oy,
+            7 => self.frame_rate,
+            _ => 0.0,
+        })
+    }
+
+    /// Read one big-endian 32-bit word.
+    fn read_word(&self, a: u32) -> Option<u32> {
+        if !a.is_multiple_of(4) {
+            return None;
+        }
+        for (base, len, bytes) in &self.strings {
+            if (*base..*base + *len as u32).contains(&a) {
+                let o = (a - base) as usize;
+                let b = |i: usize| bytes.get(o + i).copied().unwrap_or(0);
+                return Some(u32::from_be_bytes([b(0), b(1), b(2), b(3)]));
+            }
+        }
+        if (XML_ADDRESS..XML_ADDRESS + self.xml.len() as u32 + 4).contains(&a) {
+            let o = (a - XML_ADDRESS) as usize;
+            let b = |i: usize| self.xml.get(o + i).copied().unwrap_or(0);
+            return Some(u32::from_be_bytes([b(0), b(1), b(2), b(3)]));
+        }
+        if let Some(x) = self.float(a & !7) {
+            let bits = x.to_bits();
+            return Some(if a.is_multiple_of(8) {
+                (bits >> 32) as u32
+            } else {
+                bits as u32
+            });
+        }
+        match a {
+            PAYLOAD_SIZE => Some(self.payload_size()),
+            OUTPUT_MODE => Some(u32::from(self.reg(PIXEL_FORMAT) == pfnc::COORD3D_C16)),
+            COMPONENT_ENABLE => Some(if self.reg(COMPONENT_SELECTOR) == 0 {
+                1
+            } else {
+                u32::from(self.confidence_enabled)
+            }),
+            COMPONENT_ID => Some(if self.reg(COMPONENT_SELECTOR) == 0 {
+                4
+            } else {
+                6
+            }),
+            _ => self.regs.get(&a).copied(),
+        }
+    }
+
+    /// Write one register; Err(status) on refusal.
+    fn write_word(&mut self, a: u32, v: u32) -> std::result::Result<(), u16> {
+        let locked = self.reg(TL_LOCKED) != 0 || self.acquiring;
+        match a {
+            WIDTH | HEIGHT => {
+                let max = if a == WIDTH {
+                    self.sensor.0
+                } else {
+                    self.sensor.1
+                };
+                if locked {
+                    return Err(0x8004);
+                }
+                if !(16..=max).contains(&v) {
+                    return Err(0x8002);
+                }
+            }
+            PIXEL_FORMAT => {
+                if locked {
+                    return Err(0x8004);
+                }
+                if v != pfnc::COORD3D_ABC32F && v != pfnc::COORD3D_C16 {
+                    return Err(0x8002);
+                }
+            }
+            ACQ_MODE if v > 1 => return Err(0x8002),
+            ACQ_START => {
+                if self.reg(reg::SCP0) & 0xFFFF == 0 {
+                    tracing::warn!("AcquisitionStart without a stream channel");
+                }
+                self.acquiring = true;
+                return Ok(());
+            }
+            ACQ_STOP => {
+                self.acquiring = false;
+                return Ok(());
+            }
+            COORD_SELECTOR if v > 2 => return Err(0x8002),
+            COMPONENT_SELECTOR if v > 1 => return Err(0x8002),
+            COMPONENT_ENABLE => {
+                if self.reg(COMPONENT_SELECTOR) == 0 {
+                    return if v == 1 { Ok(()) } else { Err(0x8002) };
+                }
+                self.confidence_enabled = v != 0;
+                return Ok(());
+            }
+            TL_LOCKED | ACQ_MODE | COORD_SELECTOR | COMPONENT_SELECTOR => {}
+            reg::HEARTBEAT_TIMEOUT if v < 500 => return Err(0x8002),
+            reg::SCPS0 => {
+                let size = v & 0xFFFF;
+                if !(576..=16_000).contains(&size) {
+                    return Err(0x8002);
+                }
+                self.regs.insert(a, size);
+                return Ok(());
+            }
+            reg::SCP0 => {
+                self.regs.insert(a, v & 0xFFFF);
+                if v & 0xFFFF == 0 {
+                    self.acquiring = false;
+                }
+                return Ok(());
+            }
+            reg::SCCFG0 => {
+                self.regs.insert(a, v & 0x40);
+                return Ok(());
+            }
+            reg::GVSP_CONFIG => {
+                self.regs.insert(a, v & 0x4000_0000);
+                return Ok(());
+            }
+            reg::TIMESTAMP_CONTROL => return Ok(()),
+            reg::HEARTBEAT_TIMEOUT | reg::SCPD0 | reg::SCDA0 | reg::GVCP_CONFIG => {}
+            _ if self.read_word(a).is_some() => return Err(0x8004),
+            _ => return Err(0x8003),
+        }
+        self.regs.insert(a, v);
+        Ok(())
+    }
+}
+
+/// A running simulated camera. Dropping it stops its threads.
+#[derive(Debug)]
+pub struct SimCamera {
+    addr: SocketAddr,
+    state: Arc<Mutex<State>>,
+    stop: Arc<AtomicBool>,
+    threads: Vec<JoinHandle<()>>,
+}
+
+fn lock(s: &Mutex<State>) -> MutexGuard<'_, State> {
+    s.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn xml_for(opts: &SimOptions) -> String {
+    let esc = |s: &str| {
+        s.replace('&', "&amp;")
+            .replace('<', "&lt;")
+            .replace('"', "&quot;")
+    };
+    TEMPLATE
+        .replace("@MODEL@", &esc(&opts.model))
+        .replace("@VENDOR@", &esc(&opts.vendor))
+}
+
+impl SimCamera {
+    /// The GenApi XML the simulator serves.
+    pub fn xml(opts: &SimOptions) -> String {
+        xml_for(opts)
+    }
+
+    /// Start a camera whose GVCP server listens on `bind` (normally port 3956; port 0 picks
+    /// one). Frames come from `source`.
+    pub fn spawn(bind: SocketAddr, source: Box<dyn FrameSource>, opts: SimOptions) -> Result<Self> {
+        let IpAddr::V4(ip) = bind.ip() else {
+            return Err(GigeError::InvalidArgument(
+                "GigE Vision is IPv4 only".into(),
+            ));
+        };
+        let gvcp_sock = UdpSocket::bind(bind).map_err(|e| GigeError::io(bind, e))?;
+        let addr = gvcp_sock.local_addr().map_err(|e| GigeError::io(bind, e))?;
+        gvcp_sock
+            .set_read_timeout(Some(Duration::from_millis(20)))
+            .map_err(|e| GigeError::io(addr, e))?;
+        let stream_sock =
+            UdpSocket::bind(SocketAddr::new(bind.ip(), 0)).map_err(|e| GigeError::io(bind, e))?;
+        let _ = socket2::SockRef::from(&stream_sock).set_send_buffer_size(8 << 20);
+        let stream_port = stream_sock
+            .local_addr()
+            .map_err(|e| GigeError::io(bind, e))?
+            .port();
+        let sensor = source.size();
+        if sensor.0 < 16 || sensor.1 < 16 {
+            return Err(GigeError::InvalidArgument(format!(
+                "frame source size {sensor:?} is below 16x16"
+            )));
+        }
+        let xml = xml_for(&opts).into_bytes();
+        let mut regs = HashMap::new();
+        let mac = [
+            0x02,
+            0x00,
+            ip.octets()[0],
+            ip.octets()[1],
+            ip.octets()[2],
+            ip.octets()[3],
+        ];
+        let url = format!("Local:handeye-sim.xml;{XML_ADDRESS:x};{:x}", xml.len());
+        for (a, v) in [
+            (reg::VERSION, 0x0002_0001),
+            (reg::DEVICE_MODE, 0x8000_0001),
+            (
+                reg::MAC_HIGH,
+                u32::from(u16::from_be_bytes([mac[0], mac[1]])),
+            ),
+            (
+                reg::MAC_LOW,
+                u32::from_be_bytes([mac[2], mac[3], mac[4], mac[5]]),
+            ),
+            (reg::SUPPORTED_IP_CONFIG, 0x7),
+            (reg::CURRENT_IP_CONFIG, 0x1),
+            (reg::CURRENT_IP, u32::from(ip)),
+            (reg::SUBNET_MASK, 0xFF00_0000),
+            (reg::GATEWAY, 0),
+            (reg::NUM_INTERFACES, 1),
+            (reg::LINK_SPEED, 1000),
+            (reg::NUM_MESSAGE_CHANNELS, 0),
+            (reg::NUM_STREAM_CHANNELS, 1),
+            (reg::GVSP_CAPABILITY, 0xC000_0000),
+            (
+                reg::GVCP_CAPABILITY,
+                cap::USER_NAME
+                    | cap::SERIAL_NUMBER
+                    | cap::PACKET_RESEND
+                    | cap::WRITEMEM
+                    | cap::CONCATENATION,
+            ),
+            (reg::HEARTBEAT_TIMEOUT, 3000),
+            (reg::TICK_FREQ_HIGH, 0),
+            (reg::TICK_FREQ_LOW, 1_000_000_000),
+            (reg::TIMESTAMP_CONTROL, 0),
+            (reg::TIMESTAMP_HIGH, 0),
+            (reg::TIMESTAMP_LOW, 0),
+            (reg::GVCP_CONFIG, 0),
+            (reg::GVSP_CONFIG, 0),
+            (reg::CCP, 0),
+            (reg::SCP0, 0),
+            (reg::SCPS0, 1500),
+            (reg::SCPD0, 0),
+            (reg::SCDA0, 0),
+            (reg::SCSP0, u32::from(stream_port)),
+            (reg::SCC0, 0x40),
+            (reg::SCCFG0, 0),
+            (WIDTH, sensor.0),
+            (HEIGHT, sensor.1),
+            (PIXEL_FORMAT, pfnc::COORD3D_ABC32F),
+            (ACQ_MODE, 0),
+            (ACQ_START, 0),
+            (ACQ_STOP, 0),
+            (TL_LOCKED, 0),
+            (SENSOR_WIDTH, sensor.0),
+            (SENSOR_HEIGHT, sensor.1),
+            (DISTANCE_UNIT, 0),
+            (COORD_SYSTEM, 0),
+            (COORD_SELECTOR, 2),
+            (INVALID_FLAG, 1),
+            (COMPONENT_SELECTOR, 0),
+        ] {
+            regs.insert(a, v);
+        }
+        let s = |t: &str| t.as_bytes().to_vec();
+        let mut url_bytes = s(&url);
+        url_bytes.push(0);
+        let strings = vec![
+            (reg::MANUFACTURER, 32, s(&opts.vendor)),
+            (reg::MODEL, 32, s(&opts.model)),
+            (reg::DEVICE_VERSION, 32, s(&opts.version)),
+            (
+                reg::MANUFACTURER_INFO,
+                48,
+                s("simulated GigE Vision 3D camera"),
+            ),
+            (reg::SERIAL, 16, s(&opts.serial)),
+            (reg::USER_NAME, 16, s("")),
+            (reg::FIRST_URL, 512, url_bytes.clone()),
+            (reg::SECOND_URL, 512, url_bytes),
+        ];
+        let state = Arc::new(Mutex::new(State {
+            regs,
+            strings,
+            xml,
+            sensor,
+            intrinsics: source.intrinsics(),
+            controller: None,
+            last_heartbeat: Instant::now(),
+            acquiring: false,
+            confidence_enabled: false,
+            history: VecDeque::new(),
+            stats: SimStats::default(),
+            frame_rate: opts.frame_rate,
+        }));
+        let stop = Arc::new(AtomicBool::new(false));
+        let resend_sock = stream_sock
+            .try_clone()
+            .map_err(|e| GigeError::io(addr, e))?;
+        let t1 = {
+            let (state, stop) = (state.clone(), stop.clone());
+            std::thread::Builder::new()
+                .name("sim-gvcp".into())
+                .spawn(move || serve_gvcp(gvcp_sock, resend_sock, state, stop))
+                .map_err(|e| GigeError::io("sim thread", e))?
+        };
+        let t2 = {
+            let (state, stop) = (state.clone(), stop.clone());
+            std::thread::Builder::new()
+                .name("sim-gvsp".into())
+                .spawn(move || stream(stream_sock, source, state, stop, opts))
+                .map_err(|e| GigeError::io("sim thread", e))?
+        };
+        Ok(Self {
+            addr,
+            state,
+            stop,
+            threads: vec![t1, t2],
+        })
+    }
+
+    /// The GVCP address (what clients connect to).
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> SimStats {
+        lock(&self.state).stats
+    }
+
+    /// Whether the simulator is streaming.
+    pub fn is_acquiring(&self) -> bool {
+        lock(&self.state).acquiring
+    }
+
+    /// Block until `stop` is set (for the CLI).
+    pub fn wait(&self, stop: &AtomicBool) {
+        while !stop.load(Ordering::Relaxed) && !self.stop.load(Ordering::Relaxed) {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+impl Drop for SimCamera {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+fn serve_gvcp(
+    sock: UdpSocket,
+    resend_sock: UdpSocket,
+    state: Arc<Mutex<State>>,
+    stop: Arc<AtomicBool>,
+) {
+    let mut buf = [0u8; 2048];
+    while !stop.load(Ordering::Relaxed) {
+        {
+            let mut s = lock(&state);
+            let hb = Duration::from_millis(u64::from(s.reg(reg::HEARTBEAT_TIMEOUT).max(500)));
+            if s.controller.is_some() && s.last_heartbeat.elapsed() > hb {
+                tracing::info!("sim camera: heartbeat timeout, releasing control");
+                s.controller = None;
+                s.regs.insert(reg::CCP, 0);
+                s.acquiring = false;
+                s.regs.insert(reg::SCP0, 0);
+            }
+        }
+        let (n, from) = match sock.recv_from(&mut buf) {
+            Ok(x) => x,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                continue
+            }
+            Err(e) => {
+                tracing::warn!("sim camera GVCP socket: {e}");
+                std::thread::sleep(Duration::from_millis(20));
+                continue;
+            }
+        };
+        let cmd = match Command::decode(&buf[..n]) {
+            Ok(c) => c,
+            Err(e) => {
+                tracing::debug!("sim camera: ignoring bad command from {from}: {e}");
+                continue;
+            }
+        };
+        let reply = handle(&cmd, from, &state, &resend_sock);
+        if let Some(ack) = reply {
+            if cmd.flags & gvcp::FLAG_ACK_REQUIRED != 0 {
+                let _ = sock.send_to(&ack.encode(), from);
+            }
+        }
+    }
+}
+
+fn handle(
+    cmd: &Command,
+    from: SocketAddr,
+    state: &Mutex<State>,
+    resend_sock: &UdpSocket,
+) -> Option<Ack> {
+    let mut s = lock(state);
+    s.stats.commands += 1;
+    if s.controller == Some(from) {
+        s.last_heartbeat = Instant::now();
+    }
+    let ack = |status: u16, payload: Vec<u8>| Ack {
+        status,
+        ack_code: cmd.kind.code() + 1,
+        ack_id: cmd.req_id,
+        payload,
+    };
+    let may_write = s.controller.is_none() || s.controller == Some(from);
+    Some(match &cmd.kind {
+        CommandKind::Discovery => {
+            let mut p = Vec::with_capacity(0xF8);
+            for a in (0..0xF8).step_by(4) {
+                p.extend_from_slice(&s.read_word(a).unwrap_or(0).to_be_bytes());
+            }
+            ack(0, p)
+        }
+        CommandKind::ReadReg(addrs) => {
+            let mut p = Vec::new();
+            for &a in addrs {
+                match s.read_word(a) {
+                    Some(v) => p.extend_from_slice(&v.to_be_bytes()),
+                    None => return Some(ack(if a % 4 != 0 { 0x8005 } else { 0x8003 }, p)),
+                }
+            }
+            ack(0, p)
+        }
+        CommandKind::WriteReg(pairs) => {
+            for (i, &(a, v)) in pairs.iter().enumerate() {
+                let idx = (i as u32).to_be_bytes().to_vec();
+                if a == reg::CCP {
+                    if !may_write {
+                        return Some(ack(0x8006, idx));
+                    }
+                    if v & (gvcp::ccp::CONTROL | gvcp::ccp::EXCLUSIVE) != 0 {
+                        s.controller = Some(from);
+                        s.last_heartbeat = Instant::now();
+                    } else {
+                        s.controller = None;
+                    }
+                    s.regs.insert(reg::CCP, v & 0x3);
+                    continue;
+                }
+                if !may_write {
+                    return Some(ack(0x8006, idx));
+                }
+                if a % 4 != 0 {
+                    return Some(ack(0x8005, idx));
+                }
+                if let Err(st) = s.write_word(a, v) {
+                    return Some(ack(st, idx));
+                }
+            }
+            ack(0, (pairs.len() as u32).to_be_bytes().to_vec())
+        }
+        CommandKind::ReadMem { address, count } => {
+            let count = usize::from(*count);
+            if address % 4 != 0 || count % 4 != 0 {
+                return Some(ack(0x8005, Vec::new()));
+            }
+            if count == 0 || count > gvcp::MAX_MEM_BLOCK {
+                return Some(ack(0x8002, Vec::new()));
+            }
+            let mut p = address.to_be_bytes().to_vec();
+            for i in (0..count as u32).step_by(4) {
+                match address.checked_add(i).and_then(|a| s.read_word(a)) {
+                    Some(v) => p.extend_from_slice(&v.to_be_bytes()),
+                    None => return Some(ack(0x8003, Vec::new())),
+                }
+            }
+            ack(0, p)
+        }
+        CommandKind::WriteMem { address, data } => {
+            if !may_write {
+                return Some(ack(0x8006, vec![0; 4]));
+            }
+            if address % 4 != 0 || data.len() % 4 != 0 || data.is_empty() {
+                return Some(ack(0x8005, vec![0; 4]));
+            }
+            for (i, c) in data.chunks_exact(4).enumerate() {
+                let a = address.wrapping_add(4 * i as u32);
+                if let Err(st) = s.write_word(a, u32::from_be_bytes([c[0], c[1], c[2], c[3]])) {
+                    return Some(ack(st, (4 * i as u32).to_be_bytes().to_vec()));
+                }
+            }
+            ack(0, (data.len() as u32).to_be_bytes().to_vec())
+        }
+        CommandKind::PacketResend {
+            block_id,
+            first,
+            last,
+            extended,
+            ..
+        } => {
+            let dest = SocketAddr::new(
+                IpAddr::V4(Ipv4Addr::from(s.reg(reg::SCDA0))),
+                s.reg(reg::SCP0) as u16,
+            );
+            let packets = s
+                .history
+                .iter()
+                .find(|(b, _)| b == block_id)
+                .map(|(_, p)| p.clone());
+            let mut sent = 0;
+            match packets {
+                Some(pk) => {
+                    for pid in *first..=(*last).min(pk.len().saturating_sub(1) as u32) {
+                        if let Some(p) = pk.get(pid as usize) {
+                            let mut p = p.clone();
+                            if *extended {
+                                p[2] |= 0; // flags high byte
+                                p[3] |= 0x01; // resent flag
+                            } else {
+                                p[0] = 0x01;
+                                p[1] = 0x00;
+                            }
+                            let _ = resend_sock.send_to(&p, dest);
+                            sent += 1;
+                        }
+                    }
+                }
+                None => {
+                    // PACKET_UNAVAILABLE error packet for the block.
+                    let mut p = Vec::new();
+                    gvsp::Header {
+                        status: 0x800C,
+                        block_id: *block_id,
+                        format: gvsp::FORMAT_PAYLOAD,
+                        packet_id: *first,
+                        extended: *extended,
+                        flags: 0,
+                        parts: 0,
+                    }
+                    .encode(&mut p);
+                    let _ = resend_sock.send_to(&p, dest);
+                }
+            }
+            s.stats.resent_packets += sent;
+            return None;
+        }
+        CommandKind::Other { code: c, .. } => {
+            let status = if *c == code::FORCEIP { 0x8006 } else { 0x8001 };
+            ack(status, Vec::new())
+        }
+    })
+}
+
+fn stream(
+    sock: UdpSocket,
+    mut source: Box<dyn FrameSource>,
+    state: Arc<Mutex<State>>,
+    stop: Arc<AtomicBool>,
+    opts: SimOptions,
+) {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(opts.seed);
+    let mut block_id: u64 = 0;
+    let t0 = Instant::now();
+    let period = Duration::from_secs_f64(1.0 / opts.frame_rate.max(0.01));
+    let mut next = Instant::now();
+    while !stop.load(Ordering::Relaxed) {
+        let (active, dest, scps, ext, mp, w, h, pf, single) = {
+            let s = lock(&state);
+            let port = s.reg(reg::SCP0) as u16;
+            let ip = Ipv4Addr::from(s.reg(reg::SCDA0));
+            (
+                s.acquiring && port != 0 && !ip.is_unspecified(),
+                SocketAddr::new(IpAddr::V4(ip), port),
+                s.reg(reg::SCPS0) as usize,
+                s.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0,
+                s.multipart(),
+                s.reg(WIDTH),
+                s.reg(HEIGHT),
+                s.reg(PIXEL_FORMAT),
+                s.reg(ACQ_MODE) == 1,
+            )
+        };
+        if !active {
+            std::thread::sleep(Duration::from_millis(5));
+            next = Instant::now();
+            continue;
+        }
+        let now = Instant::now();
+        if now < next {
+            std::thread::sleep((next - now).min(Duration::from_millis(20)));
+            continue;
+        }
+        next += period;
+        let cloud = match source.next_frame() {
+            Ok(c) => c,
+            Err(e) => {
+                tracing::warn!("sim camera: frame source failed: {e}");
+                continue;
+            }
+        };
+        block_id = if ext {
+            block_id + 1
+        } else if block_id >= 0xFFFF {
+            1
+        } else {
+            block_id + 1
+        };
+        let block = make_block(
+            &cloud,
+            block_id,
+            t0.elapsed().as_nanos() as u64,
+            w,
+            h,
+            pf,
+            mp,
+        );
+        let packets = match gvsp::packetize(&block, scps, ext) {
+            Ok(p) => Arc::new(p),
+            Err(e) => {
+                tracing::warn!("sim camera: {e}");
+                continue;
+            }
+        };
+        {
+            let mut s = lock(&state);
+            s.history.push_back((block_id, packets.clone()));
+            while s.history.len() > 4 {
+                s.history.pop_front();
+            }
+        }
+        let start = Instant::now();
+        let mut bits = 0.0;
+        let mut dropped = 0;
+        for p in packets.iter() {
+            bits += (p.len() + 28) as f64 * 8.0;
+            if opts.loss_ratio > 0.0 && rng.random::<f64>() < opts.loss_ratio {
+                dropped += 1;
+                continue;
+            }
+            if let Some(bps) = opts.bandwidth_bps {
+                let due = Duration::from_secs_f64(bits / bps);
+                let el = start.elapsed();
+                if due > el + Duration::from_micros(200) {
+                    std::thread::sleep(due - el);
+                }
+            }
+            if let Err(e) = sock.send_to(p, dest) {
+                if e.raw_os_error() == Some(105) {
+                    // ENOBUFS: the host is not keeping up; back off briefly.
+                    std::thread::sleep(Duration::from_micros(200));
+                    let _ = sock.send_to(p, dest);
+                } else {
+                    tracing::debug!("sim camera: send failed: {e}");
+                }
+            }
+        }
+        let mut s = lock(&state);
+        s.stats.frames += 1;
+        s.stats.dropped_packets += dropped;
+        if single {
+            s.acquiring = false;
+        }
+    }
+}
+
+/// Crop the source cloud to the centred `w × h` ROI and encode it in `pf` (mm on the wire).
+fn make_block(
+    cloud: &handeye_hal::PointCloud,
+    block_id: u64,
+    timestamp: u64,
+    w: u32,
+    h: u32,
+    pf: u32,
+    mp: bool,
+) -> Block {
+    let (cw, ch) = (cloud.width as usize, cloud.height as usize);
+    let ox = cw.saturating_sub(w as usize) / 2;
+    let oy = ch.saturating_sub(h as usize) / 2;
+    let c16 = pf == pfnc::COORD3D_C16;
+    let n = (w * h) as usize;
+    let mut data = Vec::with_capacity(n * if c16 { 2 } else { 12 });
+    let mut conf = Vec::with_capacity(if mp { n * 2 } else { 0 });
+    for v in 0..h as usize {
+        for u in 0..w as usize {
+            let i = (oy + v) * cw + ox + u;
+            let p = cloud.points.get(i).copied();
+            let valid = p.is_some_and(|p| p.coords.iter().all(|c| c.is_finite()) && i < cw * ch);
+            if c16 {
+                let raw = match p.filter(|_| valid) {
+                    Some(p) => (f64::from(p.z) * 1000.0 / C16_SCALE_MM)
+                        .round()
+                        .clamp(1.0, 65535.0) as u16,
+                    None => 0,
+                };
+                data.extend_from_slice(&raw.to_le_bytes());
+            } else {
+                let mm = match p.filter(|_| valid) {
+                    Some(p) => [p.x * 1000.0, p.y * 1000.0, p.z * 1000.0],
+                    None => [f32::NAN; 3],
+                };
+                for c in mm {
+                    data.extend_from_slice(&c.to_le_bytes());
+                }
+            }
+            if mp {
+                let c = cloud
+                    .confidence
+                    .as_ref()
+                    .and_then(|c| c.get(i).copied())
+                    .unwrap_or(if valid { 1.0 } else { 0.0 });
+                conf.extend_from_slice(
+                    &((c.clamp(0.0, 1.0) * 65535.0).round() as u16).to_le_bytes(),
+                );
+            }
+        }
+    }
+    let range = PartInfo {
+        data_type: gvsp::PART_3D_IMAGE,
+        length: data.len() as u64,
+        pixel_format: pf,
+        purpose: 4,
+        width: w,
+        height: h,
+        padding_x: 0,
+    };
+    let mut parts = vec![(range, data)];
+    if mp {
+        parts.push((
+            PartInfo {
+                data_type: gvsp::PART_CONFIDENCE,
+                length: conf.len() as u64,
+                pixel_format: pfnc::CONFIDENCE16,
+                purpose: 6,
+                width: w,
+                height: h,
+                padding_x: 0,
+            },
+            conf,
+        ));
+    }
+    Block {
+        block_id,
+        timestamp,
+        parts,
+        multipart: mp,
+    }
+}

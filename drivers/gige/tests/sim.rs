@@ -1,0 +1,182 @@
+//! Our driver against our simulated camera, on loopback (ephemeral ports).
+
+use std::time::{Duration, Instant};
+
+use handeye_gige::sim::{SceneSource, SimCamera, SimOptions};
+use handeye_gige::{discover, ControlConfig, GigeCamera, GigeError, GvcpClient};
+use handeye_hal::{CaptureSettings, DepthCamera};
+
+fn sim(opts: SimOptions) -> SimCamera {
+    SimCamera::spawn(
+        "127.0.0.1:0".parse().expect("addr"),
+        Box::new(SceneSource::new(64, 48)),
+        opts,
+    )
+    .expect("sim")
+}
+
+fn fast() -> ControlConfig {
+    ControlConfig {
+        timeout: Duration::from_millis(200),
+        tries: 3,
+        heartbeat_timeout: Duration::from_millis(900),
+    }
+}
+
+#[test]
+fn discovery_info_and_features() {
+    let s = sim(SimOptions {
+        serial: "ABC123".into(),
+        ..SimOptions::default()
+    });
+    let found = discover(s.addr(), Duration::from_millis(300)).expect("discover");
+    assert_eq!(found.len(), 1);
+    assert_eq!(found[0].info.serial, "ABC123");
+    assert_eq!(found[0].info.model, "SimCam3D");
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    let info = cam.info_blocking().expect("info");
+    assert_eq!((info.width, info.height), (64, 48));
+    assert_eq!(info.pixel_formats, vec!["Coord3D_ABC32f", "Coord3D_C16"]);
+    cam.with_features(|n, p| {
+        n.set_integer(p, "Width", 32)?;
+        assert_eq!(n.integer(p, "Width")?, 32);
+        assert_eq!(n.integer(p, "PayloadSize")?, 32 * 48 * 12);
+        n.set_enum(p, "PixelFormat", "Coord3D_C16")?;
+        assert_eq!(n.enum_symbol(p, "PixelFormat")?, "Coord3D_C16");
+        assert_eq!(n.integer(p, "PayloadSize")?, 32 * 48 * 2);
+        assert!(n.set_integer(p, "Width", 100_000).is_err());
+        assert!(n.set_enum(p, "PixelFormat", "Mono8").is_err());
+        assert_eq!(n.integer(p, "GevTimestampTickFrequency")?, 1_000_000_000);
+        Ok(())
+    })
+    .expect("features");
+}
+
+fn check_scene(clouds: &[handeye_hal::PointCloud], w: u32, h: u32, tol: f32) {
+    let truth = SceneSource::new(64, 48).render();
+    let (ox, oy) = ((64 - w) / 2, (48 - h) / 2);
+    for c in clouds {
+        assert_eq!((c.width, c.height), (w, h));
+        let mut compared = 0;
+        for v in 0..h {
+            for u in 0..w {
+                let p = c.points[(v * w + u) as usize];
+                let t = truth.points[((v + oy) * 64 + u + ox) as usize];
+                assert_eq!(p.z.is_nan(), t.z.is_nan(), "validity at {u},{v}");
+                if !t.z.is_nan() {
+                    assert!((p - t).norm() < tol, "{u},{v}: {p:?} vs {t:?}");
+                    compared += 1;
+                }
+            }
+        }
+        assert!(compared > (w * h / 2) as usize);
+    }
+}
+
+#[test]
+fn capture_abc32f_and_c16_through_the_depth_camera_trait() {
+    let s = sim(SimOptions {
+        frame_rate: 50.0,
+        ..SimOptions::default()
+    });
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("rt");
+    let settings = CaptureSettings {
+        frames: 2,
+        frame_timeout: Duration::from_secs(2),
+        exposure: None,
+    };
+    let clouds = rt.block_on(cam.capture(&settings)).expect("capture");
+    check_scene(&clouds, 64, 48, 1e-5);
+    assert!(!s.is_acquiring(), "acquisition stopped after capture");
+    cam.with_features(|n, p| {
+        n.set_enum(p, "PixelFormat", "Coord3D_C16")?;
+        n.set_integer(p, "Width", 40)
+    })
+    .expect("C16");
+    let clouds = rt.block_on(cam.capture(&settings)).expect("capture C16");
+    // 0.1 mm depth quantization; x, y rebuilt from the published intrinsics.
+    check_scene(&clouds, 40, 48, 2e-4);
+}
+
+#[test]
+fn packet_loss_is_repaired_by_resend_and_confidence_arrives_multipart() {
+    let s = sim(SimOptions {
+        loss_ratio: 0.05,
+        frame_rate: 30.0,
+        seed: 3,
+        ..SimOptions::default()
+    });
+    let mut cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    cam.options.packet_size = 600;
+    cam.options.confidence = true;
+    let (clouds, stats) = cam
+        .capture_blocking(3, Duration::from_secs(2))
+        .expect("capture");
+    assert_eq!(clouds.len(), 3);
+    assert!(stats.resent_packets > 0, "{stats:?}");
+    assert!(s.stats().dropped_packets > 0);
+    check_scene(&clouds, 64, 48, 1e-5);
+    let conf = clouds[0].confidence.as_ref().expect("confidence part");
+    assert_eq!(conf.len(), 64 * 48);
+    assert!(
+        conf.iter().any(|&c| (c - 1.0).abs() < 1e-3) && conf.iter().any(|&c| c < 0.9 && c > 0.7)
+    );
+}
+
+#[test]
+fn second_controller_is_refused_and_writes_need_control() {
+    let s = sim(SimOptions::default());
+    let a = GvcpClient::connect(s.addr(), fast()).expect("a");
+    let b = GvcpClient::connect(s.addr(), fast()).expect("b");
+    let guard = a.take_control().expect("control");
+    let e = b.take_control().expect_err("second controller");
+    assert!(matches!(e, GigeError::ControlLost { .. }), "{e}");
+    let e = b.write_reg(0xA000, 32).expect_err("write without control");
+    assert!(e.to_string().contains("ACCESS_DENIED"), "{e}");
+    assert_eq!(b.read_reg(0xA000).expect("reads are free"), 64);
+    let e = a.read_reg(0x0003).expect_err("unaligned");
+    assert!(
+        e.to_string().contains("BAD_ALIGNMENT") || e.to_string().contains("INVALID_ADDRESS"),
+        "{e}"
+    );
+    let e = a.read_mem(0x0FFF_0000, 8).expect_err("out of range");
+    assert!(e.to_string().contains("INVALID_ADDRESS"), "{e}");
+    guard.check().expect("still in control");
+    drop(guard);
+    b.take_control().expect("released on drop");
+}
+
+#[test]
+fn a_silent_camera_is_a_clear_timeout() {
+    let s = sim(SimOptions {
+        frame_rate: 20.0,
+        ..SimOptions::default()
+    });
+    let addr = s.addr();
+    let cam = GigeCamera::connect(addr, fast()).expect("connect");
+    drop(s); // the camera goes away
+    let t = Instant::now();
+    let e = cam
+        .capture_blocking(1, Duration::from_millis(300))
+        .expect_err("no camera");
+    assert!(e.to_string().contains("did not answer"), "{e}");
+    assert!(t.elapsed() < Duration::from_secs(5));
+}
+
+#[test]
+fn camera_that_stops_streaming_mid_capture_is_a_frame_timeout() {
+    let s = sim(SimOptions {
+        frame_rate: 0.2,
+        ..SimOptions::default()
+    });
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    // One frame arrives at once, the next only after 5 s: the 300 ms frame timeout trips.
+    let e = cam
+        .capture_blocking(2, Duration::from_millis(300))
+        .expect_err("stalls");
+    assert!(matches!(e, GigeError::FrameTimeout { .. }), "{e}");
+}

@@ -1,0 +1,382 @@
+//! The accuracy benchmark of the paper's protocol on simulated scans: per robot, random views
+//! that look at the base (joint changes ≥ 20° between them), several scans per view with
+//! realistic imperfections, registration without any prior, the hand-eye solve and the gate;
+//! errors against the simulator's ground truth.
+
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Vector3};
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+
+use crate::calib::{
+    gate, register, solve, FrameInput, GateThresholds, Mount, RegisterOptions, SolveOptions,
+};
+use crate::model::RobotModel;
+use crate::plan::{PlanError, ViewConstraints, ViewPlanner};
+use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
+
+/// A result off by more than this is wrong (and must have been rejected), mm.
+pub const WRONG_TRANSLATION_MM: f64 = 2.0;
+/// A result off by more than this is wrong (and must have been rejected), degrees.
+pub const WRONG_ROTATION_DEG: f64 = 0.5;
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct BenchConfig {
+    /// Views per robot (the paper uses 30).
+    pub views: usize,
+    /// Scans per view (new sensor noise each).
+    pub scans_per_view: usize,
+    /// The camera.
+    pub intrinsics: Intrinsics,
+    /// Simulator knobs (realistic defaults).
+    pub settings: SimSettings,
+    /// Registration tuning.
+    pub register: RegisterOptions,
+    /// Pass/fail thresholds.
+    pub gate: GateThresholds,
+    /// Seed of the mount, views and scans.
+    pub seed: u64,
+}
+
+impl Default for BenchConfig {
+    fn default() -> Self {
+        Self {
+            views: 30,
+            scans_per_view: 3,
+            intrinsics: Intrinsics::compact_1280x960(),
+            settings: SimSettings::default(),
+            register: RegisterOptions::default(),
+            gate: GateThresholds::default(),
+            seed: 1,
+        }
+    }
+}
+
+/// One registration + solve against ground truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct Trial {
+    /// View index.
+    pub view: usize,
+    /// Scan index within the view.
+    pub scan: usize,
+    /// `accepted`, `rejected` or `error`.
+    pub outcome: &'static str,
+    /// Why it was rejected or failed.
+    pub reasons: Vec<String>,
+    /// Camera position error of `flange_from_camera`, mm (NaN on error).
+    pub translation_error_mm: f64,
+    /// Camera rotation error of `flange_from_camera`, degrees (NaN on error).
+    pub rotation_error_deg: f64,
+    /// Reported 1-σ translation uncertainty, mm.
+    pub uncertainty_translation_mm: f64,
+    /// Reported 1-σ rotation uncertainty, degrees.
+    pub uncertainty_rotation_deg: f64,
+    /// Time to simulate the scan, ms (not part of calibration).
+    pub simulate_ms: f64,
+    /// Registration stages, ms.
+    pub preprocess_ms: f64,
+    /// Coarse (global) alignment, ms.
+    pub coarse_ms: f64,
+    /// Fine alignment, ms.
+    pub fine_ms: f64,
+    /// Verification and covariance, ms.
+    pub verify_ms: f64,
+    /// Whole registration, ms.
+    pub register_ms: f64,
+    /// Hand-eye solve and gate, ms.
+    pub solve_ms: f64,
+}
+
+impl Trial {
+    /// Whether the result is off by more than the wrong-result thresholds.
+    pub fn is_wrong(&self) -> bool {
+        !(self.translation_error_mm <= WRONG_TRANSLATION_MM
+            && self.rotation_error_deg <= WRONG_ROTATION_DEG)
+    }
+}
+
+/// Mean, median, standard deviation and 95th percentile.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Stats {
+    /// Mean.
+    pub mean: f64,
+    /// Median.
+    pub median: f64,
+    /// Standard deviation.
+    pub std: f64,
+    /// 95th percentile.
+    pub p95: f64,
+    /// Largest value.
+    pub max: f64,
+}
+
+impl Stats {
+    /// Statistics of the finite values (all NaN when there are none).
+    pub fn of(values: impl IntoIterator<Item = f64>) -> Self {
+        let mut v: Vec<f64> = values.into_iter().filter(|x| x.is_finite()).collect();
+        if v.is_empty() {
+            return Self {
+                mean: f64::NAN,
+                median: f64::NAN,
+                std: f64::NAN,
+                p95: f64::NAN,
+                max: f64::NAN,
+            };
+        }
+        v.sort_by(f64::total_cmp);
+        let n = v.len() as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let std = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let pick = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+        Self {
+            mean,
+            median: pick(0.5),
+            std,
+            p95: pick(0.95),
+            max: v[v.len() - 1],
+        }
+    }
+}
+
+/// Everything measured for one robot.
+#[derive(Debug, Clone, Serialize)]
+pub struct RobotSummary {
+    /// Robot name.
+    pub robot: String,
+    /// Trials run.
+    pub trials: usize,
+    /// Accepted and within 2 mm / 0.5°.
+    pub correct: usize,
+    /// Accepted but off by more than 2 mm or 0.5° (must be 0).
+    pub wrong_accepted: usize,
+    /// Rejected by the gate.
+    pub rejected: usize,
+    /// Registration errors (no robot found, …).
+    pub errors: usize,
+    /// `correct / trials`.
+    pub success_rate: f64,
+    /// Translation error of accepted results, mm.
+    pub translation_mm: Stats,
+    /// Rotation error of accepted results, degrees.
+    pub rotation_deg: Stats,
+    /// Registration time, ms.
+    pub register_ms: Stats,
+    /// Coarse stage time, ms.
+    pub coarse_ms: Stats,
+    /// Fine stage time, ms.
+    pub fine_ms: Stats,
+    /// Every trial.
+    pub details: Vec<Trial>,
+}
+
+impl RobotSummary {
+    /// Summarises trials.
+    pub fn new(robot: &str, details: Vec<Trial>) -> Self {
+        let accepted: Vec<&Trial> = details.iter().filter(|t| t.outcome == "accepted").collect();
+        let correct = accepted.iter().filter(|t| !t.is_wrong()).count();
+        let ok = |f: fn(&Trial) -> f64| Stats::of(accepted.iter().map(|t| f(t)));
+        let all = |f: fn(&Trial) -> f64| Stats::of(details.iter().map(f));
+        Self {
+            robot: robot.to_string(),
+            trials: details.len(),
+            correct,
+            wrong_accepted: accepted.len() - correct,
+            rejected: details.iter().filter(|t| t.outcome == "rejected").count(),
+            errors: details.iter().filter(|t| t.outcome == "error").count(),
+            success_rate: if details.is_empty() {
+                0.0
+            } else {
+                correct as f64 / details.len() as f64
+            },
+            translation_mm: ok(|t| t.translation_error_mm),
+            rotation_deg: ok(|t| t.rotation_error_deg),
+            register_ms: all(|t| t.register_ms),
+            coarse_ms: all(|t| t.coarse_ms),
+            fine_ms: all(|t| t.fine_ms),
+            details,
+        }
+    }
+}
+
+/// A wrist camera mount for a robot: 8 cm off the flange axis, looking along it, with a
+/// random tilt of up to 20° and a random roll (seeded), as a real bracket would be.
+pub fn random_mount(rng: &mut impl Rng) -> Isometry3<f64> {
+    let tilt = rng.random_range(5f64..20.0).to_radians();
+    let roll = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
+    let off = Vector3::new(
+        rng.random_range(-0.02..0.02),
+        rng.random_range(-0.1..-0.06),
+        rng.random_range(0.02..0.06),
+    );
+    Isometry3::new(off, Vector3::z() * roll) * Isometry3::rotation(Vector3::x() * -tilt)
+}
+
+/// Runs the protocol on one robot; `progress` is called after every trial.
+pub fn run_robot(
+    model: &RobotModel,
+    cfg: &BenchConfig,
+    mut progress: impl FnMut(&Trial),
+) -> Result<RobotSummary, PlanError> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(cfg.seed);
+    let mount = random_mount(&mut rng);
+    let planner = ViewPlanner::new(model, mount, cfg.intrinsics, ViewConstraints::default());
+    let views = planner.generate(cfg.views, rng.random())?;
+    let mut trials = Vec::new();
+    for (v, q) in views.iter().enumerate() {
+        for s in 0..cfg.scans_per_view {
+            let t = run_trial(model, mount, q, cfg, rng.random(), v, s);
+            progress(&t);
+            trials.push(t);
+        }
+    }
+    Ok(RobotSummary::new(model.name(), trials))
+}
+
+/// Simulates one eye-in-hand scan and calibrates from it without a prior.
+pub fn run_trial(
+    model: &RobotModel,
+    mount: Isometry3<f64>,
+    joints: &[f64],
+    cfg: &BenchConfig,
+    seed: u64,
+    view: usize,
+    scan_index: usize,
+) -> Trial {
+    let mut trial = Trial {
+        view,
+        scan: scan_index,
+        outcome: "error",
+        reasons: Vec::new(),
+        translation_error_mm: f64::NAN,
+        rotation_error_deg: f64::NAN,
+        uncertainty_translation_mm: f64::NAN,
+        uncertainty_rotation_deg: f64::NAN,
+        simulate_ms: 0.0,
+        preprocess_ms: 0.0,
+        coarse_ms: 0.0,
+        fine_ms: 0.0,
+        verify_ms: 0.0,
+        register_ms: 0.0,
+        solve_ms: 0.0,
+    };
+    let t0 = Instant::now();
+    let req = ScanRequest {
+        model,
+        joints: joints.to_vec(),
+        placement: Placement::EyeInHand {
+            flange_from_camera: mount,
+        },
+        intrinsics: cfg.intrinsics,
+        noise: cfg.settings.noise,
+        cell: cfg.settings.cell,
+        kinematic_error: cfg.settings.kinematic_error,
+        seed,
+    };
+    let scan = match simulate_scan(&req) {
+        Ok(s) => s,
+        Err(e) => {
+            trial.reasons.push(format!("simulation failed: {e}"));
+            return trial;
+        }
+    };
+    trial.simulate_ms = ms(t0);
+    let reg = match register(&scan.cloud, model, joints, None, &cfg.register) {
+        Ok(r) => r,
+        Err(e) => {
+            trial.reasons.push(e.to_string());
+            return trial;
+        }
+    };
+    let tm = reg.timings_ms;
+    (
+        trial.preprocess_ms,
+        trial.coarse_ms,
+        trial.fine_ms,
+        trial.verify_ms,
+        trial.register_ms,
+    ) = (tm.preprocess, tm.coarse, tm.fine, tm.verify, tm.total);
+    let t1 = Instant::now();
+    let frame = FrameInput {
+        view: 0,
+        camera_from_model: reg.camera_from_model,
+        model_from_flange: Some(scan.truth.model_from_flange_reported),
+    };
+    let solution = match solve(Mount::EyeInHand, &[frame], &SolveOptions::default()) {
+        Ok(s) => s,
+        Err(e) => {
+            trial.reasons.push(e.to_string());
+            return trial;
+        }
+    };
+    let verdict = gate(std::slice::from_ref(&reg), &solution, None, &cfg.gate);
+    trial.solve_ms = ms(t1);
+    let err = mount.inverse() * solution.estimate;
+    trial.translation_error_mm =
+        (solution.estimate.translation.vector - mount.translation.vector).norm() * 1e3;
+    trial.rotation_error_deg = err.rotation.angle().to_degrees();
+    trial.uncertainty_translation_mm = reg.uncertainty.translation_mm;
+    trial.uncertainty_rotation_deg = reg.uncertainty.rotation_deg;
+    trial.outcome = if verdict.passed {
+        "accepted"
+    } else {
+        "rejected"
+    };
+    trial.reasons = verdict.reasons;
+    trial
+}
+
+fn ms(since: Instant) -> f64 {
+    since.elapsed().as_secs_f64() * 1e3
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stats_are_the_textbook_ones_and_ignore_nan() {
+        let s = Stats::of([1.0, 2.0, 3.0, 4.0, f64::NAN, 100.0]);
+        assert_eq!(s.median, 3.0);
+        assert_eq!(s.max, 100.0);
+        assert!((s.mean - 22.0).abs() < 1e-12);
+        assert!(Stats::of([]).mean.is_nan());
+    }
+
+    #[test]
+    fn a_wrong_accepted_result_is_counted_as_wrong() {
+        let t = |outcome, e: f64| Trial {
+            view: 0,
+            scan: 0,
+            outcome,
+            reasons: vec![],
+            translation_error_mm: e,
+            rotation_error_deg: 0.01,
+            uncertainty_translation_mm: 0.1,
+            uncertainty_rotation_deg: 0.01,
+            simulate_ms: 0.0,
+            preprocess_ms: 0.0,
+            coarse_ms: 0.0,
+            fine_ms: 0.0,
+            verify_ms: 0.0,
+            register_ms: 1.0,
+            solve_ms: 0.0,
+        };
+        let s = RobotSummary::new(
+            "r",
+            vec![
+                t("accepted", 0.2),
+                t("accepted", 3.0),
+                t("rejected", 9.0),
+                t("error", f64::NAN),
+            ],
+        );
+        assert_eq!(
+            (s.correct, s.wrong_accepted, s.rejected, s.errors),
+            (1, 1, 1, 1)
+        );
+        assert_eq!(s.success_rate, 0.25);
+        assert_eq!(s.translation_mm.max, 3.0);
+    }
+}
