@@ -100,7 +100,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     for (i, scan_path) in args.scan.iter().enumerate() {
         let joints_text =
             per_frame(&args.joints, i, "joints", n)?.context("--joints is required")?;
-        let joints = parse_joints(joints_text).map_err(|e| anyhow::anyhow!("--joints: {e}"))?;
+        let joints = parse_joints(joints_text).map_err(|e| anyhow::anyhow!("--joints: {e}"))?.0;
         if joints.len() != model.dof() {
             return Err(CalibError::JointCountMismatch {
                 expected: model.dof(),
