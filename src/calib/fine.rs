@@ -179,9 +179,7 @@ pub(crate) fn icp(
             for k in 0..7 {
                 hd[(k, k)] += 1e-9 + 1e-6 * h[(k, k)];
             }
-            let Some(chol) = hd.cholesky() else {
-                return None;
-            };
+            let chol = hd.cholesky()?;
             let delta = -chol.solve(&g);
             let rho = Vector3::new(delta[0], delta[1], delta[2]);
             let phi = Vector3::new(delta[3], delta[4], delta[5]);

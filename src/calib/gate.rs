@@ -215,8 +215,9 @@ mod tests {
         }];
         let sol = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
         let th = GateThresholds::default();
-        assert!(gate(&[reg.clone()], &sol, None, &th).passed);
-        let bad: Vec<Box<dyn Fn(&mut Registration)>> = vec![
+        assert!(gate(std::slice::from_ref(&reg), &sol, None, &th).passed);
+        type Spoil = Box<dyn Fn(&mut Registration)>;
+        let bad: Vec<Spoil> = vec![
             Box::new(|r| r.quality.coverage = 0.3),
             Box::new(|r| r.quality.free_space_violations = 0.2),
             Box::new(|r| r.quality.rmse_mm = 3.0),
@@ -234,7 +235,7 @@ mod tests {
         }
         // Drift from the previous calibration.
         let prev = sol.estimate * Isometry3::translation(0.01, 0.0, 0.0);
-        assert!(!gate(&[reg.clone()], &sol, Some(&prev), &th).passed);
+        assert!(!gate(std::slice::from_ref(&reg), &sol, Some(&prev), &th).passed);
         // Two views that disagree: both stay "used" only if within thresholds; here they are
         // 3 mm apart, so one is dropped and half the frames are gone.
         let other = Isometry3::translation(0.003, 0.0, 0.0) * reg.camera_from_model;

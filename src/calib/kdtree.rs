@@ -49,6 +49,7 @@ impl KdTree {
     }
 
     /// Number of points in the tree.
+    #[cfg(test)]
     pub(crate) fn len(&self) -> usize {
         self.points.len()
     }

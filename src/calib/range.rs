@@ -46,6 +46,7 @@ pub(crate) struct RangeImage<'a> {
     pub(crate) cam: Pinhole,
     pub(crate) points: Cow<'a, [Point3<f32>]>,
     /// Whether the grid is the camera's own (true) or a synthetic splat of an unorganized cloud.
+    #[cfg_attr(not(test), allow(dead_code))]
     pub(crate) organized: bool,
 }
 
@@ -235,7 +236,7 @@ fn splat(scan: &PointCloud) -> RangeImage<'static> {
     let mut grid = vec![Point3::new(f32::NAN, f32::NAN, f32::NAN); width * height];
     for p in pts {
         if let Some(i) = cam.project(&p.cast::<f64>()) {
-            if !(grid[i].z <= p.z) {
+            if grid[i].z.is_nan() || p.z < grid[i].z {
                 grid[i] = *p;
             }
         }

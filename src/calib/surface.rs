@@ -143,7 +143,7 @@ impl ModelSurface {
                 };
                 let cr = (b - a).cross(&(c - a));
                 let area2 = cr.norm();
-                if !(area2 > 1e-14) {
+                if area2.is_nan() || area2 <= 1e-14 {
                     continue;
                 }
                 let n = cr / area2;
