@@ -150,7 +150,7 @@ fn follow_robot(live: LiveJoints) {
                 "sim camera: following the robot at {} over RTDE ({FOLLOW_HZ} Hz actual_q)",
                 live.robot
             );
-            let mut last = Instant::now() - Duration::from_secs(1);
+            let mut last = Instant::now();
             let mut quiet_since: Option<Instant> = None;
             loop {
                 match client.next_sample(last, MAX_JOINT_AGE).await {
@@ -374,4 +374,46 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         s.frames, s.dropped_packets, s.resent_packets
     );
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robot_addresses_default_to_the_rtde_port() {
+        let a = parse_robot_addr("127.0.0.110").expect("ip");
+        assert_eq!(a, "127.0.0.110:30004".parse().expect("addr"));
+        let a = parse_robot_addr("127.0.0.110:40004").expect("ip:port");
+        assert_eq!(a.port(), 40004);
+        let e = parse_robot_addr("robot.local").expect_err("not an ip");
+        assert!(e.to_string().contains("robot.local"), "{e}");
+    }
+
+    #[test]
+    fn live_joints_are_fresh_or_the_frame_fails_with_the_reason() {
+        let live = LiveJoints {
+            robot: "127.0.0.1:30004".parse().expect("addr"),
+            state: Arc::new(Mutex::new(FollowState::default())),
+        };
+        let e = live.current().expect_err("nothing yet");
+        assert!(e.contains("127.0.0.1:30004"), "{e}");
+        live.problem("cannot follow the robot over RTDE at 127.0.0.1:30004: refused".into());
+        assert!(live.current().expect_err("refused").contains("refused"));
+
+        let q = vec![0.1, -1.0, 1.0, -1.5, -1.5, 0.0];
+        live.set(|st| {
+            st.joints = Some((q.clone(), Instant::now()));
+            st.problem = None;
+        });
+        assert_eq!(live.current().expect("fresh"), q);
+
+        let old = Instant::now()
+            .checked_sub(MAX_JOINT_AGE * 2)
+            .expect("clock far enough from its origin");
+        live.set(|st| st.joints = Some((q.clone(), old)));
+        live.problem("lost the robot's RTDE stream at 127.0.0.1:30004: closed".into());
+        let e = live.current().expect_err("stale");
+        assert!(e.contains("lost") && e.contains("stale"), "{e}");
+    }
 }
