@@ -7,11 +7,11 @@ use std::hint::black_box;
 use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use handeye::model::{GeometryKind, RobotModel};
+use handeye::model::{GeometryKind, RobotModel, TriMesh};
 use handeye::plan::{ViewConstraints, ViewPlanner};
 use handeye::sim::raycast::{raycast, SceneMesh};
 use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
-use handeye_hal::nalgebra::{Isometry3, Point3, Vector3};
+use handeye_hal::nalgebra::{Isometry3, Vector3};
 
 fn bench(c: &mut Criterion) {
     let urdf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/robots/ur/ur5e/ur5e.urdf");
@@ -29,23 +29,18 @@ fn bench(c: &mut Criterion) {
     ] {
         let planner = ViewPlanner::new(&model, mount, intr, ViewConstraints::default());
         let q = planner.generate(1, 3).expect("a view").remove(0);
-        let posed: Vec<(Vec<Point3<f64>>, Vec<[u32; 3]>)> = model
+        let posed: Vec<TriMesh> = model
             .posed_geometry(&q, GeometryKind::Visual)
             .expect("fk")
             .iter()
-            .map(|(t, g)| {
-                (
-                    g.mesh.vertices.iter().map(|v| t * v).collect(),
-                    g.mesh.triangles.clone(),
-                )
-            })
+            .map(|(t, g)| g.mesh.transformed(t))
             .collect();
         let meshes: Vec<SceneMesh<'_>> = posed
             .iter()
             .enumerate()
-            .map(|(i, (v, t))| SceneMesh {
-                vertices: v,
-                triangles: t,
+            .map(|(i, m)| SceneMesh {
+                vertices: &m.vertices,
+                triangles: &m.triangles,
                 object: i as u32,
             })
             .collect();

@@ -105,6 +105,9 @@ pub enum PlanError {
     },
 }
 
+/// A posed mesh for the occlusion check: (is base or shoulder, vertices in model frame, triangles).
+type PosedHull<'a> = (bool, Vec<Point3<f64>>, &'a [[u32; 3]]);
+
 /// Checks views of one robot with one camera mount.
 #[derive(Debug)]
 pub struct ViewPlanner<'a> {
@@ -280,7 +283,7 @@ impl<'a> ViewPlanner<'a> {
             .intrinsics
             .scaled(160.0 / f64::from(self.intrinsics.width));
         let posed = m.posed_geometry(q, GeometryKind::Collision)?;
-        let world: Vec<(bool, Vec<Point3<f64>>, &[[u32; 3]])> = posed
+        let world: Vec<PosedHull<'_>> = posed
             .iter()
             .map(|(t, g)| {
                 let near = m.chain_depth(&g.link).is_some_and(|d| d <= 1);

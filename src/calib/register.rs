@@ -80,7 +80,7 @@ impl Default for RegisterOptions {
             match_tolerance_m: 0.003,
             free_space_tolerance_m: 0.006,
             covariance_inflation: 25.0,
-            degeneracy_ratio: 3e-3,
+            degeneracy_ratio: 1e-3,
             seed: 1,
         }
     }
@@ -469,6 +469,7 @@ fn uncertainty(
     let info = to_origin.transpose() * fine.info6 * to_origin;
     let eig = info.symmetric_eigen();
     let lmax = eig.eigenvalues.max();
+    tracing::debug!(ratios = ?eig.eigenvalues.iter().map(|e| e / lmax).collect::<Vec<_>>(), "information eigenvalues");
     let mut degenerate = Vec::new();
     for k in 0..6 {
         if eig.eigenvalues[k] < opts.degeneracy_ratio * lmax {

@@ -74,7 +74,7 @@ fn merge(a: TriMesh, b: &TriMesh, b_pose: &Isometry3<f64>) -> TriMesh {
 
 /// A UR5e-sized arm: base cylinder, shoulder, upper arm, forearm, posed at `q` (3 joints used).
 pub(crate) fn toy_robot(q: &[f64]) -> PosedModel {
-    let base = cylinder(0.0755, 0.0, 0.099, 48);
+    let base = cylinder(0.0755, 0.0, 0.099, 256);
     let shoulder_mesh = merge(
         cylinder(0.06, -0.065, 0.06, 40),
         &cylinder(0.06, 0.0, 0.13, 40),

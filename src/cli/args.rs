@@ -53,23 +53,6 @@ pub(crate) fn format_pose(t: &Isometry3<f64>) -> String {
     )
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn poses_round_trip_and_errors_name_the_problem() {
-        let t = parse_pose("0.1, -0.2,0.3,0,0,1.5").expect("valid");
-        assert!((t.rotation.angle() - 1.5).abs() < 1e-12);
-        let back = parse_pose(&format_pose(&t)).expect("valid");
-        assert!((back.to_homogeneous() - t.to_homogeneous()).norm() < 1e-6);
-        assert!(parse_pose("1,2,3").unwrap_err().contains("expected 6"));
-        assert!(parse_pose("1,2,3,4,5,x").unwrap_err().contains("`x`"));
-        assert!(parse_joints("0,nan").is_err());
-        assert_eq!(parse_joints("0,1.5").expect("valid").0, vec![0.0, 1.5]);
-    }
-}
-
 /// Where the robot models are: `$HANDEYE_ROBOTS`, else `../shared/robots` from the current
 /// directory, else `../shared/robots` beside the source tree this binary was built from.
 pub(crate) fn robots_dir() -> Option<std::path::PathBuf> {
@@ -115,4 +98,25 @@ pub(crate) fn all_robots(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
     }
     out.sort();
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn poses_round_trip_and_errors_name_the_problem() {
+        let t = parse_pose("0.1, -0.2,0.3,0,0,1.5").expect("valid");
+        assert!((t.rotation.angle() - 1.5).abs() < 1e-12);
+        let back = parse_pose(&format_pose(&t)).expect("valid");
+        assert!((back.to_homogeneous() - t.to_homogeneous()).norm() < 1e-6);
+        assert!(parse_pose("1,2,3")
+            .expect_err("invalid")
+            .contains("expected 6"));
+        assert!(parse_pose("1,2,3,4,5,x")
+            .expect_err("invalid")
+            .contains("`x`"));
+        assert!(parse_joints("0,nan").is_err());
+        assert_eq!(parse_joints("0,1.5").expect("valid").0, vec![0.0, 1.5]);
+    }
 }

@@ -100,7 +100,9 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     for (i, scan_path) in args.scan.iter().enumerate() {
         let joints_text =
             per_frame(&args.joints, i, "joints", n)?.context("--joints is required")?;
-        let joints = parse_joints(joints_text).map_err(|e| anyhow::anyhow!("--joints: {e}"))?.0;
+        let joints = parse_joints(joints_text)
+            .map_err(|e| anyhow::anyhow!("--joints: {e}"))?
+            .0;
         if joints.len() != model.dof() {
             return Err(CalibError::JointCountMismatch {
                 expected: model.dof(),
@@ -178,4 +180,90 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::from(1)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use handeye::sim::{
+        simulate_scan, CellOptions, Intrinsics, KinematicError, Placement, ScanNoise, ScanRequest,
+    };
+    use nalgebra::Vector3;
+
+    fn args(robot: PathBuf, joints: &str, scan: PathBuf, flange: Option<String>) -> Args {
+        Args {
+            robot,
+            joints: vec![joints.to_string()],
+            scan: vec![scan],
+            flange_pose: flange.into_iter().collect(),
+            base_frame: Some("base".into()),
+            guess_flange_from_camera: None,
+            guess_base_from_camera: None,
+            eye_to_hand: false,
+            json: true,
+        }
+    }
+
+    #[test]
+    fn solve_command_on_a_simulated_scan_and_bad_inputs() {
+        let Some(dir) = super::super::args::robots_dir() else {
+            return;
+        };
+        let urdf = dir.join("ur/ur5e/ur5e.urdf");
+        let model = RobotModel::load(&urdf).expect("ur5e loads");
+        let mount = Isometry3::new(
+            Vector3::new(0.0, -0.08, 0.03),
+            Vector3::new(-15f64.to_radians(), 0.0, 0.0),
+        );
+        let intr = Intrinsics::compact_1280x960();
+        let planner = handeye::plan::ViewPlanner::new(
+            &model,
+            mount,
+            intr,
+            handeye::plan::ViewConstraints::default(),
+        );
+        let q = planner.generate(1, 5).expect("a view").remove(0);
+        let req = ScanRequest {
+            model: &model,
+            joints: q.clone(),
+            placement: Placement::EyeInHand {
+                flange_from_camera: mount,
+            },
+            intrinsics: intr,
+            noise: ScanNoise::default(),
+            cell: CellOptions::default(),
+            kinematic_error: KinematicError::none(),
+            seed: 2,
+        };
+        let sim = simulate_scan(&req).expect("simulated");
+        let tmp = std::env::temp_dir().join(format!("handeye-solve-{}", std::process::id()));
+        std::fs::create_dir_all(&tmp).expect("temp dir");
+        let ply = tmp.join("scan.ply");
+        handeye::cloud::write_ply(&ply, &sim.cloud, Default::default()).expect("written");
+        let joints = q
+            .iter()
+            .map(|v| format!("{v}"))
+            .collect::<Vec<_>>()
+            .join(",");
+        // Flange pose as the UR controller reports it, in `base`.
+        let base_from_flange =
+            handeye::frames::ur_base_from_base_link() * sim.truth.model_from_flange_reported;
+        let t = base_from_flange.translation.vector;
+        let r = base_from_flange.rotation.scaled_axis();
+        let flange = format!("{},{},{},{},{},{}", t.x, t.y, t.z, r.x, r.y, r.z);
+        let code = run(args(urdf.clone(), &joints, ply.clone(), Some(flange))).expect("runs");
+        assert_eq!(code, ExitCode::SUCCESS);
+        // Joint count mismatch and an unreadable scan are errors (exit 2 in main).
+        let short = q[..5]
+            .iter()
+            .map(|v| format!("{v}"))
+            .collect::<Vec<_>>()
+            .join(",");
+        let e = run(args(urdf.clone(), &short, ply.clone(), None)).expect_err("mismatch");
+        assert!(format!("{e:#}").contains("joint"), "{e:#}");
+        let e =
+            run(args(urdf.clone(), &joints, tmp.join("missing.ply"), None)).expect_err("no scan");
+        assert!(format!("{e:#}").contains("missing.ply"), "{e:#}");
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
 }

@@ -82,13 +82,13 @@ impl ScanNoise {
         if !(self.dropout_start_deg <= self.dropout_full_deg && self.dropout_full_deg <= 90.0) {
             return Err("dropout_start_deg ≤ dropout_full_deg ≤ 90 required".into());
         }
-        if !(self.depth_scale_error.abs() < 0.2) {
+        if self.depth_scale_error.is_nan() || self.depth_scale_error.abs() >= 0.2 {
             return Err(format!(
                 "depth_scale_error must be within ±0.2, got {}",
                 self.depth_scale_error
             ));
         }
-        if !(self.max_range_m > 0.0) {
+        if self.max_range_m.is_nan() || self.max_range_m <= 0.0 {
             return Err(format!("max_range_m must be > 0, got {}", self.max_range_m));
         }
         Ok(())
@@ -132,10 +132,8 @@ mod tests {
             random_dropout_probability: 1.5,
             ..ScanNoise::default()
         };
-        assert!(bad
-            .validate()
-            .unwrap_err()
-            .contains("random_dropout_probability"));
+        let err = bad.validate().expect_err("invalid");
+        assert!(err.contains("random_dropout_probability"));
     }
 
     #[test]

@@ -223,10 +223,7 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
             continue;
         };
         let t = true_poses[i];
-        posed.push(TriMesh {
-            vertices: g.mesh.vertices.iter().map(|v| t * v).collect(),
-            triangles: g.mesh.triangles.clone(),
-        });
+        posed.push(g.mesh.transformed(&t));
         objects.push(format!("link:{}", g.link));
     }
     let base_radius = base_radius(model);

@@ -86,10 +86,11 @@ mod tests {
             SimSettings::default(),
             "the example documents the defaults"
         );
-        let err = SimSettings::from_toml("[noise]\ndepth_sigma = 1.0\n", "t.toml").unwrap_err();
+        let err =
+            SimSettings::from_toml("[noise]\ndepth_sigma = 1.0\n", "t.toml").expect_err("invalid");
         assert!(err.to_string().contains("depth_sigma"), "{err}");
         let err = SimSettings::from_toml("[noise]\nrandom_dropout_probability = 2.0\n", "t.toml")
-            .unwrap_err();
+            .expect_err("invalid");
         assert!(
             err.to_string().contains("random_dropout_probability"),
             "{err}"

@@ -193,7 +193,7 @@ mod tests {
             assert_eq!(m.name().parse::<UrModel>().ok(), Some(m));
         }
         assert!("UR5E".parse::<UrModel>().is_ok());
-        let err = "ur99".parse::<UrModel>().unwrap_err();
+        let err = "ur99".parse::<UrModel>().expect_err("unknown");
         assert!(err.to_string().contains("ur99"));
     }
 }
