@@ -237,14 +237,24 @@ mod tests {
         assert_eq!(tag(&one[0]), 1.0);
         let err = cam.capture_frames(2).await.expect_err("only one left");
         assert!(
-            matches!(err, CameraError::Exhausted { used: 1, total: 2, requested: 2 }),
+            matches!(
+                err,
+                CameraError::Exhausted {
+                    used: 1,
+                    total: 2,
+                    requested: 2
+                }
+            ),
             "{err:?}"
         );
         // The failed capture consumed nothing.
         let two = cam.capture_frames(1).await.expect("second");
         assert_eq!(tag(&two[0]), 2.0);
         let err = cam.capture_frames(1).await.expect_err("all used");
-        assert!(matches!(err, CameraError::Exhausted { used: 2, .. }), "{err:?}");
+        assert!(
+            matches!(err, CameraError::Exhausted { used: 2, .. }),
+            "{err:?}"
+        );
         // Through the trait it is a HalError::Backend whose source is our error.
         let err = DepthCamera::capture(&cam, &CaptureSettings::default())
             .await

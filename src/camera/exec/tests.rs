@@ -47,7 +47,10 @@ fn read_pid(path: &Path) -> u32 {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    panic!("the stand-in command never wrote its pid to {}", path.display());
+    panic!(
+        "the stand-in command never wrote its pid to {}",
+        path.display()
+    );
 }
 
 /// Waits (bounded) until `pid` no longer runs; returns whether it stopped.
@@ -97,9 +100,15 @@ async fn runs_once_per_frame_and_reads_each_output() {
     let lines: Vec<&str> = lines.lines().collect();
     assert_eq!(lines.len(), 3, "one invocation per frame: {lines:?}");
     let (dir, mode) = lines[0].split_once(' ').expect("dir and mode");
-    assert!(lines.iter().all(|l| l.starts_with(dir)), "one directory per capture");
+    assert!(
+        lines.iter().all(|l| l.starts_with(dir)),
+        "one directory per capture"
+    );
     assert_eq!(mode, "700", "private temp dir");
-    assert!(!Path::new(dir).exists(), "temp dir {dir} removed after the capture");
+    assert!(
+        !Path::new(dir).exists(),
+        "temp dir {dir} removed after the capture"
+    );
 
     let info = cam.info().await.expect("info");
     assert_eq!((info.vendor.as_str(), info.model.as_str()), ("exec", "sh"));
@@ -120,7 +129,11 @@ async fn passes_an_organized_binary_cloud_through() {
         confidence: None,
     };
     write_ply(&src, &cloud, PlyEncoding::BinaryLittleEndian).expect("write");
-    let argv = vec!["cp".to_owned(), src.display().to_string(), "{out}".to_owned()];
+    let argv = vec![
+        "cp".to_owned(),
+        src.display().to_string(),
+        "{out}".to_owned(),
+    ];
     let cam = ExecCamera::new(argv, Duration::from_secs(10)).expect("camera");
     let clouds = cam.capture_frames(&frames(1)).await.expect("capture");
     assert_eq!(clouds, vec![cloud]);
@@ -142,7 +155,10 @@ async fn non_zero_exit_names_the_code_and_quotes_stderr() {
         } => {
             assert_eq!(*code, Some(3));
             assert_eq!(*frame, 0);
-            assert!(stderr.contains("no camera with serial 2020C0DE"), "{stderr}");
+            assert!(
+                stderr.contains("no camera with serial 2020C0DE"),
+                "{stderr}"
+            );
         }
         other => panic!("unexpected {other:?}"),
     }
@@ -252,7 +268,10 @@ async fn dropping_the_capture_kills_the_command() {
         pid = tokio::task::spawn_blocking(move || read_pid(&pid_file)) => pid.expect("pid"),
     };
     // `capture` was dropped by select!.
-    assert!(stops(pid), "the command {pid} still runs after its capture was dropped");
+    assert!(
+        stops(pid),
+        "the command {pid} still runs after its capture was dropped"
+    );
 }
 
 #[tokio::test]
@@ -264,7 +283,10 @@ async fn missing_program_and_bad_configs_are_clear_errors() {
     .expect("camera");
     let err = cam.capture_frames(&frames(1)).await.expect_err("missing");
     assert!(matches!(err, CameraError::Spawn { .. }), "{err:?}");
-    assert!(err.to_string().contains("/nonexistent/zivid_capture"), "{err}");
+    assert!(
+        err.to_string().contains("/nonexistent/zivid_capture"),
+        "{err}"
+    );
 
     assert!(matches!(
         ExecCamera::new(Vec::new(), Duration::from_secs(1)),
@@ -275,7 +297,11 @@ async fn missing_program_and_bad_configs_are_clear_errors() {
         Err(CameraError::ZeroTimeout)
     ));
     // Zero frames: nothing runs (the program does not even exist).
-    assert!(cam.capture_frames(&frames(0)).await.expect("zero").is_empty());
+    assert!(cam
+        .capture_frames(&frames(0))
+        .await
+        .expect("zero")
+        .is_empty());
 }
 
 #[test]
