@@ -228,3 +228,63 @@ fn report(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser as _;
+
+    use super::*;
+
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(subcommand)]
+        command: CameraCommand,
+    }
+
+    fn parse(args: &[&str]) -> Result<CameraCommand, clap::Error> {
+        Cli::try_parse_from(["camera"].iter().chain(args)).map(|c| c.command)
+    }
+
+    #[test]
+    fn exactly_one_source() {
+        assert!(parse(&["capture"]).is_err());
+        assert!(parse(&["capture", "--gige", "127.0.0.1", "--file", "a.ply"]).is_err());
+        assert!(parse(&["capture", "--exec", "true", "--file", "a.ply"]).is_err());
+        assert!(parse(&["capture", "--gige", "127.0.0.1"]).is_ok());
+        let Ok(CameraCommand::Capture { file, frames, .. }) =
+            parse(&["capture", "--file", "a.ply", "--file", "b.pcd"])
+        else {
+            panic!("--file twice parses");
+        };
+        assert_eq!(file.len(), 2);
+        assert_eq!(frames, None);
+    }
+
+    #[test]
+    fn file_and_exec_captures_share_the_output_path() {
+        let dir = std::env::temp_dir().join(format!("handeye-cli-camera-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let src = dir.join("src.ply");
+        let cloud = handeye_hal::PointCloud::from_points(vec![
+            nalgebra::Point3::new(0.0, 0.0, 1.0),
+            nalgebra::Point3::new(0.1, 0.0, 1.0),
+        ]);
+        handeye::cloud::write_ply(&src, &cloud, handeye::cloud::PlyEncoding::Ascii).expect("write");
+
+        let clouds = capture_local(vec![src.clone()], None, 1.0, 2).expect("file capture");
+        assert_eq!(clouds.len(), 2);
+        let cmd = format!("cp {} {{out}}", src.display());
+        let clouds2 = capture_local(Vec::new(), Some(cmd), 10.0, 1).expect("exec capture");
+        assert_eq!(clouds2.len(), 1);
+
+        let out = dir.join("scan.ply");
+        report(&clouds, None, true, Some(&out)).expect("report");
+        for name in ["scan_0.ply", "scan_1.ply"] {
+            let back = handeye::cloud::read_cloud(&dir.join(name)).expect("read back");
+            assert_eq!(back.points, cloud.points);
+        }
+        let err = capture_local(Vec::new(), Some("true".into()), 0.0, 1).expect_err("bad timeout");
+        assert!(err.to_string().contains("--timeout-s"), "{err}");
+        std::fs::remove_dir_all(&dir).expect("cleanup");
+    }
+}
