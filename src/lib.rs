@@ -4,6 +4,7 @@
 //! - [`frames`]: frame names and the fixed transforms between them (UR `base` vs URDF `base_link`).
 //! - [`model`]: the robot model from URDF + meshes: kinematics, joint limits, posed meshes.
 //! - [`cloud`]: point-cloud file formats (PLY, PCD) and cloud utilities.
+//! - [`camera`]: camera backends without a network protocol: file replay and external command.
 //! - [`sim`]: the 3D scan simulator (pinhole camera ray-casting the posed robot and its cell,
 //!   with the imperfections of real scans).
 //! - [`plan`]: view generation: joint configurations from which the camera sees the base,
@@ -18,6 +19,7 @@
 
 pub mod bench;
 pub mod calib;
+pub mod camera;
 pub mod cloud;
 pub mod frames;
 pub mod model;

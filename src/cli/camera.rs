@@ -1,4 +1,5 @@
-//! `handeye camera`: probe a GigE Vision 3D camera and capture point clouds from it.
+//! `handeye camera`: probe a GigE Vision 3D camera and capture point clouds from it, or from
+//! the file (`--file`) and external-command (`--exec`) backends.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -26,26 +27,40 @@ enum CameraCommand {
         json: bool,
     },
     /// Capture point clouds and print frame statistics.
+    #[command(group(clap::ArgGroup::new("source").required(true).args(["gige", "file", "exec"])))]
     Capture {
         /// Camera address, `IP` or `IP:PORT` (GVCP, default port 3956).
         #[arg(long, value_name = "ADDR")]
-        gige: String,
-        /// Number of complete frames to capture.
-        #[arg(long, default_value_t = 1)]
-        frames: u32,
+        gige: Option<String>,
+        /// Replay this PLY/PCD file instead of a camera (repeat for several; frames cycle
+        /// through them in order).
+        #[arg(long, value_name = "PATH")]
+        file: Vec<PathBuf>,
+        /// Run this command once per frame (split like a shell would, no shell involved; `{out}`
+        /// = the file it must write, `{frame}` = the frame index; also in $HANDEYE_OUTPUT and
+        /// $HANDEYE_FRAME), e.g. "python3 config/zivid_capture.py {out}".
+        #[arg(long, value_name = "CMD")]
+        exec: Option<String>,
+        /// With --exec: kill the command (and its process group) if one frame takes longer.
+        #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
+        timeout_s: f64,
+        /// Number of complete frames to capture [default: 1; with --file, the number of files].
+        #[arg(long)]
+        frames: Option<u32>,
         /// Write the (first) cloud to this PLY file.
         #[arg(long)]
         out: Option<PathBuf>,
         /// Print JSON (`frames`, `complete`, `incomplete`, `resent_packets`, …).
         #[arg(long)]
         json: bool,
-        /// GVSP packet size in bytes (whole IP datagram); 9000 on jumbo-frame networks.
+        /// GigE only: GVSP packet size in bytes (whole IP datagram); 9000 on jumbo-frame
+        /// networks.
         #[arg(long, default_value_t = 1500)]
         packet_size: u32,
-        /// Give up on a frame after this many milliseconds.
+        /// GigE only: give up on a frame after this many milliseconds.
         #[arg(long, default_value_t = 5000)]
         frame_timeout_ms: u64,
-        /// Also stream the confidence component when the camera has one.
+        /// GigE only: also stream the confidence component when the camera has one.
         #[arg(long)]
         confidence: bool,
     },
@@ -76,6 +91,9 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         }
         CameraCommand::Capture {
             gige,
+            file,
+            exec,
+            timeout_s,
             frames,
             out,
             json,
@@ -83,59 +101,190 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             frame_timeout_ms,
             confidence,
         } => {
+            let frames = frames.unwrap_or(if file.is_empty() {
+                1
+            } else {
+                u32::try_from(file.len()).unwrap_or(u32::MAX)
+            });
             if frames == 0 {
                 anyhow::bail!("--frames must be at least 1");
             }
-            let mut cam = connect(&gige)?;
-            cam.options.packet_size = packet_size;
-            cam.options.confidence = confidence;
-            let (clouds, stats) =
-                cam.capture_blocking(frames, Duration::from_millis(frame_timeout_ms))?;
-            let valid: Vec<usize> = clouds.iter().map(|c| c.valid_count()).collect();
-            if json {
-                let v = serde_json::json!({
-                    "frames": clouds.len(),
+            let (clouds, stats) = if let Some(gige) = gige {
+                let mut cam = connect(&gige)?;
+                cam.options.packet_size = packet_size;
+                cam.options.confidence = confidence;
+                let (clouds, stats) =
+                    cam.capture_blocking(frames, Duration::from_millis(frame_timeout_ms))?;
+                let stats = serde_json::json!({
                     "complete": stats.complete,
                     "incomplete": stats.incomplete,
                     "resent_packets": stats.resent_packets,
-                    "width": clouds.first().map_or(0, |c| c.width),
-                    "height": clouds.first().map_or(0, |c| c.height),
-                    "valid_points": valid,
                     "stream": stats.stream,
                 });
-                println!("{}", serde_json::to_string_pretty(&v)?);
+                (clouds, Some(stats))
             } else {
-                println!(
-                    "{} frames ({} complete, {} incomplete dropped, {} packets resent); valid points per frame: {:?}",
-                    clouds.len(),
-                    stats.complete,
-                    stats.incomplete,
-                    stats.resent_packets,
-                    valid
-                );
-            }
-            if let Some(path) = out {
-                // Several frames go to `<stem>_<i>.ply`; one frame to the path given.
-                for (i, cloud) in clouds.iter().enumerate() {
-                    let file = if clouds.len() == 1 {
-                        path.clone()
-                    } else {
-                        let stem = path
-                            .file_stem()
-                            .map(|s| s.to_string_lossy().into_owned())
-                            .unwrap_or_default();
-                        path.with_file_name(format!("{stem}_{i}.ply"))
-                    };
-                    handeye::cloud::write_ply(
-                        &file,
-                        cloud,
-                        handeye::cloud::PlyEncoding::BinaryLittleEndian,
-                    )
-                    .map_err(|e| anyhow::anyhow!("writing {}: {e}", file.display()))?;
-                    eprintln!("wrote {}", file.display());
-                }
-            }
+                (capture_local(file, exec, timeout_s, frames)?, None)
+            };
+            report(&clouds, stats, json, out.as_deref())?;
             Ok(ExitCode::SUCCESS)
         }
+    }
+}
+
+/// Captures from the file or exec backend (whichever was given).
+fn capture_local(
+    file: Vec<PathBuf>,
+    exec: Option<String>,
+    timeout_s: f64,
+    frames: u32,
+) -> anyhow::Result<Vec<handeye_hal::PointCloud>> {
+    use handeye_hal::{CaptureSettings, DepthCamera as _};
+    let settings = CaptureSettings {
+        frames,
+        ..CaptureSettings::default()
+    };
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    let clouds = if let Some(exec) = exec {
+        let argv = shlex::split(&exec)
+            .with_context(|| format!("cannot split --exec {exec:?}: unbalanced quotes?"))?;
+        if !(timeout_s.is_finite() && timeout_s > 0.0) {
+            anyhow::bail!("--timeout-s must be a positive number of seconds");
+        }
+        let cam = handeye::camera::ExecCamera::new(argv, Duration::from_secs_f64(timeout_s))?;
+        rt.block_on(cam.capture(&settings))
+    } else {
+        let cam = handeye::camera::FileCamera::new(file)?;
+        rt.block_on(cam.capture(&settings))
+    };
+    Ok(clouds?)
+}
+
+/// Prints frame statistics (`stats`: backend-specific JSON fields, GigE's stream counters) and
+/// writes the clouds to `out`.
+fn report(
+    clouds: &[handeye_hal::PointCloud],
+    stats: Option<serde_json::Value>,
+    json: bool,
+    out: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    let valid: Vec<usize> = clouds.iter().map(|c| c.valid_count()).collect();
+    if json {
+        let mut v = serde_json::json!({
+            "frames": clouds.len(),
+            "width": clouds.first().map_or(0, |c| c.width),
+            "height": clouds.first().map_or(0, |c| c.height),
+            "valid_points": valid,
+        });
+        match (&mut v, stats) {
+            (serde_json::Value::Object(v), Some(serde_json::Value::Object(stats))) => {
+                v.extend(stats);
+            }
+            (serde_json::Value::Object(v), _) => {
+                // Replayed or externally captured frames are all complete.
+                v.insert("complete".to_owned(), clouds.len().into());
+            }
+            _ => {}
+        }
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else if let Some(stats) = stats {
+        println!(
+            "{} frames ({} complete, {} incomplete dropped, {} packets resent); valid points per frame: {:?}",
+            clouds.len(),
+            stats["complete"],
+            stats["incomplete"],
+            stats["resent_packets"],
+            valid
+        );
+    } else {
+        println!(
+            "{} frames; valid points per frame: {:?}",
+            clouds.len(),
+            valid
+        );
+    }
+    if let Some(path) = out {
+        // Several frames go to `<stem>_<i>.ply`; one frame to the path given.
+        for (i, cloud) in clouds.iter().enumerate() {
+            let file = if clouds.len() == 1 {
+                path.to_path_buf()
+            } else {
+                let stem = path
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                path.with_file_name(format!("{stem}_{i}.ply"))
+            };
+            handeye::cloud::write_ply(
+                &file,
+                cloud,
+                handeye::cloud::PlyEncoding::BinaryLittleEndian,
+            )
+            .map_err(|e| anyhow::anyhow!("writing {}: {e}", file.display()))?;
+            eprintln!("wrote {}", file.display());
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser as _;
+
+    use super::*;
+
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(subcommand)]
+        command: CameraCommand,
+    }
+
+    fn parse(args: &[&str]) -> Result<CameraCommand, clap::Error> {
+        Cli::try_parse_from(["camera"].iter().chain(args)).map(|c| c.command)
+    }
+
+    #[test]
+    fn exactly_one_source() {
+        assert!(parse(&["capture"]).is_err());
+        assert!(parse(&["capture", "--gige", "127.0.0.1", "--file", "a.ply"]).is_err());
+        assert!(parse(&["capture", "--exec", "true", "--file", "a.ply"]).is_err());
+        assert!(parse(&["capture", "--gige", "127.0.0.1"]).is_ok());
+        let Ok(CameraCommand::Capture { file, frames, .. }) =
+            parse(&["capture", "--file", "a.ply", "--file", "b.pcd"])
+        else {
+            panic!("--file twice parses");
+        };
+        assert_eq!(file.len(), 2);
+        assert_eq!(frames, None);
+    }
+
+    #[test]
+    fn file_and_exec_captures_share_the_output_path() {
+        let dir = std::env::temp_dir().join(format!("handeye-cli-camera-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let src = dir.join("src.ply");
+        let cloud = handeye_hal::PointCloud::from_points(vec![
+            nalgebra::Point3::new(0.0, 0.0, 1.0),
+            nalgebra::Point3::new(0.1, 0.0, 1.0),
+        ]);
+        handeye::cloud::write_ply(&src, &cloud, handeye::cloud::PlyEncoding::Ascii).expect("write");
+
+        let clouds = capture_local(vec![src.clone()], None, 1.0, 2).expect("file capture");
+        assert_eq!(clouds.len(), 2);
+        let cmd = format!("cp {} {{out}}", src.display());
+        let clouds2 = capture_local(Vec::new(), Some(cmd), 10.0, 1).expect("exec capture");
+        assert_eq!(clouds2.len(), 1);
+
+        let out = dir.join("scan.ply");
+        report(&clouds, None, true, Some(&out)).expect("report");
+        for name in ["scan_0.ply", "scan_1.ply"] {
+            let back = handeye::cloud::read_cloud(&dir.join(name)).expect("read back");
+            assert_eq!(back.points, cloud.points);
+        }
+        let err = capture_local(Vec::new(), Some("true".into()), 0.0, 1).expect_err("bad timeout");
+        assert!(err.to_string().contains("--timeout-s"), "{err}");
+        std::fs::remove_dir_all(&dir).expect("cleanup");
     }
 }

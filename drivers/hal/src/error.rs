@@ -79,6 +79,17 @@ pub enum HalError {
     /// A caller passed an invalid argument (wrong joint count, out-of-range value, …).
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// A backend that is not a network device (replayed files, an external capture command, a
+    /// vendor SDK) failed. Its own error, the `source`, says what went wrong and what to do;
+    /// downcast it for the details.
+    #[error("{backend} failed")]
+    Backend {
+        /// Which backend, e.g. `file camera` or `exec camera`.
+        backend: String,
+        /// The backend's own error.
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync + 'static>,
+    },
     /// A read-back after a write did not match what was written.
     #[error("read-back mismatch for {what}: wrote {wrote}, read {read}")]
     ReadBackMismatch {
