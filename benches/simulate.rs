@@ -35,32 +35,22 @@ fn bench(c: &mut Criterion) {
             .iter()
             .map(|(t, g)| g.mesh.transformed(t))
             .collect();
-        let meshes: Vec<SceneMesh<'_>> = posed
-            .iter()
-            .enumerate()
-            .map(|(i, m)| SceneMesh {
-                vertices: &m.vertices,
-                triangles: &m.triangles,
-                object: i as u32,
-            })
-            .collect();
+        let meshes = SceneMesh::indexed(&posed);
         let camera_from_model = planner.model_from_camera(&q).expect("fk").inverse();
         c.bench_function(&format!("raycast_ur5e_{name}"), |b| {
             b.iter(|| black_box(raycast(&meshes, &camera_from_model, &intr)))
         });
-        let settings = SimSettings::default();
-        let req = ScanRequest {
-            model: &model,
-            joints: q.clone(),
-            placement: Placement::EyeInHand {
-                flange_from_camera: mount,
-            },
-            intrinsics: intr,
-            noise: settings.noise,
-            cell: settings.cell,
-            kinematic_error: settings.kinematic_error,
-            seed: 1,
+        let placement = Placement::EyeInHand {
+            flange_from_camera: mount,
         };
+        let req = ScanRequest::new(
+            &model,
+            q.clone(),
+            placement,
+            intr,
+            &SimSettings::default(),
+            1,
+        );
         c.bench_function(&format!("simulate_scan_ur5e_{name}"), |b| {
             b.iter(|| black_box(simulate_scan(&req).expect("simulates")))
         });

@@ -262,18 +262,17 @@ pub fn run_trial(
         solve_ms: 0.0,
     };
     let t0 = Instant::now();
-    let req = ScanRequest {
-        model,
-        joints: joints.to_vec(),
-        placement: Placement::EyeInHand {
-            flange_from_camera: mount,
-        },
-        intrinsics: cfg.intrinsics,
-        noise: cfg.settings.noise,
-        cell: cfg.settings.cell,
-        kinematic_error: cfg.settings.kinematic_error,
-        seed,
+    let placement = Placement::EyeInHand {
+        flange_from_camera: mount,
     };
+    let req = ScanRequest::new(
+        model,
+        joints.to_vec(),
+        placement,
+        cfg.intrinsics,
+        &cfg.settings,
+        seed,
+    );
     let scan = match simulate_scan(&req) {
         Ok(s) => s,
         Err(e) => {

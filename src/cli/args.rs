@@ -74,30 +74,10 @@ pub(crate) fn resolve_robot(name_or_path: &str) -> Result<std::path::PathBuf, St
     let dir = robots_dir().ok_or_else(|| {
         format!("robot `{name_or_path}`: no robot directory found; set HANDEYE_ROBOTS or run from a checkout with ../shared/robots, or give a URDF path")
     })?;
-    all_robots(&dir)
+    handeye::model::find_urdfs(&dir)
         .into_iter()
         .find(|u| u.file_stem().is_some_and(|s| s == name_or_path))
         .ok_or_else(|| format!("robot `{name_or_path}` not found under {}", dir.display()))
-}
-
-/// Every `*.urdf` under `dir`, sorted.
-pub(crate) fn all_robots(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        let Ok(entries) = std::fs::read_dir(&d) else {
-            continue;
-        };
-        for p in entries.flatten().map(|e| e.path()) {
-            if p.is_dir() {
-                stack.push(p);
-            } else if p.extension().is_some_and(|x| x == "urdf") {
-                out.push(p);
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 #[cfg(test)]

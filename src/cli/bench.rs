@@ -9,7 +9,7 @@ use handeye::bench::{run_robot, BenchConfig, RobotSummary, Stats, Trial};
 use handeye::model::RobotModel;
 use handeye::sim::{Intrinsics, SimSettings};
 
-use super::args::{all_robots, resolve_robot, robots_dir};
+use super::args::{resolve_robot, robots_dir};
 
 /// The UR arms the accuracy targets are stated for.
 const DEFAULT_ROBOTS: &str = "ur3e,ur5e,ur10e,ur16e,ur20,ur30";
@@ -54,7 +54,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     };
     let robots: Vec<PathBuf> = if args.robots == "all" {
         let dir = robots_dir().context("no robot directory; set HANDEYE_ROBOTS")?;
-        all_robots(&dir)
+        handeye::model::find_urdfs(&dir)
     } else {
         args.robots
             .split(',')

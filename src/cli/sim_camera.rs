@@ -212,18 +212,17 @@ impl FrameSource for RobotScene {
             SceneJoints::Fixed(q) => q.clone(),
             SceneJoints::Live(live) => live.current()?,
         };
-        let req = ScanRequest {
-            model: &self.model,
-            joints,
-            placement: Placement::EyeInHand {
-                flange_from_camera: self.mount,
-            },
-            intrinsics: self.intrinsics,
-            noise: self.settings.noise,
-            cell: self.settings.cell,
-            kinematic_error: self.settings.kinematic_error,
-            seed: self.frame,
+        let placement = Placement::EyeInHand {
+            flange_from_camera: self.mount,
         };
+        let req = ScanRequest::new(
+            &self.model,
+            joints,
+            placement,
+            self.intrinsics,
+            &self.settings,
+            self.frame,
+        );
         Ok(simulate_scan(&req)?.cloud)
     }
 

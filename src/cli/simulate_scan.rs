@@ -63,16 +63,14 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         (Some(path), false) => SimSettings::load(path)?,
         (None, false) => SimSettings::default(),
     };
-    let req = ScanRequest {
-        model: &model,
-        joints: args.joints.0.clone(),
+    let req = ScanRequest::new(
+        &model,
+        args.joints.0.clone(),
         placement,
         intrinsics,
-        noise: settings.noise,
-        cell: settings.cell,
-        kinematic_error: settings.kinematic_error,
-        seed: args.seed,
-    };
+        &settings,
+        args.seed,
+    );
     let scan = simulate_scan(&req)?;
     write_ply(&args.out, &scan.cloud, PlyEncoding::BinaryLittleEndian)
         .with_context(|| format!("writing {}", args.out.display()))?;

@@ -261,6 +261,26 @@ struct Element<'r> {
     geometry: &'r urdf_rs::Geometry,
 }
 
+/// Every `*.urdf` file below `dir` (recursively), sorted; unreadable folders are skipped.
+pub fn find_urdfs(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&d) else {
+            continue;
+        };
+        for p in entries.flatten().map(|e| e.path()) {
+            if p.is_dir() {
+                stack.push(p);
+            } else if p.extension().is_some_and(|x| x == "urdf") {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
 impl RobotModel {
     /// Loads a URDF and all its meshes (visual and collision).
     pub fn load(urdf_path: &Path) -> Result<Self, ModelError> {

@@ -9,23 +9,6 @@ use rand::{Rng, SeedableRng};
 use super::*;
 use crate::testutil::shared_robots;
 
-fn urdfs(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).expect("readable dir").flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else if p.extension().is_some_and(|x| x == "urdf") {
-                out.push(p);
-            }
-        }
-    }
-    out.sort();
-    out
-}
-
 fn ur_urdf(dir: &Path, name: &str) -> PathBuf {
     dir.join("ur").join(name).join(format!("{name}.urdf"))
 }
@@ -40,7 +23,7 @@ fn bbox_diff(a: &TriMesh, b: &TriMesh) -> f64 {
 #[test]
 fn every_shared_robot_loads_with_a_chain_and_meshes() {
     let Some(dir) = shared_robots() else { return };
-    let files = urdfs(&dir);
+    let files = find_urdfs(&dir);
     assert_eq!(files.len(), 21, "{files:?}");
     for f in files {
         let m = RobotModel::load(&f).unwrap_or_else(|e| panic!("{}: {e}", f.display()));
@@ -94,7 +77,7 @@ fn bbox_tolerance(robot: &str, link: &str) -> f64 {
 fn visual_and_collision_bounding_boxes_agree_per_link() {
     let Some(dir) = shared_robots() else { return };
     let mut failures = Vec::new();
-    for f in urdfs(&dir) {
+    for f in find_urdfs(&dir) {
         let m = RobotModel::load(&f).expect("loads");
         for v in m.geometry(GeometryKind::Visual) {
             let Some(c) = m

@@ -10,6 +10,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
 use super::Intrinsics;
+use crate::model::TriMesh;
 
 /// Rays closer than this (metres) are not cast; geometry nearer the camera is clipped.
 pub const NEAR_PLANE_M: f64 = 0.02;
@@ -26,6 +27,22 @@ pub struct SceneMesh<'a> {
     pub triangles: &'a [[u32; 3]],
     /// Caller's object id, reported per pixel in [`DepthImage::object`].
     pub object: u32,
+}
+
+impl<'a> SceneMesh<'a> {
+    /// One scene mesh per [`TriMesh`] (already posed in the world frame), the object id being
+    /// its index.
+    pub fn indexed(meshes: &'a [TriMesh]) -> Vec<Self> {
+        meshes
+            .iter()
+            .enumerate()
+            .map(|(i, m)| SceneMesh {
+                vertices: &m.vertices,
+                triangles: &m.triangles,
+                object: i as u32,
+            })
+            .collect()
+    }
 }
 
 /// The result of ray casting: per pixel, row-major.

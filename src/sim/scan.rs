@@ -10,6 +10,7 @@ use handeye_hal::PointCloud;
 
 use super::cell::{build_cell, CellOptions, CellPart};
 use super::raycast::{raycast, DepthImage, SceneMesh};
+use super::SimSettings;
 use super::{Intrinsics, ScanNoise};
 use crate::model::{GeometryKind, ModelError, RobotModel, TriMesh};
 
@@ -126,7 +127,28 @@ pub struct ScanRequest<'a> {
     pub seed: u64,
 }
 
-impl ScanRequest<'_> {
+impl<'a> ScanRequest<'a> {
+    /// A request with every simulator knob taken from `settings`.
+    pub fn new(
+        model: &'a RobotModel,
+        joints: Vec<f64>,
+        placement: Placement,
+        intrinsics: Intrinsics,
+        settings: &SimSettings,
+        seed: u64,
+    ) -> Self {
+        Self {
+            model,
+            joints,
+            placement,
+            intrinsics,
+            noise: settings.noise,
+            cell: settings.cell,
+            kinematic_error: settings.kinematic_error,
+            seed,
+        }
+    }
+
     /// The camera pose this request puts in the model frame for an exactly nominal arm
     /// (eye-in-hand: nominal FK · mount).
     pub fn placement_model_from_camera(&self) -> Isometry3<f64> {
@@ -231,15 +253,7 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
         objects.push(cell_part_name(part).to_string());
         posed.push(mesh);
     }
-    let meshes: Vec<SceneMesh<'_>> = posed
-        .iter()
-        .enumerate()
-        .map(|(i, m)| SceneMesh {
-            vertices: &m.vertices,
-            triangles: &m.triangles,
-            object: i as u32,
-        })
-        .collect();
+    let meshes = SceneMesh::indexed(&posed);
     let camera_from_model = model_from_camera.inverse();
     let image = raycast(&meshes, &camera_from_model, &req.intrinsics);
     let cloud = measure(&image, &req.intrinsics, &req.noise, rng.random());
