@@ -3,13 +3,14 @@
 //! 1. Planes: 1-point RANSAC with grid normals finds the dominant planes (floor, table, mounting
 //!    surface). A floor/table-mounted robot stands on one of them: the plane fixes two rotations
 //!    and the height up to the thickness of a mounting plate.
-//! 2. Position in the plane: generalized Hough transform. Scan points in a height band above the
-//!    plane vote, for every yaw bin and every point of the model's base/shoulder outline in that
-//!    band, for where the robot origin would be. A round base makes every yaw vote for the same
-//!    centre, so the centre is found even where the yaw is not.
-//! 3. Yaw (and the plate height): a sweep scoring the whole posed model (base, shoulder, upper
-//!    arm at the measured joints) against the range image with [`super::verify`]'s projective
-//!    test, so free-space violations count against a hypothesis.
+//! 2. Position and yaw in the plane: a Hough vote over (x, y, yaw). Each side-facing scan point
+//!    above the plane pairs with the side-facing samples of the posed model (base, shoulder,
+//!    upper arm at the measured joints) at about its height; the horizontal normals give the
+//!    pair's yaw, the positions the robot origin. The whole visible robot votes, so a base
+//!    hidden under the shoulder (camera above the robot) is still found.
+//! 3. The strongest peaks (and the plate height) are scored on the whole posed model against
+//!    the range image with [`super::verify`]'s projective test, so free-space violations count
+//!    against a hypothesis.
 
 use std::f64::consts::PI;
 
@@ -169,7 +170,20 @@ fn camera_from_plane(pl: &Plane) -> Isometry3<f64> {
     )
 }
 
-/// Candidate `camera_from_model` poses, best first, from planes + Hough + yaw sweep.
+/// Yaw bins of the Hough accumulator (5°).
+const N_YAW: usize = 72;
+/// Cell of the Hough accumulator in the plane, metres.
+const HOUGH_CELL_M: f64 = 0.015;
+
+/// Candidate `camera_from_model` poses, best first, from planes + a (x, y, yaw) Hough vote +
+/// projective scoring of the peaks.
+///
+/// The plane fixes two rotations and the height (up to a mounting plate), leaving x, y and the
+/// yaw. Every side-facing scan point above the plane is paired with the side-facing model
+/// samples (base, shoulder, upper arm posed at the measured joints) at about the same height;
+/// the horizontal normals give the yaw of the pair and the positions the robot origin, so the
+/// pair votes for one (x, y, yaw) cell. Heights and normals make the vote specific: a base
+/// hidden under the shoulder (camera above the robot) is found from the shoulder and upper arm.
 pub(crate) fn hypotheses(
     range: &RangeImage<'_>,
     surface: &ModelSurface,
@@ -178,33 +192,27 @@ pub(crate) fn hypotheses(
     max_out: usize,
 ) -> Vec<(Isometry3<f64>, f64)> {
     let fit_depth = surface.fit_depth;
-    // Outline of the base/shoulder in a height band (model frame: z up from the mounting face).
-    let low: Vec<&Sample> = surface.samples.iter().filter(|s| s.depth <= 1).collect();
-    if low.is_empty() {
+    // Side-facing model samples of the fitted links, in 1 cm height slices (model frame: z up
+    // from the mounting face).
+    let slice = 0.01;
+    let side: Vec<&Sample> = surface
+        .coarse
+        .iter()
+        .filter(|s| s.depth as usize <= fit_depth && s.n.xy().norm() > 0.5 && s.p.z > -0.01)
+        .collect();
+    if side.is_empty() {
         return Vec::new();
     }
-    let ztop = low
-        .iter()
-        .map(|s| s.p.z)
-        .fold(f64::NEG_INFINITY, f64::max)
-        .min(0.30);
-    let band = (0.025, 0.025 + 0.6 * (ztop - 0.025).max(0.02));
-    let cell = 0.005;
-    // Side walls only (top faces and horizontal internals would smear the votes).
-    let mut outline: Vec<(i64, i64)> = low
-        .iter()
-        .filter(|s| s.p.z >= band.0 && s.p.z <= band.1 && s.n.z.abs() < 0.5)
-        .map(|s| ((s.p.x / cell).round() as i64, (s.p.y / cell).round() as i64))
-        .collect();
-    outline.sort_unstable();
-    outline.dedup();
-    let keep = 160usize;
-    let step = (outline.len() as f64 / keep as f64).max(1.0);
-    let outline: Vec<(f64, f64)> = (0..outline.len().min(keep))
-        .map(|k| outline[(k as f64 * step) as usize])
-        .map(|(x, y)| (x as f64 * cell, y as f64 * cell))
-        .collect();
-    let radius = outline.iter().map(|o| o.0.hypot(o.1)).fold(0.0, f64::max);
+    let zmax = side.iter().map(|s| s.p.z).fold(0.0, f64::max).min(1.5);
+    let n_slices = (zmax / slice).ceil() as usize + 2;
+    let mut slices: Vec<Vec<(f64, f64, f64)>> = vec![Vec::new(); n_slices];
+    for s in &side {
+        let k = ((s.p.z.max(0.0)) / slice) as usize;
+        if let Some(v) = slices.get_mut(k) {
+            v.push((s.p.x, s.p.y, s.n.y.atan2(s.n.x)));
+        }
+    }
+    let rmax = side.iter().map(|s| s.p.x.hypot(s.p.y)).fold(0.0, f64::max);
 
     let tol = Tolerances {
         matched_m: 0.008,
@@ -214,103 +222,127 @@ pub(crate) fn hypotheses(
     for pl in planes {
         let cam_from_plane = camera_from_plane(pl);
         let plane_from_cam = cam_from_plane.inverse();
-        let mut band_pts: Vec<(f64, f64)> = pts
+        // Side-facing scan points above the plane (plane frame): x, y, height, normal angle.
+        let mut scan: Vec<(f64, f64, f64, f64)> = pts
             .iter()
-            .map(|o| plane_from_cam * o.p)
-            .filter(|q| q.z >= band.0 - 0.005 && q.z <= band.1 + 0.02)
-            .map(|q| (q.x, q.y))
+            .filter_map(|o| {
+                let q = plane_from_cam * o.p;
+                let n = plane_from_cam.rotation * o.n;
+                (q.z > 0.004 && q.z < zmax + 0.03 && n.xy().norm() > 0.5)
+                    .then(|| (q.x, q.y, q.z, n.y.atan2(n.x)))
+            })
             .collect();
-        if band_pts.len() < 20 {
+        if scan.len() < 20 {
             continue;
         }
-        if band_pts.len() > 1500 {
-            let step = band_pts.len() as f64 / 1500.0;
-            band_pts = (0..1500)
-                .map(|k| band_pts[(k as f64 * step) as usize])
+        if scan.len() > 4000 {
+            let step = scan.len() as f64 / 4000.0;
+            scan = (0..4000)
+                .map(|k| scan[(k as f64 * step) as usize])
                 .collect();
         }
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for b in &band_pts {
+        for b in &scan {
             lo = [lo[0].min(b.0), lo[1].min(b.1)];
             hi = [hi[0].max(b.0), hi[1].max(b.1)];
         }
-        let (x0, y0) = (lo[0] - radius - cell, lo[1] - radius - cell);
-        let nx = (((hi[0] - lo[0] + 2.0 * radius) / cell).ceil() as usize + 3).min(1500);
-        let ny = (((hi[1] - lo[1] + 2.0 * radius) / cell).ceil() as usize + 3).min(1500);
-        let n_yaw = 36;
-        let acc = (0..n_yaw)
-            .into_par_iter()
-            .fold(
-                || vec![0u32; nx * ny],
-                |mut acc, k| {
-                    let a = 2.0 * PI * k as f64 / n_yaw as f64;
-                    let (s, c) = a.sin_cos();
-                    let rotated: Vec<(f64, f64)> = outline
-                        .iter()
-                        .map(|o| (c * o.0 - s * o.1, s * o.0 + c * o.1))
-                        .collect();
-                    for b in &band_pts {
-                        for r in &rotated {
-                            let ix = ((b.0 - r.0 - x0) / cell) as isize;
-                            let iy = ((b.1 - r.1 - y0) / cell) as isize;
-                            if ix >= 0 && iy >= 0 && (ix as usize) < nx && (iy as usize) < ny {
-                                acc[iy as usize * nx + ix as usize] += 1;
+        let margin = rmax.min(0.3) + HOUGH_CELL_M;
+        let (x0, y0) = (lo[0] - margin, lo[1] - margin);
+        let nx = (((hi[0] - lo[0] + 2.0 * margin) / HOUGH_CELL_M).ceil() as usize + 1).min(400);
+        let ny = (((hi[1] - lo[1] + 2.0 * margin) / HOUGH_CELL_M).ceil() as usize + 1).min(400);
+        let cells = nx * ny;
+        let yaw_step = 2.0 * PI / N_YAW as f64;
+        let chunk = scan.len().div_ceil(rayon::current_num_threads().max(1));
+        let acc = scan
+            .par_chunks(chunk.max(1))
+            .map(|part| {
+                let mut acc = vec![0u32; N_YAW * cells];
+                for &(sx, sy, sz, sa) in part {
+                    // The robot may stand on this plane or on a plate up to 2.5 cm thick.
+                    let k_lo = ((sz - 0.025).max(0.0) / slice) as usize;
+                    let k_hi = (((sz + 0.005) / slice) as usize).min(n_slices - 1);
+                    for sl in &slices[k_lo..=k_hi] {
+                        for &(mx, my, ma) in sl {
+                            let yaw = (sa - ma).rem_euclid(2.0 * PI);
+                            let (s, c) = yaw.sin_cos();
+                            let cx = sx - (c * mx - s * my);
+                            let cy = sy - (s * mx + c * my);
+                            let ix = ((cx - x0) / HOUGH_CELL_M) as isize;
+                            let iy = ((cy - y0) / HOUGH_CELL_M) as isize;
+                            if ix < 0 || iy < 0 || ix as usize >= nx || iy as usize >= ny {
+                                continue;
                             }
+                            let b = ((yaw / yaw_step).round() as usize) % N_YAW;
+                            acc[b * cells + iy as usize * nx + ix as usize] += 1;
                         }
                     }
-                    acc
-                },
-            )
-            .reduce(
-                || vec![0u32; nx * ny],
-                |mut a, b| {
-                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
-                    a
-                },
-            );
-        // 3×3 box filter, then peaks at least 4 cm apart.
-        let mut smooth = vec![0u32; nx * ny];
-        for iy in 1..ny.saturating_sub(1) {
-            for ix in 1..nx.saturating_sub(1) {
-                let mut s = 0;
-                for dy in 0..3 {
-                    for dx in 0..3 {
-                        s += acc[(iy + dy - 1) * nx + ix + dx - 1];
-                    }
                 }
-                smooth[iy * nx + ix] = s;
-            }
+                acc
+            })
+            .reduce_with(|mut a, b| {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                a
+            });
+        let Some(acc) = acc else { continue };
+        // Strongest cells, ranked by their 3×3×3 box sum (yaw circular).
+        let mut order: Vec<usize> = (0..acc.len()).filter(|&i| acc[i] > 1).collect();
+        if order.len() > 8192 {
+            order.select_nth_unstable_by(8192, |&a, &b| acc[b].cmp(&acc[a]));
+            order.truncate(8192);
         }
-        let mut order: Vec<usize> = (0..nx * ny).filter(|&i| smooth[i] > 0).collect();
-        order.sort_unstable_by(|&a, &b| smooth[b].cmp(&smooth[a]));
-        let mut centres: Vec<(f64, f64)> = Vec::new();
-        for i in order {
-            let c = (
-                x0 + (i % nx) as f64 * cell + 0.5 * cell,
-                y0 + (i / nx) as f64 * cell + 0.5 * cell,
+        let boxed = |i: usize| -> u32 {
+            let (b, c) = (i / cells, i % cells);
+            let (ix, iy) = (c % nx, c / nx);
+            if ix == 0 || iy == 0 || ix + 1 >= nx || iy + 1 >= ny {
+                return acc[i];
+            }
+            let mut s = 0;
+            for db in [N_YAW - 1, 0, 1] {
+                let bb = (b + db) % N_YAW;
+                for dy in 0..3 {
+                    let row = bb * cells + (iy + dy - 1) * nx + ix - 1;
+                    s += acc[row] + acc[row + 1] + acc[row + 2];
+                }
+            }
+            s
+        };
+        let mut order: Vec<(usize, u32)> = order.into_iter().map(|i| (i, boxed(i))).collect();
+        order.sort_unstable_by_key(|o| std::cmp::Reverse(o.1));
+        let keep = 24;
+        let mut peaks: Vec<(f64, f64, f64)> = Vec::new();
+        for (i, _) in order {
+            let (b, c) = (i / cells, i % cells);
+            let p = (
+                x0 + (c % nx) as f64 * HOUGH_CELL_M + 0.5 * HOUGH_CELL_M,
+                y0 + (c / nx) as f64 * HOUGH_CELL_M + 0.5 * HOUGH_CELL_M,
+                b as f64 * yaw_step,
             );
-            if centres.iter().all(|o| (o.0 - c.0).hypot(o.1 - c.1) > 0.025) {
-                centres.push(c);
-                if centres.len() >= 6 {
+            let distinct = peaks.iter().all(|o| {
+                let dyaw = (o.2 - p.2 + PI).rem_euclid(2.0 * PI) - PI;
+                (o.0 - p.0).hypot(o.1 - p.1) > 0.03 || dyaw.abs() > 3.0 * yaw_step
+            });
+            if distinct {
+                peaks.push(p);
+                if peaks.len() >= keep {
                     break;
                 }
             }
         }
-        // Yaw × height sweep for each centre.
-        let n_sweep = 72;
-        let heights = [0.0, 0.015];
-        let jobs: Vec<(usize, usize, usize)> = (0..centres.len())
-            .flat_map(|c| {
-                (0..heights.len()).flat_map(move |h| (0..n_sweep).map(move |k| (c, h, k)))
+        // Projective scoring of each peak at its yaw ± half a bin and two heights.
+        let jobs: Vec<(usize, f64, f64)> = (0..peaks.len())
+            .flat_map(|k| {
+                [-0.5, 0.0, 0.5].into_iter().flat_map(move |dy| {
+                    [0.0, 0.015].into_iter().map(move |h| (k, dy * yaw_step, h))
+                })
             })
             .collect();
         let scored: Vec<(Isometry3<f64>, f64)> = jobs
             .par_iter()
-            .map(|&(c, h, k)| {
-                let yaw = 2.0 * PI * k as f64 / n_sweep as f64;
+            .map(|&(k, dyaw, h)| {
+                let (x, y, yaw) = peaks[k];
                 let plane_from_model = Isometry3::from_parts(
-                    Translation3::new(centres[c].0, centres[c].1, heights[h]),
-                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+                    Translation3::new(x, y, h),
+                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw + dyaw),
                 );
                 let pose = cam_from_plane * plane_from_model;
                 let e = evidence(range, &surface.coarse, &pose, fit_depth, tol);

@@ -20,6 +20,8 @@ use super::coarse::Oriented;
 use super::surface::ModelSurface;
 
 type Mat7 = SMatrix<f64, 7, 7>;
+/// Residual scale of [`IcpResult::sharpness`], metres.
+const SHARP_M: f64 = 0.0005;
 type Vec7 = SVector<f64, 7>;
 
 /// One stage of the ICP schedule.
@@ -56,6 +58,10 @@ pub(crate) struct IcpResult {
     pub(crate) rmse_m: f64,
     /// Fraction of scan points (inside the model's neighbourhood) within 3 kernel scales.
     pub(crate) inlier_fraction: f64,
+    /// Mean over the scan points in the model's neighbourhood of `1 / (1 + (r / 0.5 mm)²)`
+    /// (0 for points without a correspondence): how tightly the scan hugs the model, 0–1.
+    /// Tells a right pose from a nearly symmetric wrong one whose fit is merely good.
+    pub(crate) sharpness: f64,
 }
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -68,6 +74,7 @@ struct Acc {
     close: usize,
     r2_close: f64,
     near: usize,
+    sharp: f64,
     /// Σ w·x and Σ w·|x|² of the model-frame points (centroid and spread).
     wx: Vector3<f64>,
     wxx: f64,
@@ -83,6 +90,7 @@ impl Acc {
         self.close += o.close;
         self.r2_close += o.r2_close;
         self.near += o.near;
+        self.sharp += o.sharp;
         self.wx += o.wx;
         self.wxx += o.wxx;
         self
@@ -118,6 +126,7 @@ fn accumulate(
         }
         let n = tri.n;
         let r = n.dot(&(x - c));
+        a.sharp = 1.0 / (1.0 + (r / SHARP_M).powi(2));
         let u = r / st.kernel_m;
         let w = 1.0 / (1.0 + u * u);
         let mut j = Vec7::zeros();
@@ -239,6 +248,11 @@ pub(crate) fn icp(
         },
         inlier_fraction: if a.near > 0 {
             a.close as f64 / a.near as f64
+        } else {
+            0.0
+        },
+        sharpness: if a.near > 0 {
+            a.sharp / a.near as f64
         } else {
             0.0
         },

@@ -27,6 +27,9 @@ pub struct GateThresholds {
     pub max_residual_rotation_deg: f64,
     /// Maximum fraction of frames the fusion dropped as outliers.
     pub max_dropped_fraction: f64,
+    /// Maximum [`super::Quality::ambiguity`]: how well a different pose may explain the scan
+    /// relative to the result (the visible geometry is nearly symmetric above this).
+    pub max_ambiguity: f64,
     /// Maximum |depth scale − 1| the registration may have estimated.
     pub max_depth_scale_error: f64,
     /// Maximum change from the previous calibration, mm (checked when one is given).
@@ -47,6 +50,7 @@ impl Default for GateThresholds {
             max_residual_translation_mm: 1.0,
             max_residual_rotation_deg: 0.2,
             max_dropped_fraction: 0.34,
+            max_ambiguity: 0.8,
             max_depth_scale_error: 0.03,
             max_change_translation_mm: 5.0,
             max_change_rotation_deg: 1.0,
@@ -116,6 +120,13 @@ pub fn gate(
             reasons.push(format!(
                 "frame {i}: the visible geometry leaves {} direction(s) unconstrained (e.g. yaw of a round base): show the shoulder and upper arm",
                 r.degenerate_directions.len()
+            ));
+        }
+        if q.ambiguity > th.max_ambiguity {
+            reasons.push(format!(
+                "frame {i}: a different pose explains the scan almost as well ({:.0}% of the result's support, max {:.0}%): the visible base and shoulder look nearly symmetric; show more of the upper arm",
+                100.0 * q.ambiguity,
+                100.0 * th.max_ambiguity
             ));
         }
         if let Some(s) = r.depth_scale {
@@ -198,6 +209,7 @@ mod tests {
                 visible_samples: 20000,
                 hypotheses: 3,
                 from_prior: false,
+                ambiguity: 0.2,
             },
             degenerate_directions: vec![],
             depth_scale: Some(1.001),
@@ -226,6 +238,7 @@ mod tests {
             Box::new(|r| r.uncertainty.rotation_deg = 0.5),
             Box::new(|r| r.degenerate_directions.push(nalgebra::Vector6::z())),
             Box::new(|r| r.depth_scale = Some(1.2)),
+            Box::new(|r| r.quality.ambiguity = 0.95),
         ];
         for (k, f) in bad.iter().enumerate() {
             let mut r = reg.clone();
