@@ -13,23 +13,10 @@ use super::Shared;
 const MAX_LINE: usize = 4096;
 
 pub(crate) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
-    loop {
-        let Ok((sock, _)) = listener.accept().await else {
-            continue;
-        };
-        let shared = shared.clone();
-        tokio::spawn(async move {
-            let mut drop_rx = shared.drop_gen.subscribe();
-            tokio::select! {
-                r = connection(sock, &shared) => {
-                    if let Err(e) = r {
-                        tracing::debug!("dashboard connection closed: {e}");
-                    }
-                }
-                _ = super::dropped(&mut drop_rx) => {}
-            }
-        });
-    }
+    super::accept_loop(listener, shared, "dashboard", |sock, shared| async move {
+        connection(sock, &shared).await
+    })
+    .await;
 }
 
 async fn connection(sock: TcpStream, shared: &Shared) -> std::io::Result<()> {

@@ -21,7 +21,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use handeye_hal::ur_dh::{DhParams, UrModel};
-use tokio::net::TcpListener;
+use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{broadcast, watch};
 
 use crate::{Ports, UrError};
@@ -355,6 +355,43 @@ impl SimHandle {
 impl Drop for SimHandle {
     fn drop(&mut self) {
         self.shutdown();
+    }
+}
+
+/// Accepts connections on `listener` until the task is aborted, serving each with `handle`
+/// until it ends or the simulator drops every connection (fault injection). A failed `accept`
+/// (e.g. out of file descriptors) is logged and retried after a pause, never spun on.
+pub(crate) async fn accept_loop<F, Fut, E>(
+    listener: TcpListener,
+    shared: Arc<Shared>,
+    what: &'static str,
+    handle: F,
+) where
+    F: Fn(TcpStream, Arc<Shared>) -> Fut,
+    Fut: std::future::Future<Output = Result<(), E>> + Send + 'static,
+    E: std::fmt::Display,
+{
+    loop {
+        let sock = match listener.accept().await {
+            Ok((sock, _)) => sock,
+            Err(e) => {
+                tracing::warn!("{what}: accept failed: {e}; retrying");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                continue;
+            }
+        };
+        let mut drop_rx = shared.drop_gen.subscribe();
+        let connection = handle(sock, shared.clone());
+        tokio::spawn(async move {
+            tokio::select! {
+                r = connection => {
+                    if let Err(e) = r {
+                        tracing::debug!("{what} connection closed: {e}");
+                    }
+                }
+                _ = dropped(&mut drop_rx) => {}
+            }
+        });
     }
 }
 

@@ -14,23 +14,10 @@ use super::Shared;
 const SIZE: usize = 1116;
 
 pub(crate) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
-    loop {
-        let Ok((sock, _)) = listener.accept().await else {
-            continue;
-        };
-        let shared = shared.clone();
-        tokio::spawn(async move {
-            let mut drop_rx = shared.drop_gen.subscribe();
-            tokio::select! {
-                r = connection(sock, &shared) => {
-                    if let Err(e) = r {
-                        tracing::debug!("real-time connection closed: {e}");
-                    }
-                }
-                _ = super::dropped(&mut drop_rx) => {}
-            }
-        });
-    }
+    super::accept_loop(listener, shared, "real-time", |sock, shared| async move {
+        connection(sock, &shared).await
+    })
+    .await;
 }
 
 fn packet(shared: &Shared, out: &mut Vec<u8>) {

@@ -18,29 +18,34 @@ use crate::UrError;
 const MAX_INPUT_RECIPES: usize = 255;
 
 pub(crate) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
-    loop {
-        let Ok((sock, _)) = listener.accept().await else {
-            continue;
+    super::accept_loop(listener, shared, "RTDE", |sock, shared| async move {
+        let id = {
+            let mut s = shared.lock();
+            s.next_conn += 1;
+            s.next_conn
         };
-        let shared = shared.clone();
-        tokio::spawn(async move {
-            let id = {
-                let mut s = shared.lock();
-                s.next_conn += 1;
-                s.next_conn
-            };
-            let mut drop_rx = shared.drop_gen.subscribe();
-            tokio::select! {
-                r = connection(sock, &shared, id) => {
-                    if let Err(e) = r {
-                        tracing::debug!("RTDE connection closed: {e}");
-                    }
-                }
-                _ = super::dropped(&mut drop_rx) => {}
-            }
-            // Release every input this connection owned.
-            shared.lock().owners.retain(|_, owner| *owner != id);
-        });
+        let _release = ReleaseInputs {
+            shared: shared.clone(),
+            id,
+        };
+        connection(sock, &shared, id).await
+    })
+    .await;
+}
+
+/// Releases every input a connection owned when the connection ends, however it ends
+/// (closed by the peer, an error, or dropped by fault injection).
+struct ReleaseInputs {
+    shared: Arc<Shared>,
+    id: u64,
+}
+
+impl Drop for ReleaseInputs {
+    fn drop(&mut self) {
+        self.shared
+            .lock()
+            .owners
+            .retain(|_, owner| *owner != self.id);
     }
 }
 

@@ -22,23 +22,11 @@ const MAX_PROGRAM: usize = 1 << 20;
 const STEP_BUDGET: u32 = 100_000;
 
 pub(crate) async fn serve_primary(listener: TcpListener, shared: Arc<Shared>, primary: bool) {
-    loop {
-        let Ok((sock, _)) = listener.accept().await else {
-            continue;
-        };
-        let shared = shared.clone();
-        tokio::spawn(async move {
-            let mut drop_rx = shared.drop_gen.subscribe();
-            tokio::select! {
-                r = connection(sock, &shared, primary) => {
-                    if let Err(e) = r {
-                        tracing::debug!("primary connection closed: {e}");
-                    }
-                }
-                _ = super::dropped(&mut drop_rx) => {}
-            }
-        });
-    }
+    let what = if primary { "primary" } else { "secondary" };
+    super::accept_loop(listener, shared, what, move |sock, shared| async move {
+        connection(sock, &shared, primary).await
+    })
+    .await;
 }
 
 fn state_package(shared: &Shared) -> Vec<u8> {
