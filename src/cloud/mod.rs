@@ -193,6 +193,40 @@ impl CloudError {
     }
 }
 
+/// The next non-empty header line of a text header, as `(keyword, other words)`, starting at
+/// `*pos` and leaving `*pos` after it; `*line_no` counts lines (1-based after the call).
+/// `Ok(None)` when the input ends or `max_bytes` of header have been read. `format` names the
+/// file format in the error for a line that is not UTF-8.
+pub(crate) fn next_header_line<'a>(
+    bytes: &'a [u8],
+    pos: &mut usize,
+    line_no: &mut usize,
+    max_bytes: usize,
+    format: CloudFormat,
+) -> Result<Option<(&'a str, Vec<&'a str>)>, CloudError> {
+    loop {
+        if *pos >= bytes.len() || *pos > max_bytes {
+            return Ok(None);
+        }
+        let rest = &bytes[*pos..];
+        let (raw, next) = match rest.iter().position(|&b| b == b'\n') {
+            Some(i) => (&rest[..i], *pos + i + 1),
+            None => (rest, bytes.len()),
+        };
+        *pos = next;
+        *line_no += 1;
+        let text = std::str::from_utf8(raw).map_err(|_| CloudError::BadHeader {
+            format,
+            line: *line_no,
+            reason: "header line is not UTF-8 text".into(),
+        })?;
+        let mut words = text.split_ascii_whitespace();
+        if let Some(keyword) = words.next() {
+            return Ok(Some((keyword, words.collect())));
+        }
+    }
+}
+
 /// Reads a PLY or PCD file, memory-mapped, detecting the format from its first bytes.
 ///
 /// Blocks on file I/O (run it off async runtime workers). Errors do not repeat the path;

@@ -129,33 +129,19 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
     let mut pos = 0usize;
     let mut line_no = 0usize;
     loop {
-        if pos >= bytes.len() || pos > MAX_HEADER_BYTES {
+        let Some((keyword, words)) =
+            super::next_header_line(bytes, &mut pos, &mut line_no, MAX_HEADER_BYTES, FMT)?
+        else {
+            let where_ = if pos >= bytes.len() {
+                "before the end of the file".to_owned()
+            } else {
+                format!("within the first {MAX_HEADER_BYTES} bytes")
+            };
             return Err(bad_header(
                 line_no,
-                format!(
-                    "no `end_header` line {}",
-                    if pos >= bytes.len() {
-                        "before the end of the file".to_owned()
-                    } else {
-                        format!("within the first {MAX_HEADER_BYTES} bytes")
-                    }
-                ),
+                format!("no `end_header` line {where_}"),
             ));
-        }
-        let rest = &bytes[pos..];
-        let (raw, next) = match rest.iter().position(|&b| b == b'\n') {
-            Some(i) => (&rest[..i], pos + i + 1),
-            None => (rest, bytes.len()),
         };
-        pos = next;
-        line_no += 1;
-        let text = std::str::from_utf8(raw)
-            .map_err(|_| bad_header(line_no, "header line is not UTF-8 text"))?;
-        let mut words = text.split_ascii_whitespace();
-        let Some(keyword) = words.next() else {
-            continue;
-        };
-        let words: Vec<&str> = words.collect();
         match keyword {
             "ply" if line_no == 1 => {}
             "format" => {
