@@ -318,12 +318,20 @@ pub fn register_posed(
         planes_found = planes.len();
         let hyps = coarse::hypotheses(&range, &surface, &pts, &planes, opts.max_hypotheses);
         n_hyp += hyps.len();
+        tracing::debug!(
+            hyps = ?hyps.iter().map(|h| (h.1, probe_err(&h.0))).collect::<Vec<_>>(),
+            "coarse hypotheses"
+        );
         let polished: Vec<(Isometry3<f64>, Evidence)> =
             hyps.par_iter().filter_map(|(h, _)| polish(h)).collect();
         cands.extend(polished);
     }
     cands.sort_by(|a, b| score(&b.1).total_cmp(&score(&a.1)));
     timings.coarse = ms(t1);
+    tracing::debug!(
+        cands = ?cands.iter().map(|c| (score(&c.1), c.1.coverage(), probe_err(&c.0))).collect::<Vec<_>>(),
+        "polished coarse candidates"
+    );
     let Some((coarse_pose, coarse_e)) = cands.first().cloned() else {
         return Err(CalibError::RobotNotFound {
             detail: format!("{planes_found} supporting planes, no pose hypothesis converged"),
@@ -387,13 +395,18 @@ pub fn register_posed(
             let pose = fine.model_from_camera.inverse();
             // The verification looks at the scan as measured: apply the scale to the model.
             let e = evidence_scaled(&range, &surface, &pose, 1.0 / fine.kappa, tol);
+            if e.coverage() < opts.min_coverage_found
+                || e.violation_fraction() > opts.max_violation_found
+            {
+                return None;
+            }
             let key = e.coverage() * fine.sharpness - 3.0 * e.violation_fraction();
             Some((fine, pose, e, key))
         })
         .collect();
     let Some(win) = (0..fitted.len()).max_by(|&a, &b| fitted[a].3.total_cmp(&fitted[b].3)) else {
         return Err(CalibError::RobotNotFound {
-            detail: "fine alignment found too few correspondences".into(),
+            detail: "no hypothesis survived the fine alignment with enough coverage".into(),
         });
     };
     let win_key = fitted[win].3;
@@ -403,8 +416,24 @@ pub fn register_posed(
         .filter(|(k, f)| *k != win && !same_pose(&f.1, &fitted[win].1))
         .map(|(_, f)| (f.3 / win_key).clamp(0.0, 1.0))
         .fold(0.0, f64::max);
+    if tracing::enabled!(tracing::Level::DEBUG) {
+        for f in &fitted {
+            let loose = Tolerances {
+                matched_m: 0.01,
+                free_m: 0.02,
+            };
+            let all = evidence(&range, &surface.samples, &f.1, 255, loose);
+            let fitd = evidence(&range, &surface.samples, &f.1, surface.fit_depth, tol);
+            tracing::debug!(
+                err = probe_err(&f.1),
+                ?all,
+                ?fitd,
+                "contender evidence (all links loose / fitted links)"
+            );
+        }
+    }
     tracing::debug!(
-        keys = ?fitted.iter().map(|f| (f.3, f.0.sharpness, f.2.coverage())).collect::<Vec<_>>(),
+        keys = ?fitted.iter().map(|f| (f.3, f.0.sharpness, f.2.coverage(), f.2.violation_fraction(), probe_err(&f.1))).collect::<Vec<_>>(),
         ambiguity,
         "fine contenders"
     );
@@ -436,7 +465,7 @@ pub fn register_posed(
             ambiguity,
         },
         degenerate_directions,
-        depth_scale: opts.estimate_depth_scale.then_some(1.0 / fine.kappa),
+        depth_scale: fine.scale_estimated.then_some(1.0 / fine.kappa),
         timings_ms: timings,
     })
 }
@@ -446,6 +475,28 @@ fn same_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     let d = a.inverse() * b;
     (a.inverse().translation.vector - b.inverse().translation.vector).norm() < 0.002
         && d.rotation.angle() < 0.3f64.to_radians()
+}
+
+// Test builds: the true `camera_from_model` of the trial being probed (see `probe.rs`), so the
+// debug log can say how far each hypothesis is from it.
+#[cfg(test)]
+thread_local! {
+    pub(crate) static PROBE_TRUTH: std::cell::Cell<Option<Isometry3<f64>>> =
+        const { std::cell::Cell::new(None) };
+}
+
+/// Distance of `camera_from_model` from the probed truth as "mm/deg" (test builds only).
+#[allow(unused_variables)]
+fn probe_err(camera_from_model: &Isometry3<f64>) -> String {
+    #[cfg(test)]
+    if let Some(t) = PROBE_TRUTH.with(|c| c.get()) {
+        let d = camera_from_model.inverse() * t;
+        let mm = (camera_from_model.inverse().translation.vector - t.inverse().translation.vector)
+            .norm()
+            * 1000.0;
+        return format!("{mm:.1}mm/{:.2}deg", d.rotation.angle().to_degrees());
+    }
+    String::new()
 }
 
 fn ms(t: Instant) -> f64 {
@@ -1021,6 +1072,62 @@ mod issue_3_tests {
             ],
             16269386524308615842,
         );
+    }
+
+    /// UR5e view 8 of `bench --robots ur5e --views 10 --scans-per-view 1`: every coarse
+    /// hypothesis is wrong; the 7-parameter fit of one of them let the depth scale run away
+    /// (≈ 1e10, the model shrunk to a point, 0% coverage) and that contender won. The scale is
+    /// now bounded (fixed-scale fallback) and a contender without coverage never wins.
+    #[test]
+    fn issue_3_depth_scale_never_diverges() {
+        let Some(model) = robot("ur5e") else { return };
+        let mount = Isometry3::new(
+            Vector3::new(
+                -0.0028810087386851903,
+                -0.09297655799224627,
+                0.030182070459895474,
+            ),
+            Vector3::new(
+                -0.29996126170846155,
+                -0.20556013650916924,
+                1.1892203564317414,
+            ),
+        );
+        let q = [
+            -0.04654666433660193,
+            -2.7480082498628247,
+            -0.5569720092694217,
+            3.13483663614967,
+            1.5202967421021762,
+            0.15131520111973806,
+        ];
+        let cfg = BenchConfig::default();
+        let req = crate::sim::ScanRequest::new(
+            &model,
+            q.to_vec(),
+            crate::sim::Placement::EyeInHand {
+                flange_from_camera: mount,
+            },
+            cfg.intrinsics,
+            &cfg.settings,
+            3583974858498588681,
+        );
+        let scan = crate::sim::simulate_scan(&req).expect("simulated");
+        match crate::calib::register(&scan.cloud, &model, &q, None, &cfg.register) {
+            Ok(reg) => {
+                eprintln!("{:?} scale {:?}", reg.quality, reg.depth_scale);
+                assert!(
+                    reg.depth_scale.is_none_or(|s| (s - 1.0).abs() <= 0.051),
+                    "depth scale {:?}",
+                    reg.depth_scale
+                );
+                assert!(reg.quality.coverage >= cfg.register.min_coverage_found);
+            }
+            Err(e) => assert!(
+                matches!(e, crate::calib::CalibError::RobotNotFound { .. }),
+                "{e}"
+            ),
+        }
     }
 
     /// UR30 seen from low and the side: base and shoulder only, nearly symmetric under yaw.
