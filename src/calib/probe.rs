@@ -30,15 +30,25 @@ fn probe_bench_trials() {
     let only = env("PROBE_ONLY", "");
     let camera = env("PROBE_CAMERA", "compact");
     let paths = crate::model::find_urdfs(&root);
-    for (i, name) in robots.split(',').enumerate() {
-        let Some(path) = paths
-            .iter()
-            .find(|p| p.file_stem().and_then(|s| s.to_str()) == Some(name))
-        else {
-            eprintln!("{name}: not found");
-            continue;
-        };
+    let chosen: Vec<PathBuf> = if robots == "all" {
+        paths
+    } else {
+        robots
+            .split(',')
+            .filter_map(|name| {
+                paths
+                    .iter()
+                    .find(|p| p.file_stem().and_then(|s| s.to_str()) == Some(name))
+                    .cloned()
+            })
+            .collect()
+    };
+    for (i, path) in chosen.iter().enumerate() {
         let model = RobotModel::load(path).expect("loads");
+        let name = model.name().to_string();
+        if !only.is_empty() && !only.split(',').any(|o| o.starts_with(&format!("{name}:"))) {
+            continue;
+        }
         let cfg = BenchConfig {
             views,
             scans_per_view: spv,
@@ -70,6 +80,19 @@ fn probe_bench_trials() {
                 );
                 let truth = crate::sim::simulate_scan(&req).expect("sim").truth;
                 super::register::PROBE_TRUTH.with(|c| c.set(Some(truth.camera_from_model)));
+                if std::env::var_os("PROBE_PRIOR").is_some() {
+                    // The prior path: the truth off by 1 cm and 1°, as a last calibration is.
+                    let prior = nalgebra::Isometry3::new(
+                        nalgebra::Vector3::new(0.006, -0.005, 0.006),
+                        nalgebra::Vector3::new(0.01, -0.01, 0.01),
+                    ) * truth.camera_from_model;
+                    let scan = crate::sim::simulate_scan(&req).expect("sim").cloud;
+                    let r = super::register(&scan, &model, q, Some(prior), &cfg.register);
+                    eprintln!(
+                        "=== {key} prior: {:?}",
+                        r.map(|r| (r.quality.from_prior, r.timings_ms.total, probe_err(&r)))
+                    );
+                }
                 let t = run_trial(&model, mount, q, &cfg, seed, v, s);
                 eprintln!(
                     "=== {key}: {} {:.3} mm {:.4}° reg {:.0} ms (coarse {:.0} fine {:.0}) {:?}",
@@ -84,4 +107,17 @@ fn probe_bench_trials() {
             }
         }
     }
+}
+
+fn probe_err(r: &super::Registration) -> String {
+    let t = super::register::PROBE_TRUTH.with(|c| c.get());
+    t.map(|t| {
+        let a = r.camera_from_model;
+        let mm = (a.inverse().translation.vector - t.inverse().translation.vector).norm() * 1e3;
+        format!(
+            "{mm:.2}mm/{:.3}deg",
+            (a.inverse() * t).rotation.angle().to_degrees()
+        )
+    })
+    .unwrap_or_default()
 }

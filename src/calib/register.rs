@@ -323,8 +323,13 @@ pub fn register_posed(
             hyps = ?hyps.iter().map(|h| (h.1, probe_err(&h.0))).collect::<Vec<_>>(),
             "coarse hypotheses"
         );
-        let polished: Vec<(Isometry3<f64>, Evidence)> =
-            hyps.par_iter().filter_map(|(h, _)| polish(h)).collect();
+        // Hypotheses far behind the best Hough score are not worth a polish.
+        let top = hyps.first().map_or(0.0, |h| h.1);
+        let polished: Vec<(Isometry3<f64>, Evidence)> = hyps
+            .par_iter()
+            .filter(|(_, s)| *s >= 0.4 * top)
+            .filter_map(|(h, _)| polish(h))
+            .collect();
         cands.extend(polished);
     }
     cands.sort_by(|a, b| score(&b.1).total_cmp(&score(&a.1)));
