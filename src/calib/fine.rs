@@ -23,6 +23,10 @@ type Mat7 = SMatrix<f64, 7, 7>;
 /// Residual scale of [`IcpResult::sharpness`], metres.
 const SHARP_M: f64 = 0.0005;
 type Vec7 = SVector<f64, 7>;
+/// Largest depth-scale error the 7-parameter fit may estimate (real cameras are within a few
+/// percent); beyond it the fit is ill-conditioned (too little depth relief in the
+/// correspondences) and the scale is pinned to 1 for the rest of the run.
+pub(crate) const MAX_SCALE_ERROR: f64 = 0.05;
 
 /// One stage of the ICP schedule.
 #[derive(Debug, Clone, Copy)]
@@ -43,6 +47,9 @@ pub(crate) struct IcpResult {
     pub(crate) model_from_camera: Isometry3<f64>,
     /// True depth = `kappa` × measured depth.
     pub(crate) kappa: f64,
+    /// Whether `kappa` was estimated (false when no stage freed it or the fit fell back to
+    /// a fixed scale because it left `1 ± MAX_SCALE_ERROR`).
+    pub(crate) scale_estimated: bool,
     /// Information matrix of the 6 pose parameters (scale marginalised out when estimated),
     /// weighted, not yet scaled by the residual variance.
     pub(crate) info6: Matrix6<f64>,
@@ -166,15 +173,17 @@ pub(crate) fn icp(
     let mut t = *init;
     let mut kappa = kappa0;
     let mut last: Option<(Acc, bool, f64)> = None;
+    let mut scale_ok = true;
     for st in stages {
         for it in 0..st.iterations {
+            let free_scale = st.scale && scale_ok;
             let a = accumulate(pts, surface, &t, kappa, st);
             if a.n < 12 {
                 return None;
             }
             let mut h = a.h;
             let mut g = a.g;
-            if !st.scale {
+            if !free_scale {
                 // Pin the scale: zero its row/column, unit diagonal.
                 for k in 0..7 {
                     h[(6, k)] = 0.0;
@@ -189,7 +198,19 @@ pub(crate) fn icp(
                 hd[(k, k)] += 1e-9 + 1e-6 * h[(k, k)];
             }
             let chol = hd.cholesky()?;
-            let delta = -chol.solve(&g);
+            let mut delta = -chol.solve(&g);
+            if free_scale && (kappa + delta[6] - 1.0).abs() > MAX_SCALE_ERROR {
+                // Ill-conditioned scale: fall back to the fixed nominal scale.
+                scale_ok = false;
+                kappa = 1.0;
+                for k in 0..7 {
+                    hd[(6, k)] = 0.0;
+                    hd[(k, 6)] = 0.0;
+                }
+                hd[(6, 6)] = 1.0;
+                g[6] = 0.0;
+                delta = -hd.cholesky()?.solve(&g);
+            }
             let rho = Vector3::new(delta[0], delta[1], delta[2]);
             let phi = Vector3::new(delta[3], delta[4], delta[5]);
             let step = Isometry3::from_parts(
@@ -198,7 +219,7 @@ pub(crate) fn icp(
             );
             t = step * t;
             kappa += delta[6];
-            last = Some((a, st.scale, st.kernel_m));
+            last = Some((a, free_scale, st.kernel_m));
             let small = rho.norm() < 2e-7 && phi.norm() < 2e-7 && delta[6].abs() < 1e-7;
             if small && it > 0 {
                 break;
@@ -234,6 +255,7 @@ pub(crate) fn icp(
     Some(IcpResult {
         model_from_camera: t,
         kappa,
+        scale_estimated: scaled,
         info6,
         cov6,
         centroid: Point3::from(a.wx / a.wsum),

@@ -24,6 +24,8 @@ mod surface;
 mod verify;
 
 #[cfg(test)]
+mod probe;
+#[cfg(test)]
 pub(crate) mod testutil;
 
 pub use gate::{gate, GateThresholds, Verdict};

@@ -80,7 +80,9 @@ pub(crate) fn evidence(
         let n = camera_from_model * s.n;
         let dist = p.coords.norm();
         let cos = -n.dot(&p.coords) / dist;
-        if cos < 0.15 {
+        // Surface seen at more than ~70° incidence is where depth sensors drop out: it is
+        // neither evidence for (coverage) nor against a pose.
+        if cos < 0.35 {
             return e;
         }
         let Some(i) = range.cam.project(&p) else {

@@ -1,0 +1,123 @@
+//! Diagnostics of single benchmark trials (ignored tests, run by hand):
+//! `PROBE_ROBOTS=ur3e,ur5e PROBE_VIEWS=10 PROBE_SPV=2 PROBE_ONLY=ur3e:5:0 RUST_LOG=handeye=debug
+//! cargo test --release --lib calib::probe -- --ignored --nocapture` replays the trials of
+//! `handeye bench` (same seeds) and prints each contender against the truth.
+
+use std::path::PathBuf;
+
+use rand::{Rng, SeedableRng};
+
+use crate::bench::{random_mount, run_trial, BenchConfig};
+use crate::model::RobotModel;
+use crate::plan::{ViewConstraints, ViewPlanner};
+use crate::sim::Intrinsics;
+
+fn env(name: &str, default: &str) -> String {
+    std::env::var(name).unwrap_or_else(|_| default.to_string())
+}
+
+#[test]
+#[ignore = "diagnostics, run by hand"]
+fn probe_bench_trials() {
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_test_writer()
+        .try_init();
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/robots");
+    let robots = env("PROBE_ROBOTS", "ur3e,ur5e,ur10e,ur16e,ur20,ur30");
+    let views: usize = env("PROBE_VIEWS", "10").parse().expect("PROBE_VIEWS");
+    let spv: usize = env("PROBE_SPV", "2").parse().expect("PROBE_SPV");
+    let only = env("PROBE_ONLY", "");
+    let camera = env("PROBE_CAMERA", "compact");
+    let paths = crate::model::find_urdfs(&root);
+    let chosen: Vec<PathBuf> = if robots == "all" {
+        paths
+    } else {
+        robots
+            .split(',')
+            .filter_map(|name| {
+                paths
+                    .iter()
+                    .find(|p| p.file_stem().and_then(|s| s.to_str()) == Some(name))
+                    .cloned()
+            })
+            .collect()
+    };
+    for (i, path) in chosen.iter().enumerate() {
+        let model = RobotModel::load(path).expect("loads");
+        let name = model.name().to_string();
+        if !only.is_empty() && !only.split(',').any(|o| o.starts_with(&format!("{name}:"))) {
+            continue;
+        }
+        let cfg = BenchConfig {
+            views,
+            scans_per_view: spv,
+            intrinsics: Intrinsics::preset(&camera).expect("camera"),
+            seed: 1u64.wrapping_add(i as u64 * 7919),
+            ..BenchConfig::default()
+        };
+        let mut rng = rand::rngs::StdRng::seed_from_u64(cfg.seed);
+        let mount = random_mount(&mut rng);
+        let planner = ViewPlanner::new(&model, mount, cfg.intrinsics, ViewConstraints::default());
+        let qs = planner.generate(cfg.views, rng.random()).expect("views");
+        for (v, q) in qs.iter().enumerate() {
+            for s in 0..spv {
+                let seed: u64 = rng.random();
+                let key = format!("{name}:{v}:{s}");
+                if !only.is_empty() && !only.split(',').any(|o| o == key) {
+                    continue;
+                }
+                eprintln!("=== {key} mount {mount:?}\n q {q:?} seed {seed}");
+                let req = crate::sim::ScanRequest::new(
+                    &model,
+                    q.clone(),
+                    crate::sim::Placement::EyeInHand {
+                        flange_from_camera: mount,
+                    },
+                    cfg.intrinsics,
+                    &cfg.settings,
+                    seed,
+                );
+                let truth = crate::sim::simulate_scan(&req).expect("sim").truth;
+                super::register::PROBE_TRUTH.with(|c| c.set(Some(truth.camera_from_model)));
+                if std::env::var_os("PROBE_PRIOR").is_some() {
+                    // The prior path: the truth off by 1 cm and 1°, as a last calibration is.
+                    let prior = nalgebra::Isometry3::new(
+                        nalgebra::Vector3::new(0.006, -0.005, 0.006),
+                        nalgebra::Vector3::new(0.01, -0.01, 0.01),
+                    ) * truth.camera_from_model;
+                    let scan = crate::sim::simulate_scan(&req).expect("sim").cloud;
+                    let r = super::register(&scan, &model, q, Some(prior), &cfg.register);
+                    eprintln!(
+                        "=== {key} prior: {:?}",
+                        r.map(|r| (r.quality.from_prior, r.timings_ms.total, probe_err(&r)))
+                    );
+                }
+                let t = run_trial(&model, mount, q, &cfg, seed, v, s);
+                eprintln!(
+                    "=== {key}: {} {:.3} mm {:.4}° reg {:.0} ms (coarse {:.0} fine {:.0}) {:?}",
+                    t.outcome,
+                    t.translation_error_mm,
+                    t.rotation_error_deg,
+                    t.register_ms,
+                    t.coarse_ms,
+                    t.fine_ms,
+                    t.reasons
+                );
+            }
+        }
+    }
+}
+
+fn probe_err(r: &super::Registration) -> String {
+    let t = super::register::PROBE_TRUTH.with(|c| c.get());
+    t.map(|t| {
+        let a = r.camera_from_model;
+        let mm = (a.inverse().translation.vector - t.inverse().translation.vector).norm() * 1e3;
+        format!(
+            "{mm:.2}mm/{:.3}deg",
+            (a.inverse() * t).rotation.angle().to_degrees()
+        )
+    })
+    .unwrap_or_default()
+}
