@@ -710,33 +710,106 @@ fn handle(
     })
 }
 
-fn stream(
-    sock: UdpSocket,
+/// What the streamer needs to know about the device settings; a frame prepared under other
+/// settings is dropped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct StreamSettings {
+    scps: usize,
+    ext: bool,
+    mp: bool,
+    w: u32,
+    h: u32,
+    pf: u32,
+}
+
+impl StreamSettings {
+    fn read(s: &State) -> Self {
+        Self {
+            scps: s.reg(reg::SCPS0) as usize,
+            ext: s.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0,
+            mp: s.multipart(),
+            w: s.reg(WIDTH),
+            h: s.reg(HEIGHT),
+            pf: s.reg(PIXEL_FORMAT),
+        }
+    }
+}
+
+/// A frame rendered and cut into packets, waiting to be sent (block id filled in on send).
+struct Prepared {
+    settings: StreamSettings,
+    packets: Vec<Vec<u8>>,
+}
+
+/// Logs the first failure of a repeating error, then a summary with the count every
+/// `every` (a frame source that keeps failing would otherwise log at the frame rate).
+#[derive(Debug)]
+pub(crate) struct RateLimitedWarning {
+    every: Duration,
+    last_log: Option<Instant>,
+    suppressed: u64,
+}
+
+impl RateLimitedWarning {
+    pub(crate) fn new(every: Duration) -> Self {
+        Self {
+            every,
+            last_log: None,
+            suppressed: 0,
+        }
+    }
+
+    /// Record one failure; returns the message to log now, if any.
+    pub(crate) fn failure(&mut self, now: Instant, what: &str) -> Option<String> {
+        match self.last_log {
+            None => {
+                self.last_log = Some(now);
+                Some(what.to_string())
+            }
+            Some(t) if now.duration_since(t) >= self.every => {
+                let n = self.suppressed + 1;
+                self.last_log = Some(now);
+                self.suppressed = 0;
+                Some(format!(
+                    "{n} failures in the last {:.0} s, latest: {what}",
+                    now.duration_since(t).as_secs_f64()
+                ))
+            }
+            Some(_) => {
+                self.suppressed += 1;
+                None
+            }
+        }
+    }
+
+    /// Record a success; returns a closing message when failures were being suppressed.
+    pub(crate) fn success(&mut self) -> Option<String> {
+        let n = self.suppressed;
+        let was_failing = self.last_log.take().is_some();
+        self.suppressed = 0;
+        (was_failing && n > 0).then(|| format!("recovered after {n} more failures"))
+    }
+}
+
+/// Render frames at the frame rate while acquiring, one frame ahead of the sender (a real
+/// camera exposes the next frame while the link carries the previous one).
+fn generate(
     mut source: Box<dyn FrameSource>,
     state: Arc<Mutex<State>>,
     stop: Arc<AtomicBool>,
-    opts: SimOptions,
+    frame_rate: f64,
+    tx: std::sync::mpsc::SyncSender<Prepared>,
 ) {
-    let mut rng = rand::rngs::StdRng::seed_from_u64(opts.seed);
-    let mut block_id: u64 = 0;
     let t0 = Instant::now();
-    let period = Duration::from_secs_f64(1.0 / opts.frame_rate.max(0.01));
+    let period = Duration::from_secs_f64(1.0 / frame_rate.max(0.01));
     let mut next = Instant::now();
+    let mut source_warn = RateLimitedWarning::new(Duration::from_secs(10));
     while !stop.load(Ordering::Relaxed) {
-        let (active, dest, scps, ext, mp, w, h, pf, single) = {
+        let (active, settings) = {
             let s = lock(&state);
-            let port = s.reg(reg::SCP0) as u16;
-            let ip = Ipv4Addr::from(s.reg(reg::SCDA0));
             (
-                s.acquiring && port != 0 && !ip.is_unspecified(),
-                SocketAddr::new(IpAddr::V4(ip), port),
-                s.reg(reg::SCPS0) as usize,
-                s.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0,
-                s.multipart(),
-                s.reg(WIDTH),
-                s.reg(HEIGHT),
-                s.reg(PIXEL_FORMAT),
-                s.reg(ACQ_MODE) == 1,
+                s.acquiring && s.reg(reg::SCP0) & 0xFFFF != 0,
+                StreamSettings::read(&s),
             )
         };
         if !active {
@@ -749,14 +822,105 @@ fn stream(
             std::thread::sleep((next - now).min(Duration::from_millis(20)));
             continue;
         }
-        next += period;
+        // Never fall further behind than one period (no bursts of stale frames).
+        next = (next + period).max(now);
         let cloud = match source.next_frame() {
-            Ok(c) => c,
+            Ok(c) => {
+                if let Some(m) = source_warn.success() {
+                    tracing::info!("sim camera: frame source {m}");
+                }
+                c
+            }
             Err(e) => {
-                tracing::warn!("sim camera: frame source failed: {e}");
+                if let Some(m) = source_warn.failure(Instant::now(), &e.to_string()) {
+                    tracing::warn!("sim camera: frame source failed: {m}");
+                }
                 continue;
             }
         };
+        let StreamSettings {
+            scps,
+            ext,
+            mp,
+            w,
+            h,
+            pf,
+        } = settings;
+        let block = make_block(&cloud, 1, t0.elapsed().as_nanos() as u64, w, h, pf, mp);
+        drop(cloud);
+        let packets = match gvsp::packetize(&block, scps, ext) {
+            Ok(p) => p,
+            Err(e) => {
+                tracing::warn!("sim camera: {e}");
+                continue;
+            }
+        };
+        drop(block);
+        if tx.send(Prepared { settings, packets }).is_err() {
+            return;
+        }
+    }
+}
+
+/// Write `block_id` into a GVSP packet header.
+fn set_block_id(p: &mut [u8], block_id: u64, ext: bool) {
+    if ext {
+        if let Some(b) = p.get_mut(8..16) {
+            b.copy_from_slice(&block_id.to_be_bytes());
+        }
+    } else if let Some(b) = p.get_mut(2..4) {
+        b.copy_from_slice(&(block_id as u16).to_be_bytes());
+    }
+}
+
+fn stream(
+    sock: UdpSocket,
+    source: Box<dyn FrameSource>,
+    state: Arc<Mutex<State>>,
+    stop: Arc<AtomicBool>,
+    opts: SimOptions,
+) {
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Prepared>(1);
+    let generator = {
+        let (state, stop, rate) = (state.clone(), stop.clone(), opts.frame_rate);
+        match std::thread::Builder::new()
+            .name("sim-render".into())
+            .spawn(move || generate(source, state, stop, rate, tx))
+        {
+            Ok(t) => t,
+            Err(e) => {
+                tracing::error!("sim camera: cannot start the render thread: {e}");
+                return;
+            }
+        }
+    };
+    let mut rng = rand::rngs::StdRng::seed_from_u64(opts.seed);
+    let mut block_id: u64 = 0;
+    // Pacing clock: when the next packet may leave. It runs across frames so back-to-back
+    // frames keep the configured rate; after an idle gap it restarts from now (no burst).
+    let mut clock = Instant::now();
+    const MAX_CATCH_UP: Duration = Duration::from_millis(5);
+    while !stop.load(Ordering::Relaxed) {
+        let frame = match rx.recv_timeout(Duration::from_millis(20)) {
+            Ok(f) => f,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => continue,
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+        };
+        let (active, dest, settings, single) = {
+            let s = lock(&state);
+            let port = s.reg(reg::SCP0) as u16;
+            let ip = Ipv4Addr::from(s.reg(reg::SCDA0));
+            (
+                s.acquiring && port != 0 && !ip.is_unspecified(),
+                SocketAddr::new(IpAddr::V4(ip), port),
+                StreamSettings::read(&s),
+                s.reg(ACQ_MODE) == 1,
+            )
+        };
+        if !active || settings != frame.settings {
+            continue; // stale: acquisition stopped or settings changed meanwhile
+        }
+        let ext = settings.ext;
         block_id = if ext {
             block_id + 1
         } else if block_id >= 0xFFFF {
@@ -764,22 +928,11 @@ fn stream(
         } else {
             block_id + 1
         };
-        let block = make_block(
-            &cloud,
-            block_id,
-            t0.elapsed().as_nanos() as u64,
-            w,
-            h,
-            pf,
-            mp,
-        );
-        let packets = match gvsp::packetize(&block, scps, ext) {
-            Ok(p) => Arc::new(p),
-            Err(e) => {
-                tracing::warn!("sim camera: {e}");
-                continue;
-            }
-        };
+        let mut packets = frame.packets;
+        for p in &mut packets {
+            set_block_id(p, block_id, ext);
+        }
+        let packets = Arc::new(packets);
         {
             let mut s = lock(&state);
             s.history.push_back((block_id, packets.clone()));
@@ -787,25 +940,29 @@ fn stream(
                 s.history.pop_front();
             }
         }
-        let start = Instant::now();
-        let mut bits = 0.0;
+        let now = Instant::now();
+        if now > clock + MAX_CATCH_UP {
+            clock = now;
+        }
         let mut dropped = 0;
         for p in packets.iter() {
-            bits += (p.len() + 28) as f64 * 8.0;
             if opts.loss_ratio > 0.0 && rng.random::<f64>() < opts.loss_ratio {
                 dropped += 1;
                 continue;
             }
             if let Some(bps) = opts.bandwidth_bps {
-                let due = Duration::from_secs_f64(bits / bps);
-                let el = start.elapsed();
-                if due > el + Duration::from_micros(200) {
-                    std::thread::sleep(due - el);
+                let now = Instant::now();
+                if clock > now + Duration::from_micros(200) {
+                    std::thread::sleep(clock - now);
+                } else if now > clock + MAX_CATCH_UP {
+                    clock = now - MAX_CATCH_UP;
                 }
+                clock +=
+                    Duration::from_secs_f64((p.len() + gvsp::IP_UDP_HEADERS) as f64 * 8.0 / bps);
             }
             if let Err(e) = sock.send_to(p, dest) {
-                if e.raw_os_error() == Some(105) {
-                    // ENOBUFS: the host is not keeping up; back off briefly.
+                if e.raw_os_error() == Some(libc::ENOBUFS) {
+                    // The host is not keeping up; back off briefly.
                     std::thread::sleep(Duration::from_micros(200));
                     let _ = sock.send_to(p, dest);
                 } else {
@@ -820,6 +977,8 @@ fn stream(
             s.acquiring = false;
         }
     }
+    drop(rx);
+    let _ = generator.join();
 }
 
 /// Crop the source cloud to the centred `w × h` ROI and encode it in `pf` (mm on the wire).
@@ -902,5 +1061,39 @@ fn make_block(
         timestamp,
         parts,
         multipart: mp,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn repeated_source_failures_log_first_then_a_summary_per_interval() {
+        let mut w = RateLimitedWarning::new(Duration::from_secs(10));
+        let t0 = Instant::now();
+        assert_eq!(
+            w.failure(t0, "robot unreachable").as_deref(),
+            Some("robot unreachable")
+        );
+        // 10 frames per second for 9.9 s: silent.
+        for i in 1..100 {
+            assert_eq!(
+                w.failure(t0 + Duration::from_millis(100 * i), "robot unreachable"),
+                None
+            );
+        }
+        let m = w
+            .failure(t0 + Duration::from_secs(10), "robot unreachable")
+            .expect("summary after the interval");
+        assert!(m.starts_with("100 failures in the last 10 s"), "{m}");
+        assert_eq!(w.failure(t0 + Duration::from_millis(10_100), "x"), None);
+        assert_eq!(
+            w.success().as_deref(),
+            Some("recovered after 1 more failures")
+        );
+        // After recovery the next failure is logged at once again.
+        assert!(w.failure(t0 + Duration::from_secs(11), "again").is_some());
+        assert_eq!(w.success(), None);
     }
 }
