@@ -1176,6 +1176,25 @@ mod tests {
     }
 
     #[test]
+    fn socket_path_reads_batches_and_ignores_oversized_datagrams() {
+        let mut r = receiver(false, true);
+        let to = r.local_addr().expect("addr");
+        let tx = UdpSocket::bind("127.0.0.1:0").expect("bind");
+        // Longer than a receive slot for 400-byte packets: truncated, so ignored.
+        tx.send_to(&[0x55; 5000], to).expect("send");
+        let pk = packetize(&block(7, false), 400, false).expect("packetize");
+        for p in &pk {
+            tx.send_to(p, to).expect("send");
+        }
+        let f = r.next_frame(Duration::from_secs(2)).expect("frame");
+        assert!(f.complete);
+        assert_eq!(f.block_id, 7);
+        assert_eq!(f.parts[0].1, block(7, false).parts[0].1);
+        assert_eq!(r.stats().ignored_packets, 1);
+        assert_eq!(r.stats().packets, pk.len() as u64);
+    }
+
+    #[test]
     fn lost_packets_are_detected_and_frame_closes_incomplete() {
         let mut r = receiver(false, false);
         let now = Instant::now();
