@@ -303,6 +303,19 @@ pub struct Block {
 
 /// Cut a block into GVSP packets for a packet size `scps` (whole IP datagram).
 pub fn packetize(block: &Block, scps: usize, extended: bool) -> Result<Vec<Vec<u8>>> {
+    let mut packets = Vec::new();
+    packetize_into(block, scps, extended, &mut packets)?;
+    Ok(packets)
+}
+
+/// [`packetize`] into `packets`, reusing its buffers (a streamer recycles the packets of an
+/// old frame instead of allocating tens of thousands per frame).
+pub fn packetize_into(
+    block: &Block,
+    scps: usize,
+    extended: bool,
+    packets: &mut Vec<Vec<u8>>,
+) -> Result<()> {
     let hl = Header::len(extended);
     let mp = block.multipart;
     if mp && !extended {
@@ -316,7 +329,7 @@ pub fn packetize(block: &Block, scps: usize, extended: bool) -> Result<Vec<Vec<u
             "packet size {scps} too small"
         )));
     }
-    let mut packets = Vec::new();
+    let mut used = 0;
     let header = |format, packet_id, parts| Header {
         status: 0,
         block_id: block.block_id,
@@ -326,19 +339,18 @@ pub fn packetize(block: &Block, scps: usize, extended: bool) -> Result<Vec<Vec<u
         flags: 0,
         parts,
     };
-    let mut p = Vec::with_capacity(hl + 12 + 48 * block.parts.len());
     let infos: Vec<PartInfo> = block.parts.iter().map(|(i, _)| i.clone()).collect();
+    let p = next_packet(packets, &mut used, hl + 12 + 48 * block.parts.len());
     if mp {
-        header(FORMAT_LEADER, 0, infos.len() as u8).encode(&mut p);
-        encode_multipart_leader(&mut p, block.timestamp, &infos);
+        header(FORMAT_LEADER, 0, infos.len() as u8).encode(p);
+        encode_multipart_leader(p, block.timestamp, &infos);
     } else {
-        header(FORMAT_LEADER, 0, 0).encode(&mut p);
+        header(FORMAT_LEADER, 0, 0).encode(p);
         let info = infos
             .first()
             .ok_or_else(|| GigeError::InvalidArgument("block without parts".into()))?;
-        encode_image_leader(&mut p, block.timestamp, info);
+        encode_image_leader(p, block.timestamp, info);
     }
-    packets.push(p);
     let mut pid = 1u32;
     for (idx, (_, data)) in block.parts.iter().enumerate() {
         if !mp && idx > 0 {
@@ -347,29 +359,39 @@ pub fn packetize(block: &Block, scps: usize, extended: bool) -> Result<Vec<Vec<u
             ));
         }
         for (i, chunk) in data.chunks(data_per).enumerate() {
-            let mut p = Vec::with_capacity(hl + 8 + chunk.len());
+            let p = next_packet(packets, &mut used, hl + 8 + data_per);
             if mp {
-                header(FORMAT_MULTIPART, pid, 0).encode(&mut p);
+                header(FORMAT_MULTIPART, pid, 0).encode(p);
                 p.push(idx as u8);
                 p.push(0);
                 let off = (i * data_per) as u64;
                 p.extend_from_slice(&((off >> 32) as u16).to_be_bytes());
                 p.extend_from_slice(&(off as u32).to_be_bytes());
             } else {
-                header(FORMAT_PAYLOAD, pid, 0).encode(&mut p);
+                header(FORMAT_PAYLOAD, pid, 0).encode(p);
             }
             p.extend_from_slice(chunk);
-            packets.push(p);
             pid += 1;
         }
     }
-    let mut t = Vec::with_capacity(hl + 8);
-    header(FORMAT_TRAILER, pid, 0).encode(&mut t);
+    let t = next_packet(packets, &mut used, hl + 8);
+    header(FORMAT_TRAILER, pid, 0).encode(t);
     t.extend_from_slice(&[0, 0]);
     t.extend_from_slice(&(if mp { PAYLOAD_MULTIPART } else { PAYLOAD_IMAGE }).to_be_bytes());
     t.extend_from_slice(&infos.first().map_or(0, |i| i.height).to_be_bytes());
-    packets.push(t);
-    Ok(packets)
+    packets.truncate(used);
+    Ok(())
+}
+
+/// The next packet buffer of [`packetize_into`]: a recycled one, emptied, or a new one.
+fn next_packet<'a>(packets: &'a mut Vec<Vec<u8>>, used: &mut usize, cap: usize) -> &'a mut Vec<u8> {
+    if *used == packets.len() {
+        packets.push(Vec::with_capacity(cap));
+    }
+    let p = &mut packets[*used];
+    p.clear();
+    *used += 1;
+    p
 }
 
 /// Receiver settings.
@@ -1173,6 +1195,19 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn packetize_into_recycled_buffers_matches_fresh_packets() {
+        // Recycled from a bigger multi-part frame with other contents and packet size.
+        let mut reused = packetize(&block(9, true), 300, true).expect("p");
+        let n_old = reused.len();
+        for (ext, mp) in [(false, false), (true, true)] {
+            let b = block(4, mp);
+            packetize_into(&b, 400, ext, &mut reused).expect("packetize_into");
+            assert_eq!(reused, packetize(&b, 400, ext).expect("packetize"));
+        }
+        assert!(reused.len() < n_old);
     }
 
     #[test]

@@ -799,7 +799,12 @@ fn generate(
     stop: Arc<AtomicBool>,
     frame_rate: f64,
     tx: std::sync::mpsc::SyncSender<Prepared>,
+    recycled: std::sync::mpsc::Receiver<Vec<Vec<u8>>>,
 ) {
+    // Buffers reused from frame to frame: tens of MB per frame would otherwise be mapped,
+    // faulted in and unmapped again each time.
+    let mut data_buf = Vec::new();
+    let mut conf_buf = Vec::new();
     let t0 = Instant::now();
     let period = Duration::from_secs_f64(1.0 / frame_rate.max(0.01));
     let mut next = Instant::now();
@@ -838,24 +843,20 @@ fn generate(
                 continue;
             }
         };
-        let StreamSettings {
-            scps,
-            ext,
-            mp,
-            w,
-            h,
-            pf,
-        } = settings;
-        let block = make_block(&cloud, 1, t0.elapsed().as_nanos() as u64, w, h, pf, mp);
+        let (scps, ext) = (settings.scps, settings.ext);
+        let ts = t0.elapsed().as_nanos() as u64;
+        let bufs = (std::mem::take(&mut data_buf), std::mem::take(&mut conf_buf));
+        let block = make_block(&cloud, ts, &settings, bufs);
         drop(cloud);
-        let packets = match gvsp::packetize(&block, scps, ext) {
-            Ok(p) => p,
-            Err(e) => {
-                tracing::warn!("sim camera: {e}");
-                continue;
-            }
-        };
-        drop(block);
+        let mut packets = recycled.try_recv().unwrap_or_default();
+        let cut = gvsp::packetize_into(&block, scps, ext, &mut packets);
+        let mut parts = block.parts.into_iter().map(|(_, d)| d);
+        data_buf = parts.next().unwrap_or_default();
+        conf_buf = parts.next().unwrap_or_default();
+        if let Err(e) = cut {
+            tracing::warn!("sim camera: {e}");
+            continue;
+        }
         if tx.send(Prepared { settings, packets }).is_err() {
             return;
         }
@@ -881,11 +882,12 @@ fn stream(
     opts: SimOptions,
 ) {
     let (tx, rx) = std::sync::mpsc::sync_channel::<Prepared>(1);
+    let (recycle, recycled) = std::sync::mpsc::channel::<Vec<Vec<u8>>>();
     let generator = {
         let (state, stop, rate) = (state.clone(), stop.clone(), opts.frame_rate);
         match std::thread::Builder::new()
             .name("sim-render".into())
-            .spawn(move || generate(source, state, stop, rate, tx))
+            .spawn(move || generate(source, state, stop, rate, tx, recycled))
         {
             Ok(t) => t,
             Err(e) => {
@@ -922,7 +924,9 @@ fn stream(
             )
         };
         if !active || settings != frame.settings {
-            continue; // stale: acquisition stopped or settings changed meanwhile
+            // Stale: acquisition stopped or settings changed meanwhile.
+            let _ = recycle.send(frame.packets);
+            continue;
         }
         let ext = settings.ext;
         block_id = if ext {
@@ -937,12 +941,16 @@ fn stream(
             set_block_id(p, block_id, ext);
         }
         let packets = Arc::new(packets);
-        {
+        let evicted = {
             let mut s = lock(&state);
             s.history.push_back((block_id, packets.clone()));
-            while s.history.len() > 4 {
-                s.history.pop_front();
-            }
+            (s.history.len() > 4)
+                .then(|| s.history.pop_front())
+                .flatten()
+        };
+        // Hand an old frame's buffers back to the renderer (unless a resend holds them).
+        if let Some(Ok(old)) = evicted.map(|(_, p)| Arc::try_unwrap(p)) {
+            let _ = recycle.send(old);
         }
         let now = Instant::now();
         if now > clock + MAX_CATCH_UP {
@@ -1050,22 +1058,23 @@ fn send_all(sock: &UdpSocket, dest: SocketAddr, out: &mut Vec<&[u8]>) {
 }
 
 /// Crop the source cloud to the centred `w × h` ROI and encode it in `pf` (mm on the wire).
+/// The block id is filled in when the frame is sent; `data`/`conf` are reused buffers.
 fn make_block(
     cloud: &handeye_hal::PointCloud,
-    block_id: u64,
     timestamp: u64,
-    w: u32,
-    h: u32,
-    pf: u32,
-    mp: bool,
+    settings: &StreamSettings,
+    (mut data, mut conf): (Vec<u8>, Vec<u8>),
 ) -> Block {
+    let StreamSettings { w, h, pf, mp, .. } = *settings;
     let (cw, ch) = (cloud.width as usize, cloud.height as usize);
     let ox = cw.saturating_sub(w as usize) / 2;
     let oy = ch.saturating_sub(h as usize) / 2;
     let c16 = pf == pfnc::COORD3D_C16;
     let n = (w * h) as usize;
-    let mut data = Vec::with_capacity(n * if c16 { 2 } else { 12 });
-    let mut conf = Vec::with_capacity(if mp { n * 2 } else { 0 });
+    data.clear();
+    data.reserve(n * if c16 { 2 } else { 12 });
+    conf.clear();
+    conf.reserve(if mp { n * 2 } else { 0 });
     for v in 0..h as usize {
         for u in 0..w as usize {
             let i = (oy + v) * cw + ox + u;
@@ -1125,7 +1134,7 @@ fn make_block(
         ));
     }
     Block {
-        block_id,
+        block_id: 1,
         timestamp,
         parts,
         multipart: mp,
