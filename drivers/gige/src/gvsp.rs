@@ -1022,9 +1022,11 @@ fn set_recv_buffer(s: &socket2::Socket, bytes: usize) {
 const BATCH: usize = 64;
 /// Pause of the receiver after it drained the socket (see [`StreamReceiver::next_frame`]).
 const IDLE_WAIT: Duration = Duration::from_micros(500);
-/// Receive buffer (as `SO_RCVBUF` reports it) from which the receiver pauses when drained:
-/// 8 MiB (4 MiB of data) hold over 25 ms of a 1 Gbit/s stream, far more than a pause.
-const IDLE_WAIT_MIN_BUFFER: usize = 8 << 20;
+/// Receive buffer (as `SO_RCVBUF` reports it) from which the receiver pauses when drained.
+/// The kernel charges a packet's whole buffer (several KiB on loopback), so a 4 MiB
+/// `rmem_max` holds only ~10 ms at 1 Gbit/s and a pause that oversleeps on a busy host lost
+/// packets (measured); 32 MiB and more leave ample margin.
+const IDLE_WAIT_MIN_BUFFER: usize = 32 << 20;
 
 /// Preallocated buffers for a batch of datagrams (one `recvmmsg` call on Linux): no
 /// allocation and one system call for up to [`BATCH`] packets.
