@@ -87,6 +87,12 @@ pub struct SimStats {
     pub resent_packets: u64,
     /// GVCP commands handled.
     pub commands: u64,
+    /// With `bandwidth_bps`: microseconds of send schedule given up because the streamer
+    /// was held up past its catch-up window (a busy host), so the rate fell short by that.
+    pub pacing_lag_us: u64,
+    /// With `bandwidth_bps`: microseconds the link sat idle between back-to-back frames
+    /// because the next frame was not rendered yet (includes the first frame of each start).
+    pub render_wait_us: u64,
 }
 
 #[derive(Debug)]
@@ -953,7 +959,10 @@ fn stream(
             let _ = recycle.send(old);
         }
         let now = Instant::now();
+        let mut render_wait = Duration::ZERO;
+        let mut lag = Duration::ZERO;
         if now > clock + MAX_CATCH_UP {
+            render_wait = now - clock;
             clock = now;
         }
         let mut dropped = 0;
@@ -971,6 +980,7 @@ fn stream(
                     now = Instant::now();
                 }
                 if now > clock + MAX_CATCH_UP {
+                    lag += now - clock - MAX_CATCH_UP;
                     clock = now - MAX_CATCH_UP;
                 }
                 clock +=
@@ -985,6 +995,10 @@ fn stream(
         let mut s = lock(&state);
         s.stats.frames += 1;
         s.stats.dropped_packets += dropped;
+        if opts.bandwidth_bps.is_some() {
+            s.stats.pacing_lag_us += lag.as_micros() as u64;
+            s.stats.render_wait_us += render_wait.as_micros() as u64;
+        }
         if single {
             s.acquiring = false;
         }
