@@ -4,7 +4,8 @@
 //! faster); our receiver must get every frame complete (incomplete frames are counted, not
 //! fatal). The simulator reports how far a busy host held it behind its pace, which explains
 //! a rate below the target without loss.
-//! `cargo run --release -p handeye-gige --example gige_throughput [FRAMES [PACKET_SIZE [PAYLOAD_MBIT]]]`
+//! `cargo run --release -p handeye-gige --example gige_throughput [FRAMES [PACKET_SIZE [PAYLOAD_MBIT [LOSS]]]]`
+//! (LOSS: fraction of packets the simulator drops on first transmission, to exercise resend)
 //!
 //! The rate is measured at the receiver from the first to the last complete frame (steady
 //! state, without the start-up latency of acquisition and the first render).
@@ -27,6 +28,7 @@ fn main() {
         .get(3)
         .map_or(Ok(1000.0), |s| s.parse())
         .expect("PAYLOAD_MBIT");
+    let loss_ratio: f64 = args.get(4).map_or(Ok(0.0), |s| s.parse()).expect("LOSS");
     let (w, h) = (2560, 2048);
     let datagram = f64::from(packet_size);
     let payload_per_packet = datagram - (IP_UDP_HEADERS + Header::len(false)) as f64;
@@ -35,6 +37,7 @@ fn main() {
         // Free-running faster than the link: the pacing sets the rate, frames go back to back.
         frame_rate: 2.0 * payload_mbit * 1e6 / frame_bits,
         bandwidth_bps: Some(payload_mbit * 1e6 * datagram / payload_per_packet),
+        loss_ratio,
         ..SimOptions::default()
     };
     let probe = StreamReceiver::bind(

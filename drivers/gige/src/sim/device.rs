@@ -107,6 +107,8 @@ struct State {
     acquiring: bool,
     confidence_enabled: bool,
     history: VecDeque<(u64, Arc<Vec<Vec<u8>>>)>,
+    /// PACKETRESEND answers waiting for the streamer (sent within the paced bandwidth).
+    resends: VecDeque<(SocketAddr, Vec<u8>)>,
     stats: SimStats,
     frame_rate: f64,
 }
@@ -448,18 +450,16 @@ impl SimCamera {
             acquiring: false,
             confidence_enabled: false,
             history: VecDeque::new(),
+            resends: VecDeque::new(),
             stats: SimStats::default(),
             frame_rate: opts.frame_rate,
         }));
         let stop = Arc::new(AtomicBool::new(false));
-        let resend_sock = stream_sock
-            .try_clone()
-            .map_err(|e| GigeError::io(addr, e))?;
         let t1 = {
             let (state, stop) = (state.clone(), stop.clone());
             std::thread::Builder::new()
                 .name("sim-gvcp".into())
-                .spawn(move || serve_gvcp(gvcp_sock, resend_sock, state, stop))
+                .spawn(move || serve_gvcp(gvcp_sock, state, stop))
                 .map_err(|e| GigeError::io("sim thread", e))?
         };
         let t2 = {
@@ -509,12 +509,7 @@ impl Drop for SimCamera {
     }
 }
 
-fn serve_gvcp(
-    sock: UdpSocket,
-    resend_sock: UdpSocket,
-    state: Arc<Mutex<State>>,
-    stop: Arc<AtomicBool>,
-) {
+fn serve_gvcp(sock: UdpSocket, state: Arc<Mutex<State>>, stop: Arc<AtomicBool>) {
     let mut buf = [0u8; 2048];
     while !stop.load(Ordering::Relaxed) {
         {
@@ -551,7 +546,7 @@ fn serve_gvcp(
                 continue;
             }
         };
-        let reply = handle(&cmd, from, &state, &resend_sock);
+        let reply = handle(&cmd, from, &state);
         if let Some(ack) = reply {
             if cmd.flags & gvcp::FLAG_ACK_REQUIRED != 0 {
                 let _ = sock.send_to(&ack.encode(), from);
@@ -560,12 +555,7 @@ fn serve_gvcp(
     }
 }
 
-fn handle(
-    cmd: &Command,
-    from: SocketAddr,
-    state: &Mutex<State>,
-    resend_sock: &UdpSocket,
-) -> Option<Ack> {
+fn handle(cmd: &Command, from: SocketAddr, state: &Mutex<State>) -> Option<Ack> {
     let mut s = lock(state);
     s.stats.commands += 1;
     if s.controller == Some(from) {
@@ -685,8 +675,10 @@ fn handle(
                                 p[0] = 0x01;
                                 p[1] = 0x00;
                             }
-                            let _ = resend_sock.send_to(&p, dest);
-                            sent += 1;
+                            if s.resends.len() < MAX_QUEUED_RESENDS {
+                                s.resends.push_back((dest, p));
+                                sent += 1;
+                            }
                         }
                     }
                 }
@@ -703,7 +695,7 @@ fn handle(
                         parts: 0,
                     }
                     .encode(&mut p);
-                    let _ = resend_sock.send_to(&p, dest);
+                    s.resends.push_back((dest, p));
                 }
             }
             s.stats.resent_packets += sent;
@@ -907,13 +899,10 @@ fn stream(
     // Pacing clock: when the next packet may leave. It runs across frames so back-to-back
     // frames keep the configured rate; after an idle gap it restarts from now (no burst).
     let mut clock = Instant::now();
-    // Sleeping overshoots (timer slack, a busy host): catch up by sending faster for at most
-    // this long a backlog, so the average rate holds without long line-rate bursts.
-    const MAX_CATCH_UP: Duration = Duration::from_millis(20);
-    // Packets due this soon go out in the current batch.
-    const PACING_SLACK: Duration = Duration::from_micros(200);
+    let bps = opts.bandwidth_bps;
     while !stop.load(Ordering::Relaxed) {
-        let frame = match rx.recv_timeout(Duration::from_millis(20)) {
+        send_resends(&sock, &state, usize::MAX, bps, &mut clock);
+        let frame = match rx.recv_timeout(Duration::from_millis(2)) {
             Ok(f) => f,
             Err(std::sync::mpsc::RecvTimeoutError::Timeout) => continue,
             Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
@@ -976,7 +965,15 @@ fn stream(
                 let mut now = Instant::now();
                 if clock > now + PACING_SLACK {
                     send_all(&sock, dest, &mut out);
-                    std::thread::sleep(clock - now);
+                    // Answer resend requests in the gaps of the stream.
+                    send_resends(
+                        &sock,
+                        &state,
+                        SEND_BATCH / 2,
+                        opts.bandwidth_bps,
+                        &mut clock,
+                    );
+                    std::thread::sleep(clock.saturating_duration_since(Instant::now()));
                     now = Instant::now();
                 }
                 if now > clock + MAX_CATCH_UP {
@@ -989,6 +986,7 @@ fn stream(
             out.push(p);
             if out.len() == SEND_BATCH {
                 send_all(&sock, dest, &mut out);
+                send_resends(&sock, &state, SEND_BATCH / 2, bps, &mut clock);
             }
         }
         send_all(&sock, dest, &mut out);
@@ -1005,6 +1003,44 @@ fn stream(
     }
     drop(rx);
     let _ = generator.join();
+}
+
+/// Sleeping overshoots (timer slack, a busy host): the streamer catches up by sending faster
+/// for at most this long a backlog, so the average rate holds without long line-rate bursts.
+const MAX_CATCH_UP: Duration = Duration::from_millis(20);
+/// Packets due this soon go out in the current batch.
+const PACING_SLACK: Duration = Duration::from_micros(200);
+/// Bound of the resend queue (packets); requests beyond it are not served.
+const MAX_QUEUED_RESENDS: usize = 1 << 16;
+
+/// Send up to `max` queued PACKETRESEND answers, paced on the stream's clock (a camera
+/// resends within its bandwidth; a burst would overrun the host again).
+fn send_resends(
+    sock: &UdpSocket,
+    state: &Mutex<State>,
+    max: usize,
+    bps: Option<f64>,
+    clock: &mut Instant,
+) {
+    let batch: Vec<(SocketAddr, Vec<u8>)> = {
+        let mut s = lock(state);
+        let n = s.resends.len().min(max);
+        s.resends.drain(..n).collect()
+    };
+    for (dest, p) in batch {
+        if let Some(bps) = bps {
+            let now = Instant::now();
+            if *clock > now + PACING_SLACK {
+                std::thread::sleep(*clock - now);
+            } else if now > *clock + MAX_CATCH_UP {
+                *clock = now - MAX_CATCH_UP;
+            }
+            *clock += Duration::from_secs_f64((p.len() + gvsp::IP_UDP_HEADERS) as f64 * 8.0 / bps);
+        }
+        if let Err(e) = sock.send_to(&p, dest) {
+            tracing::debug!("sim camera: resend failed: {e}");
+        }
+    }
 }
 
 /// Datagrams per `sendmmsg` call.
