@@ -303,6 +303,19 @@ pub struct Block {
 
 /// Cut a block into GVSP packets for a packet size `scps` (whole IP datagram).
 pub fn packetize(block: &Block, scps: usize, extended: bool) -> Result<Vec<Vec<u8>>> {
+    let mut packets = Vec::new();
+    packetize_into(block, scps, extended, &mut packets)?;
+    Ok(packets)
+}
+
+/// [`packetize`] into `packets`, reusing its buffers (a streamer recycles the packets of an
+/// old frame instead of allocating tens of thousands per frame).
+pub fn packetize_into(
+    block: &Block,
+    scps: usize,
+    extended: bool,
+    packets: &mut Vec<Vec<u8>>,
+) -> Result<()> {
     let hl = Header::len(extended);
     let mp = block.multipart;
     if mp && !extended {
@@ -316,7 +329,7 @@ pub fn packetize(block: &Block, scps: usize, extended: bool) -> Result<Vec<Vec<u
             "packet size {scps} too small"
         )));
     }
-    let mut packets = Vec::new();
+    let mut used = 0;
     let header = |format, packet_id, parts| Header {
         status: 0,
         block_id: block.block_id,
@@ -326,19 +339,18 @@ pub fn packetize(block: &Block, scps: usize, extended: bool) -> Result<Vec<Vec<u
         flags: 0,
         parts,
     };
-    let mut p = Vec::with_capacity(hl + 12 + 48 * block.parts.len());
     let infos: Vec<PartInfo> = block.parts.iter().map(|(i, _)| i.clone()).collect();
+    let p = next_packet(packets, &mut used, hl + 12 + 48 * block.parts.len());
     if mp {
-        header(FORMAT_LEADER, 0, infos.len() as u8).encode(&mut p);
-        encode_multipart_leader(&mut p, block.timestamp, &infos);
+        header(FORMAT_LEADER, 0, infos.len() as u8).encode(p);
+        encode_multipart_leader(p, block.timestamp, &infos);
     } else {
-        header(FORMAT_LEADER, 0, 0).encode(&mut p);
+        header(FORMAT_LEADER, 0, 0).encode(p);
         let info = infos
             .first()
             .ok_or_else(|| GigeError::InvalidArgument("block without parts".into()))?;
-        encode_image_leader(&mut p, block.timestamp, info);
+        encode_image_leader(p, block.timestamp, info);
     }
-    packets.push(p);
     let mut pid = 1u32;
     for (idx, (_, data)) in block.parts.iter().enumerate() {
         if !mp && idx > 0 {
@@ -347,29 +359,39 @@ pub fn packetize(block: &Block, scps: usize, extended: bool) -> Result<Vec<Vec<u
             ));
         }
         for (i, chunk) in data.chunks(data_per).enumerate() {
-            let mut p = Vec::with_capacity(hl + 8 + chunk.len());
+            let p = next_packet(packets, &mut used, hl + 8 + data_per);
             if mp {
-                header(FORMAT_MULTIPART, pid, 0).encode(&mut p);
+                header(FORMAT_MULTIPART, pid, 0).encode(p);
                 p.push(idx as u8);
                 p.push(0);
                 let off = (i * data_per) as u64;
                 p.extend_from_slice(&((off >> 32) as u16).to_be_bytes());
                 p.extend_from_slice(&(off as u32).to_be_bytes());
             } else {
-                header(FORMAT_PAYLOAD, pid, 0).encode(&mut p);
+                header(FORMAT_PAYLOAD, pid, 0).encode(p);
             }
             p.extend_from_slice(chunk);
-            packets.push(p);
             pid += 1;
         }
     }
-    let mut t = Vec::with_capacity(hl + 8);
-    header(FORMAT_TRAILER, pid, 0).encode(&mut t);
+    let t = next_packet(packets, &mut used, hl + 8);
+    header(FORMAT_TRAILER, pid, 0).encode(t);
     t.extend_from_slice(&[0, 0]);
     t.extend_from_slice(&(if mp { PAYLOAD_MULTIPART } else { PAYLOAD_IMAGE }).to_be_bytes());
     t.extend_from_slice(&infos.first().map_or(0, |i| i.height).to_be_bytes());
-    packets.push(t);
-    Ok(packets)
+    packets.truncate(used);
+    Ok(())
+}
+
+/// The next packet buffer of [`packetize_into`]: a recycled one, emptied, or a new one.
+fn next_packet<'a>(packets: &'a mut Vec<Vec<u8>>, used: &mut usize, cap: usize) -> &'a mut Vec<u8> {
+    if *used == packets.len() {
+        packets.push(Vec::with_capacity(cap));
+    }
+    let p = &mut packets[*used];
+    p.clear();
+    *used += 1;
+    p
 }
 
 /// Receiver settings.
@@ -429,6 +451,8 @@ pub struct Frame {
     pub resent_packets: u32,
     /// Packets still missing when the frame was closed.
     pub missing_packets: u32,
+    /// When the receiver closed the frame (host clock).
+    pub received: Instant,
 }
 
 /// Counters over the receiver's life.
@@ -484,6 +508,32 @@ impl Asm {
         }
     }
 
+    /// Size the buffers from the leader once, so payload packets are copied straight to their
+    /// offset without growing vectors (fresh zeroed allocations are mapped lazily, so memory
+    /// is only committed as packets arrive).
+    fn preallocate(&mut self, data_per: usize) {
+        let Some(l) = &self.leader else { return };
+        let grow = |buf: &mut Vec<u8>, len: usize| {
+            if buf.is_empty() {
+                *buf = vec![0; len];
+            } else if buf.len() < len {
+                buf.resize(len, 0);
+            }
+        };
+        if l.payload_type == PAYLOAD_MULTIPART {
+            for (i, p) in l.parts.iter().enumerate() {
+                grow(self.parts.entry(i as u8).or_default(), p.length as usize);
+            }
+        } else if let Some(p) = l.parts.first() {
+            grow(&mut self.generic, p.length as usize);
+        }
+        if let Some(n) = self.expected(data_per) {
+            if self.received.len() < n as usize {
+                self.received.resize(n as usize, false);
+            }
+        }
+    }
+
     /// Total packets of the block when known (trailer id + 1, or from the leader).
     fn expected(&self, data_per: usize) -> Option<u32> {
         if let Some(t) = self.trailer_id {
@@ -517,7 +567,10 @@ pub struct StreamReceiver {
     stats: StreamStats,
     req_id: u16,
     seq: u64,
-    buf: Vec<u8>,
+    batch: RecvBatch,
+    /// Pause after draining the socket, letting packets gather so one call takes many
+    /// (zero with a small receive buffer: then every packet wakes the receiver).
+    idle_wait: Duration,
 }
 
 impl StreamReceiver {
@@ -531,13 +584,20 @@ impl StreamReceiver {
             Some(socket2::Protocol::UDP),
         )
         .map_err(|e| GigeError::io(addr, e))?;
-        if let Err(e) = s.set_recv_buffer_size(cfg.recv_buffer) {
-            tracing::warn!("cannot set a {} byte receive buffer: {e}", cfg.recv_buffer);
-        }
+        set_recv_buffer(&s, cfg.recv_buffer);
         s.bind(&addr.into()).map_err(|e| GigeError::io(addr, e))?;
         let sock: UdpSocket = s.into();
         sock.set_read_timeout(Some(Duration::from_millis(2)))
             .map_err(|e| GigeError::io(addr, e))?;
+        let batch = RecvBatch::new(cfg.packet_size);
+        let granted = socket2::SockRef::from(&sock)
+            .recv_buffer_size()
+            .unwrap_or(0);
+        let idle_wait = if granted >= IDLE_WAIT_MIN_BUFFER {
+            IDLE_WAIT
+        } else {
+            Duration::ZERO
+        };
         Ok(Self {
             sock,
             device,
@@ -548,11 +608,13 @@ impl StreamReceiver {
             stats: StreamStats::default(),
             req_id: 0,
             seq: 0,
-            buf: vec![0; 65536],
+            batch,
+            idle_wait,
         })
     }
 
-    /// Receive buffer size the kernel granted (bytes).
+    /// Receive buffer size the kernel granted (bytes, as `SO_RCVBUF` reports it: Linux
+    /// doubles the requested size to account for its bookkeeping).
     pub fn recv_buffer_size(&self) -> usize {
         socket2::SockRef::from(&self.sock)
             .recv_buffer_size()
@@ -595,21 +657,38 @@ impl StreamReceiver {
                 );
                 return Err(GigeError::FrameTimeout { timeout, detail });
             }
-            match self.sock.recv_from(&mut self.buf) {
-                Ok((n, _)) => {
-                    let pkt = self.buf[..n].to_vec();
-                    self.handle(&pkt, Instant::now());
-                    // Drain what is queued without housekeeping on every packet.
-                    continue_drain(self);
+            // Waits up to the socket timeout (2 ms) for one packet, then takes what else is
+            // queued (up to a batch) in the same call.
+            let mut batch = std::mem::take(&mut self.batch);
+            let got = batch.recv(&self.sock);
+            let now = Instant::now();
+            match got {
+                Ok(n) => {
+                    if n < BATCH / 2 && !self.idle_wait.is_zero() {
+                        // Drained: wait a moment instead of being woken for every packet.
+                        std::thread::sleep(self.idle_wait);
+                    }
+                    for i in 0..n {
+                        match batch.packet(i) {
+                            Some(pkt) => self.handle(pkt, now),
+                            None => self.stats.ignored_packets += 1, // truncated: too long
+                        }
+                    }
                 }
                 Err(e)
                     if matches!(
                         e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                        std::io::ErrorKind::WouldBlock
+                            | std::io::ErrorKind::TimedOut
+                            | std::io::ErrorKind::Interrupted
                     ) => {}
-                Err(e) => return Err(GigeError::io("stream socket", e)),
+                Err(e) => {
+                    self.batch = batch;
+                    return Err(GigeError::io("stream socket", e));
+                }
             }
-            self.housekeeping(Instant::now());
+            self.batch = batch;
+            self.housekeeping(now);
         }
     }
 
@@ -627,13 +706,13 @@ impl StreamReceiver {
             self.stats.ignored_packets += 1; // test packet
             return;
         }
-        if self.done.contains(&h.block_id) {
-            self.stats.ignored_packets += 1;
-            return;
-        }
-        self.stats.packets += 1;
         let data_per = self.data_per();
         if !self.frames.contains_key(&h.block_id) {
+            if self.done.contains(&h.block_id) {
+                self.stats.ignored_packets += 1;
+                return;
+            }
+            self.stats.packets += 1;
             if h.status & 0x8000 != 0 {
                 return;
             }
@@ -651,6 +730,8 @@ impl StreamReceiver {
                 }
             }
             self.frames.insert(h.block_id, Asm::new(now, self.seq));
+        } else {
+            self.stats.packets += 1;
         }
         let Some(f) = self.frames.get_mut(&h.block_id) else {
             return;
@@ -680,6 +761,7 @@ impl StreamReceiver {
             FORMAT_LEADER => match Leader::parse(&h, body) {
                 Ok(l) if l.parts.iter().map(|p| p.length).sum::<u64>() <= max_bytes as u64 => {
                     f.leader = Some(l);
+                    f.preallocate(data_per);
                     true
                 }
                 Ok(_) => false,
@@ -890,28 +972,141 @@ impl StreamReceiver {
             complete,
             resent_packets: f.resent,
             missing_packets: missing,
+            received: Instant::now(),
         });
     }
 }
 
-/// Read everything already queued on the socket without blocking.
-fn continue_drain(r: &mut StreamReceiver) {
-    if r.sock.set_nonblocking(true).is_err() {
-        return;
-    }
-    let mut n = 0;
-    while n < 4096 {
-        match r.sock.recv_from(&mut r.buf) {
-            Ok((len, _)) => {
-                let pkt = r.buf[..len].to_vec();
-                r.handle(&pkt, Instant::now());
-                n += 1;
-            }
-            Err(_) => break,
+/// Ask for a `bytes` receive buffer: `SO_RCVBUFFORCE` first (allowed with CAP_NET_ADMIN, e.g.
+/// as root; ignores `net.core.rmem_max`), else `SO_RCVBUF` (capped at `net.core.rmem_max`).
+/// Logs the size the kernel granted.
+fn set_recv_buffer(s: &socket2::Socket, bytes: usize) {
+    #[cfg(target_os = "linux")]
+    let forced = {
+        use std::os::fd::AsRawFd;
+        let v = libc::c_int::try_from(bytes).unwrap_or(libc::c_int::MAX);
+        // SAFETY: setsockopt on an open socket with a pointer to a live c_int and its size.
+        let rc = unsafe {
+            libc::setsockopt(
+                s.as_raw_fd(),
+                libc::SOL_SOCKET,
+                libc::SO_RCVBUFFORCE,
+                (&v as *const libc::c_int).cast(),
+                std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+            )
+        };
+        rc == 0
+    };
+    #[cfg(not(target_os = "linux"))]
+    let forced = false;
+    if !forced {
+        if let Err(e) = s.set_recv_buffer_size(bytes) {
+            tracing::warn!("cannot set a {bytes} byte receive buffer: {e}");
         }
     }
-    if r.sock.set_nonblocking(false).is_err() {
-        tracing::warn!("could not restore blocking mode on the stream socket");
+    let granted = s.recv_buffer_size().unwrap_or(0);
+    if granted < bytes {
+        tracing::warn!(
+            "stream receive buffer is {granted} bytes, {bytes} asked for: frames may lose packets \
+             at high rates; raise net.core.rmem_max (sysctl) or run with CAP_NET_ADMIN"
+        );
+    } else {
+        tracing::debug!(
+            "stream receive buffer: {granted} bytes{}",
+            if forced { " (SO_RCVBUFFORCE)" } else { "" }
+        );
+    }
+}
+
+/// Datagrams taken per receive call.
+const BATCH: usize = 64;
+/// Pause of the receiver after it drained the socket (see [`StreamReceiver::next_frame`]).
+const IDLE_WAIT: Duration = Duration::from_micros(500);
+/// Receive buffer (as `SO_RCVBUF` reports it) from which the receiver pauses when drained.
+/// The kernel charges a packet's whole buffer (several KiB on loopback), so a 4 MiB
+/// `rmem_max` holds only ~10 ms at 1 Gbit/s and a pause that oversleeps on a busy host lost
+/// packets (measured); 32 MiB and more leave ample margin.
+const IDLE_WAIT_MIN_BUFFER: usize = 32 << 20;
+
+/// Preallocated buffers for a batch of datagrams (one `recvmmsg` call on Linux): no
+/// allocation and one system call for up to [`BATCH`] packets.
+#[derive(Debug, Default)]
+struct RecvBatch {
+    slot: usize,
+    data: Vec<u8>,
+    /// Datagram lengths; longer than `slot` means truncated.
+    lens: Vec<usize>,
+}
+
+impl RecvBatch {
+    fn new(packet_size: usize) -> Self {
+        // A datagram of the negotiated packet size is `packet_size - 28` bytes; leave slack
+        // and treat anything longer than a slot as malformed (truncated).
+        let slot = (packet_size.clamp(576, 65_536) + 256).min(65_536);
+        Self {
+            slot,
+            data: vec![0; slot * BATCH],
+            lens: Vec::with_capacity(BATCH),
+        }
+    }
+
+    /// Datagram `i` of the last receive; `None` when it was truncated.
+    fn packet(&self, i: usize) -> Option<&[u8]> {
+        let n = *self.lens.get(i)?;
+        (n <= self.slot).then(|| &self.data[i * self.slot..i * self.slot + n])
+    }
+
+    /// Wait (up to the socket's read timeout) for one datagram, then take what else is
+    /// queued, up to a batch. Returns the number received.
+    #[cfg(target_os = "linux")]
+    fn recv(&mut self, sock: &UdpSocket) -> std::io::Result<usize> {
+        use std::os::fd::AsRawFd;
+        self.lens.clear();
+        let slot = self.slot;
+        let base = self.data.as_mut_ptr();
+        // SAFETY: all-zero bytes are valid iovec/mmsghdr values (null pointers, zero lengths).
+        let mut iovs: [libc::iovec; BATCH] = unsafe { std::mem::zeroed() };
+        let mut msgs: [libc::mmsghdr; BATCH] = unsafe { std::mem::zeroed() };
+        for (i, (iov, m)) in iovs.iter_mut().zip(msgs.iter_mut()).enumerate() {
+            // SAFETY: `i * slot` is within `data` (BATCH slots of `slot` bytes).
+            iov.iov_base = unsafe { base.add(i * slot) }.cast();
+            iov.iov_len = slot;
+            m.msg_hdr.msg_iov = iov;
+            m.msg_hdr.msg_iovlen = 1;
+        }
+        // SAFETY: every mmsghdr points at one iovec covering its own slot of `data`, which
+        // outlives the call; the kernel writes at most `slot` bytes per slot and the lengths.
+        let n = unsafe {
+            libc::recvmmsg(
+                sock.as_raw_fd(),
+                msgs.as_mut_ptr(),
+                BATCH as libc::c_uint,
+                libc::MSG_WAITFORONE,
+                std::ptr::null_mut(),
+            )
+        };
+        if n < 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        let n = n as usize;
+        for m in &msgs[..n] {
+            let truncated = m.msg_hdr.msg_flags & libc::MSG_TRUNC != 0;
+            self.lens.push(if truncated {
+                usize::MAX
+            } else {
+                m.msg_len as usize
+            });
+        }
+        Ok(n)
+    }
+
+    /// Portable fallback: one datagram per call.
+    #[cfg(not(target_os = "linux"))]
+    fn recv(&mut self, sock: &UdpSocket) -> std::io::Result<usize> {
+        self.lens.clear();
+        let (n, _) = sock.recv_from(&mut self.data[..self.slot])?;
+        self.lens.push(n);
+        Ok(1)
     }
 }
 
@@ -1002,6 +1197,38 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn packetize_into_recycled_buffers_matches_fresh_packets() {
+        // Recycled from a bigger multi-part frame with other contents and packet size.
+        let mut reused = packetize(&block(9, true), 300, true).expect("p");
+        let n_old = reused.len();
+        for (ext, mp) in [(false, false), (true, true)] {
+            let b = block(4, mp);
+            packetize_into(&b, 400, ext, &mut reused).expect("packetize_into");
+            assert_eq!(reused, packetize(&b, 400, ext).expect("packetize"));
+        }
+        assert!(reused.len() < n_old);
+    }
+
+    #[test]
+    fn socket_path_reads_batches_and_ignores_oversized_datagrams() {
+        let mut r = receiver(false, true);
+        let to = r.local_addr().expect("addr");
+        let tx = UdpSocket::bind("127.0.0.1:0").expect("bind");
+        // Longer than a receive slot for 400-byte packets: truncated, so ignored.
+        tx.send_to(&[0x55; 5000], to).expect("send");
+        let pk = packetize(&block(7, false), 400, false).expect("packetize");
+        for p in &pk {
+            tx.send_to(p, to).expect("send");
+        }
+        let f = r.next_frame(Duration::from_secs(2)).expect("frame");
+        assert!(f.complete);
+        assert_eq!(f.block_id, 7);
+        assert_eq!(f.parts[0].1, block(7, false).parts[0].1);
+        assert_eq!(r.stats().ignored_packets, 1);
+        assert_eq!(r.stats().packets, pk.len() as u64);
     }
 
     #[test]

@@ -87,6 +87,12 @@ pub struct SimStats {
     pub resent_packets: u64,
     /// GVCP commands handled.
     pub commands: u64,
+    /// With `bandwidth_bps`: microseconds of send schedule given up because the streamer
+    /// was held up past its catch-up window (a busy host), so the rate fell short by that.
+    pub pacing_lag_us: u64,
+    /// With `bandwidth_bps`: microseconds the link sat idle between back-to-back frames
+    /// because the next frame was not rendered yet (includes the first frame of each start).
+    pub render_wait_us: u64,
 }
 
 #[derive(Debug)]
@@ -101,6 +107,8 @@ struct State {
     acquiring: bool,
     confidence_enabled: bool,
     history: VecDeque<(u64, Arc<Vec<Vec<u8>>>)>,
+    /// PACKETRESEND answers waiting for the streamer (sent within the paced bandwidth).
+    resends: VecDeque<(SocketAddr, Vec<u8>)>,
     stats: SimStats,
     frame_rate: f64,
 }
@@ -442,18 +450,16 @@ impl SimCamera {
             acquiring: false,
             confidence_enabled: false,
             history: VecDeque::new(),
+            resends: VecDeque::new(),
             stats: SimStats::default(),
             frame_rate: opts.frame_rate,
         }));
         let stop = Arc::new(AtomicBool::new(false));
-        let resend_sock = stream_sock
-            .try_clone()
-            .map_err(|e| GigeError::io(addr, e))?;
         let t1 = {
             let (state, stop) = (state.clone(), stop.clone());
             std::thread::Builder::new()
                 .name("sim-gvcp".into())
-                .spawn(move || serve_gvcp(gvcp_sock, resend_sock, state, stop))
+                .spawn(move || serve_gvcp(gvcp_sock, state, stop))
                 .map_err(|e| GigeError::io("sim thread", e))?
         };
         let t2 = {
@@ -503,12 +509,7 @@ impl Drop for SimCamera {
     }
 }
 
-fn serve_gvcp(
-    sock: UdpSocket,
-    resend_sock: UdpSocket,
-    state: Arc<Mutex<State>>,
-    stop: Arc<AtomicBool>,
-) {
+fn serve_gvcp(sock: UdpSocket, state: Arc<Mutex<State>>, stop: Arc<AtomicBool>) {
     let mut buf = [0u8; 2048];
     while !stop.load(Ordering::Relaxed) {
         {
@@ -545,7 +546,7 @@ fn serve_gvcp(
                 continue;
             }
         };
-        let reply = handle(&cmd, from, &state, &resend_sock);
+        let reply = handle(&cmd, from, &state);
         if let Some(ack) = reply {
             if cmd.flags & gvcp::FLAG_ACK_REQUIRED != 0 {
                 let _ = sock.send_to(&ack.encode(), from);
@@ -554,12 +555,7 @@ fn serve_gvcp(
     }
 }
 
-fn handle(
-    cmd: &Command,
-    from: SocketAddr,
-    state: &Mutex<State>,
-    resend_sock: &UdpSocket,
-) -> Option<Ack> {
+fn handle(cmd: &Command, from: SocketAddr, state: &Mutex<State>) -> Option<Ack> {
     let mut s = lock(state);
     s.stats.commands += 1;
     if s.controller == Some(from) {
@@ -679,8 +675,10 @@ fn handle(
                                 p[0] = 0x01;
                                 p[1] = 0x00;
                             }
-                            let _ = resend_sock.send_to(&p, dest);
-                            sent += 1;
+                            if s.resends.len() < MAX_QUEUED_RESENDS {
+                                s.resends.push_back((dest, p));
+                                sent += 1;
+                            }
                         }
                     }
                 }
@@ -697,7 +695,7 @@ fn handle(
                         parts: 0,
                     }
                     .encode(&mut p);
-                    let _ = resend_sock.send_to(&p, dest);
+                    s.resends.push_back((dest, p));
                 }
             }
             s.stats.resent_packets += sent;
@@ -710,33 +708,111 @@ fn handle(
     })
 }
 
-fn stream(
-    sock: UdpSocket,
+/// What the streamer needs to know about the device settings; a frame prepared under other
+/// settings is dropped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct StreamSettings {
+    scps: usize,
+    ext: bool,
+    mp: bool,
+    w: u32,
+    h: u32,
+    pf: u32,
+}
+
+impl StreamSettings {
+    fn read(s: &State) -> Self {
+        Self {
+            scps: s.reg(reg::SCPS0) as usize,
+            ext: s.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0,
+            mp: s.multipart(),
+            w: s.reg(WIDTH),
+            h: s.reg(HEIGHT),
+            pf: s.reg(PIXEL_FORMAT),
+        }
+    }
+}
+
+/// A frame rendered and cut into packets, waiting to be sent (block id filled in on send).
+struct Prepared {
+    settings: StreamSettings,
+    packets: Vec<Vec<u8>>,
+}
+
+/// Logs the first failure of a repeating error, then a summary with the count every
+/// `every` (a frame source that keeps failing would otherwise log at the frame rate).
+#[derive(Debug)]
+pub(crate) struct RateLimitedWarning {
+    every: Duration,
+    last_log: Option<Instant>,
+    suppressed: u64,
+}
+
+impl RateLimitedWarning {
+    pub(crate) fn new(every: Duration) -> Self {
+        Self {
+            every,
+            last_log: None,
+            suppressed: 0,
+        }
+    }
+
+    /// Record one failure; returns the message to log now, if any.
+    pub(crate) fn failure(&mut self, now: Instant, what: &str) -> Option<String> {
+        match self.last_log {
+            None => {
+                self.last_log = Some(now);
+                Some(what.to_string())
+            }
+            Some(t) if now.duration_since(t) >= self.every => {
+                let n = self.suppressed + 1;
+                self.last_log = Some(now);
+                self.suppressed = 0;
+                Some(format!(
+                    "{n} failures in the last {:.0} s, latest: {what}",
+                    now.duration_since(t).as_secs_f64()
+                ))
+            }
+            Some(_) => {
+                self.suppressed += 1;
+                None
+            }
+        }
+    }
+
+    /// Record a success; returns a closing message when failures were being suppressed.
+    pub(crate) fn success(&mut self) -> Option<String> {
+        let n = self.suppressed;
+        let was_failing = self.last_log.take().is_some();
+        self.suppressed = 0;
+        (was_failing && n > 0).then(|| format!("recovered after {n} more failures"))
+    }
+}
+
+/// Render frames at the frame rate while acquiring, one frame ahead of the sender (a real
+/// camera exposes the next frame while the link carries the previous one).
+fn generate(
     mut source: Box<dyn FrameSource>,
     state: Arc<Mutex<State>>,
     stop: Arc<AtomicBool>,
-    opts: SimOptions,
+    frame_rate: f64,
+    tx: std::sync::mpsc::SyncSender<Prepared>,
+    recycled: std::sync::mpsc::Receiver<Vec<Vec<u8>>>,
 ) {
-    let mut rng = rand::rngs::StdRng::seed_from_u64(opts.seed);
-    let mut block_id: u64 = 0;
+    // Buffers reused from frame to frame: tens of MB per frame would otherwise be mapped,
+    // faulted in and unmapped again each time.
+    let mut data_buf = Vec::new();
+    let mut conf_buf = Vec::new();
     let t0 = Instant::now();
-    let period = Duration::from_secs_f64(1.0 / opts.frame_rate.max(0.01));
+    let period = Duration::from_secs_f64(1.0 / frame_rate.max(0.01));
     let mut next = Instant::now();
+    let mut source_warn = RateLimitedWarning::new(Duration::from_secs(10));
     while !stop.load(Ordering::Relaxed) {
-        let (active, dest, scps, ext, mp, w, h, pf, single) = {
+        let (active, settings) = {
             let s = lock(&state);
-            let port = s.reg(reg::SCP0) as u16;
-            let ip = Ipv4Addr::from(s.reg(reg::SCDA0));
             (
-                s.acquiring && port != 0 && !ip.is_unspecified(),
-                SocketAddr::new(IpAddr::V4(ip), port),
-                s.reg(reg::SCPS0) as usize,
-                s.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0,
-                s.multipart(),
-                s.reg(WIDTH),
-                s.reg(HEIGHT),
-                s.reg(PIXEL_FORMAT),
-                s.reg(ACQ_MODE) == 1,
+                s.acquiring && s.reg(reg::SCP0) & 0xFFFF != 0,
+                StreamSettings::read(&s),
             )
         };
         if !active {
@@ -749,14 +825,105 @@ fn stream(
             std::thread::sleep((next - now).min(Duration::from_millis(20)));
             continue;
         }
-        next += period;
+        // Never fall further behind than one period (no bursts of stale frames).
+        next = (next + period).max(now);
         let cloud = match source.next_frame() {
-            Ok(c) => c,
+            Ok(c) => {
+                if let Some(m) = source_warn.success() {
+                    tracing::info!("sim camera: frame source {m}");
+                }
+                c
+            }
             Err(e) => {
-                tracing::warn!("sim camera: frame source failed: {e}");
+                if let Some(m) = source_warn.failure(Instant::now(), &e.to_string()) {
+                    tracing::warn!("sim camera: frame source failed: {m}");
+                }
                 continue;
             }
         };
+        let (scps, ext) = (settings.scps, settings.ext);
+        let ts = t0.elapsed().as_nanos() as u64;
+        let bufs = (std::mem::take(&mut data_buf), std::mem::take(&mut conf_buf));
+        let block = make_block(&cloud, ts, &settings, bufs);
+        drop(cloud);
+        let mut packets = recycled.try_recv().unwrap_or_default();
+        let cut = gvsp::packetize_into(&block, scps, ext, &mut packets);
+        let mut parts = block.parts.into_iter().map(|(_, d)| d);
+        data_buf = parts.next().unwrap_or_default();
+        conf_buf = parts.next().unwrap_or_default();
+        if let Err(e) = cut {
+            tracing::warn!("sim camera: {e}");
+            continue;
+        }
+        if tx.send(Prepared { settings, packets }).is_err() {
+            return;
+        }
+    }
+}
+
+/// Write `block_id` into a GVSP packet header.
+fn set_block_id(p: &mut [u8], block_id: u64, ext: bool) {
+    if ext {
+        if let Some(b) = p.get_mut(8..16) {
+            b.copy_from_slice(&block_id.to_be_bytes());
+        }
+    } else if let Some(b) = p.get_mut(2..4) {
+        b.copy_from_slice(&(block_id as u16).to_be_bytes());
+    }
+}
+
+fn stream(
+    sock: UdpSocket,
+    source: Box<dyn FrameSource>,
+    state: Arc<Mutex<State>>,
+    stop: Arc<AtomicBool>,
+    opts: SimOptions,
+) {
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Prepared>(1);
+    let (recycle, recycled) = std::sync::mpsc::channel::<Vec<Vec<u8>>>();
+    let generator = {
+        let (state, stop, rate) = (state.clone(), stop.clone(), opts.frame_rate);
+        match std::thread::Builder::new()
+            .name("sim-render".into())
+            .spawn(move || generate(source, state, stop, rate, tx, recycled))
+        {
+            Ok(t) => t,
+            Err(e) => {
+                tracing::error!("sim camera: cannot start the render thread: {e}");
+                return;
+            }
+        }
+    };
+    let mut rng = rand::rngs::StdRng::seed_from_u64(opts.seed);
+    let mut block_id: u64 = 0;
+    // Pacing clock: when the next packet may leave. It runs across frames so back-to-back
+    // frames keep the configured rate; after an idle gap it restarts from now (no burst).
+    let mut clock = Instant::now();
+    let bps = opts.bandwidth_bps;
+    while !stop.load(Ordering::Relaxed) {
+        send_resends(&sock, &state, usize::MAX, bps, &mut clock);
+        let frame = match rx.recv_timeout(Duration::from_millis(2)) {
+            Ok(f) => f,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => continue,
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+        };
+        let (active, dest, settings, single) = {
+            let s = lock(&state);
+            let port = s.reg(reg::SCP0) as u16;
+            let ip = Ipv4Addr::from(s.reg(reg::SCDA0));
+            (
+                s.acquiring && port != 0 && !ip.is_unspecified(),
+                SocketAddr::new(IpAddr::V4(ip), port),
+                StreamSettings::read(&s),
+                s.reg(ACQ_MODE) == 1,
+            )
+        };
+        if !active || settings != frame.settings {
+            // Stale: acquisition stopped or settings changed meanwhile.
+            let _ = recycle.send(frame.packets);
+            continue;
+        }
+        let ext = settings.ext;
         block_id = if ext {
             block_id + 1
         } else if block_id >= 0xFFFF {
@@ -764,81 +931,200 @@ fn stream(
         } else {
             block_id + 1
         };
-        let block = make_block(
-            &cloud,
-            block_id,
-            t0.elapsed().as_nanos() as u64,
-            w,
-            h,
-            pf,
-            mp,
-        );
-        let packets = match gvsp::packetize(&block, scps, ext) {
-            Ok(p) => Arc::new(p),
-            Err(e) => {
-                tracing::warn!("sim camera: {e}");
-                continue;
-            }
-        };
-        {
+        let mut packets = frame.packets;
+        for p in &mut packets {
+            set_block_id(p, block_id, ext);
+        }
+        let packets = Arc::new(packets);
+        let evicted = {
             let mut s = lock(&state);
             s.history.push_back((block_id, packets.clone()));
-            while s.history.len() > 4 {
-                s.history.pop_front();
-            }
+            (s.history.len() > 4)
+                .then(|| s.history.pop_front())
+                .flatten()
+        };
+        // Hand an old frame's buffers back to the renderer (unless a resend holds them).
+        if let Some(Ok(old)) = evicted.map(|(_, p)| Arc::try_unwrap(p)) {
+            let _ = recycle.send(old);
         }
-        let start = Instant::now();
-        let mut bits = 0.0;
+        let now = Instant::now();
+        let mut render_wait = Duration::ZERO;
+        let mut lag = Duration::ZERO;
+        if now > clock + MAX_CATCH_UP {
+            render_wait = now - clock;
+            clock = now;
+        }
         let mut dropped = 0;
+        let mut out: Vec<&[u8]> = Vec::with_capacity(SEND_BATCH);
         for p in packets.iter() {
-            bits += (p.len() + 28) as f64 * 8.0;
             if opts.loss_ratio > 0.0 && rng.random::<f64>() < opts.loss_ratio {
                 dropped += 1;
                 continue;
             }
             if let Some(bps) = opts.bandwidth_bps {
-                let due = Duration::from_secs_f64(bits / bps);
-                let el = start.elapsed();
-                if due > el + Duration::from_micros(200) {
-                    std::thread::sleep(due - el);
+                let mut now = Instant::now();
+                if clock > now + PACING_SLACK {
+                    send_all(&sock, dest, &mut out);
+                    // Answer resend requests in the gaps of the stream.
+                    send_resends(
+                        &sock,
+                        &state,
+                        SEND_BATCH / 2,
+                        opts.bandwidth_bps,
+                        &mut clock,
+                    );
+                    std::thread::sleep(clock.saturating_duration_since(Instant::now()));
+                    now = Instant::now();
                 }
+                if now > clock + MAX_CATCH_UP {
+                    lag += now - clock - MAX_CATCH_UP;
+                    clock = now - MAX_CATCH_UP;
+                }
+                clock +=
+                    Duration::from_secs_f64((p.len() + gvsp::IP_UDP_HEADERS) as f64 * 8.0 / bps);
             }
-            if let Err(e) = sock.send_to(p, dest) {
-                if e.raw_os_error() == Some(105) {
-                    // ENOBUFS: the host is not keeping up; back off briefly.
-                    std::thread::sleep(Duration::from_micros(200));
-                    let _ = sock.send_to(p, dest);
-                } else {
-                    tracing::debug!("sim camera: send failed: {e}");
-                }
+            out.push(p);
+            if out.len() == SEND_BATCH {
+                send_all(&sock, dest, &mut out);
+                send_resends(&sock, &state, SEND_BATCH / 2, bps, &mut clock);
             }
         }
+        send_all(&sock, dest, &mut out);
         let mut s = lock(&state);
         s.stats.frames += 1;
         s.stats.dropped_packets += dropped;
+        if opts.bandwidth_bps.is_some() {
+            s.stats.pacing_lag_us += lag.as_micros() as u64;
+            s.stats.render_wait_us += render_wait.as_micros() as u64;
+        }
         if single {
             s.acquiring = false;
+        }
+    }
+    drop(rx);
+    let _ = generator.join();
+}
+
+/// Sleeping overshoots (timer slack, a busy host): the streamer catches up by sending faster
+/// for at most this long a backlog, so the average rate holds without long line-rate bursts.
+const MAX_CATCH_UP: Duration = Duration::from_millis(20);
+/// Packets due this soon go out in the current batch.
+const PACING_SLACK: Duration = Duration::from_micros(200);
+/// Bound of the resend queue (packets); requests beyond it are not served.
+const MAX_QUEUED_RESENDS: usize = 1 << 16;
+
+/// Send up to `max` queued PACKETRESEND answers, paced on the stream's clock (a camera
+/// resends within its bandwidth; a burst would overrun the host again).
+fn send_resends(
+    sock: &UdpSocket,
+    state: &Mutex<State>,
+    max: usize,
+    bps: Option<f64>,
+    clock: &mut Instant,
+) {
+    let batch: Vec<(SocketAddr, Vec<u8>)> = {
+        let mut s = lock(state);
+        let n = s.resends.len().min(max);
+        s.resends.drain(..n).collect()
+    };
+    for (dest, p) in batch {
+        if let Some(bps) = bps {
+            let now = Instant::now();
+            if *clock > now + PACING_SLACK {
+                std::thread::sleep(*clock - now);
+            } else if now > *clock + MAX_CATCH_UP {
+                *clock = now - MAX_CATCH_UP;
+            }
+            *clock += Duration::from_secs_f64((p.len() + gvsp::IP_UDP_HEADERS) as f64 * 8.0 / bps);
+        }
+        if let Err(e) = sock.send_to(&p, dest) {
+            tracing::debug!("sim camera: resend failed: {e}");
+        }
+    }
+}
+
+/// Datagrams per `sendmmsg` call.
+const SEND_BATCH: usize = 32;
+
+/// Send the queued datagrams to `dest` (one `sendmmsg` per [`SEND_BATCH`] on Linux) and clear
+/// the queue. A full host queue (`ENOBUFS`) gets one short back-off; other errors drop the rest.
+#[cfg(target_os = "linux")]
+fn send_all(sock: &UdpSocket, dest: SocketAddr, out: &mut Vec<&[u8]>) {
+    use std::os::fd::AsRawFd;
+    let addr = socket2::SockAddr::from(dest);
+    let mut sent = 0;
+    let mut retried = false;
+    while sent < out.len() {
+        let rest = &out[sent..(sent + SEND_BATCH).min(out.len())];
+        // SAFETY: all-zero bytes are valid iovec/mmsghdr values (null pointers, zero lengths).
+        let mut iovs: [libc::iovec; SEND_BATCH] = unsafe { std::mem::zeroed() };
+        let mut msgs: [libc::mmsghdr; SEND_BATCH] = unsafe { std::mem::zeroed() };
+        for ((p, iov), m) in rest.iter().zip(iovs.iter_mut()).zip(msgs.iter_mut()) {
+            iov.iov_base = p.as_ptr().cast_mut().cast();
+            iov.iov_len = p.len();
+            m.msg_hdr.msg_name = addr.as_ptr().cast_mut().cast();
+            m.msg_hdr.msg_namelen = addr.len();
+            m.msg_hdr.msg_iov = iov;
+            m.msg_hdr.msg_iovlen = 1;
+        }
+        // SAFETY: the first `rest.len()` headers point at live iovecs over live packets and at
+        // `addr`; the kernel only reads them (and writes `msg_len`).
+        let n = unsafe {
+            libc::sendmmsg(
+                sock.as_raw_fd(),
+                msgs.as_mut_ptr(),
+                rest.len() as libc::c_uint,
+                0,
+            )
+        };
+        if n >= 0 {
+            sent += n as usize;
+            continue;
+        }
+        let e = std::io::Error::last_os_error();
+        if e.raw_os_error() == Some(libc::ENOBUFS) && !retried {
+            // The host is not keeping up; back off briefly.
+            retried = true;
+            std::thread::sleep(Duration::from_micros(200));
+        } else {
+            tracing::debug!(
+                "sim camera: send failed, {} packets lost: {e}",
+                out.len() - sent
+            );
+            break;
+        }
+    }
+    out.clear();
+}
+
+/// Portable fallback: one `send_to` per datagram.
+#[cfg(not(target_os = "linux"))]
+fn send_all(sock: &UdpSocket, dest: SocketAddr, out: &mut Vec<&[u8]>) {
+    for p in out.drain(..) {
+        if let Err(e) = sock.send_to(p, dest) {
+            tracing::debug!("sim camera: send failed: {e}");
         }
     }
 }
 
 /// Crop the source cloud to the centred `w × h` ROI and encode it in `pf` (mm on the wire).
+/// The block id is filled in when the frame is sent; `data`/`conf` are reused buffers.
 fn make_block(
     cloud: &handeye_hal::PointCloud,
-    block_id: u64,
     timestamp: u64,
-    w: u32,
-    h: u32,
-    pf: u32,
-    mp: bool,
+    settings: &StreamSettings,
+    (mut data, mut conf): (Vec<u8>, Vec<u8>),
 ) -> Block {
+    let StreamSettings { w, h, pf, mp, .. } = *settings;
     let (cw, ch) = (cloud.width as usize, cloud.height as usize);
     let ox = cw.saturating_sub(w as usize) / 2;
     let oy = ch.saturating_sub(h as usize) / 2;
     let c16 = pf == pfnc::COORD3D_C16;
     let n = (w * h) as usize;
-    let mut data = Vec::with_capacity(n * if c16 { 2 } else { 12 });
-    let mut conf = Vec::with_capacity(if mp { n * 2 } else { 0 });
+    data.clear();
+    data.reserve(n * if c16 { 2 } else { 12 });
+    conf.clear();
+    conf.reserve(if mp { n * 2 } else { 0 });
     for v in 0..h as usize {
         for u in 0..w as usize {
             let i = (oy + v) * cw + ox + u;
@@ -898,9 +1184,43 @@ fn make_block(
         ));
     }
     Block {
-        block_id,
+        block_id: 1,
         timestamp,
         parts,
         multipart: mp,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn repeated_source_failures_log_first_then_a_summary_per_interval() {
+        let mut w = RateLimitedWarning::new(Duration::from_secs(10));
+        let t0 = Instant::now();
+        assert_eq!(
+            w.failure(t0, "robot unreachable").as_deref(),
+            Some("robot unreachable")
+        );
+        // 10 frames per second for 9.9 s: silent.
+        for i in 1..100 {
+            assert_eq!(
+                w.failure(t0 + Duration::from_millis(100 * i), "robot unreachable"),
+                None
+            );
+        }
+        let m = w
+            .failure(t0 + Duration::from_secs(10), "robot unreachable")
+            .expect("summary after the interval");
+        assert!(m.starts_with("100 failures in the last 10 s"), "{m}");
+        assert_eq!(w.failure(t0 + Duration::from_millis(10_100), "x"), None);
+        assert_eq!(
+            w.success().as_deref(),
+            Some("recovered after 1 more failures")
+        );
+        // After recovery the next failure is logged at once again.
+        assert!(w.failure(t0 + Duration::from_secs(11), "again").is_some());
+        assert_eq!(w.success(), None);
     }
 }
