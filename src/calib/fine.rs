@@ -39,6 +39,8 @@ pub(crate) struct Stage {
     pub(crate) scale: bool,
     /// Iteration cap.
     pub(crate) iterations: usize,
+    /// Weight of correspondences on the moving links (chain depth ≥ 1) relative to the base.
+    pub(crate) moving_weight: f64,
 }
 
 /// Result of [`icp`].
@@ -135,7 +137,7 @@ fn accumulate(
         let r = n.dot(&(x - c));
         a.sharp = 1.0 / (1.0 + (r / SHARP_M).powi(2));
         let u = r / st.kernel_m;
-        let w = 1.0 / (1.0 + u * u);
+        let w = if s.depth >= 1 { st.moving_weight } else { 1.0 } / (1.0 + u * u);
         let mut j = Vec7::zeros();
         j.fixed_rows_mut::<3>(0).copy_from(&n);
         j.fixed_rows_mut::<3>(3).copy_from(&x.coords.cross(&n));
@@ -172,7 +174,7 @@ pub(crate) fn icp(
 ) -> Option<IcpResult> {
     let mut t = *init;
     let mut kappa = kappa0;
-    let mut last: Option<(Acc, bool, f64)> = None;
+    let mut last: Option<(Acc, bool, f64, f64)> = None;
     let mut scale_ok = true;
     for st in stages {
         for it in 0..st.iterations {
@@ -219,20 +221,21 @@ pub(crate) fn icp(
             );
             t = step * t;
             kappa += delta[6];
-            last = Some((a, free_scale, st.kernel_m));
+            last = Some((a, free_scale, st.kernel_m, st.moving_weight));
             let small = rho.norm() < 2e-7 && phi.norm() < 2e-7 && delta[6].abs() < 1e-7;
             if small && it > 0 {
                 break;
             }
         }
     }
-    let (_, scaled, kernel) = last?;
+    let (_, scaled, kernel, last_moving) = last?;
     // Final information at the converged pose.
     let st = Stage {
         gate_m: 3.0 * kernel.max(0.001),
         kernel_m: kernel,
         scale: scaled,
         iterations: 1,
+        moving_weight: last_moving,
     };
     let a = accumulate(pts, surface, &t, kappa, &st);
     if a.n < 12 {

@@ -14,7 +14,9 @@
 //!    half-turn). The winner has the most dense coverage times sharpness (how tightly the scan
 //!    hugs the model); how close the best other pose comes on both coverage and misfit
 //!    (`1 − sharpness`) is reported as [`Quality::ambiguity`] and gated (a nearly symmetric view
-//!    is rejected rather than answered wrong).
+//!    is rejected rather than answered wrong). The winner is then refined once more with the
+//!    shoulder and upper arm weighted far above the base (`moving_link_weight`): they share the
+//!    first joints' kinematic error with the reported flange pose, so that error cancels.
 //! 4. `verify`: coverage of the expected visible model surface and free-space violations on the
 //!    dense model samples; covariance and degeneracy from the information matrix.
 
@@ -39,6 +41,12 @@ pub struct RegisterOptions {
     /// Links up to this many movable joints from the root are fitted (0 base, 1 shoulder, 2
     /// upper arm). Deeper links carry more kinematic error; they only explain scan points.
     pub fit_chain_depth: usize,
+    /// Weight of the correspondences on the moving links (shoulder, upper arm) relative to the
+    /// base in a last refinement of the winning pose (1 skips it). The reported flange pose
+    /// carries the same joint errors as the moving links' poses, so anchoring the camera on
+    /// them cancels the errors of the first joints; the base only keeps the fit conditioned
+    /// (bench: median 0.34 → 0.26 mm, p95 0.96 → 0.61 mm).
+    pub moving_link_weight: f64,
     /// Spacing of the model surface samples used for correspondences, metres.
     pub sample_spacing_m: f64,
     /// Spacing of the samples scoring coarse hypotheses, metres.
@@ -76,6 +84,7 @@ impl Default for RegisterOptions {
     fn default() -> Self {
         RegisterOptions {
             fit_chain_depth: 2,
+            moving_link_weight: 100.0,
             sample_spacing_m: 0.002,
             coarse_spacing_m: 0.012,
             max_icp_points: 8000,
@@ -263,18 +272,21 @@ pub fn register_posed(
             kernel_m: 0.01,
             scale: false,
             iterations: 8,
+            moving_weight: 1.0,
         },
         Stage {
             gate_m: 0.012,
             kernel_m: 0.004,
             scale: false,
             iterations: 6,
+            moving_weight: 1.0,
         },
         Stage {
             gate_m: 0.006,
             kernel_m: 0.002,
             scale: false,
             iterations: 6,
+            moving_weight: 1.0,
         },
     ];
     let quick_tol = Tolerances {
@@ -362,18 +374,21 @@ pub fn register_posed(
             kernel_m: 0.003,
             scale: false,
             iterations: 8,
+            moving_weight: 1.0,
         },
         Stage {
             gate_m: 0.005,
             kernel_m: 0.0015,
             scale: opts.estimate_depth_scale,
             iterations: 10,
+            moving_weight: 1.0,
         },
         Stage {
             gate_m: 0.004,
             kernel_m: 0.001,
             scale: opts.estimate_depth_scale,
             iterations: 15,
+            moving_weight: 1.0,
         },
     ];
     let tol = Tolerances {
@@ -470,6 +485,38 @@ pub fn register_posed(
             detail: "fine alignment found too few correspondences".into(),
         });
     };
+    // Anchor the winner on the moving links (see `moving_link_weight`); the contenders
+    // were judged on the even fit, and a refinement that wanders off is not trusted.
+    let camera_from_model = if opts.moving_link_weight != 1.0 {
+        let pts = pool.select(
+            &range,
+            &surface,
+            &camera_from_model,
+            opts.max_icp_points,
+            0.01,
+        );
+        let stage = Stage {
+            gate_m: 0.004,
+            kernel_m: 0.001,
+            scale: fine.scale_estimated,
+            iterations: 15,
+            moving_weight: opts.moving_link_weight,
+        };
+        match icp(
+            &pts,
+            &surface,
+            &fine.model_from_camera,
+            fine.kappa,
+            &[stage],
+        ) {
+            Some(r) if small_step(&r.model_from_camera.inverse(), &camera_from_model) => {
+                r.model_from_camera.inverse()
+            }
+            _ => camera_from_model,
+        }
+    } else {
+        camera_from_model
+    };
     timings.fine = ms(t2);
 
     let t3 = Instant::now();
@@ -529,6 +576,12 @@ fn probe_err(camera_from_model: &Isometry3<f64>) -> String {
 
 /// Whether two `camera_from_model` poses are the same hypothesis (model origin within 1 cm,
 /// rotation within 2°): both would converge to the same fit.
+/// Whether a refinement moved the pose by less than kinematic error can explain.
+fn small_step(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+    let d = a.inverse() * b;
+    d.translation.vector.norm() < 0.003 && d.rotation.angle() < 0.3f64.to_radians()
+}
+
 fn near_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     let d = a.inverse() * b;
     d.translation.vector.norm() < 0.01 && d.rotation.angle() < 2f64.to_radians()
