@@ -42,21 +42,7 @@ pub(crate) fn oriented_subsample(
     target: usize,
     radius_m: f64,
 ) -> Vec<Oriented> {
-    let n = range.points.len();
-    let valid = range
-        .points
-        .iter()
-        .step_by(97)
-        .filter(|p| p.z > 0.0)
-        .count()
-        * 97;
-    let stride = ((valid as f64 / target as f64).sqrt().floor() as usize).max(1);
-    let w = range.cam.width;
-    let idx: Vec<usize> = (0..range.cam.height)
-        .step_by(stride)
-        .flat_map(|v| (0..w).step_by(stride).map(move |u| v * w + u))
-        .filter(|&i| i < n)
-        .collect();
+    let idx: Vec<usize> = range.grid(target, 97).collect();
     idx.par_iter()
         .filter_map(|&i| {
             let p = range.point(i)?;

@@ -51,6 +51,28 @@ pub(crate) struct RangeImage<'a> {
 }
 
 impl<'a> RangeImage<'a> {
+    /// Pixel indices on a regular grid whose spacing gives about `target` valid pixels, the
+    /// valid count being estimated from every `sample_step`-th pixel.
+    pub(crate) fn grid(
+        &self,
+        target: usize,
+        sample_step: usize,
+    ) -> impl Iterator<Item = usize> + '_ {
+        let valid = self
+            .points
+            .iter()
+            .step_by(sample_step)
+            .filter(|p| p.z > 0.0)
+            .count()
+            * sample_step;
+        let stride = ((valid as f64 / target as f64).sqrt().floor() as usize).max(1);
+        let (w, n) = (self.cam.width, self.points.len());
+        (0..self.cam.height)
+            .step_by(stride)
+            .flat_map(move |v| (0..w).step_by(stride).map(move |u| v * w + u))
+            .filter(move |&i| i < n)
+    }
+
     /// Wraps a scan; fails when it has too few valid points to be a scan of anything.
     pub(crate) fn new(scan: &'a PointCloud) -> Result<Self, CalibError> {
         let valid = scan.valid_count();

@@ -691,19 +691,9 @@ struct ScanPool {
 
 impl ScanPool {
     fn new(range: &RangeImage<'_>, target: usize) -> ScanPool {
-        let valid = range
-            .points
-            .iter()
-            .step_by(31)
-            .filter(|p| p.z > 0.0)
-            .count()
-            * 31;
-        let stride = ((valid as f64 / target as f64).sqrt().floor() as usize).max(1);
-        let w = range.cam.width;
-        let idx = (0..range.cam.height)
-            .step_by(stride)
-            .flat_map(|v| (0..w).step_by(stride).map(move |u| v * w + u))
-            .filter(|&i| range.points.get(i).is_some_and(|p| p.z > 0.0))
+        let idx = range
+            .grid(target, 31)
+            .filter(|&i| range.points[i].z > 0.0)
             .collect();
         ScanPool { idx }
     }
