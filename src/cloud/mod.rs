@@ -28,6 +28,7 @@ mod voxel;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use handeye_hal::nalgebra::Point3;
 use handeye_hal::PointCloud;
 
 pub use pcd::{read_pcd, write_pcd};
@@ -190,6 +191,28 @@ impl CloudError {
             path: path.to_path_buf(),
             source,
         }
+    }
+}
+
+/// Appends one decoded ASCII row — `[x, y, z, intensity, confidence]` in file units — to the
+/// point, intensity and confidence columns, scaling coordinates to metres.
+pub(crate) fn push_row(
+    vals: &[f32; 5],
+    scale: f32,
+    points: &mut Vec<Point3<f32>>,
+    intensity: &mut Option<Vec<f32>>,
+    confidence: &mut Option<Vec<f32>>,
+) {
+    points.push(Point3::new(
+        vals[0] * scale,
+        vals[1] * scale,
+        vals[2] * scale,
+    ));
+    if let Some(v) = intensity.as_mut() {
+        v.push(vals[3]);
+    }
+    if let Some(v) = confidence.as_mut() {
+        v.push(vals[4]);
     }
 }
 

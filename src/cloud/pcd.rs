@@ -487,17 +487,7 @@ fn read_ascii(
                 ),
             });
         }
-        points.push(Point3::new(
-            vals[0] * h.scale,
-            vals[1] * h.scale,
-            vals[2] * h.scale,
-        ));
-        if let Some(v) = inten.as_mut() {
-            v.push(vals[3]);
-        }
-        if let Some(v) = conf.as_mut() {
-            v.push(vals[4]);
-        }
+        super::push_row(&vals, h.scale, &mut points, &mut inten, &mut conf);
     }
     Ok((points, inten, conf))
 }

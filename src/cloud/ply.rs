@@ -612,17 +612,7 @@ fn read_ascii(h: &Header, vi: usize, want: &Wanted, data: &[u8]) -> Result<Colum
             }
             Ok(())
         })?;
-        points.push(Point3::new(
-            vals[0] * h.scale,
-            vals[1] * h.scale,
-            vals[2] * h.scale,
-        ));
-        if let Some(v) = intensity.as_mut() {
-            v.push(vals[3]);
-        }
-        if let Some(v) = confidence.as_mut() {
-            v.push(vals[4]);
-        }
+        super::push_row(&vals, h.scale, &mut points, &mut intensity, &mut confidence);
     }
     Ok((points, intensity, confidence))
 }
