@@ -7,7 +7,6 @@ use std::time::Duration;
 use handeye_hal::{RobotMode, SafetyMode};
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
-use tokio::net::TcpStream;
 
 use crate::UrError;
 
@@ -134,16 +133,8 @@ pub fn parse_polyscope_version(reply: &str) -> Result<[u32; 4], UrError> {
 impl DashboardClient {
     /// Connect and check the banner (within `timeout`).
     pub async fn connect(addr: SocketAddr, timeout: Duration) -> Result<Self, UrError> {
-        let sock = tokio::time::timeout(timeout, TcpStream::connect(addr))
-            .await
-            .map_err(|_| UrError::Timeout {
-                what: format!("dashboard connect to {addr}"),
-                after: timeout,
-            })?
-            .map_err(|source| UrError::Io {
-                peer: addr.to_string(),
-                source,
-            })?;
+        let sock =
+            crate::connect_within(addr, timeout, || format!("dashboard connect to {addr}")).await?;
         let (r, w) = sock.into_split();
         let mut c = Self {
             addr,

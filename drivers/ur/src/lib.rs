@@ -53,3 +53,22 @@ impl Default for Ports {
         Ports::STANDARD
     }
 }
+
+/// Opens a TCP connection to a controller port within `timeout`; `what` names the interface in
+/// the timeout error (e.g. "RTDE connect to 192.168.56.101:30004").
+pub(crate) async fn connect_within(
+    addr: std::net::SocketAddr,
+    timeout: std::time::Duration,
+    what: impl FnOnce() -> String,
+) -> Result<tokio::net::TcpStream, UrError> {
+    tokio::time::timeout(timeout, tokio::net::TcpStream::connect(addr))
+        .await
+        .map_err(|_| UrError::Timeout {
+            what: what(),
+            after: timeout,
+        })?
+        .map_err(|source| UrError::Io {
+            peer: addr.to_string(),
+            source,
+        })
+}

@@ -9,7 +9,6 @@ use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncWriteExt, BufReader};
 use tokio::net::tcp::{OwnedReadHalf, OwnedWriteHalf};
-use tokio::net::TcpStream;
 use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::rtde::{
@@ -202,16 +201,10 @@ fn check_types(
 }
 
 async fn handshake(cfg: &RtdeConfig) -> Result<Link, UrError> {
-    let sock = tokio::time::timeout(cfg.timeout, TcpStream::connect(cfg.addr))
-        .await
-        .map_err(|_| UrError::Timeout {
-            what: format!("RTDE connect to {}", cfg.addr),
-            after: cfg.timeout,
-        })?
-        .map_err(|source| UrError::Io {
-            peer: cfg.addr.to_string(),
-            source,
-        })?;
+    let sock = crate::connect_within(cfg.addr, cfg.timeout, || {
+        format!("RTDE connect to {}", cfg.addr)
+    })
+    .await?;
     let _ = sock.set_nodelay(true);
     let (r, mut w) = sock.into_split();
     let mut r = BufReader::new(r);

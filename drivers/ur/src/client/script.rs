@@ -50,16 +50,10 @@ impl ScriptClient {
     }
 
     async fn open(&self) -> Result<(TcpStream, PrimaryPackage), UrError> {
-        let mut sock = tokio::time::timeout(self.timeout, TcpStream::connect(self.addr))
-            .await
-            .map_err(|_| UrError::Timeout {
-                what: format!("connect to {}", self.addr),
-                after: self.timeout,
-            })?
-            .map_err(|source| UrError::Io {
-                peer: self.addr.to_string(),
-                source,
-            })?;
+        let mut sock = crate::connect_within(self.addr, self.timeout, || {
+            format!("connect to {}", self.addr)
+        })
+        .await?;
         let mut buf = Vec::new();
         let deadline = Instant::now() + self.timeout;
         let first = loop {
