@@ -351,6 +351,17 @@ fn is_confidence(name: &str) -> bool {
     matches!(n.strip_prefix("scalar_").unwrap_or(&n), "confidence")
 }
 
+/// Appends one ASCII data line: the values separated by single spaces, then a newline.
+fn ascii_row(out: &mut Vec<u8>, values: impl Iterator<Item = f32>) {
+    for (i, v) in values.enumerate() {
+        if i > 0 {
+            out.push(b' ');
+        }
+        ascii_f32(out, v);
+    }
+    out.push(b'\n');
+}
+
 /// Formats a float for ASCII files: shortest round-trip form, `nan` for NaN (what PCL and C
 /// readers expect).
 fn ascii_f32(out: &mut Vec<u8>, v: f32) {

@@ -8,7 +8,7 @@ use nalgebra::Point3;
 
 use super::scalar::{nonblank_lines, read_column, read_points, tokens, Column, Scalar};
 use super::CloudFormat::Pcd as FMT;
-use super::{ascii_f32, check_cloud, is_confidence, is_intensity, unit_scale, CloudError};
+use super::{ascii_row, check_cloud, is_confidence, is_intensity, unit_scale, CloudError};
 
 /// Headers longer than this are refused (real ones are a few hundred bytes).
 const MAX_HEADER_BYTES: usize = 1 << 16;
@@ -540,13 +540,7 @@ pub fn write_pcd(path: &Path, cloud: &PointCloud, binary: bool) -> Result<(), Cl
                     buf.extend_from_slice(&v.to_le_bytes());
                 }
             } else {
-                for (i, v) in vals.enumerate() {
-                    if i > 0 {
-                        buf.push(b' ');
-                    }
-                    ascii_f32(&mut buf, v);
-                }
-                buf.push(b'\n');
+                ascii_row(&mut buf, vals);
             }
         }
         out.write_all(&buf).map_err(wr)?;

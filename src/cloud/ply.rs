@@ -9,7 +9,7 @@ use nalgebra::Point3;
 
 use super::scalar::{nonblank_lines, read_column, read_points, tokens, Column, Scalar};
 use super::CloudFormat::Ply as FMT;
-use super::{ascii_f32, check_cloud, is_confidence, is_intensity, unit_scale, CloudError};
+use super::{ascii_row, check_cloud, is_confidence, is_intensity, unit_scale, CloudError};
 
 /// Headers longer than this are refused (real ones are a few hundred bytes).
 const MAX_HEADER_BYTES: usize = 1 << 20;
@@ -734,13 +734,7 @@ pub fn write_ply(path: &Path, cloud: &PointCloud, encoding: PlyEncoding) -> Resu
                     }
                 }
                 PlyEncoding::Ascii => {
-                    for (i, v) in vals.into_iter().chain(extra).enumerate() {
-                        if i > 0 {
-                            buf.push(b' ');
-                        }
-                        ascii_f32(&mut buf, v);
-                    }
-                    buf.push(b'\n');
+                    ascii_row(&mut buf, vals.into_iter().chain(extra));
                 }
             }
         }
