@@ -10,7 +10,8 @@ use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
 use crate::calib::{
-    gate, register, solve, FrameInput, GateThresholds, Mount, RegisterOptions, SolveOptions,
+    gate, register, solve, FrameInput, GateThresholds, Mount, Quality, RegisterOptions,
+    SolveOptions,
 };
 use crate::model::RobotModel;
 use crate::plan::{PlanError, ViewConstraints, ViewPlanner};
@@ -87,6 +88,9 @@ pub struct Trial {
     pub register_ms: f64,
     /// Hand-eye solve and gate, ms.
     pub solve_ms: f64,
+    /// What the gate judged (coverage, ambiguity, …); `None` when registration failed. The
+    /// margins of right and wrong results to the gate's thresholds are read from here.
+    pub quality: Option<Quality>,
 }
 
 impl Trial {
@@ -260,6 +264,7 @@ pub fn run_trial(
         verify_ms: 0.0,
         register_ms: 0.0,
         solve_ms: 0.0,
+        quality: None,
     };
     let t0 = Instant::now();
     let placement = Placement::EyeInHand {
@@ -289,6 +294,7 @@ pub fn run_trial(
         }
     };
     let tm = reg.timings_ms;
+    trial.quality = Some(reg.quality);
     (
         trial.preprocess_ms,
         trial.coarse_ms,
@@ -361,6 +367,7 @@ mod tests {
             verify_ms: 0.0,
             register_ms: 1.0,
             solve_ms: 0.0,
+            quality: None,
         };
         let s = RobotSummary::new(
             "r",

@@ -137,6 +137,22 @@ pub(crate) fn find_planes(
     planes
 }
 
+/// The `keep` planes a robot most plausibly stands on, best first: the fewest scan points
+/// behind them. The camera cannot see behind a floor, table or wall the robot is mounted on
+/// (except past its edge), while a flat patch on the robot's own links or on clutter has the
+/// floor behind it. A view filled by a big robot can make such patches larger than the floor.
+pub(crate) fn support_planes(pts: &[Oriented], mut planes: Vec<Plane>, keep: usize) -> Vec<Plane> {
+    let behind = |pl: &Plane| {
+        pts.iter()
+            .filter(|o| pl.n.dot(&o.p.coords) + pl.d < -0.02)
+            .count()
+    };
+    let mut ranked: Vec<(usize, Plane)> = planes.drain(..).map(|pl| (behind(&pl), pl)).collect();
+    // Stable: equally plausible planes keep the order of their support.
+    ranked.sort_by_key(|r| r.0);
+    ranked.into_iter().take(keep).map(|r| r.1).collect()
+}
+
 /// `camera_from_plane`: a frame with z along the plane normal and origin on the plane, below the
 /// camera (x, y arbitrary but deterministic).
 fn camera_from_plane(pl: &Plane) -> Isometry3<f64> {
@@ -200,11 +216,15 @@ pub(crate) fn hypotheses(
     }
     let rmax = side.iter().map(|s| s.p.x.hypot(s.p.y)).fold(0.0, f64::max);
 
+    // Loose: a peak is up to half a cell and half a yaw bin off, which moves the upper arm's
+    // samples by ~15 mm; a tight tolerance would rank the right pose below clutter.
     let tol = Tolerances {
-        matched_m: 0.008,
-        free_m: 0.015,
+        matched_m: 0.015,
+        free_m: 0.03,
     };
-    let mut all: Vec<(Isometry3<f64>, f64)> = Vec::new();
+    // Peaks are only ranked here (polishing judges them again): a third of the samples will do.
+    let scoring: Vec<Sample> = surface.coarse.iter().step_by(3).copied().collect();
+    let mut per_plane: Vec<Vec<(Isometry3<f64>, f64)>> = Vec::new();
     for pl in planes {
         let cam_from_plane = camera_from_plane(pl);
         let plane_from_cam = cam_from_plane.inverse();
@@ -331,29 +351,53 @@ pub(crate) fn hypotheses(
                     UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw + dyaw),
                 );
                 let pose = cam_from_plane * plane_from_model;
-                let e = evidence(range, &surface.coarse, &pose, fit_depth, tol);
+                let e = evidence(range, &scoring, &pose, fit_depth, tol);
                 (pose, score(&e))
             })
             .collect();
-        all.extend(scored);
+        per_plane.push(scored);
     }
-    all.sort_by(|a, b| b.1.total_cmp(&a.1));
-    // Non-maximum suppression: distinct poses only.
+    // Non-maximum suppression per plane, then the planes take turns: a plane of clutter on
+    // which the robot's shape happens to score well must not crowd the floor's peaks out (the
+    // right pose on a 15 mm / 5° grid scores below its polished value).
+    let mut per_plane: Vec<std::vec::IntoIter<(Isometry3<f64>, f64)>> = per_plane
+        .into_iter()
+        .map(|mut v| {
+            v.sort_by(|a, b| b.1.total_cmp(&a.1));
+            // Peaks far behind their plane's best are not worth a polish.
+            let floor = 0.4 * v.first().map_or(0.0, |h| h.1);
+            let mut kept: Vec<(Isometry3<f64>, f64)> = Vec::new();
+            for (pose, s) in v {
+                if s > 0.0 && s >= floor && kept.iter().all(|(o, _)| distinct_hypotheses(o, &pose))
+                {
+                    kept.push((pose, s));
+                }
+            }
+            kept.into_iter()
+        })
+        .collect();
     let mut out: Vec<(Isometry3<f64>, f64)> = Vec::new();
-    for (pose, s) in all {
-        if s <= 0.0 {
-            break;
-        }
-        let distinct = out.iter().all(|(o, _)| {
-            let d = o.inverse() * pose;
-            d.translation.vector.norm() > 0.02 || d.rotation.angle() > 12f64.to_radians()
-        });
-        if distinct {
-            out.push((pose, s));
-            if out.len() >= max_out {
-                break;
+    while out.len() < max_out {
+        let mut any = false;
+        for it in per_plane.iter_mut() {
+            // The next hypothesis of this plane not already found on another one.
+            if let Some(h) = it.find(|(p, _)| out.iter().all(|(o, _)| distinct_hypotheses(o, p))) {
+                any = true;
+                if out.len() < max_out {
+                    out.push(h);
+                }
             }
         }
+        if !any {
+            break;
+        }
     }
+    out.sort_by(|a, b| b.1.total_cmp(&a.1));
     out
+}
+
+/// Whether two coarse hypotheses would polish to different poses (2 cm or 12° apart).
+fn distinct_hypotheses(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+    let d = a.inverse() * b;
+    d.translation.vector.norm() > 0.02 || d.rotation.angle() > 12f64.to_radians()
 }

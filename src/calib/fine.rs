@@ -23,6 +23,8 @@ type Mat7 = SMatrix<f64, 7, 7>;
 /// Residual scale of [`IcpResult::sharpness`], metres.
 const SHARP_M: f64 = 0.0005;
 type Vec7 = SVector<f64, 7>;
+/// Scan points on the moving links below which [`IcpResult::sharpness_moving`] says nothing.
+const MIN_MOVING_POINTS: usize = 30;
 /// Largest depth-scale error the 7-parameter fit may estimate (real cameras are within a few
 /// percent); beyond it the fit is ill-conditioned (too little depth relief in the
 /// correspondences) and the scale is pinned to 1 for the rest of the run.
@@ -71,6 +73,10 @@ pub(crate) struct IcpResult {
     /// (0 for points without a correspondence): how tightly the scan hugs the model, 0–1.
     /// Tells a right pose from a nearly symmetric wrong one whose fit is merely good.
     pub(crate) sharpness: f64,
+    /// [`Self::sharpness`] of the scan points whose nearest model surface is on a moving link
+    /// (shoulder, upper arm): the parts that break the base's rotational symmetry. Equal to
+    /// `sharpness` when fewer than `MIN_MOVING_POINTS` scan points lie on them.
+    pub(crate) sharpness_moving: f64,
 }
 
 #[derive(Debug, Clone, Copy, Default)]
@@ -84,6 +90,8 @@ struct Acc {
     r2_close: f64,
     near: usize,
     sharp: f64,
+    near_moving: usize,
+    sharp_moving: f64,
     /// Σ w·x and Σ w·|x|² of the model-frame points (centroid and spread).
     wx: Vector3<f64>,
     wxx: f64,
@@ -100,6 +108,8 @@ impl Acc {
         self.r2_close += o.r2_close;
         self.near += o.near;
         self.sharp += o.sharp;
+        self.near_moving += o.near_moving;
+        self.sharp_moving += o.sharp_moving;
         self.wx += o.wx;
         self.wxx += o.wxx;
         self
@@ -125,6 +135,7 @@ fn accumulate(
             return a;
         }
         a.near = 1;
+        a.near_moving = usize::from(s.depth >= 1);
         let tri = &surface.triangles[s.tri as usize];
         let c = tri.closest_point(&x);
         if (x - c).norm() > st.gate_m {
@@ -136,6 +147,9 @@ fn accumulate(
         let n = tri.n;
         let r = n.dot(&(x - c));
         a.sharp = 1.0 / (1.0 + (r / SHARP_M).powi(2));
+        if s.depth >= 1 {
+            a.sharp_moving = a.sharp;
+        }
         let u = r / st.kernel_m;
         let w = if s.depth >= 1 { st.moving_weight } else { 1.0 } / (1.0 + u * u);
         let mut j = Vec7::zeros();
@@ -277,6 +291,13 @@ pub(crate) fn icp(
             0.0
         },
         sharpness: if a.near > 0 {
+            a.sharp / a.near as f64
+        } else {
+            0.0
+        },
+        sharpness_moving: if a.near_moving >= MIN_MOVING_POINTS {
+            a.sharp_moving / a.near_moving as f64
+        } else if a.near > 0 {
             a.sharp / a.near as f64
         } else {
             0.0

@@ -1,5 +1,5 @@
 //! Diagnostics of single benchmark trials (ignored tests, run by hand):
-//! `PROBE_ROBOTS=ur3e,ur5e PROBE_VIEWS=10 PROBE_SPV=2 PROBE_ONLY=ur3e:5:0 RUST_LOG=handeye=debug
+//! `PROBE_ROBOTS=ur3e,ur5e PROBE_VIEWS=10 PROBE_SPV=2 PROBE_ONLY=ur3e:5:0 PROBE_SEED=1 RUST_LOG=handeye=debug
 //! cargo test --release --lib calib::probe -- --ignored --nocapture` replays the trials of
 //! `handeye bench` (same seeds) and prints each contender against the truth.
 
@@ -53,7 +53,10 @@ fn probe_bench_trials() {
             views,
             scans_per_view: spv,
             intrinsics: Intrinsics::preset(&camera).expect("camera"),
-            seed: 1u64.wrapping_add(i as u64 * 7919),
+            seed: env("PROBE_SEED", "1")
+                .parse::<u64>()
+                .expect("PROBE_SEED")
+                .wrapping_add(i as u64 * 7919),
             ..BenchConfig::default()
         };
         let mut rng = rand::rngs::StdRng::seed_from_u64(cfg.seed);
@@ -67,7 +70,11 @@ fn probe_bench_trials() {
                 if !only.is_empty() && !only.split(',').any(|o| o == key) {
                     continue;
                 }
-                eprintln!("=== {key} mount {mount:?}\n q {q:?} seed {seed}");
+                eprintln!(
+                    "=== {key} mount (translation, rotation vector) ({:?}, {:?})\n q {q:?} seed {seed}",
+                    mount.translation.vector.as_slice(),
+                    mount.rotation.scaled_axis().as_slice()
+                );
                 let req = crate::sim::ScanRequest::new(
                     &model,
                     q.clone(),

@@ -5,18 +5,21 @@
 //!    model sampled into surface points with a k-d tree, a coarse grid of scan points.
 //! 2. `coarse`: with a prior, a short robust ICP from it and a projective check; without one (or
 //!    when the prior fails its check) the global search of [`super::coarse`] (dominant planes →
-//!    Hough for the base position → yaw/height sweep), each hypothesis polished by a short ICP
-//!    and ranked by the projective evidence (matched surface minus free-space violations).
+//!    Hough for the base position → yaw/height sweep, the planes taking turns so clutter cannot
+//!    crowd the floor out), each hypothesis — and the strongest ones turned by half a turn about
+//!    the robot's axis — polished by a short ICP and ranked by the projective evidence (matched
+//!    surface minus free-space violations).
 //! 3. `fine`: robust point-to-plane ICP against the exact triangles of the base and first links
 //!    (`fit_chain_depth`), with the depth scale as a 7th parameter when enabled, for the best
 //!    hypothesis, up to three distinct runners-up that scored almost as well and the best
 //!    hypothesis turned by half a turn about the robot's axis (with a prior: the prior and its
 //!    half-turn). The winner has the most dense coverage times sharpness (how tightly the scan
-//!    hugs the model); how close the best other pose comes on both coverage and misfit
-//!    (`1 − sharpness`) is reported as [`Quality::ambiguity`] and gated (a nearly symmetric view
-//!    is rejected rather than answered wrong). The winner is then refined once more with the
-//!    shoulder and upper arm weighted far above the base (`moving_link_weight`): they share the
-//!    first joints' kinematic error with the reported flange pose, so that error cancels.
+//!    hugs the model, overall and on the moving links, which break the base's symmetry); how
+//!    close the best other pose comes on coverage and on both misfits (`1 − sharpness`) is
+//!    reported as [`Quality::ambiguity`] and gated (a nearly symmetric view is rejected rather
+//!    than answered wrong). The winner is then refined once more with the shoulder and upper
+//!    arm weighted far above the base (`moving_link_weight`): they share the first joints'
+//!    kinematic error with the reported flange pose, so that error cancels.
 //! 4. `verify`: coverage of the expected visible model surface and free-space violations on the
 //!    dense model samples; covariance and degeneracy from the information matrix.
 
@@ -317,7 +320,7 @@ pub fn register_posed(
                 from_prior = true;
                 // A nearly symmetric robot (round base, shoulder without the upper arm in
                 // view) also fits turned by half a turn about its axis: compare that too.
-                let flipped = pose * Isometry3::rotation(Vector3::z() * std::f64::consts::PI);
+                let flipped = half_turn(&pose);
                 n_hyp += 1;
                 cands.extend(polish(&flipped));
             }
@@ -327,22 +330,40 @@ pub fn register_posed(
     let mut planes_found = 0;
     if !from_prior {
         let pts = coarse::oriented_subsample(&range, 30_000, 0.008);
-        let planes = coarse::find_planes(&pts, 3, 0.05, opts.seed);
+        let planes =
+            coarse::support_planes(&pts, coarse::find_planes(&pts, 10, 0.01, opts.seed), 3);
         planes_found = planes.len();
         let hyps = coarse::hypotheses(&range, &surface, &pts, &planes, opts.max_hypotheses);
-        n_hyp += hyps.len();
         tracing::debug!(
             hyps = ?hyps.iter().map(|h| (h.1, probe_err(&h.0))).collect::<Vec<_>>(),
             "coarse hypotheses"
         );
-        // Hypotheses far behind the best Hough score are not worth a polish.
-        let top = hyps.first().map_or(0.0, |h| h.1);
-        let polished: Vec<(Isometry3<f64>, Evidence)> = hyps
-            .par_iter()
-            .filter(|(_, s)| *s >= 0.4 * top)
-            .filter_map(|(h, _)| polish(h))
-            .collect();
+        // The strongest hypotheses are also polished turned by half a turn about the robot's
+        // axis: when the visible base and shoulder are nearly symmetric, the Hough vote can
+        // rank the half-turned pose above the right one and lose the right one altogether.
+        let mut seeds: Vec<Isometry3<f64>> = hyps.iter().map(|h| h.0).collect();
+        for (h, _) in hyps.iter().take(HALF_TURN_SEEDS) {
+            let flipped = half_turn(h);
+            if seeds.iter().all(|c| !near_pose(c, &flipped)) {
+                seeds.push(flipped);
+            }
+        }
+        n_hyp += seeds.len();
+        let polished: Vec<(Isometry3<f64>, Evidence)> =
+            seeds.par_iter().filter_map(&polish).collect();
         cands.extend(polished);
+        cands.sort_by(|a, b| score(&b.1).total_cmp(&score(&a.1)));
+        // The base is nearly round: the Hough peaks may all sit at the right place but at wrong
+        // turns of it (bolt patterns repeat every 60° or 90°), the right turn among none of
+        // them. Sweep the best candidate's turn about the robot's axis and polish the turns
+        // that explain the scan best.
+        if let Some((best, _)) = cands.first() {
+            let turns = yaw_sweep(&range, &surface, best, &cands);
+            n_hyp += turns.len();
+            let polished: Vec<(Isometry3<f64>, Evidence)> =
+                turns.par_iter().filter_map(&polish).collect();
+            cands.extend(polished);
+        }
     }
     cands.sort_by(|a, b| score(&b.1).total_cmp(&score(&a.1)));
     timings.coarse = ms(t1);
@@ -412,7 +433,7 @@ pub fn register_posed(
     // base, shoulder) is often found the wrong way round, and the right pose may be missing from
     // the Hough peaks altogether.
     if !from_prior {
-        let flipped = coarse_pose * Isometry3::rotation(Vector3::z() * std::f64::consts::PI);
+        let flipped = half_turn(&coarse_pose);
         if contenders.iter().all(|c| !near_pose(c, &flipped)) {
             n_hyp += 1;
             if let Some((pose, e)) = polish(&flipped) {
@@ -435,7 +456,8 @@ pub fn register_posed(
             {
                 return None;
             }
-            let key = e.coverage() * fine.sharpness - 3.0 * e.violation_fraction();
+            let key = e.coverage() * fine.sharpness * fine.sharpness_moving
+                - 3.0 * e.violation_fraction();
             Some((fine, pose, e, key))
         })
         .collect();
@@ -445,18 +467,25 @@ pub fn register_posed(
         });
     };
     // Ambiguity: a different pose is as good as the result only if it covers about as much of
-    // the expected surface *and* hugs the scan about as tightly. Tightness is compared on the
-    // misfit 1 − sharpness (noise and CAD mismatch give a right pose a floor of ~0.05–0.1, the
-    // asymmetric details a nearly symmetric wrong pose misses add to it).
-    let (win_cov, win_misfit) = (fitted[win].2.coverage(), 1.0 - fitted[win].0.sharpness);
+    // the expected surface *and* hugs the scan about as tightly, both overall and on the moving
+    // links alone. Tightness is compared on the misfit 1 − sharpness (noise and CAD mismatch
+    // give a right pose a floor of ~0.05–0.1, the asymmetric details a nearly symmetric wrong
+    // pose misses add to it). The moving links are what breaks the symmetry of a round base:
+    // a pose turned about the base's axis fits the base as well as the right one, and only the
+    // shoulder's misfit (several times the right pose's) tells them apart.
+    let misfit = |f: &IcpResult| (1.0 - f.sharpness, 1.0 - f.sharpness_moving);
+    let (win_cov, (win_misfit, win_misfit_moving)) =
+        (fitted[win].2.coverage(), misfit(&fitted[win].0));
     let ambiguity = fitted
         .iter()
         .enumerate()
         .filter(|(k, f)| *k != win && !same_pose(&f.1, &fitted[win].1))
         .map(|(_, f)| {
+            let (m, mm) = misfit(&f.0);
             let by_cov = f.2.coverage() / win_cov.max(1e-9);
-            let by_fit = win_misfit / (1.0 - f.0.sharpness).max(1e-9);
-            by_cov.min(by_fit).clamp(0.0, 1.0)
+            let by_fit = win_misfit / m.max(1e-9);
+            let by_fit_moving = win_misfit_moving / mm.max(1e-9);
+            by_cov.min(by_fit).min(by_fit_moving).clamp(0.0, 1.0)
         })
         .fold(0.0, f64::max);
     if tracing::enabled!(tracing::Level::DEBUG) {
@@ -476,7 +505,7 @@ pub fn register_posed(
         }
     }
     tracing::debug!(
-        keys = ?fitted.iter().map(|f| (f.3, f.0.sharpness, f.2.coverage(), f.2.violation_fraction(), probe_err(&f.1))).collect::<Vec<_>>(),
+        keys = ?fitted.iter().map(|f| (f.3, f.0.sharpness, f.0.sharpness_moving, f.2.coverage(), f.2.violation_fraction(), probe_err(&f.1))).collect::<Vec<_>>(),
         ambiguity,
         "fine contenders"
     );
@@ -545,6 +574,59 @@ pub fn register_posed(
     })
 }
 
+/// Turns of `best` about the model's z axis (10° steps) that explain the scan best, up to
+/// [`SWEEP_KEEP`], at least 20° apart and away from every candidate in `cands`.
+fn yaw_sweep(
+    range: &RangeImage<'_>,
+    surface: &ModelSurface,
+    best: &Isometry3<f64>,
+    cands: &[(Isometry3<f64>, Evidence)],
+) -> Vec<Isometry3<f64>> {
+    // Loose, like the Hough peaks' scoring: a turn 5° off the right one moves the shoulder's
+    // samples by ~10 mm.
+    let tol = Tolerances {
+        matched_m: 0.015,
+        free_m: 0.03,
+    };
+    let step = 10f64.to_radians();
+    let mut turns: Vec<(Isometry3<f64>, f64)> = (1..36)
+        .into_par_iter()
+        .map(|k| {
+            let pose = best * Isometry3::rotation(Vector3::z() * (k as f64 * step));
+            let e = evidence(range, &surface.coarse, &pose, surface.fit_depth, tol);
+            (pose, score(&e))
+        })
+        .collect();
+    turns.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let top = turns.first().map_or(0.0, |t| t.1);
+    let apart = |a: &Isometry3<f64>, b: &Isometry3<f64>, deg: f64| {
+        (a.inverse() * b).rotation.angle() > deg.to_radians()
+    };
+    let mut out: Vec<Isometry3<f64>> = Vec::new();
+    for (pose, sc) in turns {
+        if out.len() >= SWEEP_KEEP || sc < 0.5 * top || sc <= 0.0 {
+            break;
+        }
+        if cands.iter().all(|(c, _)| apart(c, &pose, 10.0))
+            && out.iter().all(|o| apart(o, &pose, 20.0))
+        {
+            out.push(pose);
+        }
+    }
+    out
+}
+
+/// Turns of the best coarse candidate polished after the sweep.
+const SWEEP_KEEP: usize = 2;
+
+/// Strongest Hough hypotheses whose half-turn is polished too.
+const HALF_TURN_SEEDS: usize = 3;
+
+/// `camera_from_model` turned by half a turn about the model's z axis (the robot's first axis).
+fn half_turn(camera_from_model: &Isometry3<f64>) -> Isometry3<f64> {
+    camera_from_model * Isometry3::rotation(Vector3::z() * std::f64::consts::PI)
+}
+
 /// Whether two `camera_from_model` poses are the same result (camera within 2 mm and 0.3°).
 fn same_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     let d = a.inverse() * b;
@@ -569,7 +651,18 @@ fn probe_err(camera_from_model: &Isometry3<f64>) -> String {
         let mm = (camera_from_model.inverse().translation.vector - t.inverse().translation.vector)
             .norm()
             * 1000.0;
-        return format!("{mm:.1}mm/{:.2}deg", d.rotation.angle().to_degrees());
+        let axis = d
+            .rotation
+            .axis()
+            .map(|a| a.into_inner())
+            .unwrap_or_default();
+        return format!(
+            "{mm:.1}mm/{:.2}deg@[{:.2},{:.2},{:.2}]",
+            d.rotation.angle().to_degrees(),
+            axis.x,
+            axis.y,
+            axis.z
+        );
     }
     String::new()
 }
@@ -1324,6 +1417,101 @@ mod issue_3_tests {
                 -1.0979994422207788,
             ],
             13496969583169898396,
+        );
+    }
+    /// Bench ur5e view 15 scan 1 (seed 1): a clutter box's side scored the robot lying on it
+    /// above the floor's peaks (the right pose on the 15 mm / 5° Hough grid scores below its
+    /// polished value) and took every hypothesis slot: "robot not found". The planes now take
+    /// turns.
+    #[test]
+    fn issue_3_a_clutter_plane_does_not_crowd_the_floor_out() {
+        trial(
+            "ur5e",
+            (
+                [
+                    -0.006798429886489581,
+                    -0.08228249917545548,
+                    0.05910353462012781,
+                ],
+                [
+                    -0.0735060845311369,
+                    0.13844783192740404,
+                    -2.1619190486463666,
+                ],
+            ),
+            &[
+                -0.9410676072524775,
+                -1.7624661203726348,
+                1.6630299615255213,
+                1.9495470375888582,
+                1.6392986479997331,
+                -2.9278545061263386,
+            ],
+            10670561925635720219,
+        );
+    }
+
+    /// Bench ur20 view 15 and ur3e view 17 (seed 1): only the base and the shoulder in view,
+    /// the upper arm hidden. Turns of the base by 60°/90° fitted it as well as the right pose
+    /// (ambiguity 0.87–0.88, rejected); on the shoulder alone their misfit is 2–8× the right
+    /// pose's.
+    #[test]
+    fn issue_3_the_shoulder_tells_a_turned_round_base_apart() {
+        trial(
+            "ur20",
+            (
+                [
+                    0.014035037769203586,
+                    -0.06118441823228681,
+                    0.030595748856561727,
+                ],
+                [
+                    -0.30689963953109106,
+                    -0.16614573860406345,
+                    0.9827748531382114,
+                ],
+            ),
+            &[
+                2.4318900301437685,
+                -1.0812787968493711,
+                2.4685533589860373,
+                0.7615851273215046,
+                2.078448972545978,
+                2.3748683377956112,
+            ],
+            11925489354492944206,
+        );
+        trial(
+            "ur3e",
+            UR3E_MOUNT,
+            &[
+                -0.28493224540135786,
+                -2.9111384334550214,
+                0.28614273122614176,
+                -2.8408387308271417,
+                1.9995126857949526,
+                -1.8077360986200657,
+            ],
+            18081708939740349926,
+        );
+    }
+
+    /// Bench ur3e view 10 scan 1 (seed 1): camera above the robot, the base under the
+    /// shoulder; every Hough peak on the floor was the half-turn ("robot not found").
+    #[test]
+    fn issue_3_camera_above_the_robot_is_not_half_turned() {
+        trial(
+            "ur3e",
+            UR3E_MOUNT,
+            &[
+                2.0165167528802037,
+                -1.9443608113509248,
+                -0.5698673167863735,
+                -2.5696771462716144,
+                1.69924825158229,
+                -0.6315774446764304,
+            ],
+            8270097040764791721,
         );
     }
 }

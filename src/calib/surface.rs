@@ -80,6 +80,9 @@ impl Triangle {
     }
 }
 
+/// Most scoring samples ([`ModelSurface::coarse`]) kept; beyond it they are thinned evenly.
+const MAX_COARSE_SAMPLES: usize = 3000;
+
 /// A surface sample: position and normal in the model frame.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Sample {
@@ -170,6 +173,13 @@ impl ModelSurface {
                     emit(&mut acc_c, area_per_coarse, &mut coarse);
                 }
             }
+        }
+        // Big robots: coarser scoring samples, so hypothesis scoring costs the same for all.
+        if coarse.len() > MAX_COARSE_SAMPLES {
+            let step = coarse.len() as f64 / MAX_COARSE_SAMPLES as f64;
+            coarse = (0..MAX_COARSE_SAMPLES)
+                .map(|k| coarse[(k as f64 * step) as usize])
+                .collect();
         }
         let pts: Vec<Point3<f32>> = samples.iter().map(|s| s.p.cast::<f32>()).collect();
         let tree = KdTree::new(&pts);
