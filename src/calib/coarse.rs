@@ -140,16 +140,22 @@ pub(crate) fn find_planes(
 /// The `keep` planes a robot most plausibly stands on, best first: the fewest scan points
 /// behind them. The camera cannot see behind a floor, table or wall the robot is mounted on
 /// (except past its edge), while a flat patch on the robot's own links or on clutter has the
-/// floor behind it. A view filled by a big robot can make such patches larger than the floor.
-pub(crate) fn support_planes(pts: &[Oriented], mut planes: Vec<Plane>, keep: usize) -> Vec<Plane> {
+/// floor behind it. A view filled by a big robot can make such patches (tangent planes of its
+/// big cylinders, within the plane tolerance) larger than the floor.
+pub(crate) fn support_planes(pts: &[Oriented], keep: usize, seed: u64) -> Vec<Plane> {
     let behind = |pl: &Plane| {
         pts.iter()
             .filter(|o| pl.n.dot(&o.p.coords) + pl.d < -0.02)
             .count()
     };
-    let mut ranked: Vec<(usize, Plane)> = planes.drain(..).map(|pl| (behind(&pl), pl)).collect();
-    // Stable: equally plausible planes keep the order of their support.
-    ranked.sort_by_key(|r| r.0);
+    let rank = |planes: Vec<Plane>| {
+        let mut ranked: Vec<(usize, Plane)> =
+            planes.into_iter().map(|pl| (behind(&pl), pl)).collect();
+        // Stable: equally plausible planes keep the order of their support.
+        ranked.sort_by_key(|r| r.0);
+        ranked
+    };
+    let ranked = rank(find_planes(pts, 10, 0.01, seed));
     ranked.into_iter().take(keep).map(|r| r.1).collect()
 }
 
