@@ -11,7 +11,7 @@
 //!    surface minus free-space violations).
 //! 3. `fine`: robust point-to-plane ICP against the exact triangles of the base and first links
 //!    (`fit_chain_depth`), with the depth scale as a 7th parameter when enabled, for the best
-//!    hypothesis, up to five distinct runners-up that scored almost as well and the best
+//!    hypothesis, up to three distinct runners-up that scored almost as well and the best
 //!    hypothesis turned by half a turn about the robot's axis (with a prior: the prior and its
 //!    half-turn). The winner has the most dense coverage times sharpness (how tightly the scan
 //!    hugs the model, overall and on the moving links, which break the base's symmetry); how
@@ -621,9 +621,8 @@ fn yaw_sweep(
 /// Turns of the best coarse candidate polished after the sweep.
 const SWEEP_KEEP: usize = 4;
 
-/// Candidates fitted exactly and compared (a round base with a six-fold bolt pattern offers six
-/// near-equal turns).
-const MAX_CONTENDERS: usize = 6;
+/// Candidates fitted exactly and compared.
+const MAX_CONTENDERS: usize = 4;
 
 /// Strongest Hough hypotheses whose half-turn is polished too.
 const HALF_TURN_SEEDS: usize = 3;
@@ -1571,6 +1570,25 @@ mod issue_3_tests {
                 -1.936691471971793,
             ],
             14903361556771446440,
+        );
+    }
+    /// Bench ur30 view 8 scan 0 (seed 1): the polished candidates were the 60°, 120° and 180°
+    /// turns of the base; the sweep kept two more turns, both wrong, and the 60° turn was
+    /// rejected as ambiguous. Keeping four turns brings the right one in.
+    #[test]
+    fn issue_3_six_near_equal_turns_are_all_compared() {
+        trial(
+            "ur30",
+            UR30_MOUNT,
+            &[
+                -1.7536992237882687,
+                -1.1392800167851371,
+                2.1870020863781665,
+                -1.8322472766976885,
+                -1.9574479952552761,
+                -2.934359053160009,
+            ],
+            6970261747485719572,
         );
     }
 }
