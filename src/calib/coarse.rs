@@ -404,6 +404,5 @@ pub(crate) fn hypotheses(
 
 /// Whether two coarse hypotheses would polish to different poses (2 cm or 12° apart).
 fn distinct_hypotheses(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
-    let d = a.inverse() * b;
-    d.translation.vector.norm() > 0.02 || d.rotation.angle() > 12f64.to_radians()
+    !super::within(a, b, 0.02, 12.0)
 }

@@ -23,6 +23,18 @@ pub mod solve;
 mod surface;
 mod verify;
 
+/// Whether `b` is within `metres` and `degrees` of `a`, measured in `a`'s frame (for
+/// `camera_from_model` poses: the model origin's displacement and the relative rotation).
+pub(crate) fn within(
+    a: &nalgebra::Isometry3<f64>,
+    b: &nalgebra::Isometry3<f64>,
+    metres: f64,
+    degrees: f64,
+) -> bool {
+    let d = a.inverse() * b;
+    d.translation.vector.norm() < metres && d.rotation.angle() < degrees.to_radians()
+}
+
 #[cfg(test)]
 mod probe;
 #[cfg(test)]

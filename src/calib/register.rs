@@ -676,13 +676,11 @@ fn probe_err(camera_from_model: &Isometry3<f64>) -> String {
 /// rotation within 2°): both would converge to the same fit.
 /// Whether a refinement moved the pose by less than kinematic error can explain.
 fn small_step(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
-    let d = a.inverse() * b;
-    d.translation.vector.norm() < 0.003 && d.rotation.angle() < 0.3f64.to_radians()
+    super::within(a, b, 0.003, 0.3)
 }
 
 fn near_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
-    let d = a.inverse() * b;
-    d.translation.vector.norm() < 0.01 && d.rotation.angle() < 2f64.to_radians()
+    super::within(a, b, 0.01, 2.0)
 }
 
 fn ms(t: Instant) -> f64 {
