@@ -180,6 +180,9 @@ fn camera_from_plane(pl: &Plane) -> Isometry3<f64> {
 
 /// Yaw bins of the Hough accumulator (5°).
 const N_YAW: usize = 72;
+/// Side-facing scan points that vote (evenly thinned beyond): the votes cost
+/// voters × model samples at their height.
+const MAX_VOTERS: usize = 2500;
 /// Cell of the Hough accumulator in the plane, metres.
 const HOUGH_CELL_M: f64 = 0.015;
 
@@ -247,9 +250,9 @@ pub(crate) fn hypotheses(
         if scan.len() < 20 {
             continue;
         }
-        if scan.len() > 4000 {
-            let step = scan.len() as f64 / 4000.0;
-            scan = (0..4000)
+        if scan.len() > MAX_VOTERS {
+            let step = scan.len() as f64 / MAX_VOTERS as f64;
+            scan = (0..MAX_VOTERS)
                 .map(|k| scan[(k as f64 * step) as usize])
                 .collect();
         }

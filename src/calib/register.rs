@@ -263,7 +263,7 @@ pub fn register_posed(
         return Err(CalibError::NoModelGeometry);
     }
     let pool = ScanPool::new(&range, 150_000);
-    // Polishing needs 800 points per hypothesis: drawing them from a sparser pool saves
+    // Polishing needs 500 points per hypothesis: drawing them from a sparser pool saves
     // transforming 150 000 points for each of a dozen hypotheses.
     let polish_pool = ScanPool::new(&range, 20_000);
     let mut timings = StageTimings {
@@ -300,7 +300,7 @@ pub fn register_posed(
         free_m: 0.008,
     };
     let polish = |camera_from_model: &Isometry3<f64>| -> Option<(Isometry3<f64>, Evidence)> {
-        let pts = polish_pool.select(&range, &surface, camera_from_model, 800, 0.03);
+        let pts = polish_pool.select(&range, &surface, camera_from_model, 500, 0.03);
         let r = icp(
             &pts,
             &surface,
