@@ -41,6 +41,29 @@ pub struct BenchConfig {
     pub seed: u64,
 }
 
+impl BenchConfig {
+    /// The simulated eye-in-hand scan of one trial: `model` at `joints`, the camera at `mount`
+    /// (`flange_from_camera`), this configuration's camera and simulator settings.
+    pub fn scan_request<'a>(
+        &self,
+        model: &'a RobotModel,
+        joints: &[f64],
+        mount: Isometry3<f64>,
+        seed: u64,
+    ) -> ScanRequest<'a> {
+        ScanRequest::new(
+            model,
+            joints.to_vec(),
+            Placement::EyeInHand {
+                flange_from_camera: mount,
+            },
+            self.intrinsics,
+            &self.settings,
+            seed,
+        )
+    }
+}
+
 impl Default for BenchConfig {
     fn default() -> Self {
         Self {
@@ -267,17 +290,7 @@ pub fn run_trial(
         quality: None,
     };
     let t0 = Instant::now();
-    let placement = Placement::EyeInHand {
-        flange_from_camera: mount,
-    };
-    let req = ScanRequest::new(
-        model,
-        joints.to_vec(),
-        placement,
-        cfg.intrinsics,
-        &cfg.settings,
-        seed,
-    );
+    let req = cfg.scan_request(model, joints, mount, seed);
     let scan = match simulate_scan(&req) {
         Ok(s) => s,
         Err(e) => {

@@ -75,16 +75,7 @@ fn probe_bench_trials() {
                     mount.translation.vector.as_slice(),
                     mount.rotation.scaled_axis().as_slice()
                 );
-                let req = crate::sim::ScanRequest::new(
-                    &model,
-                    q.clone(),
-                    crate::sim::Placement::EyeInHand {
-                        flange_from_camera: mount,
-                    },
-                    cfg.intrinsics,
-                    &cfg.settings,
-                    seed,
-                );
+                let req = cfg.scan_request(&model, q, mount, seed);
                 let truth = crate::sim::simulate_scan(&req).expect("sim").truth;
                 super::register::PROBE_TRUTH.with(|c| c.set(Some(truth.camera_from_model)));
                 if std::env::var_os("PROBE_PRIOR").is_some() {

@@ -1276,16 +1276,7 @@ mod issue_3_tests {
             0.15131520111973806,
         ];
         let cfg = BenchConfig::default();
-        let req = crate::sim::ScanRequest::new(
-            &model,
-            q.to_vec(),
-            crate::sim::Placement::EyeInHand {
-                flange_from_camera: mount,
-            },
-            cfg.intrinsics,
-            &cfg.settings,
-            3583974858498588681,
-        );
+        let req = cfg.scan_request(&model, &q, mount, 3583974858498588681);
         let scan = crate::sim::simulate_scan(&req).expect("simulated");
         match crate::calib::register(&scan.cloud, &model, &q, None, &cfg.register) {
             Ok(reg) => {
@@ -1312,35 +1303,20 @@ mod issue_3_tests {
     /// `1 − sharpness`, so the right pose now wins clearly and is accepted.
     #[test]
     fn issue_3_nearly_symmetric_view_is_never_accepted_wrong() {
-        trial(
-            "ur30",
-            UR30_MOUNT,
-            &[
-                -1.7536992237882687,
-                -1.1392800167851371,
-                2.1870020863781665,
-                -1.8322472766976885,
-                -1.9574479952552761,
-                -2.934359053160009,
-            ],
-            11691332368916842821,
-        );
+        trial("ur30", UR30_MOUNT, &UR30_VIEW_8, 11691332368916842821);
         // Same view, another scan (bench ur30 view 8 scan 1): was rejected at ambiguity 0.93.
-        trial(
-            "ur30",
-            UR30_MOUNT,
-            &[
-                -1.7536992237882687,
-                -1.1392800167851371,
-                2.1870020863781665,
-                -1.8322472766976885,
-                -1.9574479952552761,
-                -2.934359053160009,
-            ],
-            14492284240672669312,
-        );
+        trial("ur30", UR30_MOUNT, &UR30_VIEW_8, 14492284240672669312);
     }
 
+    /// Bench ur30 view 8 (seed 1): base and shoulder seen nearly symmetric.
+    const UR30_VIEW_8: [f64; 6] = [
+        -1.7536992237882687,
+        -1.1392800167851371,
+        2.1870020863781665,
+        -1.8322472766976885,
+        -1.9574479952552761,
+        -2.934359053160009,
+    ];
     const UR30_MOUNT: ([f64; 3], [f64; 3]) = (
         [
             -0.019814541625342165,
@@ -1575,18 +1551,6 @@ mod issue_3_tests {
     /// rejected as ambiguous. Keeping four turns brings the right one in.
     #[test]
     fn issue_3_six_near_equal_turns_are_all_compared() {
-        trial(
-            "ur30",
-            UR30_MOUNT,
-            &[
-                -1.7536992237882687,
-                -1.1392800167851371,
-                2.1870020863781665,
-                -1.8322472766976885,
-                -1.9574479952552761,
-                -2.934359053160009,
-            ],
-            6970261747485719572,
-        );
+        trial("ur30", UR30_MOUNT, &UR30_VIEW_8, 6970261747485719572);
     }
 }
