@@ -156,6 +156,10 @@ pub(crate) fn support_planes(pts: &[Oriented], keep: usize, seed: u64) -> Vec<Pl
         ranked
     };
     let ranked = rank(find_planes(pts, 10, 0.01, seed));
+    tracing::debug!(
+        planes = ?ranked.iter().map(|(b, p)| (*b, p.n.as_slice().to_vec(), p.d)).collect::<Vec<_>>(),
+        "support planes (points behind, normal, offset)"
+    );
     ranked.into_iter().take(keep).map(|r| r.1).collect()
 }
 

@@ -12,7 +12,7 @@
 //! `δ = (ρ, φ)` (metres, radians); scan points are multiplied by `κ` (true = κ · measured).
 
 use nalgebra::{
-    Isometry3, Matrix6, Point3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3,
+    DMatrix, Isometry3, Matrix6, Point3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3,
 };
 use rayon::prelude::*;
 
@@ -23,6 +23,8 @@ type Mat7 = SMatrix<f64, 7, 7>;
 /// Residual scale of [`IcpResult::sharpness`], metres.
 const SHARP_M: f64 = 0.0005;
 type Vec7 = SVector<f64, 7>;
+/// Edge of the model-frame cubes whose residuals [`patch_scores`] treats as one error, metres.
+const PATCH_M: f64 = 0.03;
 /// Scan points on the moving links below which [`IcpResult::sharpness_moving`] says nothing.
 const MIN_MOVING_POINTS: usize = 30;
 /// Largest depth-scale error the 7-parameter fit may estimate (real cameras are within a few
@@ -57,8 +59,12 @@ pub(crate) struct IcpResult {
     /// Information matrix of the 6 pose parameters (scale marginalised out when estimated),
     /// weighted, not yet scaled by the residual variance.
     pub(crate) info6: Matrix6<f64>,
-    /// Covariance of the 6 pose parameters (model-frame left perturbation), m² / rad².
+    /// Cluster-robust covariance of the 6 pose parameters (model-frame left perturbation),
+    /// m² / rad².
     pub(crate) cov6: Matrix6<f64>,
+    /// How the pose parameters follow small kinematic errors of the arm (see
+    /// [`Reliability::kinematic`]): `δpose = −gain · e`, 6 × 6·joints.
+    pub(crate) kinematic_gain: DMatrix<f64>,
     /// Weighted centroid of the correspondences, model frame (metres).
     pub(crate) centroid: Point3<f64>,
     /// RMS distance of the correspondences from their centroid, metres.
@@ -116,6 +122,64 @@ impl Acc {
     }
 }
 
+/// One scan point's correspondence with the model at the current estimate.
+struct Correspondence {
+    /// Model-frame point.
+    x: Point3<f64>,
+    /// Normal of the model triangle it fits.
+    n: Vector3<f64>,
+    /// Jacobian of the residual in (ρ, φ, κ).
+    j: Vec7,
+    /// Signed point-to-plane residual, metres.
+    r: f64,
+    /// Robust weight.
+    w: f64,
+    /// Sharpness term `1 / (1 + (r / SHARP_M)²)`.
+    sharp: f64,
+    /// Chain depth of the link the point fits.
+    depth: u8,
+}
+
+/// Where a scan point stands against the model: not near the fitted links, near them but
+/// without a usable correspondence (`Err(depth)`), or a correspondence.
+fn correspond(
+    o: &Oriented,
+    surface: &ModelSurface,
+    t: &Isometry3<f64>,
+    kappa: f64,
+    st: &Stage,
+) -> Option<Result<Correspondence, u8>> {
+    let cos_min = 0.5;
+    let rp = t.rotation * o.p.coords;
+    let x = Point3::from(rp * kappa + t.translation.vector);
+    let s = surface.nearest(&x, st.gate_m.max(0.01))?;
+    if s.depth as usize > surface.fit_depth {
+        return None;
+    }
+    let tri = &surface.triangles[s.tri as usize];
+    let c = tri.closest_point(&x);
+    if (x - c).norm() > st.gate_m || (t.rotation * o.n).dot(&tri.n) < cos_min {
+        return Some(Err(s.depth));
+    }
+    let n = tri.n;
+    let r = n.dot(&(x - c));
+    let u = r / st.kernel_m;
+    let w = if s.depth >= 1 { st.moving_weight } else { 1.0 } / (1.0 + u * u);
+    let mut j = Vec7::zeros();
+    j.fixed_rows_mut::<3>(0).copy_from(&n);
+    j.fixed_rows_mut::<3>(3).copy_from(&x.coords.cross(&n));
+    j[6] = n.dot(&rp);
+    Some(Ok(Correspondence {
+        x,
+        n,
+        j,
+        r,
+        w,
+        sharp: 1.0 / (1.0 + (r / SHARP_M).powi(2)),
+        depth: s.depth,
+    }))
+}
+
 fn accumulate(
     pts: &[Oriented],
     surface: &ModelSurface,
@@ -123,49 +187,32 @@ fn accumulate(
     kappa: f64,
     st: &Stage,
 ) -> Acc {
-    let cos_min = 0.5;
     let one = |o: &Oriented| -> Acc {
         let mut a = Acc::default();
-        let rp = t.rotation * o.p.coords;
-        let x = Point3::from(rp * kappa + t.translation.vector);
-        let Some(s) = surface.nearest(&x, st.gate_m.max(0.01)) else {
+        let Some(found) = correspond(o, surface, t, kappa, st) else {
             return a;
         };
-        if s.depth as usize > surface.fit_depth {
-            return a;
-        }
+        let depth = match &found {
+            Ok(c) => c.depth,
+            Err(d) => *d,
+        };
         a.near = 1;
-        a.near_moving = usize::from(s.depth >= 1);
-        let tri = &surface.triangles[s.tri as usize];
-        let c = tri.closest_point(&x);
-        if (x - c).norm() > st.gate_m {
-            return a;
+        a.near_moving = usize::from(depth >= 1);
+        let Ok(c) = found else { return a };
+        a.sharp = c.sharp;
+        if c.depth >= 1 {
+            a.sharp_moving = c.sharp;
         }
-        if (t.rotation * o.n).dot(&tri.n) < cos_min {
-            return a;
-        }
-        let n = tri.n;
-        let r = n.dot(&(x - c));
-        a.sharp = 1.0 / (1.0 + (r / SHARP_M).powi(2));
-        if s.depth >= 1 {
-            a.sharp_moving = a.sharp;
-        }
-        let u = r / st.kernel_m;
-        let w = if s.depth >= 1 { st.moving_weight } else { 1.0 } / (1.0 + u * u);
-        let mut j = Vec7::zeros();
-        j.fixed_rows_mut::<3>(0).copy_from(&n);
-        j.fixed_rows_mut::<3>(3).copy_from(&x.coords.cross(&n));
-        j[6] = n.dot(&rp);
-        a.h = j * j.transpose() * w;
-        a.g = j * (w * r);
-        a.wsum = w;
-        a.wr2 = w * r * r;
+        a.h = c.j * c.j.transpose() * c.w;
+        a.g = c.j * (c.w * c.r);
+        a.wsum = c.w;
+        a.wr2 = c.w * c.r * c.r;
         a.n = 1;
-        a.wx = x.coords * w;
-        a.wxx = w * x.coords.norm_squared();
-        if r.abs() < 3.0 * st.kernel_m {
+        a.wx = c.x.coords * c.w;
+        a.wxx = c.w * c.x.coords.norm_squared();
+        if c.r.abs() < 3.0 * st.kernel_m {
             a.close = 1;
-            a.r2_close = r * r;
+            a.r2_close = c.r * c.r;
         }
         a
     };
@@ -175,6 +222,69 @@ fn accumulate(
             .reduce(Acc::default, Acc::add)
     } else {
         pts.iter().map(one).fold(Acc::default(), Acc::add)
+    }
+}
+
+/// What the converged fit's correspondences say about the reliability of the pose, beyond
+/// the formal information matrix (one pass over the points at the final estimate).
+struct Reliability {
+    /// Σ over patches of `ψ ψᵀ`, where `ψ` sums the weighted scores `w r J` of a patch's
+    /// correspondences: the "meat" of a cluster-robust sandwich covariance. Residuals of
+    /// neighbouring points are not independent (a CAD deviation or a depth bias moves a whole
+    /// patch together); a covariance that counts them as independent evidence is overconfident
+    /// by the square root of the points per patch. Summing per patch lets a shared error count
+    /// once.
+    meat: Mat7,
+    patches: usize,
+    /// `Σ w J (∂r/∂e)ᵀ`, 7 × 6·joints: how the normal equations respond to a small error `e`
+    /// (translation, rotation in the joint frame) of each joint that moves fitted links. The
+    /// model poses the shoulder and upper arm with the nominal kinematics; the real arm's
+    /// zero offsets and link lengths move them, and the fit follows them where the base
+    /// cannot hold it (its yaw, for a round base).
+    kinematic: DMatrix<f64>,
+}
+
+fn reliability(
+    pts: &[Oriented],
+    surface: &ModelSurface,
+    t: &Isometry3<f64>,
+    kappa: f64,
+    st: &Stage,
+) -> Reliability {
+    let joints = &surface.joint_frames;
+    let mut patches: std::collections::HashMap<(i32, i32, i32, u8), Vec7> =
+        std::collections::HashMap::new();
+    let mut kinematic = DMatrix::zeros(7, 6 * joints.len());
+    for o in pts {
+        let Some(Ok(c)) = correspond(o, surface, t, kappa, st) else {
+            continue;
+        };
+        let key = (
+            (c.x.x / PATCH_M).floor() as i32,
+            (c.x.y / PATCH_M).floor() as i32,
+            (c.x.z / PATCH_M).floor() as i32,
+            c.depth,
+        );
+        *patches.entry(key).or_insert_with(Vec7::zeros) += c.j * (c.w * c.r);
+        // Joint k moves the parts beyond it: a translation e_t (joint frame) moves the point by
+        // R e_t, a rotation e_r by (R e_r) × (x − o); the residual changes by n · that.
+        for (k, frame) in joints.iter().enumerate().take(c.depth as usize) {
+            let rt = frame.rotation.inverse();
+            let lever = c.x - Point3::from(frame.translation.vector);
+            let d_trans = rt * c.n;
+            let d_rot = rt * lever.cross(&c.n);
+            for a in 0..3 {
+                let mut col = kinematic.column_mut(6 * k + a);
+                col += c.j * (c.w * d_trans[a]);
+                let mut col = kinematic.column_mut(6 * k + 3 + a);
+                col += c.j * (c.w * d_rot[a]);
+            }
+        }
+    }
+    Reliability {
+        meat: patches.values().map(|psi| psi * psi.transpose()).sum(),
+        patches: patches.len(),
+        kinematic,
     }
 }
 
@@ -256,7 +366,6 @@ pub(crate) fn icp(
         return None;
     }
     let dof = if scaled { 7.0 } else { 6.0 };
-    let sigma2 = a.wr2 / a.wsum * (a.n as f64 / (a.n as f64 - dof).max(1.0));
     let h66: Matrix6<f64> = a.h.fixed_view::<6, 6>(0, 0).into_owned();
     let h6: nalgebra::Vector6<f64> = a.h.fixed_view::<6, 1>(0, 6).into_owned();
     let h77 = a.h[(6, 6)];
@@ -265,16 +374,26 @@ pub(crate) fn icp(
     } else {
         h66
     };
-    let cov6 = info6
-        .try_inverse()
-        .map(|m| m * sigma2)
-        .unwrap_or_else(|| Matrix6::identity() * 1e6);
+    // Cluster-robust ("sandwich") covariance H⁻¹ M H⁻¹, the scale marginalised by taking the
+    // pose block of the full inverse; and the gain of the kinematic errors, H⁻¹ B.
+    let rel = reliability(pts, surface, &t, kappa, &st);
+    let dim = if scaled { 7 } else { 6 };
+    let h_inv = a.h.view((0, 0), (dim, dim)).into_owned().try_inverse()?;
+    let small_sample = rel.patches as f64 / (rel.patches as f64 - dof).max(1.0);
+    let meat = rel.meat.view((0, 0), (dim, dim)).into_owned();
+    let cov6: Matrix6<f64> = (&h_inv * meat * &h_inv * small_sample)
+        .fixed_view::<6, 6>(0, 0)
+        .into_owned();
+    let kinematic_gain = (&h_inv * rel.kinematic.rows(0, dim))
+        .rows(0, 6)
+        .into_owned();
     Some(IcpResult {
         model_from_camera: t,
         kappa,
         scale_estimated: scaled,
         info6,
         cov6,
+        kinematic_gain,
         centroid: Point3::from(a.wx / a.wsum),
         spread_m: (a.wxx / a.wsum - (a.wx / a.wsum).norm_squared())
             .max(0.0)

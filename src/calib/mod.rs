@@ -47,7 +47,7 @@ pub use register::{
 };
 pub use report::CalibrationReport;
 pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};
-pub use surface::{PosedModel, PosedPart};
+pub use surface::{PosedJoint, PosedModel, PosedPart};
 
 /// Errors of registration and solving; each message tells the operator what to do.
 #[derive(Debug, thiserror::Error)]

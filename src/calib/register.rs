@@ -33,10 +33,10 @@ use serde::Serialize;
 use super::coarse::{self, Oriented};
 use super::fine::{icp, IcpResult, Stage};
 use super::range::RangeImage;
-use super::surface::{ModelSurface, PosedModel};
+use super::surface::{ModelSurface, PosedJoint, PosedModel};
 use super::verify::{evidence, score, Evidence, Tolerances};
 use super::CalibError;
-use crate::model::{GeometryKind, RobotModel};
+use crate::model::{GeometryKind, KinematicError, RobotModel};
 
 /// Tuning of [`register`]. `Default` is what the benchmark measures.
 #[derive(Debug, Clone, PartialEq)]
@@ -73,9 +73,13 @@ pub struct RegisterOptions {
     /// Verification: a scan point this far behind the model surface is a free-space
     /// violation, metres.
     pub free_space_tolerance_m: f64,
-    /// Factor applied to the formal covariance for correlated residuals (neighbouring points
-    /// share CAD and calibration errors).
-    pub covariance_inflation: f64,
+    /// How the real arm differs from the model it is registered against (zero offsets, link
+    /// lengths, axis misalignments of the joints). The shoulder and upper arm are posed with
+    /// the nominal kinematics, and where the base cannot hold the fit (the yaw of a round base)
+    /// the result follows their errors: the covariance carries that. `KinematicError::none()`
+    /// when the model is posed with the controller's own calibration
+    /// ([`posed_model_with_kinematics`]).
+    pub kinematic_error: KinematicError,
     /// An information eigenvalue below this fraction of the largest marks a degenerate
     /// direction (rotations scaled by 0.1 m).
     pub degeneracy_ratio: f64,
@@ -98,7 +102,7 @@ impl Default for RegisterOptions {
             min_coverage_prior: 0.6,
             match_tolerance_m: 0.003,
             free_space_tolerance_m: 0.006,
-            covariance_inflation: 25.0,
+            kinematic_error: KinematicError::default(),
             degeneracy_ratio: 1e-3,
             seed: 1,
         }
@@ -161,7 +165,8 @@ pub struct StageTimings {
 pub struct Registration {
     /// Pose of the model (URDF root link) in the camera frame, metres.
     pub camera_from_model: Isometry3<f64>,
-    /// Covariance of the result (inflated by `covariance_inflation`) as a left perturbation
+    /// Covariance of the result (residuals and the arm's kinematic error, see
+    /// [`RegisterOptions::kinematic_sigma_m`]) as a left perturbation
     /// in the camera frame: `camera_from_model_true = exp(δ) · camera_from_model`,
     /// `δ = (ρ [m], φ [rad])`. `ρ` is also the displacement of the camera origin.
     pub covariance_6x6: Matrix6<f64>,
@@ -234,7 +239,19 @@ pub fn posed_model_with_kinematics(
             })
         })
         .collect();
-    Ok(PosedModel { parts })
+    let joints = model
+        .joint_frames(joints)
+        .map_err(CalibError::Model)?
+        .into_iter()
+        .zip(model.joint_axes())
+        .zip(model.joint_origins())
+        .map(|((model_from_joint, axis), parent_from_joint)| PosedJoint {
+            model_from_joint,
+            axis,
+            parent_from_joint,
+        })
+        .collect();
+    Ok(PosedModel { parts, joints })
 }
 
 /// [`register`] on an already posed model (model frame = the frame of `model`'s parts).
@@ -517,8 +534,9 @@ pub fn register_posed(
         });
     };
     // Anchor the winner on the moving links (see `moving_link_weight`); the contenders
-    // were judged on the even fit, and a refinement that wanders off is not trusted.
-    let camera_from_model = if opts.moving_link_weight != 1.0 {
+    // were judged on the even fit, and a refinement that wanders off is not trusted. The
+    // covariance is the one of the estimate returned.
+    let (camera_from_model, anchored) = if opts.moving_link_weight != 1.0 {
         let pts = pool.select(
             &range,
             &surface,
@@ -541,18 +559,23 @@ pub fn register_posed(
             &[stage],
         ) {
             Some(r) if small_step(&r.model_from_camera.inverse(), &camera_from_model) => {
-                r.model_from_camera.inverse()
+                (r.model_from_camera.inverse(), Some(r))
             }
-            _ => camera_from_model,
+            _ => (camera_from_model, None),
         }
     } else {
-        camera_from_model
+        (camera_from_model, None)
     };
     timings.fine = ms(t2);
 
     let t3 = Instant::now();
-    let (covariance_6x6, uncertainty, degenerate_directions) =
-        uncertainty(&fine, &camera_from_model, opts);
+    let (covariance_6x6, uncertainty, degenerate_directions) = uncertainty(
+        anchored.as_ref().unwrap_or(&fine),
+        &fine,
+        &model.joints,
+        &camera_from_model,
+        opts,
+    );
     timings.verify = ms(t3);
     timings.total = ms(t0);
     Ok(Registration {
@@ -729,8 +752,14 @@ fn evidence_scaled(
 }
 
 /// Covariance in the camera frame (inflated), its 1-σ summary and the degenerate directions.
+///
+/// `estimate` is the fit whose pose is returned (its residuals and kinematic gain give the
+/// covariance); `even` is the fit with all links weighted alike, whose information tells which
+/// directions the visible geometry constrains.
 fn uncertainty(
-    fine: &IcpResult,
+    estimate: &IcpResult,
+    even: &IcpResult,
+    joints: &[PosedJoint],
     camera_from_model: &Isometry3<f64>,
     opts: &RegisterOptions,
 ) -> (Matrix6<f64>, Uncertainty, Vec<Vector6<f64>>) {
@@ -741,7 +770,22 @@ fn uncertainty(
     ad.fixed_view_mut::<3, 3>(0, 3)
         .copy_from(&(t.cross_matrix() * r));
     ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-    let cov = ad * fine.cov6 * ad.transpose() * opts.covariance_inflation;
+    let g = &estimate.kinematic_gain;
+    let mut kinematic = Matrix6::zeros();
+    for (k, joint) in joints.iter().enumerate().take(g.ncols() / 6) {
+        let gain: Matrix6<f64> = g.fixed_view::<6, 6>(0, 6 * k).into_owned();
+        let c = opts
+            .kinematic_error
+            .joint_covariance(&joint.axis, &joint.parent_from_joint);
+        kinematic += gain * c * gain.transpose();
+    }
+    tracing::debug!(
+        residual_mm =
+            (estimate.cov6[(0, 0)] + estimate.cov6[(1, 1)] + estimate.cov6[(2, 2)]).sqrt() * 1e3,
+        kinematic_mm = (kinematic[(0, 0)] + kinematic[(1, 1)] + kinematic[(2, 2)]).sqrt() * 1e3,
+        "model-frame position uncertainty"
+    );
+    let cov = ad * (estimate.cov6 + kinematic) * ad.transpose();
     let tr = |k: usize| {
         (cov[(k, k)] + cov[(k + 1, k + 1)] + cov[(k + 2, k + 2)])
             .max(0.0)
@@ -754,13 +798,13 @@ fn uncertainty(
     // Degeneracy: eigen-decomposition of the information about the correspondences' centroid
     // c (so rotations and translations decouple), rotations scaled by their spread L.
     // ρ = ρ' + [c]× φ maps the centred parameters to the model-origin ones.
-    let c = fine.centroid.coords;
+    let c = even.centroid.coords;
     let mut a = Matrix6::identity();
     a.fixed_view_mut::<3, 3>(0, 3).copy_from(&c.cross_matrix());
-    let l = fine.spread_m.max(0.01);
+    let l = even.spread_m.max(0.01);
     let s = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, 1.0 / l, 1.0 / l, 1.0 / l));
     let to_origin = a * s;
-    let info = to_origin.transpose() * fine.info6 * to_origin;
+    let info = to_origin.transpose() * even.info6 * to_origin;
     let eig = info.symmetric_eigen();
     let lmax = eig.eigenvalues.max();
     tracing::debug!(ratios = ?eig.eigenvalues.iter().map(|e| e / lmax).collect::<Vec<_>>(), "information eigenvalues");
@@ -990,28 +1034,13 @@ mod tests {
 #[cfg(test)]
 mod ur_tests {
     use super::*;
-    use crate::calib::testutil::{look_at, render, Scene};
-    use std::path::PathBuf;
-
-    fn shared() -> Option<PathBuf> {
-        let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/robots");
-        if p.is_dir() {
-            Some(p)
-        } else {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "../shared/robots is missing"
-            );
-            eprintln!("skipping: ../shared/robots not found");
-            None
-        }
-    }
+    use crate::calib::testutil::{look_at, render, shared_robots, Scene};
 
     /// Real UR5e meshes, ray-cast with the test renderer (floor, light noise), no prior.
     #[test]
     #[ignore = "slow in debug; run with --release -- --ignored"]
     fn ur5e_real_meshes_without_prior() {
-        let Some(root) = shared() else { return };
+        let Some(root) = shared_robots() else { return };
         let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
         for (k, (q, eye)) in [
             (
@@ -1063,25 +1092,95 @@ mod ur_tests {
 #[cfg(test)]
 mod sim_tests {
     use super::*;
+    use crate::calib::testutil::shared_robots;
     use crate::calib::{gate, solve, FrameInput, GateThresholds, Mount, SolveOptions};
     use crate::sim::{
         simulate_scan, CellOptions, Intrinsics, KinematicError, Placement, ScanNoise, ScanRequest,
     };
-    use std::path::PathBuf;
+
+    /// The shoulder and upper arm are posed with the nominal kinematics; the real arm's zero
+    /// offsets and link lengths move them, and the yaw of the round base follows them. The
+    /// reported uncertainty must cover that error (it was 3–10× overconfident when it only
+    /// counted the residuals), without being uselessly loose.
+    #[test]
+    fn uncertainty_covers_the_arms_kinematic_error() {
+        let Some(root) = shared_robots() else { return };
+        let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
+        // Five times a UR's factory-calibration deltas: the kinematic error dominates noise.
+        let arm = KinematicError {
+            joint_offset_sigma_rad: 0.0015,
+            link_length_sigma_m: 0.0015,
+            axis_misalignment_sigma_rad: 0.0005,
+        };
+        let mount = Isometry3::new(
+            Vector3::new(0.0, -0.08, 0.03),
+            Vector3::new(-15f64.to_radians(), 0.0, 0.0),
+        );
+        let planner = crate::plan::ViewPlanner::new(
+            &model,
+            mount,
+            Intrinsics::compact_1280x960(),
+            crate::plan::ViewConstraints::default(),
+        );
+        let views = planner.generate(4, 5).expect("views");
+        let mut ratios = Vec::new();
+        let mut ratios_without = Vec::new();
+        for (k, q) in views.iter().enumerate() {
+            let req = ScanRequest {
+                model: &model,
+                joints: q.clone(),
+                placement: Placement::EyeInHand {
+                    flange_from_camera: mount,
+                },
+                intrinsics: Intrinsics::compact_1280x960(),
+                noise: ScanNoise::default(),
+                cell: CellOptions::default(),
+                kinematic_error: arm,
+                seed: 40 + k as u64,
+            };
+            let scan = simulate_scan(&req).expect("simulated");
+            let posed = posed_model(&model, q).expect("posed");
+            let opts = RegisterOptions {
+                kinematic_error: arm,
+                ..RegisterOptions::default()
+            };
+            let reg = register_posed(&scan.cloud, &posed, None, &opts).expect("registered");
+            let err_mm = (reg.camera_from_model.inverse().translation.vector
+                - scan.truth.model_from_camera.translation.vector)
+                .norm()
+                * 1e3;
+            ratios.push(err_mm / reg.uncertainty.translation_mm);
+            // The same fit, judged as if the arm were exactly its model.
+            let exact = RegisterOptions {
+                kinematic_error: KinematicError::none(),
+                ..RegisterOptions::default()
+            };
+            let without = register_posed(&scan.cloud, &posed, None, &exact).expect("registered");
+            assert!(same_pose(
+                &without.camera_from_model,
+                &reg.camera_from_model
+            ));
+            ratios_without.push(err_mm / without.uncertainty.translation_mm);
+        }
+        eprintln!("error / reported σ: {ratios:?}, without the kinematic term {ratios_without:?}");
+        assert!(
+            ratios.iter().all(|r| *r < 3.0),
+            "an error beyond 3σ: {ratios:?}"
+        );
+        ratios.sort_by(f64::total_cmp);
+        assert!(ratios[1] > 0.15, "σ uselessly loose: {ratios:?}");
+        // The scenario is dominated by the kinematic error: the residuals alone do not cover it.
+        assert!(
+            ratios_without.iter().filter(|r| **r > 3.0).count() >= 2,
+            "{ratios_without:?}"
+        );
+    }
 
     /// Simulated UR5e, 1280×960, default noise, cell and kinematic error, no prior; the model
     /// is posed with the controller's calibration (what the controller reports).
     #[test]
     fn simulated_ur5e_scan_is_registered_and_closes_the_chain() {
-        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/robots");
-        if !root.is_dir() {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "../shared/robots is missing"
-            );
-            eprintln!("skipping: ../shared/robots not found");
-            return;
-        }
+        let Some(root) = shared_robots() else { return };
         let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
         let mount = Isometry3::new(
             Vector3::new(0.0, -0.08, 0.03),
@@ -1143,21 +1242,13 @@ mod sim_tests {
 #[cfg(test)]
 mod issue_3_tests {
     use crate::bench::{run_trial, BenchConfig};
+    use crate::calib::testutil::shared_robots;
     use crate::model::RobotModel;
     use nalgebra::{Isometry3, Vector3};
-    use std::path::PathBuf;
 
     fn robot(name: &str) -> Option<RobotModel> {
-        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/robots/ur");
-        if !root.is_dir() {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "../shared/robots is missing"
-            );
-            eprintln!("skipping: ../shared/robots not found");
-            return None;
-        }
-        Some(RobotModel::load(&root.join(format!("{name}/{name}.urdf"))).expect("model loads"))
+        let root = shared_robots()?;
+        Some(RobotModel::load(&root.join(format!("ur/{name}/{name}.urdf"))).expect("model loads"))
     }
 
     fn trial(name: &str, mount: ([f64; 3], [f64; 3]), q: &[f64], seed: u64) -> Option<String> {

@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Unit, Vector3};
 
 use super::kdtree::KdTree;
 use crate::model::TriMesh;
@@ -27,6 +27,22 @@ pub struct PosedPart {
 pub struct PosedModel {
     /// All links with geometry (the ones not used for fitting still explain scan points).
     pub parts: Vec<PosedPart>,
+    /// The chain joints in chain order: joint `i` moves every part of chain depth > `i`.
+    /// Registration propagates the arm's kinematic error from here into its covariance; empty
+    /// when unknown (then none is propagated).
+    pub joints: Vec<PosedJoint>,
+}
+
+/// A chain joint of the posed model.
+#[derive(Debug, Clone, Copy)]
+pub struct PosedJoint {
+    /// `model_from_joint` at the measured joints: the frame after the joint's nominal origin,
+    /// before its motion (see [`RobotModel::joint_frames`](crate::model::RobotModel::joint_frames)).
+    pub model_from_joint: Isometry3<f64>,
+    /// Its axis in the joint frame.
+    pub axis: Unit<Vector3<f64>>,
+    /// Its nominal origin in its parent link (the link vector leading to it).
+    pub parent_from_joint: Isometry3<f64>,
 }
 
 /// A triangle of the posed model (model frame, metres).
@@ -103,6 +119,8 @@ pub(crate) struct ModelSurface {
     pub(crate) coarse: Vec<Sample>,
     /// Chain depth up to which parts are fitted.
     pub(crate) fit_depth: usize,
+    /// `model_from_joint` of the chain joints that move fitted parts (at most `fit_depth`).
+    pub(crate) joint_frames: Vec<Isometry3<f64>>,
 }
 
 impl ModelSurface {
@@ -189,6 +207,12 @@ impl ModelSurface {
             tree,
             coarse,
             fit_depth,
+            joint_frames: model
+                .joints
+                .iter()
+                .take(fit_depth)
+                .map(|j| j.model_from_joint)
+                .collect(),
         }
     }
 

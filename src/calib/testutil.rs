@@ -5,12 +5,12 @@ use std::f64::consts::PI;
 use std::sync::Arc;
 
 use handeye_hal::PointCloud;
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use parry3d_f64::query::{Ray, RayCast};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
-use super::surface::{PosedModel, PosedPart};
+use super::surface::{PosedJoint, PosedModel, PosedPart};
 use crate::model::TriMesh;
 
 /// Closed cylinder along z, radius `r`, from `z0` to `z1`.
@@ -109,12 +109,38 @@ pub(crate) fn toy_robot(q: &[f64]) -> PosedModel {
         model_from_link: pose,
         mesh: Arc::new(mesh),
     };
+    // Each joint's frame before its motion: the link's pose with the joint at zero; its
+    // origin in the parent is the step from the parent's pose.
+    let joint =
+        |parent: Isometry3<f64>, pose: Isometry3<f64>, axis: Unit<Vector3<f64>>, angle: f64| {
+            let model_from_joint = pose * Isometry3::rotation(axis.into_inner() * -angle);
+            PosedJoint {
+                model_from_joint,
+                axis,
+                parent_from_joint: parent.inverse() * model_from_joint,
+            }
+        };
     PosedModel {
         parts: vec![
             part("base", 0, Isometry3::identity(), base),
             part("shoulder", 1, model_from_shoulder, shoulder_mesh),
             part("upper_arm", 2, model_from_upper, upper),
             part("forearm", 3, model_from_fore, fore),
+        ],
+        joints: vec![
+            joint(
+                Isometry3::identity(),
+                model_from_shoulder,
+                Vector3::z_axis(),
+                q[0],
+            ),
+            joint(
+                model_from_shoulder,
+                model_from_upper,
+                Vector3::y_axis(),
+                q[1],
+            ),
+            joint(model_from_upper, model_from_fore, Vector3::y_axis(), q[2]),
         ],
     }
 }
@@ -227,4 +253,19 @@ pub(crate) fn render(
         intensity: None,
         confidence: None,
     }
+}
+
+/// The robot models of `../shared/robots`, or `None` (the test skips) where they are missing;
+/// under CI they must be there.
+pub(crate) fn shared_robots() -> Option<std::path::PathBuf> {
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/robots");
+    if root.is_dir() {
+        return Some(root);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "../shared/robots is missing"
+    );
+    eprintln!("skipping: ../shared/robots not found");
+    None
 }

@@ -11,6 +11,7 @@
 //! turned by π about z, see [`crate::frames::ur_base_from_base_link`]).
 
 mod collada;
+mod kinematic;
 mod mesh;
 mod primitives;
 #[cfg(test)]
@@ -25,6 +26,7 @@ use handeye_hal::ur_dh::UrModel;
 use nalgebra::{Isometry3, Matrix4, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
+pub use kinematic::KinematicError;
 pub use mesh::TriMesh;
 
 /// Which of a link's geometries: what it looks like (`<visual>`, use it to synthesise and
@@ -734,6 +736,32 @@ impl RobotModel {
             }
         }
         origins
+    }
+
+    /// `model_from_joint` of each chain joint at joint values `q`: the frame after the joint's
+    /// nominal origin, before its motion, chain order. A kinematic error of the arm enters here
+    /// (see [`link_poses_with_errors`](Self::link_poses_with_errors)) and moves every link
+    /// beyond the joint.
+    pub fn joint_frames(&self, q: &[f64]) -> Result<Vec<Isometry3<f64>>, ModelError> {
+        let poses = self.link_poses(q)?;
+        let mut frames = vec![Isometry3::identity(); self.dof()];
+        for node in &self.links {
+            if let (
+                Some(p),
+                Motion::Revolute {
+                    q: QSource::Chain(i),
+                    ..
+                }
+                | Motion::Prismatic {
+                    q: QSource::Chain(i),
+                    ..
+                },
+            ) = (node.parent, node.motion)
+            {
+                frames[i] = poses[p] * node.parent_from_joint;
+            }
+        }
+        Ok(frames)
     }
 
     /// The axis of each chain joint (unit vector in the joint frame), chain order.

@@ -1,9 +1,8 @@
 //! One simulated scan: the true robot (nominal model + kinematic error) posed at the given
 //! joints, its cell around it, seen by a pinhole 3D camera with realistic imperfections.
 
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rand::{Rng, SeedableRng};
-use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 
 use handeye_hal::PointCloud;
@@ -12,7 +11,7 @@ use super::cell::{build_cell, CellOptions, CellPart};
 use super::raycast::{raycast, DepthImage, SceneMesh};
 use super::SimSettings;
 use super::{Intrinsics, ScanNoise};
-use crate::model::{GeometryKind, ModelError, RobotModel, TriMesh};
+use crate::model::{GeometryKind, KinematicError, ModelError, RobotModel, TriMesh};
 
 /// Where the camera is.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -29,81 +28,6 @@ pub enum Placement {
         /// Pose of the camera in the model frame.
         model_from_camera: Isometry3<f64>,
     },
-}
-
-/// How the real arm differs from its nominal model. The controller knows these deltas from its
-/// factory calibration and reports true flange poses; the CAD model we register against is
-/// nominal. Per chain joint: a zero offset (rotation about the joint axis), a link-length error
-/// (along the link vector leading to the joint), and a small axis misalignment (rotation about
-/// an axis perpendicular to the joint axis).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct KinematicError {
-    /// Standard deviation of each joint's zero offset, radians.
-    pub joint_offset_sigma_rad: f64,
-    /// Standard deviation of each link's length error, metres.
-    pub link_length_sigma_m: f64,
-    /// Standard deviation of each joint axis' misalignment, radians.
-    pub axis_misalignment_sigma_rad: f64,
-}
-
-impl Default for KinematicError {
-    /// Typical of UR factory-calibration deltas: 0.3 mrad zero offsets, 0.3 mm link lengths,
-    /// 0.1 mrad axis misalignment.
-    fn default() -> Self {
-        Self {
-            joint_offset_sigma_rad: 0.0003,
-            link_length_sigma_m: 0.0003,
-            axis_misalignment_sigma_rad: 0.0001,
-        }
-    }
-}
-
-impl KinematicError {
-    /// The arm is exactly its nominal model.
-    pub fn none() -> Self {
-        Self {
-            joint_offset_sigma_rad: 0.0,
-            link_length_sigma_m: 0.0,
-            axis_misalignment_sigma_rad: 0.0,
-        }
-    }
-
-    /// One random draw of per-joint origin errors (one isometry per chain joint, for
-    /// [`RobotModel::link_poses_with_errors`]).
-    pub fn sample(&self, model: &RobotModel, rng: &mut impl Rng) -> Vec<Isometry3<f64>> {
-        let mut gauss = |s: f64| {
-            if s > 0.0 {
-                Normal::new(0.0, s).map_or(0.0, |d| d.sample(rng))
-            } else {
-                0.0
-            }
-        };
-        model
-            .joint_axes()
-            .iter()
-            .zip(model.joint_origins())
-            .map(|(axis, origin)| {
-                // The link vector, expressed in the joint frame (where the error is inserted).
-                let link = origin.rotation.inverse() * origin.translation.vector;
-                let along = link.try_normalize(1e-9).unwrap_or_else(Vector3::zeros);
-                let t = along * gauss(self.link_length_sigma_m);
-                let perpendicular = axis
-                    .cross(&if axis.x.abs() < 0.9 {
-                        Vector3::x()
-                    } else {
-                        Vector3::y()
-                    })
-                    .normalize();
-                let twist = UnitQuaternion::from_scaled_axis(
-                    perpendicular * gauss(self.axis_misalignment_sigma_rad),
-                );
-                let zero =
-                    UnitQuaternion::from_axis_angle(axis, gauss(self.joint_offset_sigma_rad));
-                Isometry3::from_parts(Translation3::from(t), twist * zero)
-            })
-            .collect()
-    }
 }
 
 /// Everything that defines a simulated scan.
