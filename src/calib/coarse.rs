@@ -2,7 +2,9 @@
 //!
 //! 1. Planes: 1-point RANSAC with grid normals finds the dominant planes (floor, table, mounting
 //!    surface). A floor/table-mounted robot stands on one of them: the plane fixes two rotations
-//!    and the height up to the thickness of a mounting plate.
+//!    and the height up to the thickness of a mounting plate. When the scan shows no plane the
+//!    robot could stand on, mounting planes are derived from the axes of its visible cylinders
+//!    and the heights at which its surfaces appear ([`derived_planes`]).
 //! 2. Position and yaw in the plane: a Hough vote over (x, y, yaw). Each side-facing scan point
 //!    above the plane pairs with the side-facing samples of the posed model (base, shoulder,
 //!    upper arm at the measured joints) at about its height; the horizontal normals give the
@@ -137,30 +139,207 @@ pub(crate) fn find_planes(
     planes
 }
 
-/// The `keep` planes a robot most plausibly stands on, best first: the fewest scan points
-/// behind them. The camera cannot see behind a floor, table or wall the robot is mounted on
-/// (except past its edge), while a flat patch on the robot's own links or on clutter has the
-/// floor behind it. A view filled by a big robot can make such patches (tangent planes of its
-/// big cylinders, within the plane tolerance) larger than the floor.
-pub(crate) fn support_planes(pts: &[Oriented], keep: usize, seed: u64) -> Vec<Plane> {
+/// The scan's planes (up to 10, each with ≥ 1 % of the points) with the number of scan points
+/// behind each, fewest first. The camera cannot see behind a floor, table or wall the robot is
+/// mounted on (except past its edge), while a flat patch on the robot's own links or on clutter
+/// has the floor behind it. A view filled by a big robot can make such patches (tangent planes
+/// of its big cylinders, within the plane tolerance) larger than the floor.
+pub(crate) fn support_planes(pts: &[Oriented], seed: u64) -> Vec<(usize, Plane)> {
     let behind = |pl: &Plane| {
         pts.iter()
             .filter(|o| pl.n.dot(&o.p.coords) + pl.d < -0.02)
             .count()
     };
-    let rank = |planes: Vec<Plane>| {
-        let mut ranked: Vec<(usize, Plane)> =
-            planes.into_iter().map(|pl| (behind(&pl), pl)).collect();
-        // Stable: equally plausible planes keep the order of their support.
-        ranked.sort_by_key(|r| r.0);
-        ranked
-    };
-    let ranked = rank(find_planes(pts, 10, 0.01, seed));
+    let mut ranked: Vec<(usize, Plane)> = find_planes(pts, 10, 0.01, seed)
+        .into_iter()
+        .map(|pl| (behind(&pl), pl))
+        .collect();
+    // Stable: equally plausible planes keep the order of their support.
+    ranked.sort_by_key(|r| r.0);
     tracing::debug!(
         planes = ?ranked.iter().map(|(b, p)| (*b, p.n.as_slice().to_vec(), p.d)).collect::<Vec<_>>(),
         "support planes (points behind, normal, offset)"
     );
-    ranked.into_iter().take(keep).map(|r| r.1).collect()
+    ranked
+}
+
+/// Most planes [`derived_planes`] proposes.
+const DERIVED_PLANES: usize = 6;
+
+/// Mounting planes derived from the robot's shape when the scan shows none it could stand on
+/// (the floor beyond the camera's range or seen edge-on by a camera level with the base): the
+/// robot's first axis is the axis of its base cylinder, so the axes of the scan's cylinders
+/// (directions that many scan normals are perpendicular to; the strongest three) are candidate
+/// "up" directions, both ways; along each, the height of the mounting face is where the scan's
+/// heights of side-, up- and down-facing surface best match the model's.
+pub(crate) fn derived_planes(pts: &[Oriented], surface: &ModelSurface, seed: u64) -> Vec<Plane> {
+    let mut planes: Vec<Plane> = Vec::new();
+    for axis in cylinder_axes(pts, DERIVED_PLANES / 2, seed) {
+        for up in [axis, -axis] {
+            if let Some((h, _)) = mounting_heights(pts, &up, surface, 1).first() {
+                planes.push(Plane { n: up, d: -h });
+            }
+        }
+    }
+    tracing::debug!(
+        planes = ?planes.iter().map(|p| (p.n.as_slice().to_vec(), p.d)).collect::<Vec<_>>(),
+        "derived planes (normal, offset)"
+    );
+    planes
+}
+
+/// Up to `max_axes` distinct directions (≥ 20° apart) to which many scan normals are
+/// perpendicular: the axes of the cylinders in view, strongest first.
+fn cylinder_axes(pts: &[Oriented], max_axes: usize, seed: u64) -> Vec<Vector3<f64>> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0xa5e5);
+    if pts.len() < 100 {
+        return Vec::new();
+    }
+    let mut probe: Vec<Vector3<f64>> = (0..2000)
+        .map(|_| pts[rng.random_range(0..pts.len())].n)
+        .collect();
+    // Perpendicular within ~5°.
+    let tol = 0.08;
+    let mut axes: Vec<Vector3<f64>> = Vec::new();
+    for _ in 0..2 * max_axes {
+        if axes.len() >= max_axes || probe.len() < 100 {
+            break;
+        }
+        let mut best: Option<(usize, Vector3<f64>)> = None;
+        for _ in 0..300 {
+            let a = probe[rng.random_range(0..probe.len())];
+            let b = probe[rng.random_range(0..probe.len())];
+            let Some(axis) = a.cross(&b).try_normalize(0.3) else {
+                continue;
+            };
+            let count = probe.iter().filter(|n| n.dot(&axis).abs() < tol).count();
+            if best.is_none_or(|b| count > b.0) {
+                best = Some((count, axis));
+            }
+        }
+        let Some((count, mut axis)) = best else { break };
+        if count < probe.len() / 20 {
+            break;
+        }
+        // Refit: the direction least represented among the inliers' normals.
+        let mut m = Matrix3::zeros();
+        for n in probe.iter().filter(|n| n.dot(&axis).abs() < tol) {
+            m += n * n.transpose();
+        }
+        let eig = m.symmetric_eigen();
+        axis = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+        tracing::debug!(count, axis = ?axis.as_slice(), "cylinder axis");
+        probe.retain(|n| n.dot(&axis).abs() >= tol);
+        if axes
+            .iter()
+            .all(|o| o.dot(&axis).abs() < 20f64.to_radians().cos())
+        {
+            axes.push(axis);
+        }
+    }
+    axes
+}
+
+/// Up to `max` heights `h` (distinct peaks, ≥ 3 cm apart, best first) of the robot's mounting
+/// face along `up` (the plane `up · p = h`, camera frame), with their votes: each scan point votes for
+/// the heights at which the model has surface facing the same way (side, up, down) at its
+/// height, in proportion to how much.
+fn mounting_heights(
+    pts: &[Oriented],
+    up: &Vector3<f64>,
+    surface: &ModelSurface,
+    max: usize,
+) -> Vec<(f64, f64)> {
+    const BIN_M: f64 = 0.01;
+    let class = |nz: f64| {
+        if nz > 0.8 {
+            Some(0)
+        } else if nz < -0.8 {
+            Some(1)
+        } else if nz.abs() < 0.5 {
+            Some(2)
+        } else {
+            None
+        }
+    };
+    // Model heights per class, as a distribution (model frame: z up from the mounting face).
+    let (m_lo, m_hi) = surface
+        .coarse
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
+            (lo.min(s.p.z), hi.max(s.p.z))
+        });
+    if !m_lo.is_finite() {
+        return Vec::new();
+    }
+    let m_bins = ((m_hi - m_lo) / BIN_M) as usize + 1;
+    let mut model = vec![vec![0.0; m_bins]; 3];
+    for s in &surface.coarse {
+        if let Some(c) = class(s.n.z) {
+            model[c][((s.p.z - m_lo) / BIN_M) as usize] += 1.0;
+        }
+    }
+    for hist in &mut model {
+        let total: f64 = hist.iter().sum();
+        if total > 0.0 {
+            hist.iter_mut().for_each(|v| *v /= total);
+        }
+    }
+    // Scan heights per class.
+    let heights: Vec<(f64, usize)> = pts
+        .iter()
+        .filter_map(|o| Some((up.dot(&o.p.coords), class(up.dot(&o.n))?)))
+        .collect();
+    let (s_lo, s_hi) = heights
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), h| {
+            (lo.min(h.0), hi.max(h.0))
+        });
+    if !s_lo.is_finite() {
+        return Vec::new();
+    }
+    let s_bins = (((s_hi - s_lo) / BIN_M) as usize + 1).min(1000);
+    let mut scan = vec![vec![0.0; s_bins]; 3];
+    for &(z, c) in &heights {
+        let i = ((z - s_lo) / BIN_M) as usize;
+        if i < s_bins {
+            scan[c][i] += 1.0;
+        }
+    }
+    // h = s_lo + i·BIN − (m_lo + j·BIN): index i − j + m_bins.
+    let mut votes = vec![0.0; s_bins + m_bins];
+    for c in 0..3 {
+        for (i, &sv) in scan[c].iter().enumerate().filter(|v| *v.1 > 0.0) {
+            for (j, &mv) in model[c].iter().enumerate().filter(|v| *v.1 > 0.0) {
+                votes[i + m_bins - j] += sv * mv;
+            }
+        }
+    }
+    let smooth: Vec<f64> = (0..votes.len())
+        .map(|k| {
+            votes[k.saturating_sub(1)..(k + 2).min(votes.len())]
+                .iter()
+                .sum()
+        })
+        .collect();
+    let mut order: Vec<usize> = (0..smooth.len()).collect();
+    order.sort_by(|&a, &b| smooth[b].total_cmp(&smooth[a]));
+    let mut peaks: Vec<usize> = Vec::new();
+    for k in order {
+        if peaks.len() >= max || smooth[k] <= 0.0 {
+            break;
+        }
+        if peaks.iter().all(|&p| p.abs_diff(k) >= 3) {
+            peaks.push(k);
+        }
+    }
+    peaks
+        .into_iter()
+        .map(|k| {
+            let h = s_lo - m_lo + (k as f64 - m_bins as f64) * BIN_M;
+            (h, smooth[k])
+        })
+        .collect()
 }
 
 /// `camera_from_plane`: a frame with z along the plane normal and origin on the plane, below the

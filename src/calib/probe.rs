@@ -78,6 +78,12 @@ fn probe_bench_trials() {
                 let req = cfg.scan_request(&model, q, mount, seed);
                 let truth = crate::sim::simulate_scan(&req).expect("sim").truth;
                 super::register::PROBE_TRUTH.with(|c| c.set(Some(truth.camera_from_model)));
+                let up = truth.camera_from_model.rotation * nalgebra::Vector3::z();
+                eprintln!(
+                    "=== {key} truth mounting plane: normal {:?} offset {:.3} m",
+                    up.as_slice(),
+                    -up.dot(&truth.camera_from_model.translation.vector)
+                );
                 if std::env::var_os("PROBE_PRIOR").is_some() {
                     // The prior path: the truth off by 1 cm and 1°, as a last calibration is.
                     let prior = nalgebra::Isometry3::new(

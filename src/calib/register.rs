@@ -350,27 +350,49 @@ pub fn register_posed(
     let mut planes_found = 0;
     if !from_prior {
         let pts = coarse::oriented_subsample(&range, 30_000, 0.008);
-        let planes = coarse::support_planes(&pts, 3, opts.seed);
-        planes_found = planes.len();
-        let hyps = coarse::hypotheses(&range, &surface, &pts, &planes, opts.max_hypotheses);
-        tracing::debug!(
-            hyps = ?hyps.iter().map(|h| (h.1, probe_err(&h.0))).collect::<Vec<_>>(),
-            "coarse hypotheses"
-        );
-        // The strongest hypotheses are also polished turned by half a turn about the robot's
-        // axis: when the visible base and shoulder are nearly symmetric, the Hough vote can
-        // rank the half-turned pose above the right one and lose the right one altogether.
-        let mut seeds: Vec<Isometry3<f64>> = hyps.iter().map(|h| h.0).collect();
-        for (h, _) in hyps.iter().take(HALF_TURN_SEEDS) {
-            let flipped = half_turn(h);
-            if seeds.iter().all(|c| !near_pose(c, &flipped)) {
-                seeds.push(flipped);
+        // Hough hypotheses on `planes`, each polished (the strongest also half-turned).
+        let search = |planes: &[coarse::Plane], max_out: usize| {
+            let hyps = coarse::hypotheses(&range, &surface, &pts, planes, max_out);
+            tracing::debug!(
+                hyps = ?hyps.iter().map(|h| (h.1, probe_err(&h.0))).collect::<Vec<_>>(),
+                "coarse hypotheses"
+            );
+            // The strongest hypotheses are also polished turned by half a turn about the
+            // robot's axis: when the visible base and shoulder are nearly symmetric, the Hough
+            // vote can rank the half-turned pose above the right one and lose the right one
+            // altogether.
+            let mut seeds: Vec<Isometry3<f64>> = hyps.iter().map(|h| h.0).collect();
+            for (h, _) in hyps.iter().take(HALF_TURN_SEEDS) {
+                let flipped = half_turn(h);
+                if seeds.iter().all(|c| !near_pose(c, &flipped)) {
+                    seeds.push(flipped);
+                }
             }
-        }
-        n_hyp += seeds.len();
-        let polished: Vec<(Isometry3<f64>, Evidence)> =
-            seeds.par_iter().filter_map(&polish).collect();
+            let polished: Vec<(Isometry3<f64>, Evidence)> =
+                seeds.par_iter().filter_map(&polish).collect();
+            (polished, seeds.len())
+        };
+        let ranked = coarse::support_planes(&pts, opts.seed);
+        planes_found = ranked.len();
+        // A floor, table or wall the robot is mounted on has (almost) nothing behind it.
+        let plausible = ranked
+            .first()
+            .is_some_and(|r| r.0 as f64 <= MAX_BEHIND_SUPPORT * pts.len() as f64);
+        let planes: Vec<coarse::Plane> = ranked.iter().take(SUPPORT_PLANES).map(|r| r.1).collect();
+        let (polished, n) = search(&planes, opts.max_hypotheses);
+        n_hyp += n;
         cands.extend(polished);
+        // No plane the robot could stand on (the floor beyond the camera's range or seen
+        // edge-on by a camera level with the base), or none on which it was found: derive
+        // mounting planes from the robot's own cylinders.
+        let best_coverage = cands.iter().map(|c| c.1.coverage()).fold(0.0, f64::max);
+        if !plausible || best_coverage < FALLBACK_COVERAGE {
+            let derived = coarse::derived_planes(&pts, &surface, opts.seed);
+            planes_found += derived.len();
+            let (polished, n) = search(&derived, opts.max_hypotheses);
+            n_hyp += n;
+            cands.extend(polished);
+        }
         cands.sort_by(|a, b| score(&b.1).total_cmp(&score(&a.1)));
         // The base is nearly round: the Hough peaks may all sit at the right place but at wrong
         // turns of it (bolt patterns repeat every 60° or 90°), the right turn among none of
@@ -444,6 +466,18 @@ pub fn register_posed(
         if contenders.len() >= MAX_CONTENDERS || score(e) < 0.7 * best_score {
             break;
         }
+        if contenders.iter().all(|c| !near_pose(c, pose)) {
+            contenders.push(*pose);
+        }
+    }
+    // The candidate covering the most of its expected surface, whatever its score: a wrong pose
+    // that shows more of the model (a bigger visible area) can out-score the right one by far
+    // while covering less of what it expects.
+    if let Some((pose, _)) = cands
+        .iter()
+        .filter(|c| score(&c.1) > 0.0)
+        .max_by(|a, b| a.1.coverage().total_cmp(&b.1.coverage()))
+    {
         if contenders.iter().all(|c| !near_pose(c, pose)) {
             contenders.push(*pose);
         }
@@ -640,6 +674,18 @@ fn yaw_sweep(
     }
     out
 }
+
+/// Planes of the scan the Hough vote searches for the robot, most plausible first.
+const SUPPORT_PLANES: usize = 3;
+
+/// Fraction of the scan points that may lie behind a plane the robot stands on (flying
+/// pixels, past its edge).
+const MAX_BEHIND_SUPPORT: f64 = 0.01;
+
+/// Below this coverage of its best polished hypothesis, the search on the scan's planes has
+/// not found the robot, and planes derived from its shape are searched too (right poses cover
+/// 0.9 or more).
+const FALLBACK_COVERAGE: f64 = 0.85;
 
 /// Turns of the best coarse candidate polished after the sweep.
 const SWEEP_KEEP: usize = 4;
@@ -1643,5 +1689,58 @@ mod issue_3_tests {
     #[test]
     fn issue_3_six_near_equal_turns_are_all_compared() {
         trial("ur30", UR30_MOUNT, &UR30_VIEW_8, 6970261747485719572);
+    }
+
+    /// Bench seed 2, ur20 view 10 scan 0: the camera is level with the base, 6 cm above its
+    /// mounting face; the floor is seen edge-on (nothing measured), and every plane of the scan
+    /// is a tangent plane of the UR20's own cylinders, with the floor behind it ("robot not
+    /// found"). The mounting plane derived from the base cylinder's axis finds it.
+    #[test]
+    fn issue_3_a_camera_level_with_the_base_finds_it_without_a_floor() {
+        trial(
+            "ur20",
+            (
+                [
+                    0.0050790953065904185,
+                    -0.07935803549462878,
+                    0.05836297545372256,
+                ],
+                [
+                    -0.3139453533438121,
+                    -0.11567349428681195,
+                    0.6995968553992749,
+                ],
+            ),
+            &[
+                0.9518609032884902,
+                -1.0731357827413492,
+                2.23269754136033,
+                -1.4046781550195588,
+                -1.6595593445369001,
+                -0.8287494854608144,
+            ],
+            16510074904163851837,
+        );
+    }
+
+    /// Bench seed 2, ur3e view 9 scan 1: the right pose was polished (0.2 mm off) but a wrong
+    /// pose showing more of the model out-scored it by far (152 against 89) and was the only
+    /// contender; it failed the fine alignment ("robot not found"). The candidate with the best
+    /// coverage is always a contender now.
+    #[test]
+    fn issue_3_the_best_covering_candidate_is_always_a_contender() {
+        trial(
+            "ur3e",
+            UR3E_MOUNT_SEED_2,
+            &[
+                -0.21382774721386655,
+                -1.7157795316474476,
+                0.33438874419427256,
+                0.1249485719861787,
+                -1.6828660518677563,
+                1.5285408244036462,
+            ],
+            15306023974058585794,
+        );
     }
 }
