@@ -316,7 +316,7 @@ pub fn register_posed(
         matched_m: 0.004,
         free_m: 0.008,
     };
-    let polish = |camera_from_model: &Isometry3<f64>| -> Option<(Isometry3<f64>, Evidence)> {
+    let polish = |camera_from_model: &Isometry3<f64>| -> Option<Candidate> {
         let pts = polish_pool.select(&range, &surface, camera_from_model, 500, 0.03);
         let r = icp(
             &pts,
@@ -327,24 +327,28 @@ pub fn register_posed(
         )?;
         let pose = r.model_from_camera.inverse();
         let e = evidence(&range, &surface.coarse, &pose, surface.fit_depth, quick_tol);
-        Some((pose, e))
+        Some(Candidate {
+            pose,
+            e,
+            fit: r.sharpness * r.sharpness_moving,
+        })
     };
-    // Polished candidates (pose, evidence); the prior first when it has one.
-    let mut cands: Vec<(Isometry3<f64>, Evidence)> = Vec::new();
+    // Polished candidates; the prior first when it has one.
+    let mut cands: Vec<Candidate> = Vec::new();
     let mut from_prior = false;
     let mut n_hyp = 0;
     if let Some(prior) = prior {
         n_hyp += 1;
-        if let Some((pose, e)) = polish(&prior) {
-            if e.coverage() >= opts.min_coverage_prior && e.violation_fraction() <= 0.1 {
+        if let Some(c) = polish(&prior) {
+            if c.e.coverage() >= opts.min_coverage_prior && c.e.violation_fraction() <= 0.1 {
                 from_prior = true;
                 // A nearly symmetric robot (round base, shoulder without the upper arm in
                 // view) also fits turned by half a turn about its axis: compare that too.
-                let flipped = half_turn(&pose);
+                let flipped = half_turn(&c.pose);
                 n_hyp += 1;
                 cands.extend(polish(&flipped));
             }
-            cands.push((pose, e));
+            cands.push(c);
         }
     }
     let mut planes_found = 0;
@@ -368,8 +372,7 @@ pub fn register_posed(
                     seeds.push(flipped);
                 }
             }
-            let polished: Vec<(Isometry3<f64>, Evidence)> =
-                seeds.par_iter().filter_map(&polish).collect();
+            let polished: Vec<Candidate> = seeds.par_iter().filter_map(&polish).collect();
             (polished, seeds.len())
         };
         let ranked = coarse::support_planes(&pts, opts.seed);
@@ -385,7 +388,7 @@ pub fn register_posed(
         // No plane the robot could stand on (the floor beyond the camera's range or seen
         // edge-on by a camera level with the base), or none on which it was found: derive
         // mounting planes from the robot's own cylinders.
-        let best_coverage = cands.iter().map(|c| c.1.coverage()).fold(0.0, f64::max);
+        let best_coverage = cands.iter().map(|c| c.e.coverage()).fold(0.0, f64::max);
         if !plausible || best_coverage < FALLBACK_COVERAGE {
             let derived = coarse::derived_planes(&pts, &surface, opts.seed);
             planes_found += derived.len();
@@ -393,26 +396,30 @@ pub fn register_posed(
             n_hyp += n;
             cands.extend(polished);
         }
-        cands.sort_by(|a, b| score(&b.1).total_cmp(&score(&a.1)));
+        cands.sort_by(|a, b| score(&b.e).total_cmp(&score(&a.e)));
         // The base is nearly round: the Hough peaks may all sit at the right place but at wrong
         // turns of it (bolt patterns repeat every 60° or 90°), the right turn among none of
         // them. Sweep the best candidate's turn about the robot's axis and polish the turns
         // that explain the scan best.
-        if let Some((best, _)) = cands.first() {
-            let turns = yaw_sweep(&range, &surface, best, &cands);
+        if let Some(best) = cands.first() {
+            let turns = yaw_sweep(&range, &surface, &best.pose, &cands);
             n_hyp += turns.len();
-            let polished: Vec<(Isometry3<f64>, Evidence)> =
-                turns.par_iter().filter_map(&polish).collect();
+            let polished: Vec<Candidate> = turns.par_iter().filter_map(&polish).collect();
             cands.extend(polished);
         }
     }
-    cands.sort_by(|a, b| score(&b.1).total_cmp(&score(&a.1)));
+    cands.sort_by(|a, b| score(&b.e).total_cmp(&score(&a.e)));
     timings.coarse = ms(t1);
     tracing::debug!(
-        cands = ?cands.iter().map(|c| (score(&c.1), c.1.coverage(), probe_err(&c.0))).collect::<Vec<_>>(),
+        cands = ?cands.iter().map(|c| (score(&c.e), c.e.coverage(), c.fit, probe_err(&c.pose))).collect::<Vec<_>>(),
         "polished coarse candidates"
     );
-    let Some((coarse_pose, coarse_e)) = cands.first().cloned() else {
+    let Some(Candidate {
+        pose: coarse_pose,
+        e: coarse_e,
+        ..
+    }) = cands.first().cloned()
+    else {
         return Err(CalibError::RobotNotFound {
             detail: format!("{planes_found} supporting planes, no pose hypothesis converged"),
         });
@@ -462,38 +469,27 @@ pub fn register_posed(
     // pose covers the scan about as well, but its residuals are several times larger.
     let best_score = score(&coarse_e);
     let mut contenders: Vec<Isometry3<f64>> = vec![coarse_pose];
-    for (pose, e) in cands.iter().skip(1) {
-        if contenders.len() >= MAX_CONTENDERS || score(e) < 0.7 * best_score {
+    for c in cands.iter().skip(1) {
+        if contenders.len() >= MAX_CONTENDERS || score(&c.e) < 0.7 * best_score {
             break;
         }
-        if contenders.iter().all(|c| !near_pose(c, pose)) {
-            contenders.push(*pose);
+        if contenders.iter().all(|o| !same_basin(o, &c.pose)) {
+            contenders.push(c.pose);
         }
     }
-    // The candidate covering the most of its expected surface, whatever its score: a wrong pose
-    // that shows more of the model (a bigger visible area) can out-score the right one by far
-    // while covering less of what it expects.
-    if let Some((pose, _)) = cands
+    // Whatever their score, the candidate covering the most of its expected surface (a wrong
+    // pose that shows more of the model can out-score the right one by far while covering less
+    // of what it expects) and the one its short fit hugs most tightly (the turns of a round
+    // base with a 6-fold bolt pattern score alike; five or more can crowd the right one out of
+    // the slots above, but their shoulders fit worse).
+    let plausible: Vec<&Candidate> = cands.iter().filter(|c| score(&c.e) > 0.0).collect();
+    let by_coverage = plausible
         .iter()
-        .filter(|c| score(&c.1) > 0.0)
-        .max_by(|a, b| a.1.coverage().total_cmp(&b.1.coverage()))
-    {
-        if contenders.iter().all(|c| !near_pose(c, pose)) {
-            contenders.push(*pose);
-        }
-    }
-    // The best pose turned by half a turn about the robot's axis: a nearly symmetric view (round
-    // base, shoulder) is often found the wrong way round, and the right pose may be missing from
-    // the Hough peaks altogether.
-    if !from_prior {
-        let flipped = half_turn(&coarse_pose);
-        if contenders.iter().all(|c| !near_pose(c, &flipped)) {
-            n_hyp += 1;
-            if let Some((pose, e)) = polish(&flipped) {
-                if score(&e) > 0.5 * best_score && contenders.iter().all(|c| !near_pose(c, &pose)) {
-                    contenders.push(pose);
-                }
-            }
+        .max_by(|a, b| a.e.coverage().total_cmp(&b.e.coverage()));
+    let by_fit = plausible.iter().max_by(|a, b| a.fit.total_cmp(&b.fit));
+    for c in by_coverage.into_iter().chain(by_fit) {
+        if contenders.iter().all(|o| !same_basin(o, &c.pose)) {
+            contenders.push(c.pose);
         }
     }
     let fitted: Vec<(IcpResult, Isometry3<f64>, Evidence, f64)> = contenders
@@ -639,7 +635,7 @@ fn yaw_sweep(
     range: &RangeImage<'_>,
     surface: &ModelSurface,
     best: &Isometry3<f64>,
-    cands: &[(Isometry3<f64>, Evidence)],
+    cands: &[Candidate],
 ) -> Vec<Isometry3<f64>> {
     // Loose, like the Hough peaks' scoring: a turn 5° off the right one moves the shoulder's
     // samples by ~10 mm.
@@ -666,13 +662,24 @@ fn yaw_sweep(
         if out.len() >= SWEEP_KEEP || sc < 0.5 * top || sc <= 0.0 {
             break;
         }
-        if cands.iter().all(|(c, _)| apart(c, &pose, 10.0))
+        if cands.iter().all(|c| apart(&c.pose, &pose, 10.0))
             && out.iter().all(|o| apart(o, &pose, 20.0))
         {
             out.push(pose);
         }
     }
     out
+}
+
+/// A polished coarse hypothesis.
+#[derive(Debug, Clone)]
+struct Candidate {
+    /// `camera_from_model`.
+    pose: Isometry3<f64>,
+    /// Its projective evidence at the polishing tolerance.
+    e: Evidence,
+    /// How tightly the short fit hugs the scan: sharpness overall × on the moving links.
+    fit: f64,
 }
 
 /// Planes of the scan the Hough vote searches for the robot, most plausible first.
@@ -741,13 +748,19 @@ fn probe_err(camera_from_model: &Isometry3<f64>) -> String {
     String::new()
 }
 
-/// Whether two `camera_from_model` poses are the same hypothesis (model origin within 1 cm,
-/// rotation within 2°): both would converge to the same fit.
 /// Whether a refinement moved the pose by less than kinematic error can explain.
 fn small_step(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     super::within(a, b, 0.003, 0.3)
 }
 
+/// Whether two polished candidates would converge to the same fine fit (model origin within
+/// 2 cm, rotation within 10°): one contender stands for both.
+fn same_basin(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+    super::within(a, b, 0.02, 10.0)
+}
+
+/// Whether two `camera_from_model` seeds are the same hypothesis (model origin within 1 cm,
+/// rotation within 2°): both would polish to the same candidate.
 fn near_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     super::within(a, b, 0.01, 2.0)
 }
@@ -1741,6 +1754,47 @@ mod issue_3_tests {
                 1.5285408244036462,
             ],
             15306023974058585794,
+        );
+    }
+
+    /// Bench ur30 view 8 scan 2 (seed 1): the 60°, 120° and 180° turns of the base and a
+    /// second 180° candidate 6° from the first took the four contender slots; the right pose
+    /// (polished, 0.6 mm off, coverage 0.99) had none and the 60° turn was rejected as
+    /// ambiguous. Candidates that would converge to the same fit share one slot now.
+    #[test]
+    fn issue_3_near_duplicate_candidates_share_a_contender_slot() {
+        trial("ur30", UR30_MOUNT, &UR30_VIEW_8, 3022027304964649981);
+    }
+
+    /// Bench ur20 view 15 scan 1 (seed 1): the 60°, 120° and 180° turns of the base (and the
+    /// −60° one) took every contender slot, the right pose (0.5 mm off) scoring just below
+    /// them; rejected as ambiguous. Its short fit hugs the shoulder best (sharpness 0.99
+    /// against ≤ 0.98), which now earns it a slot.
+    #[test]
+    fn issue_3_the_tightest_short_fit_is_always_a_contender() {
+        trial(
+            "ur20",
+            (
+                [
+                    0.014035037769203586,
+                    -0.06118441823228681,
+                    0.030595748856561727,
+                ],
+                [
+                    -0.30689963953109106,
+                    -0.16614573860406345,
+                    0.9827748531382114,
+                ],
+            ),
+            &[
+                2.4318900301437685,
+                -1.0812787968493711,
+                2.4685533589860373,
+                0.7615851273215046,
+                2.078448972545978,
+                2.3748683377956112,
+            ],
+            16056022761727771937,
         );
     }
 }
