@@ -176,7 +176,7 @@ pub(crate) fn derived_planes(pts: &[Oriented], surface: &ModelSurface, seed: u64
     let mut planes: Vec<Plane> = Vec::new();
     for axis in cylinder_axes(pts, DERIVED_PLANES / 2, seed) {
         for up in [axis, -axis] {
-            if let Some((h, _)) = mounting_heights(pts, &up, surface, 1).first() {
+            if let Some(h) = mounting_height(pts, &up, surface) {
                 planes.push(Plane { n: up, d: -h });
             }
         }
@@ -240,16 +240,10 @@ fn cylinder_axes(pts: &[Oriented], max_axes: usize, seed: u64) -> Vec<Vector3<f6
     axes
 }
 
-/// Up to `max` heights `h` (distinct peaks, ≥ 3 cm apart, best first) of the robot's mounting
-/// face along `up` (the plane `up · p = h`, camera frame), with their votes: each scan point votes for
-/// the heights at which the model has surface facing the same way (side, up, down) at its
-/// height, in proportion to how much.
-fn mounting_heights(
-    pts: &[Oriented],
-    up: &Vector3<f64>,
-    surface: &ModelSurface,
-    max: usize,
-) -> Vec<(f64, f64)> {
+/// The height `h` of the robot's mounting face along `up` (the plane `up · p = h`, camera
+/// frame): each scan point votes for the heights at which the model has surface facing the
+/// same way (side, up, down) at its height, in proportion to how much.
+fn mounting_height(pts: &[Oriented], up: &Vector3<f64>, surface: &ModelSurface) -> Option<f64> {
     const BIN_M: f64 = 0.01;
     let class = |nz: f64| {
         if nz > 0.8 {
@@ -270,7 +264,7 @@ fn mounting_heights(
             (lo.min(s.p.z), hi.max(s.p.z))
         });
     if !m_lo.is_finite() {
-        return Vec::new();
+        return None;
     }
     let m_bins = ((m_hi - m_lo) / BIN_M) as usize + 1;
     let mut model = vec![vec![0.0; m_bins]; 3];
@@ -296,7 +290,7 @@ fn mounting_heights(
             (lo.min(h.0), hi.max(h.0))
         });
     if !s_lo.is_finite() {
-        return Vec::new();
+        return None;
     }
     let s_bins = (((s_hi - s_lo) / BIN_M) as usize + 1).min(1000);
     let mut scan = vec![vec![0.0; s_bins]; 3];
@@ -315,31 +309,14 @@ fn mounting_heights(
             }
         }
     }
-    let smooth: Vec<f64> = (0..votes.len())
-        .map(|k| {
-            votes[k.saturating_sub(1)..(k + 2).min(votes.len())]
-                .iter()
-                .sum()
-        })
-        .collect();
-    let mut order: Vec<usize> = (0..smooth.len()).collect();
-    order.sort_by(|&a, &b| smooth[b].total_cmp(&smooth[a]));
-    let mut peaks: Vec<usize> = Vec::new();
-    for k in order {
-        if peaks.len() >= max || smooth[k] <= 0.0 {
-            break;
-        }
-        if peaks.iter().all(|&p| p.abs_diff(k) >= 3) {
-            peaks.push(k);
-        }
-    }
-    peaks
-        .into_iter()
-        .map(|k| {
-            let h = s_lo - m_lo + (k as f64 - m_bins as f64) * BIN_M;
-            (h, smooth[k])
-        })
-        .collect()
+    let smooth = |k: usize| -> f64 {
+        votes[k.saturating_sub(1)..(k + 2).min(votes.len())]
+            .iter()
+            .sum()
+    };
+    // The first of equal peaks.
+    let best = (0..votes.len()).reduce(|b, k| if smooth(k) > smooth(b) { k } else { b })?;
+    (smooth(best) > 0.0).then(|| s_lo - m_lo + (best as f64 - m_bins as f64) * BIN_M)
 }
 
 /// `camera_from_plane`: a frame with z along the plane normal and origin on the plane, below the

@@ -23,7 +23,8 @@ type Mat7 = SMatrix<f64, 7, 7>;
 /// Residual scale of [`IcpResult::sharpness`], metres.
 const SHARP_M: f64 = 0.0005;
 type Vec7 = SVector<f64, 7>;
-/// Edge of the model-frame cubes whose residuals [`patch_scores`] treats as one error, metres.
+/// Edge of the model-frame cubes whose residuals [`Reliability::meat`] treats as one error,
+/// metres.
 const PATCH_M: f64 = 0.03;
 /// Scan points on the moving links below which [`IcpResult::sharpness_moving`] says nothing.
 const MIN_MOVING_POINTS: usize = 30;
@@ -62,8 +63,8 @@ pub(crate) struct IcpResult {
     /// Cluster-robust covariance of the 6 pose parameters (model-frame left perturbation),
     /// m² / rad².
     pub(crate) cov6: Matrix6<f64>,
-    /// How the pose parameters follow small kinematic errors of the arm (see
-    /// [`Reliability::kinematic`]): `δpose = −gain · e`, 6 × 6·joints.
+    /// How the pose parameters follow small kinematic errors `e` of the arm (see
+    /// [`Reliability::kinematic`]): they move by `gain · e`, 6 × 6·joints.
     pub(crate) kinematic_gain: DMatrix<f64>,
     /// Weighted centroid of the correspondences, model frame (metres).
     pub(crate) centroid: Point3<f64>,
@@ -90,7 +91,6 @@ struct Acc {
     h: Mat7,
     g: Vec7,
     wsum: f64,
-    wr2: f64,
     n: usize,
     close: usize,
     r2_close: f64,
@@ -108,7 +108,6 @@ impl Acc {
         self.h += o.h;
         self.g += o.g;
         self.wsum += o.wsum;
-        self.wr2 += o.wr2;
         self.n += o.n;
         self.close += o.close;
         self.r2_close += o.r2_close;
@@ -206,7 +205,6 @@ fn accumulate(
         a.h = c.j * c.j.transpose() * c.w;
         a.g = c.j * (c.w * c.r);
         a.wsum = c.w;
-        a.wr2 = c.w * c.r * c.r;
         a.n = 1;
         a.wx = c.x.coords * c.w;
         a.wxx = c.w * c.x.coords.norm_squared();

@@ -76,7 +76,15 @@ fn probe_bench_trials() {
                     mount.rotation.scaled_axis().as_slice()
                 );
                 let req = cfg.scan_request(&model, q, mount, seed);
-                let truth = crate::sim::simulate_scan(&req).expect("sim").truth;
+                let sim = crate::sim::simulate_scan(&req).expect("sim");
+                let mut seen = std::collections::BTreeMap::<&str, usize>::new();
+                for (l, p) in sim.labels.iter().zip(&sim.cloud.points) {
+                    if let (Some(name), true) = (sim.objects.get(*l as usize), p.z.is_finite()) {
+                        *seen.entry(name.as_str()).or_default() += 1;
+                    }
+                }
+                eprintln!("=== {key} scan points per object: {seen:?}");
+                let truth = sim.truth;
                 super::register::PROBE_TRUTH.with(|c| c.set(Some(truth.camera_from_model)));
                 let up = truth.camera_from_model.rotation * nalgebra::Vector3::z();
                 eprintln!(

@@ -495,23 +495,33 @@ pub fn register_posed(
             contenders.push(c.pose);
         }
     }
+    // Fits `c` exactly on up to `points` scan points through `stages`; `None` if the fit fails
+    // or leaves too little of the model covered.
+    let fit = |c: &Isometry3<f64>, points: usize, stages: &[Stage]| {
+        let pts = pool.select(&range, &surface, c, points, 0.01);
+        let fine = icp(&pts, &surface, &c.inverse(), 1.0, stages)?;
+        let pose = fine.model_from_camera.inverse();
+        // The verification looks at the scan as measured: apply the scale to the model.
+        let e = evidence_scaled(&range, &surface, &pose, 1.0 / fine.kappa, tol);
+        if e.coverage() < opts.min_coverage_found
+            || e.violation_fraction() > opts.max_violation_found
+        {
+            return None;
+        }
+        let key =
+            e.coverage() * fine.sharpness * fine.sharpness_moving - 3.0 * e.violation_fraction();
+        Some((fine, pose, e, key))
+    };
+    // Several contenders are judged on a quarter of the points (their misfits differ by
+    // several times; the full set only sharpens the winner's estimate), the winner refitted.
+    let judge_points = if contenders.len() > 1 {
+        opts.max_icp_points / 4
+    } else {
+        opts.max_icp_points
+    };
     let fitted: Vec<(IcpResult, Isometry3<f64>, Evidence, f64)> = contenders
         .iter()
-        .filter_map(|c| {
-            let pts = pool.select(&range, &surface, c, opts.max_icp_points, 0.01);
-            let fine = icp(&pts, &surface, &c.inverse(), 1.0, &fine_stages)?;
-            let pose = fine.model_from_camera.inverse();
-            // The verification looks at the scan as measured: apply the scale to the model.
-            let e = evidence_scaled(&range, &surface, &pose, 1.0 / fine.kappa, tol);
-            if e.coverage() < opts.min_coverage_found
-                || e.violation_fraction() > opts.max_violation_found
-            {
-                return None;
-            }
-            let key = e.coverage() * fine.sharpness * fine.sharpness_moving
-                - 3.0 * e.violation_fraction();
-            Some((fine, pose, e, key))
-        })
+        .filter_map(|c| fit(c, judge_points, &fine_stages))
         .collect();
     let Some(win) = (0..fitted.len()).max_by(|&a, &b| fitted[a].3.total_cmp(&fitted[b].3)) else {
         return Err(CalibError::RobotNotFound {
@@ -561,10 +571,15 @@ pub fn register_posed(
         ambiguity,
         "fine contenders"
     );
-    let Some((fine, camera_from_model, e, _)) = fitted.into_iter().nth(win) else {
+    let Some(judged) = fitted.into_iter().nth(win) else {
         return Err(CalibError::RobotNotFound {
             detail: "fine alignment found too few correspondences".into(),
         });
+    };
+    let (fine, camera_from_model, e, _) = if judge_points < opts.max_icp_points {
+        fit(&judged.1, opts.max_icp_points, &fine_stages[1..]).unwrap_or(judged)
+    } else {
+        judged
     };
     // Anchor the winner on the moving links (see `moving_link_weight`); the contenders
     // were judged on the even fit, and a refinement that wanders off is not trusted. The
