@@ -316,7 +316,7 @@ fn mounting_height(pts: &[Oriented], up: &Vector3<f64>, surface: &ModelSurface) 
     };
     // The first of equal peaks.
     let best = (0..votes.len()).reduce(|b, k| if smooth(k) > smooth(b) { k } else { b })?;
-    (smooth(best) > 0.0).then(|| s_lo - m_lo + (best as f64 - m_bins as f64) * BIN_M)
+    (smooth(best) > 0.0).then_some(s_lo - m_lo + (best as f64 - m_bins as f64) * BIN_M)
 }
 
 /// `camera_from_plane`: a frame with z along the plane normal and origin on the plane, below the
