@@ -246,19 +246,45 @@ pub fn run_robot(
     cfg: &BenchConfig,
     mut progress: impl FnMut(&Trial),
 ) -> Result<RobotSummary, PlanError> {
-    let mut rng = rand::rngs::StdRng::seed_from_u64(cfg.seed);
-    let mount = random_mount(&mut rng);
-    let planner = ViewPlanner::new(model, mount, cfg.intrinsics, ViewConstraints::default());
-    let views = planner.generate(cfg.views, rng.random())?;
+    let plan = plan_trials(model, cfg)?;
     let mut trials = Vec::new();
-    for (v, q) in views.iter().enumerate() {
-        for s in 0..cfg.scans_per_view {
-            let t = run_trial(model, mount, q, cfg, rng.random(), v, s);
+    for (v, (q, seeds)) in plan.views.iter().zip(&plan.scan_seeds).enumerate() {
+        for (s, &seed) in seeds.iter().enumerate() {
+            let t = run_trial(model, plan.mount, q, cfg, seed, v, s);
             progress(&t);
             trials.push(t);
         }
     }
     Ok(RobotSummary::new(model.name(), trials))
+}
+
+/// One robot's trials as [`run_robot`] draws them from `cfg.seed`.
+#[derive(Debug, Clone)]
+pub struct TrialPlan {
+    /// The wrist-camera mount (`flange_from_camera`).
+    pub mount: Isometry3<f64>,
+    /// The views' joint angles.
+    pub views: Vec<Vec<f64>>,
+    /// `scan_seeds[v][s]`: the simulator seed of scan `s` of view `v`.
+    pub scan_seeds: Vec<Vec<u64>>,
+}
+
+/// Draws the mount, the views and the scans' seeds of one robot from `cfg.seed` (what
+/// [`run_robot`] runs; a diagnostic replays single trials from it).
+pub fn plan_trials(model: &RobotModel, cfg: &BenchConfig) -> Result<TrialPlan, PlanError> {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(cfg.seed);
+    let mount = random_mount(&mut rng);
+    let planner = ViewPlanner::new(model, mount, cfg.intrinsics, ViewConstraints::default());
+    let views = planner.generate(cfg.views, rng.random())?;
+    let scan_seeds = views
+        .iter()
+        .map(|_| (0..cfg.scans_per_view).map(|_| rng.random()).collect())
+        .collect();
+    Ok(TrialPlan {
+        mount,
+        views,
+        scan_seeds,
+    })
 }
 
 /// Simulates one eye-in-hand scan and calibrates from it without a prior.

@@ -5,11 +5,8 @@
 
 use std::path::PathBuf;
 
-use rand::{Rng, SeedableRng};
-
-use crate::bench::{random_mount, run_trial, BenchConfig};
+use crate::bench::{plan_trials, run_trial, BenchConfig};
 use crate::model::RobotModel;
-use crate::plan::{ViewConstraints, ViewPlanner};
 use crate::sim::Intrinsics;
 
 fn env(name: &str, default: &str) -> String {
@@ -59,13 +56,10 @@ fn probe_bench_trials() {
                 .wrapping_add(i as u64 * 7919),
             ..BenchConfig::default()
         };
-        let mut rng = rand::rngs::StdRng::seed_from_u64(cfg.seed);
-        let mount = random_mount(&mut rng);
-        let planner = ViewPlanner::new(&model, mount, cfg.intrinsics, ViewConstraints::default());
-        let qs = planner.generate(cfg.views, rng.random()).expect("views");
-        for (v, q) in qs.iter().enumerate() {
-            for s in 0..spv {
-                let seed: u64 = rng.random();
+        let plan = plan_trials(&model, &cfg).expect("views");
+        let mount = plan.mount;
+        for (v, (q, seeds)) in plan.views.iter().zip(&plan.scan_seeds).enumerate() {
+            for (s, &seed) in seeds.iter().enumerate() {
                 let key = format!("{name}:{v}:{s}");
                 if !only.is_empty() && !only.split(',').any(|o| o == key) {
                     continue;
