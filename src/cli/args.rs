@@ -1,5 +1,6 @@
 //! Parsers for values given on the command line.
 
+use handeye::model::KinematicError;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 /// Parses `x,y,z,rx,ry,rz` (metres, rotation vector in radians — the UR `p[...]` convention)
@@ -29,6 +30,22 @@ pub(crate) fn parse_joints(s: &str) -> Result<JointList, String> {
         return Err("expected comma-separated joint angles in radians".into());
     }
     Ok(JointList(v))
+}
+
+/// Parses `offset,length,misalignment` — the 1σ of each joint's zero offset (mrad), link length
+/// (mm) and axis misalignment (mrad) of the real arm against its URDF.
+pub(crate) fn parse_kinematic_error(s: &str) -> Result<KinematicError, String> {
+    let v = parse_numbers(s)?;
+    match v[..] {
+        [offset, length, misalignment] if v.iter().all(|x| *x >= 0.0) => Ok(KinematicError {
+            joint_offset_sigma_rad: offset * 1e-3,
+            link_length_sigma_m: length * 1e-3,
+            axis_misalignment_sigma_rad: misalignment * 1e-3,
+        }),
+        _ => Err(format!(
+            "expected 3 non-negative numbers offset_mrad,length_mm,misalignment_mrad (e.g. 0.3,0.3,0.1; 0,0,0 when the URDF is the controller's calibrated kinematics), got `{s}`"
+        )),
+    }
 }
 
 fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
@@ -98,5 +115,24 @@ mod tests {
             .contains("`x`"));
         assert!(parse_joints("0,nan").is_err());
         assert_eq!(parse_joints("0,1.5").expect("valid").0, vec![0.0, 1.5]);
+    }
+
+    #[test]
+    fn kinematic_error_is_read_in_mrad_and_mm() {
+        assert_eq!(
+            parse_kinematic_error("0.3,0.3,0.1").expect("valid"),
+            KinematicError::default()
+        );
+        assert_eq!(
+            parse_kinematic_error("0,0,0").expect("valid"),
+            KinematicError::none()
+        );
+        for bad in ["0.3,0.3", "0.3,-0.3,0.1", "0.3,0.3,0.1,0", "a,b,c"] {
+            let e = parse_kinematic_error(bad).expect_err(bad);
+            assert!(
+                e.contains("offset_mrad,length_mm,misalignment_mrad") || e.contains("finite"),
+                "{e}"
+            );
+        }
     }
 }

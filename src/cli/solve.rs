@@ -14,10 +14,10 @@ use handeye::calib::{
     gate, posed_model, register_posed, solve, CalibError, CalibrationReport, FrameInput,
     GateThresholds, Mount, RegisterOptions, SolveOptions,
 };
-use handeye::model::RobotModel;
+use handeye::model::{KinematicError, RobotModel};
 use nalgebra::Isometry3;
 
-use super::args::{parse_joints, parse_pose};
+use super::args::{parse_joints, parse_kinematic_error, parse_pose};
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -45,6 +45,12 @@ pub(crate) struct Args {
     /// Guess of the fixed camera in `--base-frame` (eye-to-hand), `x,y,z,rx,ry,rz`.
     #[arg(long, allow_hyphen_values = true)]
     guess_base_from_camera: Option<String>,
+    /// How the real arm differs from the URDF, per joint (1σ): zero offset (mrad), link length
+    /// (mm), axis misalignment (mrad). The reported uncertainty carries what it does to the
+    /// result. Default: UR factory-calibration deltas (0.3,0.3,0.1); `0,0,0` when the URDF is
+    /// the controller's calibrated kinematics.
+    #[arg(long, value_parser = parse_kinematic_error)]
+    kinematic_error: Option<KinematicError>,
     /// The camera is fixed in the cell (solve `base_from_camera`), not on the flange.
     #[arg(long)]
     eye_to_hand: bool,
@@ -96,7 +102,11 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let mut frames = Vec::new();
     let mut sources = Vec::new();
     let mut view_keys: Vec<String> = Vec::new();
-    let opts = RegisterOptions::default();
+    let defaults = RegisterOptions::default();
+    let opts = RegisterOptions {
+        kinematic_error: args.kinematic_error.unwrap_or(defaults.kinematic_error),
+        ..defaults
+    };
     for (i, scan_path) in args.scan.iter().enumerate() {
         let joints_text =
             per_frame(&args.joints, i, "joints", n)?.context("--joints is required")?;
@@ -199,6 +209,7 @@ mod tests {
             base_frame: Some("base".into()),
             guess_flange_from_camera: None,
             guess_base_from_camera: None,
+            kinematic_error: None,
             eye_to_hand: false,
             json: true,
         }

@@ -195,19 +195,17 @@ fn simulate_scan_writes_ply_and_ground_truth() {
 }
 
 fn solve(s: &Scan, joints: &str, scan: &Path) -> Output {
-    run(
-        &[
-            "solve",
-            "--robot",
-            &s.urdf.to_string_lossy(),
-            "--joints",
-            joints,
-            "--scan",
-            &scan.to_string_lossy(),
-            "--json",
-        ],
-        secs(60),
-    )
+    solve_with(s, joints, scan, &[])
+}
+
+fn solve_with(s: &Scan, joints: &str, scan: &Path, extra: &[&str]) -> Output {
+    let urdf = s.urdf.to_string_lossy();
+    let scan = scan.to_string_lossy();
+    let mut args = vec![
+        "solve", "--robot", &urdf, "--joints", joints, "--scan", &scan, "--json",
+    ];
+    args.extend_from_slice(extra);
+    run(&args, secs(60))
 }
 
 /// A flat patch of floor 0.8 m in front of the camera, as an organized PLY.
@@ -264,6 +262,25 @@ fn solve_recovers_the_mount_from_a_simulated_scan() {
         mm < MAX_MM && deg < MAX_DEG,
         "solve is {mm:.3} mm / {deg:.4}° off the truth\n{out}"
     );
+
+    // The arm's kinematic error is part of the reported uncertainty: without it (the URDF
+    // taken as the controller's calibrated kinematics) the same fit reports less.
+    let exact = solve_with(&s, &csv(&s.joints), &s.ply, &["--kinematic-error", "0,0,0"]);
+    assert_eq!(exact.code(), 0, "{exact}");
+    let sigma = |doc: &serde_json::Value| doc["uncertainty"]["translation_mm"].as_f64();
+    let (with, without) = (sigma(&doc), sigma(&exact.json()));
+    assert!(
+        matches!((with, without), (Some(a), Some(b)) if b < a),
+        "uncertainty with the default kinematic error {with:?}, without {without:?}"
+    );
+    let out = solve_with(
+        &s,
+        &csv(&s.joints),
+        &s.ply,
+        &["--kinematic-error", "0.3,0.3"],
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(out.stderr.contains("misalignment_mrad"), "{out}");
 
     // Bad input: exit code 2 and a message that names the problem.
     let missing = dir.join("missing.ply");
