@@ -1172,23 +1172,14 @@ mod sim_tests {
     use crate::calib::testutil::shared_robots;
     use crate::calib::{gate, solve, FrameInput, GateThresholds, Mount, SolveOptions};
     use crate::sim::{
-        simulate_scan, CellOptions, Intrinsics, KinematicError, Placement, ScanNoise, ScanRequest,
+        simulate_scan, Intrinsics, KinematicError, Placement, ScanRequest, SimSettings,
+        SimulatedScan,
     };
 
-    /// The shoulder and upper arm are posed with the nominal kinematics; the real arm's zero
-    /// offsets and link lengths move them, and the yaw of the round base follows them. The
-    /// reported uncertainty must cover that error (it was 3–10× overconfident when it only
-    /// counted the residuals), without being uselessly loose.
-    #[test]
-    fn uncertainty_covers_the_arms_kinematic_error() {
-        let Some(root) = shared_robots() else { return };
+    /// The UR5e with a wrist camera 8 cm off the flange, and `count` planned views (seeded).
+    fn ur5e_views(count: usize, seed: u64) -> Option<(RobotModel, Isometry3<f64>, Vec<Vec<f64>>)> {
+        let root = shared_robots()?;
         let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
-        // Five times a UR's factory-calibration deltas: the kinematic error dominates noise.
-        let arm = KinematicError {
-            joint_offset_sigma_rad: 0.0015,
-            link_length_sigma_m: 0.0015,
-            axis_misalignment_sigma_rad: 0.0005,
-        };
         let mount = Isometry3::new(
             Vector3::new(0.0, -0.08, 0.03),
             Vector3::new(-15f64.to_radians(), 0.0, 0.0),
@@ -1199,23 +1190,55 @@ mod sim_tests {
             Intrinsics::compact_1280x960(),
             crate::plan::ViewConstraints::default(),
         );
-        let views = planner.generate(4, 5).expect("views");
+        let views = planner.generate(count, seed).expect("views");
+        Some((model, mount, views))
+    }
+
+    /// A 1280×960 scan from the wrist camera at `q`: default noise and cell, the real arm off
+    /// its model by `kinematic_error`.
+    fn wrist_scan(
+        model: &RobotModel,
+        mount: Isometry3<f64>,
+        q: &[f64],
+        kinematic_error: KinematicError,
+        seed: u64,
+    ) -> SimulatedScan {
+        let settings = SimSettings {
+            kinematic_error,
+            ..SimSettings::default()
+        };
+        let req = ScanRequest::new(
+            model,
+            q.to_vec(),
+            Placement::EyeInHand {
+                flange_from_camera: mount,
+            },
+            Intrinsics::compact_1280x960(),
+            &settings,
+            seed,
+        );
+        simulate_scan(&req).expect("simulated")
+    }
+
+    /// The shoulder and upper arm are posed with the nominal kinematics; the real arm's zero
+    /// offsets and link lengths move them, and the yaw of the round base follows them. The
+    /// reported uncertainty must cover that error (it was 3–10× overconfident when it only
+    /// counted the residuals), without being uselessly loose.
+    #[test]
+    fn uncertainty_covers_the_arms_kinematic_error() {
+        let Some((model, mount, views)) = ur5e_views(4, 5) else {
+            return;
+        };
+        // Five times a UR's factory-calibration deltas: the kinematic error dominates noise.
+        let arm = KinematicError {
+            joint_offset_sigma_rad: 0.0015,
+            link_length_sigma_m: 0.0015,
+            axis_misalignment_sigma_rad: 0.0005,
+        };
         let mut ratios = Vec::new();
         let mut ratios_without = Vec::new();
         for (k, q) in views.iter().enumerate() {
-            let req = ScanRequest {
-                model: &model,
-                joints: q.clone(),
-                placement: Placement::EyeInHand {
-                    flange_from_camera: mount,
-                },
-                intrinsics: Intrinsics::compact_1280x960(),
-                noise: ScanNoise::default(),
-                cell: CellOptions::default(),
-                kinematic_error: arm,
-                seed: 40 + k as u64,
-            };
-            let scan = simulate_scan(&req).expect("simulated");
+            let scan = wrist_scan(&model, mount, q, arm, 40 + k as u64);
             let posed = posed_model(&model, q).expect("posed");
             let opts = RegisterOptions {
                 kinematic_error: arm,
@@ -1257,32 +1280,11 @@ mod sim_tests {
     /// is posed with the controller's calibration (what the controller reports).
     #[test]
     fn simulated_ur5e_scan_is_registered_and_closes_the_chain() {
-        let Some(root) = shared_robots() else { return };
-        let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
-        let mount = Isometry3::new(
-            Vector3::new(0.0, -0.08, 0.03),
-            Vector3::new(-15f64.to_radians(), 0.0, 0.0),
-        );
-        let planner = crate::plan::ViewPlanner::new(
-            &model,
-            mount,
-            Intrinsics::compact_1280x960(),
-            crate::plan::ViewConstraints::default(),
-        );
-        let q = planner.generate(1, 3).expect("a view").remove(0);
-        let req = ScanRequest {
-            model: &model,
-            joints: q.clone(),
-            placement: Placement::EyeInHand {
-                flange_from_camera: mount,
-            },
-            intrinsics: Intrinsics::compact_1280x960(),
-            noise: ScanNoise::default(),
-            cell: CellOptions::default(),
-            kinematic_error: KinematicError::default(),
-            seed: 11,
+        let Some((model, mount, mut views)) = ur5e_views(1, 3) else {
+            return;
         };
-        let scan = simulate_scan(&req).expect("simulated");
+        let q = views.remove(0);
+        let scan = wrist_scan(&model, mount, &q, KinematicError::default(), 11);
         let truth = &scan.truth;
         let posed = posed_model_with_kinematics(&model, &q, Some(&truth.joint_origin_errors))
             .expect("posed");
