@@ -163,20 +163,45 @@ pub(crate) fn support_planes(pts: &[Oriented], seed: u64) -> Vec<(usize, Plane)>
     ranked
 }
 
-/// Most planes [`derived_planes`] proposes.
-const DERIVED_PLANES: usize = 6;
+/// Cylinder axes [`derived_planes`] takes as "up" directions (each both ways).
+const DERIVED_AXES: usize = 3;
+/// Mounting heights [`derived_planes`] tries per "up" direction: clutter standing on the floor
+/// shapes the height histogram too, and the best match can be 15 cm off while the right height
+/// is the next peak.
+const DERIVED_HEIGHTS: usize = 2;
+/// A scan point this close to one of the scan's planes (and facing the same way) lies on it.
+const FLAT_TOLERANCE_M: f64 = 0.01;
 
 /// Mounting planes derived from the robot's shape when the scan shows none it could stand on
 /// (the floor beyond the camera's range or seen edge-on by a camera level with the base): the
 /// robot's first axis is the axis of its base cylinder, so the axes of the scan's cylinders
 /// (directions that many scan normals are perpendicular to; the strongest three) are candidate
-/// "up" directions, both ways; along each, the height of the mounting face is where the scan's
-/// heights of side-, up- and down-facing surface best match the model's.
-pub(crate) fn derived_planes(pts: &[Oriented], surface: &ModelSurface, seed: u64) -> Vec<Plane> {
+/// "up" directions, both ways; along each, the heights of the mounting face are where the
+/// scan's heights of side-, up- and down-facing surface best match the model's (the best
+/// [`DERIVED_HEIGHTS`] matches).
+///
+/// Scan points on the scan's `flat` planes (box sides, the floor) are left out: they are not the
+/// robot, and clutter standing on the floor would shape the height histogram.
+pub(crate) fn derived_planes(
+    pts: &[Oriented],
+    flat: &[Plane],
+    surface: &ModelSurface,
+    seed: u64,
+) -> Vec<Plane> {
+    let curved: Vec<Oriented> = pts
+        .iter()
+        .filter(|o| {
+            !flat.iter().any(|pl| {
+                (pl.n.dot(&o.p.coords) + pl.d).abs() < FLAT_TOLERANCE_M && pl.n.dot(&o.n) > 0.9
+            })
+        })
+        .copied()
+        .collect();
+    let pts = &curved[..];
     let mut planes: Vec<Plane> = Vec::new();
-    for axis in cylinder_axes(pts, DERIVED_PLANES / 2, seed) {
+    for axis in cylinder_axes(pts, DERIVED_AXES, seed) {
         for up in [axis, -axis] {
-            if let Some(h) = mounting_height(pts, &up, surface) {
+            for h in mounting_heights(pts, &up, surface, DERIVED_HEIGHTS) {
                 planes.push(Plane { n: up, d: -h });
             }
         }
@@ -240,11 +265,18 @@ fn cylinder_axes(pts: &[Oriented], max_axes: usize, seed: u64) -> Vec<Vector3<f6
     axes
 }
 
-/// The height `h` of the robot's mounting face along `up` (the plane `up · p = h`, camera
-/// frame): each scan point votes for the heights at which the model has surface facing the
-/// same way (side, up, down) at its height, in proportion to how much.
-fn mounting_height(pts: &[Oriented], up: &Vector3<f64>, surface: &ModelSurface) -> Option<f64> {
+/// Up to `max` heights `h` of the robot's mounting face along `up` (the plane `up · p = h`,
+/// camera frame), best first: each scan point votes for the heights at which the model has
+/// surface facing the same way (side, up, down) at its height, in proportion to how much; the
+/// heights are the strongest local maxima of the votes, at least `MIN_APART_M` apart.
+fn mounting_heights(
+    pts: &[Oriented],
+    up: &Vector3<f64>,
+    surface: &ModelSurface,
+    max: usize,
+) -> Vec<f64> {
     const BIN_M: f64 = 0.01;
+    const MIN_APART_M: f64 = 0.05;
     let class = |nz: f64| {
         if nz > 0.8 {
             Some(0)
@@ -264,7 +296,7 @@ fn mounting_height(pts: &[Oriented], up: &Vector3<f64>, surface: &ModelSurface) 
             (lo.min(s.p.z), hi.max(s.p.z))
         });
     if !m_lo.is_finite() {
-        return None;
+        return Vec::new();
     }
     let m_bins = ((m_hi - m_lo) / BIN_M) as usize + 1;
     let mut model = vec![vec![0.0; m_bins]; 3];
@@ -290,7 +322,7 @@ fn mounting_height(pts: &[Oriented], up: &Vector3<f64>, surface: &ModelSurface) 
             (lo.min(h.0), hi.max(h.0))
         });
     if !s_lo.is_finite() {
-        return None;
+        return Vec::new();
     }
     let s_bins = (((s_hi - s_lo) / BIN_M) as usize + 1).min(1000);
     let mut scan = vec![vec![0.0; s_bins]; 3];
@@ -309,14 +341,36 @@ fn mounting_height(pts: &[Oriented], up: &Vector3<f64>, surface: &ModelSurface) 
             }
         }
     }
-    let smooth = |k: usize| -> f64 {
-        votes[k.saturating_sub(1)..(k + 2).min(votes.len())]
-            .iter()
-            .sum()
-    };
-    // The first of equal peaks.
-    let best = (0..votes.len()).reduce(|b, k| if smooth(k) > smooth(b) { k } else { b })?;
-    (smooth(best) > 0.0).then_some(s_lo - m_lo + (best as f64 - m_bins as f64) * BIN_M)
+    let smooth: Vec<f64> = (0..votes.len())
+        .map(|k| {
+            votes[k.saturating_sub(1)..(k + 2).min(votes.len())]
+                .iter()
+                .sum()
+        })
+        .collect();
+    // Local maxima, strongest first (the first of equal ones).
+    let mut peaks: Vec<usize> = (0..smooth.len())
+        .filter(|&k| {
+            smooth[k] > 0.0
+                && (k == 0 || smooth[k] > smooth[k - 1])
+                && smooth.get(k + 1).is_none_or(|&n| smooth[k] >= n)
+        })
+        .collect();
+    peaks.sort_by(|&a, &b| smooth[b].total_cmp(&smooth[a]).then(a.cmp(&b)));
+    let apart = (MIN_APART_M / BIN_M).round() as usize;
+    let mut chosen: Vec<usize> = Vec::new();
+    for k in peaks {
+        if chosen.len() >= max {
+            break;
+        }
+        if chosen.iter().all(|&c| c.abs_diff(k) >= apart) {
+            chosen.push(k);
+        }
+    }
+    chosen
+        .into_iter()
+        .map(|k| s_lo - m_lo + (k as f64 - m_bins as f64) * BIN_M)
+        .collect()
 }
 
 /// `camera_from_plane`: a frame with z along the plane normal and origin on the plane, below the
@@ -355,12 +409,15 @@ const HOUGH_CELL_M: f64 = 0.015;
 /// the horizontal normals give the yaw of the pair and the positions the robot origin, so the
 /// pair votes for one (x, y, yaw) cell. Heights and normals make the vote specific: a base
 /// hidden under the shoulder (camera above the robot) is found from the shoulder and upper arm.
+/// Peaks whose pose is not `admissible` (an eye-in-hand camera too far from the flange) are
+/// skipped.
 pub(crate) fn hypotheses(
     range: &RangeImage<'_>,
     surface: &ModelSurface,
     pts: &[Oriented],
     planes: &[Plane],
     max_out: usize,
+    admissible: &(dyn Fn(&Isometry3<f64>) -> bool + Sync),
 ) -> Vec<(Isometry3<f64>, f64)> {
     let fit_depth = surface.fit_depth;
     // Side-facing model samples of the fitted links, in 1 cm height slices (model frame: z up
@@ -496,7 +553,7 @@ pub(crate) fn hypotheses(
                 let dyaw = (o.2 - p.2 + PI).rem_euclid(2.0 * PI) - PI;
                 (o.0 - p.0).hypot(o.1 - p.1) > 0.03 || dyaw.abs() > 3.0 * yaw_step
             });
-            if distinct {
+            if distinct && admissible(&(cam_from_plane * plane_pose(p.0, p.1, 0.0, p.2))) {
                 peaks.push(p);
                 if peaks.len() >= keep {
                     break;
@@ -515,11 +572,7 @@ pub(crate) fn hypotheses(
             .par_iter()
             .map(|&(k, dyaw, h)| {
                 let (x, y, yaw) = peaks[k];
-                let plane_from_model = Isometry3::from_parts(
-                    Translation3::new(x, y, h),
-                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw + dyaw),
-                );
-                let pose = cam_from_plane * plane_from_model;
+                let pose = cam_from_plane * plane_pose(x, y, h, yaw + dyaw);
                 let e = evidence(range, &scoring, &pose, fit_depth, tol);
                 (pose, score(&e))
             })
@@ -563,6 +616,14 @@ pub(crate) fn hypotheses(
     }
     out.sort_by(|a, b| b.1.total_cmp(&a.1));
     out
+}
+
+/// The robot standing at `(x, y, h)` turned by `yaw` in a plane's frame (`plane_from_model`).
+fn plane_pose(x: f64, y: f64, h: f64, yaw: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(x, y, h),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+    )
 }
 
 /// Whether two coarse hypotheses would polish to different poses (2 cm or 12° apart).

@@ -42,7 +42,7 @@ impl Default for GateThresholds {
     fn default() -> Self {
         GateThresholds {
             min_coverage: 0.6,
-            max_free_space_violations: 0.05,
+            max_free_space_violations: 0.03,
             max_rmse_mm: 1.5,
             min_inlier_fraction: 0.5,
             max_uncertainty_translation_mm: 1.0,

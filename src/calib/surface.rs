@@ -31,6 +31,9 @@ pub struct PosedModel {
     /// Registration propagates the arm's kinematic error from here into its covariance; empty
     /// when unknown (then none is propagated).
     pub joints: Vec<PosedJoint>,
+    /// Where the flange is at the measured joints, model frame; `None` when unknown. An
+    /// eye-in-hand camera rides on it (see `RegisterOptions::max_camera_flange_distance_m`).
+    pub model_from_flange: Option<Isometry3<f64>>,
 }
 
 /// A chain joint of the posed model.

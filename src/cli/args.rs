@@ -48,6 +48,16 @@ pub(crate) fn parse_kinematic_error(s: &str) -> Result<KinematicError, String> {
     }
 }
 
+/// Parses a positive finite distance in metres.
+pub(crate) fn parse_distance(s: &str) -> Result<f64, String> {
+    match parse_numbers(s)?[..] {
+        [d] if d > 0.0 => Ok(d),
+        _ => Err(format!(
+            "expected one positive distance in metres (e.g. 0.3), got `{s}`"
+        )),
+    }
+}
+
 fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
     s.split(',')
         .map(|t| {
@@ -115,6 +125,15 @@ mod tests {
             .contains("`x`"));
         assert!(parse_joints("0,nan").is_err());
         assert_eq!(parse_joints("0,1.5").expect("valid").0, vec![0.0, 1.5]);
+    }
+
+    #[test]
+    fn distances_are_positive_metres() {
+        assert_eq!(parse_distance("0.45"), Ok(0.45));
+        for bad in ["0", "-0.3", "0.3,0.4", "inf", "far"] {
+            let e = parse_distance(bad).expect_err(bad);
+            assert!(e.contains("metres") || e.contains("finite"), "{bad}: {e}");
+        }
     }
 
     #[test]

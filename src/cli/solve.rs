@@ -17,7 +17,7 @@ use handeye::calib::{
 use handeye::model::{KinematicError, RobotModel};
 use nalgebra::Isometry3;
 
-use super::args::{parse_joints, parse_kinematic_error, parse_pose};
+use super::args::{parse_distance, parse_joints, parse_kinematic_error, parse_pose};
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -51,6 +51,10 @@ pub(crate) struct Args {
     /// the controller's calibrated kinematics.
     #[arg(long, value_parser = parse_kinematic_error)]
     kinematic_error: Option<KinematicError>,
+    /// Eye-in-hand: the camera is at most this far from the flange origin, metres (default
+    /// 0.3). Poses farther out are not considered; raise it for a camera on a long tool.
+    #[arg(long, value_name = "METRES", value_parser = parse_distance)]
+    max_camera_flange_distance: Option<f64>,
     /// The camera is fixed in the cell (solve `base_from_camera`), not on the flange.
     #[arg(long)]
     eye_to_hand: bool,
@@ -105,6 +109,12 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let defaults = RegisterOptions::default();
     let opts = RegisterOptions {
         kinematic_error: args.kinematic_error.unwrap_or(defaults.kinematic_error),
+        max_camera_flange_distance_m: match mount {
+            Mount::EyeInHand => args
+                .max_camera_flange_distance
+                .or(defaults.max_camera_flange_distance_m),
+            Mount::EyeToHand => None,
+        },
         ..defaults
     };
     for (i, scan_path) in args.scan.iter().enumerate() {
@@ -210,6 +220,7 @@ mod tests {
             guess_flange_from_camera: None,
             guess_base_from_camera: None,
             kinematic_error: None,
+            max_camera_flange_distance: None,
             eye_to_hand: false,
             json: true,
         }

@@ -282,6 +282,17 @@ fn solve_recovers_the_mount_from_a_simulated_scan() {
     assert_eq!(out.code(), 2, "{out}");
     assert!(out.stderr.contains("misalignment_mrad"), "{out}");
 
+    // The camera is 8.8 cm off the flange: allowed 2 cm, no pose is found, and the message
+    // says which limit to raise.
+    let out = solve_with(
+        &s,
+        &csv(&s.joints),
+        &s.ply,
+        &["--max-camera-flange-distance", "0.02"],
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(out.stderr.contains("0.02 m of the flange"), "{out}");
+
     // Bad input: exit code 2 and a message that names the problem.
     let missing = dir.join("missing.ply");
     let out = solve(&s, &csv(&s.joints), &missing);
