@@ -169,6 +169,10 @@ const DERIVED_AXES: usize = 3;
 /// shapes the height histogram too, and the best match can be 15 cm off while the right height
 /// is the next peak.
 const DERIVED_HEIGHTS: usize = 2;
+/// Mounting heights [`derived_planes`] tries along one direction are at least this far apart.
+const MIN_HEIGHTS_APART_M: f64 = 0.05;
+/// How far the floor may lie below the face the robot stands on (a mounting plate), metres.
+const PLATE_M: f64 = 0.03;
 /// A scan point this close to one of the scan's planes (and facing the same way) lies on it.
 const FLAT_TOLERANCE_M: f64 = 0.01;
 
@@ -178,7 +182,7 @@ const FLAT_TOLERANCE_M: f64 = 0.01;
 /// (directions that many scan normals are perpendicular to; the strongest three) are candidate
 /// "up" directions, both ways; along each, the heights of the mounting face are where the
 /// scan's heights of side-, up- and down-facing surface best match the model's (the best
-/// [`DERIVED_HEIGHTS`] matches).
+/// [`DERIVED_HEIGHTS`] matches) and the lowest surface in view.
 ///
 /// Scan points on the scan's `flat` planes (box sides, the floor) are left out: they are not the
 /// robot, and clutter standing on the floor would shape the height histogram.
@@ -197,15 +201,37 @@ pub(crate) fn derived_planes(
         })
         .copied()
         .collect();
+    let all = pts;
     let pts = &curved[..];
     let mut planes: Vec<Plane> = Vec::new();
     for axis in cylinder_axes(pts, DERIVED_AXES, seed) {
         for up in [axis, -axis] {
-            for h in mounting_heights(pts, &up, surface, DERIVED_HEIGHTS) {
+            let mut heights = mounting_heights(pts, &up, surface, DERIVED_HEIGHTS);
+            // Seen from the side (the camera level with the base), the robot's side-facing
+            // surface matches at almost any height; the lowest curved surface in view is then
+            // where the base or its cable meets the mounting face.
+            if let Some(low) = lowest_height(pts, &up) {
+                if heights
+                    .iter()
+                    .all(|h| (h - low).abs() >= MIN_HEIGHTS_APART_M)
+                {
+                    heights.push(low);
+                }
+            }
+            for h in heights {
                 planes.push(Plane { n: up, d: -h });
             }
         }
     }
+    // The planes take turns in the hypothesis list: the plausible ones first, with (almost)
+    // nothing of the scan below them (a mounting plate's top may stand a little above the
+    // floor); a mounting face put too high has the robot's foot below it.
+    let below = |pl: &Plane| {
+        all.iter()
+            .filter(|o| pl.n.dot(&o.p.coords) + pl.d < -PLATE_M)
+            .count()
+    };
+    planes.sort_by_cached_key(below);
     tracing::debug!(
         planes = ?planes.iter().map(|p| (p.n.as_slice().to_vec(), p.d)).collect::<Vec<_>>(),
         "derived planes (normal, offset)"
@@ -265,10 +291,21 @@ fn cylinder_axes(pts: &[Oriented], max_axes: usize, seed: u64) -> Vec<Vector3<f6
     axes
 }
 
+/// The height along `up` below which only 0.5 % of `pts` lie (robust to flying pixels).
+fn lowest_height(pts: &[Oriented], up: &Vector3<f64>) -> Option<f64> {
+    let mut along: Vec<f64> = pts.iter().map(|o| up.dot(&o.p.coords)).collect();
+    let k = along.len() / 200;
+    if along.is_empty() {
+        return None;
+    }
+    let (_, low, _) = along.select_nth_unstable_by(k, f64::total_cmp);
+    Some(*low)
+}
+
 /// Up to `max` heights `h` of the robot's mounting face along `up` (the plane `up · p = h`,
 /// camera frame), best first: each scan point votes for the heights at which the model has
 /// surface facing the same way (side, up, down) at its height, in proportion to how much; the
-/// heights are the strongest local maxima of the votes, at least `MIN_APART_M` apart.
+/// heights are the strongest local maxima of the votes, at least [`MIN_HEIGHTS_APART_M`] apart.
 fn mounting_heights(
     pts: &[Oriented],
     up: &Vector3<f64>,
@@ -276,7 +313,6 @@ fn mounting_heights(
     max: usize,
 ) -> Vec<f64> {
     const BIN_M: f64 = 0.01;
-    const MIN_APART_M: f64 = 0.05;
     let class = |nz: f64| {
         if nz > 0.8 {
             Some(0)
@@ -357,7 +393,7 @@ fn mounting_heights(
         })
         .collect();
     peaks.sort_by(|&a, &b| smooth[b].total_cmp(&smooth[a]).then(a.cmp(&b)));
-    let apart = (MIN_APART_M / BIN_M).round() as usize;
+    let apart = (MIN_HEIGHTS_APART_M / BIN_M).round() as usize;
     let mut chosen: Vec<usize> = Vec::new();
     for k in peaks {
         if chosen.len() >= max {

@@ -427,7 +427,8 @@ pub fn register_posed(
             let flat: Vec<coarse::Plane> = ranked.iter().map(|r| r.1).collect();
             let derived = coarse::derived_planes(&pts, &flat, &surface, opts.seed);
             planes_found += derived.len();
-            let (polished, n) = search(&derived, opts.max_hypotheses);
+            // Up to 18 planes (3 axes, both ways, 3 heights): each gets a hypothesis slot.
+            let (polished, n) = search(&derived, opts.max_hypotheses.max(derived.len()));
             n_hyp += n;
             cands.extend(polished);
         }
@@ -1880,19 +1881,40 @@ mod issue_3_tests {
     fn issue_3_hypotheses_far_from_the_flange_make_way() {
         trial(
             "ur20",
-            (
-                [0.005_079_095, -0.079_358_035, 0.058_362_975],
-                [-0.313_945_353, -0.115_673_494, 0.699_596_855],
-            ),
-            &[
-                0.951_860_903,
-                -1.073_135_783,
-                2.232_697_541,
-                -1.404_678_155,
-                -1.659_559_345,
-                -0.828_749_485,
-            ],
+            UR20_MOUNT_SEED_2,
+            &UR20_VIEW_6_SEED_2,
             13507425662540616718,
+        );
+    }
+
+    /// Bench seed 2's ur20 mount.
+    const UR20_MOUNT_SEED_2: ([f64; 3], [f64; 3]) = (
+        [0.005_079_095, -0.079_358_035, 0.058_362_975],
+        [-0.313_945_353, -0.115_673_494, 0.699_596_855],
+    );
+
+    /// Bench seed 2, ur20 view 6: the camera 6 cm above the mounting face, beside clutter.
+    const UR20_VIEW_6_SEED_2: [f64; 6] = [
+        0.951_860_903,
+        -1.073_135_783,
+        2.232_697_541,
+        -1.404_678_155,
+        -1.659_559_345,
+        -0.828_749_485,
+    ];
+
+    /// Bench seed 2, ur20 view 6 scan 2: no plane the robot could stand on in view, and the
+    /// heights derived by matching the robot's surface were 20 cm off (a standing robot's
+    /// side-facing surface matches at almost any height); the robot flipped upside down 223
+    /// mm away was the result, rejected only by its free-space violations (5.1 %). The lowest
+    /// curved surface in view (the base's foot) is tried as the mounting height too now.
+    #[test]
+    fn issue_3_seen_from_the_side_the_lowest_surface_gives_the_mounting_height() {
+        trial(
+            "ur20",
+            UR20_MOUNT_SEED_2,
+            &UR20_VIEW_6_SEED_2,
+            18300494614736989160,
         );
     }
 
