@@ -1974,4 +1974,24 @@ mod issue_3_tests {
             5999345711917701832,
         );
     }
+
+    /// Bench seed 1, ur30 view 27 scan 1 (with an intermediate version): 18 derived mounting
+    /// planes took turns for 8 hypothesis slots, and the right one had none ("robot not
+    /// found"). Each derived plane gets a slot now, the plausible ones first.
+    #[test]
+    fn issue_3_every_derived_mounting_plane_is_searched() {
+        trial(
+            "ur30",
+            UR30_MOUNT,
+            &[
+                -0.390_439_755,
+                -2.606_811_375,
+                -1.041_516_437,
+                -2.636_526_557,
+                1.547_406_525,
+                -0.807_597_464,
+            ],
+            888766242438752922,
+        );
+    }
 }
