@@ -443,17 +443,32 @@ mod tests {
         )
     }
 
+    /// A 1280×960 wrist camera on `nominal_mount` under `constraints`.
+    fn wrist_planner(model: &RobotModel, constraints: ViewConstraints) -> ViewPlanner<'_> {
+        ViewPlanner::new(
+            model,
+            nominal_mount(),
+            Intrinsics::compact_1280x960(),
+            constraints,
+        )
+    }
+
+    /// Any distance, anywhere in the image: only limits, collisions and the floor count.
+    fn loose() -> ViewConstraints {
+        ViewConstraints {
+            min_distance_m: 0.0,
+            max_distance_m: 10.0,
+            image_margin_fraction: -10.0,
+            ..ViewConstraints::default()
+        }
+    }
+
     #[test]
     fn generated_views_see_the_base_and_differ_by_20_degrees() {
         let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
             return;
         };
-        let planner = ViewPlanner::new(
-            &model,
-            nominal_mount(),
-            Intrinsics::compact_1280x960(),
-            ViewConstraints::default(),
-        );
+        let planner = wrist_planner(&model, ViewConstraints::default());
         let views = planner.generate(6, 11).expect("views");
         assert_eq!(views.len(), 6);
         for (i, a) in views.iter().enumerate() {
@@ -473,12 +488,7 @@ mod tests {
         let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
             return;
         };
-        let planner = ViewPlanner::new(
-            &model,
-            nominal_mount(),
-            Intrinsics::compact_1280x960(),
-            ViewConstraints::default(),
-        );
+        let planner = wrist_planner(&model, ViewConstraints::default());
         // beyond the joint limits
         let r = planner.check(&[0.0, 0.0, 4.0, 0.0, 0.0, 0.0]).expect("fk");
         assert!(matches!(r, Err(ViewRejection::JointLimit { .. })), "{r:?}");
@@ -488,18 +498,7 @@ mod tests {
             .expect("fk");
         assert!(matches!(r, Err(ViewRejection::NotInView(_))), "{r:?}");
         // the arm folded down through the floor
-        let loose = ViewConstraints {
-            min_distance_m: 0.0,
-            max_distance_m: 10.0,
-            image_margin_fraction: -10.0,
-            ..ViewConstraints::default()
-        };
-        let p = ViewPlanner::new(
-            &model,
-            nominal_mount(),
-            Intrinsics::compact_1280x960(),
-            loose,
-        );
+        let p = wrist_planner(&model, loose());
         let r = p.check(&[0.0, 0.6, 0.0, 0.0, 0.0, 0.0]).expect("fk");
         assert!(matches!(r, Err(ViewRejection::Floor { .. })), "{r:?}");
         // forearm folded back onto the upper arm
@@ -556,26 +555,10 @@ mod tests {
         let Some(model) = shared_robot("ur/ur5/ur5.urdf") else {
             return;
         };
-        let planner = ViewPlanner::new(
-            &model,
-            nominal_mount(),
-            Intrinsics::compact_1280x960(),
-            ViewConstraints::default(),
-        );
+        let planner = wrist_planner(&model, ViewConstraints::default());
         let views = planner.generate(6, 11).expect("views of a UR5");
         assert_eq!(views.len(), 6);
-        let loose = ViewConstraints {
-            min_distance_m: 0.0,
-            max_distance_m: 10.0,
-            image_margin_fraction: -10.0,
-            ..ViewConstraints::default()
-        };
-        let p = ViewPlanner::new(
-            &model,
-            nominal_mount(),
-            Intrinsics::compact_1280x960(),
-            loose,
-        );
+        let p = wrist_planner(&model, loose());
         let r = p.check(&[0.0, 0.6, 0.0, 0.0, 0.0, 0.0]).expect("fk");
         assert!(matches!(r, Err(ViewRejection::Floor { .. })), "{r:?}");
     }
