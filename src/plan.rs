@@ -50,14 +50,6 @@ impl Default for ViewConstraints {
     }
 }
 
-/// The lowest point (model z) of `hull` posed at `pose`.
-fn lowest(hull: &ConvexPolyhedron, pose: &Isometry3<f64>) -> f64 {
-    hull.points()
-        .iter()
-        .map(|p| (pose * p).z)
-        .fold(f64::INFINITY, f64::min)
-}
-
 /// Why a view was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -363,11 +355,11 @@ impl<'a> ViewPlanner<'a> {
             })
             .collect();
         let camera_from_model = self.model_from_camera(q)?.inverse();
-        // (base pixels, base + shoulder pixels) of a render of the objects up to `deepest`.
-        let render = |deepest: u32| -> (usize, usize) {
+        // (base pixels, base + shoulder pixels) of a render of the objects `shown`.
+        let render = |shown: &dyn Fn(u32) -> bool| -> (usize, usize) {
             let meshes: Vec<SceneMesh<'_>> = world
                 .iter()
-                .filter(|(o, _, _)| deepest == u32::MAX || (*o != 0 && *o <= deepest))
+                .filter(|(o, _, _)| shown(*o))
                 .map(|(o, v, t)| SceneMesh {
                     vertices: v,
                     triangles: t,
@@ -379,9 +371,9 @@ impl<'a> ViewPlanner<'a> {
             let near = hits.iter().filter(|&&o| o == BASE || o == SHOULDER).count();
             (base, near)
         };
-        let (base_alone, _) = render(BASE);
-        let (_, near_alone) = render(SHOULDER);
-        let (base_seen, near_seen) = render(u32::MAX);
+        let (base_alone, _) = render(&|o| o == BASE);
+        let (_, near_alone) = render(&|o| o == BASE || o == SHOULDER);
+        let (base_seen, near_seen) = render(&|_| true);
         let ratio = |seen: usize, alone: usize| {
             if alone == 0 {
                 0.0
@@ -427,6 +419,14 @@ impl<'a> ViewPlanner<'a> {
         }
         Ok(views)
     }
+}
+
+/// The lowest point (model z) of `hull` posed at `pose`.
+fn lowest(hull: &ConvexPolyhedron, pose: &Isometry3<f64>) -> f64 {
+    hull.points()
+        .iter()
+        .map(|p| (pose * p).z)
+        .fold(f64::INFINITY, f64::min)
 }
 
 #[cfg(test)]

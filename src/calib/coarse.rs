@@ -293,11 +293,11 @@ fn cylinder_axes(pts: &[Oriented], max_axes: usize, seed: u64) -> Vec<Vector3<f6
 
 /// The height along `up` below which only 0.5 % of `pts` lie (robust to flying pixels).
 fn lowest_height(pts: &[Oriented], up: &Vector3<f64>) -> Option<f64> {
-    let mut along: Vec<f64> = pts.iter().map(|o| up.dot(&o.p.coords)).collect();
-    let k = along.len() / 200;
-    if along.is_empty() {
+    if pts.is_empty() {
         return None;
     }
+    let mut along: Vec<f64> = pts.iter().map(|o| up.dot(&o.p.coords)).collect();
+    let k = along.len() / 200;
     let (_, low, _) = along.select_nth_unstable_by(k, f64::total_cmp);
     Some(*low)
 }
