@@ -135,6 +135,45 @@ pub struct DhParams {
 }
 
 impl DhParams {
+    /// A deterministic pseudo-random calibration delta of the size a UR factory calibration
+    /// has (1σ per joint: θ 0.3 mrad, a and d 0.3 mm, α 0.3 mrad), to add to nominal DH with
+    /// [`DhParams::plus`]. Simulators use it to model a controller that knows its calibrated
+    /// arm; the same `seed` gives the same delta everywhere.
+    pub fn factory_calibration_delta(seed: u64) -> DhParams {
+        // SplitMix64 + Box–Muller: no dependency, identical on every platform.
+        let mut state = seed ^ 0x9e37_79b9_7f4a_7c15;
+        let mut uniform = move || {
+            state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            z ^= z >> 31;
+            ((z >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let mut gauss = move |sigma: f64| {
+            let (u1, u2) = (uniform(), uniform());
+            sigma * (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+        };
+        let mut draw = |sigma: f64| -> [f64; 6] { std::array::from_fn(|_| gauss(sigma)) };
+        DhParams {
+            theta: draw(3e-4),
+            a: draw(3e-4),
+            d: draw(3e-4),
+            alpha: draw(3e-4),
+        }
+    }
+
+    /// These parameters with `delta` added field by field (nominal + calibration delta).
+    pub fn plus(&self, delta: &DhParams) -> DhParams {
+        let add = |x: &[f64; 6], y: &[f64; 6]| -> [f64; 6] { std::array::from_fn(|i| x[i] + y[i]) };
+        DhParams {
+            a: add(&self.a, &delta.a),
+            d: add(&self.d, &delta.d),
+            alpha: add(&self.alpha, &delta.alpha),
+            theta: add(&self.theta, &delta.theta),
+        }
+    }
+
     /// `base_from_link_i` for i = 1..=6 (frame 6 is UR's flange/`tool0` with zero TCP),
     /// in UR's `base` frame (URDF `base_link` turned by π about z).
     pub fn link_poses(&self, q: &[f64; 6]) -> [Isometry3<f64>; 6] {
@@ -185,6 +224,22 @@ mod tests {
             let want = Vector3::new(dh.a[1] + dh.a[2], -(dh.d[3] + dh.d[5]), dh.d[0] - dh.d[4]);
             assert!((p - want).norm() < 1e-12, "{m}: {p} vs {want}");
         }
+    }
+
+    #[test]
+    fn factory_calibration_deltas_are_small_deterministic_and_seeded() {
+        let a = DhParams::factory_calibration_delta(7);
+        assert_eq!(a, DhParams::factory_calibration_delta(7));
+        assert_ne!(a, DhParams::factory_calibration_delta(8));
+        for v in a.a.iter().chain(&a.d).chain(&a.theta).chain(&a.alpha) {
+            assert!(v.abs() < 2e-3 && *v != 0.0, "{v}");
+        }
+        let nominal = UrModel::Ur5e.dh();
+        let calibrated = nominal.plus(&a);
+        let moved = (calibrated.forward(&[0.3; 6]).translation.vector
+            - nominal.forward(&[0.3; 6]).translation.vector)
+            .norm();
+        assert!(moved > 1e-5 && moved < 5e-3, "{moved}");
     }
 
     #[test]
