@@ -596,6 +596,21 @@ fn join(names: &[String]) -> Vec<u8> {
     names.join(",").into_bytes()
 }
 
+/// The comma-joined list, refused (before it goes on the wire and the controller drops the
+/// connection) if it is longer than a setup request may be.
+fn names_within_limit(names: &[String]) -> Result<Vec<u8>, UrError> {
+    let b = join(names);
+    if b.len() > MAX_NAMES_BYTES {
+        return Err(UrError::InvalidArgument(format!(
+            "RTDE recipe of {} fields is {} bytes of names; a setup request allows \
+             {MAX_NAMES_BYTES}: use fewer fields (e.g. a narrower register range)",
+            names.len(),
+            b.len()
+        )));
+    }
+    Ok(b)
+}
+
 fn one_byte(p: &[u8], what: &str) -> Result<u8, UrError> {
     match p {
         [b] => Ok(*b),
@@ -748,10 +763,12 @@ impl ClientPackage {
                 if proto == Protocol::V2 {
                     p.extend_from_slice(&frequency.unwrap_or(125.0).to_be_bytes());
                 }
-                p.extend_from_slice(&join(names));
+                p.extend_from_slice(&names_within_limit(names)?);
                 (PackageType::SetupOutputs, p)
             }
-            ClientPackage::SetupInputs { names } => (PackageType::SetupInputs, join(names)),
+            ClientPackage::SetupInputs { names } => {
+                (PackageType::SetupInputs, names_within_limit(names)?)
+            }
             ClientPackage::Start => (PackageType::Start, vec![]),
             ClientPackage::Pause => (PackageType::Pause, vec![]),
             ClientPackage::Data { recipe_id, body } => {
@@ -1091,6 +1108,13 @@ pub(crate) mod tests {
             ClientPackage::decode(&f, Protocol::V2).is_err(),
             "NaN frequency"
         );
+        let long = ClientPackage::SetupInputs {
+            names: vec!["a".repeat(1000); 3],
+        };
+        assert!(matches!(
+            long.encode(Protocol::V2),
+            Err(UrError::InvalidArgument(_))
+        ));
         let f = Frame::new(PackageType::SetupInputs, vec![b'a'; 3000]);
         assert!(
             ClientPackage::decode(&f, Protocol::V2).is_err(),
