@@ -7,10 +7,10 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use nalgebra::Isometry3;
 
-use crate::ur_dh::UrModel;
+use crate::ur_dh::{DhParams, UrModel};
 use crate::{
-    CameraInfo, CaptureSettings, DepthCamera, HalError, MotionLimits, PointCloud, Robot, RobotMode,
-    RobotStatus, SafetyMode,
+    CameraInfo, CaptureSettings, ControllerKinematics, DepthCamera, HalError, MotionLimits,
+    PointCloud, Robot, RobotMode, RobotStatus, SafetyMode,
 };
 
 #[derive(Debug)]
@@ -21,13 +21,20 @@ struct RobotState {
     moves: Vec<Vec<f64>>,
     protective_stop_at_move: Option<usize>,
     registers: HashMap<u32, f64>,
+    int_registers: HashMap<u32, i32>,
 }
 
 /// A UR arm that moves instantly, records every commanded move and can be told to
-/// protective-stop on the N-th move (0-based). Kinematics: the model's nominal DH.
+/// protective-stop on the N-th move (0-based).
+///
+/// Kinematics: the model's nominal DH, and [`Robot::kinematics`] is `None` (a controller that
+/// publishes none); [`FakeRobot::with_kinematics`] gives it a calibrated arm instead. Registers
+/// (double and int) read 0 until written; the TCP offset is identity until set; the speed
+/// slider is at 1.
 #[derive(Debug, Clone)]
 pub struct FakeRobot {
     model: UrModel,
+    kinematics: Option<ControllerKinematics>,
     state: Arc<Mutex<RobotState>>,
 }
 
@@ -39,6 +46,7 @@ impl FakeRobot {
             safety_mode: SafetyMode::Normal,
             remote_control: true,
             program_running: false,
+            speed_fraction: 1.0,
         };
         let state = RobotState {
             status,
@@ -47,11 +55,26 @@ impl FakeRobot {
             moves: Vec::new(),
             protective_stop_at_move: None,
             registers: HashMap::new(),
+            int_registers: HashMap::new(),
         };
         Self {
             model,
+            kinematics: None,
             state: Arc::new(Mutex::new(state)),
         }
+    }
+
+    /// This arm as a controller that publishes `kinematics`: [`Robot::kinematics`] returns
+    /// them and [`Robot::flange_pose`] is the forward kinematics of `kinematics.dh` (the
+    /// controller reports poses of its calibrated arm), not of the nominal model.
+    pub fn with_kinematics(mut self, kinematics: ControllerKinematics) -> Self {
+        self.kinematics = Some(kinematics);
+        self
+    }
+
+    /// The DH set this arm's reported poses use.
+    pub fn dh(&self) -> DhParams {
+        self.kinematics.map_or_else(|| self.model.dh(), |k| k.dh)
     }
 
     fn lock(&self) -> MutexGuard<'_, RobotState> {
@@ -94,7 +117,7 @@ impl Robot for FakeRobot {
         let q: [f64; 6] = q
             .try_into()
             .map_err(|_| HalError::InvalidArgument("fake robot needs 6 joints".into()))?;
-        Ok(self.model.dh().forward(&q))
+        Ok(self.dh().forward(&q))
     }
 
     async fn move_joints(&self, q: &[f64], _limits: MotionLimits) -> Result<(), HalError> {
@@ -142,13 +165,40 @@ impl Robot for FakeRobot {
     async fn read_double_register(&self, index: u32) -> Result<f64, HalError> {
         Ok(self.lock().registers.get(&index).copied().unwrap_or(0.0))
     }
+
+    async fn write_int_register(&self, index: u32, value: i32) -> Result<(), HalError> {
+        self.lock().int_registers.insert(index, value);
+        Ok(())
+    }
+
+    async fn read_int_register(&self, index: u32) -> Result<i32, HalError> {
+        Ok(self.lock().int_registers.get(&index).copied().unwrap_or(0))
+    }
+
+    async fn tcp_offset(&self) -> Result<Isometry3<f64>, HalError> {
+        Ok(self.lock().tcp)
+    }
+
+    async fn kinematics(&self) -> Result<Option<ControllerKinematics>, HalError> {
+        Ok(self.kinematics)
+    }
 }
 
-/// A camera that replays the given clouds in a loop.
+#[derive(Debug, Default)]
+struct CameraState {
+    /// Index of the next cloud to replay (before wrapping).
+    next: usize,
+    /// Successful `capture` calls so far.
+    captures: usize,
+    /// After this many successful captures every call times out.
+    answer_limit: Option<usize>,
+}
+
+/// A camera that replays the given clouds in a loop. Clones share the replay position.
 #[derive(Debug, Clone)]
 pub struct FakeCamera {
     clouds: Arc<Vec<PointCloud>>,
-    next: Arc<Mutex<usize>>,
+    state: Arc<Mutex<CameraState>>,
 }
 
 impl FakeCamera {
@@ -156,8 +206,25 @@ impl FakeCamera {
     pub fn new(clouds: Vec<PointCloud>) -> Self {
         Self {
             clouds: Arc::new(clouds),
-            next: Arc::new(Mutex::new(0)),
+            state: Arc::new(Mutex::new(CameraState::default())),
         }
+    }
+
+    /// A camera that stops answering: after `captures` more successful `capture` calls in total
+    /// (counted from the first call, not from now), every further call fails at once with
+    /// `HalError::Timeout { what: "capture", timeout: settings.frame_timeout }` and replays
+    /// nothing. `0` makes the very next call fail.
+    pub fn stop_answering_after(&self, captures: usize) {
+        self.lock().answer_limit = Some(captures);
+    }
+
+    /// Successful `capture` calls so far.
+    pub fn captures(&self) -> usize {
+        self.lock().captures
+    }
+
+    fn lock(&self) -> MutexGuard<'_, CameraState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 }
 
@@ -181,14 +248,126 @@ impl DepthCamera for FakeCamera {
                 "FakeCamera has no clouds to replay".into(),
             ));
         }
-        let mut next = self.next.lock().unwrap_or_else(|e| e.into_inner());
+        let mut s = self.lock();
+        if s.answer_limit.is_some_and(|limit| s.captures >= limit) {
+            return Err(HalError::Timeout {
+                what: "capture".into(),
+                timeout: settings.frame_timeout,
+            });
+        }
+        s.captures += 1;
         let out = (0..settings.frames)
             .map(|_| {
-                let c = self.clouds[*next % self.clouds.len()].clone();
-                *next += 1;
+                let c = self.clouds[s.next % self.clouds.len()].clone();
+                s.next += 1;
                 c
             })
             .collect();
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::future::Future;
+    use std::task::{Context, Poll, Waker};
+    use std::time::Duration;
+
+    use nalgebra::{Point3, Translation3};
+
+    use super::*;
+
+    /// The fakes never wait, so their futures are ready on the first poll.
+    fn ready<T>(f: impl Future<Output = T>) -> T {
+        let mut f = std::pin::pin!(f);
+        match f.as_mut().poll(&mut Context::from_waker(Waker::noop())) {
+            Poll::Ready(v) => v,
+            Poll::Pending => panic!("fake futures never wait"),
+        }
+    }
+
+    const Q: [f64; 6] = [0.1, -1.2, 1.3, -1.6, -1.5, 0.2];
+
+    #[test]
+    fn nominal_by_default_and_with_kinematics_reports_the_calibrated_arm() {
+        let plain = FakeRobot::new(UrModel::Ur5e, Q);
+        assert_eq!(ready(plain.kinematics()).expect("ok"), None);
+        let nominal = UrModel::Ur5e.dh().forward(&Q);
+        let flange = ready(plain.flange_pose()).expect("pose");
+        assert!((flange.translation.vector - nominal.translation.vector).norm() < 1e-12);
+
+        let k = ControllerKinematics {
+            dh: UrModel::Ur5e
+                .dh()
+                .plus(&DhParams::factory_calibration_delta(7)),
+            checksum: [1, 2, 3, 4, 5, 6],
+            calibrated: true,
+        };
+        let robot = FakeRobot::new(UrModel::Ur5e, Q).with_kinematics(k);
+        assert_eq!(ready(robot.kinematics()).expect("ok"), Some(k));
+        let flange = ready(robot.flange_pose()).expect("pose");
+        let truth = k.dh.forward(&Q);
+        assert!((flange.translation.vector - truth.translation.vector).norm() < 1e-12);
+        assert!(flange.rotation.angle_to(&truth.rotation) < 1e-12);
+        assert!((flange.translation.vector - nominal.translation.vector).norm() > 1e-5);
+        // A move changes the pose the calibrated arm reports.
+        let q2 = [0.3, -1.0, 1.0, -1.5, -1.5, 0.0];
+        ready(robot.move_joints(&q2, MotionLimits::default())).expect("move");
+        let moved = ready(robot.flange_pose()).expect("pose");
+        assert!((moved.translation.vector - k.dh.forward(&q2).translation.vector).norm() < 1e-12);
+    }
+
+    #[test]
+    fn registers_tcp_and_speed_fraction() {
+        let robot = FakeRobot::new(UrModel::Ur5e, Q);
+        assert_eq!(ready(robot.read_int_register(24)).expect("read"), 0);
+        ready(robot.write_int_register(24, -7)).expect("write");
+        assert_eq!(ready(robot.read_int_register(24)).expect("read"), -7);
+        ready(robot.write_double_register(24, 0.5)).expect("write");
+        assert_eq!(ready(robot.read_int_register(24)).expect("read"), -7);
+        assert_eq!(ready(robot.read_double_register(24)).expect("read"), 0.5);
+        assert_eq!(ready(robot.status()).expect("status").speed_fraction, 1.0);
+        assert_eq!(
+            ready(robot.tcp_offset()).expect("tcp"),
+            Isometry3::identity()
+        );
+        let tcp = Isometry3::from_parts(Translation3::new(0.0, 0.01, 0.12), Default::default());
+        ready(robot.set_tcp(&tcp)).expect("set");
+        assert_eq!(ready(robot.tcp_offset()).expect("tcp"), tcp);
+        assert_eq!(robot.tcp(), tcp);
+    }
+
+    #[test]
+    fn camera_stops_answering_after_n_captures() {
+        let clouds = (0..3)
+            .map(|i| PointCloud::from_points(vec![Point3::new(i as f32, 0.0, 1.0)]))
+            .collect::<Vec<_>>();
+        let cam = FakeCamera::new(clouds.clone());
+        cam.stop_answering_after(2);
+        let settings = CaptureSettings {
+            frames: 2,
+            frame_timeout: Duration::from_millis(250),
+            exposure: None,
+        };
+        let first = ready(cam.capture(&settings)).expect("1st");
+        assert_eq!(first, vec![clouds[0].clone(), clouds[1].clone()]);
+        let second = ready(cam.clone().capture(&settings)).expect("2nd (clones share)");
+        assert_eq!(second, vec![clouds[2].clone(), clouds[0].clone()]);
+        for _ in 0..3 {
+            match ready(cam.capture(&settings)) {
+                Err(HalError::Timeout { what, timeout }) => {
+                    assert_eq!(what, "capture");
+                    assert_eq!(timeout, Duration::from_millis(250));
+                }
+                other => panic!("expected a timeout, got {other:?}"),
+            }
+        }
+        assert_eq!(cam.captures(), 2);
+        let silent = FakeCamera::new(clouds);
+        silent.stop_answering_after(0);
+        assert!(matches!(
+            ready(silent.capture(&settings)),
+            Err(HalError::Timeout { .. })
+        ));
     }
 }

@@ -19,6 +19,7 @@ pub use camera::{CameraInfo, CaptureSettings, DepthCamera};
 pub use cloud::PointCloud;
 pub use error::HalError;
 pub use robot::{JointPositions, MotionLimits, Robot, RobotMode, RobotStatus, SafetyMode};
+pub use ur_dh::ControllerKinematics;
 
 /// Re-exported so users of the traits name the same math types.
 pub use nalgebra;

@@ -3,7 +3,7 @@ use std::time::Duration;
 
 use nalgebra::Isometry3;
 
-use crate::HalError;
+use crate::{ControllerKinematics, HalError};
 
 /// Joint angles in radians, URDF chain order (for UR: base, shoulder, elbow, wrist 1, 2, 3).
 pub type JointPositions = Vec<f64>;
@@ -77,6 +77,15 @@ pub struct RobotStatus {
     pub remote_control: bool,
     /// Whether a program is running on the controller.
     pub program_running: bool,
+    /// The speed slider (UR RTDE `target_speed_fraction`), 0–1: the controller scales every
+    /// commanded speed by it, so moves take longer than planned below 1. Preflight records it.
+    /// Records written before this field existed read as 1.
+    #[serde(default = "full_speed")]
+    pub speed_fraction: f64,
+}
+
+fn full_speed() -> f64 {
+    1.0
 }
 
 impl RobotStatus {
@@ -105,6 +114,11 @@ pub trait Robot: Send + Sync + 'static {
 
     /// Joint move that returns only when the arm has arrived; fails with `ProtectiveStop`,
     /// `EmergencyStop`, `NotInRemoteControl`, `Timeout` (arm stopped first).
+    ///
+    /// Cancelling: dropping the returned future before it completes (e.g. losing a
+    /// `tokio::select!` against a shutdown signal, or `tokio::time::timeout`) cancels the move
+    /// and stops the arm; implementations must guarantee this (the stop is issued from a drop
+    /// guard on the current tokio runtime, so it may land a few milliseconds after the drop).
     fn move_joints(
         &self,
         q: &[f64],
@@ -132,4 +146,27 @@ pub trait Robot: Send + Sync + 'static {
         &self,
         index: u32,
     ) -> impl Future<Output = Result<f64, HalError>> + Send;
+
+    /// Write an integer input register (e.g. RTDE `input_int_register_N`) for a pendant program
+    /// (a "result ready" flag, a run counter) and confirm by read-back.
+    fn write_int_register(
+        &self,
+        index: u32,
+        value: i32,
+    ) -> impl Future<Output = Result<(), HalError>> + Send;
+
+    /// Read an integer input register (`input_int_register_N`) as the controller reflects it.
+    fn read_int_register(&self, index: u32) -> impl Future<Output = Result<i32, HalError>> + Send;
+
+    /// The active TCP offset `flange_from_tcp` (metres, radians; `flange` = UR `tool0`) as the
+    /// controller reports it, i.e. what `set_tcp` or the pendant installation left active.
+    fn tcp_offset(&self) -> impl Future<Output = Result<Isometry3<f64>, HalError>> + Send;
+
+    /// The controller's own (factory-calibrated) kinematics, the ones its reported poses
+    /// ([`Robot::flange_pose`]) are computed with; `None` when the controller does not publish
+    /// them (old firmware, a controller that sent none within the connect timeout).
+    /// Cheap: implementations cache them (the UR driver reads them once when it connects).
+    fn kinematics(
+        &self,
+    ) -> impl Future<Output = Result<Option<ControllerKinematics>, HalError>> + Send;
 }

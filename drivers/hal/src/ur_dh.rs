@@ -134,6 +134,31 @@ pub struct DhParams {
     pub theta: [f64; 6],
 }
 
+/// The kinematics a robot controller reports for its own arm (UR: the primary interface's
+/// KinematicsInfo, robot-state sub-package 5): the factory-calibrated DH set the controller
+/// uses for `actual_TCP_pose`, `get_forward_kin` and every pose it reports.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ControllerKinematics {
+    /// The controller's DH parameters (absolute values, not deltas), UR `base` frame.
+    pub dh: DhParams,
+    /// Per-joint checksums the controller publishes.
+    pub checksum: [u32; 6],
+    /// Whether the controller says the arm is factory calibrated (calibration_status).
+    pub calibrated: bool,
+}
+
+impl ControllerKinematics {
+    /// Whether every DH value is finite (a controller never sends NaN; a corrupt package might).
+    pub fn is_finite(&self) -> bool {
+        let d = &self.dh;
+        d.a.iter()
+            .chain(&d.d)
+            .chain(&d.alpha)
+            .chain(&d.theta)
+            .all(|v| v.is_finite())
+    }
+}
+
 impl DhParams {
     /// A deterministic pseudo-random calibration delta of the size a UR factory calibration
     /// has (1σ per joint: θ 0.3 mrad, a and d 0.3 mm, α 0.3 mrad), to add to nominal DH with

@@ -1,6 +1,9 @@
 //! Primary/secondary interface (30001/30002) package format: `int32 length` (whole package) +
 //! `uint8 type` + body. Only what the simulator sends and the client reads is modelled.
 
+use handeye_hal::ur_dh::DhParams;
+use handeye_hal::ControllerKinematics;
+
 use crate::rtde::Reader;
 use crate::UrError;
 
@@ -105,13 +108,95 @@ pub struct RobotModeData {
     pub target_speed_fraction: f64,
 }
 
+/// `calibration_status` value of a factory-calibrated arm ("Linearised" in the controller's
+/// `calibration.conf`: 0 = not initialized, 1 = not linearised, 2 = linearised).
+pub const CALIBRATION_LINEARISED: u32 = 2;
+
+/// Kinematics info (ROBOT_STATE sub-package 5): the DH set the controller computes every pose
+/// with (nominal + factory calibration, absolute values).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KinematicsInfo {
+    /// Per-joint checksums (of the joints' calibration data).
+    pub checksum: [u32; 6],
+    /// Calibrated DH parameters, UR `base` frame.
+    pub dh: DhParams,
+    /// [`CALIBRATION_LINEARISED`] for a factory-calibrated arm (URCL reads 4 bytes; the manual
+    /// says uint8).
+    pub calibration_status: u32,
+}
+
+impl KinematicsInfo {
+    /// Payload size on the wire: 6 × u32 + 24 × f64 + u32.
+    pub const SIZE: usize = 6 * 4 + 24 * 8 + 4;
+
+    /// The hal view: `calibrated` iff the status is [`CALIBRATION_LINEARISED`].
+    pub fn to_controller_kinematics(&self) -> ControllerKinematics {
+        ControllerKinematics {
+            dh: self.dh,
+            checksum: self.checksum,
+            calibrated: self.calibration_status == CALIBRATION_LINEARISED,
+        }
+    }
+
+    /// The controller's kinematics as it would publish them: `dh`, checksums derived from the
+    /// DH values (stable per arm, like a real controller's), and the given status.
+    pub fn for_arm(dh: DhParams, calibration_status: u32) -> Self {
+        let checksum = std::array::from_fn(|i| {
+            // FNV-1a over the joint's four DH values.
+            let mut h: u32 = 0x811c_9dc5;
+            for v in [dh.theta[i], dh.a[i], dh.d[i], dh.alpha[i]] {
+                for b in v.to_be_bytes() {
+                    h = (h ^ u32::from(b)).wrapping_mul(0x0100_0193);
+                }
+            }
+            h
+        });
+        Self {
+            checksum,
+            dh,
+            calibration_status,
+        }
+    }
+
+    fn encode(&self, p: &mut Vec<u8>) {
+        for c in &self.checksum {
+            p.extend_from_slice(&c.to_be_bytes());
+        }
+        for arr in [&self.dh.theta, &self.dh.a, &self.dh.d, &self.dh.alpha] {
+            for v in arr.iter() {
+                p.extend_from_slice(&v.to_be_bytes());
+            }
+        }
+        p.extend_from_slice(&self.calibration_status.to_be_bytes());
+    }
+
+    fn decode(r: &mut Reader<'_>) -> Result<Self, UrError> {
+        let mut checksum = [0u32; 6];
+        for c in &mut checksum {
+            *c = r.u32()?;
+        }
+        let mut six = || -> Result<[f64; 6], UrError> {
+            let mut a = [0.0; 6];
+            for v in &mut a {
+                *v = r.f64()?;
+            }
+            Ok(a)
+        };
+        let theta = six()?;
+        let a = six()?;
+        let d = six()?;
+        let alpha = six()?;
+        Ok(Self {
+            checksum,
+            dh: DhParams { a, d, alpha, theta },
+            calibration_status: r.u32()?,
+        })
+    }
+}
+
 /// ROBOT_STATE with sub-packages 0 (mode data), 1 (joint data, positions only) and 5
-/// (kinematics info: `θ, a, d, α` × 6).
-pub fn encode_robot_state(
-    m: &RobotModeData,
-    q: &[f64; 6],
-    dh: &handeye_hal::ur_dh::DhParams,
-) -> Vec<u8> {
+/// (kinematics info: checksums, `θ, a, d, α` × 6, calibration status).
+pub fn encode_robot_state(m: &RobotModeData, q: &[f64; 6], kin: &KinematicsInfo) -> Vec<u8> {
     let mut body = Vec::new();
     let mut sub = |t: u8, p: Vec<u8>| {
         body.extend_from_slice(&((p.len() + 5) as u32).to_be_bytes());
@@ -150,16 +235,8 @@ pub fn encode_robot_state(
         p.push(253);
     }
     sub(1, p);
-    let mut p = Vec::new();
-    for _ in 0..6 {
-        p.extend_from_slice(&0u32.to_be_bytes());
-    }
-    for arr in [&dh.theta, &dh.a, &dh.d, &dh.alpha] {
-        for v in arr.iter() {
-            p.extend_from_slice(&v.to_be_bytes());
-        }
-    }
-    p.extend_from_slice(&0u32.to_be_bytes());
+    let mut p = Vec::with_capacity(KinematicsInfo::SIZE);
+    kin.encode(&mut p);
     sub(5, p);
     frame(ROBOT_STATE, &body)
 }
@@ -167,6 +244,8 @@ pub fn encode_robot_state(
 /// A decoded primary package (what the client needs from it).
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
+// One package is decoded at a time (~10 Hz); boxing the kinematics would only cost clarity.
+#[allow(clippy::large_enum_variant)]
 pub enum PrimaryPackage {
     /// Version message.
     Version {
@@ -179,8 +258,13 @@ pub enum PrimaryPackage {
         /// Build.
         build: i32,
     },
-    /// Robot state with its mode data, if present.
-    RobotState(Option<RobotModeData>),
+    /// Robot state: the sub-packages the client uses, each if present.
+    RobotState {
+        /// Robot mode data (sub-package 0).
+        mode: Option<RobotModeData>,
+        /// Kinematics info (sub-package 5; sent on connect and on change).
+        kinematics: Option<KinematicsInfo>,
+    },
     /// Text message.
     Text(String),
     /// Key message.
@@ -241,6 +325,7 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
     match kind {
         ROBOT_STATE => {
             let mut mode = None;
+            let mut kinematics = None;
             while r.remaining() > 0 {
                 let len = r.u32()? as usize;
                 if len < 5 {
@@ -267,9 +352,11 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
                         robot_mode,
                         target_speed_fraction,
                     });
+                } else if t == 5 {
+                    kinematics = Some(KinematicsInfo::decode(&mut s)?);
                 }
             }
-            Ok(PrimaryPackage::RobotState(mode))
+            Ok(PrimaryPackage::RobotState { mode, kinematics })
         }
         ROBOT_MESSAGE => {
             let _ts = r.u64()?;
@@ -331,7 +418,11 @@ mod tests {
 
     #[test]
     fn round_trips_and_fuzz() {
-        let dh = handeye_hal::ur_dh::UrModel::Ur5e.dh();
+        let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
+        let kin = KinematicsInfo::for_arm(
+            nominal.plus(&DhParams::factory_calibration_delta(7)),
+            CALIBRATION_LINEARISED,
+        );
         let m = RobotModeData {
             timestamp_us: 5,
             power_on: true,
@@ -345,7 +436,8 @@ mod tests {
             encode_key(1, 0, "PROGRAM_XXX_STARTED", "prog"),
             encode_error_code(1, 210, 3, "read-only"),
             encode_runtime_exception(1, 3, 1, "unknown function: foo"),
-            encode_robot_state(&m, &[0.1; 6], &dh),
+            encode_robot_state(&m, &[0.1; 6], &kin),
+            encode_robot_state(&m, &[-0.2; 6], &KinematicsInfo::for_arm(nominal, 0)),
         ];
         let (p, n) = split(&seeds[0]).expect("ok").expect("whole");
         assert_eq!(n, seeds[0].len());
@@ -359,13 +451,55 @@ mod tests {
             }
         );
         let (p, _) = split(&seeds[5]).expect("ok").expect("whole");
-        assert_eq!(p, PrimaryPackage::RobotState(Some(m)));
+        assert_eq!(
+            p,
+            PrimaryPackage::RobotState {
+                mode: Some(m),
+                kinematics: Some(kin)
+            }
+        );
+        let k = kin.to_controller_kinematics();
+        assert!(k.calibrated && k.dh == kin.dh && k.checksum == kin.checksum);
+        assert_ne!(kin.checksum, KinematicsInfo::for_arm(nominal, 2).checksum);
+        let (p, _) = split(&seeds[6]).expect("ok").expect("whole");
+        let PrimaryPackage::RobotState {
+            kinematics: Some(k0),
+            ..
+        } = p
+        else {
+            panic!("{p:?}")
+        };
+        assert!(!k0.to_controller_kinematics().calibrated && k0.dh == nominal);
         let (p, _) = split(&seeds[2]).expect("ok").expect("whole");
         assert!(
             matches!(p, PrimaryPackage::Key { ref title, ref text, .. } if title == "PROGRAM_XXX_STARTED" && text == "prog")
         );
         assert!(split(&[0, 0, 0, 2, 16]).is_err());
         assert!(split(&[0x7f, 0, 0, 0, 16]).is_err());
+        // Sub-package 5 alone; longer (newer firmware) is fine, shorter is malformed.
+        let kinematics_only = |extra: isize| {
+            let mut p = Vec::new();
+            kin.encode(&mut p);
+            if extra < 0 {
+                p.truncate(p.len() - extra.unsigned_abs());
+            } else {
+                p.extend(std::iter::repeat_n(0xab, extra as usize));
+            }
+            let mut body = ((p.len() + 5) as u32).to_be_bytes().to_vec();
+            body.push(5);
+            body.extend_from_slice(&p);
+            frame(ROBOT_STATE, &body)
+        };
+        let (p, _) = split(&kinematics_only(7)).expect("ok").expect("whole");
+        assert_eq!(
+            p,
+            PrimaryPackage::RobotState {
+                mode: None,
+                kinematics: Some(kin)
+            }
+        );
+        assert!(split(&kinematics_only(-1)).is_err());
+        assert!(split(&kinematics_only(-(KinematicsInfo::SIZE as isize))).is_err());
         let mut rng = crate::rtde::tests::Lcg(7);
         for _ in 0..20_000 {
             let mut b = seeds[rng.below(seeds.len())].clone();
@@ -380,7 +514,13 @@ mod tests {
                     break;
                 }
             }
-            let _ = split(&b);
+            // Never a panic; a robot state that still decodes carries whole sub-packages.
+            if let Ok(Some((PrimaryPackage::RobotState { kinematics, .. }, n))) = split(&b) {
+                assert!(n <= b.len());
+                if let Some(k) = kinematics {
+                    let _ = k.to_controller_kinematics().is_finite();
+                }
+            }
         }
     }
 }

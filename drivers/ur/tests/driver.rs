@@ -4,7 +4,7 @@
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::time::Duration;
 
-use handeye_hal::ur_dh::UrModel;
+use handeye_hal::ur_dh::{DhParams, UrModel};
 use handeye_hal::{HalError, MotionLimits, Robot, RobotMode, SafetyMode};
 use handeye_ur::client::{RtdeClient, RtdeConfig, ScriptClient};
 use handeye_ur::dashboard::DashboardClient;
@@ -290,10 +290,25 @@ async fn timeout_and_cancel_stop_the_arm() {
         (q[0] - target[0]).abs() > 0.1,
         "the arm stopped short of the target"
     );
-    // Dropping a move future also stops the arm.
-    let fut = robot.move_joints(&target, limits(0.3, 10));
-    let _ = tokio::time::timeout(Duration::from_millis(300), fut).await;
+    // Dropping a move future (how callers cancel through the `Robot` trait) also stops the
+    // arm: a 1 rad move at 0.3 rad/s would run for over 3 s.
+    let far = target_from(sim.joint_positions(), -1.0);
+    let fut = robot.move_joints(&far, limits(0.3, 10));
+    assert!(tokio::time::timeout(Duration::from_millis(300), fut)
+        .await
+        .is_err());
+    let dropped = std::time::Instant::now();
     wait_until(|| !sim.program_running()).await;
+    assert!(
+        dropped.elapsed() < Duration::from_millis(1500),
+        "stopped {:?} after the drop",
+        dropped.elapsed()
+    );
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let q = sim.joint_positions();
+    assert!((q[0] - far[0]).abs() > 0.5, "the arm kept going: {q:?}");
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    assert_eq!(sim.joint_positions(), q, "the arm is still moving");
 }
 
 async fn wait_until(mut f: impl FnMut() -> bool) {
@@ -533,11 +548,12 @@ async fn cb3_refuses_500_hz_and_has_no_remote_mode() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn true_kinematics_deviation_shows_in_the_controller_pose() {
     let mut c = sim_config();
-    let mut delta = UrModel::Ur5e.dh();
-    delta.a = [0.0, 0.002, -0.001, 0.0, 0.0, 0.0];
-    delta.d = [0.001, 0.0, 0.0, 0.0005, 0.0, 0.0];
-    delta.alpha = [0.0, 0.001, 0.0, 0.0, 0.0, 0.0];
-    delta.theta = [0.0, 0.0, 0.002, 0.0, 0.0, 0.0];
+    let delta = DhParams {
+        a: [0.0, 0.002, -0.001, 0.0, 0.0, 0.0],
+        d: [0.001, 0.0, 0.0, 0.0005, 0.0, 0.0],
+        alpha: [0.0, 0.001, 0.0, 0.0, 0.0, 0.0],
+        theta: [0.0, 0.0, 0.002, 0.0, 0.0, 0.0],
+    };
     c.dh_delta = Some(delta);
     let (sim, robot) = start(c).await;
     let q: [f64; 6] = robot
@@ -551,4 +567,214 @@ async fn true_kinematics_deviation_shows_in_the_controller_pose() {
     let truth = sim.dh().forward(&q);
     assert!((flange.translation.vector - truth.translation.vector).norm() < 1e-9);
     assert!((flange.translation.vector - nominal.translation.vector).norm() > 1e-3);
+}
+
+fn dh_max_abs_diff(a: &DhParams, b: &DhParams) -> f64 {
+    let flat = |d: &DhParams| -> Vec<f64> {
+        d.a.iter()
+            .chain(&d.d)
+            .chain(&d.alpha)
+            .chain(&d.theta)
+            .copied()
+            .collect()
+    };
+    flat(a)
+        .iter()
+        .zip(flat(b))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn factory_calibrated_kinematics_come_over_the_primary_interface() {
+    let (sim, robot) = start(sim_config().factory_calibrated(7)).await;
+    let published = sim.kinematics();
+    let got = robot
+        .kinematics()
+        .await
+        .expect("ok")
+        .expect("the simulator publishes kinematics");
+    assert!(got.calibrated && published.calibrated);
+    assert_eq!(got.checksum, published.checksum);
+    assert!(dh_max_abs_diff(&got.dh, &published.dh) < 1e-12);
+    assert!(dh_max_abs_diff(&got.dh, &sim.dh()) < 1e-12);
+    let off_nominal = dh_max_abs_diff(&got.dh, &UrModel::Ur5e.dh());
+    assert!(off_nominal > 1e-5 && off_nominal < 2e-3, "{off_nominal}");
+    // The same seed is the same arm; another seed is another arm.
+    let again = SimConfig::new(UrModel::Ur5e, LOCAL).factory_calibrated(7);
+    assert_eq!(again.dh_delta, sim_config().factory_calibrated(7).dh_delta);
+    assert_ne!(again.dh_delta, sim_config().factory_calibrated(8).dh_delta);
+    // The controller reports poses of its calibrated arm, at every joint configuration.
+    for delta in [0.0, 0.4] {
+        let target = target_from(sim.joint_positions(), delta);
+        robot
+            .move_joints(&target, limits(2.0, 10))
+            .await
+            .expect("move");
+        let q: [f64; 6] = robot
+            .joint_positions()
+            .await
+            .expect("q")
+            .try_into()
+            .expect("6");
+        let flange = robot.flange_pose().await.expect("flange");
+        let truth = got.dh.forward(&q);
+        assert!((flange.translation.vector - truth.translation.vector).norm() < 1e-6);
+        assert!(flange.rotation.angle_to(&truth.rotation) < 1e-6);
+        let nominal = UrModel::Ur5e.dh().forward(&q);
+        assert!((flange.translation.vector - nominal.translation.vector).norm() > 1e-5);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nominal_simulator_publishes_nominal_kinematics() {
+    let (_sim, robot) = start(sim_config()).await;
+    let k = robot.kinematics().await.expect("ok").expect("published");
+    assert!(k.calibrated);
+    assert!(dh_max_abs_diff(&k.dh, &UrModel::Ur5e.dh()) < 1e-12);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn controller_without_kinematics_info_connects_with_none() {
+    // A primary interface that sends the version message and then nothing (an old controller).
+    let listener = tokio::net::TcpListener::bind((LOCAL, 0))
+        .await
+        .expect("bind");
+    let primary = listener.local_addr().expect("addr").port();
+    let server = tokio::spawn(async move {
+        use tokio::io::AsyncWriteExt;
+        let mut held = Vec::new();
+        while let Ok((mut sock, _)) = listener.accept().await {
+            let v = handeye_ur::primary::encode_version(1, 5, 11, 1, 1);
+            let _ = sock.write_all(&v).await;
+            held.push(sock);
+        }
+    });
+    let sim = Simulator::start(sim_config()).await.expect("sim");
+    let mut cfg = UrConfig::new(LOCAL);
+    cfg.ports = sim.ports();
+    cfg.ports.primary = primary;
+    cfg.timeout = Duration::from_millis(500);
+    let robot = tokio::time::timeout(Duration::from_secs(10), UrRobot::connect(cfg))
+        .await
+        .expect("no hang")
+        .expect("connects without kinematics");
+    assert_eq!(robot.kinematics().await.expect("ok"), None);
+    assert!(robot.status().await.is_ok());
+    server.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn int_registers_round_trip() {
+    let (sim, robot) = start(sim_config().with_fieldbus_lower_range()).await;
+    robot.write_int_register(24, -42).await.expect("write");
+    assert_eq!(sim.input_int_register(24), -42);
+    assert_eq!(robot.read_int_register(24).await.expect("read"), -42);
+    robot.write_int_register(31, i32::MAX).await.expect("write");
+    assert_eq!(robot.read_int_register(31).await.expect("read"), i32::MAX);
+    robot.write_int_register(31, i32::MIN).await.expect("write");
+    assert_eq!(sim.input_int_register(31), i32::MIN);
+    sim.set_output_int_register(26, 17);
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    assert_eq!(robot.read_output_int_register(26).await.expect("read"), 17);
+    // Int and double registers of the same index are separate.
+    robot.write_double_register(24, 0.5).await.expect("write");
+    assert_eq!(robot.read_int_register(24).await.expect("read"), -42);
+    assert!(matches!(
+        robot.write_int_register(3, 1).await,
+        Err(HalError::InvalidArgument(_))
+    ));
+    assert!(matches!(
+        robot.read_int_register(32).await,
+        Err(HalError::InvalidArgument(_))
+    ));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn register_ranges_too_wide_for_one_recipe_are_refused_before_connecting() {
+    let sim = Simulator::start(sim_config()).await.expect("sim");
+    let mut cfg = UrConfig::new(LOCAL);
+    cfg.ports = sim.ports();
+    cfg.int_registers = 24..=47;
+    let err = UrRobot::connect(cfg).await.expect_err("too many names");
+    assert!(
+        matches!(err, UrError::InvalidArgument(ref m) if m.contains("2048")),
+        "{err}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn int_register_held_by_fieldbus_is_register_in_use() {
+    let sim = Simulator::start(sim_config().with_fieldbus_lower_range())
+        .await
+        .expect("sim");
+    let mut cfg = UrConfig::new(LOCAL);
+    cfg.ports = sim.ports();
+    // Doubles in the free upper range, ints in the range the fieldbus holds.
+    cfg.int_registers = 22..=25;
+    let err = UrRobot::connect(cfg).await.expect_err("IN_USE");
+    assert!(
+        matches!(err, UrError::FieldInUse { ref name, .. } if name == "input_int_register_22"),
+        "{err}"
+    );
+    assert!(matches!(
+        HalError::from(err),
+        HalError::RegisterInUse { .. }
+    ));
+    // Only an int register held: that one is named.
+    let mut c = sim_config();
+    c.fieldbus_held.push("input_int_register_30".into());
+    let sim = Simulator::start(c).await.expect("sim");
+    let mut cfg = UrConfig::new(LOCAL);
+    cfg.ports = sim.ports();
+    let err = UrRobot::connect(cfg).await.expect_err("IN_USE");
+    assert!(
+        matches!(err, UrError::FieldInUse { ref name, .. } if name == "input_int_register_30"),
+        "{err}"
+    );
+    assert!(matches!(
+        HalError::from(err),
+        HalError::RegisterInUse { ref name } if name == "input_int_register_30"
+    ));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn speed_fraction_follows_the_speed_slider() {
+    let (sim, robot) = start(sim_config()).await;
+    assert_eq!(robot.status().await.expect("status").speed_fraction, 1.0);
+    sim.set_speed_slider(0.25);
+    assert_eq!(sim.speed_slider(), 0.25);
+    wait_for_speed(&robot, 0.25).await;
+    // Another RTDE client moves the slider over the real protocol (speed_slider_mask = 1).
+    let other = RtdeClient::connect(RtdeConfig {
+        addr: SocketAddr::new(LOCAL, sim.ports().rtde),
+        frequency: Some(125.0),
+        outputs: vec!["timestamp".into()],
+        inputs: vec![vec![
+            "speed_slider_mask".into(),
+            "speed_slider_fraction".into(),
+        ]],
+        timeout: Duration::from_secs(2),
+        max_backoff: Duration::from_millis(200),
+    })
+    .await
+    .expect("second RTDE client");
+    use handeye_ur::rtde::Value;
+    other
+        .write(0, vec![Value::Uint32(1), Value::Double(0.6)])
+        .await
+        .expect("write slider");
+    wait_for_speed(&robot, 0.6).await;
+    assert_eq!(sim.speed_slider(), 0.6);
+    drop(other);
+}
+
+async fn wait_for_speed(robot: &UrRobot, want: f64) {
+    for _ in 0..200 {
+        if robot.status().await.expect("status").speed_fraction == want {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    panic!("speed_fraction never became {want}");
 }

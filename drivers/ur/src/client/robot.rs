@@ -6,7 +6,7 @@ use std::ops::RangeInclusive;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use handeye_hal::{HalError, MotionLimits, Robot, RobotStatus, SafetyMode};
+use handeye_hal::{ControllerKinematics, HalError, MotionLimits, Robot, RobotStatus, SafetyMode};
 use nalgebra::Isometry3;
 use tokio::sync::Mutex;
 
@@ -29,9 +29,15 @@ pub struct UrConfig {
     pub max_joint_speed_rad_s: f64,
     /// Hard cap on joint acceleration, rad/s².
     pub max_joint_accel_rad_s2: f64,
-    /// Double registers this client writes (upper range 24–47 by default: 0–23 belong to
-    /// fieldbus adapters).
+    /// Double registers this client writes and reads (`input_double_register_N`, and
+    /// `output_double_register_N` from a pendant program; upper range 24–47 by default: 0–23
+    /// belong to fieldbus adapters).
     pub registers: RangeInclusive<u32>,
+    /// Int registers this client writes and reads (`input_int_register_N`,
+    /// `output_int_register_N`); 24–31 by default. Narrower than the doubles because every
+    /// register adds fields to the one RTDE output recipe, whose name list is limited to
+    /// 2048 bytes; `connect` refuses a combination that does not fit.
+    pub int_registers: RangeInclusive<u32>,
     /// Limit for each request/reply exchange.
     pub timeout: Duration,
     /// Longest pause between RTDE reconnection attempts.
@@ -48,6 +54,7 @@ impl UrConfig {
             max_joint_speed_rad_s: 1.0,
             max_joint_accel_rad_s2: 2.0,
             registers: 24..=47,
+            int_registers: 24..=31,
             timeout: Duration::from_secs(3),
             max_backoff: Duration::from_secs(5),
         }
@@ -71,6 +78,7 @@ const BASE_OUTPUTS: &[&str] = &[
     "runtime_state",
     "robot_status_bits",
     "safety_status_bits",
+    "target_speed_fraction",
 ];
 
 #[derive(Debug)]
@@ -79,6 +87,8 @@ struct Inner {
     rtde: RtdeClient,
     dashboard: Mutex<Option<DashboardClient>>,
     script: ScriptClient,
+    /// Read once from the primary interface on connect.
+    kinematics: Option<ControllerKinematics>,
 }
 
 /// A Universal Robots controller (CB3 or e-Series). Cheap to clone; one RTDE connection.
@@ -88,13 +98,16 @@ pub struct UrRobot {
 }
 
 impl UrRobot {
-    /// Connect RTDE (output recipe + one input recipe per register) and check the dashboard.
+    /// Connect RTDE (output recipe + one input recipe per double register, then one per int
+    /// register), check the dashboard and read the controller's kinematics from the primary
+    /// interface (a controller that sends none within `cfg.timeout` is logged, not an error).
     pub async fn connect(cfg: UrConfig) -> Result<Self, UrError> {
-        if cfg.registers.is_empty() || *cfg.registers.end() > 47 {
-            return Err(UrError::InvalidArgument(format!(
-                "register range {:?} must lie within 0..=47",
-                cfg.registers
-            )));
+        for (what, r) in [("double", &cfg.registers), ("int", &cfg.int_registers)] {
+            if r.is_empty() || *r.end() > 47 {
+                return Err(UrError::InvalidArgument(format!(
+                    "{what} register range {r:?} must lie within 0..=47"
+                )));
+            }
         }
         if !(cfg.max_joint_speed_rad_s > 0.0 && cfg.max_joint_accel_rad_s2 > 0.0) {
             return Err(UrError::InvalidArgument(
@@ -106,10 +119,19 @@ impl UrRobot {
             outputs.push(format!("input_double_register_{i}"));
             outputs.push(format!("output_double_register_{i}"));
         }
+        for i in cfg.int_registers.clone() {
+            outputs.push(format!("input_int_register_{i}"));
+            outputs.push(format!("output_int_register_{i}"));
+        }
         let inputs = cfg
             .registers
             .clone()
             .map(|i| vec![format!("input_double_register_{i}")])
+            .chain(
+                cfg.int_registers
+                    .clone()
+                    .map(|i| vec![format!("input_int_register_{i}")]),
+            )
             .collect();
         let rtde = RtdeClient::connect(RtdeConfig {
             addr: SocketAddr::new(cfg.host, cfg.ports.rtde),
@@ -124,12 +146,14 @@ impl UrRobot {
             DashboardClient::connect(SocketAddr::new(cfg.host, cfg.ports.dashboard), cfg.timeout)
                 .await?;
         let script = ScriptClient::new(SocketAddr::new(cfg.host, cfg.ports.primary), cfg.timeout);
+        let kinematics = read_kinematics(&script).await;
         let robot = Self {
             inner: Arc::new(Inner {
                 cfg,
                 rtde,
                 dashboard: Mutex::new(Some(dash)),
                 script,
+                kinematics,
             }),
         };
         robot.sample().await?;
@@ -336,16 +360,84 @@ impl UrRobot {
         self.register("output_double_register_", index).await
     }
 
-    async fn register(&self, prefix: &str, index: u32) -> Result<f64, HalError> {
-        if !self.inner.cfg.registers.contains(&index) {
-            return Err(HalError::InvalidArgument(format!(
-                "register {index} is outside the configured range {:?}",
+    /// Read `output_int_register_N` (what a pendant program wrote).
+    pub async fn read_output_int_register(&self, index: u32) -> Result<i32, HalError> {
+        self.int_register("output_int_register_", index).await
+    }
+
+    fn check_register(&self, index: u32) -> Result<(), HalError> {
+        if self.inner.cfg.registers.contains(&index) {
+            Ok(())
+        } else {
+            Err(HalError::InvalidArgument(format!(
+                "double register {index} is outside the configured range {:?}",
                 self.inner.cfg.registers
-            )));
+            )))
         }
+    }
+
+    fn check_int_register(&self, index: u32) -> Result<(), HalError> {
+        if self.inner.cfg.int_registers.contains(&index) {
+            Ok(())
+        } else {
+            Err(HalError::InvalidArgument(format!(
+                "int register {index} is outside the configured range {:?}",
+                self.inner.cfg.int_registers
+            )))
+        }
+    }
+
+    async fn register(&self, prefix: &str, index: u32) -> Result<f64, HalError> {
+        self.check_register(index)?;
         let s = self.sample().await?;
         s.f64(&format!("{prefix}{index}"))
             .ok_or_else(|| HalError::InvalidArgument(format!("{prefix}{index} not in the recipe")))
+    }
+
+    async fn int_register(&self, prefix: &str, index: u32) -> Result<i32, HalError> {
+        self.check_int_register(index)?;
+        let s = self.sample().await?;
+        int_field(&s, &format!("{prefix}{index}"))
+    }
+
+    /// Write one input register through its input recipe and wait until the controller
+    /// reflects `value` in the output stream (within `cfg.timeout`).
+    async fn write_confirmed(
+        &self,
+        recipe: usize,
+        name: String,
+        value: Value,
+        same: impl Fn(&Sample) -> Option<(bool, String)>,
+    ) -> Result<(), HalError> {
+        let t0 = Instant::now();
+        let wrote = match value {
+            Value::Double(v) => v.to_string(),
+            Value::Int32(v) => v.to_string(),
+            other => format!("{other:?}"),
+        };
+        self.inner.rtde.write(recipe, vec![value]).await?;
+        let deadline = t0 + self.inner.cfg.timeout;
+        let mut last = t0;
+        let mut read = String::from("nothing");
+        while Instant::now() < deadline {
+            let s = self
+                .inner
+                .rtde
+                .next_sample(last, self.inner.cfg.timeout)
+                .await?;
+            last = s.received;
+            if let Some((ok, r)) = same(&s) {
+                if ok {
+                    return Ok(());
+                }
+                read = r;
+            }
+        }
+        Err(HalError::ReadBackMismatch {
+            what: name,
+            wrote,
+            read,
+        })
     }
 
     /// The active TCP offset (`flange_from_tcp`) as the controller reports it.
@@ -368,6 +460,53 @@ impl UrRobot {
                 detail: "no actual_TCP_pose".into(),
             })?;
         Ok(UrPose(t).into())
+    }
+}
+
+fn int_field(s: &Sample, name: &str) -> Result<i32, HalError> {
+    match s.get(name) {
+        Some(Value::Int32(v)) => Ok(v),
+        Some(other) => Err(HalError::Protocol {
+            peer: "RTDE".into(),
+            detail: format!("{name} is {other:?}, expected INT32"),
+        }),
+        None => Err(HalError::InvalidArgument(format!(
+            "{name} not in the recipe"
+        ))),
+    }
+}
+
+/// The controller's kinematics from the primary interface, or `None` (with a warning) when it
+/// sends none in time, cannot be reached, or sends values that are not finite.
+async fn read_kinematics(script: &ScriptClient) -> Option<ControllerKinematics> {
+    match script.kinematics().await {
+        Ok(Some(k)) => {
+            let k = k.to_controller_kinematics();
+            if !k.is_finite() {
+                tracing::warn!(
+                    "the controller's kinematics info holds non-finite DH values; ignoring it"
+                );
+                return None;
+            }
+            if !k.calibrated {
+                tracing::warn!(
+                    "the controller says its arm is not factory calibrated (calibration_status)"
+                );
+            }
+            tracing::debug!(dh = ?k.dh, "controller kinematics");
+            Some(k)
+        }
+        Ok(None) => {
+            tracing::warn!(
+                "the controller sent no kinematics info on the primary interface; \
+                 its calibrated DH parameters are unknown"
+            );
+            None
+        }
+        Err(e) => {
+            tracing::warn!("could not read the controller's kinematics: {e}");
+            None
+        }
     }
 }
 
@@ -436,6 +575,12 @@ impl Robot for UrRobot {
             safety_mode,
             remote_control,
             program_running: s.f64("runtime_state") == Some(2.0),
+            speed_fraction: s
+                .f64("target_speed_fraction")
+                .ok_or_else(|| HalError::Protocol {
+                    peer: "RTDE".into(),
+                    detail: "no target_speed_fraction".into(),
+                })?,
         })
     }
 
@@ -511,42 +656,45 @@ impl Robot for UrRobot {
     }
 
     async fn write_double_register(&self, index: u32, value: f64) -> Result<(), HalError> {
-        if !self.inner.cfg.registers.contains(&index) {
-            return Err(HalError::InvalidArgument(format!(
-                "register {index} is outside the configured range {:?}",
-                self.inner.cfg.registers
-            )));
-        }
+        self.check_register(index)?;
         let recipe = (index - self.inner.cfg.registers.start()) as usize;
-        let t0 = Instant::now();
-        self.inner
-            .rtde
-            .write(recipe, vec![Value::Double(value)])
-            .await?;
         let name = format!("input_double_register_{index}");
-        let deadline = t0 + self.inner.cfg.timeout;
-        let mut last = t0;
-        let mut read = f64::NAN;
-        while Instant::now() < deadline {
-            let s = self
-                .inner
-                .rtde
-                .next_sample(last, self.inner.cfg.timeout)
-                .await?;
-            last = s.received;
-            read = s.f64(&name).unwrap_or(f64::NAN);
-            if read == value || (read.is_nan() && value.is_nan()) {
-                return Ok(());
-            }
-        }
-        Err(HalError::ReadBackMismatch {
-            what: name,
-            wrote: value.to_string(),
-            read: read.to_string(),
+        let field = name.clone();
+        self.write_confirmed(recipe, name, Value::Double(value), move |s| {
+            let read = s.f64(&field)?;
+            let same = read == value || (read.is_nan() && value.is_nan());
+            Some((same, read.to_string()))
         })
+        .await
     }
 
     async fn read_double_register(&self, index: u32) -> Result<f64, HalError> {
         self.register("input_double_register_", index).await
+    }
+
+    async fn write_int_register(&self, index: u32, value: i32) -> Result<(), HalError> {
+        self.check_int_register(index)?;
+        // Int recipes follow the double ones, one per register.
+        let recipe = self.inner.cfg.registers.clone().count()
+            + (index - self.inner.cfg.int_registers.start()) as usize;
+        let name = format!("input_int_register_{index}");
+        let field = name.clone();
+        self.write_confirmed(recipe, name, Value::Int32(value), move |s| {
+            let read = int_field(s, &field).ok()?;
+            Some((read == value, read.to_string()))
+        })
+        .await
+    }
+
+    async fn read_int_register(&self, index: u32) -> Result<i32, HalError> {
+        self.int_register("input_int_register_", index).await
+    }
+
+    async fn tcp_offset(&self) -> Result<Isometry3<f64>, HalError> {
+        UrRobot::tcp_offset(self).await
+    }
+
+    async fn kinematics(&self) -> Result<Option<ControllerKinematics>, HalError> {
+        Ok(self.inner.kinematics)
     }
 }

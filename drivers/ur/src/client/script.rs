@@ -34,7 +34,7 @@ impl ScriptClient {
 
     /// Read the version message the controller sends first.
     pub async fn version(&self) -> Result<(u8, u8, i32, i32), UrError> {
-        let (_sock, first) = self.open().await?;
+        let (_sock, first, _) = self.open().await?;
         match first {
             PrimaryPackage::Version {
                 major,
@@ -49,7 +49,40 @@ impl ScriptClient {
         }
     }
 
-    async fn open(&self) -> Result<(TcpStream, PrimaryPackage), UrError> {
+    /// Read the controller's kinematics (ROBOT_STATE sub-package 5) from a fresh primary
+    /// connection: the first KinematicsInfo that arrives within the timeout, or `Ok(None)` if
+    /// none does (a controller too old to send it). Connection errors are returned.
+    pub async fn kinematics(&self) -> Result<Option<primary::KinematicsInfo>, UrError> {
+        let deadline = Instant::now() + self.timeout;
+        let (mut sock, first, mut buf) = self.open().await?;
+        if let PrimaryPackage::RobotState {
+            kinematics: Some(k),
+            ..
+        } = first
+        {
+            return Ok(Some(k));
+        }
+        loop {
+            while let Some((p, n)) = primary::split(&buf)? {
+                buf.drain(..n);
+                if let PrimaryPackage::RobotState {
+                    kinematics: Some(k),
+                    ..
+                } = p
+                {
+                    return Ok(Some(k));
+                }
+            }
+            match read_some(&mut sock, &mut buf, deadline, self.addr, self.timeout).await {
+                Ok(()) => {}
+                Err(UrError::Timeout { .. }) => return Ok(None),
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// Connect and read the first package; also returns the bytes read after it.
+    async fn open(&self) -> Result<(TcpStream, PrimaryPackage, Vec<u8>), UrError> {
         let mut sock = crate::connect_within(self.addr, self.timeout, || {
             format!("connect to {}", self.addr)
         })
@@ -63,7 +96,7 @@ impl ScriptClient {
             }
             read_some(&mut sock, &mut buf, deadline, self.addr, self.timeout).await?;
         };
-        Ok((sock, first))
+        Ok((sock, first, buf))
     }
 
     /// Send `program`. For a `def` program named `name`, wait until the controller reports it
@@ -75,7 +108,7 @@ impl ScriptClient {
         name: Option<&str>,
         settle: Duration,
     ) -> Result<ScriptOutcome, UrError> {
-        let (mut sock, _) = self.open().await?;
+        let (mut sock, _, mut buf) = self.open().await?;
         sock.write_all(program.as_bytes())
             .await
             .map_err(|source| UrError::Io {
@@ -83,7 +116,6 @@ impl ScriptClient {
                 source,
             })?;
         let deadline = Instant::now() + if name.is_some() { self.timeout } else { settle };
-        let mut buf = Vec::new();
         loop {
             while let Some((p, n)) = primary::split(&buf)? {
                 buf.drain(..n);

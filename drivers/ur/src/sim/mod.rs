@@ -21,6 +21,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
 use handeye_hal::ur_dh::{DhParams, UrModel};
+use handeye_hal::ControllerKinematics;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{broadcast, watch};
 
@@ -90,6 +91,16 @@ impl SimConfig {
             realtime: 0,
             rtde: 0,
         };
+        self
+    }
+
+    /// A factory-calibrated arm: [`SimConfig::dh_delta`] becomes a deterministic pseudo-random
+    /// delta of the size a UR factory calibration has (1σ per joint: θ and α 0.3 mrad, a and d
+    /// 0.3 mm; [`DhParams::factory_calibration_delta`]); the same `seed` gives the same arm.
+    /// The controller computes every pose with nominal + delta and publishes that set, with
+    /// calibration status "linearised", in the primary KinematicsInfo.
+    pub fn factory_calibrated(mut self, seed: u64) -> Self {
+        self.dh_delta = Some(DhParams::factory_calibration_delta(seed));
         self
     }
 
@@ -341,6 +352,13 @@ impl SimHandle {
         }
     }
 
+    /// Set an output int register (as a pendant program would).
+    pub fn set_output_int_register(&self, i: usize, v: i32) {
+        if let Some(r) = self.shared.lock().out_int.get_mut(i) {
+            *r = v;
+        }
+    }
+
     /// The last few robot messages as text (bounded), e.g. runtime exceptions of scripts.
     pub fn recent_log(&self) -> Vec<String> {
         self.shared.lock().log.iter().cloned().collect()
@@ -349,6 +367,28 @@ impl SimHandle {
     /// The simulated arm's kinematics (nominal + delta).
     pub fn dh(&self) -> DhParams {
         self.shared.lock().dh
+    }
+
+    /// The kinematics this controller publishes (primary KinematicsInfo): [`SimHandle::dh`],
+    /// its checksums, calibrated.
+    pub fn kinematics(&self) -> ControllerKinematics {
+        self.shared
+            .lock()
+            .kinematics_info()
+            .to_controller_kinematics()
+    }
+
+    /// Move the speed slider (as an operator on the pendant), clamped to 0–1; RTDE
+    /// `target_speed_fraction` and the primary robot mode data follow.
+    pub fn set_speed_slider(&self, fraction: f64) {
+        if fraction.is_finite() {
+            self.shared.lock().speed_slider = fraction.clamp(0.0, 1.0);
+        }
+    }
+
+    /// The speed slider, 0–1.
+    pub fn speed_slider(&self) -> f64 {
+        self.shared.lock().speed_slider
     }
 }
 

@@ -41,7 +41,7 @@ fn state_package(shared: &Shared) -> Vec<u8> {
         robot_mode: s.robot_mode as i8,
         target_speed_fraction: s.speed_slider,
     };
-    primary::encode_robot_state(&m, &s.q, &s.dh)
+    primary::encode_robot_state(&m, &s.q, &s.kinematics_info())
 }
 
 async fn connection(

@@ -101,15 +101,11 @@ pub(crate) struct State {
 
 impl State {
     pub(crate) fn new(c: &SimConfig) -> Self {
-        let mut dh = c.model.dh();
-        if let Some(d) = &c.dh_delta {
-            for i in 0..6 {
-                dh.a[i] += d.a[i];
-                dh.d[i] += d.d[i];
-                dh.alpha[i] += d.alpha[i];
-                dh.theta[i] += d.theta[i];
-            }
-        }
+        // Every pose the controller reports (RTDE, URScript, primary) uses this one set.
+        let dh = c
+            .dh_delta
+            .as_ref()
+            .map_or_else(|| c.model.dh(), |d| c.model.dh().plus(d));
         Self {
             // Controllers report seconds since boot; clients (URCL) expect > 40 s.
             boot: Instant::now()
@@ -163,6 +159,12 @@ impl State {
             self.log.pop_front();
         }
         self.log.push_back(line);
+    }
+
+    /// What the primary interface publishes as KinematicsInfo (a real controller is always
+    /// factory calibrated; a nominal simulator is a perfectly built arm).
+    pub(crate) fn kinematics_info(&self) -> crate::primary::KinematicsInfo {
+        crate::primary::KinematicsInfo::for_arm(self.dh, crate::primary::CALIBRATION_LINEARISED)
     }
 
     pub(crate) fn flange_pose(&self) -> Isometry3<f64> {
