@@ -21,6 +21,7 @@ pub mod bench;
 pub mod calib;
 pub mod camera;
 pub mod cloud;
+pub mod config;
 pub mod frames;
 pub mod model;
 pub mod plan;

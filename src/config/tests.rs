@@ -1,0 +1,493 @@
+use std::net::{IpAddr, Ipv4Addr};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use super::*;
+
+const MINIMAL: &str = r#"
+[robot]
+model = "ur5e"
+host = "192.168.56.101"
+
+[camera]
+backend = "gige"
+address = "192.168.1.50"
+
+[mount]
+prior = [0.0, -0.08, 0.04, -0.26, 0.0, 0.0]
+"#;
+
+fn parse(text: &str) -> Result<Config, ConfigError> {
+    Config::from_toml(text, "cell.toml", Path::new("/etc/handeye"))
+}
+
+/// Parses `text`, expects an error, and checks it names `key` and `line` in its message.
+fn refused(text: &str, key: &str, line: usize) -> ConfigError {
+    let err = parse(text).expect_err("refused");
+    let msg = err.to_string();
+    assert_eq!(err.key(), Some(key), "{msg}");
+    assert_eq!(err.line(), Some(line), "{msg}");
+    assert!(msg.contains(key), "message names the key: {msg}");
+    assert!(
+        msg.starts_with(&format!("cell.toml:{line}")),
+        "message names file and line: {msg}"
+    );
+    err
+}
+
+/// MINIMAL with `extra` appended to its `[table]` (inserted right after the header).
+fn with(table: &str, extra: &str) -> String {
+    let header = format!("[{table}]\n");
+    if MINIMAL.contains(&header) {
+        MINIMAL.replacen(&header, &format!("{header}{extra}\n"), 1)
+    } else {
+        format!("{MINIMAL}\n{header}{extra}\n")
+    }
+}
+
+fn line_of(text: &str, needle: &str) -> usize {
+    let at = text.find(needle).expect("needle");
+    text[..at].matches('\n').count() + 1
+}
+
+#[test]
+fn every_example_file_loads() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config");
+    let mut loaded = Vec::new();
+    for entry in std::fs::read_dir(&dir).expect("config dir") {
+        let path = entry.expect("entry").path();
+        let name = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or_default();
+        // The scan simulator's settings are a different file format (crate::sim::SimSettings).
+        if !name.ends_with(".example.toml") || name == "simulator.example.toml" {
+            continue;
+        }
+        let c = Config::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(c.origin, path.display().to_string());
+        assert!(c.storage.dir.is_absolute(), "{name}: storage.dir resolved");
+        loaded.push(name.to_string());
+    }
+    loaded.sort();
+    for expected in [
+        "eye-to-hand.example.toml",
+        "handeye.example.toml",
+        "sim-rig.example.toml",
+        "ur-zivid-exec.example.toml",
+    ] {
+        assert!(loaded.iter().any(|l| l == expected), "{expected} loaded");
+    }
+}
+
+#[test]
+fn the_sim_rig_example_is_sim_rig() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim-rig.example.toml");
+    let file = Config::load(&path).expect("loads");
+    let code = sim_rig(
+        IpAddr::V4(Ipv4Addr::LOCALHOST),
+        RobotPorts::UR_STANDARD,
+        "127.0.0.2".to_string(),
+        file.storage.dir.clone(),
+    );
+    assert_eq!(
+        Config {
+            origin: code.origin.clone(),
+            ..file
+        },
+        code
+    );
+}
+
+#[test]
+fn the_full_example_documents_the_defaults() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/handeye.example.toml");
+    let c = Config::load(&path).expect("loads");
+    assert_eq!(c.robot.limits, defaults::motion_limits());
+    assert_eq!(c.robot.ports, defaults::ROBOT_PORTS);
+    assert_eq!(c.gate, defaults::gate());
+    assert_eq!(c.camera.settle, Duration::from_secs_f64(defaults::SETTLE_S));
+    assert_eq!(
+        c.check.max_drift_translation_mm,
+        defaults::MAX_DRIFT_TRANSLATION_MM
+    );
+    assert_eq!(
+        c.check.max_drift_rotation_deg,
+        defaults::MAX_DRIFT_ROTATION_DEG
+    );
+    assert_eq!(c.views.floor_clearance_m, defaults::FLOOR_CLEARANCE_M);
+    assert_eq!(c.camera.capture.frames, 3);
+    assert_eq!(c.views.obstacles.len(), 1);
+    assert_eq!(
+        c.write_back.registers,
+        Some(RegisterMap {
+            double_start: 24,
+            sequence_int: 24
+        })
+    );
+    assert!(matches!(c.views.targets, ViewTargets::Joints(ref j) if j.len() == 1));
+}
+
+#[test]
+fn defaults_fill_a_minimal_file() {
+    let c = parse(MINIMAL).expect("minimal config");
+    assert_eq!(c.robot.model, UrModel::Ur5e);
+    assert_eq!(c.robot.urdf, None);
+    assert_eq!(c.robot.ports, RobotPorts::UR_STANDARD);
+    assert_eq!(c.robot.limits, MotionLimits::default());
+    assert!(!c.robot.allow_power_on);
+    assert_eq!(c.robot.kinematics, KinematicsSource::Controller);
+    assert_eq!(c.camera.capture, CaptureSettings::default());
+    assert_eq!(c.camera.settle, Duration::from_millis(500));
+    assert_eq!(c.mount.mount, Mount::EyeInHand);
+    assert_eq!(c.mount.max_camera_flange_distance_m, Some(0.3));
+    let prior = c.mount.prior.expect("prior");
+    assert!((prior.translation.vector.y + 0.08).abs() < 1e-12);
+    assert!((prior.rotation.scaled_axis().x + 0.26).abs() < 1e-12);
+    assert_eq!(
+        c.views.targets,
+        ViewTargets::Auto {
+            count: 1,
+            min_distance_m: 0.4,
+            max_distance_m: 0.8,
+            seed: 1
+        }
+    );
+    assert!(c.views.obstacles.is_empty());
+    assert!(c.views.return_to_start);
+    assert_eq!(c.gate, GateThresholds::default());
+    assert!(c.write_back.tcp);
+    assert!(c.write_back.files);
+    assert_eq!(c.write_back.registers, None);
+    assert_eq!(c.storage.dir, PathBuf::from("/etc/handeye/handeye-data"));
+    assert!(c.storage.keep_captures);
+}
+
+#[test]
+fn values_are_taken_and_paths_resolved_against_the_config_directory() {
+    let text = r#"
+[robot]
+model = "UR10e"
+host = "::1"
+urdf = "robots/ur10e.urdf"
+max_joint_speed_rad_s = 3.15
+move_timeout_s = 5
+kinematics = "nominal"
+allow_power_on = true
+[robot.ports]
+rtde = 40004
+[camera]
+backend = "exec"
+command = ["python3", "{config_dir}/zivid_capture.py", "{out}"]
+exposure_us = 2500
+[views]
+mode = "joints"
+joints = [[0, -1.57, 0, -1.57, 0, 0]]
+[gate]
+max_rmse_mm = 3
+[storage]
+dir = "/abs/data"
+"#;
+    let c = Config::from_toml(text, "t.toml", Path::new("/cfg")).expect("valid");
+    assert_eq!(c.robot.model, UrModel::Ur10e);
+    assert_eq!(c.robot.host, "::1".parse::<IpAddr>().expect("ip"));
+    assert_eq!(c.robot.urdf, Some(PathBuf::from("/cfg/robots/ur10e.urdf")));
+    assert_eq!(c.robot.limits.max_joint_speed_rad_s, 3.15);
+    assert_eq!(c.robot.limits.timeout, Duration::from_secs(5));
+    assert_eq!(c.robot.kinematics, KinematicsSource::Nominal);
+    assert!(c.robot.allow_power_on);
+    assert_eq!(c.robot.ports.rtde, 40004);
+    assert_eq!(c.robot.ports.dashboard, 29999);
+    assert_eq!(
+        c.camera.backend,
+        CameraBackend::Exec {
+            command: vec![
+                "python3".into(),
+                "/cfg/zivid_capture.py".into(),
+                "{out}".into()
+            ],
+            timeout: Duration::from_secs(30)
+        }
+    );
+    assert_eq!(c.camera.capture.exposure, Some(Duration::from_micros(2500)));
+    assert_eq!(c.gate.max_rmse_mm, 3.0);
+    assert_eq!(c.gate.min_coverage, GateThresholds::default().min_coverage);
+    assert_eq!(c.storage.dir, PathBuf::from("/abs/data"));
+
+    let files = "[robot]\nmodel = \"ur5e\"\nhost = \"10.0.0.1\"\n[camera]\nbackend = \"file\"\nfiles = [\"a.ply\", \"/b.pcd\"]\n[views]\nmode = \"joints\"\njoints = [[0, -1.57, 0, -1.57, 0, 0]]\n";
+    let c = Config::from_toml(files, "t.toml", Path::new("cfg")).expect("valid");
+    assert_eq!(
+        c.camera.backend,
+        CameraBackend::File {
+            paths: vec![PathBuf::from("cfg/a.ply"), PathBuf::from("/b.pcd")]
+        }
+    );
+}
+
+#[test]
+fn load_resolves_against_the_file_directory_and_names_the_file() {
+    let dir = std::env::temp_dir().join(format!("handeye-config-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let path = dir.join("cell.toml");
+    std::fs::write(&path, MINIMAL).expect("write");
+    let c = Config::load(&path).expect("loads");
+    assert_eq!(c.storage.dir, dir.join("handeye-data"));
+    std::fs::write(&path, with("robot", "speed = 1")).expect("write");
+    let err = Config::load(&path).expect_err("unknown key");
+    assert!(
+        err.to_string()
+            .starts_with(&format!("{}:3:", path.display())),
+        "{err}"
+    );
+    let missing = Config::load(&dir.join("absent.toml")).expect_err("absent");
+    assert!(matches!(missing, ConfigError::Read { .. }), "{missing}");
+    std::fs::remove_dir_all(&dir).expect("cleanup");
+}
+
+#[test]
+fn unknown_keys_are_refused_with_key_line_and_allowed_keys() {
+    let text = with("robot", "max_speed = 1.0");
+    let err = refused(&text, "robot.max_speed", line_of(&text, "max_speed"));
+    assert!(matches!(err, ConfigError::UnknownKey { .. }), "{err}");
+    assert!(err.to_string().contains("max_joint_speed_rad_s"), "{err}");
+
+    let text = format!("{MINIMAL}\n[robot.ports]\nrtde = 30004\nrdte = 1\n");
+    refused(&text, "robot.ports.rdte", line_of(&text, "rdte ="));
+
+    let text = format!("{MINIMAL}\n[viewz]\ncount = 1\n");
+    refused(&text, "viewz", line_of(&text, "[viewz]"));
+
+    let text = format!(
+        "{MINIMAL}\n[[views.obstacles]]\nname = \"a\"\ncentre_m = [0, 0, 0]\nsize_m = [1, 1, 1]\n[[views.obstacles]]\nname = \"b\"\ncenter_m = [0, 0, 0]\n"
+    );
+    refused(
+        &text,
+        "views.obstacles[1].center_m",
+        line_of(&text, "center_m"),
+    );
+}
+
+#[test]
+fn wrong_types_are_refused_with_key_and_line() {
+    let text = with("robot", "max_joint_speed_rad_s = \"fast\"");
+    let err = refused(
+        &text,
+        "robot.max_joint_speed_rad_s",
+        line_of(&text, "max_joint"),
+    );
+    assert!(matches!(err, ConfigError::WrongType { .. }), "{err}");
+    assert!(err.to_string().contains("expected a number"), "{err}");
+
+    let text = with(
+        "views",
+        "mode = \"joints\"\njoints = [\n  [0, 0, 0, 0, 0, 0],\n  [0, 0, 0, 0, \"x\", 0],\n]",
+    );
+    refused(&text, "views.joints[1][4]", line_of(&text, "\"x\""));
+
+    let text = with("views", "mode = \"joints\"\njoints = [[0, 0, 0, 0, 0]]");
+    let err = refused(&text, "views.joints[0]", line_of(&text, "joints ="));
+    assert!(err.to_string().contains("length 6"), "{err}");
+
+    let text = with("mount", "type = \"on-the-arm\"");
+    let err = refused(&text, "mount.type", line_of(&text, "type ="));
+    assert!(err.to_string().contains("eye-in-hand"), "{err}");
+
+    let text = with("write_back", "tcp = 1");
+    refused(&text, "write_back.tcp", line_of(&text, "tcp ="));
+}
+
+#[test]
+fn missing_required_keys_are_named() {
+    let text = MINIMAL.replace("host = \"192.168.56.101\"\n", "");
+    let err = refused(&text, "robot.host", line_of(&text, "[robot]"));
+    assert!(matches!(err, ConfigError::MissingKey { .. }), "{err}");
+    let text = MINIMAL.replace(
+        "[camera]\nbackend = \"gige\"\naddress = \"192.168.1.50\"\n",
+        "",
+    );
+    let err = parse(&text).expect_err("no camera");
+    assert_eq!(err.key(), Some("camera"), "{err}");
+}
+
+#[test]
+fn syntax_errors_carry_line_and_column() {
+    let text = with("robot", "max_joint_speed_rad_s = ");
+    let err = parse(&text).expect_err("syntax");
+    let line = line_of(&text, "max_joint");
+    assert!(
+        matches!(err, ConfigError::Syntax { line: l, .. } if l == line),
+        "{err}"
+    );
+    assert!(
+        err.to_string().starts_with(&format!("cell.toml:{line}:")),
+        "{err}"
+    );
+}
+
+#[test]
+fn speeds_must_be_finite_positive_and_sane() {
+    for (value, what) in [
+        ("nan", "a finite number"),
+        ("inf", "a finite number"),
+        ("-0.5", "0 < value <= 3.15 rad/s"),
+        ("0", "0 < value <= 3.15 rad/s"),
+        ("100", "0 < value <= 3.15 rad/s"),
+    ] {
+        let text = with("robot", &format!("max_joint_speed_rad_s = {value}"));
+        let err = refused(
+            &text,
+            "robot.max_joint_speed_rad_s",
+            line_of(&text, "max_joint"),
+        );
+        assert!(matches!(err, ConfigError::Invalid { .. }), "{err}");
+        assert!(err.to_string().contains(what), "{value}: {err}");
+        assert!(err.to_string().contains("0 < value <= 3.15 rad/s"), "{err}");
+    }
+    let text = with("camera", "settle_s = -1");
+    let err = refused(&text, "camera.settle_s", line_of(&text, "settle_s"));
+    assert!(err.to_string().contains("0 <= value <= 60 s"), "{err}");
+    let text = with("robot", "move_timeout_s = 1e9");
+    refused(
+        &text,
+        "robot.move_timeout_s",
+        line_of(&text, "move_timeout_s"),
+    );
+    let text = with("camera", "frames = 0");
+    refused(&text, "camera.frames", line_of(&text, "frames"));
+    let text = with("gate", "min_coverage = 1.5");
+    refused(&text, "gate.min_coverage", line_of(&text, "min_coverage"));
+    let text = format!("{MINIMAL}\n[robot.ports]\nrtde = 70000\n");
+    refused(&text, "robot.ports.rtde", line_of(&text, "rtde"));
+    let text = format!(
+        "{MINIMAL}\n[[views.obstacles]]\nname = \"table\"\ncentre_m = [0, 0, 0]\nsize_m = [1, -1, 1]\n"
+    );
+    refused(
+        &text,
+        "views.obstacles[0].size_m[1]",
+        line_of(&text, "size_m"),
+    );
+    let text = with("views", "mode = \"joints\"\njoints = [[0, 0, 7, 0, 0, 0]]");
+    refused(&text, "views.joints[0][2]", line_of(&text, "joints ="));
+}
+
+#[test]
+fn eye_to_hand_cannot_write_the_tcp() {
+    let text = format!(
+        "{}\n[write_back]\ntcp = true\n",
+        MINIMAL.replace("[mount]\n", "[mount]\ntype = \"eye-to-hand\"\n")
+    );
+    let err = refused(&text, "write_back.tcp", line_of(&text, "tcp = true"));
+    assert!(err.to_string().contains("not a TCP"), "{err}");
+    // Without the key, eye-to-hand simply does not write the TCP.
+    let text = MINIMAL.replace("[mount]\n", "[mount]\ntype = \"eye-to-hand\"\n");
+    let c = parse(&text).expect("valid");
+    assert!(!c.write_back.tcp);
+    assert_eq!(c.mount.max_camera_flange_distance_m, None);
+}
+
+#[test]
+fn auto_views_of_an_eye_in_hand_camera_need_a_prior() {
+    let text = MINIMAL.replace("prior = [0.0, -0.08, 0.04, -0.26, 0.0, 0.0]\n", "");
+    let err = refused(&text, "mount.prior", line_of(&text, "[mount]"));
+    let msg = err.to_string();
+    assert!(
+        msg.contains("mount.prior") && msg.contains("joints"),
+        "{msg}"
+    );
+    // Joint targets need none.
+    let text =
+        format!("{text}\n[views]\nmode = \"joints\"\njoints = [[0, -1.57, 0, -1.57, 0, 0]]\n");
+    parse(&text).expect("joint targets need no prior");
+    // A prior farther from the flange than the camera may be is refused.
+    let text = MINIMAL.replace("0.0, -0.08, 0.04", "0.0, -0.8, 0.04");
+    refused(&text, "mount.prior", line_of(&text, "prior"));
+}
+
+#[test]
+fn registers_must_fit_the_register_bank() {
+    for (double_start, sequence_int, bad) in [
+        (43, 0, "write_back.registers.double_start"),
+        (-1, 0, "write_back.registers.double_start"),
+        (0, 48, "write_back.registers.sequence_int"),
+    ] {
+        let text = format!(
+            "{MINIMAL}\n[write_back.registers]\ndouble_start = {double_start}\nsequence_int = {sequence_int}\n"
+        );
+        let needle = bad.rsplit('.').next().expect("leaf");
+        let err = refused(&text, bad, line_of(&text, needle));
+        assert!(err.to_string().contains("expected"), "{err}");
+    }
+    let text = format!("{MINIMAL}\n[write_back.registers]\ndouble_start = 42\nsequence_int = 47\n");
+    let c = parse(&text).expect("valid");
+    assert_eq!(
+        c.write_back.registers,
+        Some(RegisterMap {
+            double_start: 42,
+            sequence_int: 47
+        })
+    );
+}
+
+#[test]
+fn camera_backends_need_their_keys_and_refuse_the_others() {
+    let text = MINIMAL.replace(
+        "backend = \"gige\"\naddress = \"192.168.1.50\"",
+        "backend = \"file\"\nfiles = []",
+    );
+    let err = refused(&text, "camera.files", line_of(&text, "files"));
+    assert!(err.to_string().contains("at least one file"), "{err}");
+
+    let text = MINIMAL.replace("\"192.168.1.50\"", "\"camera.local\"");
+    let err = refused(&text, "camera.address", line_of(&text, "address"));
+    assert!(err.to_string().contains("IP:PORT"), "{err}");
+    let text = MINIMAL.replace("\"192.168.1.50\"", "\"192.168.1.50:3956\"");
+    parse(&text).expect("IP:PORT");
+
+    let text = MINIMAL.replace("backend = \"gige\"", "backend = \"exec\"");
+    refused(&text, "camera.address", line_of(&text, "address"));
+    let text = MINIMAL.replace(
+        "backend = \"gige\"\naddress = \"192.168.1.50\"",
+        "backend = \"exec\"\ncommand = [\"\"]",
+    );
+    refused(&text, "camera.command", line_of(&text, "command"));
+    let text = MINIMAL.replace("address = \"192.168.1.50\"\n", "");
+    refused(&text, "camera.address", line_of(&text, "backend"));
+}
+
+#[test]
+fn bad_hosts_and_models_are_refused() {
+    for host in ["\"robot.local\"", "\"192.168.1.300\"", "\"\""] {
+        let text = MINIMAL.replace("\"192.168.56.101\"", host);
+        let err = refused(&text, "robot.host", line_of(&text, "host"));
+        assert!(err.to_string().contains("IPv4 or IPv6"), "{err}");
+    }
+    let text = MINIMAL.replace("\"ur5e\"", "\"ur6\"");
+    let err = refused(&text, "robot.model", line_of(&text, "model"));
+    assert!(err.to_string().contains("ur10e"), "{err}");
+}
+
+#[test]
+fn view_keys_are_checked_against_the_mode() {
+    let text = with("views", "min_distance_m = 0.9\nmax_distance_m = 0.5");
+    refused(
+        &text,
+        "views.min_distance_m",
+        line_of(&text, "min_distance_m"),
+    );
+    let text = with("views", "joints = [[0, 0, 0, 0, 0, 0]]");
+    let err = refused(&text, "views.joints", line_of(&text, "joints"));
+    assert!(
+        err.to_string().contains("mode = \\\"joints\\\"")
+            || err.to_string().contains("mode = \"joints\""),
+        "{err}"
+    );
+    let text = with("views", "mode = \"joints\"");
+    refused(&text, "views.joints", line_of(&text, "mode ="));
+    let text = with(
+        "views",
+        "mode = \"joints\"\njoints = [[0, 0, 0, 0, 0, 0]]\ncount = 2",
+    );
+    refused(&text, "views.count", line_of(&text, "count"));
+    let text = with("views", "count = 11");
+    refused(&text, "views.count", line_of(&text, "count"));
+}
