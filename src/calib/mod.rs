@@ -13,6 +13,7 @@
 //! say mm/deg in field names.
 
 mod coarse;
+pub mod export;
 mod fine;
 pub mod gate;
 mod kdtree;
