@@ -22,7 +22,7 @@ use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use handeye_hal::ur_dh::UrModel;
+use handeye_hal::ur_dh::{DhParams, UrModel};
 use nalgebra::{Isometry3, Matrix4, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
@@ -149,6 +149,17 @@ pub enum ModelError {
         joint: String,
         /// The value given.
         value: f64,
+    },
+    /// The controller's DH parameters were given for a robot that is not a 6-joint UR arm.
+    #[error(
+        "robot `{robot}` cannot be posed by a UR controller's DH parameters: {reason}; use a UR \
+         URDF (the file or robot name must say which model, e.g. ur5e) or the nominal kinematics"
+    )]
+    NotUrArm {
+        /// Robot name.
+        robot: String,
+        /// Why.
+        reason: String,
     },
     /// A frame name that is not a link of the robot.
     #[error("unknown frame `{name}` in robot `{robot}`; {hint}")]
@@ -718,6 +729,85 @@ impl RobotModel {
         self.poses(q, Some(joint_origin_errors))
     }
 
+    /// `model_from_link` of every link at joint values `q` (rad), in
+    /// [`link_names`](Self::link_names) order, for a UR arm whose controller uses the DH
+    /// parameters `calibrated` (absolute values in UR's `base` frame, e.g. its factory
+    /// calibration as the primary interface's KinematicsInfo reports it): the arm as the
+    /// controller knows it, which is also the frame its reported flange poses are in.
+    ///
+    /// Every link with [`chain_depth`](Self::chain_depth) `k` is rigid with DH frame `k` (the
+    /// base, `k = 0`, never moves). With `model_from_base` = `M` and the nominal DH frames
+    /// `DH_k(q)` (which this URDF follows), `model_from_link = M · DH_k(q) · C` for a constant
+    /// `C`, so the calibrated pose is `M · DH'_k(q) · DH_k(q)⁻¹ · M⁻¹ · model_from_link(q)`.
+    /// With the nominal parameters this is [`link_poses`](Self::link_poses).
+    ///
+    /// Errors: [`ModelError::NotUrArm`] unless [`ur_model`](Self::ur_model) detects the arm and
+    /// it has 6 chain joints; the errors of [`link_poses`](Self::link_poses).
+    pub fn link_poses_with_controller_dh(
+        &self,
+        q: &[f64],
+        calibrated: &DhParams,
+    ) -> Result<Vec<Isometry3<f64>>, ModelError> {
+        let nominal = self.link_poses(q)?;
+        let corrections = self.controller_dh_corrections(q, &nominal, calibrated)?;
+        Ok(nominal
+            .iter()
+            .zip(&self.links)
+            .map(|(pose, node)| corrections[node.chain_depth.min(6)] * pose)
+            .collect())
+    }
+
+    /// `model_from_joint` of each chain joint (see [`joint_frames`](Self::joint_frames)) for
+    /// the arm of [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh). A
+    /// joint's frame is rigid with its parent link, so it moves with the parent's correction:
+    /// its axis is the calibrated joint axis (`z` of DH frame `k − 1` for joint `k`).
+    pub fn joint_frames_with_controller_dh(
+        &self,
+        q: &[f64],
+        calibrated: &DhParams,
+    ) -> Result<Vec<Isometry3<f64>>, ModelError> {
+        Ok(self.joint_frames_of(&self.link_poses_with_controller_dh(q, calibrated)?))
+    }
+
+    /// `model_from_model'` per chain depth 0..=6: what moves a nominal link of that depth to
+    /// where the controller's DH puts it (`M · DH'_k · DH_k⁻¹ · M⁻¹`, identity at depth 0).
+    fn controller_dh_corrections(
+        &self,
+        q: &[f64],
+        nominal_poses: &[Isometry3<f64>],
+        calibrated: &DhParams,
+    ) -> Result<[Isometry3<f64>; 7], ModelError> {
+        let not_ur = |reason: String| ModelError::NotUrArm {
+            robot: self.name.clone(),
+            reason,
+        };
+        let ur = self
+            .ur_model()
+            .ok_or_else(|| not_ur("no UR model name in the robot or URDF file name".into()))?;
+        let q6: [f64; 6] = q
+            .try_into()
+            .map_err(|_| not_ur(format!("it has {} chain joints, not 6", self.dof())))?;
+        // The base is rigid with the root (chain depth 0): its pose does not depend on q.
+        let model_from_base = match self.link_index.get("base") {
+            Some(&l) => nominal_poses[l],
+            None => {
+                let &l = self
+                    .link_index
+                    .get("base_link")
+                    .ok_or_else(|| not_ur("it has neither a `base` nor a `base_link`".into()))?;
+                nominal_poses[l] * crate::frames::ur_base_from_base_link().inverse()
+            }
+        };
+        let base_from_model = model_from_base.inverse();
+        let nominal = ur.dh().link_poses(&q6);
+        let actual = calibrated.link_poses(&q6);
+        let mut out = [Isometry3::identity(); 7];
+        for k in 1..=6 {
+            out[k] = model_from_base * actual[k - 1] * nominal[k - 1].inverse() * base_from_model;
+        }
+        Ok(out)
+    }
+
     /// The nominal origin of each chain joint in its parent link (`parent_from_joint`), chain
     /// order: its translation is the link vector that a link-length error scales.
     pub fn joint_origins(&self) -> Vec<Isometry3<f64>> {
@@ -743,7 +833,18 @@ impl RobotModel {
     /// (see [`link_poses_with_errors`](Self::link_poses_with_errors)) and moves every link
     /// beyond the joint.
     pub fn joint_frames(&self, q: &[f64]) -> Result<Vec<Isometry3<f64>>, ModelError> {
-        let poses = self.link_poses(q)?;
+        Ok(self.joint_frames_of(&self.link_poses(q)?))
+    }
+
+    /// `model_from_joint` of each chain joint given every link's `model_from_link` (in
+    /// [`link_names`](Self::link_names) order, e.g. from
+    /// [`link_poses_with_errors`](Self::link_poses_with_errors)): the parent link's pose times
+    /// the joint's nominal origin, chain order.
+    ///
+    /// # Panics
+    /// If `link_poses` has fewer entries than the model has links.
+    pub fn joint_frames_of(&self, link_poses: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
+        let poses = link_poses;
         let mut frames = vec![Isometry3::identity(); self.dof()];
         for node in &self.links {
             if let (
@@ -761,7 +862,7 @@ impl RobotModel {
                 frames[i] = poses[p] * node.parent_from_joint;
             }
         }
-        Ok(frames)
+        frames
     }
 
     /// The axis of each chain joint (unit vector in the joint frame), chain order.

@@ -620,3 +620,134 @@ fn mutated_real_collada_never_panics() {
         let _ = collada::parse(&bytes);
     }
 }
+
+/// Largest difference of two sets of poses: (metres, radians).
+fn worst_pose_difference(a: &[Isometry3<f64>], b: &[Isometry3<f64>]) -> (f64, f64) {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).fold((0.0f64, 0.0f64), |(t, r), (x, y)| {
+        (
+            t.max((x.translation.vector - y.translation.vector).norm()),
+            r.max(x.rotation.angle_to(&y.rotation)),
+        )
+    })
+}
+
+#[test]
+fn controller_dh_poses_the_urdf_as_the_controller_knows_the_arm() {
+    let Some(dir) = shared_robots() else { return };
+    let mut rng = StdRng::seed_from_u64(11);
+    for name in ["ur5e", "ur10e", "ur3"] {
+        let m = RobotModel::load(&ur_urdf(&dir, name)).expect("loads");
+        let ur = m.ur_model().expect("a UR arm");
+        let nominal = ur.dh();
+        let calibrated = nominal.plus(&handeye_hal::ur_dh::DhParams::factory_calibration_delta(3));
+        let random: [f64; 6] =
+            std::array::from_fn(|_| rng.random_range(-std::f64::consts::PI..std::f64::consts::PI));
+        for q in [[0.0; 6], random] {
+            // Nominal DH: the URDF's own poses.
+            let same = m
+                .link_poses_with_controller_dh(&q, &nominal)
+                .expect("posed");
+            let (t, r) = worst_pose_difference(&same, &m.link_poses(&q).expect("fk"));
+            assert!(t < 1e-9 && r < 1e-9, "{name}: {t:.2e} m {r:.2e} rad");
+            // Calibrated DH: the flange is where the controller reports it.
+            let poses = m
+                .link_poses_with_controller_dh(&q, &calibrated)
+                .expect("posed");
+            let tool0 = poses[m.link_index("tool0").expect("tool0")];
+            let model_from_base = m.frame_pose("base", &q).expect("base");
+            let (t, r) =
+                worst_pose_difference(&[tool0], &[model_from_base * calibrated.forward(&q)]);
+            assert!(t < 1e-9 && r < 1e-9, "{name}: flange {t:.2e} m {r:.2e} rad");
+            // The base stays; the shoulder moves by the calibration, not more than a few mm.
+            let (t, _) = worst_pose_difference(
+                &[poses[m.link_index("base_link").expect("base_link")]],
+                &[m.frame_pose("base_link", &q).expect("base_link")],
+            );
+            assert!(t < 1e-12, "{name}: the base never moves");
+            let (t, _) = worst_pose_difference(&poses, &m.link_poses(&q).expect("fk"));
+            assert!(
+                t > 1e-5 && t < 5e-3,
+                "{name}: calibration moved links by {t} m"
+            );
+            // Each joint frame follows its parent link; its axis is the calibrated joint axis
+            // (z of DH frame k − 1, through its origin).
+            let frames = m
+                .joint_frames_with_controller_dh(&q, &calibrated)
+                .expect("frames");
+            let dh_frames = calibrated.link_poses(&q);
+            for (k, (frame, axis)) in frames.iter().zip(m.joint_axes()).enumerate() {
+                let model_from_dh = if k == 0 {
+                    model_from_base
+                } else {
+                    model_from_base * dh_frames[k - 1]
+                };
+                let want = model_from_dh * Vector3::z();
+                let got = frame * axis.into_inner();
+                assert!(
+                    got.cross(&want).norm() < 1e-9,
+                    "{name} joint {k}: {got} vs {want}"
+                );
+                let off = model_from_dh.inverse() * Point3::from(frame.translation.vector);
+                assert!(
+                    off.coords.xy().norm() < 1e-9,
+                    "{name} joint {k}: origin off the axis"
+                );
+            }
+        }
+    }
+}
+
+/// The derivation behind [`RobotModel::link_poses_with_controller_dh`]: every link of chain
+/// depth k is rigid with nominal DH frame k (`DH_k(q)⁻¹ · base_from_model · model_from_link`
+/// does not depend on q).
+#[test]
+fn ur_links_are_rigid_with_their_dh_frames() {
+    let Some(dir) = shared_robots() else { return };
+    let mut rng = StdRng::seed_from_u64(5);
+    for name in ["ur5e", "ur3", "ur20"] {
+        let m = RobotModel::load(&ur_urdf(&dir, name)).expect("loads");
+        let dh = m.ur_model().expect("UR").dh();
+        let base_from_model = m.frame_pose("base", &[0.0; 6]).expect("base").inverse();
+        let constant = |q: &[f64; 6]| {
+            let frames = dh.link_poses(q);
+            m.link_poses(q)
+                .expect("fk")
+                .iter()
+                .zip(m.link_names())
+                .map(|(pose, link)| match m.chain_depth(link).expect("depth") {
+                    0 => base_from_model * pose,
+                    k => frames[k - 1].inverse() * base_from_model * pose,
+                })
+                .collect::<Vec<_>>()
+        };
+        let at_zero = constant(&[0.0; 6]);
+        for _ in 0..10 {
+            let q: [f64; 6] = std::array::from_fn(|_| rng.random_range(-3.0..3.0));
+            let (t, r) = worst_pose_difference(&constant(&q), &at_zero);
+            assert!(t < 1e-6 && r < 1e-6, "{name}: {t:.2e} m {r:.2e} rad");
+        }
+    }
+}
+
+#[test]
+fn controller_dh_needs_a_six_joint_ur_arm() {
+    let Some(dir) = shared_robots() else { return };
+    let dh = UrModel::Ur5e.dh();
+    let m = RobotModel::load(&dir.join("franka_fr3/franka_fr3.urdf"));
+    let Ok(m) = m else {
+        eprintln!("SKIP: no franka_fr3/franka_fr3.urdf");
+        return;
+    };
+    let q = vec![0.0; m.dof()];
+    let e = m
+        .link_poses_with_controller_dh(&q, &dh)
+        .expect_err("not a UR arm");
+    assert!(matches!(e, ModelError::NotUrArm { .. }), "{e}");
+    assert!(e.to_string().contains("UR"), "{e}");
+    let ur = RobotModel::load(&ur_urdf(&dir, "ur5e")).expect("loads");
+    let e = ur
+        .link_poses_with_controller_dh(&[0.0; 5], &dh)
+        .expect_err("5 joints");
+    assert!(matches!(e, ModelError::JointCount { .. }), "{e}");
+}
