@@ -10,6 +10,7 @@ use handeye::cloud::{write_ply, PlyEncoding};
 use handeye::frames::to_row_major;
 use handeye::model::RobotModel;
 use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings, SimulatedScan};
+use handeye_hal::ur_dh::DhParams;
 
 use super::args::{parse_joints, parse_pose, JointList};
 
@@ -40,6 +41,12 @@ pub(crate) struct Args {
     /// Seed for every random draw.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// UR arms: the true arm is factory calibrated (nominal DH + a UR-sized calibration delta
+    /// drawn from this seed) and the controller reports its forward kinematics; the
+    /// `[kinematic_error]` draw is not applied. The calibrated DH goes into the ground truth
+    /// as `controller_dh`.
+    #[arg(long, value_name = "SEED")]
+    factory_calibration: Option<u64>,
     /// Output PLY (binary); the ground truth goes beside it as `<stem>.gt.json`.
     #[arg(long)]
     out: PathBuf,
@@ -63,7 +70,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         (Some(path), false) => SimSettings::load(path)?,
         (None, false) => SimSettings::default(),
     };
-    let req = ScanRequest::new(
+    let mut req = ScanRequest::new(
         &model,
         args.joints.0.clone(),
         placement,
@@ -71,6 +78,16 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         &settings,
         args.seed,
     );
+    if let Some(seed) = args.factory_calibration {
+        let ur = model.ur_model().with_context(|| {
+            format!(
+                "--factory-calibration needs a UR arm; `{}` is not one (its file or robot name \
+                 must name the model, e.g. ur5e)",
+                model.name()
+            )
+        })?;
+        req = req.with_controller_dh(ur.dh().plus(&DhParams::factory_calibration_delta(seed)));
+    }
     let scan = simulate_scan(&req)?;
     write_ply(&args.out, &scan.cloud, PlyEncoding::BinaryLittleEndian)
         .with_context(|| format!("writing {}", args.out.display()))?;
@@ -121,7 +138,9 @@ pub(crate) fn ground_truth_json(
         "intrinsics": req.intrinsics,
         "noise": settings.noise,
         "cell": settings.cell,
-        "kinematic_error": settings.kinematic_error,
+        // Not applied when the arm is posed by the controller's DH.
+        "kinematic_error": t.controller_dh.is_none().then_some(settings.kinematic_error),
+        "controller_dh": t.controller_dh,
         "joint_origin_errors": t.joint_origin_errors.iter().map(to_row_major).collect::<Vec<_>>(),
         "seed": req.seed,
     });
@@ -135,4 +154,106 @@ pub(crate) fn ground_truth_json(
         }
     }
     doc
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser as _;
+
+    use super::*;
+
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    fn parse(args: &[&str]) -> Args {
+        Cli::try_parse_from(["simulate-scan"].iter().chain(args))
+            .expect("parses")
+            .args
+    }
+
+    #[test]
+    fn factory_calibration_poses_the_arm_by_the_controllers_dh() {
+        let Some(dir) = super::super::args::robots_dir() else {
+            return;
+        };
+        let tmp = std::env::temp_dir().join(format!("handeye-simscan-{}", std::process::id()));
+        std::fs::create_dir_all(&tmp).expect("temp dir");
+        let out = tmp.join("scan.ply");
+        let urdf = dir.join("ur/ur5e/ur5e.urdf");
+        let model = RobotModel::load(&urdf).expect("ur5e loads");
+        let mount = Isometry3::new(
+            nalgebra::Vector3::new(0.0, -0.08, 0.03),
+            nalgebra::Vector3::new(-0.26, 0.0, 0.0),
+        );
+        let planner = handeye::plan::ViewPlanner::new(
+            &model,
+            mount,
+            Intrinsics::compact_1280x960(),
+            handeye::plan::ViewConstraints::default(),
+        );
+        let q = planner.generate(1, 5).expect("a view").remove(0);
+        let joints = q.iter().map(f64::to_string).collect::<Vec<_>>().join(",");
+        let common = |urdf: &Path| {
+            vec![
+                "--robot".to_string(),
+                urdf.display().to_string(),
+                format!("--joints={joints}"),
+                "--mount=0,-0.08,0.03,-0.26,0,0".into(),
+                "--camera=compact".into(),
+                "--ideal".into(),
+                "--factory-calibration=3".into(),
+                "--out".into(),
+                out.display().to_string(),
+            ]
+        };
+        let argv = common(&urdf);
+        let argv: Vec<&str> = argv.iter().map(String::as_str).collect();
+        assert_eq!(run(parse(&argv)).expect("runs"), ExitCode::SUCCESS);
+        let gt: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(gt_path(&out)).expect("gt written"))
+                .expect("json");
+        let dh: DhParams = serde_json::from_value(gt["controller_dh"].clone()).expect("dh");
+        let want = handeye_hal::ur_dh::UrModel::Ur5e
+            .dh()
+            .plus(&DhParams::factory_calibration_delta(3));
+        let close =
+            |a: &[f64; 6], b: &[f64; 6]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-15);
+        assert!(
+            close(&dh.a, &want.a)
+                && close(&dh.d, &want.d)
+                && close(&dh.alpha, &want.alpha)
+                && close(&dh.theta, &want.theta),
+            "{dh:?} vs {want:?}"
+        );
+        let ply =
+            handeye::cloud::read_ply(&std::fs::read(&out).expect("scan written")).expect("a PLY");
+        assert!(ply.valid_count() > 10_000, "the robot is in view");
+        assert!(gt["kinematic_error"].is_null(), "not applied: {gt}");
+        let at = |key: &str| -> [f64; 3] {
+            std::array::from_fn(|r| gt[key][r][3].as_f64().expect("number"))
+        };
+        let (reported, nominal) = (
+            at("base_from_flange_reported"),
+            at("base_from_flange_nominal"),
+        );
+        let off = (0..3)
+            .map(|i| (reported[i] - nominal[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(off > 1e-5 && off < 5e-3, "calibrated flange moved {off} m");
+
+        // Not a UR arm: a clear error, nothing written.
+        let franka = dir.join("franka_fr3/franka_fr3.urdf");
+        if franka.is_file() {
+            let argv = common(&franka);
+            let mut argv: Vec<&str> = argv.iter().map(String::as_str).collect();
+            argv[2] = "--joints=0,0,0,-1.5,0,1.5,0.7";
+            let e = run(parse(&argv)).expect_err("not a UR arm");
+            assert!(format!("{e:#}").contains("needs a UR arm"), "{e:#}");
+        }
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
 }

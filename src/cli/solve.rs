@@ -255,6 +255,7 @@ mod tests {
             noise: ScanNoise::default(),
             cell: CellOptions::default(),
             kinematic_error: KinematicError::none(),
+            controller_dh: None,
             seed: 2,
         };
         let sim = simulate_scan(&req).expect("simulated");

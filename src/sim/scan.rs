@@ -1,10 +1,12 @@
-//! One simulated scan: the true robot (nominal model + kinematic error) posed at the given
-//! joints, its cell around it, seen by a pinhole 3D camera with realistic imperfections.
+//! One simulated scan: the true robot (nominal model + kinematic error, or a UR controller's
+//! calibrated DH parameters) posed at the given joints, its cell around it, seen by a pinhole
+//! 3D camera with realistic imperfections.
 
 use nalgebra::{Isometry3, Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 
+use handeye_hal::ur_dh::DhParams;
 use handeye_hal::PointCloud;
 
 use super::cell::{build_cell, CellOptions, CellPart};
@@ -45,8 +47,15 @@ pub struct ScanRequest<'a> {
     pub noise: ScanNoise,
     /// Surroundings (CAD mismatch, background).
     pub cell: CellOptions,
-    /// Real arm vs nominal model.
+    /// Real arm vs nominal model: a random draw per scan. Not applied when `controller_dh`
+    /// is given (the draw is still made, so a seed's cell and sensor noise stay the same).
     pub kinematic_error: KinematicError,
+    /// The true arm is this calibrated DH set (absolute values, UR `base` frame) and the
+    /// controller reports its forward kinematics, as a factory-calibrated UR controller does
+    /// (see [`RobotModel::link_poses_with_controller_dh`]); `None`: nominal model +
+    /// `kinematic_error`. Only for UR arms (else [`simulate_scan`] fails with
+    /// `ModelError::NotUrArm`).
+    pub controller_dh: Option<DhParams>,
     /// Seed for every random draw; the same request gives the same scan.
     pub seed: u64,
 }
@@ -69,7 +78,17 @@ impl<'a> ScanRequest<'a> {
             noise: settings.noise,
             cell: settings.cell,
             kinematic_error: settings.kinematic_error,
+            controller_dh: None,
             seed,
+        }
+    }
+
+    /// This request with the true arm given by a UR controller's calibrated DH parameters
+    /// (see [`ScanRequest::controller_dh`]).
+    pub fn with_controller_dh(self, calibrated: DhParams) -> Self {
+        Self {
+            controller_dh: Some(calibrated),
+            ..self
         }
     }
 
@@ -99,7 +118,8 @@ pub struct GroundTruth {
     pub model_from_camera: Isometry3<f64>,
     /// Its inverse: what registration should find.
     pub camera_from_model: Isometry3<f64>,
-    /// The flange pose the controller reports (its calibrated = true kinematics).
+    /// The flange pose the controller reports (its calibrated = true kinematics; with
+    /// `controller_dh`, its DH forward kinematics in the model frame).
     pub model_from_flange_reported: Isometry3<f64>,
     /// The flange pose of the nominal model at the same joints.
     pub model_from_flange_nominal: Isometry3<f64>,
@@ -107,8 +127,10 @@ pub struct GroundTruth {
     pub flange_from_camera: Option<Isometry3<f64>>,
     /// Joint angles, radians.
     pub joints: Vec<f64>,
-    /// Per-joint origin errors of the true arm.
+    /// Per-joint origin errors of the true arm; empty when it is posed by `controller_dh`.
     pub joint_origin_errors: Vec<Isometry3<f64>>,
+    /// The calibrated DH set that posed the true arm (and that the controller reports), if any.
+    pub controller_dh: Option<DhParams>,
 }
 
 /// A simulated scan with its truth.
@@ -141,9 +163,15 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     req.noise.validate().map_err(SimError::Setting)?;
     let model = req.model;
     let mut rng = rand::rngs::StdRng::seed_from_u64(req.seed);
+    // Drawn even when unused, so the rest of the scan's draws do not depend on `controller_dh`.
     let errors = req.kinematic_error.sample(model, &mut rng);
-
-    let true_poses = model.link_poses_with_errors(&req.joints, &errors)?;
+    let (true_poses, errors) = match &req.controller_dh {
+        Some(dh) => (
+            model.link_poses_with_controller_dh(&req.joints, dh)?,
+            Vec::new(),
+        ),
+        None => (model.link_poses_with_errors(&req.joints, &errors)?, errors),
+    };
     let flange_index = model
         .link_names()
         .iter()
@@ -196,6 +224,7 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
             flange_from_camera,
             joints: req.joints.clone(),
             joint_origin_errors: errors,
+            controller_dh: req.controller_dh,
         },
     })
 }
@@ -344,6 +373,7 @@ mod tests {
             noise,
             cell,
             kinematic_error: KinematicError::none(),
+            controller_dh: None,
             seed,
         };
         let scan = simulate_scan(&req).expect("simulates");
@@ -410,6 +440,7 @@ mod tests {
             noise: ScanNoise::default(),
             cell: CellOptions::default(),
             kinematic_error: KinematicError::none(),
+            controller_dh: None,
             seed: 7,
         };
         let a = simulate_scan(&req).expect("simulates");
@@ -451,6 +482,42 @@ mod tests {
             .norm()
                 < 1e-12
         );
+        // Posed by the nominal DH, the arm is its URDF: the same scan as the exact arm.
+        let dh = model.ur_model().expect("UR").dh();
+        let exact = ScanRequest {
+            kinematic_error: KinematicError::none(),
+            ..req.clone()
+        };
+        let d = simulate_scan(&exact.with_controller_dh(dh)).expect("simulates");
+        assert!(a
+            .cloud
+            .points
+            .iter()
+            .zip(&d.cloud.points)
+            .all(|(p, q)| (p - q).norm() < 1e-6 || (p.x.is_nan() && q.x.is_nan())));
+        // The random kinematic error is not applied on top of the controller's DH.
+        let d = simulate_scan(&req.clone().with_controller_dh(dh)).expect("simulates");
+        assert!(d.truth.joint_origin_errors.is_empty());
+        assert!(
+            (d.truth.model_from_flange_reported.to_homogeneous() - nominal.to_homogeneous()).norm()
+                < 1e-9
+        );
+        // A calibrated controller: the flange is its DH forward kinematics.
+        let calibrated = dh.plus(&DhParams::factory_calibration_delta(1));
+        let e = simulate_scan(&req.clone().with_controller_dh(calibrated)).expect("simulates");
+        let q6: [f64; 6] = q.as_slice().try_into().expect("6 joints");
+        let reported = model.frame_pose("base", &q).expect("base") * calibrated.forward(&q6);
+        assert!(
+            (e.truth.model_from_flange_reported.to_homogeneous() - reported.to_homogeneous())
+                .norm()
+                < 1e-9
+        );
+        assert!(
+            ((reported * mount).to_homogeneous() - e.truth.model_from_camera.to_homogeneous())
+                .norm()
+                < 1e-9
+        );
+        assert_eq!(e.truth.controller_dh, Some(calibrated));
     }
 
     #[test]
