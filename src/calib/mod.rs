@@ -43,8 +43,8 @@ pub(crate) mod testutil;
 
 pub use gate::{gate, GateThresholds, Verdict};
 pub use register::{
-    posed_model, posed_model_with_kinematics, register, register_posed, Quality, RegisterOptions,
-    Registration, StageTimings, Uncertainty,
+    posed_model, posed_model_with_controller_kinematics, posed_model_with_kinematics, register,
+    register_posed, Quality, RegisterOptions, Registration, StageTimings, Uncertainty,
 };
 pub use report::CalibrationReport;
 pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};
