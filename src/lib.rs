@@ -12,6 +12,9 @@
 //! - [`bench`]: the accuracy benchmark (the paper's protocol) on simulated scans.
 //! - [`calib`]: registration of a scan against the posed model, the hand-eye solve, the
 //!   pass/fail gate and the benchmark protocol.
+//! - [`config`]: the TOML configuration of a cell, validated.
+//! - [`run`]: the calibration run over the hal `Robot` and `DepthCamera` traits, from
+//!   preflight to the return move, returning one record.
 //!
 //! The binary (`src/main.rs` and its `src/cli/` modules, which the library does not use) wires
 //! concrete drivers (`handeye-ur`, `handeye-gige`) to this core; the core only knows the traits
@@ -25,6 +28,7 @@ pub mod config;
 pub mod frames;
 pub mod model;
 pub mod plan;
+pub mod run;
 pub mod sim;
 
 #[cfg(test)]

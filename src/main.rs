@@ -4,6 +4,7 @@
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use tokio_util::sync::CancellationToken;
 
 mod cli;
 
@@ -17,9 +18,15 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Simulate a scan of a UR5e from a random camera mount, calibrate from it and compare
-    /// with the ground truth (no hardware needed).
+    /// Calibrate a simulated UR5e with a wrist camera at a random mount, through the real
+    /// protocols (an in-process rig), and compare with the ground truth (no hardware needed).
     Demo(cli::demo::Args),
+    /// Run one calibration on the configured cell: preflight, plan, move, capture, register,
+    /// solve, gate, write back, return.
+    Calibrate(cli::calibrate::CalibrateArgs),
+    /// Measure the camera pose the same way and compare it with the current calibration
+    /// (never writes back). Exit 0 within thresholds, 1 drifted, 2 error.
+    Check(cli::calibrate::CheckArgs),
     /// Render a simulated 3D scan of a robot (PLY + ground-truth JSON).
     SimulateScan(cli::simulate_scan::Args),
     /// Calibrate from recorded scans and joint angles.
@@ -41,6 +48,53 @@ enum SimCommand {
     Robot(cli::sim_robot::Args),
     /// Simulated GigE Vision 3D camera.
     Camera(cli::sim_camera::Args),
+    /// The whole simulated cell: a UR controller and a GigE Vision 3D camera on its flange
+    /// that renders the arm at the joints the controller reports.
+    Rig(cli::sim_rig::Args),
+}
+
+/// Runs `command` on the binary's one tokio runtime with one shutdown signal: Ctrl-C or
+/// SIGTERM cancels the token (a running move is stopped, the run aborted and recorded).
+fn with_runtime<F, Fut>(command: F) -> anyhow::Result<ExitCode>
+where
+    F: FnOnce(CancellationToken) -> Fut,
+    Fut: std::future::Future<Output = anyhow::Result<ExitCode>>,
+{
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    let shutdown = CancellationToken::new();
+    let signal = shutdown.clone();
+    rt.spawn(async move {
+        shutdown_signal().await;
+        tracing::warn!("shutdown requested: stopping");
+        signal.cancel();
+    });
+    rt.block_on(command(shutdown))
+}
+
+/// Ctrl-C or SIGTERM.
+async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
 }
 
 fn main() -> ExitCode {
@@ -53,7 +107,6 @@ fn main() -> ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Demo(a) => cli::demo::run(a),
         Command::SimulateScan(a) => cli::simulate_scan::run(a),
         Command::Solve(a) => cli::solve::run(a),
         Command::Bench(a) => cli::bench::run(a),
@@ -61,6 +114,10 @@ fn main() -> ExitCode {
         Command::Camera(a) => cli::camera::run(a),
         Command::Sim(SimCommand::Robot(a)) => cli::sim_robot::run(a),
         Command::Sim(SimCommand::Camera(a)) => cli::sim_camera::run(a),
+        Command::Demo(a) => with_runtime(|shutdown| cli::demo::run(a, shutdown)),
+        Command::Calibrate(a) => with_runtime(|shutdown| cli::calibrate::calibrate(a, shutdown)),
+        Command::Check(a) => with_runtime(|shutdown| cli::calibrate::check(a, shutdown)),
+        Command::Sim(SimCommand::Rig(a)) => with_runtime(|shutdown| cli::sim_rig::run(a, shutdown)),
     };
     match result {
         Ok(code) => code,

@@ -82,6 +82,14 @@ pub enum ViewRejection {
         /// The height reached.
         clearance_m: f64,
     },
+    /// A link or the camera meets a configured obstacle.
+    #[error("{what} meets the obstacle `{obstacle}`")]
+    Obstacle {
+        /// The link or "camera".
+        what: String,
+        /// The obstacle's configured name.
+        obstacle: String,
+    },
     /// The base is not in the image, or at the wrong distance.
     #[error("the base is not in view ({0})")]
     NotInView(String),
@@ -127,6 +135,26 @@ struct VisibleFractions {
     pub base_and_shoulder: f64,
 }
 
+/// A box in the cell the arm must not touch (a table edge, a fixture, a fence).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Obstacle {
+    /// Name used in messages.
+    pub name: String,
+    /// Pose of the box centre in the model frame (URDF root link).
+    pub model_from_box: Isometry3<f64>,
+    /// Half the box's edge lengths, metres.
+    pub half_extents_m: nalgebra::Vector3<f64>,
+}
+
+/// How a joint-space path was checked.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct PathCheck {
+    /// Configurations checked along the path (both ends included).
+    pub samples: usize,
+    /// Largest joint change between two checked configurations, radians.
+    pub max_step_rad: f64,
+}
+
 /// Checks views of one robot with one camera mount.
 #[derive(Debug)]
 pub struct ViewPlanner<'a> {
@@ -142,6 +170,8 @@ pub struct ViewPlanner<'a> {
     floor_clearance_m: Vec<f64>,
     /// Where the base is: centre of the base (chain depth 0) geometry, model frame.
     base_centre: Point3<f64>,
+    /// Boxes in the cell no link and not the camera may touch.
+    obstacles: Vec<(Obstacle, parry3d_f64::shape::Cuboid)>,
 }
 
 impl<'a> ViewPlanner<'a> {
@@ -207,23 +237,80 @@ impl<'a> ViewPlanner<'a> {
             hulls,
             floor_clearance_m,
             base_centre,
+            obstacles: Vec::new(),
         }
+    }
+
+    /// The same planner that also keeps every link (beyond the base) and the camera out of
+    /// `obstacles`.
+    pub fn with_obstacles(mut self, obstacles: Vec<Obstacle>) -> Self {
+        self.obstacles = obstacles
+            .into_iter()
+            .map(|o| {
+                let cuboid = parry3d_f64::shape::Cuboid::new(o.half_extents_m);
+                (o, cuboid)
+            })
+            .collect();
+        self
+    }
+
+    /// Whether the arm may be at `q` at all: joint limits, floor, self-collision and the
+    /// configured obstacles (not whether the view is good; see [`Self::check`]).
+    pub fn check_motion(&self, q: &[f64]) -> Result<Result<(), ViewRejection>, ModelError> {
+        if let Err(r) = self.within_limits(q) {
+            return Ok(Err(r));
+        }
+        self.collision_free(q)
+    }
+
+    /// Checks the straight joint-space path of a `movej` from `from` to `to` (both ends
+    /// included) with [`Self::check_motion`] every `max_step_rad` of the largest joint change.
+    pub fn check_path(
+        &self,
+        from: &[f64],
+        to: &[f64],
+        max_step_rad: f64,
+    ) -> Result<Result<PathCheck, ViewRejection>, ModelError> {
+        let span = from
+            .iter()
+            .zip(to)
+            .map(|(a, b)| (b - a).abs())
+            .fold(0.0, f64::max);
+        let steps = ((span / max_step_rad.max(1e-3)).ceil() as usize).clamp(1, 10_000);
+        for k in 0..=steps {
+            let t = k as f64 / steps as f64;
+            let q: Vec<f64> = from.iter().zip(to).map(|(a, b)| a + t * (b - a)).collect();
+            if let Err(r) = self.check_motion(&q)? {
+                return Ok(Err(r));
+            }
+        }
+        Ok(Ok(PathCheck {
+            samples: steps + 1,
+            max_step_rad: span / steps as f64,
+        }))
+    }
+
+    fn within_limits(&self, q: &[f64]) -> Result<(), ViewRejection> {
+        let m = self.model;
+        for ((name, lim), &v) in m.joint_names().iter().zip(m.joint_limits()).zip(q) {
+            if v < lim.lower || v > lim.upper {
+                return Err(ViewRejection::JointLimit {
+                    joint: name.clone(),
+                    value_rad: v,
+                    lower: lim.lower,
+                    upper: lim.upper,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// Checks one joint configuration: joint limits, floor and self-collision first, then that
     /// the base is in view and not hidden by the arm. `Ok` carries the camera-to-base distance
     /// in metres.
     pub fn check(&self, q: &[f64]) -> Result<Result<f64, ViewRejection>, ModelError> {
-        let m = self.model;
-        for ((name, lim), &v) in m.joint_names().iter().zip(m.joint_limits()).zip(q) {
-            if v < lim.lower || v > lim.upper {
-                return Ok(Err(ViewRejection::JointLimit {
-                    joint: name.clone(),
-                    value_rad: v,
-                    lower: lim.lower,
-                    upper: lim.upper,
-                }));
-            }
+        if let Err(r) = self.within_limits(q) {
+            return Ok(Err(r));
         }
         if let Err(r) = self.collision_free(q)? {
             return Ok(Err(r));
@@ -274,6 +361,34 @@ impl<'a> ViewPlanner<'a> {
         }
         let names = m.link_names();
         let depth: Vec<Option<usize>> = names.iter().map(|l| m.chain_depth(l)).collect();
+        if !self.obstacles.is_empty() {
+            let camera = self.model_from_camera(q)?;
+            // The camera body: a 6 cm ball around its optical origin.
+            let ball = parry3d_f64::shape::Ball::new(0.03);
+            for (o, cuboid) in &self.obstacles {
+                let hit = |pose: &Isometry3<f64>, shape: &dyn parry3d_f64::shape::Shape| {
+                    parry3d_f64::query::intersection_test(&o.model_from_box, cuboid, pose, shape)
+                        .unwrap_or(true)
+                };
+                if hit(&camera, &ball) {
+                    return Ok(Err(ViewRejection::Obstacle {
+                        what: "camera".into(),
+                        obstacle: o.name.clone(),
+                    }));
+                }
+                for (i, hull) in self.hulls.iter().enumerate() {
+                    let (Some(hull), Some(d)) = (hull, depth[i]) else {
+                        continue;
+                    };
+                    if d >= 1 && hit(&poses[i], hull) {
+                        return Ok(Err(ViewRejection::Obstacle {
+                            what: names[i].clone(),
+                            obstacle: o.name.clone(),
+                        }));
+                    }
+                }
+            }
+        }
         for (i, hull) in self.hulls.iter().enumerate() {
             let (Some(hull), Some(d)) = (hull, depth[i]) else {
                 continue;
@@ -560,6 +675,51 @@ mod tests {
         assert_eq!(views.len(), 6);
         let p = wrist_planner(&model, loose());
         let r = p.check(&[0.0, 0.6, 0.0, 0.0, 0.0, 0.0]).expect("fk");
+        assert!(matches!(r, Err(ViewRejection::Floor { .. })), "{r:?}");
+    }
+
+    #[test]
+    fn paths_are_checked_against_obstacles_and_the_floor() {
+        let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+            return;
+        };
+        let home = [0.0, -PI / 2.0, PI / 2.0, -PI / 2.0, -PI / 2.0, 0.0];
+        let mut turned = home;
+        turned[0] = PI / 2.0;
+        let free = wrist_planner(&model, loose());
+        let ok = free
+            .check_path(&home, &turned, 0.02)
+            .expect("fk")
+            .expect("free path");
+        assert!(ok.samples >= 78 && ok.max_step_rad <= 0.02, "{ok:?}");
+        // A post where the forearm sweeps through at 45°: the ends are free, the path is not.
+        let elbow = model
+            .link_poses(&{
+                let mut q = home;
+                q[0] = PI / 4.0;
+                q
+            })
+            .expect("fk")[model.link_index("forearm_link").expect("forearm")]
+        .translation
+        .vector;
+        let post = Obstacle {
+            name: "post".into(),
+            model_from_box: Isometry3::translation(elbow.x, elbow.y, elbow.z),
+            half_extents_m: Vector3::new(0.03, 0.03, 0.03),
+        };
+        let blocked = wrist_planner(&model, loose()).with_obstacles(vec![post]);
+        assert!(blocked.check_motion(&home).expect("fk").is_ok());
+        assert!(blocked.check_motion(&turned).expect("fk").is_ok());
+        let r = blocked.check_path(&home, &turned, 0.02).expect("fk");
+        assert!(
+            matches!(&r, Err(ViewRejection::Obstacle { obstacle, .. }) if obstacle == "post"),
+            "{r:?}"
+        );
+        // Down through the floor: the path is refused even though the target is reached
+        // by a short move.
+        let mut low = home;
+        low[1] = 0.6;
+        let r = free.check_path(&home, &low, 0.02).expect("fk");
         assert!(matches!(r, Err(ViewRejection::Floor { .. })), "{r:?}");
     }
 }

@@ -16,7 +16,7 @@ use serde::Serialize;
 use super::CalibError;
 
 /// Where the camera is mounted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Mount {
     /// On the flange; the unknown is `flange_from_camera`.

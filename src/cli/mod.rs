@@ -4,10 +4,13 @@
 
 pub(crate) mod args;
 pub(crate) mod bench;
+pub(crate) mod calibrate;
 pub(crate) mod camera;
 pub(crate) mod demo;
 pub(crate) mod robot;
+pub(crate) mod scene;
 pub(crate) mod sim_camera;
+pub(crate) mod sim_rig;
 pub(crate) mod sim_robot;
 pub(crate) mod simulate_scan;
 pub(crate) mod solve;

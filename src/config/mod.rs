@@ -375,7 +375,7 @@ pub enum ConfigError {
         message: String,
     },
     /// A value out of range, or keys that contradict each other.
-    #[error("{}: {key}: {message}", at(origin, *line))]
+    #[error("{}: {}", at(origin, *line), keyed(key, message))]
     Invalid {
         /// File or other origin.
         origin: String,
@@ -387,6 +387,15 @@ pub enum ConfigError {
         /// The value and what is allowed.
         message: String,
     },
+}
+
+/// `message`, prefixed with `key` unless it already starts with it.
+fn keyed(key: &str, message: &str) -> String {
+    if message.starts_with(key) {
+        message.to_string()
+    } else {
+        format!("{key}: {message}")
+    }
 }
 
 fn at(origin: &str, line: Option<usize>) -> String {

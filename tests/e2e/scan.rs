@@ -15,30 +15,39 @@ const MAX_MM: f64 = 2.0;
 const MAX_DEG: f64 = 0.5;
 
 #[test]
-fn demo_calibrates_a_simulated_ur5e() {
-    if shared("demo_calibrates_a_simulated_ur5e").is_none() {
+fn demo_calibrates_the_simulated_rig_through_the_real_protocols() {
+    if shared("demo_calibrates_the_simulated_rig_through_the_real_protocols").is_none() {
         return;
     }
-    let out = run(
-        &["demo", "--seed", "5", "--camera", "compact", "--json"],
-        secs(60),
-    )
-    .success();
+    let out = run(&["demo", "--seed", "5", "--json"], secs(90)).success();
     let doc = out.json();
-    let trial = &doc["trial"];
-    assert_eq!(trial["outcome"], "accepted", "{out}");
-    let mm = trial["translation_error_mm"]
-        .as_f64()
-        .expect("translation error");
-    let deg = trial["rotation_error_deg"]
-        .as_f64()
-        .expect("rotation error");
-    assert!(
-        mm < MAX_MM && deg < MAX_DEG,
-        "error {mm} mm / {deg}°\n{out}"
+    assert_eq!(doc["outcome"], "accepted", "{out}");
+    assert_eq!(doc["passed"], true, "{out}");
+    let (mm, deg) = pose_error(&iso(&doc["ground_truth"]), &iso(&doc["flange_from_camera"]));
+    assert!(mm < 0.5 && deg < 0.1, "error {mm} mm / {deg}°\n{out}");
+    assert!((doc["error"]["translation_mm"].as_f64().expect("mm") - mm).abs() < 1e-6);
+    assert_eq!(doc["written_back"], true, "{out}");
+    // What the demo says the controller's TCP now is, is the result.
+    let (mm, _) = pose_error(
+        &iso(&doc["tcp_on_controller"]),
+        &iso(&doc["flange_from_camera"]),
     );
+    assert!(mm < 1e-3, "{out}");
+    for stage in [
+        "preflight",
+        "plan",
+        "moves",
+        "capture",
+        "register",
+        "solve",
+        "write_back",
+    ] {
+        assert!(
+            doc["timings_ms"][stage].as_f64().is_some_and(|t| t >= 0.0),
+            "{stage}: {out}"
+        );
+    }
     assert_eq!(doc["seed"], 5);
-    assert_eq!(doc["joints_rad"].as_array().map(Vec::len), Some(6));
 }
 
 /// A simulated 1280×960 scan of the UR10e from a view that sees its base.

@@ -1,0 +1,1009 @@
+//! The calibration run, from preflight to the return move, over the hal traits only
+//! (DESIGN.md, "Data flow of one calibration run"):
+//!
+//! 1. **Preflight**: robot powered, brakes released, safety normal, remote control, no program
+//!    running; speed slider, TCP and the controller's kinematics recorded; camera reachable.
+//!    Any failure ends the run before anything moves.
+//! 2. **Plan**: configured joint targets or generated views; every target and the joint-space
+//!    path to it (and back to the start) checked for limits, self-collision, the floor and the
+//!    configured obstacles before the first motion.
+//! 3. **Move** (`movej` within the configured caps), **settle**, **capture** (joints and the
+//!    controller's flange pose at that instant, N frames, kept on disk for replay).
+//! 4. **Register, solve, gate** ([`pipeline::calibrate_frames`]).
+//! 5. **Write back** only when the gate passed, in calibrate mode (files, TCP, registers; each
+//!    read back), or **compare** with the current calibration in check mode.
+//! 6. **Return** to the start, unless a fault or a cancel stopped the arm (never auto-resume).
+//!
+//! [`run`] returns a [`RunRecord`] whatever happens; a run that did not pass its gate writes
+//! nothing but its own record.
+
+pub mod pipeline;
+mod record;
+mod storage;
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime};
+
+use handeye_hal::{DepthCamera, HalError, Robot, RobotMode, SafetyMode};
+use nalgebra::{Isometry3, Vector3};
+use tokio_util::sync::CancellationToken;
+
+use crate::calib::Mount;
+use crate::config::{Config, KinematicsSource, ViewTargets};
+use crate::frames::to_row_major;
+use crate::model::RobotModel;
+use crate::plan::{Obstacle, ViewConstraints, ViewPlanner};
+use crate::sim::Intrinsics;
+
+pub use pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
+pub use record::{
+    CaptureRecord, DriftRecord, FrameRecord, KinematicsUsed, Outcome, PlannedView, PreflightRecord,
+    ResultRecord, RunMode, RunRecord, RunTimings, Stage, Written,
+};
+pub use storage::{load_capture, load_current, CaptureFile, CURRENT_DIR, RUNS_DIR};
+
+/// Joint-space step between two collision checks along a path, rad.
+const PATH_STEP_RAD: f64 = 0.02;
+/// The arm must not move more than this while the camera exposes, rad.
+const MAX_JOINT_CHANGE_DURING_CAPTURE_RAD: f64 = 1e-3;
+
+/// What to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RunRequest {
+    /// Calibrate or check.
+    pub mode: RunMode,
+    /// Preflight and plan only: print the plan, move nothing.
+    pub dry_run: bool,
+}
+
+/// Progress of a run, as it happens: the stage entered and a one-line detail.
+pub trait Progress: Send + Sync {
+    /// Called when a stage starts (and again with more detail within a stage).
+    fn stage(&self, stage: Stage, detail: &str);
+}
+
+/// No progress output.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Silent;
+
+impl Progress for Silent {
+    fn stage(&self, _: Stage, _: &str) {}
+}
+
+/// Why a stage failed: the outcome it gives and the operator's message.
+#[derive(Debug)]
+struct Failure {
+    outcome: Outcome,
+    stage: Stage,
+    message: String,
+}
+
+impl Failure {
+    fn error(stage: Stage, message: impl Into<String>) -> Self {
+        Self {
+            outcome: Outcome::Error,
+            stage,
+            message: message.into(),
+        }
+    }
+
+    /// A robot error: faults, lost connections and timeouts abort the run; the rest are errors.
+    fn robot(stage: Stage, during: &str, e: HalError) -> Self {
+        let outcome = match e {
+            HalError::ProtectiveStop { .. }
+            | HalError::EmergencyStop { .. }
+            | HalError::Cancelled { .. }
+            | HalError::Timeout { .. }
+            | HalError::Connection { .. }
+            | HalError::NotInRemoteControl => Outcome::Aborted,
+            _ => Outcome::Error,
+        };
+        Self {
+            outcome,
+            stage,
+            message: format!("{during}: {}", error_chain(&e)),
+        }
+    }
+
+    fn cancelled(stage: Stage) -> Self {
+        Self {
+            outcome: Outcome::Aborted,
+            stage,
+            message: format!(
+                "cancelled during {}; the arm was stopped where it is",
+                stage.name()
+            ),
+        }
+    }
+
+    /// Whether the arm may still be moved back to the start afterwards.
+    fn arm_usable(&self) -> bool {
+        self.outcome != Outcome::Aborted
+    }
+}
+
+/// `e` and its sources, `: `-separated.
+fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut src = e.source();
+    while let Some(c) = src {
+        let t = c.to_string();
+        if !s.contains(&t) {
+            s.push_str(": ");
+            s.push_str(&t);
+        }
+        src = c.source();
+    }
+    s
+}
+
+/// Races `fut` against `cancel`; a cancel drops `fut` (which stops a move) and fails the stage.
+async fn cancellable<T>(
+    cancel: &CancellationToken,
+    stage: Stage,
+    fut: impl Future<Output = Result<T, Failure>>,
+) -> Result<T, Failure> {
+    tokio::select! {
+        biased;
+        _ = cancel.cancelled() => Err(Failure::cancelled(stage)),
+        r = fut => r,
+    }
+}
+
+fn ms(since: Instant) -> f64 {
+    since.elapsed().as_secs_f64() * 1e3
+}
+
+fn unix_now() -> f64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// UR `x,y,z,rx,ry,rz` (m, rotation vector rad) of a pose, for records and registers.
+pub fn ur_pose(t: &Isometry3<f64>) -> [f64; 6] {
+    let p = t.translation.vector;
+    let r = t.rotation.scaled_axis();
+    [p.x, p.y, p.z, r.x, r.y, r.z]
+}
+
+/// Position and rotation difference of two poses of the same unknown: mm, degrees.
+pub fn pose_difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
+    let d = a.inverse() * b;
+    (
+        (a.translation.vector - b.translation.vector).norm() * 1e3,
+        d.rotation.angle().to_degrees(),
+    )
+}
+
+/// Everything a run works with, resolved once.
+struct Context<'a, R, C> {
+    robot: &'a R,
+    camera: &'a C,
+    model: &'a Arc<RobotModel>,
+    cfg: &'a Config,
+    req: RunRequest,
+    cancel: &'a CancellationToken,
+    progress: &'a dyn Progress,
+    /// `model_from_base`: the controller's `base` frame in the model root.
+    model_from_base: Isometry3<f64>,
+    record: RunRecord,
+    run_dir: PathBuf,
+    /// Whether a move was commanded (the arm may have moved even if the move failed).
+    moved: bool,
+}
+
+/// Runs one calibration or check on `robot` and `camera` for `model` as `cfg` says. Returns the
+/// complete record whatever happens; cancelling `cancel` stops the arm and aborts the run.
+pub async fn run<R: Robot, C: DepthCamera>(
+    robot: &R,
+    camera: &C,
+    model: &Arc<RobotModel>,
+    cfg: &Config,
+    req: RunRequest,
+    cancel: &CancellationToken,
+    progress: &dyn Progress,
+) -> RunRecord {
+    let t0 = Instant::now();
+    let run_id = storage::new_run_id();
+    let record = RunRecord {
+        run_id: run_id.clone(),
+        mode: req.mode,
+        dry_run: req.dry_run,
+        config: cfg.origin.clone(),
+        started_unix_s: unix_now(),
+        outcome: Outcome::Error,
+        reasons: Vec::new(),
+        failed_stage: None,
+        preflight: None,
+        views: Vec::new(),
+        captures: Vec::new(),
+        capture_file: None,
+        result: None,
+        drift: None,
+        written: Vec::new(),
+        returned_to_start: false,
+        timings_ms: RunTimings::default(),
+    };
+    let model_from_base = match pipeline::fixed_frame(model, "base") {
+        Ok(p) => p,
+        // Not a UR URDF with a `base` link: the controller frame is the URDF root turned by π.
+        Err(_) => crate::frames::ur_base_from_base_link().inverse(),
+    };
+    let mut cx = Context {
+        robot,
+        camera,
+        model,
+        cfg,
+        req,
+        cancel,
+        progress,
+        model_from_base,
+        record,
+        run_dir: cfg.storage.dir.join(RUNS_DIR).join(&run_id),
+        moved: false,
+    };
+    let _span = tracing::info_span!("calibration", run_id = %run_id).entered();
+    let result = cx.steps().await;
+    if let Err(f) = result {
+        cx.record.outcome = f.outcome;
+        cx.record.failed_stage = Some(f.stage);
+        let arm_usable = f.arm_usable();
+        cx.record.reasons.push(f.message);
+        if arm_usable {
+            cx.return_to_start().await;
+        }
+    }
+    cx.record.timings_ms.total = ms(t0);
+    if let Err(e) = storage::write_record(&cx.run_dir, &cx.record) {
+        tracing::error!(
+            "cannot write the run record into {}: {e}",
+            cx.run_dir.display()
+        );
+        cx.record
+            .reasons
+            .push(format!("the run record could not be written: {e}"));
+    }
+    cx.record
+}
+
+impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
+    async fn steps(&mut self) -> Result<(), Failure> {
+        let t = Instant::now();
+        self.progress
+            .stage(Stage::Preflight, "checking robot and camera");
+        let (controller_dh, reference) = self.preflight().await?;
+        self.record.timings_ms.preflight = ms(t);
+
+        let t = Instant::now();
+        self.progress
+            .stage(Stage::Plan, "choosing views and checking paths");
+        self.plan()?;
+        self.record.timings_ms.plan = ms(t);
+        if self.req.dry_run {
+            self.record.outcome = Outcome::Planned;
+            return Ok(());
+        }
+
+        let frames = self.move_and_capture().await?;
+
+        let t = Instant::now();
+        let n = frames.len();
+        self.progress
+            .stage(Stage::Register, &format!("registering {n} frame(s)"));
+        let opts = self.pipeline_options(controller_dh, reference.as_ref());
+        let model = self.model.clone();
+        let calibration = cancellable(self.cancel, Stage::Register, async move {
+            tokio::task::spawn_blocking(move || calibrate_frames(&model, &frames, &opts))
+                .await
+                .map_err(|e| {
+                    Failure::error(Stage::Register, format!("registration panicked: {e}"))
+                })?
+                .map_err(|e| Failure::error(Stage::Register, error_chain(&e)))
+        })
+        .await?;
+        let reg_ms: f64 = calibration
+            .registrations
+            .iter()
+            .map(|r| r.timings_ms.total)
+            .sum();
+        self.record.timings_ms.register = reg_ms;
+        self.record.timings_ms.solve = (ms(t) - reg_ms).max(0.0);
+        self.progress.stage(
+            Stage::Solve,
+            if calibration.verdict.passed {
+                "the gate passed"
+            } else {
+                "the gate refused the result"
+            },
+        );
+        let estimate = calibration.solution.estimate;
+        let unknown = match self.cfg.mount.mount {
+            Mount::EyeInHand => estimate,
+            Mount::EyeToHand => calibration.base_from_model * estimate,
+        };
+        self.record.result = Some(ResultRecord {
+            mount: self.cfg.mount.mount,
+            flange_from_camera: calibration
+                .solution
+                .flange_from_camera()
+                .map(|t| to_row_major(&t)),
+            base_from_camera: to_row_major(&calibration.base_from_camera),
+            ur_pose: ur_pose(&unknown),
+            uncertainty: calibration.report.uncertainty,
+            report: calibration.report.clone(),
+        });
+        if !calibration.verdict.passed {
+            self.record.outcome = Outcome::Rejected;
+            self.record.reasons = calibration.verdict.reasons.clone();
+            self.return_to_start().await;
+            return Ok(());
+        }
+        self.record.outcome = Outcome::Accepted;
+        match self.req.mode {
+            RunMode::Check => self.compare(&unknown, reference),
+            RunMode::Calibrate => {
+                let t = Instant::now();
+                self.progress.stage(Stage::WriteBack, "writing the result");
+                let written = self.write_back(&unknown).await;
+                self.record.timings_ms.write_back = ms(t);
+                written?;
+            }
+        }
+        self.return_to_start().await;
+        Ok(())
+    }
+
+    /// Checks that the robot may move and the camera answers; records the start state.
+    /// Returns the controller's kinematics (when used) and the current calibration.
+    async fn preflight(
+        &mut self,
+    ) -> Result<
+        (
+            Option<handeye_hal::ur_dh::DhParams>,
+            Option<(Isometry3<f64>, String)>,
+        ),
+        Failure,
+    > {
+        let stage = Stage::Preflight;
+        let robot = self.robot;
+        let camera = self.camera;
+        let (status, start, tcp) = cancellable(self.cancel, stage, async {
+            let status = robot
+                .status()
+                .await
+                .map_err(|e| Failure::robot(stage, "reading the robot's state", e))?;
+            let start = robot
+                .joint_positions()
+                .await
+                .map_err(|e| Failure::robot(stage, "reading the joints", e))?;
+            let tcp = robot
+                .tcp_offset()
+                .await
+                .map_err(|e| Failure::robot(stage, "reading the TCP", e))?;
+            Ok((status, start, tcp))
+        })
+        .await?;
+        if start.len() != self.model.dof() {
+            return Err(Failure::error(
+                stage,
+                format!(
+                    "the robot reports {} joints but the model {} has {}; configure the right robot model",
+                    start.len(),
+                    self.model.name(),
+                    self.model.dof()
+                ),
+            ));
+        }
+        let kinematics = match self.cfg.robot.kinematics {
+            KinematicsSource::Nominal => KinematicsUsed {
+                source: "nominal",
+                note: None,
+                dh: None,
+            },
+            KinematicsSource::Controller => {
+                match cancellable(self.cancel, stage, async { Ok(robot.kinematics().await) })
+                    .await?
+                {
+                    Ok(Some(k)) => KinematicsUsed {
+                        source: "controller",
+                        note: (!k.calibrated).then(|| {
+                            "the controller says its arm is not factory calibrated".to_string()
+                        }),
+                        dh: Some(k.dh),
+                    },
+                    Ok(None) => KinematicsUsed {
+                        source: "nominal",
+                        note: Some(
+                            "the controller publishes no kinematics; posed by the nominal URDF"
+                                .into(),
+                        ),
+                        dh: None,
+                    },
+                    Err(e) => KinematicsUsed {
+                        source: "nominal",
+                        note: Some(format!(
+                        "cannot read the controller's kinematics ({}); posed by the nominal URDF",
+                        error_chain(&e)
+                    )),
+                        dh: None,
+                    },
+                }
+            }
+        };
+        if let Some(note) = &kinematics.note {
+            tracing::warn!("{note}");
+        }
+        let camera_info = cancellable(self.cancel, stage, async {
+            camera.info().await.map_err(|e| {
+                Failure::error(
+                    stage,
+                    format!(
+                        "the camera does not answer: {}; check its power, cable and address",
+                        error_chain(&e)
+                    ),
+                )
+            })
+        })
+        .await;
+        let controller_dh = kinematics.dh;
+        let reference = self.reference(&tcp);
+        self.record.preflight = Some(PreflightRecord {
+            status: status.clone(),
+            camera: camera_info.as_ref().cloned().unwrap_or_default(),
+            start_joints: start,
+            tcp_offset: to_row_major(&tcp),
+            kinematics,
+        });
+        camera_info?;
+        preflight_status(&status, self.req.dry_run)?;
+        Ok((controller_dh, reference))
+    }
+
+    /// The calibration a check compares with, and a calibrate's previous result: the last
+    /// accepted result in storage, else (check, eye-in-hand with TCP write-back) the
+    /// controller's TCP.
+    fn reference(&self, tcp: &Isometry3<f64>) -> Option<(Isometry3<f64>, String)> {
+        if let Some((pose, source)) = load_current(&self.cfg.storage.dir, self.cfg.mount.mount) {
+            return Some((pose, source));
+        }
+        let tcp_is_camera = self.cfg.mount.mount == Mount::EyeInHand
+            && self.cfg.write_back.tcp
+            && (tcp.translation.vector.norm() > 1e-9 || tcp.rotation.angle() > 1e-9);
+        (self.req.mode == RunMode::Check && tcp_is_camera)
+            .then(|| (*tcp, "the controller's active TCP".to_string()))
+    }
+
+    fn planner(&self) -> ViewPlanner<'_> {
+        let constraints = ViewConstraints {
+            floor_clearance_m: self.cfg.views.floor_clearance_m,
+            ..match &self.cfg.views.targets {
+                ViewTargets::Auto {
+                    min_distance_m,
+                    max_distance_m,
+                    ..
+                } => ViewConstraints {
+                    min_distance_m: *min_distance_m,
+                    max_distance_m: *max_distance_m,
+                    ..ViewConstraints::default()
+                },
+                ViewTargets::Joints(_) => ViewConstraints::default(),
+            }
+        };
+        let flange_from_camera = match self.cfg.mount.mount {
+            Mount::EyeInHand => self.cfg.mount.prior.unwrap_or_else(Isometry3::identity),
+            Mount::EyeToHand => Isometry3::identity(),
+        };
+        let obstacles = self
+            .cfg
+            .views
+            .obstacles
+            .iter()
+            .map(|o| Obstacle {
+                name: o.name.clone(),
+                model_from_box: self.model_from_base
+                    * Isometry3::translation(o.centre_m[0], o.centre_m[1], o.centre_m[2]),
+                half_extents_m: Vector3::from(o.size_m) / 2.0,
+            })
+            .collect();
+        ViewPlanner::new(
+            self.model,
+            flange_from_camera,
+            Intrinsics::compact_1280x960(),
+            constraints,
+        )
+        .with_obstacles(obstacles)
+    }
+
+    /// Chooses the views and checks every target and path (out, between views and back).
+    fn plan(&mut self) -> Result<(), Failure> {
+        let stage = Stage::Plan;
+        let planner = self.planner();
+        let targets: Vec<Vec<f64>> = match &self.cfg.views.targets {
+            ViewTargets::Joints(list) => list.iter().map(|q| q.to_vec()).collect(),
+            ViewTargets::Auto { count, seed, .. } => {
+                planner.generate(*count, *seed).map_err(|e| {
+                    Failure::error(
+                        stage,
+                        format!("{}; configure joint targets under [views]", error_chain(&e)),
+                    )
+                })?
+            }
+        };
+        let start = self
+            .record
+            .preflight
+            .as_ref()
+            .map(|p| p.start_joints.clone())
+            .unwrap_or_default();
+        let mut from = start.clone();
+        let mut views = Vec::new();
+        let fk = |e: crate::model::ModelError| Failure::error(stage, error_chain(&e));
+        for (i, q) in targets.iter().enumerate() {
+            let path = planner
+                .check_path(&from, q, PATH_STEP_RAD)
+                .map_err(fk)?
+                .map_err(|r| {
+                    Failure::error(
+                        stage,
+                        format!(
+                            "the path to view {i} is not safe: {r}; change the view's joints or the obstacles"
+                        ),
+                    )
+                })?;
+            let distance_to_base_m = match (self.cfg.mount.mount, self.cfg.mount.prior) {
+                (Mount::EyeInHand, Some(_)) => planner.check(q).map_err(fk)?.ok(),
+                _ => None,
+            };
+            views.push(PlannedView {
+                joints: q.clone(),
+                distance_to_base_m,
+                path,
+            });
+            from = q.clone();
+        }
+        if self.cfg.views.return_to_start {
+            planner
+                .check_path(&from, &start, PATH_STEP_RAD)
+                .map_err(fk)?
+                .map_err(|r| {
+                    Failure::error(
+                        stage,
+                        format!("the path back to the start is not safe: {r}; move the arm to a free start pose"),
+                    )
+                })?;
+        }
+        self.progress.stage(
+            stage,
+            &format!(
+                "{} view(s); every target and path checked for limits and collisions",
+                views.len()
+            ),
+        );
+        self.record.views = views;
+        Ok(())
+    }
+
+    /// Moves to every view, settles, records joints and flange pose and captures frames.
+    async fn move_and_capture(&mut self) -> Result<Vec<Frame>, Failure> {
+        let mut frames = Vec::new();
+        let views: Vec<Vec<f64>> = self.record.views.iter().map(|v| v.joints.clone()).collect();
+        let keep = self.cfg.storage.keep_captures;
+        let mut capture_file = CaptureFile {
+            model: self.model.name().to_string(),
+            mount: self.cfg.mount.mount,
+            base_frame: "base".into(),
+            views: Vec::new(),
+        };
+        for (v, q) in views.iter().enumerate() {
+            let t = Instant::now();
+            self.progress.stage(
+                Stage::Move,
+                &format!("moving to view {v} of {}", views.len()),
+            );
+            self.moved = true;
+            self.move_to(q, Stage::Move, &format!("move to view {v}"))
+                .await?;
+            self.record.timings_ms.moves += ms(t);
+
+            let t = Instant::now();
+            self.progress.stage(Stage::Settle, "letting the arm settle");
+            let settle = self.cfg.camera.settle;
+            cancellable(self.cancel, Stage::Settle, async {
+                tokio::time::sleep(settle).await;
+                Ok(())
+            })
+            .await?;
+            self.record.timings_ms.settle += ms(t);
+
+            let t = Instant::now();
+            let n = self.cfg.camera.capture.frames;
+            self.progress.stage(
+                Stage::Capture,
+                &format!("capturing {n} frame(s) at view {v}"),
+            );
+            let (capture, clouds) = self.capture(v).await?;
+            self.record.timings_ms.capture += ms(t);
+            let base_from_flange = crate::frames::from_row_major(&capture.base_from_flange)
+                .unwrap_or_else(Isometry3::identity);
+            let mut record = capture;
+            for (k, cloud) in clouds.into_iter().enumerate() {
+                let path = if keep {
+                    match storage::save_frame(&self.run_dir, v, k, &cloud) {
+                        Ok(p) => Some(p),
+                        Err(e) => {
+                            tracing::warn!("cannot keep the raw capture: {e}");
+                            None
+                        }
+                    }
+                } else {
+                    None
+                };
+                record.frames.push(FrameRecord {
+                    path: path.as_ref().map(|p| p.display().to_string()),
+                    width: cloud.width,
+                    height: cloud.height,
+                    valid_points: cloud.valid_count(),
+                });
+                frames.push(Frame {
+                    view: v,
+                    source: path.as_ref().map_or_else(
+                        || format!("view {v} frame {k}"),
+                        |p| p.display().to_string(),
+                    ),
+                    cloud,
+                    joints: record.joints.clone(),
+                    model_from_flange: Some(self.model_from_base * base_from_flange),
+                });
+            }
+            capture_file.views.push(record.clone());
+            self.record.captures.push(record);
+        }
+        if keep {
+            match storage::write_capture_file(&self.run_dir, &capture_file) {
+                Ok(p) => self.record.capture_file = Some(p.display().to_string()),
+                Err(e) => tracing::warn!("cannot keep the capture description: {e}"),
+            }
+        }
+        Ok(frames)
+    }
+
+    async fn move_to(&self, q: &[f64], stage: Stage, what: &str) -> Result<(), Failure> {
+        let robot = self.robot;
+        let limits = self.cfg.robot.limits;
+        let r = cancellable(self.cancel, stage, async {
+            robot
+                .move_joints(q, limits)
+                .await
+                .map_err(|e| Failure::robot(stage, what, e))
+        })
+        .await;
+        if r.is_err() && self.cancel.is_cancelled() {
+            // The dropped move future stops the arm; say so to the controller as well.
+            if let Err(e) = robot.stop().await {
+                tracing::error!("could not stop the arm after a cancel: {e}");
+            }
+        }
+        r
+    }
+
+    /// Records joints and flange pose, captures the frames, checks the arm stood still.
+    async fn capture(
+        &self,
+        view: usize,
+    ) -> Result<(CaptureRecord, Vec<handeye_hal::PointCloud>), Failure> {
+        let stage = Stage::Capture;
+        let robot = self.robot;
+        let camera = self.camera;
+        let settings = self.cfg.camera.capture.clone();
+        // A hard ceiling on the whole capture, whatever the camera does.
+        let ceiling = settings.frame_timeout * settings.frames.max(1) + Duration::from_secs(5);
+        cancellable(self.cancel, stage, async {
+            let joints = robot
+                .joint_positions()
+                .await
+                .map_err(|e| Failure::robot(stage, "reading the joints", e))?;
+            let base_from_flange = robot
+                .flange_pose()
+                .await
+                .map_err(|e| Failure::robot(stage, "reading the flange pose", e))?;
+            let at = unix_now();
+            let clouds = match tokio::time::timeout(ceiling, camera.capture(&settings)).await {
+                Ok(Ok(c)) => c,
+                Ok(Err(e)) => {
+                    return Err(Failure::error(
+                        stage,
+                        format!(
+                            "the camera failed to capture at view {view}: {}; check the camera",
+                            error_chain(&e)
+                        ),
+                    ))
+                }
+                Err(_) => {
+                    return Err(Failure::error(
+                        stage,
+                        format!(
+                            "the camera delivered no frames within {ceiling:?} at view {view}; check the camera"
+                        ),
+                    ))
+                }
+            };
+            if clouds.len() != settings.frames as usize {
+                return Err(Failure::error(
+                    stage,
+                    format!(
+                        "the camera delivered {} frames instead of {}",
+                        clouds.len(),
+                        settings.frames
+                    ),
+                ));
+            }
+            let after = robot
+                .joint_positions()
+                .await
+                .map_err(|e| Failure::robot(stage, "reading the joints", e))?;
+            let change = joints
+                .iter()
+                .zip(&after)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            if change > MAX_JOINT_CHANGE_DURING_CAPTURE_RAD {
+                return Err(Failure {
+                    outcome: Outcome::Aborted,
+                    stage,
+                    message: format!(
+                        "the arm moved by {change:.4} rad while the camera captured view {view}; something else is moving the arm"
+                    ),
+                });
+            }
+            Ok((
+                CaptureRecord {
+                    view,
+                    joints,
+                    base_from_flange: to_row_major(&base_from_flange),
+                    unix_time_s: at,
+                    joint_change_during_capture_rad: change,
+                    frames: Vec::new(),
+                },
+                clouds,
+            ))
+        })
+        .await
+    }
+
+    fn pipeline_options(
+        &self,
+        controller_dh: Option<handeye_hal::ur_dh::DhParams>,
+        reference: Option<&(Isometry3<f64>, String)>,
+    ) -> PipelineOptions {
+        let mount = self.cfg.mount.mount;
+        let mut opts = PipelineOptions::new(mount);
+        // The gate's largest-change check compares with our own last result only (a TCP on
+        // the controller may be a gripper's).
+        let model_from_base = self.model_from_base;
+        let to_estimate_frame = |p: Isometry3<f64>| match mount {
+            Mount::EyeInHand => p,
+            Mount::EyeToHand => model_from_base * p,
+        };
+        opts.prior = self.cfg.mount.prior.map(to_estimate_frame);
+        opts.controller_dh = controller_dh;
+        opts.register.max_camera_flange_distance_m = match mount {
+            Mount::EyeInHand => self.cfg.mount.max_camera_flange_distance_m,
+            Mount::EyeToHand => None,
+        };
+        opts.gate = self.cfg.gate;
+        opts.previous = match (self.req.mode, reference) {
+            (RunMode::Calibrate, Some((p, source))) if source.starts_with("result") => {
+                Some(to_estimate_frame(*p))
+            }
+            _ => None,
+        };
+        opts.base_frame = Some("base".into());
+        opts
+    }
+
+    /// Check mode: compares the measured unknown with the current calibration.
+    fn compare(&mut self, measured: &Isometry3<f64>, reference: Option<(Isometry3<f64>, String)>) {
+        let Some((pose, source)) = reference else {
+            self.record.outcome = Outcome::Error;
+            self.record.failed_stage = Some(Stage::Solve);
+            self.record.reasons.push(format!(
+                "nothing to compare with: no accepted calibration in {} and no camera TCP on the controller; run `handeye calibrate` first",
+                self.cfg.storage.dir.display()
+            ));
+            return;
+        };
+        let (mm, deg) = pose_difference(&pose, measured);
+        let c = &self.cfg.check;
+        let drifted = mm > c.max_drift_translation_mm || deg > c.max_drift_rotation_deg;
+        if drifted {
+            tracing::warn!(
+                translation_mm = mm,
+                rotation_deg = deg,
+                "the camera has drifted from its calibration"
+            );
+        }
+        self.record.drift = Some(DriftRecord {
+            reference: source,
+            reference_pose: to_row_major(&pose),
+            translation_mm: mm,
+            rotation_deg: deg,
+            max_translation_mm: c.max_drift_translation_mm,
+            max_rotation_deg: c.max_drift_rotation_deg,
+            drifted,
+        });
+    }
+
+    /// Writes the accepted result: files, then the TCP, then the registers (the sequence
+    /// number last: a pendant program applies nothing half-written).
+    async fn write_back(&mut self, unknown: &Isometry3<f64>) -> Result<(), Failure> {
+        let stage = Stage::WriteBack;
+        let wb = self.cfg.write_back;
+        let mount = self.cfg.mount.mount;
+        if wb.files {
+            let result = self.record.result.clone();
+            match storage::write_result(
+                &self.cfg.storage.dir,
+                &self.run_dir,
+                unknown,
+                mount,
+                &self.record,
+                result.as_ref(),
+            ) {
+                Ok(paths) => self.record.written.push(Written {
+                    target: "files",
+                    detail: paths
+                        .iter()
+                        .map(|p| p.display().to_string())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                }),
+                Err(e) => {
+                    return Err(Failure::error(
+                        stage,
+                        format!("cannot write the result files: {e}"),
+                    ))
+                }
+            }
+        }
+        let robot = self.robot;
+        if wb.tcp && mount == Mount::EyeInHand {
+            cancellable(self.cancel, stage, async {
+                robot
+                    .set_tcp(unknown)
+                    .await
+                    .map_err(|e| Failure::robot(stage, "setting the TCP", e))
+            })
+            .await?;
+            let p = ur_pose(unknown);
+            self.record.written.push(Written {
+                target: "tcp",
+                detail: format!(
+                    "set_tcp(p[{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}]), read back over RTDE",
+                    p[0], p[1], p[2], p[3], p[4], p[5]
+                ),
+            });
+        }
+        if let Some(map) = wb.registers {
+            let p = ur_pose(unknown);
+            let seq = cancellable(self.cancel, stage, async {
+                for (k, v) in p.iter().enumerate() {
+                    robot
+                        .write_double_register(map.double_start + k as u32, *v)
+                        .await
+                        .map_err(|e| Failure::robot(stage, "writing the result registers", e))?;
+                }
+                let seq = robot
+                    .read_int_register(map.sequence_int)
+                    .await
+                    .map_err(|e| Failure::robot(stage, "reading the sequence register", e))?
+                    .wrapping_add(1)
+                    .max(1);
+                robot
+                    .write_int_register(map.sequence_int, seq)
+                    .await
+                    .map_err(|e| Failure::robot(stage, "writing the sequence register", e))?;
+                Ok(seq)
+            })
+            .await?;
+            self.record.written.push(Written {
+                target: "registers",
+                detail: format!(
+                    "input_double_register_{}..{} = x,y,z,rx,ry,rz (m, rad); input_int_register_{} = {seq}",
+                    map.double_start,
+                    map.double_start + 5,
+                    map.sequence_int
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// Moves back to the start when configured and the arm was commanded to move: from
+    /// wherever it is now, along a path checked like every other. Never after a fault or a
+    /// cancel (the caller does not call it then).
+    async fn return_to_start(&mut self) {
+        if !self.cfg.views.return_to_start || !self.moved {
+            return;
+        }
+        let Some(start) = self
+            .record
+            .preflight
+            .as_ref()
+            .map(|p| p.start_joints.clone())
+        else {
+            return;
+        };
+        let t = Instant::now();
+        self.progress
+            .stage(Stage::Return, "moving back to the start");
+        let here = match self.robot.joint_positions().await {
+            Ok(q) => q,
+            Err(e) => {
+                self.record.reasons.push(format!(
+                    "not moved back to the start: cannot read the joints: {}",
+                    error_chain(&e)
+                ));
+                return;
+            }
+        };
+        let checked = self.planner().check_path(&here, &start, PATH_STEP_RAD);
+        let result = match checked {
+            Ok(Ok(_)) => {
+                self.move_to(&start, Stage::Return, "move back to the start")
+                    .await
+            }
+            Ok(Err(r)) => Err(Failure::error(
+                Stage::Return,
+                format!("not moved back to the start: the path is not safe ({r}); move the arm on the pendant"),
+            )),
+            Err(e) => Err(Failure::error(Stage::Return, error_chain(&e))),
+        };
+        match result {
+            Ok(()) => self.record.returned_to_start = true,
+            Err(f) => self.record.reasons.push(f.message),
+        }
+        self.record.timings_ms.return_move = ms(t);
+    }
+}
+
+/// Whether the robot may move: powered with brakes released, safety normal or reduced, in
+/// remote control, no program running. A dry run reports a stopped or powered-off arm too.
+fn preflight_status(st: &handeye_hal::RobotStatus, _dry_run: bool) -> Result<(), Failure> {
+    let stage = Stage::Preflight;
+    let fail = |m: String| Err(Failure::error(stage, m));
+    match st.safety_mode {
+        SafetyMode::Normal | SafetyMode::Reduced => {}
+        SafetyMode::ProtectiveStop => {
+            return fail("the robot is in a protective stop; find out why, clear it on the pendant, then run again (handeye never clears it by itself)".into())
+        }
+        SafetyMode::RobotEmergencyStop | SafetyMode::SystemEmergencyStop => {
+            return fail("an emergency stop is active; release it and re-enable the arm on the pendant".into())
+        }
+        other => {
+            return fail(format!(
+                "the robot's safety mode is {other:?}; bring it back to normal on the pendant"
+            ))
+        }
+    }
+    if st.robot_mode != RobotMode::Running {
+        return fail(format!(
+            "the robot is not ready to move ({:?}); power it on and release the brakes on the pendant",
+            st.robot_mode
+        ));
+    }
+    if !st.remote_control {
+        return fail(
+            "the robot is in local control; enable Remote Control on the teach pendant".into(),
+        );
+    }
+    if st.program_running {
+        return fail(
+            "a program is running on the controller; stop it on the pendant before calibrating"
+                .into(),
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,324 @@
+//! The record of one run: everything that happened, what was measured and what was written,
+//! with every stage's timing. The run returns it whatever the outcome; the daemon stores it,
+//! `calibrate`/`check --json` print it. Poses are 4×4 row-major arrays in metres; mm and
+//! degrees only where the field name says so.
+
+use handeye_hal::ur_dh::DhParams;
+use handeye_hal::{CameraInfo, RobotStatus};
+use nalgebra::Isometry3;
+use serde::Serialize;
+
+use crate::calib::{CalibrationReport, Mount, Uncertainty};
+use crate::plan::PathCheck;
+
+/// What a run was asked to do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RunMode {
+    /// Measure and, when the gate passes, write the result back.
+    Calibrate,
+    /// Measure the same way, never write back; compare with the current calibration.
+    Check,
+}
+
+/// How a run ended. One type for every consumer (CLI exit codes, daemon, history).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// The gate passed. Calibrate: written back as configured. Check: see the drift.
+    Accepted,
+    /// The run completed but the gate refused the result; nothing was written.
+    Rejected,
+    /// Stopped by a robot fault (protective/emergency stop), a lost connection, a timeout or
+    /// a cancel; nothing was written.
+    Aborted,
+    /// Could not be carried out (preflight, planning, camera, registration); nothing written.
+    Error,
+    /// Dry run: preflight and planning done, nothing moved.
+    Planned,
+}
+
+impl Outcome {
+    /// Lower-case name as in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Outcome::Accepted => "accepted",
+            Outcome::Rejected => "rejected",
+            Outcome::Aborted => "aborted",
+            Outcome::Error => "error",
+            Outcome::Planned => "planned",
+        }
+    }
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The stages of a run, in order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stage {
+    /// Robot and camera state checked; nothing moves before it passes.
+    Preflight,
+    /// Views chosen, targets and paths checked for limits and collisions.
+    Plan,
+    /// Joint move to a view.
+    Move,
+    /// Waiting for the arm to settle.
+    Settle,
+    /// Joints, flange pose and frames recorded.
+    Capture,
+    /// Scans registered against the posed model.
+    Register,
+    /// Chain closed, views fused, gate applied.
+    Solve,
+    /// Result written to the controller and files.
+    WriteBack,
+    /// Joint move back to where the arm started.
+    Return,
+}
+
+impl Stage {
+    /// Lower-case name as in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Preflight => "preflight",
+            Stage::Plan => "plan",
+            Stage::Move => "move",
+            Stage::Settle => "settle",
+            Stage::Capture => "capture",
+            Stage::Register => "register",
+            Stage::Solve => "solve",
+            Stage::WriteBack => "write_back",
+            Stage::Return => "return",
+        }
+    }
+}
+
+/// Wall-clock time per stage, summed over views, milliseconds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct RunTimings {
+    /// Preflight.
+    pub preflight: f64,
+    /// Planning and path checks.
+    pub plan: f64,
+    /// Moves to the views (arm motion).
+    pub moves: f64,
+    /// Settling before capture.
+    pub settle: f64,
+    /// Recording joints/pose and capturing frames (camera exposure and transfer).
+    pub capture: f64,
+    /// Registration of every frame.
+    pub register: f64,
+    /// Solve, fusion and gate.
+    pub solve: f64,
+    /// Write-back and read-back.
+    pub write_back: f64,
+    /// The move back to the start.
+    pub return_move: f64,
+    /// The whole run.
+    pub total: f64,
+}
+
+impl RunTimings {
+    /// Everything except arm motion, settling and the camera's own capture time: what the
+    /// run itself costs.
+    pub fn overhead(&self) -> f64 {
+        self.total - self.moves - self.settle - self.capture - self.return_move
+    }
+}
+
+/// Which kinematics posed the model.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct KinematicsUsed {
+    /// `controller` (the controller's calibrated DH) or `nominal` (the URDF).
+    pub source: &'static str,
+    /// Why nominal was used when the configuration asked for the controller's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+    /// The controller's DH parameters, when used.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dh: Option<DhParams>,
+}
+
+/// What preflight found.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PreflightRecord {
+    /// Robot state.
+    pub status: RobotStatus,
+    /// The camera's identity.
+    pub camera: CameraInfo,
+    /// Joint angles before anything moved, rad.
+    pub start_joints: Vec<f64>,
+    /// The TCP active on the controller before the run (`flange_from_tcp`).
+    pub tcp_offset: [[f64; 4]; 4],
+    /// Kinematics the model is posed with.
+    pub kinematics: KinematicsUsed,
+}
+
+/// One view of the plan.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PlannedView {
+    /// Joint target, rad, URDF order.
+    pub joints: Vec<f64>,
+    /// Camera-to-base distance the planner expects, m (eye-in-hand with a prior).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub distance_to_base_m: Option<f64>,
+    /// How the path from the previous position was checked.
+    pub path: PathCheck,
+}
+
+/// One captured frame.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct FrameRecord {
+    /// Where the raw scan was kept (PLY), when kept.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub path: Option<String>,
+    /// Grid size.
+    pub width: u32,
+    /// Grid size.
+    pub height: u32,
+    /// Valid (finite) points.
+    pub valid_points: usize,
+}
+
+/// What was recorded at one view.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct CaptureRecord {
+    /// View index.
+    pub view: usize,
+    /// Measured joints before the frames, rad.
+    pub joints: Vec<f64>,
+    /// `base_from_flange` the controller reported at that instant (its `base` frame).
+    pub base_from_flange: [[f64; 4]; 4],
+    /// Unix time of the joint/pose sample, s.
+    pub unix_time_s: f64,
+    /// Largest joint change between before and after the frames, rad (the arm must not move
+    /// while the camera exposes).
+    pub joint_change_during_capture_rad: f64,
+    /// The frames.
+    pub frames: Vec<FrameRecord>,
+}
+
+/// The measured result.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ResultRecord {
+    /// Eye-in-hand or eye-to-hand.
+    pub mount: Mount,
+    /// Eye-in-hand: the camera on the flange (`flange_from_camera`), 4×4, m.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flange_from_camera: Option<[[f64; 4]; 4]>,
+    /// The camera in the controller's `base` frame (eye-in-hand: at the first view), 4×4, m.
+    pub base_from_camera: [[f64; 4]; 4],
+    /// The unknown as UR `x,y,z,rx,ry,rz` (m, rotation vector rad): `flange_from_camera` or
+    /// `base_from_camera`.
+    pub ur_pose: [f64; 6],
+    /// Reported 1-σ uncertainty.
+    pub uncertainty: Uncertainty,
+    /// The calibration report (per frame quality, residuals, timings).
+    pub report: CalibrationReport,
+}
+
+impl ResultRecord {
+    /// The unknown the run solved for (`flange_from_camera` or `base_from_camera`).
+    pub fn estimate(&self) -> Option<Isometry3<f64>> {
+        crate::frames::from_row_major(
+            self.flange_from_camera
+                .as_ref()
+                .unwrap_or(&self.base_from_camera),
+        )
+    }
+}
+
+/// A check's comparison with the current calibration.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DriftRecord {
+    /// Where the current calibration came from.
+    pub reference: String,
+    /// The current calibration, 4×4, m.
+    pub reference_pose: [[f64; 4]; 4],
+    /// Camera position change, mm.
+    pub translation_mm: f64,
+    /// Camera rotation change, degrees.
+    pub rotation_deg: f64,
+    /// Threshold, mm.
+    pub max_translation_mm: f64,
+    /// Threshold, degrees.
+    pub max_rotation_deg: f64,
+    /// Whether either threshold is exceeded.
+    pub drifted: bool,
+}
+
+/// One thing written back.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Written {
+    /// `tcp`, `registers` or `files`.
+    pub target: &'static str,
+    /// What exactly (register numbers and sequence, file paths).
+    pub detail: String,
+}
+
+/// The complete record of one run.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunRecord {
+    /// Unique id (UTC start time and a random suffix), also the folder of its files.
+    pub run_id: String,
+    /// Calibrate or check.
+    pub mode: RunMode,
+    /// Whether nothing was to move.
+    pub dry_run: bool,
+    /// The configuration's origin (file path).
+    pub config: String,
+    /// Unix time of the start, s.
+    pub started_unix_s: f64,
+    /// How it ended.
+    pub outcome: Outcome,
+    /// Why it ended that way (empty when accepted), one sentence each, saying what to do.
+    pub reasons: Vec<String>,
+    /// The stage that failed, for aborted/error outcomes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub failed_stage: Option<Stage>,
+    /// What preflight found.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub preflight: Option<PreflightRecord>,
+    /// The checked plan.
+    pub views: Vec<PlannedView>,
+    /// What was recorded at each view.
+    pub captures: Vec<CaptureRecord>,
+    /// Where the raw captures were kept (replay with `handeye solve --capture`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub capture_file: Option<String>,
+    /// The result, when one was computed (also when rejected).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub result: Option<ResultRecord>,
+    /// Check: the comparison with the current calibration.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drift: Option<DriftRecord>,
+    /// What was written back (empty unless accepted in calibrate mode).
+    pub written: Vec<Written>,
+    /// Whether the arm was moved back to where it started.
+    pub returned_to_start: bool,
+    /// Time per stage.
+    pub timings_ms: RunTimings,
+}
+
+impl RunRecord {
+    /// Process exit code: calibrate 0 accepted / 1 rejected / 2 error or aborted; check 0
+    /// within thresholds / 1 drifted / 2 anything else; a dry run 0 when planned.
+    pub fn exit_code(&self) -> u8 {
+        match (self.outcome, self.mode) {
+            (Outcome::Planned, _) => 0,
+            (Outcome::Accepted, RunMode::Calibrate) => 0,
+            (Outcome::Accepted, RunMode::Check) => match &self.drift {
+                Some(d) if d.drifted => 1,
+                Some(_) => 0,
+                None => 2,
+            },
+            (Outcome::Rejected, RunMode::Calibrate) => 1,
+            _ => 2,
+        }
+    }
+}

@@ -1,0 +1,226 @@
+//! Where a run keeps its files, under the configured storage directory:
+//!
+//! ```text
+//! <storage>/runs/<run_id>/record.json        the run record (every run)
+//! <storage>/runs/<run_id>/capture.json       joints and flange poses per view (replay)
+//! <storage>/runs/<run_id>/view<V>_frame<F>.ply  the raw scans (when kept)
+//! <storage>/runs/<run_id>/result.*           the exports of an accepted calibration
+//! <storage>/current/                         the exports of the last accepted calibration
+//! ```
+//!
+//! Every file is written to a temporary name and renamed, so a crash never leaves a
+//! half-written record or result; `current/` is replaced as a whole.
+
+use std::path::{Path, PathBuf};
+
+use handeye_hal::PointCloud;
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+use super::record::{CaptureRecord, ResultRecord, RunRecord};
+use crate::calib::export::{ExportMeta, Exports};
+use crate::calib::Mount;
+
+/// Folder of the per-run folders.
+pub const RUNS_DIR: &str = "runs";
+/// Folder of the last accepted calibration.
+pub const CURRENT_DIR: &str = "current";
+const CAPTURE_FILE: &str = "capture.json";
+const RECORD_FILE: &str = "record.json";
+const CALIBRATION_FILE: &str = "calibration.json";
+
+/// What `capture.json` holds: enough to replay a run with `handeye solve --capture`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CaptureFile {
+    /// Robot model name.
+    pub model: String,
+    /// Eye-in-hand or eye-to-hand.
+    pub mount: Mount,
+    /// Frame of the flange poses (`base`: the UR controller's).
+    pub base_frame: String,
+    /// One entry per view, with its frames' file paths.
+    pub views: Vec<CaptureRecord>,
+}
+
+/// The machine-readable current calibration (`current/calibration.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct CurrentCalibration {
+    run_id: String,
+    mount: Mount,
+    /// `flange_from_camera` (eye-in-hand) or `base_from_camera` in `base` (eye-to-hand), 4×4.
+    pose: [[f64; 4]; 4],
+}
+
+/// A run id: UTC start time to the second and a random suffix (`20261124T142300Z-3f9a`).
+pub(crate) fn new_run_id() -> String {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let secs = now.as_secs();
+    let (days, rem) = (secs / 86_400, secs % 86_400);
+    let (y, m, d) = civil_from_days(days as i64);
+    let suffix = (now.subsec_nanos() ^ std::process::id().rotate_left(16)) & 0xffff;
+    format!(
+        "{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z-{suffix:04x}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+/// Gregorian date of a day count since 1970-01-01 (H. Hinnant's algorithm).
+pub(crate) fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + i64::from(m <= 2), m, d)
+}
+
+/// Writes `bytes` to `path` through a temporary file and a rename.
+fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, bytes)?;
+    std::fs::rename(&tmp, path)
+}
+
+fn json<T: Serialize>(value: &T) -> std::io::Result<Vec<u8>> {
+    serde_json::to_vec_pretty(value).map_err(std::io::Error::other)
+}
+
+/// Writes the run record.
+pub(crate) fn write_record(run_dir: &Path, record: &RunRecord) -> std::io::Result<()> {
+    write_atomically(&run_dir.join(RECORD_FILE), &json(record)?)
+}
+
+/// Keeps one raw frame as a binary PLY; returns its path.
+pub(crate) fn save_frame(
+    run_dir: &Path,
+    view: usize,
+    frame: usize,
+    cloud: &PointCloud,
+) -> Result<PathBuf, crate::cloud::CloudError> {
+    std::fs::create_dir_all(run_dir).map_err(|source| crate::cloud::CloudError::Io {
+        action: "create",
+        path: run_dir.to_path_buf(),
+        source,
+    })?;
+    let path = run_dir.join(format!("view{view}_frame{frame}.ply"));
+    crate::cloud::write_ply(&path, cloud, Default::default())?;
+    Ok(path)
+}
+
+/// Writes `capture.json`; returns its path.
+pub(crate) fn write_capture_file(
+    run_dir: &Path,
+    capture: &CaptureFile,
+) -> std::io::Result<PathBuf> {
+    let path = run_dir.join(CAPTURE_FILE);
+    write_atomically(&path, &json(capture)?)?;
+    Ok(path)
+}
+
+/// Reads a `capture.json` written by a run (its frame paths are absolute or relative to it).
+pub fn load_capture(path: &Path) -> Result<CaptureFile, String> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    serde_json::from_str(&text).map_err(|e| {
+        format!(
+            "{} is not a capture file written by a handeye run: {e}",
+            path.display()
+        )
+    })
+}
+
+/// The last accepted calibration in `storage` for `mount`, with where it came from.
+pub fn load_current(storage: &Path, mount: Mount) -> Option<(Isometry3<f64>, String)> {
+    let path = storage.join(CURRENT_DIR).join(CALIBRATION_FILE);
+    let text = std::fs::read_to_string(&path).ok()?;
+    let current: CurrentCalibration = match serde_json::from_str(&text) {
+        Ok(c) => c,
+        Err(e) => {
+            tracing::warn!("ignoring {}: {e}", path.display());
+            return None;
+        }
+    };
+    if current.mount != mount {
+        return None;
+    }
+    let pose = crate::frames::from_row_major(&current.pose)?;
+    Some((
+        pose,
+        format!("result of run {} ({})", current.run_id, path.display()),
+    ))
+}
+
+/// Writes the exports of an accepted result into the run's folder and replaces `current/`
+/// with them; returns the paths in `current/`.
+pub(crate) fn write_result(
+    storage: &Path,
+    run_dir: &Path,
+    unknown: &Isometry3<f64>,
+    mount: Mount,
+    record: &RunRecord,
+    result: Option<&ResultRecord>,
+) -> std::io::Result<Vec<PathBuf>> {
+    let (parent, child) = match mount {
+        Mount::EyeInHand => ("tool0", "camera"),
+        Mount::EyeToHand => ("base", "camera"),
+    };
+    let meta = ExportMeta {
+        run_id: record.run_id.clone(),
+        outcome: record.outcome.name().to_string(),
+        uncertainty_translation_mm: result.map_or(f64::NAN, |r| r.uncertainty.translation_mm),
+        uncertainty_rotation_deg: result.map_or(f64::NAN, |r| r.uncertainty.rotation_deg),
+        timestamp: record.run_id.clone(),
+    };
+    let exports = Exports::new(unknown, parent, child, meta);
+    exports.write_to(run_dir)?;
+    let current = CurrentCalibration {
+        run_id: record.run_id.clone(),
+        mount,
+        pose: crate::frames::to_row_major(unknown),
+    };
+    write_atomically(&run_dir.join(CALIBRATION_FILE), &json(&current)?)?;
+    // Replace current/ as a whole: build it beside, then swap.
+    let staging = storage.join(format!(".{CURRENT_DIR}.{}", record.run_id));
+    let _ = std::fs::remove_dir_all(&staging);
+    let mut paths = exports.write_to(&staging)?;
+    write_atomically(&staging.join(CALIBRATION_FILE), &json(&current)?)?;
+    let target = storage.join(CURRENT_DIR);
+    let old = storage.join(format!(".{CURRENT_DIR}.old.{}", record.run_id));
+    if target.exists() {
+        std::fs::rename(&target, &old)?;
+    }
+    std::fs::rename(&staging, &target)?;
+    let _ = std::fs::remove_dir_all(&old);
+    for p in &mut paths {
+        if let Some(name) = p.file_name() {
+            *p = target.join(name);
+        }
+    }
+    paths.push(target.join(CALIBRATION_FILE));
+    Ok(paths)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_ids_carry_the_utc_date() {
+        assert_eq!(civil_from_days(0), (1970, 1, 1));
+        assert_eq!(civil_from_days(20_416), (2025, 11, 23));
+        assert_eq!(civil_from_days(11_016), (2000, 2, 29));
+        let id = new_run_id();
+        assert_eq!(id.len(), "20261124T142300Z-3f9a".len(), "{id}");
+        assert!(id.as_bytes()[8] == b'T' && id.contains("Z-"), "{id}");
+    }
+}
