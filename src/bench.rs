@@ -9,12 +9,10 @@ use nalgebra::{Isometry3, Vector3};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use crate::calib::{
-    gate, register, solve, FrameInput, GateThresholds, Mount, Quality, RegisterOptions,
-    SolveOptions,
-};
+use crate::calib::{GateThresholds, Mount, Outcome, Quality, RegisterOptions};
 use crate::model::RobotModel;
 use crate::plan::{PlanError, ViewConstraints, ViewPlanner};
+use crate::run::{calibrate_frames, Frame, PipelineOptions};
 use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 
 /// A result off by more than this is wrong (and must have been rejected), mm.
@@ -85,8 +83,8 @@ pub struct Trial {
     pub view: usize,
     /// Scan index within the view.
     pub scan: usize,
-    /// `accepted`, `rejected` or `error`.
-    pub outcome: &'static str,
+    /// Accepted, rejected or error.
+    pub outcome: Outcome,
     /// Why it was rejected or failed.
     pub reasons: Vec<String>,
     /// Camera position error of `flange_from_camera`, mm (NaN on error).
@@ -201,7 +199,10 @@ pub struct RobotSummary {
 impl RobotSummary {
     /// Summarises trials.
     pub fn new(robot: &str, details: Vec<Trial>) -> Self {
-        let accepted: Vec<&Trial> = details.iter().filter(|t| t.outcome == "accepted").collect();
+        let accepted: Vec<&Trial> = details
+            .iter()
+            .filter(|t| t.outcome == Outcome::Accepted)
+            .collect();
         let correct = accepted.iter().filter(|t| !t.is_wrong()).count();
         let ok = |f: fn(&Trial) -> f64| Stats::of(accepted.iter().map(|t| f(t)));
         let all = |f: fn(&Trial) -> f64| Stats::of(details.iter().map(f));
@@ -210,8 +211,14 @@ impl RobotSummary {
             trials: details.len(),
             correct,
             wrong_accepted: accepted.len() - correct,
-            rejected: details.iter().filter(|t| t.outcome == "rejected").count(),
-            errors: details.iter().filter(|t| t.outcome == "error").count(),
+            rejected: details
+                .iter()
+                .filter(|t| t.outcome == Outcome::Rejected)
+                .count(),
+            errors: details
+                .iter()
+                .filter(|t| t.outcome == Outcome::Error)
+                .count(),
             success_rate: if details.is_empty() {
                 0.0
             } else {
@@ -300,7 +307,7 @@ pub fn run_trial(
     let mut trial = Trial {
         view,
         scan: scan_index,
-        outcome: "error",
+        outcome: Outcome::Error,
         reasons: Vec::new(),
         translation_error_mm: f64::NAN,
         rotation_error_deg: f64::NAN,
@@ -325,13 +332,26 @@ pub fn run_trial(
         }
     };
     trial.simulate_ms = ms(t0);
-    let reg = match register(&scan.cloud, model, joints, None, &cfg.register) {
-        Ok(r) => r,
+    let frame = Frame {
+        view: 0,
+        cloud: scan.cloud,
+        joints: joints.to_vec(),
+        model_from_flange: Some(scan.truth.model_from_flange_reported),
+        source: format!("view {view} scan {scan_index}"),
+    };
+    let opts = PipelineOptions {
+        register: cfg.register.clone(),
+        gate: cfg.gate,
+        ..PipelineOptions::new(Mount::EyeInHand)
+    };
+    let calibration = match calibrate_frames(model, std::slice::from_ref(&frame), &opts) {
+        Ok(c) => c,
         Err(e) => {
             trial.reasons.push(e.to_string());
             return trial;
         }
     };
+    let reg = &calibration.registrations[0];
     let tm = reg.timings_ms;
     trial.quality = Some(reg.quality);
     (
@@ -341,33 +361,16 @@ pub fn run_trial(
         trial.verify_ms,
         trial.register_ms,
     ) = (tm.preprocess, tm.coarse, tm.fine, tm.verify, tm.total);
-    let t1 = Instant::now();
-    let frame = FrameInput {
-        view: 0,
-        camera_from_model: reg.camera_from_model,
-        model_from_flange: Some(scan.truth.model_from_flange_reported),
-    };
-    let solution = match solve(Mount::EyeInHand, &[frame], &SolveOptions::default()) {
-        Ok(s) => s,
-        Err(e) => {
-            trial.reasons.push(e.to_string());
-            return trial;
-        }
-    };
-    let verdict = gate(std::slice::from_ref(&reg), &solution, None, &cfg.gate);
-    trial.solve_ms = ms(t1);
-    let err = mount.inverse() * solution.estimate;
+    trial.solve_ms = calibration.report.timings_ms.solve;
+    let estimate = calibration.solution.estimate;
+    let err = mount.inverse() * estimate;
     trial.translation_error_mm =
-        (solution.estimate.translation.vector - mount.translation.vector).norm() * 1e3;
+        (estimate.translation.vector - mount.translation.vector).norm() * 1e3;
     trial.rotation_error_deg = err.rotation.angle().to_degrees();
     trial.uncertainty_translation_mm = reg.uncertainty.translation_mm;
     trial.uncertainty_rotation_deg = reg.uncertainty.rotation_deg;
-    trial.outcome = if verdict.passed {
-        "accepted"
-    } else {
-        "rejected"
-    };
-    trial.reasons = verdict.reasons;
+    trial.outcome = calibration.verdict.outcome;
+    trial.reasons = calibration.verdict.reasons;
     trial
 }
 
@@ -411,10 +414,10 @@ mod tests {
         let s = RobotSummary::new(
             "r",
             vec![
-                t("accepted", 0.2),
-                t("accepted", 3.0),
-                t("rejected", 9.0),
-                t("error", f64::NAN),
+                t(Outcome::Accepted, 0.2),
+                t(Outcome::Accepted, 3.0),
+                t(Outcome::Rejected, 9.0),
+                t(Outcome::Error, f64::NAN),
             ],
         );
         assert_eq!(

@@ -5,6 +5,7 @@ use nalgebra::Isometry3;
 
 use super::register::Registration;
 use super::solve::{distance, HandEyeSolution};
+use super::Outcome;
 
 /// Thresholds of [`gate`]; units are in the names. `Default` is conservative.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -61,10 +62,18 @@ impl Default for GateThresholds {
 /// Outcome of [`gate`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Verdict {
-    /// Whether the result may be used (written back).
-    pub passed: bool,
+    /// [`Outcome::Accepted`] when the result may be used (written back), else
+    /// [`Outcome::Rejected`].
+    pub outcome: Outcome,
     /// Why it failed (empty when passed), one sentence each.
     pub reasons: Vec<String>,
+}
+
+impl Verdict {
+    /// Whether the gate accepted the result.
+    pub fn passed(&self) -> bool {
+        self.outcome == Outcome::Accepted
+    }
 }
 
 /// Checks every registration (index = frame index) and the fused solution; `previous` is the
@@ -177,7 +186,11 @@ pub fn gate(
         }
     }
     Verdict {
-        passed: reasons.is_empty(),
+        outcome: if reasons.is_empty() {
+            Outcome::Accepted
+        } else {
+            Outcome::Rejected
+        },
         reasons,
     }
 }
@@ -227,7 +240,7 @@ mod tests {
         }];
         let sol = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
         let th = GateThresholds::default();
-        assert!(gate(std::slice::from_ref(&reg), &sol, None, &th).passed);
+        assert!(gate(std::slice::from_ref(&reg), &sol, None, &th).passed());
         type Spoil = Box<dyn Fn(&mut Registration)>;
         let bad: Vec<Spoil> = vec![
             Box::new(|r| r.quality.coverage = 0.3),
@@ -244,11 +257,11 @@ mod tests {
             let mut r = reg.clone();
             f(&mut r);
             let v = gate(&[r], &sol, None, &th);
-            assert!(!v.passed && v.reasons.len() == 1, "case {k}: {v:?}");
+            assert!(!v.passed() && v.reasons.len() == 1, "case {k}: {v:?}");
         }
         // Drift from the previous calibration.
         let prev = sol.estimate * Isometry3::translation(0.01, 0.0, 0.0);
-        assert!(!gate(std::slice::from_ref(&reg), &sol, Some(&prev), &th).passed);
+        assert!(!gate(std::slice::from_ref(&reg), &sol, Some(&prev), &th).passed());
         // Two views that disagree: both stay "used" only if within thresholds; here they are
         // 3 mm apart, so one is dropped and half the frames are gone.
         let other = Isometry3::translation(0.003, 0.0, 0.0) * reg.camera_from_model;
@@ -266,6 +279,6 @@ mod tests {
         ];
         let sol2 = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
         let v = gate(&[reg.clone(), reg.clone()], &sol2, None, &th);
-        assert!(!v.passed, "{v:?}");
+        assert!(!v.passed(), "{v:?}");
     }
 }

@@ -50,6 +50,43 @@ pub use report::CalibrationReport;
 pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};
 pub use surface::{PosedJoint, PosedModel, PosedPart};
 
+/// How a calibration ended: the gate's verdict, a benchmark trial, a run. One type for every
+/// consumer (reports, CLI exit codes, the benchmark, the daemon's history).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// The gate passed. Calibrate: written back as configured. Check: see the drift.
+    Accepted,
+    /// The run completed but the gate refused the result; nothing was written.
+    Rejected,
+    /// Stopped by a robot fault (protective/emergency stop), a lost connection, a timeout or
+    /// a cancel; nothing was written.
+    Aborted,
+    /// Could not be carried out (preflight, planning, camera, registration); nothing written.
+    Error,
+    /// Dry run: preflight and planning done, nothing moved.
+    Planned,
+}
+
+impl Outcome {
+    /// Lower-case name as in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Outcome::Accepted => "accepted",
+            Outcome::Rejected => "rejected",
+            Outcome::Aborted => "aborted",
+            Outcome::Error => "error",
+            Outcome::Planned => "planned",
+        }
+    }
+}
+
+impl std::fmt::Display for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// Errors of registration and solving; each message tells the operator what to do.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]

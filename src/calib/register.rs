@@ -1421,7 +1421,7 @@ mod sim_tests {
             None,
             &GateThresholds::default(),
         );
-        assert!(v.passed, "{v:?}");
+        assert!(v.passed(), "{v:?}");
         assert!(reg.depth_scale.is_some_and(|s| (s - 1.0015).abs() < 0.001));
     }
 }
@@ -1604,11 +1604,11 @@ mod issue_3_tests {
         );
         eprintln!("{verdict}");
         assert!(
-            t.outcome != "accepted" || !t.is_wrong(),
+            t.outcome != crate::calib::Outcome::Accepted || !t.is_wrong(),
             "wrong result accepted: {verdict}"
         );
         if must_accept {
-            assert_eq!(t.outcome, "accepted", "{verdict}");
+            assert_eq!(t.outcome, crate::calib::Outcome::Accepted, "{verdict}");
         }
         Some(verdict)
     }

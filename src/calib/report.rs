@@ -8,6 +8,7 @@ use serde::Serialize;
 use super::gate::Verdict;
 use super::register::{Quality, Registration, StageTimings, Uncertainty};
 use super::solve::{HandEyeSolution, Mount, Residual};
+use super::Outcome;
 use crate::frames::to_row_major;
 
 /// Quality summed up over all frames (worst case of each figure).
@@ -76,8 +77,8 @@ pub struct ReportTimings {
 /// The calibration report.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CalibrationReport {
-    /// `"ok"` or `"rejected"`.
-    pub status: &'static str,
+    /// Accepted or rejected by the gate.
+    pub outcome: Outcome,
     /// Why it was rejected (empty when ok).
     pub reasons: Vec<String>,
     /// Eye-in-hand or eye-to-hand.
@@ -194,7 +195,7 @@ impl CalibrationReport {
             timings.verify += r.timings_ms.verify;
         }
         CalibrationReport {
-            status: if verdict.passed { "ok" } else { "rejected" },
+            outcome: verdict.outcome,
             reasons: verdict.reasons.clone(),
             mount: solution.mount,
             base_frame: base_frame.to_string(),
@@ -212,7 +213,7 @@ impl CalibrationReport {
     pub fn summary(&self) -> String {
         use std::fmt::Write;
         let mut s = String::new();
-        let _ = writeln!(s, "status: {}", self.status);
+        let _ = writeln!(s, "outcome: {}", self.outcome);
         for r in &self.reasons {
             let _ = writeln!(s, "  reason: {r}");
         }

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 
 use handeye::bench::{run_robot, BenchConfig, RobotSummary, Stats, Trial};
+use handeye::calib::Outcome;
 use handeye::model::RobotModel;
 use handeye::sim::{Intrinsics, SimSettings};
 
@@ -102,9 +103,9 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
 
 fn progress_mark(t: &Trial) -> char {
     match (t.outcome, t.is_wrong()) {
-        ("accepted", false) => '.',
-        ("accepted", true) => 'W',
-        ("rejected", _) => 'r',
+        (Outcome::Accepted, false) => '.',
+        (Outcome::Accepted, true) => 'W',
+        (Outcome::Rejected, _) => 'r',
         _ => 'E',
     }
 }

@@ -1,42 +1,53 @@
-//! `handeye solve`: calibrate from recorded scans and joint angles.
+//! `handeye solve`: calibrate from recorded scans — a run's kept capture (`--capture
+//! capture.json`: its scans, joints, the controller's flange poses and kinematics), or scans
+//! given one by one with their joints (and flange poses). It goes through the same pipeline as
+//! a run (`handeye::run::calibrate_frames`).
 //!
-//! Each `--scan` is one frame; `--joints` (and `--flange-pose`) are given once for all frames or
-//! once per frame. Frames with identical joints form one view. Poses on the command line are
-//! UR-style `x,y,z,rx,ry,rz` (metres, rotation vector) in `--base-frame` (default: the URDF
-//! root link), parsed here with nalgebra (the `UrPose` type of `drivers/ur` is not used).
+//! With `--scan`, each scan is one frame; `--joints` (and `--flange-pose`) are given once for
+//! all frames or once per frame. Frames with identical joints form one view. Poses on the
+//! command line are UR-style `x,y,z,rx,ry,rz` (metres, rotation vector) in `--base-frame`
+//! (default: the URDF root link).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
 
 use anyhow::{bail, Context};
-use handeye::calib::{
-    gate, posed_model, register_posed, solve, CalibError, CalibrationReport, FrameInput,
-    GateThresholds, Mount, RegisterOptions, SolveOptions,
-};
+use handeye::calib::{CalibError, Mount};
 use handeye::model::{KinematicError, RobotModel};
+use handeye::run::{calibrate_frames, load_capture, pipeline::fixed_frame, Frame, PipelineOptions};
+use handeye_hal::ur_dh::DhParams;
 use nalgebra::Isometry3;
 
-use super::args::{parse_distance, parse_joints, parse_kinematic_error, parse_pose};
+use super::args::{parse_distance, parse_joints, parse_kinematic_error, parse_pose, resolve_robot};
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
-    /// Robot description (URDF with meshes relative to it).
+    /// A run's kept capture (`runs/<id>/capture.json` in the storage folder): replays its
+    /// scans with the joints, flange poses and kinematics recorded with them.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["scan", "joints", "flange_pose"])]
+    capture: Option<PathBuf>,
+    /// With `--capture`: pose the model by the nominal URDF instead of the controller's
+    /// calibrated kinematics recorded in the capture.
+    #[arg(long, requires = "capture")]
+    nominal_kinematics: bool,
+    /// Robot description (URDF with meshes relative to it); with `--capture` the default is the
+    /// capture's model under the robots directory.
     #[arg(long)]
-    robot: PathBuf,
+    robot: Option<PathBuf>,
     /// Joint angles at capture, radians, comma-separated, URDF order (once, or once per scan).
-    #[arg(long, required = true, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true)]
     joints: Vec<String>,
     /// Scan file (PLY or PCD, camera frame, metres); repeat for several frames/views.
-    #[arg(long, required = true)]
+    #[arg(long)]
     scan: Vec<PathBuf>,
     /// Flange pose reported by the controller, `x,y,z,rx,ry,rz` in `--base-frame` (once, or
     /// once per scan). Without it the model's own forward kinematics is used.
     #[arg(long, allow_hyphen_values = true)]
     flange_pose: Vec<String>,
     /// Frame of the poses on the command line and of the reported `base_from_camera`
-    /// (a link of the URDF, e.g. `base` for UR controller poses). Default: the URDF root link.
+    /// (a link of the URDF, e.g. `base` for UR controller poses). Default: the URDF root link
+    /// (`base` with `--capture`).
     #[arg(long)]
     base_frame: Option<String>,
     /// Guess of the camera on the flange, `x,y,z,rx,ry,rz` (speeds up and safeguards the search).
@@ -48,7 +59,8 @@ pub(crate) struct Args {
     /// How the real arm differs from the URDF, per joint (1σ): zero offset (mrad), link length
     /// (mm), axis misalignment (mrad). The reported uncertainty carries what it does to the
     /// result. Default: UR factory-calibration deltas (0.3,0.3,0.1); `0,0,0` when the URDF is
-    /// the controller's calibrated kinematics.
+    /// the controller's calibrated kinematics. Not used when the model is posed by the
+    /// controller's kinematics (`--capture` without `--nominal-kinematics`).
     #[arg(long, value_parser = parse_kinematic_error)]
     kinematic_error: Option<KinematicError>,
     /// Eye-in-hand: the camera is at most this far from the flange origin, metres (default
@@ -78,45 +90,99 @@ fn per_frame<'a>(
     }
 }
 
-pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let t0 = Instant::now();
-    let model = RobotModel::load(&args.robot)
-        .with_context(|| format!("loading robot {}", args.robot.display()))?;
+/// What to solve: the model, the frames and how they were taken.
+struct Inputs {
+    model: RobotModel,
+    /// The run's prior (capture): `flange_from_camera` or `base_from_camera` in `base_frame`.
+    prior: Option<Isometry3<f64>>,
+    frames: Vec<Frame>,
+    mount: Mount,
+    base_frame: String,
+    controller_dh: Option<DhParams>,
+}
+
+/// The frames of a run's capture file.
+fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
+    let capture = load_capture(path).map_err(anyhow::Error::msg)?;
+    let urdf = match &args.robot {
+        Some(p) => p.clone(),
+        None => resolve_robot(&capture.model).map_err(anyhow::Error::msg)?,
+    };
+    let model =
+        RobotModel::load(&urdf).with_context(|| format!("loading robot {}", urdf.display()))?;
+    let model_from_base = fixed_frame(&model, &capture.base_frame)
+        .with_context(|| format!("the capture's base frame `{}`", capture.base_frame))?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut frames = Vec::new();
+    for view in &capture.views {
+        let base_from_flange = handeye::frames::from_row_major(&view.base_from_flange)
+            .with_context(|| {
+                format!(
+                    "view {}: the flange pose is not a rigid transform",
+                    view.view
+                )
+            })?;
+        for f in &view.frames {
+            let Some(p) = &f.path else {
+                bail!(
+                    "view {}: a frame was not kept (storage.keep_captures = false)",
+                    view.view
+                );
+            };
+            let p = dir.join(p);
+            let cloud = handeye::cloud::read_cloud(&p)
+                .with_context(|| format!("reading scan {}", p.display()))?;
+            frames.push(Frame {
+                view: view.view,
+                cloud,
+                joints: view.joints.clone(),
+                model_from_flange: Some(model_from_base * base_from_flange),
+                source: p.display().to_string(),
+            });
+        }
+    }
+    let prior = capture
+        .prior
+        .as_ref()
+        .map(|m| {
+            handeye::frames::from_row_major(m)
+                .context("the capture's prior is not a rigid transform")
+        })
+        .transpose()?;
+    Ok(Inputs {
+        model,
+        prior,
+        frames,
+        mount: capture.mount,
+        base_frame: args.base_frame.clone().unwrap_or(capture.base_frame),
+        controller_dh: if args.nominal_kinematics {
+            None
+        } else {
+            capture.controller_dh
+        },
+    })
+}
+
+/// The frames given scan by scan on the command line.
+fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
+    let urdf = args
+        .robot
+        .as_ref()
+        .context("--robot is required with --scan (or replay a run with --capture)")?;
+    if args.scan.is_empty() {
+        bail!("give --scan (with --joints) or --capture");
+    }
+    let model =
+        RobotModel::load(urdf).with_context(|| format!("loading robot {}", urdf.display()))?;
     let base_frame = args
         .base_frame
         .clone()
         .unwrap_or_else(|| model.root_link().to_string());
+    let model_from_base =
+        fixed_frame(&model, &base_frame).with_context(|| format!("--base-frame `{base_frame}`"))?;
     let n = args.scan.len();
-    let mount = if args.eye_to_hand {
-        Mount::EyeToHand
-    } else {
-        Mount::EyeInHand
-    };
-    let zero = vec![0.0; model.dof()];
-    // base_from_model: the base frame is fixed to the root (no movable joint in between).
-    let model_from_base = model
-        .frame_pose(&base_frame, &zero)
-        .with_context(|| format!("--base-frame `{base_frame}` is not a link of the robot"))?;
-    if model.chain_depth(&base_frame).unwrap_or(0) != 0 {
-        bail!("--base-frame `{base_frame}` moves with the joints; give a fixed frame such as the root link");
-    }
-    let base_from_model = model_from_base.inverse();
-
-    let mut registrations = Vec::new();
-    let mut frames = Vec::new();
-    let mut sources = Vec::new();
     let mut view_keys: Vec<String> = Vec::new();
-    let defaults = RegisterOptions::default();
-    let opts = RegisterOptions {
-        kinematic_error: args.kinematic_error.unwrap_or(defaults.kinematic_error),
-        max_camera_flange_distance_m: match mount {
-            Mount::EyeInHand => args
-                .max_camera_flange_distance
-                .or(defaults.max_camera_flange_distance_m),
-            Mount::EyeToHand => None,
-        },
-        ..defaults
-    };
+    let mut frames = Vec::new();
     for (i, scan_path) in args.scan.iter().enumerate() {
         let joints_text =
             per_frame(&args.joints, i, "joints", n)?.context("--joints is required")?;
@@ -130,34 +196,12 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             })
             .with_context(|| format!("scan {}", scan_path.display()));
         }
-        let model_from_flange = match per_frame(&args.flange_pose, i, "flange-pose", n)? {
-            Some(p) => {
-                model_from_base
-                    * parse_pose(p).map_err(|e| anyhow::anyhow!("--flange-pose: {e}"))?
-            }
-            None => model.frame_pose(model.flange_link(), &joints)?,
-        };
+        let model_from_flange = per_frame(&args.flange_pose, i, "flange-pose", n)?
+            .map(|p| parse_pose(p).map(|p| model_from_base * p))
+            .transpose()
+            .map_err(|e| anyhow::anyhow!("--flange-pose: {e}"))?;
         let cloud = handeye::cloud::read_cloud(scan_path)
             .with_context(|| format!("reading scan {}", scan_path.display()))?;
-        let prior: Option<Isometry3<f64>> = match mount {
-            Mount::EyeInHand => args
-                .guess_flange_from_camera
-                .as_deref()
-                .map(parse_pose)
-                .transpose()
-                .map_err(|e| anyhow::anyhow!("--guess-flange-from-camera: {e}"))?
-                .map(|fc| (model_from_flange * fc).inverse()),
-            Mount::EyeToHand => args
-                .guess_base_from_camera
-                .as_deref()
-                .map(parse_pose)
-                .transpose()
-                .map_err(|e| anyhow::anyhow!("--guess-base-from-camera: {e}"))?
-                .map(|bc| (model_from_base * bc).inverse()),
-        };
-        let posed = posed_model(&model, &joints)?;
-        let reg = register_posed(&cloud, &posed, prior, &opts)
-            .with_context(|| format!("registering scan {}", scan_path.display()))?;
         let view = match view_keys.iter().position(|k| k == joints_text) {
             Some(v) => v,
             None => {
@@ -165,37 +209,68 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 view_keys.len() - 1
             }
         };
-        frames.push(FrameInput {
+        frames.push(Frame {
             view,
-            camera_from_model: reg.camera_from_model,
-            model_from_flange: Some(model_from_flange),
+            cloud,
+            joints,
+            model_from_flange,
+            source: scan_path.display().to_string(),
         });
-        registrations.push(reg);
-        sources.push(scan_path.display().to_string());
     }
-    let t_solve = Instant::now();
-    let solution = solve(mount, &frames, &SolveOptions::default())?;
-    let verdict = gate(&registrations, &solution, None, &GateThresholds::default());
-    let solve_ms = t_solve.elapsed().as_secs_f64() * 1e3;
-    let model_from_camera = solution
-        .model_from_camera(frames.first().and_then(|f| f.model_from_flange.as_ref()))
-        .context("no camera pose")?;
-    let report = CalibrationReport::new(
-        &solution,
-        &registrations,
-        &sources,
-        &verdict,
-        &base_frame,
-        &(base_from_model * model_from_camera),
-        solve_ms,
-        t0.elapsed().as_secs_f64() * 1e3,
-    );
+    Ok(Inputs {
+        model,
+        prior: None,
+        frames,
+        mount: if args.eye_to_hand {
+            Mount::EyeToHand
+        } else {
+            Mount::EyeInHand
+        },
+        base_frame,
+        controller_dh: None,
+    })
+}
+
+pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let inputs = match &args.capture {
+        Some(path) => from_capture(path, &args)?,
+        None => from_scans(&args)?,
+    };
+    let model = &inputs.model;
+    let model_from_base = fixed_frame(model, &inputs.base_frame)?;
+    let mut opts = PipelineOptions::new(inputs.mount);
+    opts.base_frame = Some(inputs.base_frame.clone());
+    opts.controller_dh = inputs.controller_dh;
+    if let Some(k) = args.kinematic_error {
+        opts.register.kinematic_error = k;
+    }
+    if inputs.mount == Mount::EyeInHand {
+        if let Some(d) = args.max_camera_flange_distance {
+            opts.register.max_camera_flange_distance_m = Some(d);
+        }
+    }
+    let guess = |flag: &str, text: &Option<String>| -> anyhow::Result<Option<Isometry3<f64>>> {
+        text.as_deref()
+            .map(parse_pose)
+            .transpose()
+            .map_err(|e| anyhow::anyhow!("--{flag}: {e}"))
+    };
+    // A guess on the command line, else the one the run registered with.
+    opts.prior = match inputs.mount {
+        Mount::EyeInHand => {
+            guess("guess-flange-from-camera", &args.guess_flange_from_camera)?.or(inputs.prior)
+        }
+        Mount::EyeToHand => guess("guess-base-from-camera", &args.guess_base_from_camera)?
+            .or(inputs.prior)
+            .map(|bc| model_from_base * bc),
+    };
+    let calibration = calibrate_frames(model, &inputs.frames, &opts)?;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        println!("{}", serde_json::to_string_pretty(&calibration.report)?);
     } else {
-        print!("{}", report.summary());
+        print!("{}", calibration.report.summary());
     }
-    Ok(if verdict.passed {
+    Ok(if calibration.verdict.passed() {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(1)
@@ -212,7 +287,9 @@ mod tests {
 
     fn args(robot: PathBuf, joints: &str, scan: PathBuf, flange: Option<String>) -> Args {
         Args {
-            robot,
+            capture: None,
+            nominal_kinematics: false,
+            robot: Some(robot),
             joints: vec![joints.to_string()],
             scan: vec![scan],
             flange_pose: flange.into_iter().collect(),

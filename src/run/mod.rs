@@ -37,9 +37,10 @@ use crate::model::RobotModel;
 use crate::plan::{Obstacle, ViewConstraints, ViewPlanner};
 use crate::sim::Intrinsics;
 
+pub use crate::calib::Outcome;
 pub use pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
 pub use record::{
-    CaptureRecord, DriftRecord, FrameRecord, KinematicsUsed, Outcome, PlannedView, PreflightRecord,
+    CaptureRecord, DriftRecord, FrameRecord, KinematicsUsed, PlannedView, PreflightRecord,
     ResultRecord, RunMode, RunRecord, RunTimings, Stage, Written,
 };
 pub use storage::{load_capture, load_current, CaptureFile, CURRENT_DIR, RUNS_DIR};
@@ -313,7 +314,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         self.record.timings_ms.solve = (ms(t) - reg_ms).max(0.0);
         self.progress.stage(
             Stage::Solve,
-            if calibration.verdict.passed {
+            if calibration.verdict.passed() {
                 "the gate passed"
             } else {
                 "the gate refused the result"
@@ -335,7 +336,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             uncertainty: calibration.report.uncertainty,
             report: calibration.report.clone(),
         });
-        if !calibration.verdict.passed {
+        if !calibration.verdict.passed() {
             self.record.outcome = Outcome::Rejected;
             self.record.reasons = calibration.verdict.reasons.clone();
             self.return_to_start().await;
@@ -595,6 +596,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             model: self.model.name().to_string(),
             mount: self.cfg.mount.mount,
             base_frame: "base".into(),
+            prior: self.cfg.mount.prior.as_ref().map(to_row_major),
+            controller_dh: self.record.preflight.as_ref().and_then(|p| p.kinematics.dh),
             views: Vec::new(),
         };
         for (v, q) in views.iter().enumerate() {
@@ -658,7 +661,16 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     model_from_flange: Some(self.model_from_base * base_from_flange),
                 });
             }
-            capture_file.views.push(record.clone());
+            // The capture file names its scans relative to itself: a run folder can move.
+            let mut portable = record.clone();
+            for f in &mut portable.frames {
+                f.path = f.path.as_deref().map(|p| {
+                    std::path::Path::new(p)
+                        .file_name()
+                        .map_or_else(|| p.to_string(), |n| n.to_string_lossy().into_owned())
+                });
+            }
+            capture_file.views.push(portable);
             self.record.captures.push(record);
         }
         if keep {

@@ -8,7 +8,7 @@ use handeye_hal::{CameraInfo, RobotStatus};
 use nalgebra::Isometry3;
 use serde::Serialize;
 
-use crate::calib::{CalibrationReport, Mount, Uncertainty};
+use crate::calib::{CalibrationReport, Mount, Outcome, Uncertainty};
 use crate::plan::PathCheck;
 
 /// What a run was asked to do.
@@ -19,42 +19,6 @@ pub enum RunMode {
     Calibrate,
     /// Measure the same way, never write back; compare with the current calibration.
     Check,
-}
-
-/// How a run ended. One type for every consumer (CLI exit codes, daemon, history).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Outcome {
-    /// The gate passed. Calibrate: written back as configured. Check: see the drift.
-    Accepted,
-    /// The run completed but the gate refused the result; nothing was written.
-    Rejected,
-    /// Stopped by a robot fault (protective/emergency stop), a lost connection, a timeout or
-    /// a cancel; nothing was written.
-    Aborted,
-    /// Could not be carried out (preflight, planning, camera, registration); nothing written.
-    Error,
-    /// Dry run: preflight and planning done, nothing moved.
-    Planned,
-}
-
-impl Outcome {
-    /// Lower-case name as in JSON.
-    pub fn name(self) -> &'static str {
-        match self {
-            Outcome::Accepted => "accepted",
-            Outcome::Rejected => "rejected",
-            Outcome::Aborted => "aborted",
-            Outcome::Error => "error",
-            Outcome::Planned => "planned",
-        }
-    }
-}
-
-impl std::fmt::Display for Outcome {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
 }
 
 /// The stages of a run, in order.

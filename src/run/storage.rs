@@ -38,6 +38,13 @@ pub struct CaptureFile {
     pub mount: Mount,
     /// Frame of the flange poses (`base`: the UR controller's).
     pub base_frame: String,
+    /// The guess the run registered with: eye-in-hand `flange_from_camera`, eye-to-hand
+    /// `base_from_camera` (in `base_frame`), 4×4.
+    #[serde(default)]
+    pub prior: Option<[[f64; 4]; 4]>,
+    /// The controller's calibrated kinematics the run posed the model by (`None`: nominal).
+    #[serde(default)]
+    pub controller_dh: Option<handeye_hal::ur_dh::DhParams>,
     /// One entry per view, with its frames' file paths.
     pub views: Vec<CaptureRecord>,
 }

@@ -59,6 +59,7 @@ max_joint_accel_rad_s2 = 2.0
 backend = "gige"
 address = "{camera_ip}"
 settle_s = 0.2
+frames = 3
 
 [mount]
 type = "eye-in-hand"
@@ -187,6 +188,31 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     }
     let capture = PathBuf::from(record["capture_file"].as_str().expect("capture kept"));
     assert!(capture.is_file(), "{}", capture.display());
+
+    // Replaying the kept capture gives the same result; posing the model by the controller's
+    // calibrated kinematics is measurably better than the nominal URDF on the same scans.
+    let replay = |extra: &[&str]| {
+        let mut args = vec![
+            "solve",
+            "--capture",
+            capture.to_str().expect("utf-8"),
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let out = run(&args, secs(60));
+        assert!(out.code() == 0 || out.code() == 1, "{out}");
+        pose_error(&mount, &iso(&out.json()["flange_from_camera"]))
+    };
+    let (replay_mm, replay_deg) = replay(&[]);
+    assert!((replay_mm - mm).abs() < 1e-3 && (replay_deg - deg).abs() < 1e-4);
+    let (nominal_mm, nominal_deg) = replay(&["--nominal-kinematics"]);
+    eprintln!(
+        "same scan, controller kinematics: {mm:.3} mm / {deg:.4}°; nominal URDF: {nominal_mm:.3} mm / {nominal_deg:.4}°"
+    );
+    assert!(
+        nominal_mm > 2.0 * mm && nominal_mm > 0.1,
+        "the controller's kinematics should beat the nominal URDF: {mm} vs {nominal_mm} mm"
+    );
 
     // A real client sees the camera as the controller's TCP: actual_TCP_pose is the
     // controller's (calibrated) flange pose times the result.

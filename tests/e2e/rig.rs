@@ -172,7 +172,7 @@ fn full_rig_over_real_protocols() {
     );
     assert_eq!(out.code(), 0, "{out}");
     let doc = out.json();
-    assert_eq!(doc["status"], "ok", "{out}");
+    assert_eq!(doc["outcome"], "accepted", "{out}");
     let (mm, deg) = pose_error(&iso(&doc["flange_from_camera"]), &mount);
     eprintln!("mount recovered over the simulated rig: {mm:.3} mm / {deg:.4}° from the truth");
     assert!(

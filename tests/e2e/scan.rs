@@ -259,7 +259,7 @@ fn solve_recovers_the_mount_from_a_simulated_scan() {
     let out = solve(&s, &csv(&s.joints), &s.ply);
     assert_eq!(out.code(), 0, "{out}");
     let doc = out.json();
-    assert_eq!(doc["status"], "ok", "{out}");
+    assert_eq!(doc["outcome"], "accepted", "{out}");
     for key in ["reasons", "uncertainty", "quality", "timings_ms"] {
         assert!(doc.get(key).is_some(), "no `{key}` in the report:\n{out}");
     }
