@@ -1,7 +1,9 @@
 //! `handeye`: the command-line tool and (later) daemon. Parses arguments, sets up tracing and
-//! dispatches to the subcommands in `cli/`; this is the only place that names concrete drivers.
+//! dispatches to the subcommands in `cli/`. The binary (this file and `cli/`) is the only
+//! place that names concrete drivers; the build checks it (`[features]` in Cargo.toml).
 
 use std::process::ExitCode;
+use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use tokio_util::sync::CancellationToken;
@@ -53,8 +55,15 @@ enum SimCommand {
     Rig(cli::sim_rig::Args),
 }
 
-/// Runs `command` on the binary's one tokio runtime with one shutdown signal: Ctrl-C or
-/// SIGTERM cancels the token (a running move is stopped, the run aborted and recorded).
+/// Runs an async subcommand on the binary's one tokio runtime with its one shutdown signal
+/// (mini-redis): Ctrl-C or SIGTERM cancels the token, and each command decides what that
+/// means (a move stops the arm, a run is aborted and recorded, a simulator stops and reports).
+/// This is the only place that builds a runtime for a command or installs signal handlers
+/// (the `sim camera` RTDE follower keeps a private runtime on its own thread).
+///
+/// Blocking work (registration, GigE Vision I/O, mesh loading) goes to `spawn_blocking`; when
+/// the command returns early (interrupted), such work still running is abandoned after
+/// [`BLOCKING_GRACE`] instead of holding the process open.
 fn with_runtime<F, Fut>(command: F) -> anyhow::Result<ExitCode>
 where
     F: FnOnce(CancellationToken) -> Fut,
@@ -71,10 +80,16 @@ where
         tracing::warn!("shutdown requested: stopping");
         signal.cancel();
     });
-    rt.block_on(command(shutdown))
+    let result = rt.block_on(command(shutdown));
+    rt.shutdown_timeout(BLOCKING_GRACE);
+    result
 }
 
-/// Ctrl-C or SIGTERM.
+/// How long blocking tasks may still run after the command has returned.
+const BLOCKING_GRACE: Duration = Duration::from_secs(2);
+
+/// Resolves on Ctrl-C or SIGTERM (systemd's stop). A signal we cannot listen for keeps its
+/// default action (the process ends without a clean stop), so say so.
 async fn shutdown_signal() {
     #[cfg(unix)]
     {
@@ -82,18 +97,25 @@ async fn shutdown_signal() {
         match signal(SignalKind::terminate()) {
             Ok(mut term) => {
                 tokio::select! {
-                    _ = tokio::signal::ctrl_c() => {}
+                    () = ctrl_c() => {}
                     _ = term.recv() => {}
                 }
             }
-            Err(_) => {
-                let _ = tokio::signal::ctrl_c().await;
+            Err(e) => {
+                tracing::warn!("cannot listen for SIGTERM ({e}); it ends the process at once");
+                ctrl_c().await;
             }
         }
     }
     #[cfg(not(unix))]
-    {
-        let _ = tokio::signal::ctrl_c().await;
+    ctrl_c().await;
+}
+
+/// Resolves on Ctrl-C; never, if its handler cannot be installed.
+async fn ctrl_c() {
+    if let Err(e) = tokio::signal::ctrl_c().await {
+        tracing::warn!("cannot listen for Ctrl-C ({e}); it ends the process at once");
+        std::future::pending::<()>().await;
     }
 }
 
@@ -107,16 +129,23 @@ fn main() -> ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
+        // Synchronous: computation on the calling thread and rayon, no I/O to wait for. They
+        // run without a runtime, so Ctrl-C ends them the default way, at once.
         Command::SimulateScan(a) => cli::simulate_scan::run(a),
         Command::Solve(a) => cli::solve::run(a),
         Command::Bench(a) => cli::bench::run(a),
-        Command::Robot(a) => cli::robot::run(a),
-        Command::Camera(a) => cli::camera::run(a),
-        Command::Sim(SimCommand::Robot(a)) => cli::sim_robot::run(a),
-        Command::Sim(SimCommand::Camera(a)) => cli::sim_camera::run(a),
+        // Asynchronous: talk to devices or serve them; stop on the shutdown token.
         Command::Demo(a) => with_runtime(|shutdown| cli::demo::run(a, shutdown)),
         Command::Calibrate(a) => with_runtime(|shutdown| cli::calibrate::calibrate(a, shutdown)),
         Command::Check(a) => with_runtime(|shutdown| cli::calibrate::check(a, shutdown)),
+        Command::Robot(a) => with_runtime(|shutdown| cli::robot::run(a, shutdown)),
+        Command::Camera(a) => with_runtime(|shutdown| cli::camera::run(a, shutdown)),
+        Command::Sim(SimCommand::Robot(a)) => {
+            with_runtime(|shutdown| cli::sim_robot::run(a, shutdown))
+        }
+        Command::Sim(SimCommand::Camera(a)) => {
+            with_runtime(|shutdown| cli::sim_camera::run(a, shutdown))
+        }
         Command::Sim(SimCommand::Rig(a)) => with_runtime(|shutdown| cli::sim_rig::run(a, shutdown)),
     };
     match result {

@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
+use tokio_util::sync::CancellationToken;
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -72,11 +73,25 @@ fn connect(addr: &str) -> anyhow::Result<GigeCamera> {
         .with_context(|| format!("connecting to the camera at {addr}"))
 }
 
-pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
-    match args.command {
+/// Runs one command until it ends or `shutdown` (Ctrl-C, SIGTERM) abandons it (exit 2,
+/// "interrupted"). GigE Vision I/O is blocking and runs on tokio's blocking pool; an abandoned
+/// capture is left to finish there (the process exits shortly after, see `main`). An abandoned
+/// `--exec` capture kills its command.
+pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
+    shutdown
+        .run_until_cancelled(command(args.command))
+        .await
+        .unwrap_or_else(|| Err(anyhow::anyhow!("interrupted")))
+}
+
+async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
+    match command {
         CameraCommand::Probe { gige, json } => {
-            let cam = connect(&gige)?;
-            let info = cam.info_blocking()?;
+            let info = blocking(move || {
+                let cam = connect(&gige)?;
+                Ok(cam.info_blocking()?)
+            })
+            .await?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&info)?);
             } else {
@@ -110,11 +125,15 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 anyhow::bail!("--frames must be at least 1");
             }
             let (clouds, stats) = if let Some(gige) = gige {
-                let mut cam = connect(&gige)?;
-                cam.options.packet_size = packet_size;
-                cam.options.confidence = confidence;
-                let (clouds, stats) =
-                    cam.capture_blocking(frames, Duration::from_millis(frame_timeout_ms))?;
+                // Not the driver's `DepthCamera::capture`: that drops the stream statistics
+                // printed here.
+                let (clouds, stats) = blocking(move || {
+                    let mut cam = connect(&gige)?;
+                    cam.options.packet_size = packet_size;
+                    cam.options.confidence = confidence;
+                    Ok(cam.capture_blocking(frames, Duration::from_millis(frame_timeout_ms))?)
+                })
+                .await?;
                 let stats = serde_json::json!({
                     "complete": stats.complete,
                     "incomplete": stats.incomplete,
@@ -123,7 +142,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 });
                 (clouds, Some(stats))
             } else {
-                (capture_local(file, exec, timeout_s, frames)?, None)
+                (capture_local(file, exec, timeout_s, frames).await?, None)
             };
             report(&clouds, stats, json, out.as_deref())?;
             Ok(ExitCode::SUCCESS)
@@ -131,8 +150,17 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
 }
 
+/// Runs blocking camera I/O on tokio's blocking pool, off the runtime's workers.
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> anyhow::Result<T> + Send + 'static,
+) -> anyhow::Result<T> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .context("the camera I/O thread failed")?
+}
+
 /// Captures from the file or exec backend (whichever was given).
-fn capture_local(
+async fn capture_local(
     file: Vec<PathBuf>,
     exec: Option<String>,
     timeout_s: f64,
@@ -143,10 +171,6 @@ fn capture_local(
         frames,
         ..CaptureSettings::default()
     };
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .context("starting the async runtime")?;
     let clouds = if let Some(exec) = exec {
         let argv = shlex::split(&exec)
             .with_context(|| format!("cannot split --exec {exec:?}: unbalanced quotes?"))?;
@@ -154,10 +178,10 @@ fn capture_local(
             anyhow::bail!("--timeout-s must be a positive number of seconds");
         }
         let cam = handeye::camera::ExecCamera::new(argv, Duration::from_secs_f64(timeout_s))?;
-        rt.block_on(cam.capture(&settings))
+        cam.capture(&settings).await
     } else {
         let cam = handeye::camera::FileCamera::new(file)?;
-        rt.block_on(cam.capture(&settings))
+        cam.capture(&settings).await
     };
     Ok(clouds?)
 }
@@ -260,8 +284,8 @@ mod tests {
         assert_eq!(frames, None);
     }
 
-    #[test]
-    fn file_and_exec_captures_share_the_output_path() {
+    #[tokio::test]
+    async fn file_and_exec_captures_share_the_output_path() {
         let dir = std::env::temp_dir().join(format!("handeye-cli-camera-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("dir");
         let src = dir.join("src.ply");
@@ -271,10 +295,14 @@ mod tests {
         ]);
         handeye::cloud::write_ply(&src, &cloud, handeye::cloud::PlyEncoding::Ascii).expect("write");
 
-        let clouds = capture_local(vec![src.clone()], None, 1.0, 2).expect("file capture");
+        let clouds = capture_local(vec![src.clone()], None, 1.0, 2)
+            .await
+            .expect("file capture");
         assert_eq!(clouds.len(), 2);
         let cmd = format!("cp {} {{out}}", src.display());
-        let clouds2 = capture_local(Vec::new(), Some(cmd), 10.0, 1).expect("exec capture");
+        let clouds2 = capture_local(Vec::new(), Some(cmd), 10.0, 1)
+            .await
+            .expect("exec capture");
         assert_eq!(clouds2.len(), 1);
 
         let out = dir.join("scan.ply");
@@ -283,7 +311,9 @@ mod tests {
             let back = handeye::cloud::read_cloud(&dir.join(name)).expect("read back");
             assert_eq!(back.points, cloud.points);
         }
-        let err = capture_local(Vec::new(), Some("true".into()), 0.0, 1).expect_err("bad timeout");
+        let err = capture_local(Vec::new(), Some("true".into()), 0.0, 1)
+            .await
+            .expect_err("bad timeout");
         assert!(err.to_string().contains("--timeout-s"), "{err}");
         std::fs::remove_dir_all(&dir).expect("cleanup");
     }

@@ -9,6 +9,7 @@ use anyhow::Context;
 use handeye_hal::{MotionLimits, Robot};
 use handeye_ur::{UrConfig, UrPose, UrRobot};
 use nalgebra::Isometry3;
+use tokio_util::sync::CancellationToken;
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -76,116 +77,136 @@ enum Command {
     },
 }
 
-pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+/// Connects and runs one command. `shutdown` (Ctrl-C, SIGTERM) stops a move — the arm is
+/// stopped before this returns — and abandons any other command (exit 2, "interrupted").
+pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
         args.timeout_s > 0.0 && args.timeout_s.is_finite(),
         "--timeout-s must be positive"
     );
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
-    rt.block_on(async move {
-        let mut cfg = UrConfig::new(args.host);
-        cfg.timeout = Duration::from_secs_f64(args.timeout_s);
-        let robot = UrRobot::connect(cfg)
-            .await
-            .with_context(|| format!("connecting to the controller at {}", args.host))?;
-        match args.command {
-            Command::Status { json } => status(&robot, json).await,
-            Command::Move {
-                joints,
-                deg,
-                speed,
-                accel,
-                timeout_s,
-            } => {
-                anyhow::ensure!(
-                    joints.len() == 6,
-                    "--joints needs 6 comma-separated values, got {}",
-                    joints.len()
-                );
-                let q: Vec<f64> = if deg {
-                    joints.iter().map(|d| d.to_radians()).collect()
-                } else {
-                    joints
-                };
-                anyhow::ensure!(
-                    timeout_s > 0.0 && timeout_s.is_finite(),
-                    "--timeout-s must be positive"
-                );
-                let lim = MotionLimits {
-                    max_joint_speed_rad_s: speed,
-                    max_joint_accel_rad_s2: accel,
-                    timeout: Duration::from_secs_f64(timeout_s),
-                };
-                let cancel = async {
-                    let _ = tokio::signal::ctrl_c().await;
-                };
-                robot
-                    .move_joints_until(&q, lim, cancel)
-                    .await
-                    .context("move")?;
-                emit("arrived\n")?;
-                Ok(ExitCode::SUCCESS)
-            }
-            Command::SetTcp { pose } => {
-                anyhow::ensure!(
-                    pose.len() == 6,
-                    "--pose needs 6 comma-separated values x,y,z,rx,ry,rz, got {}",
-                    pose.len()
-                );
-                let p = UrPose([pose[0], pose[1], pose[2], pose[3], pose[4], pose[5]]);
-                robot
-                    .set_tcp(&Isometry3::from(p))
-                    .await
-                    .context("set_tcp")?;
-                emit(&format!("TCP set and confirmed: {}\n", p.to_script()))?;
-                Ok(ExitCode::SUCCESS)
-            }
-            Command::Registers { set, json } => {
-                for s in &set {
-                    let (i, v) = s
-                        .split_once('=')
-                        .with_context(|| format!("`{s}` is not INDEX=VALUE"))?;
-                    let i: u32 = i
-                        .trim()
-                        .parse()
-                        .with_context(|| format!("bad register index in `{s}`"))?;
-                    let v: f64 = v
-                        .trim()
-                        .parse()
-                        .with_context(|| format!("bad value in `{s}`"))?;
-                    robot
-                        .write_double_register(i, v)
-                        .await
-                        .with_context(|| format!("writing register {i}"))?;
-                }
-                let mut rows = Vec::new();
-                for i in 24..=47 {
-                    let input = robot.read_double_register(i).await?;
-                    let output = robot.read_output_double_register(i).await?;
-                    rows.push(serde_json::json!({"index": i, "input": input, "output": output}));
-                }
-                let mut text = String::new();
-                if json {
-                    text = serde_json::to_string_pretty(&rows)? + "\n";
-                } else {
-                    text.push_str("register  input_double  output_double\n");
-                    for r in rows {
-                        text.push_str(&format!(
-                            "{:>8}  {:>12}  {:>13}\n",
-                            r["index"].to_string(),
-                            r["input"].to_string(),
-                            r["output"].to_string()
-                        ));
-                    }
-                }
-                emit(&text)?;
-                Ok(ExitCode::SUCCESS)
-            }
+    let mut cfg = UrConfig::new(args.host);
+    cfg.timeout = Duration::from_secs_f64(args.timeout_s);
+    let robot = tokio::select! {
+        r = UrRobot::connect(cfg) => {
+            r.with_context(|| format!("connecting to the controller at {}", args.host))?
         }
-    })
+        () = shutdown.cancelled() => {
+            anyhow::bail!("interrupted while connecting to {}", args.host)
+        }
+    };
+    match args.command {
+        Command::Move {
+            joints,
+            deg,
+            speed,
+            accel,
+            timeout_s,
+        } => {
+            anyhow::ensure!(
+                joints.len() == 6,
+                "--joints needs 6 comma-separated values, got {}",
+                joints.len()
+            );
+            let q: Vec<f64> = if deg {
+                joints.iter().map(|d| d.to_radians()).collect()
+            } else {
+                joints
+            };
+            anyhow::ensure!(
+                timeout_s > 0.0 && timeout_s.is_finite(),
+                "--timeout-s must be positive"
+            );
+            let lim = MotionLimits {
+                max_joint_speed_rad_s: speed,
+                max_joint_accel_rad_s2: accel,
+                timeout: Duration::from_secs_f64(timeout_s),
+            };
+            // Not raced against `shutdown` from outside: the move watches it and stops the
+            // arm itself before returning `Cancelled`.
+            robot
+                .move_joints_until(&q, lim, shutdown.cancelled())
+                .await
+                .context("move")?;
+            emit("arrived\n")?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Status { json } => interruptible(&shutdown, status(&robot, json)).await,
+        Command::SetTcp { pose } => interruptible(&shutdown, set_tcp(&robot, &pose)).await,
+        Command::Registers { set, json } => {
+            interruptible(&shutdown, registers(&robot, &set, json)).await
+        }
+    }
+}
+
+/// Runs a request that does not move the arm (nothing to undo when it is abandoned) until it
+/// ends or `shutdown` is cancelled.
+async fn interruptible(
+    shutdown: &CancellationToken,
+    request: impl std::future::Future<Output = anyhow::Result<ExitCode>>,
+) -> anyhow::Result<ExitCode> {
+    shutdown
+        .run_until_cancelled(request)
+        .await
+        .unwrap_or_else(|| Err(anyhow::anyhow!("interrupted")))
+}
+
+/// Sets the runtime TCP from a UR pose `x,y,z,rx,ry,rz` and reads it back.
+async fn set_tcp(robot: &UrRobot, pose: &[f64]) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        pose.len() == 6,
+        "--pose needs 6 comma-separated values x,y,z,rx,ry,rz, got {}",
+        pose.len()
+    );
+    let p = UrPose([pose[0], pose[1], pose[2], pose[3], pose[4], pose[5]]);
+    robot
+        .set_tcp(&Isometry3::from(p))
+        .await
+        .context("set_tcp")?;
+    emit(&format!("TCP set and confirmed: {}\n", p.to_script()))?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Writes `INDEX=VALUE` pairs, then prints input and output double registers 24–47.
+async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Result<ExitCode> {
+    for s in set {
+        let (i, v) = s
+            .split_once('=')
+            .with_context(|| format!("`{s}` is not INDEX=VALUE"))?;
+        let i: u32 = i
+            .trim()
+            .parse()
+            .with_context(|| format!("bad register index in `{s}`"))?;
+        let v: f64 = v
+            .trim()
+            .parse()
+            .with_context(|| format!("bad value in `{s}`"))?;
+        robot
+            .write_double_register(i, v)
+            .await
+            .with_context(|| format!("writing register {i}"))?;
+    }
+    let mut rows = Vec::new();
+    for i in 24..=47 {
+        let input = robot.read_double_register(i).await?;
+        let output = robot.read_output_double_register(i).await?;
+        rows.push(serde_json::json!({"index": i, "input": input, "output": output}));
+    }
+    let mut text = String::new();
+    if json {
+        text = serde_json::to_string_pretty(&rows)? + "\n";
+    } else {
+        text.push_str("register  input_double  output_double\n");
+        for r in rows {
+            text.push_str(&format!(
+                "{:>8}  {:>12}  {:>13}\n",
+                r["index"].to_string(),
+                r["input"].to_string(),
+                r["output"].to_string()
+            ));
+        }
+    }
+    emit(&text)?;
+    Ok(ExitCode::SUCCESS)
 }
 
 async fn status(robot: &UrRobot, json: bool) -> anyhow::Result<ExitCode> {

@@ -4,12 +4,14 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 
+use anyhow::Context as _;
 use handeye::model::RobotModel;
 use handeye::plan::{ViewConstraints, ViewPlanner};
 use handeye::sim::{Intrinsics, KinematicError, SimSettings};
 use handeye_gige::sim::{FrameSource, SceneSource, SimCamera, SimOptions};
 use handeye_gige::GvcpClient;
 use handeye_hal::ur_dh::DhParams;
+use tokio_util::sync::CancellationToken;
 
 use super::args::{parse_pose, resolve_robot};
 use super::scene::{
@@ -70,7 +72,28 @@ pub(crate) struct Args {
     mount_file: Option<PathBuf>,
 }
 
-pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+/// Serves until `shutdown` is cancelled (Ctrl-C or SIGTERM), then stops the camera and prints
+/// what it served.
+pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
+    // Loading meshes, planning the view and binding sockets block: keep them off the workers.
+    let cam = tokio::task::spawn_blocking(move || start(args))
+        .await
+        .context("the simulator start-up thread failed")??;
+    shutdown.cancelled().await;
+    let s = cam.stats();
+    // Dropping joins the camera's threads.
+    tokio::task::spawn_blocking(move || drop(cam))
+        .await
+        .context("stopping the simulated camera")?;
+    eprintln!(
+        "served {} frames, dropped {} packets, resent {}",
+        s.frames, s.dropped_packets, s.resent_packets
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Builds the frame source and starts serving (blocking).
+fn start(args: Args) -> anyhow::Result<SimCamera> {
     if !(0.0..1.0).contains(&args.loss) {
         anyhow::bail!("--loss must be in [0, 1)");
     }
@@ -153,16 +176,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         args.width,
         args.height
     );
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?
-        .block_on(tokio::signal::ctrl_c())?;
-    let s = cam.stats();
-    eprintln!(
-        "served {} frames, dropped {} packets, resent {}",
-        s.frames, s.dropped_packets, s.resent_packets
-    );
-    Ok(ExitCode::SUCCESS)
+    Ok(cam)
 }
 
 /// The DH parameters of a factory-calibrated `model` as the UR simulator started with

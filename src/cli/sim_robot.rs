@@ -8,6 +8,7 @@ use std::time::Duration;
 use anyhow::Context;
 use handeye_hal::ur_dh::UrModel;
 use handeye_ur::sim::{SimConfig, Simulator};
+use tokio_util::sync::CancellationToken;
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -52,7 +53,8 @@ pub(crate) struct Args {
     factory_calibration: Option<u64>,
 }
 
-pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+/// Serves until `shutdown` is cancelled (Ctrl-C or SIGTERM), then stops the simulator.
+pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
     let mut c = SimConfig::new(args.model, args.bind);
     c.start_running = args.powered;
     c.remote_control = !args.local_control;
@@ -101,47 +103,22 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             );
         }
     }
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
     let arm = match args.factory_calibration {
         Some(seed) => format!(" (factory-calibrated arm, seed {seed})"),
         None => String::new(),
     };
-    rt.block_on(async move {
-        let model = c.model;
-        let bind = c.bind;
-        let sim = Simulator::start(c).await.with_context(|| format!("starting the simulator on {bind}"))?;
-        let p = sim.ports();
-        eprintln!(
-            "simulated {model}{arm} on {bind}: dashboard {}, primary {}, secondary {}, real-time {}, RTDE {} (Ctrl-C to stop)",
-            p.dashboard, p.primary, p.secondary, p.realtime, p.rtde
-        );
-        shutdown_signal().await;
-        drop(sim);
-        eprintln!("simulator stopped");
-        Ok(ExitCode::SUCCESS)
-    })
-}
-
-async fn shutdown_signal() {
-    #[cfg(unix)]
-    {
-        let mut term =
-            match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-                Ok(s) => s,
-                Err(e) => {
-                    tracing::warn!("cannot listen for SIGTERM: {e}");
-                    let _ = tokio::signal::ctrl_c().await;
-                    return;
-                }
-            };
-        tokio::select! {
-            _ = tokio::signal::ctrl_c() => {}
-            _ = term.recv() => {}
-        }
-    }
-    #[cfg(not(unix))]
-    let _ = tokio::signal::ctrl_c().await;
+    let model = c.model;
+    let bind = c.bind;
+    let sim = Simulator::start(c)
+        .await
+        .with_context(|| format!("starting the simulator on {bind}"))?;
+    let p = sim.ports();
+    eprintln!(
+        "simulated {model}{arm} on {bind}: dashboard {}, primary {}, secondary {}, real-time {}, RTDE {} (Ctrl-C to stop)",
+        p.dashboard, p.primary, p.secondary, p.realtime, p.rtde
+    );
+    shutdown.cancelled().await;
+    drop(sim);
+    eprintln!("simulator stopped");
+    Ok(ExitCode::SUCCESS)
 }
