@@ -692,14 +692,14 @@ mod tests {
             .expect("fk")
             .expect("free path");
         assert!(ok.samples >= 78 && ok.max_step_rad <= 0.02, "{ok:?}");
-        // A post where the forearm sweeps through at 45°: the ends are free, the path is not.
+        // A post where the wrist sweeps through at 45°: the ends are free, the path is not.
         let elbow = model
             .link_poses(&{
                 let mut q = home;
                 q[0] = PI / 4.0;
                 q
             })
-            .expect("fk")[model.link_index("forearm_link").expect("forearm")]
+            .expect("fk")[model.link_index("wrist_1_link").expect("wrist 1")]
         .translation
         .vector;
         let post = Obstacle {
@@ -708,7 +708,8 @@ mod tests {
             half_extents_m: Vector3::new(0.03, 0.03, 0.03),
         };
         let blocked = wrist_planner(&model, loose()).with_obstacles(vec![post]);
-        assert!(blocked.check_motion(&home).expect("fk").is_ok());
+        let r0 = blocked.check_motion(&home).expect("fk");
+        assert!(r0.is_ok(), "{r0:?} post at {elbow}");
         assert!(blocked.check_motion(&turned).expect("fk").is_ok());
         let r = blocked.check_path(&home, &turned, 0.02).expect("fk");
         assert!(

@@ -45,6 +45,8 @@ pub use record::{
 };
 pub use storage::{load_capture, load_current, CaptureFile, CURRENT_DIR, RUNS_DIR};
 
+/// Generated candidates tried per automatic view before the plan gives up.
+const AUTO_VIEW_TRIES: usize = 8;
 /// Joint-space step between two collision checks along a path, rad.
 const PATH_STEP_RAD: f64 = 0.02;
 /// The arm must not move more than this while the camera exposes, rad.
@@ -518,27 +520,85 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         .with_obstacles(obstacles)
     }
 
+    /// `count` generated views of the base, each reachable from the previous one (the first from
+    /// `start`) on a checked path and differing from the others by the planner's minimum
+    /// joint change; up to [`AUTO_VIEW_TRIES`] candidates per view.
+    fn auto_views(
+        &self,
+        planner: &ViewPlanner<'_>,
+        start: &[f64],
+        count: usize,
+        seed: u64,
+    ) -> Result<Vec<Vec<f64>>, Failure> {
+        let stage = Stage::Plan;
+        let min_change = ViewConstraints::default().min_joint_change_rad;
+        let mut views: Vec<Vec<f64>> = Vec::new();
+        let mut from = start.to_vec();
+        let mut next_seed = seed;
+        let mut last_refusal = None;
+        while views.len() < count {
+            let mut found = None;
+            for _ in 0..AUTO_VIEW_TRIES {
+                let q = planner
+                    .generate(1, next_seed)
+                    .map_err(|e| {
+                        Failure::error(
+                            stage,
+                            format!("{}; configure joint targets under [views]", error_chain(&e)),
+                        )
+                    })?
+                    .remove(0);
+                next_seed = next_seed.wrapping_add(1);
+                let distinct = views
+                    .iter()
+                    .all(|v| v.iter().zip(&q).any(|(a, b)| (a - b).abs() >= min_change));
+                if !distinct {
+                    continue;
+                }
+                match planner.check_path(&from, &q, PATH_STEP_RAD) {
+                    Ok(Ok(_)) => {
+                        found = Some(q);
+                        break;
+                    }
+                    Ok(Err(r)) => last_refusal = Some(r.to_string()),
+                    Err(e) => return Err(Failure::error(stage, error_chain(&e))),
+                }
+            }
+            let Some(q) = found else {
+                return Err(Failure::error(
+                    stage,
+                    format!(
+                        "no generated view {} of {count} is reachable on a safe path ({}); move the arm to a free start pose or configure joint targets",
+                        views.len(),
+                        last_refusal.unwrap_or_else(|| "views too alike".into())
+                    ),
+                ));
+            };
+            from = q.clone();
+            views.push(q);
+        }
+        Ok(views)
+    }
+
     /// Chooses the views and checks every target and path (out, between views and back).
     fn plan(&mut self) -> Result<(), Failure> {
         let stage = Stage::Plan;
         let planner = self.planner();
-        let targets: Vec<Vec<f64>> = match &self.cfg.views.targets {
-            ViewTargets::Joints(list) => list.iter().map(|q| q.to_vec()).collect(),
-            ViewTargets::Auto { count, seed, .. } => {
-                planner.generate(*count, *seed).map_err(|e| {
-                    Failure::error(
-                        stage,
-                        format!("{}; configure joint targets under [views]", error_chain(&e)),
-                    )
-                })?
-            }
-        };
         let start = self
             .record
             .preflight
             .as_ref()
             .map(|p| p.start_joints.clone())
             .unwrap_or_default();
+        let targets: Vec<Vec<f64>> = match (&self.cfg.views.targets, self.cfg.mount.mount) {
+            (ViewTargets::Joints(list), _) => list.iter().map(|q| q.to_vec()).collect(),
+            // A camera fixed in the cell: measure from where the arm stands (no motion); give
+            // joint targets to show it the base and first links from a better pose.
+            (ViewTargets::Auto { .. }, Mount::EyeToHand) => vec![start.clone()],
+            (ViewTargets::Auto { count, seed, .. }, Mount::EyeInHand) => {
+                self.auto_views(&planner, &start, *count, *seed)?
+            }
+        };
         let mut from = start.clone();
         let mut views = Vec::new();
         let fk = |e: crate::model::ModelError| Failure::error(stage, error_chain(&e));

@@ -224,7 +224,7 @@ mod tests {
     #[test]
     fn run_ids_carry_the_utc_date() {
         assert_eq!(civil_from_days(0), (1970, 1, 1));
-        assert_eq!(civil_from_days(20_416), (2025, 11, 23));
+        assert_eq!(civil_from_days(20_416), (2025, 11, 24));
         assert_eq!(civil_from_days(11_016), (2000, 2, 29));
         let id = new_run_id();
         assert_eq!(id.len(), "20261124T142300Z-3f9a".len(), "{id}");
