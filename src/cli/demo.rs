@@ -29,7 +29,7 @@ const PASS_TRANSLATION_MM: f64 = 0.5;
 const PASS_ROTATION_DEG: f64 = 0.1;
 
 /// Calibrate a simulated UR with a wrist camera through the real protocols.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub(crate) struct Args {
     /// Robot model.
     #[arg(long, default_value = "ur5e")]
@@ -48,6 +48,10 @@ pub(crate) struct Args {
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
+    /// Benchmark: run N demos (seeds SEED, SEED+1, …; a new rig, mount and arm each) and print
+    /// one line per run and the median / p95 of the time, the run's overhead and the error.
+    #[arg(long, value_name = "N", conflicts_with = "json")]
+    runs: Option<usize>,
 }
 
 pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
@@ -56,6 +60,84 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(1, |d| d.as_secs())
     });
+    match args.runs {
+        Some(n) => benchmark(&args, seed, n, &shutdown).await,
+        None => once(&args, seed, &shutdown).await.map(|o| o.exit),
+    }
+}
+
+/// What one demo measured.
+struct DemoOutcome {
+    exit: ExitCode,
+    passed: bool,
+    total_ms: f64,
+    overhead_ms: f64,
+    error: Option<(f64, f64)>,
+}
+
+/// `n` demos in a row; a summary of their times and errors.
+async fn benchmark(
+    args: &Args,
+    seed: u64,
+    n: usize,
+    shutdown: &CancellationToken,
+) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!((1..=1000).contains(&n), "--runs must be 1..=1000");
+    let mut outs = Vec::new();
+    let started = std::time::Instant::now();
+    for k in 0..n as u64 {
+        if shutdown.is_cancelled() {
+            break;
+        }
+        let quiet = Args {
+            json: true,
+            storage: None,
+            ..args.clone()
+        };
+        let o = once(&quiet, seed + k, shutdown).await?;
+        let (mm, deg) = o.error.unwrap_or((f64::NAN, f64::NAN));
+        eprintln!(
+            "seed {:>4}: {} total {:>6.0} ms, overhead {:>4.0} ms, error {mm:.3} mm / {deg:.4}°",
+            seed + k,
+            if o.passed { "passed" } else { "FAILED" },
+            o.total_ms,
+            o.overhead_ms
+        );
+        outs.push(o);
+    }
+    let stat = |f: &dyn Fn(&DemoOutcome) -> f64| {
+        let mut v: Vec<f64> = outs.iter().map(f).filter(|x| x.is_finite()).collect();
+        v.sort_by(f64::total_cmp);
+        let at = |q: f64| {
+            v.get(((v.len() as f64 - 1.0) * q).round() as usize)
+                .copied()
+        };
+        (at(0.5).unwrap_or(f64::NAN), at(0.95).unwrap_or(f64::NAN))
+    };
+    let passed = outs.iter().filter(|o| o.passed).count();
+    let (t50, t95) = stat(&|o| o.total_ms);
+    let (o50, o95) = stat(&|o| o.overhead_ms);
+    let (e50, e95) = stat(&|o| o.error.map_or(f64::NAN, |e| e.0));
+    let (r50, r95) = stat(&|o| o.error.map_or(f64::NAN, |e| e.1));
+    println!(
+        "{} demo runs ({}, {}): {passed} passed; start to finish median {t50:.0} ms, p95 {t95:.0} ms; \
+         run overhead (all but motion, settling and camera capture) median {o50:.0} ms, p95 {o95:.0} ms; \
+         error median {e50:.3} mm / {r50:.4}°, p95 {e95:.3} mm / {r95:.4}°; wall {:.1} s",
+        outs.len(),
+        args.robot,
+        args.camera,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(if passed == outs.len() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+/// One demo: rig, calibrate, compare.
+async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::Result<DemoOutcome> {
+    let started = std::time::Instant::now();
     let intrinsics = Intrinsics::preset(&args.camera).with_context(|| {
         format!(
             "unknown camera preset `{}`; use compact or zivid2-m60",
@@ -135,7 +217,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         mode: RunMode::Calibrate,
         dry_run: false,
     };
-    let record = execute(&cfg, req, &shutdown, args.json).await?;
+    let record = execute(&cfg, req, shutdown, args.json).await?;
     let estimate = record
         .result
         .as_ref()
@@ -185,11 +267,22 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         println!("  demo {}", if passed { "PASSED" } else { "FAILED" });
     }
     drop(rig);
-    Ok(if passed {
+    if args.runs.is_some() && args.storage.is_none() && passed {
+        // A passing benchmark run leaves nothing behind in the temporary directory.
+        let _ = std::fs::remove_dir_all(&storage);
+    }
+    let exit = if passed {
         ExitCode::SUCCESS
     } else if record.outcome == Outcome::Rejected || record.outcome == Outcome::Accepted {
         ExitCode::from(1)
     } else {
         ExitCode::from(2)
+    };
+    Ok(DemoOutcome {
+        exit,
+        passed,
+        total_ms: started.elapsed().as_secs_f64() * 1e3,
+        overhead_ms: record.timings_ms.overhead(),
+        error,
     })
 }

@@ -20,6 +20,8 @@
 pub mod pipeline;
 mod record;
 mod storage;
+#[cfg(test)]
+mod tests;
 
 use std::future::Future;
 use std::path::PathBuf;

@@ -626,33 +626,53 @@ impl Robot for UrRobot {
         if p.0.iter().any(|x| !x.is_finite()) {
             return Err(HalError::InvalidArgument("TCP pose is not finite".into()));
         }
-        self.run_secondary(
-            "handeye_set_tcp",
-            &format!("  set_tcp({})\n", p.to_script()),
-        )
-        .await?;
-        let deadline = Instant::now() + self.inner.cfg.timeout;
-        let mut last = Instant::now();
-        let mut read = UrPose([f64::NAN; 6]);
-        while Instant::now() < deadline {
-            let s = self
-                .inner
-                .rtde
-                .next_sample(last, self.inner.cfg.timeout)
-                .await?;
-            last = s.received;
-            if let Some(t) = s.vec6("tcp_offset") {
-                read = UrPose(t);
-                if read.approx_eq(&p, 1e-6, 1e-6) {
-                    return Ok(());
+        let body = format!("  set_tcp({})\n", p.to_script());
+        let started = Instant::now();
+        let readback = async {
+            let deadline = started + self.inner.cfg.timeout;
+            let mut last = started;
+            let mut read = UrPose([f64::NAN; 6]);
+            while Instant::now() < deadline {
+                let s = self
+                    .inner
+                    .rtde
+                    .next_sample(last, self.inner.cfg.timeout)
+                    .await?;
+                last = s.received;
+                if let Some(t) = s.vec6("tcp_offset") {
+                    read = UrPose(t);
+                    if read.approx_eq(&p, 1e-6, 1e-6) {
+                        return Ok(());
+                    }
                 }
             }
+            Err(HalError::ReadBackMismatch {
+                what: "TCP offset".into(),
+                wrote: format!("{:?}", p.0),
+                read: format!("{:?}", read.0),
+            })
+        };
+        let send = self.run_secondary("handeye_set_tcp", &body);
+        tokio::pin!(readback, send);
+        // The read-back is the confirmation: once the controller reports the new TCP the
+        // program ran, and waiting out the script's error window is not needed. When the TCP
+        // already had that value, only the script's own outcome can tell.
+        let unchanged = self
+            .tcp_offset()
+            .await
+            .is_ok_and(|t| UrPose::from(&t).approx_eq(&p, 1e-6, 1e-6));
+        if unchanged {
+            send.await?;
+            return readback.await;
         }
-        Err(HalError::ReadBackMismatch {
-            what: "TCP offset".into(),
-            wrote: format!("{:?}", p.0),
-            read: format!("{:?}", read.0),
-        })
+        tokio::select! {
+            biased;
+            r = &mut send => {
+                r?;
+                readback.await
+            }
+            r = &mut readback => r,
+        }
     }
 
     async fn write_double_register(&self, index: u32, value: f64) -> Result<(), HalError> {

@@ -1,0 +1,659 @@
+//! The whole run over the hal fakes: a factory-calibrated UR5e (`FakeRobot` reporting the
+//! forward kinematics of its calibrated DH set) and a camera replaying a simulated scan of the
+//! base taken from the configured view, so the scan, the reported flange pose and the
+//! controller's kinematics agree as on a real arm. Each test asserts what an operator relies
+//! on: what moved, what was written, what the record says and why.
+
+use std::f64::consts::FRAC_PI_2;
+use std::net::{IpAddr, Ipv4Addr};
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
+
+use handeye_hal::fake::{FakeCamera, FakeRobot};
+use handeye_hal::ur_dh::{DhParams, UrModel};
+use handeye_hal::{
+    CameraInfo, CaptureSettings, ControllerKinematics, DepthCamera, HalError, PointCloud, Robot,
+    RobotMode, RobotStatus, SafetyMode,
+};
+use nalgebra::{Isometry3, Point3, Vector3};
+use tokio::sync::Notify;
+use tokio_util::sync::CancellationToken;
+
+use super::{
+    pose_difference, run, ur_pose, Outcome, RunMode, RunRecord, RunRequest, Silent, Stage,
+    CURRENT_DIR, RUNS_DIR,
+};
+use crate::config::{self, Config, RobotPorts, ViewTargets};
+use crate::frames::from_row_major;
+use crate::model::RobotModel;
+use crate::plan::{ViewConstraints, ViewPlanner};
+use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
+use crate::testutil::shared_robot;
+
+/// Where the fake arm starts: the UR home pose, upright, clear of everything.
+const HOME: [f64; 6] = [0.0, -FRAC_PI_2, FRAC_PI_2, -FRAC_PI_2, -FRAC_PI_2, 0.0];
+/// `sim_rig`'s register map: doubles 24..29 and the sequence int 24.
+const DOUBLE_START: u32 = 24;
+const SEQUENCE_INT: u32 = 24;
+
+/// What every test shares, built once per test binary.
+struct Fixture {
+    model: Arc<RobotModel>,
+    /// The true `flange_from_camera`.
+    mount: Isometry3<f64>,
+    /// The arm's factory-calibrated DH set (the controller's kinematics).
+    dh: DhParams,
+    /// A view of the base whose straight joint path from [`HOME`] is free.
+    view: [f64; 6],
+    /// The scan from `view`.
+    scan: PointCloud,
+    /// Another scan from `view` with other sensor noise (a later check).
+    rescan: PointCloud,
+}
+
+fn fixture() -> Option<&'static Fixture> {
+    static FIXTURE: OnceLock<Option<Fixture>> = OnceLock::new();
+    let f = FIXTURE
+        .get_or_init(|| shared_robot("ur/ur5e/ur5e.urdf").map(build_fixture))
+        .as_ref();
+    if f.is_none() {
+        eprintln!("SKIP: ../shared/robots not found; the run tests need the UR5e model");
+    }
+    f
+}
+
+fn build_fixture(model: Arc<RobotModel>) -> Fixture {
+    let mount = Isometry3::new(
+        Vector3::new(0.0, -0.08, 0.03),
+        Vector3::new(-15f64.to_radians(), 0.0, 0.0),
+    );
+    let dh = UrModel::Ur5e
+        .dh()
+        .plus(&DhParams::factory_calibration_delta(3));
+    let intrinsics = Intrinsics::compact_1280x960();
+    let views = ViewPlanner::new(&model, mount, intrinsics, ViewConstraints::default());
+    // The run checks paths with the configured prior as the camera.
+    let cfg = test_config(Path::new("unused"), HOME);
+    let prior = cfg.mount.prior.expect("sim_rig has a prior");
+    let paths = ViewPlanner::new(&model, prior, intrinsics, ViewConstraints::default());
+    let free = |a: &[f64], b: &[f64]| matches!(paths.check_path(a, b, 0.02), Ok(Ok(_)));
+    let view = (1..=12)
+        .filter_map(|seed| views.generate(1, seed).ok()?.into_iter().next())
+        .find(|q| free(&HOME, q) && free(q, &HOME))
+        .expect("a view of the base reachable from home within 12 planner seeds");
+    let view: [f64; 6] = view.try_into().expect("6 joints");
+    let scan = |seed: u64| {
+        let req = ScanRequest::new(
+            &model,
+            view.to_vec(),
+            Placement::EyeInHand {
+                flange_from_camera: mount,
+            },
+            intrinsics,
+            &SimSettings::default(),
+            seed,
+        )
+        .with_controller_dh(dh);
+        simulate_scan(&req).expect("scan simulated").cloud
+    };
+    let (scan, rescan) = (scan(11), scan(12));
+    Fixture {
+        model,
+        mount,
+        dh,
+        view,
+        scan,
+        rescan,
+    }
+}
+
+/// The simulated rig's configuration with one fixed view and storage in `storage`.
+fn test_config(storage: &Path, view: [f64; 6]) -> Config {
+    let mut cfg = config::sim_rig(
+        IpAddr::V4(Ipv4Addr::LOCALHOST),
+        RobotPorts::UR_STANDARD,
+        "127.0.0.1".into(),
+        storage.to_path_buf(),
+    );
+    cfg.views.targets = ViewTargets::Joints(vec![view]);
+    cfg.camera.settle = Duration::from_millis(10);
+    cfg
+}
+
+/// A factory-calibrated UR5e at [`HOME`] whose controller publishes its kinematics.
+fn calibrated_robot(f: &Fixture) -> FakeRobot {
+    FakeRobot::new(UrModel::Ur5e, HOME).with_kinematics(ControllerKinematics {
+        dh: f.dh,
+        checksum: [0; 6],
+        calibrated: true,
+    })
+}
+
+/// A fresh storage folder, removed when dropped.
+struct Storage(PathBuf);
+
+impl Storage {
+    fn new(tag: &str) -> Self {
+        let dir = std::env::temp_dir().join(format!("handeye-run-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("temporary storage");
+        Self(dir)
+    }
+}
+
+impl Drop for Storage {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+async fn start<R: Robot, C: DepthCamera>(
+    robot: &R,
+    camera: &C,
+    f: &Fixture,
+    cfg: &Config,
+    mode: RunMode,
+    dry_run: bool,
+) -> RunRecord {
+    let req = RunRequest { mode, dry_run };
+    run(
+        robot,
+        camera,
+        &f.model,
+        cfg,
+        req,
+        &CancellationToken::new(),
+        &Silent,
+    )
+    .await
+}
+
+fn estimate(record: &RunRecord) -> Isometry3<f64> {
+    let result = record.result.as_ref().expect("a result");
+    from_row_major(&result.flange_from_camera.expect("eye-in-hand result")).expect("a rigid pose")
+}
+
+fn close(a: &Isometry3<f64>, b: &Isometry3<f64>, tol: f64) -> bool {
+    (a.to_homogeneous() - b.to_homogeneous()).norm() < tol
+}
+
+/// The run wrote nothing anywhere: no write-back, TCP untouched, registers untouched, no
+/// current calibration.
+async fn assert_nothing_written(record: &RunRecord, robot: &FakeRobot, storage: &Path) {
+    assert!(record.written.is_empty(), "written: {:?}", record.written);
+    assert_eq!(robot.tcp(), Isometry3::identity(), "the TCP was changed");
+    assert_eq!(
+        robot.read_int_register(SEQUENCE_INT).await.expect("read"),
+        0,
+        "the sequence register was changed"
+    );
+    for k in 0..6 {
+        let v = robot
+            .read_double_register(DOUBLE_START + k)
+            .await
+            .expect("read");
+        assert_eq!(v, 0.0, "double register {} was written", DOUBLE_START + k);
+    }
+    assert!(
+        !storage.join(CURRENT_DIR).exists(),
+        "a current calibration was written"
+    );
+}
+
+fn reasons(record: &RunRecord) -> String {
+    record.reasons.join(" | ").to_lowercase()
+}
+
+#[tokio::test]
+async fn an_accepted_run_writes_back_and_returns_to_the_start() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("accepted");
+    let cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    assert_eq!(
+        robot.read_int_register(SEQUENCE_INT).await.expect("read"),
+        0
+    );
+
+    let t = Instant::now();
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    eprintln!("accepted run: {:.0} ms", t.elapsed().as_secs_f64() * 1e3);
+    assert_eq!(record.outcome, Outcome::Accepted, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, None);
+    assert_eq!(record.exit_code(), 0);
+
+    // The result is the true mount.
+    let est = estimate(&record);
+    let (mm, deg) = pose_difference(&f.mount, &est);
+    eprintln!("accepted run: error {mm:.3} mm {deg:.4} deg");
+    assert!(mm < 0.5 && deg < 0.1, "error {mm:.3} mm {deg:.4} deg");
+
+    // Written back: the TCP and the registers hold the result, the sequence went 0 -> 1.
+    assert!(close(&robot.tcp(), &est, 1e-9), "TCP {:?}", robot.tcp());
+    let p = ur_pose(&est);
+    for (k, want) in p.iter().enumerate() {
+        let got = robot
+            .read_double_register(DOUBLE_START + k as u32)
+            .await
+            .expect("read");
+        assert!((got - want).abs() < 1e-9, "register {k}: {got} vs {want}");
+    }
+    assert_eq!(
+        robot.read_int_register(SEQUENCE_INT).await.expect("read"),
+        1
+    );
+    let targets: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+    assert_eq!(targets, ["files", "tcp", "registers"]);
+
+    // To the view and back, nothing else.
+    assert_eq!(robot.moves(), vec![f.view.to_vec(), HOME.to_vec()]);
+    assert!(record.returned_to_start);
+    assert_eq!(camera.captures(), 1);
+
+    // Posed by the controller's kinematics.
+    let preflight = record.preflight.as_ref().expect("preflight recorded");
+    assert_eq!(preflight.kinematics.source, "controller");
+    assert_eq!(preflight.kinematics.dh, Some(f.dh));
+    assert_eq!(preflight.start_joints, HOME.to_vec());
+
+    // The files: current result, the run's record, the capture description and the raw scan.
+    let dir = &storage.0;
+    assert!(dir.join(CURRENT_DIR).join("result.json").is_file());
+    let run_dir = dir.join(RUNS_DIR).join(&record.run_id);
+    assert!(run_dir.join("record.json").is_file());
+    let capture = PathBuf::from(record.capture_file.as_ref().expect("capture file kept"));
+    assert!(capture.is_file(), "{}", capture.display());
+    assert!(capture.starts_with(&run_dir));
+    let frame = record.captures[0].frames[0]
+        .path
+        .as_ref()
+        .expect("raw frame kept");
+    assert!(
+        frame.ends_with(".ply") && Path::new(frame).is_file(),
+        "{frame}"
+    );
+
+    let t = record.timings_ms;
+    for (name, ms) in [
+        ("preflight", t.preflight),
+        ("plan", t.plan),
+        ("moves", t.moves),
+        ("settle", t.settle),
+        ("capture", t.capture),
+        ("register", t.register),
+        ("solve", t.solve),
+        ("write_back", t.write_back),
+        ("return_move", t.return_move),
+        ("total", t.total),
+    ] {
+        assert!(ms.is_finite() && ms >= 0.0, "timing {name} = {ms}");
+    }
+    assert!(t.total >= t.register && t.settle >= 10.0, "{t:?}");
+
+    // A second calibration on the same cell: the sequence goes 1 -> 2.
+    let again = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(again.outcome, Outcome::Accepted, "{:?}", again.reasons);
+    assert_ne!(again.run_id, record.run_id);
+    assert_eq!(
+        robot.read_int_register(SEQUENCE_INT).await.expect("read"),
+        2
+    );
+    assert_eq!(robot.moves().len(), 4);
+}
+
+#[tokio::test]
+async fn a_protective_stop_at_the_first_move_aborts_without_writing_or_moving_again() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("pstop");
+    let cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    robot.protective_stop_at_move(0);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::Move));
+    assert!(
+        reasons(&record).contains("protective stop"),
+        "{:?}",
+        record.reasons
+    );
+    assert_nothing_written(&record, &robot, &storage.0).await;
+    // Never auto-resume: the one refused move and nothing after it.
+    assert_eq!(robot.moves(), vec![f.view.to_vec()]);
+    assert!(!record.returned_to_start);
+    assert_eq!(camera.captures(), 0);
+    assert_eq!(record.exit_code(), 2);
+}
+
+#[tokio::test]
+async fn a_camera_that_stops_answering_fails_the_capture_and_the_arm_returns() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("camera");
+    let cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    camera.stop_answering_after(0);
+
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::Capture));
+    let why = reasons(&record);
+    assert!(
+        why.contains("camera failed") && why.contains("check the camera"),
+        "{why}"
+    );
+    assert_nothing_written(&record, &robot, &storage.0).await;
+    assert!(record.result.is_none());
+    // The arm itself is fine: it goes back where it started.
+    assert_eq!(robot.moves(), vec![f.view.to_vec(), HOME.to_vec()]);
+    assert!(record.returned_to_start);
+}
+
+#[tokio::test]
+async fn preflight_refusals_say_what_to_do_and_move_nothing() {
+    let Some(f) = fixture() else { return };
+    let ready = RobotStatus {
+        robot_mode: RobotMode::Running,
+        safety_mode: SafetyMode::Normal,
+        remote_control: true,
+        program_running: false,
+        speed_fraction: 1.0,
+    };
+    let cases = [
+        (
+            "local control",
+            RobotStatus {
+                remote_control: false,
+                ..ready.clone()
+            },
+            "enable remote control",
+        ),
+        (
+            "protective stop",
+            RobotStatus {
+                safety_mode: SafetyMode::ProtectiveStop,
+                ..ready.clone()
+            },
+            "clear it on the pendant",
+        ),
+        (
+            "powered off",
+            RobotStatus {
+                robot_mode: RobotMode::PowerOff,
+                ..ready.clone()
+            },
+            "power it on",
+        ),
+        (
+            "program running",
+            RobotStatus {
+                program_running: true,
+                ..ready.clone()
+            },
+            "stop it on the pendant",
+        ),
+    ];
+    for (what, status, advice) in cases {
+        let storage = Storage::new(&format!("preflight-{}", what.replace(' ', "-")));
+        let cfg = test_config(&storage.0, f.view);
+        let robot = calibrated_robot(f);
+        robot.set_status(status);
+        let camera = FakeCamera::new(vec![f.scan.clone()]);
+        let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+        assert_eq!(
+            record.outcome,
+            Outcome::Error,
+            "{what}: {:?}",
+            record.reasons
+        );
+        assert_eq!(record.failed_stage, Some(Stage::Preflight), "{what}");
+        assert!(
+            reasons(&record).contains(advice),
+            "{what}: {:?}",
+            record.reasons
+        );
+        assert!(
+            robot.moves().is_empty(),
+            "{what}: moved {:?}",
+            robot.moves()
+        );
+        assert_eq!(camera.captures(), 0, "{what}");
+        assert!(record.views.is_empty(), "{what}: planned anyway");
+        assert_nothing_written(&record, &robot, &storage.0).await;
+    }
+}
+
+#[tokio::test]
+async fn a_dry_run_plans_and_moves_nothing() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("dry");
+    let cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, true).await;
+    assert_eq!(record.outcome, Outcome::Planned, "{:?}", record.reasons);
+    assert_eq!(record.exit_code(), 0);
+    assert_eq!(record.views.len(), 1);
+    assert_eq!(record.views[0].joints, f.view.to_vec());
+    assert!(
+        record.views[0].path.samples > 1,
+        "{:?}",
+        record.views[0].path
+    );
+    assert!(robot.moves().is_empty());
+    assert_eq!(camera.captures(), 0);
+    assert!(record.captures.is_empty() && record.result.is_none());
+    assert_nothing_written(&record, &robot, &storage.0).await;
+}
+
+#[tokio::test]
+async fn a_run_cancelled_before_it_starts_moves_nothing() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("cancel-before");
+    let cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let cancel = CancellationToken::new();
+    cancel.cancel();
+    let req = RunRequest {
+        mode: RunMode::Calibrate,
+        dry_run: false,
+    };
+    let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
+    assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
+    assert!(
+        reasons(&record).contains("cancelled"),
+        "{:?}",
+        record.reasons
+    );
+    assert!(robot.moves().is_empty());
+    assert_eq!(camera.captures(), 0);
+    assert_nothing_written(&record, &robot, &storage.0).await;
+}
+
+/// A camera whose capture never completes; says when a capture started.
+struct HangingCamera {
+    inner: FakeCamera,
+    capturing: Arc<Notify>,
+}
+
+impl DepthCamera for HangingCamera {
+    async fn info(&self) -> Result<CameraInfo, HalError> {
+        self.inner.info().await
+    }
+
+    async fn capture(&self, _: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
+        self.capturing.notify_one();
+        std::future::pending().await
+    }
+}
+
+#[tokio::test]
+async fn a_cancel_during_a_hanging_capture_aborts_at_once_and_stays_put() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("cancel-capture");
+    let cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    let capturing = Arc::new(Notify::new());
+    let camera = HangingCamera {
+        inner: FakeCamera::new(vec![f.scan.clone()]),
+        capturing: Arc::clone(&capturing),
+    };
+    let cancel = CancellationToken::new();
+    let canceller = {
+        let cancel = cancel.clone();
+        tokio::spawn(async move {
+            capturing.notified().await;
+            tokio::time::sleep(Duration::from_millis(200)).await;
+            cancel.cancel();
+            Instant::now()
+        })
+    };
+    let req = RunRequest {
+        mode: RunMode::Calibrate,
+        dry_run: false,
+    };
+    let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
+    let ended = Instant::now();
+    let cancelled_at = canceller.await.expect("the canceller ran");
+    let took = ended.saturating_duration_since(cancelled_at);
+    assert!(
+        took < Duration::from_secs(2),
+        "the run ended {took:?} after the cancel"
+    );
+    assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::Capture));
+    assert!(
+        reasons(&record).contains("cancelled"),
+        "{:?}",
+        record.reasons
+    );
+    assert_nothing_written(&record, &robot, &storage.0).await;
+    // Stopped where it is: no return move after a cancel.
+    assert_eq!(robot.moves(), vec![f.view.to_vec()]);
+    assert!(!record.returned_to_start);
+}
+
+#[tokio::test]
+async fn a_check_reports_drift_and_writes_nothing() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("check");
+    let mut cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    let calibrated = start(
+        &robot,
+        &FakeCamera::new(vec![f.scan.clone()]),
+        f,
+        &cfg,
+        RunMode::Calibrate,
+        false,
+    )
+    .await;
+    assert_eq!(
+        calibrated.outcome,
+        Outcome::Accepted,
+        "{:?}",
+        calibrated.reasons
+    );
+    let tcp = robot.tcp();
+    let current = std::fs::read(storage.0.join(CURRENT_DIR).join("result.json")).expect("current");
+
+    // Later: the same view, other sensor noise.
+    let camera = FakeCamera::new(vec![f.rescan.clone()]);
+    let check = start(&robot, &camera, f, &cfg, RunMode::Check, false).await;
+    assert_eq!(check.outcome, Outcome::Accepted, "{:?}", check.reasons);
+    let drift = check.drift.as_ref().expect("a drift record");
+    eprintln!(
+        "check drift {:.4} mm {:.5} deg",
+        drift.translation_mm, drift.rotation_deg
+    );
+    assert!(
+        drift.reference.contains(&calibrated.run_id),
+        "{}",
+        drift.reference
+    );
+    assert!(drift.translation_mm < 0.3, "{drift:?}");
+    assert!(!drift.drifted, "{drift:?}");
+    assert_eq!(check.exit_code(), 0);
+    // Nothing written: TCP, sequence and the current calibration unchanged.
+    assert!(check.written.is_empty(), "{:?}", check.written);
+    assert_eq!(robot.tcp(), tcp);
+    assert_eq!(
+        robot.read_int_register(SEQUENCE_INT).await.expect("read"),
+        1
+    );
+    let after = std::fs::read(storage.0.join(CURRENT_DIR).join("result.json")).expect("current");
+    assert_eq!(after, current, "a check replaced the current calibration");
+    assert!(check.returned_to_start);
+
+    // The same measurement against a threshold no real result meets: drifted, exit code 1.
+    cfg.check.max_drift_translation_mm = 1e-6;
+    let strict = start(&robot, &camera, f, &cfg, RunMode::Check, false).await;
+    assert_eq!(strict.outcome, Outcome::Accepted, "{:?}", strict.reasons);
+    let drift = strict.drift.as_ref().expect("a drift record");
+    assert!(drift.drifted, "{drift:?}");
+    assert_eq!(strict.exit_code(), 1);
+    assert!(strict.written.is_empty());
+    assert_eq!(
+        robot.read_int_register(SEQUENCE_INT).await.expect("read"),
+        1
+    );
+}
+
+#[tokio::test]
+async fn a_scan_without_the_robot_writes_nothing_and_the_arm_returns() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("no-robot");
+    let cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    // A wall 0.6 m in front of the camera, nothing else.
+    let wall: Vec<Point3<f32>> = (0..160)
+        .flat_map(|i| (0..120).map(move |j| (i, j)))
+        .map(|(i, j)| Point3::new(-0.4 + 0.005 * i as f32, -0.3 + 0.005 * j as f32, 0.6))
+        .collect();
+    let camera = FakeCamera::new(vec![PointCloud::from_points(wall)]);
+
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    eprintln!(
+        "a scan of a wall: {} at {:?}: {:?}",
+        record.outcome, record.failed_stage, record.reasons
+    );
+    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::Register));
+    assert_eq!(record.exit_code(), 2);
+    assert_nothing_written(&record, &robot, &storage.0).await;
+    assert_eq!(robot.moves(), vec![f.view.to_vec(), HOME.to_vec()]);
+    assert!(record.returned_to_start);
+}
+
+#[tokio::test]
+async fn an_obstacle_on_the_path_stops_the_plan_before_any_move() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("obstacle");
+    let mut cfg = test_config(&storage.0, f.view);
+    // A fixture where the flange will be at the view (controller `base` frame).
+    let flange = UrModel::Ur5e.dh().forward(&f.view).translation.vector;
+    cfg.views.obstacles = vec![config::Obstacle {
+        name: "tool changer".into(),
+        centre_m: [flange.x, flange.y, flange.z],
+        size_m: [0.15, 0.15, 0.15],
+    }];
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::Plan));
+    assert!(
+        reasons(&record).contains("`tool changer`"),
+        "{:?}",
+        record.reasons
+    );
+    assert!(robot.moves().is_empty(), "moved {:?}", robot.moves());
+    assert_eq!(camera.captures(), 0);
+    assert_nothing_written(&record, &robot, &storage.0).await;
+}
