@@ -462,8 +462,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             tcp_offset: to_row_major(&tcp),
             kinematics,
         });
-        camera_info?;
         preflight_status(&status, self.req.dry_run)?;
+        camera_info?;
         Ok((controller_dh, reference))
     }
 
@@ -910,38 +910,13 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         });
     }
 
-    /// Writes the accepted result: files, then the TCP, then the registers (the sequence
-    /// number last: a pendant program applies nothing half-written).
+    /// Writes the accepted result: the TCP, then the registers (the sequence number last: a
+    /// pendant program applies nothing half-written), then the files, so `current/` only ever
+    /// holds a calibration the controller has confirmed.
     async fn write_back(&mut self, unknown: &Isometry3<f64>) -> Result<(), Failure> {
         let stage = Stage::WriteBack;
         let wb = self.cfg.write_back;
         let mount = self.cfg.mount.mount;
-        if wb.files {
-            let result = self.record.result.clone();
-            match storage::write_result(
-                &self.cfg.storage.dir,
-                &self.run_dir,
-                unknown,
-                mount,
-                &self.record,
-                result.as_ref(),
-            ) {
-                Ok(paths) => self.record.written.push(Written {
-                    target: "files",
-                    detail: paths
-                        .iter()
-                        .map(|p| p.display().to_string())
-                        .collect::<Vec<_>>()
-                        .join(", "),
-                }),
-                Err(e) => {
-                    return Err(Failure::error(
-                        stage,
-                        format!("cannot write the result files: {e}"),
-                    ))
-                }
-            }
-        }
         let robot = self.robot;
         if wb.tcp && mount == Mount::EyeInHand {
             cancellable(self.cancel, stage, async {
@@ -991,6 +966,32 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     map.sequence_int
                 ),
             });
+        }
+        if wb.files {
+            let result = self.record.result.clone();
+            match storage::write_result(
+                &self.cfg.storage.dir,
+                &self.run_dir,
+                unknown,
+                mount,
+                &self.record,
+                result.as_ref(),
+            ) {
+                Ok(paths) => self.record.written.push(Written {
+                    target: "files",
+                    detail: paths
+                        .iter()
+                        .map(|p| p.display().to_string())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                }),
+                Err(e) => {
+                    return Err(Failure::error(
+                        stage,
+                        format!("cannot write the result files: {e}"),
+                    ))
+                }
+            }
         }
         Ok(())
     }

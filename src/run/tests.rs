@@ -245,7 +245,7 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
         1
     );
     let targets: Vec<&str> = record.written.iter().map(|w| w.target).collect();
-    assert_eq!(targets, ["files", "tcp", "registers"]);
+    assert_eq!(targets, ["tcp", "registers", "files"]);
 
     // To the view and back, nothing else.
     assert_eq!(robot.moves(), vec![f.view.to_vec(), HOME.to_vec()]);

@@ -180,7 +180,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
         .iter()
         .filter_map(|w| w["target"].as_str())
         .collect();
-    assert_eq!(written, ["files", "tcp", "registers"], "{out}");
+    assert_eq!(written, ["tcp", "registers", "files"], "{out}");
     assert_eq!(record["returned_to_start"], true, "{out}");
     assert!(max_change(&joints(robot_ip), &start) < 2e-3);
     for f in ["result.json", "result.toml", "tf.yaml", "urdf_joint.xml"] {
