@@ -54,6 +54,7 @@ pub(crate) async fn calibrate(
     let req = RunRequest {
         mode: RunMode::Calibrate,
         dry_run: args.dry_run,
+        run_id: None,
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }
@@ -66,6 +67,7 @@ pub(crate) async fn check(
     let req = RunRequest {
         mode: RunMode::Check,
         dry_run: false,
+        run_id: None,
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }

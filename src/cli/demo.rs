@@ -216,6 +216,7 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
     let req = RunRequest {
         mode: RunMode::Calibrate,
         dry_run: false,
+        run_id: None,
     };
     let record = execute(&cfg, req, shutdown, args.json).await?;
     let estimate = record

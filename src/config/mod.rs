@@ -53,6 +53,30 @@ pub struct Config {
     pub write_back: WriteBackConfig,
     /// Where results and captures are kept.
     pub storage: StorageConfig,
+    /// The daemon: startup run, HTTP API, schedule, capture retention (`[daemon]`).
+    pub daemon: DaemonConfig,
+}
+
+/// What the daemon does on its own (`[daemon]`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DaemonConfig {
+    /// Run at startup, once the robot and camera are connected (`startup = "none" |
+    /// "calibrate" | "check"`).
+    pub startup: Option<crate::run::RunMode>,
+    /// Address of the HTTP API and web page (`listen`, `IP:PORT`); localhost by default.
+    pub listen: std::net::SocketAddr,
+    /// File holding the bearer token that requests which move the arm must carry
+    /// (`token_file`); `None`: such requests are refused.
+    pub token_file: Option<PathBuf>,
+    /// Scheduled drift checks every this long (`check_interval_s`); `None`: no schedule.
+    pub check_interval: Option<Duration>,
+    /// After a scheduled check finds drift, calibrate and write back (`recalibrate_on_drift`);
+    /// off by default.
+    pub recalibrate_on_drift: bool,
+    /// Keep the raw captures of this many newest runs (`keep_captures_runs`) …
+    pub keep_captures_runs: usize,
+    /// … and of every run younger than this many days (`keep_captures_days`).
+    pub keep_captures_days: f64,
 }
 
 /// The arm and its controller (`[robot]`).
@@ -266,6 +290,27 @@ pub mod defaults {
     /// conservative caps (0.5 rad/s, 1 rad/s², 60 s).
     pub fn motion_limits() -> MotionLimits {
         MotionLimits::default()
+    }
+    /// `daemon.listen`: the API on localhost only.
+    pub const DAEMON_LISTEN: &str = "127.0.0.1:8650";
+    /// `daemon.keep_captures_runs`.
+    pub const KEEP_CAPTURES_RUNS: usize = 50;
+    /// `daemon.keep_captures_days`.
+    pub const KEEP_CAPTURES_DAYS: f64 = 30.0;
+    /// `[daemon]` with every key at its default: no startup run, API on localhost, no
+    /// token (nothing that moves the arm is accepted), no schedule.
+    pub fn daemon() -> super::DaemonConfig {
+        super::DaemonConfig {
+            startup: None,
+            listen: DAEMON_LISTEN
+                .parse()
+                .unwrap_or_else(|_| std::net::SocketAddr::from(([127, 0, 0, 1], 8650))),
+            token_file: None,
+            check_interval: None,
+            recalibrate_on_drift: false,
+            keep_captures_runs: KEEP_CAPTURES_RUNS,
+            keep_captures_days: KEEP_CAPTURES_DAYS,
+        }
     }
     /// `robot.allow_power_on`: never power on or release brakes by ourselves.
     pub const ALLOW_POWER_ON: bool = false;
@@ -539,6 +584,7 @@ pub fn sim_rig(
             dir: storage_dir,
             keep_captures: defaults::KEEP_CAPTURES,
         },
+        daemon: defaults::daemon(),
     }
 }
 
@@ -572,6 +618,20 @@ struct RawConfig {
     write_back: RawWriteBack,
     #[serde(default)]
     storage: RawStorage,
+    #[serde(default)]
+    daemon: RawDaemon,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDaemon {
+    startup: Option<String>,
+    listen: Option<String>,
+    token_file: Option<String>,
+    check_interval_s: Option<f64>,
+    recalibrate_on_drift: Option<bool>,
+    keep_captures_runs: Option<i64>,
+    keep_captures_days: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -798,6 +858,9 @@ mod ranges {
     pub(super) const SEED: Range = within(0.0, 9.007_199_254_740_992e15, "");
     pub(super) const OBSTACLE_CENTRE: Range = within(-10.0, 10.0, "m");
     pub(super) const OBSTACLE_SIZE: Range = above(0.0, 20.0, "m");
+    pub(super) const CHECK_INTERVAL: Range = within(1.0, 31_536_000.0, "s");
+    pub(super) const KEEP_RUNS: Range = within(0.0, 1_000_000.0, "");
+    pub(super) const KEEP_DAYS: Range = within(0.0, 36_500.0, "days");
     pub(super) const FLOOR_CLEARANCE: Range = within(0.0, 0.5, "m");
     pub(super) const FRACTION: Range = within(0.0, 1.0, "");
     pub(super) const GATE_MM: Range = above(0.0, 1000.0, "mm");
@@ -967,6 +1030,7 @@ impl Ctx<'_> {
             },
             keep_captures: raw.storage.keep_captures.unwrap_or(defaults::KEEP_CAPTURES),
         };
+        let daemon = self.daemon(raw.daemon)?;
         Ok(Config {
             origin: self.origin.to_string(),
             robot,
@@ -977,6 +1041,61 @@ impl Ctx<'_> {
             check,
             write_back,
             storage,
+            daemon,
+        })
+    }
+
+    fn daemon(&self, d: RawDaemon) -> Result<DaemonConfig, ConfigError> {
+        let base = defaults::daemon();
+        let startup = match d.startup.as_deref().map(str::trim) {
+            None | Some("none") => None,
+            Some("calibrate") => Some(crate::run::RunMode::Calibrate),
+            Some("check") => Some(crate::run::RunMode::Check),
+            Some(other) => return Err(self.invalid(
+                "daemon.startup",
+                format!(
+                    "daemon.startup = \"{other}\": expected \"none\", \"calibrate\" or \"check\""
+                ),
+            )),
+        };
+        let listen = match &d.listen {
+            None => base.listen,
+            Some(l) => l.trim().parse().map_err(|_| {
+                self.invalid(
+                    "daemon.listen",
+                    format!("daemon.listen = \"{l}\": expected IP:PORT, e.g. \"127.0.0.1:8650\" (localhost only) or \"0.0.0.0:8650\""),
+                )
+            })?,
+        };
+        let token_file = d
+            .token_file
+            .as_deref()
+            .map(|p| self.path("daemon.token_file", p))
+            .transpose()?;
+        let check_interval = d
+            .check_interval_s
+            .map(|v| {
+                self.check("daemon.check_interval_s", v, ranges::CHECK_INTERVAL)
+                    .map(Duration::from_secs_f64)
+            })
+            .transpose()?;
+        let keep_captures_runs = match d.keep_captures_runs {
+            Some(v) => self.int("daemon.keep_captures_runs", v, ranges::KEEP_RUNS)? as usize,
+            None => base.keep_captures_runs,
+        };
+        Ok(DaemonConfig {
+            startup,
+            listen,
+            token_file,
+            check_interval,
+            recalibrate_on_drift: d.recalibrate_on_drift.unwrap_or(base.recalibrate_on_drift),
+            keep_captures_runs,
+            keep_captures_days: self.num(
+                "daemon.keep_captures_days",
+                d.keep_captures_days,
+                base.keep_captures_days,
+                ranges::KEEP_DAYS,
+            )?,
         })
     }
 

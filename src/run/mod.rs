@@ -45,7 +45,7 @@ pub use record::{
     CaptureRecord, DriftRecord, FrameRecord, KinematicsUsed, PlannedView, PreflightRecord,
     ResultRecord, RunMode, RunRecord, RunTimings, Stage, Written,
 };
-pub use storage::{load_capture, load_current, CaptureFile, CURRENT_DIR, RUNS_DIR};
+pub use storage::{load_capture, load_current, new_run_id, CaptureFile, CURRENT_DIR, RUNS_DIR};
 
 /// Generated candidates tried per automatic view before the plan gives up.
 const AUTO_VIEW_TRIES: usize = 8;
@@ -55,12 +55,15 @@ const PATH_STEP_RAD: f64 = 0.02;
 const MAX_JOINT_CHANGE_DURING_CAPTURE_RAD: f64 = 1e-3;
 
 /// What to run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct RunRequest {
     /// Calibrate or check.
     pub mode: RunMode,
     /// Preflight and plan only: print the plan, move nothing.
     pub dry_run: bool,
+    /// The run's id ([`new_run_id`]), when the caller needs it before the run starts (the
+    /// daemon records the start); `None`: a new one.
+    pub run_id: Option<String>,
 }
 
 /// Progress of a run, as it happens: the stage entered and a one-line detail.
@@ -212,7 +215,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
     progress: &dyn Progress,
 ) -> RunRecord {
     let t0 = Instant::now();
-    let run_id = storage::new_run_id();
+    let run_id = req.run_id.clone().unwrap_or_else(new_run_id);
     let record = RunRecord {
         run_id: run_id.clone(),
         mode: req.mode,

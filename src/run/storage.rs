@@ -59,7 +59,7 @@ struct CurrentCalibration {
 }
 
 /// A run id: UTC start time to the second and a random suffix (`20261124T142300Z-3f9a`).
-pub(crate) fn new_run_id() -> String {
+pub fn new_run_id() -> String {
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap_or_default();

@@ -156,7 +156,11 @@ async fn start<R: Robot, C: DepthCamera>(
     mode: RunMode,
     dry_run: bool,
 ) -> RunRecord {
-    let req = RunRequest { mode, dry_run };
+    let req = RunRequest {
+        mode,
+        dry_run,
+        run_id: None,
+    };
     run(
         robot,
         camera,
@@ -462,6 +466,7 @@ async fn a_run_cancelled_before_it_starts_moves_nothing() {
     let req = RunRequest {
         mode: RunMode::Calibrate,
         dry_run: false,
+        run_id: None,
     };
     let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
     assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
@@ -516,6 +521,7 @@ async fn a_cancel_during_a_hanging_capture_aborts_at_once_and_stays_put() {
     let req = RunRequest {
         mode: RunMode::Calibrate,
         dry_run: false,
+        run_id: None,
     };
     let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
     let ended = Instant::now();
