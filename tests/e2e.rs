@@ -12,3 +12,5 @@ mod rig;
 mod scan;
 #[path = "e2e/support.rs"]
 mod support;
+#[path = "e2e/systemd.rs"]
+mod systemd;
