@@ -220,11 +220,9 @@ impl CalibrationReport {
         let pose = |m: &[[f64; 4]; 4]| {
             crate::frames::from_row_major(m)
                 .map(|p| {
-                    let t = p.translation.vector;
-                    let r = p.rotation.scaled_axis();
+                    let [x, y, z, rx, ry, rz] = handeye_hal::UrPose::from(p).values();
                     format!(
-                        "xyz [{:.5}, {:.5}, {:.5}] m, rotvec [{:.5}, {:.5}, {:.5}] rad",
-                        t.x, t.y, t.z, r.x, r.y, r.z
+                        "xyz [{x:.5}, {y:.5}, {z:.5}] m, rotvec [{rx:.5}, {ry:.5}, {rz:.5}] rad"
                     )
                 })
                 .unwrap_or_default()

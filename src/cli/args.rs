@@ -1,22 +1,16 @@
 //! Parsers for values given on the command line.
 
 use handeye::model::KinematicError;
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use handeye_hal::UrPose;
+use nalgebra::Isometry3;
 
-/// Parses `x,y,z,rx,ry,rz` (metres, rotation vector in radians — the UR `p[...]` convention)
-/// into an isometry.
+/// Clap value parser for a pose given as a [`UrPose`] (`x,y,z,rx,ry,rz` or `p[...]`: metres,
+/// rotation vector in radians); which frames it relates is the option's to say. Print one with
+/// `UrPose::from(&t)` (its `Display` is the same text).
 pub(crate) fn parse_pose(s: &str) -> Result<Isometry3<f64>, String> {
-    let v = parse_numbers(s)?;
-    if v.len() != 6 {
-        return Err(format!(
-            "expected 6 comma-separated numbers x,y,z,rx,ry,rz (metres, rotation vector in radians), got {}",
-            v.len()
-        ));
-    }
-    Ok(Isometry3::from_parts(
-        Translation3::new(v[0], v[1], v[2]),
-        UnitQuaternion::from_scaled_axis(Vector3::new(v[3], v[4], v[5])),
-    ))
+    s.parse::<UrPose>()
+        .map(Isometry3::from)
+        .map_err(|e| e.to_string())
 }
 
 /// Joint angles in radians from one command-line value (`q1,q2,...`).
@@ -70,16 +64,6 @@ fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
         .collect()
 }
 
-/// Formats an isometry as `x,y,z,rx,ry,rz` (metres, rotation vector), the inverse of [`parse_pose`].
-pub(crate) fn format_pose(t: &Isometry3<f64>) -> String {
-    let p = t.translation.vector;
-    let r = t.rotation.scaled_axis();
-    format!(
-        "{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}",
-        p.x, p.y, p.z, r.x, r.y, r.z
-    )
-}
-
 /// Where the robot models are: `$HANDEYE_ROBOTS`, else `../shared/robots` from the current
 /// directory, else `../shared/robots` beside the source tree this binary was built from.
 pub(crate) fn robots_dir() -> Option<std::path::PathBuf> {
@@ -115,7 +99,7 @@ mod tests {
     fn poses_round_trip_and_errors_name_the_problem() {
         let t = parse_pose("0.1, -0.2,0.3,0,0,1.5").expect("valid");
         assert!((t.rotation.angle() - 1.5).abs() < 1e-12);
-        let back = parse_pose(&format_pose(&t)).expect("valid");
+        let back = parse_pose(&UrPose::from(&t).to_string()).expect("valid");
         assert!((back.to_homogeneous() - t.to_homogeneous()).norm() < 1e-6);
         assert!(parse_pose("1,2,3")
             .expect_err("invalid")

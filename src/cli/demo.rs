@@ -14,12 +14,12 @@ use handeye::config::{self, RobotPorts, ViewTargets};
 use handeye::run::{pose_difference, Outcome, RunMode, RunRequest};
 use handeye::sim::{Intrinsics, SimSettings};
 use handeye_hal::ur_dh::UrModel;
+use handeye_hal::UrPose;
 use handeye_ur::Ports;
 use nalgebra::{Isometry3, Vector3};
 use rand::{Rng, SeedableRng};
 use tokio_util::sync::CancellationToken;
 
-use super::args::format_pose;
 use super::calibrate::{describe_pose, execute, summary};
 use super::sim_rig::{Rig, RigOptions, RobotFaults};
 
@@ -206,11 +206,11 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
         );
         println!(
             "  true flange_from_camera (unknown to the solver): {}",
-            format_pose(&mount)
+            UrPose::from(&mount)
         );
         println!(
             "  mount prior (the bracket's drawing):           {}",
-            format_pose(&prior)
+            UrPose::from(&prior)
         );
     }
     let req = RunRequest {
@@ -262,7 +262,7 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
         }
         println!(
             "  TCP now active on the controller: {}",
-            format_pose(&tcp_on_controller)
+            UrPose::from(&tcp_on_controller)
         );
         println!("  files: {}", storage.display());
         println!("  demo {}", if passed { "PASSED" } else { "FAILED" });

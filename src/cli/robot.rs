@@ -57,14 +57,9 @@ enum Command {
     },
     /// Set the runtime TCP (flange → TCP, UR pose `x,y,z,rx,ry,rz` in m and rad) and read it back.
     SetTcp {
-        /// `x,y,z,rx,ry,rz`.
-        #[arg(
-            long,
-            value_delimiter = ',',
-            allow_hyphen_values = true,
-            required = true
-        )]
-        pose: Vec<f64>,
+        /// `x,y,z,rx,ry,rz` or `p[x,y,z,rx,ry,rz]`.
+        #[arg(long, allow_hyphen_values = true)]
+        pose: UrPose,
     },
     /// Read or write RTDE double registers 24–47.
     Registers {
@@ -131,7 +126,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             Ok(ExitCode::SUCCESS)
         }
         Command::Status { json } => interruptible(&shutdown, status(&robot, json)).await,
-        Command::SetTcp { pose } => interruptible(&shutdown, set_tcp(&robot, &pose)).await,
+        Command::SetTcp { pose } => interruptible(&shutdown, set_tcp(&robot, pose)).await,
         Command::Registers { set, json } => {
             interruptible(&shutdown, registers(&robot, &set, json)).await
         }
@@ -151,13 +146,7 @@ async fn interruptible(
 }
 
 /// Sets the runtime TCP from a UR pose `x,y,z,rx,ry,rz` and reads it back.
-async fn set_tcp(robot: &UrRobot, pose: &[f64]) -> anyhow::Result<ExitCode> {
-    anyhow::ensure!(
-        pose.len() == 6,
-        "--pose needs 6 comma-separated values x,y,z,rx,ry,rz, got {}",
-        pose.len()
-    );
-    let p = UrPose([pose[0], pose[1], pose[2], pose[3], pose[4], pose[5]]);
+async fn set_tcp(robot: &UrRobot, p: UrPose) -> anyhow::Result<ExitCode> {
     robot
         .set_tcp(&Isometry3::from(p))
         .await

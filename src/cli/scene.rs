@@ -11,11 +11,12 @@ use handeye::model::RobotModel;
 use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 use handeye_gige::sim::{FrameSource, SourceError};
 use handeye_hal::ur_dh::DhParams;
+use handeye_hal::UrPose;
 use handeye_ur::client::{RtdeClient, RtdeConfig};
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
-use super::args::{format_pose, parse_pose};
+use super::args::parse_pose;
 
 /// The camera mount used when none is given: 8 cm off the tool axis, tilted 15° towards it.
 pub(crate) const DEFAULT_MOUNT: &str = "0,-0.08,0.04,-0.26,0,0";
@@ -67,12 +68,12 @@ impl SceneMount {
                 *seen = modified;
                 match std::fs::read_to_string(&*path)
                     .map_err(|e| e.to_string())
-                    .and_then(|t| parse_pose(t.trim()))
+                    .and_then(|t| parse_pose(&t))
                 {
                     Ok(m) => {
                         eprintln!(
                             "sim camera: mount is now {} (from {})",
-                            format_pose(&m),
+                            UrPose::from(&m),
                             path.display()
                         );
                         self.current = m;

@@ -16,13 +16,14 @@ use handeye::sim::{Intrinsics, KinematicError, SimSettings};
 use handeye_gige::sim::{SimCamera, SimOptions};
 use handeye_gige::GvcpClient;
 use handeye_hal::ur_dh::{DhParams, UrModel};
+use handeye_hal::UrPose;
 use handeye_ur::sim::{SimConfig, SimHandle, Simulator};
 use handeye_ur::Ports;
 use nalgebra::Isometry3;
 use rand::SeedableRng;
 use tokio_util::sync::CancellationToken;
 
-use super::args::{format_pose, parse_pose, resolve_robot};
+use super::args::{parse_pose, resolve_robot};
 use super::scene::{LiveJoints, RobotScene, SceneJoints, SceneMount, DEFAULT_MOUNT};
 
 /// Everything that defines a rig.
@@ -152,7 +153,7 @@ impl Rig {
     pub(crate) fn truth(&self) -> serde_json::Value {
         serde_json::json!({
             "flange_from_camera": to_row_major(&self.options.mount),
-            "flange_from_camera_ur": format_pose(&self.options.mount),
+            "flange_from_camera_ur": UrPose::from(&self.options.mount).to_string(),
             "model": self.options.model.name(),
             "factory_calibration_seed": self.options.factory_calibration,
             "controller_dh": self.controller_dh,

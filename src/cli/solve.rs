@@ -348,9 +348,8 @@ mod tests {
         // Flange pose as the UR controller reports it, in `base`.
         let base_from_flange =
             handeye::frames::ur_base_from_base_link() * sim.truth.model_from_flange_reported;
-        let t = base_from_flange.translation.vector;
-        let r = base_from_flange.rotation.scaled_axis();
-        let flange = format!("{},{},{},{},{},{}", t.x, t.y, t.z, r.x, r.y, r.z);
+        // As URScript prints it: `p[x,y,z,rx,ry,rz]`, which `--flange-pose` reads too.
+        let flange = handeye_hal::UrPose::from(&base_from_flange).to_script();
         let code = run(args(urdf.clone(), &joints, ply.clone(), Some(flange))).expect("runs");
         assert_eq!(code, ExitCode::SUCCESS);
         // Joint count mismatch and an unreadable scan are errors (exit 2 in main).

@@ -24,8 +24,8 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use handeye_hal::ur_dh::UrModel;
-use handeye_hal::{CaptureSettings, MotionLimits};
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use handeye_hal::{CaptureSettings, MotionLimits, UrPose};
+use nalgebra::Isometry3;
 use serde::Deserialize;
 
 use crate::calib::{GateThresholds, Mount};
@@ -553,7 +553,7 @@ pub fn sim_rig(
         },
         mount: MountConfig {
             mount: Mount::EyeInHand,
-            prior: Some(pose([0.0, -0.08, 0.04, -0.26, 0.0, 0.0])),
+            prior: Some(UrPose([0.0, -0.08, 0.04, -0.26, 0.0, 0.0]).into()),
             max_camera_flange_distance_m: Some(defaults::MAX_CAMERA_FLANGE_DISTANCE_M),
         },
         views: ViewsConfig {
@@ -586,14 +586,6 @@ pub fn sim_rig(
         },
         daemon: defaults::daemon(),
     }
-}
-
-/// `[x, y, z, rx, ry, rz]` (m, rotation vector rad) as an isometry.
-fn pose(v: [f64; 6]) -> Isometry3<f64> {
-    Isometry3::from_parts(
-        Translation3::new(v[0], v[1], v[2]),
-        UnitQuaternion::from_scaled_axis(Vector3::new(v[3], v[4], v[5])),
-    )
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1051,12 +1043,14 @@ impl Ctx<'_> {
             None | Some("none") => None,
             Some("calibrate") => Some(crate::run::RunMode::Calibrate),
             Some("check") => Some(crate::run::RunMode::Check),
-            Some(other) => return Err(self.invalid(
-                "daemon.startup",
-                format!(
+            Some(other) => {
+                return Err(self.invalid(
+                    "daemon.startup",
+                    format!(
                     "daemon.startup = \"{other}\": expected \"none\", \"calibrate\" or \"check\""
                 ),
-            )),
+                ))
+            }
         };
         let listen = match &d.listen {
             None => base.listen,
@@ -1307,7 +1301,7 @@ impl Ctx<'_> {
                     };
                     self.check(&format!("mount.prior[{i}]"), *x, r)?;
                 }
-                let p = pose(v);
+                let p = Isometry3::from(UrPose::from(v));
                 if let Some(max) = max_camera_flange_distance_m {
                     let d = p.translation.vector.norm();
                     if d > max {

@@ -28,7 +28,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime};
 
-use handeye_hal::{DepthCamera, HalError, Robot, RobotMode, SafetyMode};
+use handeye_hal::{DepthCamera, HalError, Robot, RobotMode, SafetyMode, UrPose};
 use nalgebra::{Isometry3, Vector3};
 use tokio_util::sync::CancellationToken;
 
@@ -168,13 +168,6 @@ fn unix_now() -> f64 {
     SystemTime::now()
         .duration_since(SystemTime::UNIX_EPOCH)
         .map_or(0.0, |d| d.as_secs_f64())
-}
-
-/// UR `x,y,z,rx,ry,rz` (m, rotation vector rad) of a pose, for records and registers.
-pub fn ur_pose(t: &Isometry3<f64>) -> [f64; 6] {
-    let p = t.translation.vector;
-    let r = t.rotation.scaled_axis();
-    [p.x, p.y, p.z, r.x, r.y, r.z]
 }
 
 /// Position and rotation difference of two poses of the same unknown: mm, degrees.
@@ -339,7 +332,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 .flange_from_camera()
                 .map(|t| to_row_major(&t)),
             base_from_camera: to_row_major(&calibration.base_from_camera),
-            ur_pose: ur_pose(&unknown),
+            ur_pose: UrPose::from(&unknown).values(),
             uncertainty: calibration.report.uncertainty,
             report: calibration.report.clone(),
         });
@@ -929,7 +922,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     .map_err(|e| Failure::robot(stage, "setting the TCP", e))
             })
             .await?;
-            let p = ur_pose(unknown);
+            let p = UrPose::from(unknown).values();
             self.record.written.push(Written {
                 target: "tcp",
                 detail: format!(
@@ -939,7 +932,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             });
         }
         if let Some(map) = wb.registers {
-            let p = ur_pose(unknown);
+            let p = UrPose::from(unknown).values();
             let seq = cancellable(self.cancel, stage, async {
                 for (k, v) in p.iter().enumerate() {
                     robot

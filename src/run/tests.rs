@@ -14,15 +14,15 @@ use handeye_hal::fake::{FakeCamera, FakeRobot};
 use handeye_hal::ur_dh::{DhParams, UrModel};
 use handeye_hal::{
     CameraInfo, CaptureSettings, ControllerKinematics, DepthCamera, HalError, PointCloud, Robot,
-    RobotMode, RobotStatus, SafetyMode,
+    RobotMode, RobotStatus, SafetyMode, UrPose,
 };
 use nalgebra::{Isometry3, Point3, Vector3};
 use tokio::sync::Notify;
 use tokio_util::sync::CancellationToken;
 
 use super::{
-    pose_difference, run, ur_pose, Outcome, RunMode, RunRecord, RunRequest, Silent, Stage,
-    CURRENT_DIR, RUNS_DIR,
+    pose_difference, run, Outcome, RunMode, RunRecord, RunRequest, Silent, Stage, CURRENT_DIR,
+    RUNS_DIR,
 };
 use crate::config::{self, Config, RobotPorts, ViewTargets};
 use crate::frames::from_row_major;
@@ -234,9 +234,18 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
     eprintln!("accepted run: error {mm:.3} mm {deg:.4} deg");
     assert!(mm < 0.5 && deg < 0.1, "error {mm:.3} mm {deg:.4} deg");
 
+    // The record's `ur_pose` is the result, the same array a `UrPose` serializes to.
+    let result = record.result.as_ref().expect("a result");
+    let ur = UrPose::from(result.ur_pose);
+    assert!(ur.approx_eq(&UrPose::from(&est), 1e-9, 1e-9), "{ur}");
+    assert_eq!(
+        serde_json::to_value(result).expect("json")["ur_pose"],
+        serde_json::to_value(ur).expect("json")
+    );
+
     // Written back: the TCP and the registers hold the result, the sequence went 0 -> 1.
     assert!(close(&robot.tcp(), &est, 1e-9), "TCP {:?}", robot.tcp());
-    let p = ur_pose(&est);
+    let p = UrPose::from(&est).values();
     for (k, want) in p.iter().enumerate() {
         let got = robot
             .read_double_register(DOUBLE_START + k as u32)

@@ -1,6 +1,7 @@
 //! Hardware abstraction for `handeye`: the [`Robot`] and [`DepthCamera`] traits that separate
 //! the drivers (`handeye-ur`, `handeye-gige`, …) from the calibration core, and the types they
-//! exchange.
+//! exchange, among them [`UrPose`], UR's `p[x, y, z, rx, ry, rz]` (the only code that converts,
+//! parses or prints it).
 //!
 //! Conventions (see the workspace README): lengths in metres, angles in radians, durations as
 //! [`std::time::Duration`]. Transforms are `Isometry3<f64>` named `<to>_from_<from>`.
@@ -12,12 +13,14 @@ mod cloud;
 mod error;
 #[cfg(feature = "fake")]
 pub mod fake;
+mod pose;
 mod robot;
 pub mod ur_dh;
 
 pub use camera::{CameraInfo, CaptureSettings, DepthCamera};
 pub use cloud::PointCloud;
 pub use error::HalError;
+pub use pose::{UrPose, UrPoseParseError};
 pub use robot::{JointPositions, MotionLimits, Robot, RobotMode, RobotStatus, SafetyMode};
 pub use ur_dh::ControllerKinematics;
 

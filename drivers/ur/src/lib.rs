@@ -7,20 +7,20 @@
 //! - [`dashboard`]: dashboard (29999) client and reply parsing;
 //! - [`client`]: RTDE client with reconnect, script sender, and [`UrRobot`] (the `Robot` impl);
 //! - [`sim`]: the controller simulator (`handeye sim robot`);
-//! - [`UrPose`]: the only place that converts UR's `p[x,y,z,rx,ry,rz]`.
+//! - [`UrPose`]: UR's `p[x,y,z,rx,ry,rz]`, re-exported from `handeye-hal` (the only place that
+//!   converts it; the core uses it too).
 #![deny(missing_docs)]
 
 pub mod client;
 pub mod dashboard;
 mod error;
-mod pose;
 pub mod primary;
 pub mod rtde;
 pub mod sim;
 
 pub use client::{UrConfig, UrRobot};
 pub use error::UrError;
-pub use pose::UrPose;
+pub use handeye_hal::{UrPose, UrPoseParseError};
 
 /// Standard controller ports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
