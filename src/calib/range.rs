@@ -12,38 +12,13 @@ use handeye_hal::PointCloud;
 use nalgebra::{Point3, Vector3};
 
 use super::CalibError;
-
-/// Pinhole intrinsics in pixels (OpenCV convention: pixel `(u, v)` centred at integer coords).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Pinhole {
-    pub(crate) width: usize,
-    pub(crate) height: usize,
-    pub(crate) fx: f64,
-    pub(crate) fy: f64,
-    pub(crate) cx: f64,
-    pub(crate) cy: f64,
-}
-
-impl Pinhole {
-    /// Pixel index of the camera-frame point `p` (metres), if it projects inside the image.
-    #[inline]
-    pub(crate) fn project(&self, p: &Point3<f64>) -> Option<usize> {
-        if p.z <= 1e-6 {
-            return None;
-        }
-        let u = (self.fx * p.x / p.z + self.cx).round();
-        let v = (self.fy * p.y / p.z + self.cy).round();
-        if u < 0.0 || v < 0.0 || u >= self.width as f64 || v >= self.height as f64 {
-            return None;
-        }
-        Some(v as usize * self.width + u as usize)
-    }
-}
+use crate::camera::Intrinsics;
 
 /// A range image of the scan (camera frame, metres; NaN = no measurement).
 #[derive(Debug)]
 pub(crate) struct RangeImage<'a> {
-    pub(crate) cam: Pinhole,
+    /// The grid's pinhole model (`width`×`height` = `points.len()`).
+    pub(crate) cam: Intrinsics,
     pub(crate) points: Cow<'a, [Point3<f32>]>,
     /// Whether the grid is the camera's own (true) or a synthetic splat of an unorganized cloud.
     #[cfg_attr(not(test), allow(dead_code))]
@@ -66,8 +41,8 @@ impl<'a> RangeImage<'a> {
             .count()
             * sample_step;
         let stride = ((valid as f64 / target as f64).sqrt().floor() as usize).max(1);
-        let (w, n) = (self.cam.width, self.points.len());
-        (0..self.cam.height)
+        let (w, n) = (self.cam.width as usize, self.points.len());
+        (0..self.cam.height as usize)
             .step_by(stride)
             .flat_map(move |v| (0..w).step_by(stride).map(move |u| v * w + u))
             .filter(move |&i| i < n)
@@ -119,7 +94,7 @@ impl<'a> RangeImage<'a> {
     /// towards the camera), or `None` where neighbours are missing or lie on another surface.
     pub(crate) fn normal(&self, i: usize, radius_m: f64) -> Option<Vector3<f64>> {
         let p = self.point(i)?;
-        let w = self.cam.width;
+        let w = self.cam.width as usize;
         let (u, v) = ((i % w) as isize, (i / w) as isize);
         let k0 = ((radius_m * self.cam.fx / p.z as f64).round() as isize).clamp(1, 40);
         let mut k = k0;
@@ -166,7 +141,7 @@ impl<'a> RangeImage<'a> {
 
 /// Least-squares `u = fx·x/z + cx`, `v = fy·y/z + cy` over a sample of valid pixels, with one
 /// round of outlier rejection; `None` when the grid is not a pinhole image (residual > 0.5 px).
-fn estimate_intrinsics(scan: &PointCloud) -> Option<Pinhole> {
+fn estimate_intrinsics(scan: &PointCloud) -> Option<Intrinsics> {
     let (w, h) = (scan.width as usize, scan.height as usize);
     let n = w * h;
     let step = (n / 20000).max(1);
@@ -221,9 +196,9 @@ fn estimate_intrinsics(scan: &PointCloud) -> Option<Pinhole> {
         .iter()
         .filter(|s| (fx * s.2 + cx - s.0).abs() < 0.5 && (fy * s.3 + cy - s.1).abs() < 0.5)
         .count();
-    (fx > 0.0 && fy > 0.0 && good * 10 >= samples.len() * 8).then_some(Pinhole {
-        width: w,
-        height: h,
+    (fx > 0.0 && fy > 0.0 && good * 10 >= samples.len() * 8).then_some(Intrinsics {
+        width: scan.width,
+        height: scan.height,
         fx,
         fy,
         cx,
@@ -247,9 +222,9 @@ fn splat(scan: &PointCloud) -> RangeImage<'static> {
     let f = (pts.len() as f64 / span).sqrt().clamp(10.0, 4000.0);
     let width = (((hi[0] - lo[0]) * f).ceil() as usize + 1).clamp(2, 8192);
     let height = (((hi[1] - lo[1]) * f).ceil() as usize + 1).clamp(2, 8192);
-    let cam = Pinhole {
-        width,
-        height,
+    let cam = Intrinsics {
+        width: width as u32,
+        height: height as u32,
         fx: f,
         fy: f,
         cx: -lo[0] * f,
@@ -257,7 +232,7 @@ fn splat(scan: &PointCloud) -> RangeImage<'static> {
     };
     let mut grid = vec![Point3::new(f32::NAN, f32::NAN, f32::NAN); width * height];
     for p in pts {
-        if let Some(i) = cam.project(&p.cast::<f64>()) {
+        if let Some(i) = cam.pixel_index(&p.cast::<f64>()) {
             if grid[i].z.is_nan() || p.z < grid[i].z {
                 grid[i] = *p;
             }
@@ -314,7 +289,7 @@ mod tests {
         let r = RangeImage::new(&scan).expect("valid");
         assert!(!r.organized);
         let p = scan.points[5000].cast::<f64>();
-        let i = r.cam.project(&p).expect("inside");
+        let i = r.cam.pixel_index(&p).expect("inside");
         assert!((r.depth(i) as f64 - p.z).abs() < 0.01);
     }
 

@@ -85,7 +85,7 @@ pub(crate) fn evidence(
         if cos < 0.35 {
             return e;
         }
-        let Some(i) = range.cam.project(&p) else {
+        let Some(i) = range.cam.pixel_index(&p) else {
             return e;
         };
         let z = range.depth(i) as f64;

@@ -1,4 +1,5 @@
-//! Camera backends that need no network protocol, both implementing
+//! The pinhole camera model, [`Intrinsics`] (used by the simulator and by registration's range
+//! image), and the camera backends that need no network protocol, both implementing
 //! [`handeye_hal::DepthCamera`]:
 //!
 //! - [`FileCamera`] replays PLY/PCD files in order (offline runs, tests, recorded scans).
@@ -14,6 +15,7 @@
 
 mod exec;
 mod file;
+mod intrinsics;
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -24,6 +26,7 @@ use crate::cloud::CloudError;
 
 pub use exec::{ExecCamera, ENV_EXPOSURE_US, ENV_FRAME, ENV_OUTPUT};
 pub use file::{FileCamera, WhenExhausted};
+pub use intrinsics::Intrinsics;
 
 /// Everything that can go wrong in the file and exec camera backends.
 #[derive(Debug, thiserror::Error)]

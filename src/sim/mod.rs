@@ -9,8 +9,9 @@ pub mod raycast;
 mod scan;
 mod settings;
 
+pub use crate::camera::Intrinsics;
 pub use crate::model::KinematicError;
-pub use camera::{look_at, Intrinsics};
+pub use camera::look_at;
 pub use cell::{CellOptions, CellPart};
 pub use noise::ScanNoise;
 pub use scan::{simulate_scan, GroundTruth, Placement, ScanRequest, SimError, SimulatedScan};
