@@ -30,6 +30,7 @@ pub mod model;
 pub mod plan;
 pub mod run;
 pub mod sim;
+pub mod store;
 
 #[cfg(test)]
 mod testutil;

@@ -35,6 +35,8 @@ enum Command {
     Solve(cli::solve::Args),
     /// Run the accuracy/speed benchmark on simulated scans.
     Bench(cli::bench::Args),
+    /// The recorded runs (`<storage.dir>/history.sqlite`): list, show one, export (read-only).
+    History(cli::history::Args),
     /// Talk to a UR controller (commissioning).
     Robot(cli::robot::Args),
     /// Talk to a GigE Vision 3D camera.
@@ -134,6 +136,7 @@ fn main() -> ExitCode {
         Command::SimulateScan(a) => cli::simulate_scan::run(a),
         Command::Solve(a) => cli::solve::run(a),
         Command::Bench(a) => cli::bench::run(a),
+        Command::History(a) => cli::history::run(a),
         // Asynchronous: talk to devices or serve them; stop on the shutdown token.
         Command::Demo(a) => with_runtime(|shutdown| cli::demo::run(a, shutdown)),
         Command::Calibrate(a) => with_runtime(|shutdown| cli::calibrate::calibrate(a, shutdown)),

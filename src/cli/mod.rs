@@ -7,6 +7,7 @@ pub(crate) mod bench;
 pub(crate) mod calibrate;
 pub(crate) mod camera;
 pub(crate) mod demo;
+pub(crate) mod history;
 pub(crate) mod robot;
 pub(crate) mod scene;
 pub(crate) mod sim_camera;
