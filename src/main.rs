@@ -41,6 +41,9 @@ enum Command {
     Robot(cli::robot::Args),
     /// Talk to a GigE Vision 3D camera.
     Camera(cli::camera::Args),
+    /// Ask the running daemon what it is doing: state, current run and stage, last run, last
+    /// calibration, drift alarm, connections. Exit 2 when no daemon answers.
+    Status(cli::status::Args),
     /// Run protocol simulators (a UR controller, a GigE Vision 3D camera).
     #[command(subcommand)]
     Sim(SimCommand),
@@ -137,6 +140,7 @@ fn main() -> ExitCode {
         Command::Solve(a) => cli::solve::run(a),
         Command::Bench(a) => cli::bench::run(a),
         Command::History(a) => cli::history::run(a),
+        Command::Status(a) => cli::status::run(a),
         // Asynchronous: talk to devices or serve them; stop on the shutdown token.
         Command::Demo(a) => with_runtime(|shutdown| cli::demo::run(a, shutdown)),
         Command::Calibrate(a) => with_runtime(|shutdown| cli::calibrate::calibrate(a, shutdown)),

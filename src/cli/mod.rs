@@ -15,3 +15,4 @@ pub(crate) mod sim_rig;
 pub(crate) mod sim_robot;
 pub(crate) mod simulate_scan;
 pub(crate) mod solve;
+pub(crate) mod status;

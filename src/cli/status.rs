@@ -1,0 +1,396 @@
+//! `handeye status --config FILE [--json]`: asks the running daemon (`GET /api/status` at
+//! `daemon.listen`) what it is doing and prints it: state, the run in progress and its stage,
+//! the last run, the last calibration and check, the drift alarm, the connections. Plain
+//! HTTP/1.1 over a `std` socket with a 3 s timeout; no runtime. Exit 0 when the daemon
+//! answered, 2 when none answers (or it answered with an error).
+
+use std::io::{Read, Write};
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, SystemTime};
+
+use anyhow::{bail, Context};
+use handeye::config::Config;
+use handeye::store::utc_text;
+use serde_json::Value;
+
+/// How long connecting, sending and reading may each take.
+const TIMEOUT: Duration = Duration::from_secs(3);
+/// Largest answer read, bytes (the status is a few kB).
+const MAX_RESPONSE: u64 = 4 << 20;
+
+/// Arguments of this subcommand.
+#[derive(Debug, clap::Args)]
+pub(crate) struct Args {
+    /// The cell's configuration; its `daemon.listen` says where the daemon answers.
+    #[arg(long, value_name = "FILE")]
+    config: PathBuf,
+    /// Print the daemon's status JSON as it is.
+    #[arg(long)]
+    json: bool,
+}
+
+pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let cfg = Config::load(&args.config)?;
+    status_at(cfg.daemon.listen, &args.config, args.json)
+}
+
+/// Asks the daemon listening on `listen` and prints its status.
+fn status_at(listen: SocketAddr, config: &Path, json: bool) -> anyhow::Result<ExitCode> {
+    let addr = reachable(listen);
+    let (code, body) = match http_get(addr, "/api/status") {
+        Ok(answer) => answer,
+        Err(e) => {
+            eprintln!(
+                "no daemon answers at {addr} ({e:#}); start it with `handeye daemon --config {}` \
+                 or `systemctl start handeye`",
+                config.display()
+            );
+            return Ok(ExitCode::from(2));
+        }
+    };
+    let value: Value = serde_json::from_slice(&body).with_context(|| {
+        format!("the program at {addr} answered /api/status with something other than JSON; is it a handeye daemon?")
+    })?;
+    if code != 200 {
+        let msg = value["error"].as_str().unwrap_or("no reason given");
+        bail!("the daemon at {addr} answered {code}: {msg}");
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&value)?);
+    } else {
+        print!("{}", render(addr, &value, unix_now()));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Where to connect for a daemon listening on `listen`: a wildcard address is reached on
+/// loopback.
+fn reachable(listen: SocketAddr) -> SocketAddr {
+    match listen.ip() {
+        IpAddr::V4(ip) if ip.is_unspecified() => {
+            SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), listen.port())
+        }
+        IpAddr::V6(ip) if ip.is_unspecified() => {
+            SocketAddr::new(IpAddr::V6(Ipv6Addr::LOCALHOST), listen.port())
+        }
+        _ => listen,
+    }
+}
+
+/// `GET path` at `addr` over HTTP/1.1: the status code and the body.
+fn http_get(addr: SocketAddr, path: &str) -> anyhow::Result<(u16, Vec<u8>)> {
+    let mut stream = TcpStream::connect_timeout(&addr, TIMEOUT)?;
+    stream.set_read_timeout(Some(TIMEOUT))?;
+    stream.set_write_timeout(Some(TIMEOUT))?;
+    let request = format!(
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nAccept: application/json\r\n\
+         User-Agent: handeye-status\r\nConnection: close\r\n\r\n"
+    );
+    stream.write_all(request.as_bytes())?;
+    let mut raw = Vec::new();
+    stream.take(MAX_RESPONSE).read_to_end(&mut raw)?;
+    parse_response(&raw)
+}
+
+/// The status code and body of a raw HTTP/1.1 response (`Content-Length`, chunked, or up to
+/// the end of the connection).
+fn parse_response(raw: &[u8]) -> anyhow::Result<(u16, Vec<u8>)> {
+    let Some(split) = raw.windows(4).position(|w| w == b"\r\n\r\n") else {
+        bail!("not an HTTP response ({} bytes, no header end)", raw.len());
+    };
+    let head = std::str::from_utf8(&raw[..split]).context("HTTP header is not text")?;
+    let body = &raw[split + 4..];
+    let mut lines = head.split("\r\n");
+    let status_line = lines.next().unwrap_or("");
+    let code = match status_line.split(' ').collect::<Vec<_>>().as_slice() {
+        [version, code, ..] if version.starts_with("HTTP/1.") => code
+            .parse::<u16>()
+            .with_context(|| format!("bad HTTP status line `{status_line}`"))?,
+        _ => bail!("not an HTTP response: `{status_line}`"),
+    };
+    let mut chunked = false;
+    let mut length = None;
+    for line in lines {
+        let Some((name, value)) = line.split_once(':') else {
+            continue;
+        };
+        let value = value.trim();
+        if name.eq_ignore_ascii_case("transfer-encoding") {
+            chunked = value.to_ascii_lowercase().contains("chunked");
+        } else if name.eq_ignore_ascii_case("content-length") {
+            length = Some(
+                value
+                    .parse::<usize>()
+                    .with_context(|| format!("bad Content-Length `{value}`"))?,
+            );
+        }
+    }
+    let body = if chunked {
+        dechunk(body)?
+    } else if let Some(n) = length {
+        if body.len() < n {
+            bail!("the answer ended after {} of {n} bytes", body.len());
+        }
+        body[..n].to_vec()
+    } else {
+        body.to_vec()
+    };
+    Ok((code, body))
+}
+
+/// The body of a chunked transfer.
+fn dechunk(mut body: &[u8]) -> anyhow::Result<Vec<u8>> {
+    let mut out = Vec::new();
+    loop {
+        let Some(eol) = body.windows(2).position(|w| w == b"\r\n") else {
+            bail!("chunked answer cut short");
+        };
+        let size_text = std::str::from_utf8(&body[..eol]).context("bad chunk size")?;
+        let size_text = size_text.split(';').next().unwrap_or("").trim();
+        let size = usize::from_str_radix(size_text, 16)
+            .with_context(|| format!("bad chunk size `{size_text}`"))?;
+        body = &body[eol + 2..];
+        if size == 0 {
+            return Ok(out);
+        }
+        if body.len() < size + 2 {
+            bail!("chunked answer cut short");
+        }
+        out.extend_from_slice(&body[..size]);
+        body = &body[size + 2..];
+    }
+}
+
+fn unix_now() -> f64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// `3 s`, `4 min`, `2 h 5 min`, `3 d 4 h`.
+fn span(seconds: f64) -> String {
+    let s = seconds.max(0.0).round() as u64;
+    match s {
+        0..60 => format!("{s} s"),
+        60..3600 => format!("{} min", s / 60),
+        3600..86_400 => format!("{} h {} min", s / 3600, s % 3600 / 60),
+        _ => format!("{} d {} h", s / 86_400, s % 86_400 / 3600),
+    }
+}
+
+/// `2026-11-24 15:00:00 UTC (5 min ago)`.
+fn when(unix_s: f64, now: f64) -> String {
+    format!("{} UTC ({} ago)", utc_text(unix_s), span(now - unix_s))
+}
+
+fn text<'a>(v: &'a Value, key: &str) -> &'a str {
+    v[key].as_str().unwrap_or("?")
+}
+
+/// One finished run: `ID calibrate (asked by api): accepted in 0.9 s, ended … (… ago)`, its
+/// drift (checks) and its reasons (not accepted).
+fn finished(f: &Value, now: f64) -> String {
+    let mut s = format!(
+        "{} {} (asked by {}): {}",
+        text(f, "run_id"),
+        text(f, "mode"),
+        text(f, "trigger"),
+        text(f, "outcome"),
+    );
+    if let Some(ms) = f["duration_ms"].as_f64() {
+        s += &format!(" in {:.1} s", ms / 1e3);
+    }
+    if let Some(t) = f["finished_unix_s"].as_f64() {
+        s += &format!(", ended {}", when(t, now));
+    }
+    if let Some([mm, deg, drifted]) = f["drift"].as_array().map(Vec::as_slice) {
+        let (mm, deg) = (
+            mm.as_f64().unwrap_or(f64::NAN),
+            deg.as_f64().unwrap_or(f64::NAN),
+        );
+        let verdict = if drifted.as_bool() == Some(true) {
+            "beyond the thresholds"
+        } else {
+            "within the thresholds"
+        };
+        s += &format!("; drift {mm:.2} mm {deg:.3}° ({verdict})");
+    }
+    for reason in f["reasons"].as_array().into_iter().flatten() {
+        if let Some(r) = reason.as_str() {
+            s += &format!("\n    {r}");
+        }
+    }
+    s
+}
+
+/// The status as lines for a person.
+fn render(addr: SocketAddr, st: &Value, now: f64) -> String {
+    let mut out = format!("handeye daemon at {addr}: {}", text(st, "state"));
+    if let Some(t) = st["started_unix_s"].as_f64() {
+        out += &format!(", up {}", span(now - t));
+    }
+    out.push('\n');
+    let up = |key: &str| {
+        if st[key].as_bool() == Some(true) {
+            "connected"
+        } else {
+            "NOT ANSWERING"
+        }
+    };
+    out += &format!(
+        "robot: {}, camera: {}\n",
+        up("robot_connected"),
+        up("camera_connected")
+    );
+    let current = &st["current"];
+    if current.is_object() {
+        out += &format!(
+            "current run: {} {} (asked by {})",
+            text(current, "run_id"),
+            text(current, "mode"),
+            text(current, "trigger"),
+        );
+        if let Some(t) = current["since_unix_s"].as_f64() {
+            out += &format!(" for {}", span(now - t));
+        }
+        match current["stage"].as_str() {
+            Some(stage) => out += &format!(", stage {stage}: {}", text(current, "detail")),
+            None => out += &format!(", {}", text(current, "detail")),
+        }
+        out.push('\n');
+    } else {
+        out += "current run: none\n";
+    }
+    for (label, key) in [
+        ("last run", "last"),
+        ("last calibration", "last_calibration"),
+        ("last check", "last_check"),
+    ] {
+        if st[key].is_object() {
+            out += &format!("{label}: {}\n", finished(&st[key], now));
+        } else {
+            out += &format!("{label}: none since the daemon started\n");
+        }
+    }
+    if st["drift_alarm"].as_bool() == Some(true) {
+        out += "drift alarm: ON: the last check found the camera moved beyond the thresholds; \
+                recalibrate (POST /api/calibrate, or the pendant)\n";
+    } else {
+        out += "drift alarm: off\n";
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use std::net::TcpListener;
+
+    use super::*;
+
+    fn sample() -> Value {
+        serde_json::json!({
+            "state": "running",
+            "current": {
+                "run_id": "20261124T150000Z-00ab", "mode": "check", "trigger": "schedule",
+                "since_unix_s": 1000.0, "stage": "move", "detail": "moving to view 1 of 1"
+            },
+            "last": {
+                "run_id": "20261124T140000Z-0001", "mode": "calibrate", "trigger": "api",
+                "outcome": "rejected", "reasons": ["residual 3.1 mm > 2.0 mm"],
+                "finished_unix_s": 900.0, "duration_ms": 1234.0, "drift": null
+            },
+            "last_calibration": null,
+            "last_check": {
+                "run_id": "20261124T130000Z-0002", "mode": "check", "trigger": "schedule",
+                "outcome": "accepted", "reasons": [], "finished_unix_s": 800.0,
+                "duration_ms": 900.0, "drift": [1.5, 0.25, true]
+            },
+            "drift_alarm": true,
+            "robot_connected": true,
+            "camera_connected": false,
+            "started_unix_s": 0.0
+        })
+    }
+
+    #[test]
+    fn render_says_what_the_daemon_does() {
+        let addr: SocketAddr = "127.0.0.1:8650".parse().expect("addr");
+        let text = render(addr, &sample(), 1010.0);
+        for want in [
+            "handeye daemon at 127.0.0.1:8650: running, up 16 min",
+            "robot: connected, camera: NOT ANSWERING",
+            "current run: 20261124T150000Z-00ab check (asked by schedule) for 10 s, stage move: moving to view 1 of 1",
+            "last run: 20261124T140000Z-0001 calibrate (asked by api): rejected in 1.2 s",
+            "    residual 3.1 mm > 2.0 mm",
+            "last calibration: none since the daemon started",
+            "drift 1.50 mm 0.250° (beyond the thresholds)",
+            "drift alarm: ON",
+        ] {
+            assert!(text.contains(want), "missing `{want}` in:\n{text}");
+        }
+    }
+
+    #[test]
+    fn responses_parse_with_length_chunked_or_to_the_end() {
+        let (code, body) =
+            parse_response(b"HTTP/1.1 200 OK\r\ncontent-length: 2\r\n\r\n{}xx").expect("parse");
+        assert_eq!((code, body.as_slice()), (200, b"{}".as_slice()));
+        let (code, body) = parse_response(
+            b"HTTP/1.1 404 Not Found\r\nTransfer-Encoding: chunked\r\n\r\n3\r\nabc\r\n2;x=y\r\nde\r\n0\r\n\r\n",
+        )
+        .expect("parse");
+        assert_eq!((code, body.as_slice()), (404, b"abcde".as_slice()));
+        let (_, body) = parse_response(b"HTTP/1.0 200 OK\r\n\r\nhello").expect("parse");
+        assert_eq!(body, b"hello");
+        assert!(parse_response(b"SSH-2.0-OpenSSH\r\n").is_err());
+        assert!(parse_response(b"HTTP/1.1 200 OK\r\ncontent-length: 9\r\n\r\nabc").is_err());
+    }
+
+    #[test]
+    fn wildcard_listen_is_reached_on_loopback() {
+        let any: SocketAddr = "0.0.0.0:8650".parse().expect("addr");
+        assert_eq!(reachable(any), "127.0.0.1:8650".parse().expect("addr"));
+        let any6: SocketAddr = "[::]:8650".parse().expect("addr");
+        assert_eq!(reachable(any6), "[::1]:8650".parse().expect("addr"));
+        let lan: SocketAddr = "192.168.1.5:8650".parse().expect("addr");
+        assert_eq!(reachable(lan), lan);
+    }
+
+    #[test]
+    fn no_daemon_exits_2() {
+        let port = TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .expect("free port");
+        let code = status_at(port, Path::new("cell.toml"), false).expect("no error");
+        assert_eq!(code, ExitCode::from(2));
+    }
+
+    #[test]
+    fn asks_the_daemon_over_http() {
+        let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let server = std::thread::spawn(move || {
+            let (mut s, _) = listener.accept().expect("accept");
+            let mut req = Vec::new();
+            let mut buf = [0u8; 1024];
+            while !req.windows(4).any(|w| w == b"\r\n\r\n") {
+                let n = s.read(&mut buf).expect("read");
+                assert!(n > 0, "request cut short");
+                req.extend_from_slice(&buf[..n]);
+            }
+            let body = sample().to_string();
+            let answer = format!(
+                "HTTP/1.1 200 OK\r\ncontent-type: application/json\r\ncontent-length: {}\r\n\r\n{body}",
+                body.len()
+            );
+            s.write_all(answer.as_bytes()).expect("write");
+            String::from_utf8(req).expect("text")
+        });
+        let code = status_at(addr, Path::new("cell.toml"), true).expect("answered");
+        assert_eq!(code, ExitCode::SUCCESS);
+        let req = server.join().expect("server");
+        assert!(req.starts_with("GET /api/status HTTP/1.1\r\n"), "{req}");
+    }
+}
