@@ -1,0 +1,1030 @@
+//! The daemon's HTTP API (axum): the [`Frontend`] `handeye daemon` starts with its handle.
+//!
+//! JSON everywhere; every error is `{"error": "..."}` saying what to do. Reading is open to
+//! whoever can reach `daemon.listen` (localhost by default); anything that moves the arm
+//! (`/api/calibrate`, `/api/check`) or stops it (`/api/cancel`) needs
+//! `Authorization: Bearer <token>` with the token from `daemon.token_file` (or the systemd
+//! credential `token`). Without a configured token those requests are refused outright.
+//!
+//! | route | what |
+//! |---|---|
+//! | `GET /api/status` | what the daemon is doing ([`handeye::daemon::Status`]) |
+//! | `POST /api/calibrate`, `POST /api/check` | token; 202 `{"run_id"}`, 409 when busy |
+//! | `POST /api/cancel` | token; `{"cancelled": bool}` |
+//! | `GET /api/runs?limit=N&before=UNIX_S` | the history, newest first |
+//! | `GET /api/runs/{id}` | one run's record |
+//! | `GET /api/latest` | the record of the latest accepted calibration |
+//! | `GET /metrics` | Prometheus text format |
+//! | `GET /` | the web page (for now a pointer to the API) |
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{bail, Context};
+use axum::extract::{ConnectInfo, DefaultBodyLimit, Path as UrlPath, RawQuery, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode, Uri};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use handeye::config::Config;
+use handeye::daemon::{DaemonHandle, Frontend, Refusal, Trigger};
+use handeye::run::{Outcome, RunMode};
+use handeye::store::Store;
+use serde_json::json;
+use tokio_util::sync::CancellationToken;
+
+/// Largest request body accepted, bytes. No route reads a body; this only stops a client from
+/// making the server buffer one.
+const BODY_LIMIT: usize = 4096;
+/// `GET /api/runs` without `limit`.
+const DEFAULT_RUNS: usize = 50;
+/// Most runs one `GET /api/runs` returns.
+const MAX_RUNS: usize = 1000;
+/// The refusal when no token is configured.
+const NO_TOKEN: &str =
+    "no API token configured (daemon.token_file); nothing that moves the arm is accepted";
+
+/// The HTTP API: where it listens and the token that requests which move the arm must carry.
+pub(crate) struct Api {
+    listen: SocketAddr,
+    token: Option<String>,
+}
+
+impl std::fmt::Debug for Api {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Api")
+            .field("listen", &self.listen)
+            .field("token", &self.token.as_ref().map(|_| "<redacted>"))
+            .finish()
+    }
+}
+
+impl Api {
+    /// The API on `listen`; `token: None` refuses everything that moves the arm.
+    pub(crate) fn new(listen: SocketAddr, token: Option<String>) -> Api {
+        Api { listen, token }
+    }
+
+    /// The API as configured: `daemon.listen`, and the token from `$CREDENTIALS_DIRECTORY/token`
+    /// when systemd passes one (`LoadCredential=token:/etc/handeye/token`), else from
+    /// `daemon.token_file`. Refuses an empty token, or (Unix) a token file that group or others
+    /// can access.
+    pub(crate) fn from_config(cfg: &Config) -> anyhow::Result<Api> {
+        let credentials = std::env::var_os("CREDENTIALS_DIRECTORY").map(PathBuf::from);
+        Api::from_config_with(cfg, credentials.as_deref())
+    }
+
+    /// [`Api::from_config`] with the credentials directory given (tests).
+    fn from_config_with(cfg: &Config, credentials: Option<&Path>) -> anyhow::Result<Api> {
+        let listen = cfg.daemon.listen;
+        // systemd makes its credentials readable by the service alone (mode 0400, or an ACL
+        // that shows as group bits), so only the configured file's mode is checked.
+        let credential = credentials
+            .map(|dir| dir.join("token"))
+            .filter(|p| p.exists());
+        let (path, check_mode) = match (credential, &cfg.daemon.token_file) {
+            (Some(p), _) => (Some(p), false),
+            (None, file) => (file.clone(), true),
+        };
+        let token = match &path {
+            Some(p) => Some(read_token(p, check_mode)?),
+            None => None,
+        };
+        match &path {
+            Some(p) => tracing::info!("API token from {}", p.display()),
+            None => tracing::warn!(
+                "{NO_TOKEN}: POST /api/calibrate, /api/check and /api/cancel are refused"
+            ),
+        }
+        if !listen.ip().is_loopback() {
+            tracing::warn!(
+                "the HTTP API listens on {listen}, reachable from the network (daemon.listen)"
+            );
+        }
+        Ok(Api::new(listen, token))
+    }
+}
+
+/// The token in `path`, trimmed. Refuses an empty token, one that cannot go in an HTTP header
+/// as one word, and (Unix, `check_mode`) a file that group or others can access.
+fn read_token(path: &Path, check_mode: bool) -> anyhow::Result<String> {
+    let shown = path.display();
+    #[cfg(unix)]
+    if check_mode {
+        use std::os::unix::fs::PermissionsExt;
+        let meta = std::fs::metadata(path)
+            .with_context(|| format!("reading the API token file {shown} (daemon.token_file)"))?;
+        let mode = meta.permissions().mode() & 0o777;
+        if mode & 0o077 != 0 {
+            bail!(
+                "the API token file {shown} is accessible by group or others (mode {mode:04o}); \
+                 run `chmod 600 {shown}` and make the daemon's user its owner"
+            );
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = check_mode;
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("reading the API token file {shown} (daemon.token_file)"))?;
+    let token = text.trim();
+    if token.is_empty() {
+        bail!(
+            "the API token file {shown} is empty; put a long random token in it, e.g. \
+             `openssl rand -hex 32 > {shown}; chmod 600 {shown}`"
+        );
+    }
+    if !token.bytes().all(|b| b.is_ascii_graphic()) {
+        bail!(
+            "the API token in {shown} must be one word of printable ASCII (it travels in an \
+             HTTP header), e.g. `openssl rand -hex 32`"
+        );
+    }
+    Ok(token.to_string())
+}
+
+impl Frontend for Api {
+    async fn serve(self, handle: DaemonHandle, shutdown: CancellationToken) {
+        let listener = match tokio::net::TcpListener::bind(self.listen).await {
+            Ok(l) => l,
+            Err(e) => {
+                let hint = if e.kind() == std::io::ErrorKind::AddrInUse {
+                    "another program (another handeye daemon?) uses that port; stop it or set \
+                     another daemon.listen"
+                } else {
+                    "check daemon.listen"
+                };
+                tracing::error!(
+                    "cannot serve the HTTP API on {}: {e}; {hint}. The daemon runs on without \
+                     its API and web page",
+                    self.listen
+                );
+                return;
+            }
+        };
+        match listener.local_addr() {
+            Ok(addr) => tracing::info!("HTTP API on http://{addr}/"),
+            Err(e) => tracing::warn!("HTTP API listening, address unknown: {e}"),
+        }
+        let app = router(handle, self.token).into_make_service_with_connect_info::<SocketAddr>();
+        if let Err(e) = axum::serve(listener, app)
+            .with_graceful_shutdown(shutdown.cancelled_owned())
+            .await
+        {
+            tracing::error!("the HTTP API stopped: {e}");
+        }
+    }
+}
+
+/// What every handler shares.
+#[derive(Clone)]
+struct AppState {
+    handle: DaemonHandle,
+    token: Option<Arc<str>>,
+}
+
+/// The API's routes over `handle`; `token: None` refuses everything that moves the arm.
+pub(crate) fn router(handle: DaemonHandle, token: Option<String>) -> Router {
+    let state = AppState {
+        handle,
+        token: token.map(Arc::from),
+    };
+    Router::new()
+        .route("/", get(index))
+        .route("/api/status", get(status))
+        .route("/api/calibrate", post(calibrate))
+        .route("/api/check", post(check))
+        .route("/api/cancel", post(cancel))
+        .route("/api/runs", get(runs))
+        .route("/api/runs/{id}", get(run_record))
+        .route("/api/latest", get(latest))
+        .route("/metrics", get(metrics))
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(DefaultBodyLimit::max(BODY_LIMIT))
+        .layer(axum::middleware::from_fn(refuse_large_bodies))
+        .with_state(state)
+}
+
+/// An error answer: `{"error": message}` with a status.
+#[derive(Debug)]
+struct ApiError {
+    status: StatusCode,
+    message: String,
+    /// `WWW-Authenticate` value for 401s.
+    challenge: Option<&'static str>,
+}
+
+impl ApiError {
+    fn new(status: StatusCode, message: impl Into<String>) -> ApiError {
+        ApiError {
+            status,
+            message: message.into(),
+            challenge: None,
+        }
+    }
+
+    fn unauthorized(message: &str, challenge: &'static str) -> ApiError {
+        ApiError {
+            challenge: Some(challenge),
+            ..ApiError::new(StatusCode::UNAUTHORIZED, message)
+        }
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let mut resp = (self.status, Json(json!({ "error": self.message }))).into_response();
+        if let Some(c) = self.challenge {
+            resp.headers_mut()
+                .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static(c));
+        }
+        resp
+    }
+}
+
+/// Whether `given` is `expected`, in time that depends only on `expected`'s length.
+fn token_matches(expected: &[u8], given: &[u8]) -> bool {
+    let mut diff = u8::from(expected.len() != given.len());
+    for (i, e) in expected.iter().enumerate() {
+        diff |= e ^ given.get(i).copied().unwrap_or(0);
+    }
+    std::hint::black_box(diff) == 0
+}
+
+/// Lets a request that moves (or stops) the arm through only with the right bearer token.
+/// Refusals are logged at warn with the peer and the reason, never the token.
+fn authorize(
+    state: &AppState,
+    headers: &HeaderMap,
+    peer: SocketAddr,
+    what: &str,
+) -> Result<(), ApiError> {
+    let refuse = |reason: &str| tracing::warn!(%peer, "refused {what}: {reason}");
+    let Some(expected) = &state.token else {
+        refuse("no API token configured");
+        return Err(ApiError::new(StatusCode::FORBIDDEN, NO_TOKEN));
+    };
+    let Some(value) = headers.get(header::AUTHORIZATION) else {
+        refuse("no Authorization header");
+        return Err(ApiError::unauthorized(
+            "this request moves the arm: send `Authorization: Bearer <token>` with the token \
+             from daemon.token_file",
+            "Bearer realm=\"handeye\"",
+        ));
+    };
+    let given = value.as_bytes();
+    let bearer = given
+        .get(..7)
+        .is_some_and(|s| s.eq_ignore_ascii_case(b"bearer "));
+    if !bearer {
+        refuse("Authorization is not a Bearer token");
+        return Err(ApiError::unauthorized(
+            "the Authorization header must be `Bearer <token>` with the token from \
+             daemon.token_file",
+            "Bearer realm=\"handeye\"",
+        ));
+    }
+    let given = given[7..].trim_ascii();
+    if !token_matches(expected.as_bytes(), given) {
+        refuse("wrong token");
+        return Err(ApiError::unauthorized(
+            "wrong token; use the one in daemon.token_file",
+            "Bearer realm=\"handeye\", error=\"invalid_token\"",
+        ));
+    }
+    Ok(())
+}
+
+/// Refuses a request announcing a body larger than [`BODY_LIMIT`] before any handler runs.
+async fn refuse_large_bodies(req: Request, next: Next) -> Response {
+    let too_large = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| {
+            v.trim()
+                .parse::<u64>()
+                .map_or(true, |n| n > BODY_LIMIT as u64)
+        });
+    if too_large {
+        return ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("request bodies are limited to {BODY_LIMIT} bytes; no route needs one"),
+        )
+        .into_response();
+    }
+    next.run(req).await
+}
+
+async fn index() -> &'static str {
+    "handeye daemon. The web page is not here yet; the JSON API is: GET /api/status, \
+     POST /api/calibrate, POST /api/check, POST /api/cancel (these three need \
+     `Authorization: Bearer <token>`), GET /api/runs?limit=N&before=UNIX_S, GET /api/runs/{id}, \
+     GET /api/latest, GET /metrics. Or run `handeye status --config FILE`.\n"
+}
+
+async fn status(State(state): State<AppState>) -> Response {
+    Json(state.handle.status()).into_response()
+}
+
+async fn calibrate(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    start(&state, &headers, peer, RunMode::Calibrate)
+}
+
+async fn check(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    start(&state, &headers, peer, RunMode::Check)
+}
+
+/// `POST /api/calibrate` and `/api/check`: 202 with the run id, 409 when a run is going.
+fn start(
+    state: &AppState,
+    headers: &HeaderMap,
+    peer: SocketAddr,
+    mode: RunMode,
+) -> Result<Response, ApiError> {
+    let what = match mode {
+        RunMode::Calibrate => "POST /api/calibrate",
+        RunMode::Check => "POST /api/check",
+    };
+    authorize(state, headers, peer, what)?;
+    match state.handle.request(mode, Trigger::Api) {
+        Ok(run_id) => {
+            tracing::info!(%peer, run_id = %run_id, "{what}: run accepted");
+            Ok((StatusCode::ACCEPTED, Json(json!({ "run_id": run_id }))).into_response())
+        }
+        Err(e @ Refusal::Busy { .. }) => Err(ApiError::new(StatusCode::CONFLICT, e.to_string())),
+        Err(e) => Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("{e}; try again once it runs again"),
+        )),
+    }
+}
+
+async fn cancel(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    authorize(&state, &headers, peer, "POST /api/cancel")?;
+    let cancelled = state.handle.cancel();
+    if cancelled {
+        tracing::warn!(%peer, "run cancelled through the API");
+    }
+    Ok(Json(json!({ "cancelled": cancelled })).into_response())
+}
+
+/// Runs a (blocking, SQLite) store call off the runtime's workers.
+async fn with_store<T: Send + 'static>(
+    state: &AppState,
+    call: impl FnOnce(&Store) -> anyhow::Result<T> + Send + 'static,
+) -> Result<T, ApiError> {
+    let store = Arc::clone(state.handle.store());
+    match tokio::task::spawn_blocking(move || call(&store)).await {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(e)) => {
+            tracing::error!("history: {e:#}");
+            Err(ApiError::new(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                format!("cannot read the history: {e:#}; see the daemon's log"),
+            ))
+        }
+        Err(e) => {
+            tracing::error!("history query failed: {e}");
+            Err(ApiError::new(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "the history query failed; see the daemon's log",
+            ))
+        }
+    }
+}
+
+/// `limit` and `before` of `GET /api/runs`.
+fn runs_query(query: Option<&str>) -> Result<(usize, Option<f64>), String> {
+    let mut limit = DEFAULT_RUNS;
+    let mut before = None;
+    for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
+        let (key, value) = pair.split_once('=').unwrap_or((pair, ""));
+        match key {
+            "limit" => {
+                limit = value
+                    .parse()
+                    .ok()
+                    .filter(|n| (1..=MAX_RUNS).contains(n))
+                    .ok_or_else(|| {
+                        format!("limit={value}: expected a whole number from 1 to {MAX_RUNS}")
+                    })?;
+            }
+            "before" => {
+                let t = value
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|t| t.is_finite() && *t >= 0.0)
+                    .ok_or_else(|| {
+                        format!(
+                            "before={value}: expected a unix time in seconds (runs that started \
+                             earlier are listed)"
+                        )
+                    })?;
+                before = Some(t);
+            }
+            other => {
+                return Err(format!(
+                    "unknown query parameter `{other}`; use limit=N (1..{MAX_RUNS}) and \
+                     before=UNIX_S"
+                ))
+            }
+        }
+    }
+    Ok((limit, before))
+}
+
+async fn runs(
+    State(state): State<AppState>,
+    RawQuery(query): RawQuery,
+) -> Result<Response, ApiError> {
+    let (limit, before) =
+        runs_query(query.as_deref()).map_err(|m| ApiError::new(StatusCode::BAD_REQUEST, m))?;
+    let runs = with_store(&state, move |s| Ok(s.list(limit, before)?)).await?;
+    Ok(Json(json!({ "runs": runs })).into_response())
+}
+
+async fn run_record(
+    State(state): State<AppState>,
+    UrlPath(id): UrlPath<String>,
+) -> Result<Response, ApiError> {
+    let key = id.clone();
+    match with_store(&state, move |s| Ok(s.get(&key)?)).await? {
+        Some(record) => Ok(Json(record).into_response()),
+        None => Err(ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!("no run `{id}` in the history; GET /api/runs lists them"),
+        )),
+    }
+}
+
+async fn latest(State(state): State<AppState>) -> Result<Response, ApiError> {
+    let record = with_store(&state, |s| {
+        match s.latest(Some(RunMode::Calibrate), Some(Outcome::Accepted))? {
+            Some(run) => Ok(s.get(&run.run_id)?),
+            None => Ok(None),
+        }
+    })
+    .await?;
+    match record {
+        Some(record) => Ok(Json(record).into_response()),
+        None => Err(ApiError::new(
+            StatusCode::NOT_FOUND,
+            "no accepted calibration in the history yet; POST /api/calibrate runs one",
+        )),
+    }
+}
+
+async fn metrics(State(state): State<AppState>) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("text/plain; version=0.0.4; charset=utf-8"),
+        )],
+        state.handle.metrics(),
+    )
+        .into_response()
+}
+
+async fn not_found(method: Method, uri: Uri) -> ApiError {
+    ApiError::new(
+        StatusCode::NOT_FOUND,
+        format!("no route {method} {}; GET / lists the API", uri.path()),
+    )
+}
+
+async fn method_not_allowed(method: Method, uri: Uri) -> ApiError {
+    let hint = match uri.path() {
+        "/api/calibrate" | "/api/check" | "/api/cancel" => "use POST",
+        _ => "use GET",
+    };
+    ApiError::new(
+        StatusCode::METHOD_NOT_ALLOWED,
+        format!("{method} is not allowed on {}; {hint}", uri.path()),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use std::f64::consts::FRAC_PI_2;
+    use std::net::{IpAddr, Ipv4Addr, TcpListener};
+    use std::sync::OnceLock;
+    use std::time::Duration;
+
+    use handeye::config::{self, RobotPorts, ViewTargets};
+    use handeye::model::RobotModel;
+    use handeye_hal::fake::{FakeCamera, FakeRobot};
+    use handeye_hal::ur_dh::UrModel;
+    use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
+    use serde_json::Value;
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    use tokio::sync::Semaphore;
+
+    use super::*;
+
+    /// The UR home pose: upright, clear of everything; the arm starts and looks from here.
+    const HOME: [f64; 6] = [0.0, -FRAC_PI_2, FRAC_PI_2, -FRAC_PI_2, -FRAC_PI_2, 0.0];
+    const TOKEN: &str = "0123456789abcdef0123456789abcdef";
+
+    fn model() -> Option<Arc<RobotModel>> {
+        static MODEL: OnceLock<Option<Arc<RobotModel>>> = OnceLock::new();
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/robots/ur/ur5e/ur5e.urdf");
+        let m = MODEL
+            .get_or_init(|| {
+                path.exists()
+                    .then(|| Arc::new(RobotModel::load(&path).expect("UR5e model loads")))
+            })
+            .clone();
+        if m.is_none() {
+            eprintln!("SKIP: {} not found; the API tests need it", path.display());
+        }
+        m
+    }
+
+    fn scratch(tag: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("handeye-api-{}-{tag}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("scratch dir");
+        dir
+    }
+
+    fn free_port() -> SocketAddr {
+        TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .expect("a free port")
+    }
+
+    fn test_config(storage: &Path) -> Config {
+        let mut cfg = config::sim_rig(
+            IpAddr::V4(Ipv4Addr::LOCALHOST),
+            RobotPorts::UR_STANDARD,
+            "127.0.0.1".into(),
+            storage.to_path_buf(),
+        );
+        cfg.views.targets = ViewTargets::Joints(vec![HOME]);
+        cfg.camera.settle = Duration::from_millis(10);
+        cfg
+    }
+
+    /// A camera with nothing to replay whose captures wait for a permit, so a test decides
+    /// when the run in progress ends.
+    #[derive(Debug, Clone)]
+    struct GatedCamera {
+        inner: FakeCamera,
+        gate: Arc<Semaphore>,
+    }
+
+    impl DepthCamera for GatedCamera {
+        async fn info(&self) -> Result<CameraInfo, HalError> {
+            self.inner.info().await
+        }
+
+        async fn capture(&self, settings: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
+            let _permit = self.gate.acquire().await;
+            self.inner.capture(settings).await
+        }
+    }
+
+    /// A daemon over the fakes with the API on a free port, as a test sees it.
+    struct Rig {
+        addr: SocketAddr,
+        robot: FakeRobot,
+        /// Permits for the camera's captures (none at first: a run waits at its capture).
+        gate: Arc<Semaphore>,
+    }
+
+    /// Runs `body` against a daemon over the fakes (the API on a free port with `token`), then
+    /// stops the daemon and waits for it. The daemon runs on the test's task, joined with the
+    /// body: its future need not be `Send`.
+    async fn with_rig<F, Fut>(tag: &str, token: Option<&str>, body: F)
+    where
+        F: FnOnce(Rig) -> Fut,
+        Fut: std::future::Future<Output = ()>,
+    {
+        let Some(model) = model() else {
+            return;
+        };
+        let dir = scratch(tag);
+        let cfg = test_config(&dir);
+        let store = Arc::new(Store::open(&dir.join("history.sqlite")).expect("store"));
+        let robot = FakeRobot::new(UrModel::Ur5e, HOME);
+        let gate = Arc::new(Semaphore::new(0));
+        let camera = GatedCamera {
+            inner: FakeCamera::new(Vec::new()),
+            gate: Arc::clone(&gate),
+        };
+        let addr = free_port();
+        let api = Api::new(addr, token.map(String::from));
+        let shutdown = CancellationToken::new();
+        let daemon = handeye::daemon::run(
+            cfg,
+            model,
+            robot.clone(),
+            camera,
+            store,
+            api,
+            shutdown.clone(),
+            |_| {},
+        );
+        let test = async {
+            let mut listening = false;
+            for _ in 0..200 {
+                if tokio::net::TcpStream::connect(addr).await.is_ok() {
+                    listening = true;
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            assert!(listening, "the API never listened on {addr}");
+            body(Rig {
+                addr,
+                robot,
+                gate: Arc::clone(&gate),
+            })
+            .await;
+            gate.add_permits(100);
+            shutdown.cancel();
+        };
+        tokio::time::timeout(Duration::from_secs(120), async {
+            tokio::join!(daemon, test)
+        })
+        .await
+        .expect("the test and the daemon's stop take less than 2 min");
+    }
+
+    impl Rig {
+        async fn get(&self, path: &str) -> Answer {
+            http(self.addr, "GET", path, &[]).await
+        }
+
+        async fn post(&self, path: &str, token: Option<&str>) -> Answer {
+            match token {
+                Some(t) => {
+                    let bearer = format!("Bearer {t}");
+                    http(self.addr, "POST", path, &[("Authorization", &bearer)]).await
+                }
+                None => http(self.addr, "POST", path, &[]).await,
+            }
+        }
+
+        /// Waits for the daemon to be idle again; its status.
+        async fn idle(&self) -> Value {
+            for _ in 0..200 {
+                let st = self.get("/api/status").await.json();
+                if st["state"] == "idle" {
+                    return st;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            panic!("the run never ended");
+        }
+    }
+
+    #[derive(Debug)]
+    struct Answer {
+        code: u16,
+        head: String,
+        body: String,
+    }
+
+    impl Answer {
+        fn json(&self) -> Value {
+            serde_json::from_str(&self.body)
+                .unwrap_or_else(|e| panic!("not JSON ({e}): {}", self.body))
+        }
+
+        fn header(&self, name: &str) -> Option<&str> {
+            self.head.lines().find_map(|l| {
+                let (n, v) = l.split_once(':')?;
+                n.eq_ignore_ascii_case(name).then(|| v.trim())
+            })
+        }
+    }
+
+    /// One HTTP/1.1 request without a body on a fresh connection (`Content-Length: 0` unless
+    /// `headers` say otherwise).
+    async fn http(addr: SocketAddr, method: &str, path: &str, headers: &[(&str, &str)]) -> Answer {
+        let mut s = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        let mut req = format!("{method} {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n");
+        if !headers
+            .iter()
+            .any(|(n, _)| n.eq_ignore_ascii_case("content-length"))
+        {
+            req += "Content-Length: 0\r\n";
+        }
+        for (name, value) in headers {
+            req += &format!("{name}: {value}\r\n");
+        }
+        req += "\r\n";
+        s.write_all(req.as_bytes()).await.expect("send");
+        let mut raw = String::new();
+        tokio::time::timeout(Duration::from_secs(10), s.read_to_string(&mut raw))
+            .await
+            .expect("answer in time")
+            .expect("read");
+        let (head, body) = raw.split_once("\r\n\r\n").expect("HTTP answer");
+        let code = head
+            .split(' ')
+            .nth(1)
+            .and_then(|c| c.parse().ok())
+            .expect("status code");
+        Answer {
+            code,
+            head: head.to_string(),
+            body: body.to_string(),
+        }
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn api_moves_the_arm_only_with_the_token_one_run_at_a_time() {
+        with_rig("token", Some(TOKEN), |rig| async move {
+            let st = rig.get("/api/status").await;
+            assert_eq!(st.code, 200, "{st:?}");
+            assert_eq!(st.json()["state"], "idle");
+
+            // No token, a wrong one, another scheme: 401 with a challenge, nothing moves.
+            for token in [None, Some("wrong"), Some(&TOKEN[..TOKEN.len() - 1])] {
+                let a = rig.post("/api/calibrate", token).await;
+                assert_eq!(a.code, 401, "{a:?}");
+                assert!(a
+                    .header("www-authenticate")
+                    .is_some_and(|v| v.starts_with("Bearer")));
+                assert!(a.json()["error"]
+                    .as_str()
+                    .is_some_and(|e| e.contains("token")));
+                let a = rig.post("/api/check", token).await;
+                assert_eq!(a.code, 401, "{a:?}");
+                let a = rig.post("/api/cancel", token).await;
+                assert_eq!(a.code, 401, "{a:?}");
+            }
+            let basic = http(
+                rig.addr,
+                "POST",
+                "/api/calibrate",
+                &[("Authorization", "Basic dTpw")],
+            )
+            .await;
+            assert_eq!(basic.code, 401, "{basic:?}");
+            // A body larger than the limit is refused before any handler runs.
+            let big = http(
+                rig.addr,
+                "POST",
+                "/api/calibrate",
+                &[("Content-Length", "100000")],
+            )
+            .await;
+            assert_eq!(big.code, 413, "{big:?}");
+            assert!(rig.robot.moves().is_empty(), "moved without a token");
+            assert_eq!(rig.get("/api/status").await.json()["state"], "idle");
+
+            // The token: accepted; a second trigger at once is refused busy.
+            let a = rig.post("/api/calibrate", Some(TOKEN)).await;
+            assert_eq!(a.code, 202, "{a:?}");
+            let run_id = a.json()["run_id"].as_str().expect("run id").to_string();
+            let busy = rig.post("/api/check", Some(TOKEN)).await;
+            assert_eq!(busy.code, 409, "{busy:?}");
+            let msg = busy.json()["error"].as_str().expect("error").to_string();
+            assert!(msg.contains("busy") && msg.contains(&run_id), "{msg}");
+            let st = rig.get("/api/status").await.json();
+            assert_eq!(st["state"], "running");
+            assert_eq!(st["current"]["run_id"], run_id.as_str());
+            assert_eq!(st["current"]["trigger"], "api");
+
+            // The capture fails (no clouds): the run ends in error and is in the history.
+            rig.gate.add_permits(1);
+            let st = rig.idle().await;
+            assert_eq!(st["last"]["run_id"], run_id.as_str());
+            assert_eq!(st["last"]["outcome"], "error");
+            assert!(
+                !rig.robot.moves().is_empty(),
+                "the accepted run moved the arm"
+            );
+
+            let runs = rig.get("/api/runs").await;
+            assert_eq!(runs.code, 200, "{runs:?}");
+            let runs = runs.json();
+            let listed = runs["runs"].as_array().expect("runs");
+            assert_eq!(listed.len(), 1, "{runs}");
+            assert_eq!(listed[0]["run_id"], run_id.as_str());
+            assert_eq!(listed[0]["outcome"], "error");
+            let record = rig.get(&format!("/api/runs/{run_id}")).await;
+            assert_eq!(record.code, 200, "{record:?}");
+            assert_eq!(record.json()["run_id"], run_id.as_str());
+            assert_eq!(rig.get("/api/runs/nope").await.code, 404);
+            // No accepted calibration yet.
+            let latest = rig.get("/api/latest").await;
+            assert_eq!(latest.code, 404, "{latest:?}");
+            assert!(latest.json()["error"].as_str().is_some());
+
+            // Paging and bad numbers.
+            let page = rig.get("/api/runs?limit=1&before=1").await.json();
+            assert_eq!(page["runs"].as_array().map(Vec::len), Some(0));
+            for bad in [
+                "limit=0",
+                "limit=1001",
+                "limit=x",
+                "before=-1",
+                "before=nan",
+                "lmit=3",
+            ] {
+                let a = rig.get(&format!("/api/runs?{bad}")).await;
+                assert_eq!(a.code, 400, "{bad}: {a:?}");
+                assert!(a.json()["error"].is_string());
+            }
+
+            // Cancel with nothing running.
+            let a = rig.post("/api/cancel", Some(TOKEN)).await;
+            assert_eq!(a.code, 200, "{a:?}");
+            assert_eq!(a.json()["cancelled"], false);
+
+            let m = rig.get("/metrics").await;
+            assert_eq!(m.code, 200);
+            assert!(m
+                .header("content-type")
+                .is_some_and(|c| c.starts_with("text/plain; version=0.0.4")));
+            assert!(
+                m.body
+                    .contains("handeye_runs_total{trigger=\"api\",outcome=\"error\"} 1"),
+                "{}",
+                m.body
+            );
+
+            assert_eq!(rig.get("/").await.code, 200);
+            let a = rig.get("/api/nothing").await;
+            assert_eq!(a.code, 404);
+            assert!(a.json()["error"].is_string());
+            let a = rig.get("/api/calibrate").await;
+            assert_eq!(a.code, 405);
+            assert!(a.json()["error"]
+                .as_str()
+                .is_some_and(|e| e.contains("POST")));
+        })
+        .await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn api_cancels_the_run_in_progress() {
+        with_rig("cancel", Some(TOKEN), |rig| async move {
+            let a = rig.post("/api/check", Some(TOKEN)).await;
+            assert_eq!(a.code, 202, "{a:?}");
+            let a = rig.post("/api/cancel", Some(TOKEN)).await;
+            assert_eq!(a.json()["cancelled"], true);
+            let st = rig.idle().await;
+            assert_eq!(st["last"]["mode"], "check");
+            assert_eq!(st["last"]["outcome"], "aborted", "{st}");
+        })
+        .await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn without_a_token_nothing_moves_the_arm() {
+        with_rig("no-token", None, |rig| async move {
+            for path in ["/api/calibrate", "/api/check", "/api/cancel"] {
+                for token in [None, Some(TOKEN)] {
+                    let a = rig.post(path, token).await;
+                    assert_eq!(a.code, 403, "{path}: {a:?}");
+                    assert_eq!(a.json()["error"], NO_TOKEN);
+                }
+            }
+            assert_eq!(rig.get("/api/status").await.json()["state"], "idle");
+            assert!(rig.robot.moves().is_empty());
+        })
+        .await;
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_taken_port_is_reported_and_serve_returns() {
+        let Some(model) = model() else {
+            return;
+        };
+        let taken = TcpListener::bind("127.0.0.1:0").expect("bind");
+        let addr = taken.local_addr().expect("addr");
+        let dir = scratch("taken");
+        let store = Arc::new(Store::open(&dir.join("history.sqlite")).expect("store"));
+        let shutdown = CancellationToken::new();
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        let daemon = handeye::daemon::run(
+            test_config(&dir),
+            model,
+            FakeRobot::new(UrModel::Ur5e, HOME),
+            FakeCamera::new(Vec::new()),
+            store,
+            Api::new(addr, Some(TOKEN.into())),
+            shutdown.clone(),
+            move |h| {
+                let _ = tx.send(h.clone());
+            },
+        );
+        let test = async {
+            let handle = rx.await.expect("ready");
+            // The daemon runs on without its API.
+            tokio::time::sleep(Duration::from_millis(300)).await;
+            assert_eq!(handle.status().state, "idle");
+            assert!(handle.request(RunMode::Check, Trigger::Api).is_ok());
+            shutdown.cancel();
+        };
+        tokio::time::timeout(Duration::from_secs(60), async {
+            tokio::join!(daemon, test)
+        })
+        .await
+        .expect("the daemon stops");
+        drop(taken);
+    }
+
+    #[test]
+    fn tokens_compare_whole() {
+        assert!(token_matches(b"abc", b"abc"));
+        assert!(!token_matches(b"abc", b"abd"));
+        assert!(!token_matches(b"abc", b"ab"));
+        assert!(!token_matches(b"abc", b"abcd"));
+        assert!(!token_matches(b"abc", b""));
+    }
+
+    #[test]
+    fn runs_query_defaults_and_bounds() {
+        assert_eq!(runs_query(None), Ok((DEFAULT_RUNS, None)));
+        assert_eq!(runs_query(Some("")), Ok((DEFAULT_RUNS, None)));
+        assert_eq!(
+            runs_query(Some("limit=1000&before=1700000000.5")),
+            Ok((1000, Some(1_700_000_000.5)))
+        );
+        assert!(runs_query(Some("limit=1001")).is_err_and(|e| e.contains("1 to 1000")));
+        assert!(runs_query(Some("before=x")).is_err_and(|e| e.contains("unix time")));
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn token_files_are_checked() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = scratch("token-files");
+        let mut cfg = test_config(&dir);
+        let file = dir.join("token");
+        let write = |text: &str, mode: u32| {
+            std::fs::write(&file, text).expect("write");
+            std::fs::set_permissions(&file, std::fs::Permissions::from_mode(mode)).expect("chmod");
+        };
+
+        // None configured: the API runs, refusing what moves the arm.
+        let api = Api::from_config_with(&cfg, None).expect("no token is allowed");
+        assert!(api.token.is_none());
+
+        cfg.daemon.token_file = Some(file.clone());
+        write(&format!("  {TOKEN}\n"), 0o600);
+        let api = Api::from_config_with(&cfg, None).expect("a private token file");
+        assert_eq!(api.token.as_deref(), Some(TOKEN));
+        assert!(!format!("{api:?}").contains(TOKEN), "Debug shows the token");
+
+        write(TOKEN, 0o644);
+        let e = format!(
+            "{:#}",
+            Api::from_config_with(&cfg, None).expect_err("0644 is refused")
+        );
+        assert!(
+            e.contains("chmod 600") && e.contains(&file.display().to_string()),
+            "{e}"
+        );
+        write(TOKEN, 0o640);
+        assert!(Api::from_config_with(&cfg, None).is_err());
+
+        write(" \n", 0o600);
+        let e = format!(
+            "{:#}",
+            Api::from_config_with(&cfg, None).expect_err("empty")
+        );
+        assert!(e.contains("empty"), "{e}");
+        write("two words", 0o600);
+        assert!(Api::from_config_with(&cfg, None).is_err());
+
+        cfg.daemon.token_file = Some(dir.join("missing"));
+        assert!(Api::from_config_with(&cfg, None).is_err());
+
+        // systemd's credential wins over the file; its mode is systemd's business (an ACL
+        // shows as group bits).
+        let creds = dir.join("credentials");
+        std::fs::create_dir_all(&creds).expect("dir");
+        let cred = creds.join("token");
+        std::fs::write(&cred, "from-systemd\n").expect("write");
+        std::fs::set_permissions(&cred, std::fs::Permissions::from_mode(0o440)).expect("chmod");
+        let api = Api::from_config_with(&cfg, Some(&creds)).expect("credential");
+        assert_eq!(api.token.as_deref(), Some("from-systemd"));
+        // A credentials directory without `token` falls back to the file.
+        cfg.daemon.token_file = Some(file.clone());
+        write(TOKEN, 0o600);
+        let api = Api::from_config_with(&cfg, Some(&dir.join("other"))).expect("file");
+        assert_eq!(api.token.as_deref(), Some(TOKEN));
+    }
+}
