@@ -15,6 +15,9 @@
 //! - [`config`]: the TOML configuration of a cell, validated.
 //! - [`run`]: the calibration run over the hal `Robot` and `DepthCamera` traits, from
 //!   preflight to the return move, returning one record.
+//! - [`daemon`]: the service: triggers (startup, schedule, API), one run at a time, state,
+//!   metrics, systemd readiness and watchdog.
+//! - [`store`]: the history of every run (SQLite).
 //!
 //! The binary (`src/main.rs` and its `src/cli/` modules, which the library does not use) wires
 //! concrete drivers (`handeye-ur`, `handeye-gige`) to this core; the core only knows the traits
@@ -25,6 +28,7 @@ pub mod calib;
 pub mod camera;
 pub mod cloud;
 pub mod config;
+pub mod daemon;
 pub mod frames;
 pub mod model;
 pub mod plan;

@@ -41,6 +41,9 @@ enum Command {
     Robot(cli::robot::Args),
     /// Talk to a GigE Vision 3D camera.
     Camera(cli::camera::Args),
+    /// The service: owns the robot and camera, runs calibrations and checks when asked (at
+    /// startup, on a schedule, from the HTTP API), records every run in the history.
+    Daemon(cli::daemon::Args),
     /// Ask the running daemon what it is doing: state, current run and stage, last run, last
     /// calibration, drift alarm, connections. Exit 2 when no daemon answers.
     Status(cli::status::Args),
@@ -143,6 +146,7 @@ fn main() -> ExitCode {
         Command::Status(a) => cli::status::run(a),
         // Asynchronous: talk to devices or serve them; stop on the shutdown token.
         Command::Demo(a) => with_runtime(|shutdown| cli::demo::run(a, shutdown)),
+        Command::Daemon(a) => with_runtime(|shutdown| cli::daemon::run(a, shutdown)),
         Command::Calibrate(a) => with_runtime(|shutdown| cli::calibrate::calibrate(a, shutdown)),
         Command::Check(a) => with_runtime(|shutdown| cli::calibrate::check(a, shutdown)),
         Command::Robot(a) => with_runtime(|shutdown| cli::robot::run(a, shutdown)),

@@ -2,10 +2,12 @@
 //! real protocols (UR dashboard/RTDE/script, GigE Vision), plus the offline commands.
 //!
 //! Robot models come from `../shared/robots`; without it every scenario prints SKIP (and fails
-//! when env `CI` is set). Loopback addresses used here: 127.0.0.110–127.0.0.114 and 127.0.0.120–127.0.0.125.
+//! when env `CI` is set). Loopback addresses used here: 127.0.0.110–127.0.0.114 and 127.0.0.120–127.0.0.133.
 
 #[path = "e2e/calibrate.rs"]
 mod calibrate;
+#[path = "e2e/daemon.rs"]
+mod daemon;
 #[path = "e2e/rig.rs"]
 mod rig;
 #[path = "e2e/scan.rs"]

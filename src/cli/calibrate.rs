@@ -14,7 +14,7 @@ use handeye::config::{CameraBackend, Config};
 use handeye::model::RobotModel;
 use handeye::run::{run, Outcome, Progress, RunMode, RunRecord, RunRequest, Stage};
 use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
-use handeye_hal::{DepthCamera, Robot};
+use handeye_hal::DepthCamera;
 use handeye_ur::{Ports, UrConfig, UrRobot};
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
@@ -108,40 +108,64 @@ pub(crate) async fn execute(
 ) -> anyhow::Result<RunRecord> {
     let model = load_model(cfg)?;
     let robot = connect_robot(cfg).await?;
+    let camera = AnyCamera::connect(cfg).await?;
     let progress = Terminal::new(quiet);
-    let record = match &cfg.camera.backend {
-        CameraBackend::Gige { address } => {
-            let addr = GvcpClient::parse_address(address)?;
-            let camera = tokio::task::spawn_blocking(move || {
-                GigeCamera::connect(addr, ControlConfig::default())
-            })
-            .await?
-            .with_context(|| format!("connecting to the GigE Vision camera at {addr}"))?;
-            go(&robot, &camera, &model, cfg, req, shutdown, &progress).await
-        }
-        CameraBackend::Exec { command, timeout } => {
-            let camera = ExecCamera::new(command.clone(), *timeout)?;
-            go(&robot, &camera, &model, cfg, req, shutdown, &progress).await
-        }
-        CameraBackend::File { paths } => {
-            let camera = FileCamera::new(paths.clone())?;
-            go(&robot, &camera, &model, cfg, req, shutdown, &progress).await
-        }
-    };
+    let record = run(&robot, &camera, &model, cfg, req, shutdown, &progress).await;
     progress.done();
     Ok(record)
 }
 
-async fn go<R: Robot, C: DepthCamera>(
-    robot: &R,
-    camera: &C,
-    model: &Arc<RobotModel>,
-    cfg: &Config,
-    req: RunRequest,
-    shutdown: &CancellationToken,
-    progress: &Terminal,
-) -> RunRecord {
-    run(robot, camera, model, cfg, req, shutdown, progress).await
+/// The configured camera, whichever backend: one concrete type for the generic run.
+#[derive(Debug, Clone)]
+pub(crate) enum AnyCamera {
+    /// GigE Vision.
+    Gige(GigeCamera),
+    /// A vendor SDK through a command.
+    Exec(ExecCamera),
+    /// Recorded files.
+    File(FileCamera),
+}
+
+impl AnyCamera {
+    /// Connects the camera `cfg.camera` names.
+    pub(crate) async fn connect(cfg: &Config) -> anyhow::Result<AnyCamera> {
+        Ok(match &cfg.camera.backend {
+            CameraBackend::Gige { address } => {
+                let addr = GvcpClient::parse_address(address)?;
+                let camera = tokio::task::spawn_blocking(move || {
+                    GigeCamera::connect(addr, ControlConfig::default())
+                })
+                .await?
+                .with_context(|| format!("connecting to the GigE Vision camera at {addr}"))?;
+                AnyCamera::Gige(camera)
+            }
+            CameraBackend::Exec { command, timeout } => {
+                AnyCamera::Exec(ExecCamera::new(command.clone(), *timeout)?)
+            }
+            CameraBackend::File { paths } => AnyCamera::File(FileCamera::new(paths.clone())?),
+        })
+    }
+}
+
+impl DepthCamera for AnyCamera {
+    async fn info(&self) -> Result<handeye_hal::CameraInfo, handeye_hal::HalError> {
+        match self {
+            AnyCamera::Gige(c) => c.info().await,
+            AnyCamera::Exec(c) => c.info().await,
+            AnyCamera::File(c) => c.info().await,
+        }
+    }
+
+    async fn capture(
+        &self,
+        settings: &handeye_hal::CaptureSettings,
+    ) -> Result<Vec<handeye_hal::PointCloud>, handeye_hal::HalError> {
+        match self {
+            AnyCamera::Gige(c) => c.capture(settings).await,
+            AnyCamera::Exec(c) => c.capture(settings).await,
+            AnyCamera::File(c) => c.capture(settings).await,
+        }
+    }
 }
 
 /// Connects RTDE, dashboard and primary of the configured controller.
@@ -157,9 +181,18 @@ pub(crate) async fn connect_robot(cfg: &Config) -> anyhow::Result<UrRobot> {
     };
     ur.max_joint_speed_rad_s = cfg.robot.limits.max_joint_speed_rad_s;
     ur.max_joint_accel_rad_s2 = cfg.robot.limits.max_joint_accel_rad_s2;
-    if let Some(map) = cfg.write_back.registers {
-        ur.registers = map.double_start..=map.double_start + 5;
-        ur.int_registers = map.sequence_int..=map.sequence_int;
+    // Claim exactly the RTDE input registers the configuration writes, no others: they stay
+    // free for the cell's own clients.
+    #[allow(clippy::reversed_empty_ranges)]
+    match cfg.write_back.registers {
+        Some(map) => {
+            ur.registers = map.double_start..=map.double_start + 5;
+            ur.int_registers = map.sequence_int..=map.sequence_int;
+        }
+        None => {
+            ur.registers = 1..=0;
+            ur.int_registers = 1..=0;
+        }
     }
     UrRobot::connect(ur)
         .await

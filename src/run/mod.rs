@@ -246,8 +246,8 @@ pub async fn run<R: Robot, C: DepthCamera>(
         run_dir: cfg.storage.dir.join(RUNS_DIR).join(&run_id),
         moved: false,
     };
-    let _span = tracing::info_span!("calibration", run_id = %run_id).entered();
-    let result = cx.steps().await;
+    let span = tracing::info_span!("calibration", run_id = %run_id);
+    let result = tracing::Instrument::instrument(cx.steps(), span).await;
     if let Err(f) = result {
         cx.record.outcome = f.outcome;
         cx.record.failed_stage = Some(f.stage);

@@ -239,6 +239,31 @@ impl Daemon {
         }
     }
 
+    /// Sends `signal` (e.g. `libc::SIGTERM`, `libc::SIGKILL`) to it.
+    pub(crate) fn signal(&self, signal: i32) {
+        let pid = i32::try_from(self.child.id()).expect("pid fits in i32");
+        // SAFETY: kill(2) on our own child's pid has no memory effects.
+        let r = unsafe { libc::kill(pid, signal) };
+        assert_eq!(r, 0, "kill({pid}, {signal}) failed");
+    }
+
+    /// Waits until it exits; panics (with the log) if that takes longer than `limit`.
+    pub(crate) fn wait_exit(&mut self, limit: Duration) -> ExitStatus {
+        let deadline = Instant::now() + limit;
+        loop {
+            if let Ok(Some(s)) = self.child.try_wait() {
+                return s;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "{} still running {limit:?} after it was told to stop:\n{}",
+                self.name,
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(30));
+        }
+    }
+
     /// Kills it now and waits for it to end.
     pub(crate) fn stop(mut self) -> String {
         self.kill();

@@ -31,7 +31,8 @@ pub struct UrConfig {
     pub max_joint_accel_rad_s2: f64,
     /// Double registers this client writes and reads (`input_double_register_N`, and
     /// `output_double_register_N` from a pendant program; upper range 24–47 by default: 0–23
-    /// belong to fieldbus adapters).
+    /// belong to fieldbus adapters). An empty range (e.g. `1..=0`) claims none, leaving
+    /// them to other RTDE clients.
     pub registers: RangeInclusive<u32>,
     /// Int registers this client writes and reads (`input_int_register_N`,
     /// `output_int_register_N`); 24–31 by default. Narrower than the doubles because every
@@ -102,8 +103,9 @@ impl UrRobot {
     /// register), check the dashboard and read the controller's kinematics from the primary
     /// interface (a controller that sends none within `cfg.timeout` is logged, not an error).
     pub async fn connect(cfg: UrConfig) -> Result<Self, UrError> {
+        // An empty range claims no register of that kind: other RTDE clients keep them.
         for (what, r) in [("double", &cfg.registers), ("int", &cfg.int_registers)] {
-            if r.is_empty() || *r.end() > 47 {
+            if !r.is_empty() && *r.end() > 47 {
                 return Err(UrError::InvalidArgument(format!(
                     "{what} register range {r:?} must lie within 0..=47"
                 )));

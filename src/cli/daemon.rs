@@ -1,0 +1,85 @@
+//! `handeye daemon --config FILE`: the service on a cell PC. Loads and checks the
+//! configuration (a bad one refuses to start, naming key and line), opens the history,
+//! connects the robot and the camera (retrying with backoff until they answer), and hands them
+//! to `handeye::daemon::run` with the HTTP API as its frontend, until SIGTERM/Ctrl-C.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::Context;
+use handeye::config::Config;
+use handeye::store::Store;
+use tokio_util::sync::CancellationToken;
+
+use super::api::Api;
+use super::calibrate::{connect_robot, load_model, AnyCamera};
+
+/// Longest pause between two connection attempts.
+const MAX_BACKOFF: Duration = Duration::from_secs(30);
+
+/// Arguments of this subcommand.
+#[derive(Debug, clap::Args)]
+pub(crate) struct Args {
+    /// The cell's configuration (see config/handeye.example.toml, `[daemon]`).
+    #[arg(long, value_name = "FILE")]
+    config: PathBuf,
+}
+
+/// The history database of a configuration.
+pub(crate) fn history_path(cfg: &Config) -> PathBuf {
+    cfg.storage.dir.join("history.sqlite")
+}
+
+/// Calls `connect` until it succeeds (backoff 1 s doubling to 30 s, each failure logged) or
+/// `shutdown`; `None` on shutdown.
+async fn with_backoff<T, F, Fut>(what: &str, shutdown: &CancellationToken, connect: F) -> Option<T>
+where
+    F: Fn() -> Fut,
+    Fut: std::future::Future<Output = anyhow::Result<T>>,
+{
+    let mut wait = Duration::from_secs(1);
+    loop {
+        match connect().await {
+            Ok(v) => return Some(v),
+            Err(e) => tracing::warn!("{what}: {e:#}; retrying in {wait:?}"),
+        }
+        tokio::select! {
+            _ = shutdown.cancelled() => return None,
+            _ = tokio::time::sleep(wait) => {}
+        }
+        wait = (wait * 2).min(MAX_BACKOFF);
+    }
+}
+
+pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
+    let cfg = Config::load(&args.config)?;
+    let model = load_model(&cfg)?;
+    let path = history_path(&cfg);
+    let store = tokio::task::spawn_blocking(move || Store::open(&path))
+        .await?
+        .context("opening the history")?;
+    let api = Api::from_config(&cfg)?;
+    tracing::info!(config = %cfg.origin, "handeye daemon starting");
+    let Some(robot) = with_backoff("robot", &shutdown, || connect_robot(&cfg)).await else {
+        return Ok(ExitCode::SUCCESS);
+    };
+    let Some(camera) = with_backoff("camera", &shutdown, || AnyCamera::connect(&cfg)).await else {
+        return Ok(ExitCode::SUCCESS);
+    };
+    let listen = cfg.daemon.listen;
+    handeye::daemon::run(
+        cfg,
+        model,
+        robot,
+        camera,
+        Arc::new(store),
+        api,
+        shutdown,
+        |_| eprintln!("handeye daemon ready (API on http://{listen})"),
+    )
+    .await;
+    eprintln!("handeye daemon stopped");
+    Ok(ExitCode::SUCCESS)
+}

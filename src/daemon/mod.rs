@@ -1,0 +1,702 @@
+//! The daemon (mini-redis shape): one task owns the robot and camera and runs one calibration
+//! run at a time; triggers — startup, the schedule, the HTTP API, the CLI — ask through a
+//! cloneable [`DaemonHandle`]. A trigger while a run is going is refused with who is busy since
+//! when. Every run is recorded in the history store before it starts and when it ends, so a
+//! crash leaves it marked as interrupted. One shutdown token stops everything: a running move
+//! is stopped, the run recorded as aborted.
+//!
+//! The binary builds the concrete robot and camera from the configuration and calls [`run`].
+
+mod notify;
+
+use std::fmt::Write as _;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant, SystemTime};
+
+use handeye_hal::{DepthCamera, Robot};
+use serde::Serialize;
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+
+use crate::config::Config;
+use crate::model::RobotModel;
+use crate::run::{new_run_id, Outcome, Progress, RunMode, RunRecord, RunRequest, Stage};
+use crate::store::{RunStart, Store};
+
+/// Who asked for a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Trigger {
+    /// The daemon's start (`daemon.startup`).
+    Startup,
+    /// The drift-check schedule (`daemon.check_interval_s`).
+    Schedule,
+    /// A scheduled check found drift and `daemon.recalibrate_on_drift` is on.
+    Drift,
+    /// The HTTP API (or the web page).
+    Api,
+    /// The pendant program, through registers.
+    Pendant,
+}
+
+impl Trigger {
+    /// Lower-case name as stored in the history.
+    pub fn name(self) -> &'static str {
+        match self {
+            Trigger::Startup => "startup",
+            Trigger::Schedule => "schedule",
+            Trigger::Drift => "drift",
+            Trigger::Api => "api",
+            Trigger::Pendant => "pendant",
+        }
+    }
+}
+
+/// The run in progress.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Current {
+    /// Its id (also in the history).
+    pub run_id: String,
+    /// Calibrate or check.
+    pub mode: RunMode,
+    /// Who asked.
+    pub trigger: Trigger,
+    /// Unix time it was accepted, s.
+    pub since_unix_s: f64,
+    /// The stage it is in.
+    pub stage: Option<Stage>,
+    /// The stage's last progress line.
+    pub detail: String,
+}
+
+/// A run's end, as the status shows it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Finished {
+    /// Its id.
+    pub run_id: String,
+    /// Calibrate or check.
+    pub mode: RunMode,
+    /// Who asked.
+    pub trigger: Trigger,
+    /// How it ended.
+    pub outcome: Outcome,
+    /// Why (empty when accepted).
+    pub reasons: Vec<String>,
+    /// Unix time it ended, s.
+    pub finished_unix_s: f64,
+    /// The whole run, ms.
+    pub duration_ms: f64,
+    /// Check: the drift, mm and degrees, and whether it exceeds the thresholds.
+    pub drift: Option<(f64, f64, bool)>,
+}
+
+/// What the daemon is doing; the API's `/api/status`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Status {
+    /// `idle`, `running` or `stopping`.
+    pub state: &'static str,
+    /// The run in progress.
+    pub current: Option<Current>,
+    /// The last run that ended.
+    pub last: Option<Finished>,
+    /// The last calibrate run that was accepted.
+    pub last_calibration: Option<Finished>,
+    /// The last check run that measured a drift.
+    pub last_check: Option<Finished>,
+    /// Whether the last check found drift (an alarm until a run clears it).
+    pub drift_alarm: bool,
+    /// Whether the robot answered its last status request.
+    pub robot_connected: bool,
+    /// Whether the camera answered its last request.
+    pub camera_connected: bool,
+    /// Unix time the daemon started, s.
+    pub started_unix_s: f64,
+}
+
+/// Why a trigger was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum Refusal {
+    /// A run is going.
+    #[error("busy: {mode:?} run {run_id} (asked by {trigger}) since {since_unix_s:.0}; cancel it or wait", trigger = trigger.name())]
+    Busy {
+        /// The running run.
+        run_id: String,
+        /// Its mode.
+        mode: RunMode,
+        /// Who asked for it.
+        trigger: Trigger,
+        /// When it was accepted (unix s).
+        since_unix_s: f64,
+    },
+    /// The daemon is shutting down.
+    #[error("the daemon is shutting down")]
+    ShuttingDown,
+}
+
+/// Counters for `/metrics`.
+#[derive(Debug, Default, Clone)]
+struct Metrics {
+    /// Runs by (trigger, outcome).
+    runs: Vec<((Trigger, Outcome), u64)>,
+    /// Durations of every finished run, s, bucketed.
+    duration_buckets: [u64; DURATION_BUCKETS.len()],
+    duration_sum_s: f64,
+    duration_count: u64,
+    last_uncertainty_mm: Option<f64>,
+    last_uncertainty_deg: Option<f64>,
+    last_drift_mm: Option<f64>,
+    last_drift_deg: Option<f64>,
+    alarms: u64,
+}
+
+/// How often an idle daemon asks the robot and the camera whether they answer.
+const HEALTH_EVERY: Duration = Duration::from_secs(5);
+/// How long such a question may take.
+const HEALTH_TIMEOUT: Duration = Duration::from_secs(3);
+/// Upper bounds of the run-duration histogram, s.
+const DURATION_BUCKETS: [f64; 8] = [1.0, 2.5, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0];
+
+#[derive(Debug)]
+struct State {
+    current: Option<Current>,
+    cancel: Option<CancellationToken>,
+    last: Option<Finished>,
+    last_calibration: Option<Finished>,
+    last_check: Option<Finished>,
+    drift_alarm: bool,
+    robot_connected: bool,
+    camera_connected: bool,
+    metrics: Metrics,
+}
+
+#[derive(Debug)]
+struct Shared {
+    state: Mutex<State>,
+    queue: mpsc::Sender<Job>,
+    store: Arc<Store>,
+    shutdown: CancellationToken,
+    started_unix_s: f64,
+}
+
+/// One accepted trigger.
+#[derive(Debug)]
+struct Job {
+    run_id: String,
+    mode: RunMode,
+    trigger: Trigger,
+    cancel: CancellationToken,
+}
+
+/// A cheap, cloneable handle on the daemon: ask for runs, cancel, read the state.
+#[derive(Debug, Clone)]
+pub struct DaemonHandle {
+    shared: Arc<Shared>,
+}
+
+fn unix_now() -> f64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+impl DaemonHandle {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        self.shared.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Asks for a run. Returns its id at once (it runs in the background), or why not: one
+    /// run at a time.
+    pub fn request(&self, mode: RunMode, trigger: Trigger) -> Result<String, Refusal> {
+        if self.shared.shutdown.is_cancelled() {
+            return Err(Refusal::ShuttingDown);
+        }
+        let mut st = self.lock();
+        if let Some(c) = &st.current {
+            return Err(Refusal::Busy {
+                run_id: c.run_id.clone(),
+                mode: c.mode,
+                trigger: c.trigger,
+                since_unix_s: c.since_unix_s,
+            });
+        }
+        let run_id = new_run_id();
+        let cancel = self.shared.shutdown.child_token();
+        let job = Job {
+            run_id: run_id.clone(),
+            mode,
+            trigger,
+            cancel: cancel.clone(),
+        };
+        // The queue holds one job; a full queue would mean a run is going, which the state
+        // says already.
+        self.shared
+            .queue
+            .try_send(job)
+            .map_err(|_| Refusal::ShuttingDown)?;
+        st.current = Some(Current {
+            run_id: run_id.clone(),
+            mode,
+            trigger,
+            since_unix_s: unix_now(),
+            stage: None,
+            detail: "queued".into(),
+        });
+        st.cancel = Some(cancel);
+        tracing::info!(run_id = %run_id, trigger = trigger.name(), ?mode, "run accepted");
+        Ok(run_id)
+    }
+
+    /// Cancels the run in progress (the arm is stopped); `false` when nothing runs.
+    pub fn cancel(&self) -> bool {
+        let st = self.lock();
+        match &st.cancel {
+            Some(c) => {
+                c.cancel();
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// What the daemon is doing.
+    pub fn status(&self) -> Status {
+        let st = self.lock();
+        Status {
+            state: if self.shared.shutdown.is_cancelled() {
+                "stopping"
+            } else if st.current.is_some() {
+                "running"
+            } else {
+                "idle"
+            },
+            current: st.current.clone(),
+            last: st.last.clone(),
+            last_calibration: st.last_calibration.clone(),
+            last_check: st.last_check.clone(),
+            drift_alarm: st.drift_alarm,
+            robot_connected: st.robot_connected,
+            camera_connected: st.camera_connected,
+            started_unix_s: self.shared.started_unix_s,
+        }
+    }
+
+    /// The history.
+    pub fn store(&self) -> &Arc<Store> {
+        &self.shared.store
+    }
+
+    /// Whether the daemon is stopping.
+    pub fn is_shutting_down(&self) -> bool {
+        self.shared.shutdown.is_cancelled()
+    }
+
+    /// The metrics in the Prometheus text exposition format.
+    pub fn metrics(&self) -> String {
+        let st = self.lock();
+        let m = &st.metrics;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "# HELP handeye_runs_total Calibration runs by trigger and outcome."
+        );
+        let _ = writeln!(s, "# TYPE handeye_runs_total counter");
+        for ((trigger, outcome), n) in &m.runs {
+            let _ = writeln!(
+                s,
+                "handeye_runs_total{{trigger=\"{}\",outcome=\"{}\"}} {n}",
+                trigger.name(),
+                outcome.name()
+            );
+        }
+        let _ = writeln!(
+            s,
+            "# HELP handeye_run_duration_seconds Duration of a run, start to end."
+        );
+        let _ = writeln!(s, "# TYPE handeye_run_duration_seconds histogram");
+        let mut cumulative = 0;
+        for (le, n) in DURATION_BUCKETS.iter().zip(m.duration_buckets) {
+            cumulative += n;
+            let _ = writeln!(
+                s,
+                "handeye_run_duration_seconds_bucket{{le=\"{le}\"}} {cumulative}"
+            );
+        }
+        let _ = writeln!(
+            s,
+            "handeye_run_duration_seconds_bucket{{le=\"+Inf\"}} {}",
+            m.duration_count
+        );
+        let _ = writeln!(s, "handeye_run_duration_seconds_sum {}", m.duration_sum_s);
+        let _ = writeln!(s, "handeye_run_duration_seconds_count {}", m.duration_count);
+        let gauge = |s: &mut String, name: &str, help: &str, v: Option<f64>| {
+            let _ = writeln!(s, "# HELP {name} {help}");
+            let _ = writeln!(s, "# TYPE {name} gauge");
+            let _ = writeln!(s, "{name} {}", v.unwrap_or(f64::NAN));
+        };
+        gauge(
+            &mut s,
+            "handeye_last_calibration_uncertainty_mm",
+            "Reported 1-sigma translation uncertainty of the last accepted calibration, mm.",
+            m.last_uncertainty_mm,
+        );
+        gauge(
+            &mut s,
+            "handeye_last_calibration_uncertainty_degrees",
+            "Reported 1-sigma rotation uncertainty of the last accepted calibration, degrees.",
+            m.last_uncertainty_deg,
+        );
+        gauge(
+            &mut s,
+            "handeye_last_drift_mm",
+            "Camera position drift found by the last check, mm.",
+            m.last_drift_mm,
+        );
+        gauge(
+            &mut s,
+            "handeye_last_drift_degrees",
+            "Camera rotation drift found by the last check, degrees.",
+            m.last_drift_deg,
+        );
+        gauge(
+            &mut s,
+            "handeye_drift_alarm",
+            "1 while the last check found drift beyond the thresholds.",
+            Some(f64::from(u8::from(st.drift_alarm))),
+        );
+        let _ = writeln!(s, "# HELP handeye_alarms_total Drift alarms raised.");
+        let _ = writeln!(s, "# TYPE handeye_alarms_total counter");
+        let _ = writeln!(s, "handeye_alarms_total {}", m.alarms);
+        for (name, up) in [
+            ("robot", st.robot_connected),
+            ("camera", st.camera_connected),
+        ] {
+            let _ = writeln!(
+                s,
+                "# HELP handeye_{name}_connected 1 when the {name} answers."
+            );
+            let _ = writeln!(s, "# TYPE handeye_{name}_connected gauge");
+            let _ = writeln!(s, "handeye_{name}_connected {}", u8::from(up));
+        }
+        let _ = writeln!(s, "# HELP handeye_busy 1 while a run is going.");
+        let _ = writeln!(s, "# TYPE handeye_busy gauge");
+        let _ = writeln!(s, "handeye_busy {}", u8::from(st.current.is_some()));
+        s
+    }
+
+    fn set_connections(&self, robot: bool, camera: bool) {
+        let mut st = self.lock();
+        if st.robot_connected != robot {
+            tracing::warn!(
+                "robot {}",
+                if robot {
+                    "answers again"
+                } else {
+                    "does not answer"
+                }
+            );
+        }
+        if st.camera_connected != camera {
+            tracing::warn!(
+                "camera {}",
+                if camera {
+                    "answers again"
+                } else {
+                    "does not answer"
+                }
+            );
+        }
+        st.robot_connected = robot;
+        st.camera_connected = camera;
+    }
+
+    fn set_stage(&self, stage: Stage, detail: &str) {
+        let mut st = self.lock();
+        if let Some(c) = &mut st.current {
+            c.stage = Some(stage);
+            c.detail = detail.to_string();
+        }
+    }
+
+    fn finished(&self, job: &Job, record: &RunRecord) {
+        let mut st = self.lock();
+        let drift = record
+            .drift
+            .as_ref()
+            .map(|d| (d.translation_mm, d.rotation_deg, d.drifted));
+        let f = Finished {
+            run_id: record.run_id.clone(),
+            mode: job.mode,
+            trigger: job.trigger,
+            outcome: record.outcome,
+            reasons: record.reasons.clone(),
+            finished_unix_s: unix_now(),
+            duration_ms: record.timings_ms.total,
+            drift,
+        };
+        let m = &mut st.metrics;
+        match m
+            .runs
+            .iter_mut()
+            .find(|((t, o), _)| *t == job.trigger && *o == record.outcome)
+        {
+            Some((_, n)) => *n += 1,
+            None => m.runs.push(((job.trigger, record.outcome), 1)),
+        }
+        let secs = record.timings_ms.total / 1e3;
+        if let Some(k) = DURATION_BUCKETS.iter().position(|le| secs <= *le) {
+            m.duration_buckets[k] += 1;
+        }
+        m.duration_sum_s += secs;
+        m.duration_count += 1;
+        if record.outcome == Outcome::Accepted {
+            match job.mode {
+                RunMode::Calibrate => {
+                    if let Some(r) = &record.result {
+                        m.last_uncertainty_mm = Some(r.uncertainty.translation_mm);
+                        m.last_uncertainty_deg = Some(r.uncertainty.rotation_deg);
+                    }
+                    st.last_calibration = Some(f.clone());
+                    // A fresh calibration is the new reference: no drift from it.
+                    st.drift_alarm = false;
+                }
+                RunMode::Check => {
+                    if let Some((mm, deg, drifted)) = drift {
+                        st.metrics.last_drift_mm = Some(mm);
+                        st.metrics.last_drift_deg = Some(deg);
+                        if drifted {
+                            st.metrics.alarms += 1;
+                            tracing::error!(
+                                run_id = %record.run_id,
+                                drift_mm = mm,
+                                drift_deg = deg,
+                                "ALARM: the camera has drifted from its calibration"
+                            );
+                        }
+                        st.drift_alarm = drifted;
+                    }
+                    st.last_check = Some(f.clone());
+                }
+            }
+        }
+        st.last = Some(f);
+        st.current = None;
+        st.cancel = None;
+    }
+}
+
+/// Progress of the current run into the daemon's state (and the log).
+struct StageReporter<'a> {
+    handle: &'a DaemonHandle,
+}
+
+impl Progress for StageReporter<'_> {
+    fn stage(&self, stage: Stage, detail: &str) {
+        tracing::info!(stage = stage.name(), "{detail}");
+        self.handle.set_stage(stage, detail);
+    }
+}
+
+/// Creates the handle and the job queue (the worker side is [`run`]).
+fn handle(store: Arc<Store>, shutdown: CancellationToken) -> (DaemonHandle, mpsc::Receiver<Job>) {
+    let (tx, rx) = mpsc::channel(1);
+    let shared = Arc::new(Shared {
+        state: Mutex::new(State {
+            current: None,
+            cancel: None,
+            last: None,
+            last_calibration: None,
+            last_check: None,
+            drift_alarm: false,
+            robot_connected: true,
+            camera_connected: true,
+            metrics: Metrics::default(),
+        }),
+        queue: tx,
+        store,
+        shutdown,
+        started_unix_s: unix_now(),
+    });
+    (DaemonHandle { shared }, rx)
+}
+
+/// What the daemon serves besides the runs (the binary's HTTP server); started with the handle
+/// once the daemon is up.
+pub trait Frontend: Send + 'static {
+    /// Serves until `shutdown`.
+    fn serve(
+        self,
+        handle: DaemonHandle,
+        shutdown: CancellationToken,
+    ) -> impl std::future::Future<Output = ()> + Send;
+}
+
+/// No frontend (tests).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoFrontend;
+
+impl Frontend for NoFrontend {
+    async fn serve(self, _: DaemonHandle, shutdown: CancellationToken) {
+        shutdown.cancelled().await;
+    }
+}
+
+/// Runs the daemon until `shutdown`: the startup run, the schedule, the frontend, and every
+/// accepted trigger, one run at a time, each recorded in `store`. Returns when the run in
+/// progress (if any) has ended and been recorded.
+#[allow(clippy::too_many_arguments)]
+pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
+    cfg: Config,
+    model: Arc<RobotModel>,
+    robot: R,
+    camera: C,
+    store: Arc<Store>,
+    frontend: F,
+    shutdown: CancellationToken,
+    ready: impl FnOnce(&DaemonHandle),
+) {
+    let (handle, mut jobs) = handle(store, shutdown.clone());
+    let notifier = notify::Notifier::from_env();
+    let digest = crate::store::config_digest(&format!("{cfg:?}"));
+    let frontend_task = tokio::spawn(frontend.serve(handle.clone(), shutdown.clone()));
+    if let Some(n) = &notifier {
+        if n.watchdog_interval().is_some() {
+            if let Some(w) = notify::Notifier::from_env() {
+                tokio::spawn(notify::feed_watchdog(w, shutdown.clone()));
+            }
+        }
+        n.ready();
+    }
+    ready(&handle);
+    if let Some(mode) = cfg.daemon.startup {
+        if let Err(e) = handle.request(mode, Trigger::Startup) {
+            tracing::warn!("startup run not started: {e}");
+        }
+    }
+    let schedule = cfg.daemon.check_interval.map(|every| {
+        let mut t = tokio::time::interval_at(tokio::time::Instant::now() + every, every);
+        t.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        t
+    });
+    let mut schedule = schedule;
+    let mut health = tokio::time::interval(HEALTH_EVERY);
+    health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        let tick = async {
+            match &mut schedule {
+                Some(t) => {
+                    t.tick().await;
+                }
+                None => std::future::pending::<()>().await,
+            }
+        };
+        tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => break,
+            Some(job) = jobs.recv() => {
+                let record = execute(&cfg, &model, &robot, &camera, &handle, &digest, &job).await;
+                if let Some(n) = &notifier {
+                    n.status(&format!("last run {}: {}", record.run_id, record.outcome));
+                }
+                let drifted = record.drift.as_ref().is_some_and(|d| d.drifted);
+                if job.trigger == Trigger::Schedule
+                    && drifted
+                    && cfg.daemon.recalibrate_on_drift
+                    && !shutdown.is_cancelled()
+                {
+                    if let Err(e) = handle.request(RunMode::Calibrate, Trigger::Drift) {
+                        tracing::warn!("recalibration after drift not started: {e}");
+                    }
+                }
+            }
+            _ = health.tick() => {
+                if handle.status().current.is_none() {
+                    let robot_up = tokio::time::timeout(HEALTH_TIMEOUT, robot.status()).await.is_ok_and(|r| r.is_ok());
+                    let camera_up = tokio::time::timeout(HEALTH_TIMEOUT, camera.info()).await.is_ok_and(|r| r.is_ok());
+                    handle.set_connections(robot_up, camera_up);
+                }
+            }
+            _ = tick => {
+                if robot_idle(&robot).await {
+                    if let Err(e) = handle.request(RunMode::Check, Trigger::Schedule) {
+                        tracing::info!("scheduled check skipped: {e}");
+                    }
+                } else {
+                    tracing::info!("scheduled check skipped: a program is running on the controller");
+                }
+            }
+        }
+    }
+    if let Some(n) = &notifier {
+        n.stopping();
+    }
+    // A job accepted just before the shutdown is recorded as never started.
+    while let Ok(job) = jobs.try_recv() {
+        let record = execute(&cfg, &model, &robot, &camera, &handle, &digest, &job).await;
+        tracing::info!(run_id = %record.run_id, "run accepted before the shutdown: {}", record.outcome);
+    }
+    let _ = frontend_task.await;
+}
+
+/// Whether no program is running on the controller (scheduled checks wait for that).
+async fn robot_idle<R: Robot>(robot: &R) -> bool {
+    matches!(robot.status().await, Ok(s) if !s.program_running)
+}
+
+/// One job: recorded as started, run, recorded as ended, captures pruned.
+async fn execute<R: Robot, C: DepthCamera>(
+    cfg: &Config,
+    model: &Arc<RobotModel>,
+    robot: &R,
+    camera: &C,
+    handle: &DaemonHandle,
+    digest: &str,
+    job: &Job,
+) -> RunRecord {
+    let t0 = Instant::now();
+    let start = RunStart {
+        run_id: job.run_id.clone(),
+        trigger: job.trigger.name().into(),
+        mode: job.mode,
+        config_origin: cfg.origin.clone(),
+        config_digest: digest.to_string(),
+        started_unix_s: unix_now(),
+    };
+    if let Err(e) = handle.store().begin(&start) {
+        tracing::error!("cannot record the start of run {}: {e}", job.run_id);
+    }
+    let req = RunRequest {
+        mode: job.mode,
+        dry_run: false,
+        run_id: Some(job.run_id.clone()),
+    };
+    let span = tracing::info_span!("run", trigger = job.trigger.name());
+    let progress = StageReporter { handle };
+    let record = tracing::Instrument::instrument(
+        crate::run::run(robot, camera, model, cfg, req, &job.cancel, &progress),
+        span,
+    )
+    .await;
+    if let Err(e) = handle.store().finish(job.trigger.name(), &record) {
+        tracing::error!("cannot record the end of run {}: {e}", job.run_id);
+    }
+    let d = &cfg.daemon;
+    match handle.store().prune_captures(
+        &cfg.storage.dir,
+        d.keep_captures_runs,
+        d.keep_captures_days,
+    ) {
+        Ok(removed) if !removed.is_empty() => {
+            tracing::info!("removed {} old raw capture file(s)", removed.len());
+        }
+        Ok(_) => {}
+        Err(e) => tracing::warn!("cannot prune old captures: {e}"),
+    }
+    tracing::info!(
+        outcome = record.outcome.name(),
+        duration_ms = t0.elapsed().as_secs_f64() * 1e3,
+        "run ended"
+    );
+    handle.finished(job, &record);
+    record
+}

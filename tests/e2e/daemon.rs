@@ -1,0 +1,365 @@
+//! `handeye daemon` against `handeye sim rig` over loopback: the startup calibration, the HTTP
+//! API with and without its token, one run at a time, the scheduled drift check and its alarm,
+//! SIGTERM mid-run, kill -9 mid-run and the history after a restart.
+
+use std::io::{Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use nalgebra::{Isometry3, Vector3};
+
+use crate::support::{iso, pose_arg, pose_error, run, secs, shared, Daemon, TempDir};
+
+const TOKEN: &str = "e2e-secret-token";
+
+/// The rig's camera mount, ~1 cm and ~3° from the configured prior.
+fn true_mount() -> Isometry3<f64> {
+    Isometry3::new(
+        Vector3::new(0.008, -0.074, 0.047),
+        Vector3::new(-0.22, 0.03, 0.02),
+    )
+}
+
+fn start_rig(dir: &TempDir, robot_ip: &str, camera_ip: &str) -> Daemon {
+    let mount_file = dir.join("mount.txt");
+    std::fs::write(&mount_file, pose_arg(&true_mount())).expect("mount file");
+    let mount = pose_arg(&true_mount());
+    let truth = dir.join("truth.json");
+    let mut d = Daemon::start(
+        dir,
+        &format!("sim-rig-{robot_ip}"),
+        &[
+            "sim",
+            "rig",
+            "--robot-bind",
+            robot_ip,
+            "--camera-bind",
+            camera_ip,
+            "--mount",
+            &mount,
+            "--truth",
+            truth.to_str().expect("utf-8"),
+            "--mount-file",
+            mount_file.to_str().expect("utf-8"),
+        ],
+    );
+    d.wait_for_log("simulated rig", secs(30));
+    d
+}
+
+/// A daemon configuration for the rig; `daemon` is the `[daemon]` table's body.
+fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &str) -> PathBuf {
+    let token = dir.join("token");
+    std::fs::write(&token, format!("{TOKEN}\n")).expect("token");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    }
+    let text = format!(
+        r#"
+[robot]
+model = "ur5e"
+host = "{robot_ip}"
+max_joint_speed_rad_s = 1.0
+max_joint_accel_rad_s2 = 2.0
+
+[camera]
+backend = "gige"
+address = "{camera_ip}"
+settle_s = 0.2
+
+[mount]
+type = "eye-in-hand"
+prior = [0.0, -0.08, 0.04, -0.26, 0.0, 0.0]
+
+[write_back]
+tcp = true
+
+[storage]
+dir = "data"
+
+[daemon]
+listen = "{robot_ip}:8650"
+token_file = "token"
+{daemon}
+"#
+    );
+    let path = dir.join("handeye.toml");
+    std::fs::write(&path, text).expect("config");
+    path
+}
+
+/// One HTTP/1.0 request to `addr`; (status code, body).
+fn http(addr: &str, method: &str, path: &str, token: Option<&str>) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap_or_else(|e| panic!("connect {addr}: {e}"));
+    s.set_read_timeout(Some(Duration::from_secs(10)))
+        .expect("timeout");
+    let auth = token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"));
+    write!(
+        s,
+        "{method} {path} HTTP/1.0\r\nHost: {addr}\r\n{auth}Content-Length: 0\r\n\r\n"
+    )
+    .expect("send");
+    let mut text = String::new();
+    s.read_to_string(&mut text).expect("read");
+    let code = text
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    // HTTP/1.0: the body is not chunked and ends with the connection.
+    let body = text.split_once("\r\n\r\n").map_or("", |(_, b)| b);
+    (code, body.to_string())
+}
+
+fn json(body: &str) -> serde_json::Value {
+    serde_json::from_str(body).unwrap_or_else(|e| panic!("not JSON ({e}): {body}"))
+}
+
+fn start_daemon(dir: &TempDir, name: &str, config: &Path) -> Daemon {
+    let mut d = Daemon::start(
+        dir,
+        name,
+        &["daemon", "--config", config.to_str().expect("utf-8")],
+    );
+    d.wait_for_log("handeye daemon ready", secs(60));
+    d
+}
+
+/// Polls `/api/status` until `done` holds for it.
+fn wait_status(
+    api: &str,
+    limit: Duration,
+    what: &str,
+    done: impl Fn(&serde_json::Value) -> bool,
+) -> serde_json::Value {
+    let deadline = Instant::now() + limit;
+    loop {
+        let (code, body) = http(api, "GET", "/api/status", None);
+        if code == 200 {
+            let st = json(&body);
+            if done(&st) {
+                return st;
+            }
+            assert!(Instant::now() < deadline, "{what} within {limit:?}: {st}");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn joints(ip: &str) -> Vec<f64> {
+    let out = run(&["robot", "--host", ip, "status", "--json"], secs(15)).success();
+    serde_json::from_value(out.json()["joint_positions_rad"].clone()).expect("joints")
+}
+
+fn history(config: &Path) -> serde_json::Value {
+    let out = run(
+        &[
+            "history",
+            "--config",
+            config.to_str().expect("utf-8"),
+            "list",
+            "--json",
+        ],
+        secs(20),
+    )
+    .success();
+    out.json()
+}
+
+#[test]
+fn daemon_calibrates_at_startup_and_serves_the_api() {
+    let Some(_) = shared("daemon_calibrates_at_startup_and_serves_the_api") else {
+        return;
+    };
+    let dir = TempDir::new("daemon");
+    let (robot_ip, camera_ip) = ("127.0.0.126", "127.0.0.127");
+    let rig = start_rig(&dir, robot_ip, camera_ip);
+    let cfg = config(&dir, robot_ip, camera_ip, "startup = \"calibrate\"");
+    let daemon = start_daemon(&dir, "daemon", &cfg);
+    let api = format!("{robot_ip}:8650");
+
+    // The startup calibration: accepted, on the truth, the camera is the controller's TCP.
+    let st = wait_status(&api, secs(90), "the startup calibration ends", |s| {
+        s["last"]["outcome"].is_string()
+    });
+    assert_eq!(st["last"]["outcome"], "accepted", "{st}\n{}", daemon.log());
+    assert_eq!(st["last"]["trigger"], "startup", "{st}");
+    let run_id = st["last"]["run_id"].as_str().expect("run id").to_string();
+    let (code, body) = http(&api, "GET", &format!("/api/runs/{run_id}"), None);
+    assert_eq!(code, 200, "{body}");
+    let record = json(&body);
+    let result = iso(&record["result"]["flange_from_camera"]);
+    let (mm, deg) = pose_error(&true_mount(), &result);
+    eprintln!("daemon startup calibration: {mm:.3} mm / {deg:.4}° from the truth");
+    assert!(mm < 0.5 && deg < 0.1, "{mm} mm / {deg}°");
+    let tcp = run(&["robot", "--host", robot_ip, "status", "--json"], secs(15)).success();
+    let tcp: Vec<f64> = serde_json::from_value(tcp.json()["flange_from_tcp_ur_pose"].clone())
+        .unwrap_or_else(|e| panic!("flange_from_tcp_ur_pose in robot status ({e})"));
+    let tcp = Isometry3::new(
+        Vector3::new(tcp[0], tcp[1], tcp[2]),
+        Vector3::new(tcp[3], tcp[4], tcp[5]),
+    );
+    assert!(pose_error(&result, &tcp).0 < 1e-3, "TCP {tcp:?}");
+
+    // Without the token nothing moves.
+    let before = joints(robot_ip);
+    for token in [None, Some("wrong")] {
+        let (code, body) = http(&api, "POST", "/api/check", token);
+        assert_eq!(code, 401, "{token:?}: {body}");
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    let after = joints(robot_ip);
+    let moved = before
+        .iter()
+        .zip(&after)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(moved < 1e-6, "moved without a token");
+
+    // With it a check runs; a second trigger meanwhile is refused as busy.
+    let (code, body) = http(&api, "POST", "/api/check", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 409, "{body}");
+    assert!(body.contains("busy"), "{body}");
+    let st = wait_status(&api, secs(90), "the check ends", |s| {
+        s["state"] == "idle" && s["last"]["mode"] == "check"
+    });
+    assert_eq!(st["last"]["outcome"], "accepted", "{st}");
+    assert_eq!(st["drift_alarm"], false, "{st}");
+    let (code, metrics) = http(&api, "GET", "/metrics", None);
+    assert_eq!(code, 200);
+    assert!(
+        metrics.contains("handeye_runs_total{trigger=\"startup\",outcome=\"accepted\"} 1"),
+        "{metrics}"
+    );
+    assert!(metrics.contains("handeye_drift_alarm 0"), "{metrics}");
+    let (code, body) = http(&api, "GET", "/api/runs", None);
+    assert_eq!(code, 200, "{body}");
+    assert_eq!(
+        json(&body)["runs"].as_array().map(Vec::len),
+        Some(2),
+        "{body}"
+    );
+    drop(daemon);
+    drop(rig);
+}
+
+#[test]
+fn scheduled_checks_raise_the_alarm_when_the_camera_slips() {
+    let Some(_) = shared("scheduled_checks_raise_the_alarm_when_the_camera_slips") else {
+        return;
+    };
+    let dir = TempDir::new("schedule");
+    let (robot_ip, camera_ip) = ("127.0.0.128", "127.0.0.129");
+    let _rig = start_rig(&dir, robot_ip, camera_ip);
+    let cfg = config(
+        &dir,
+        robot_ip,
+        camera_ip,
+        "startup = \"calibrate\"\ncheck_interval_s = 3",
+    );
+    let daemon = start_daemon(&dir, "daemon", &cfg);
+    let api = format!("{robot_ip}:8650");
+    let st = wait_status(
+        &api,
+        secs(90),
+        "a scheduled check on the unchanged mount",
+        |s| s["last_check"]["trigger"] == "schedule",
+    );
+    assert_eq!(
+        st["last_calibration"]["outcome"],
+        "accepted",
+        "{st}\n{}",
+        daemon.log()
+    );
+    assert_eq!(
+        st["drift_alarm"], false,
+        "quiet on an unchanged mount: {st}"
+    );
+
+    // The camera slips by 2 mm and 0.5°.
+    let slipped = true_mount()
+        * Isometry3::new(
+            Vector3::new(0.002, 0.0, 0.0),
+            Vector3::new(0.0, 0.5f64.to_radians(), 0.0),
+        );
+    std::fs::write(dir.join("mount.txt"), pose_arg(&slipped)).expect("mount file");
+    let st = wait_status(&api, secs(90), "the alarm", |s| s["drift_alarm"] == true);
+    let drift = &st["last_check"]["drift"];
+    eprintln!("scheduled check after a 2 mm / 0.5° slip: {drift}");
+    let mm = drift[0].as_f64().expect("drift mm");
+    assert!((mm - 2.0).abs() < 0.4, "{st}");
+    let (_, metrics) = http(&api, "GET", "/metrics", None);
+    assert!(metrics.contains("handeye_drift_alarm 1"), "{metrics}");
+    assert!(daemon.log().contains("ALARM"), "{}", daemon.log());
+}
+
+#[test]
+fn sigterm_and_kill_mid_run_leave_an_honest_history() {
+    let Some(_) = shared("sigterm_and_kill_mid_run_leave_an_honest_history") else {
+        return;
+    };
+    let dir = TempDir::new("sigterm");
+    let (robot_ip, camera_ip) = ("127.0.0.132", "127.0.0.133");
+    let _rig = start_rig(&dir, robot_ip, camera_ip);
+    let cfg = config(&dir, robot_ip, camera_ip, "");
+    let api = format!("{robot_ip}:8650");
+
+    // SIGTERM while the arm moves: the arm stops, the run is recorded as aborted, the daemon
+    // exits within a few seconds.
+    let mut daemon = start_daemon(&dir, "daemon-1", &cfg);
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let first = json(&body)["run_id"].as_str().expect("run id").to_string();
+    wait_status(&api, secs(30), "the move starts", |s| {
+        s["current"]["stage"] == "move"
+    });
+    daemon.signal(libc::SIGTERM);
+    let status = daemon.wait_exit(secs(10));
+    assert!(status.success(), "{status}\n{}", daemon.log());
+    let q1 = joints(robot_ip);
+    std::thread::sleep(Duration::from_millis(500));
+    let q2 = joints(robot_ip);
+    let moving = q1
+        .iter()
+        .zip(&q2)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(moving < 1e-4, "the arm still moves after SIGTERM");
+    let runs = history(&cfg);
+    let row = runs
+        .as_array()
+        .and_then(|r| r.iter().find(|r| r["run_id"] == first.as_str()))
+        .unwrap_or_else(|| panic!("run {first} not in the history: {runs}"));
+    assert_eq!(row["outcome"], "aborted", "{row}");
+
+    // kill -9 mid-run: on restart the history opens and the run shows as interrupted.
+    let daemon = start_daemon(&dir, "daemon-2", &cfg);
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let second = json(&body)["run_id"].as_str().expect("run id").to_string();
+    wait_status(&api, secs(30), "the move starts", |s| {
+        s["current"]["stage"] == "move"
+    });
+    daemon.signal(libc::SIGKILL);
+    drop(daemon);
+    let _daemon = start_daemon(&dir, "daemon-3", &cfg);
+    let runs = history(&cfg);
+    let rows = runs.as_array().expect("rows");
+    assert!(rows.iter().any(|r| r["run_id"] == first.as_str()), "{runs}");
+    let row = rows
+        .iter()
+        .find(|r| r["run_id"] == second.as_str())
+        .unwrap_or_else(|| panic!("run {second} not in the history: {runs}"));
+    assert_eq!(row["outcome"], "aborted", "{row}");
+    assert!(
+        row["reason"]
+            .as_str()
+            .is_some_and(|r| r.contains("interrupted")),
+        "{row}"
+    );
+}
