@@ -45,6 +45,7 @@ pub use record::{
     CaptureRecord, DriftRecord, FrameRecord, KinematicsUsed, PlannedView, PreflightRecord,
     ResultRecord, RunMode, RunRecord, RunTimings, Stage, Written,
 };
+pub(crate) use storage::civil_from_days;
 pub use storage::{load_capture, load_current, new_run_id, CaptureFile, CURRENT_DIR, RUNS_DIR};
 
 /// Generated candidates tried per automatic view before the plan gives up.

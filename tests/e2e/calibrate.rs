@@ -8,42 +8,10 @@ use std::time::Duration;
 use handeye_hal::ur_dh::DhParams;
 use nalgebra::{Isometry3, Vector3};
 
-use crate::support::{iso, pose_arg, pose_error, run, secs, shared, Daemon, Output, TempDir};
-
-/// The rig's true camera mount in these tests, ~1 cm and ~3° from the configured prior.
-fn true_mount() -> Isometry3<f64> {
-    Isometry3::new(
-        Vector3::new(0.008, -0.074, 0.047),
-        Vector3::new(-0.22, 0.03, 0.02),
-    )
-}
-
-/// A rig on `robot_ip`/`camera_ip` with the truth in `dir/truth.json` and the mount re-read
-/// from `dir/mount.txt`.
-fn start_rig(dir: &TempDir, robot_ip: &str, camera_ip: &str, extra: &[&str]) -> Daemon {
-    std::fs::write(dir.join("mount.txt"), pose_arg(&true_mount())).expect("mount file");
-    let truth = dir.join("truth.json");
-    let mount_file = dir.join("mount.txt");
-    let mount = pose_arg(&true_mount());
-    let mut args = vec![
-        "sim",
-        "rig",
-        "--robot-bind",
-        robot_ip,
-        "--camera-bind",
-        camera_ip,
-        "--mount",
-        &mount,
-        "--truth",
-        truth.to_str().expect("utf-8 path"),
-        "--mount-file",
-        mount_file.to_str().expect("utf-8 path"),
-    ];
-    args.extend_from_slice(extra);
-    let mut d = Daemon::start(dir, &format!("sim-rig-{robot_ip}"), &args);
-    d.wait_for_log("simulated rig", secs(30));
-    d
-}
+use crate::support::{
+    iso, joints, max_change, pose_arg, pose_error, python, run, secs, shared, start_rig, ur_pose,
+    Output, TempDir,
+};
 
 /// A configuration for the rig at `robot_ip`/`camera_ip`, results in `dir/data`.
 fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, extra: &str) -> PathBuf {
@@ -94,21 +62,6 @@ fn truth(dir: &TempDir) -> (Isometry3<f64>, DhParams) {
     (iso(&doc["flange_from_camera"]), dh)
 }
 
-/// `$REPO/.venv/bin/python` with ur-rtde, or `None` (panics under CI).
-fn python() -> Option<PathBuf> {
-    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
-    if py.exists() {
-        return Some(py);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{} is missing in CI: run .ci/install.d/ur-rtde.sh",
-        py.display()
-    );
-    eprintln!("SKIP the ur-rtde part: {} not found", py.display());
-    None
-}
-
 /// What ur-rtde's RTDEReceiveInterface reads: joints and `actual_TCP_pose` (UR pose).
 fn ur_rtde_tcp(py: &Path, host: &str) -> (Vec<f64>, Isometry3<f64>) {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/rtde_tcp.py");
@@ -128,25 +81,6 @@ fn ur_rtde_tcp(py: &Path, host: &str) -> (Vec<f64>, Isometry3<f64>) {
     let q: Vec<f64> = serde_json::from_value(doc["actual_q"].clone()).expect("actual_q");
     let p: Vec<f64> = serde_json::from_value(doc["actual_TCP_pose"].clone()).expect("tcp pose");
     (q, ur_pose(&p))
-}
-
-fn ur_pose(p: &[f64]) -> Isometry3<f64> {
-    Isometry3::new(
-        Vector3::new(p[0], p[1], p[2]),
-        Vector3::new(p[3], p[4], p[5]),
-    )
-}
-
-fn joints(ip: &str) -> Vec<f64> {
-    let out = run(&["robot", "--host", ip, "status", "--json"], secs(15)).success();
-    serde_json::from_value(out.json()["joint_positions_rad"].clone()).expect("joints")
-}
-
-fn max_change(a: &[f64], b: &[f64]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
 }
 
 #[test]

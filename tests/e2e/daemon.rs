@@ -9,44 +9,11 @@ use std::time::{Duration, Instant};
 
 use nalgebra::{Isometry3, Vector3};
 
-use crate::support::{iso, pose_arg, pose_error, run, secs, shared, Daemon, TempDir};
+use crate::support::{
+    iso, joints, pose_arg, pose_error, run, secs, shared, start_rig, true_mount, Daemon, TempDir,
+};
 
 const TOKEN: &str = "e2e-secret-token";
-
-/// The rig's camera mount, ~1 cm and ~3° from the configured prior.
-fn true_mount() -> Isometry3<f64> {
-    Isometry3::new(
-        Vector3::new(0.008, -0.074, 0.047),
-        Vector3::new(-0.22, 0.03, 0.02),
-    )
-}
-
-fn start_rig(dir: &TempDir, robot_ip: &str, camera_ip: &str) -> Daemon {
-    let mount_file = dir.join("mount.txt");
-    std::fs::write(&mount_file, pose_arg(&true_mount())).expect("mount file");
-    let mount = pose_arg(&true_mount());
-    let truth = dir.join("truth.json");
-    let mut d = Daemon::start(
-        dir,
-        &format!("sim-rig-{robot_ip}"),
-        &[
-            "sim",
-            "rig",
-            "--robot-bind",
-            robot_ip,
-            "--camera-bind",
-            camera_ip,
-            "--mount",
-            &mount,
-            "--truth",
-            truth.to_str().expect("utf-8"),
-            "--mount-file",
-            mount_file.to_str().expect("utf-8"),
-        ],
-    );
-    d.wait_for_log("simulated rig", secs(30));
-    d
-}
 
 /// A daemon configuration for the rig; `daemon` is the `[daemon]` table's body.
 fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &str) -> PathBuf {
@@ -149,11 +116,6 @@ fn wait_status(
     }
 }
 
-fn joints(ip: &str) -> Vec<f64> {
-    let out = run(&["robot", "--host", ip, "status", "--json"], secs(15)).success();
-    serde_json::from_value(out.json()["joint_positions_rad"].clone()).expect("joints")
-}
-
 fn history(config: &Path) -> serde_json::Value {
     let out = run(
         &[
@@ -176,7 +138,7 @@ fn daemon_calibrates_at_startup_and_serves_the_api() {
     };
     let dir = TempDir::new("daemon");
     let (robot_ip, camera_ip) = ("127.0.0.126", "127.0.0.127");
-    let rig = start_rig(&dir, robot_ip, camera_ip);
+    let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let cfg = config(&dir, robot_ip, camera_ip, "startup = \"calibrate\"");
     let daemon = start_daemon(&dir, "daemon", &cfg);
     let api = format!("{robot_ip}:8650");
@@ -255,7 +217,7 @@ fn scheduled_checks_raise_the_alarm_when_the_camera_slips() {
     };
     let dir = TempDir::new("schedule");
     let (robot_ip, camera_ip) = ("127.0.0.128", "127.0.0.129");
-    let _rig = start_rig(&dir, robot_ip, camera_ip);
+    let _rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let cfg = config(
         &dir,
         robot_ip,
@@ -305,7 +267,7 @@ fn sigterm_and_kill_mid_run_leave_an_honest_history() {
     };
     let dir = TempDir::new("sigterm");
     let (robot_ip, camera_ip) = ("127.0.0.132", "127.0.0.133");
-    let _rig = start_rig(&dir, robot_ip, camera_ip);
+    let _rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let cfg = config(&dir, robot_ip, camera_ip, "");
     let api = format!("{robot_ip}:8650");
 

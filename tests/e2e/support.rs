@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Vector3};
 
 /// The `handeye` binary under test.
 pub(crate) const BIN: &str = env!("CARGO_BIN_EXE_handeye");
@@ -326,4 +326,73 @@ pub(crate) fn pose_error(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
 /// Seconds as a `Duration` (short to write in tests).
 pub(crate) fn secs(s: u64) -> Duration {
     Duration::from_secs(s)
+}
+
+/// The rig's true camera mount in these tests, ~1 cm and ~3° from the configured prior.
+pub(crate) fn true_mount() -> Isometry3<f64> {
+    Isometry3::new(
+        Vector3::new(0.008, -0.074, 0.047),
+        Vector3::new(-0.22, 0.03, 0.02),
+    )
+}
+
+/// A rig on `robot_ip`/`camera_ip` with the truth in `dir/truth.json` and the mount re-read
+/// from `dir/mount.txt`.
+pub(crate) fn start_rig(dir: &TempDir, robot_ip: &str, camera_ip: &str, extra: &[&str]) -> Daemon {
+    std::fs::write(dir.join("mount.txt"), pose_arg(&true_mount())).expect("mount file");
+    let truth = dir.join("truth.json");
+    let mount_file = dir.join("mount.txt");
+    let mount = pose_arg(&true_mount());
+    let mut args = vec![
+        "sim",
+        "rig",
+        "--robot-bind",
+        robot_ip,
+        "--camera-bind",
+        camera_ip,
+        "--mount",
+        &mount,
+        "--truth",
+        truth.to_str().expect("utf-8 path"),
+        "--mount-file",
+        mount_file.to_str().expect("utf-8 path"),
+    ];
+    args.extend_from_slice(extra);
+    let mut d = Daemon::start(dir, &format!("sim-rig-{robot_ip}"), &args);
+    d.wait_for_log("simulated rig", secs(30));
+    d
+}
+
+/// `$REPO/.venv/bin/python` with ur-rtde, or `None` (panics under CI).
+pub(crate) fn python() -> Option<PathBuf> {
+    let py = Path::new(env!("CARGO_MANIFEST_DIR")).join(".venv/bin/python");
+    if py.exists() {
+        return Some(py);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{} is missing in CI: run .ci/install.d/ur-rtde.sh",
+        py.display()
+    );
+    eprintln!("SKIP the ur-rtde part: {} not found", py.display());
+    None
+}
+
+pub(crate) fn ur_pose(p: &[f64]) -> Isometry3<f64> {
+    Isometry3::new(
+        Vector3::new(p[0], p[1], p[2]),
+        Vector3::new(p[3], p[4], p[5]),
+    )
+}
+
+pub(crate) fn joints(ip: &str) -> Vec<f64> {
+    let out = run(&["robot", "--host", ip, "status", "--json"], secs(15)).success();
+    serde_json::from_value(out.json()["joint_positions_rad"].clone()).expect("joints")
+}
+
+pub(crate) fn max_change(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
