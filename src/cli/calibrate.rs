@@ -55,6 +55,7 @@ pub(crate) async fn calibrate(
         mode: RunMode::Calibrate,
         dry_run: args.dry_run,
         run_id: None,
+        program_handover: false,
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }
@@ -68,6 +69,7 @@ pub(crate) async fn check(
         mode: RunMode::Check,
         dry_run: false,
         run_id: None,
+        program_handover: false,
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }
@@ -181,18 +183,23 @@ pub(crate) async fn connect_robot(cfg: &Config) -> anyhow::Result<UrRobot> {
     };
     ur.max_joint_speed_rad_s = cfg.robot.limits.max_joint_speed_rad_s;
     ur.max_joint_accel_rad_s2 = cfg.robot.limits.max_joint_accel_rad_s2;
-    // Claim exactly the RTDE input registers the configuration writes, no others: they stay
-    // free for the cell's own clients.
+    // Claim exactly the RTDE input registers the configuration writes (and the pendant
+    // handshake's), no others: they stay free for the cell's own clients.
     #[allow(clippy::reversed_empty_ranges)]
-    match cfg.write_back.registers {
-        Some(map) => {
-            ur.registers = map.double_start..=map.double_start + 5;
-            ur.int_registers = map.sequence_int..=map.sequence_int;
-        }
-        None => {
-            ur.registers = 1..=0;
-            ur.int_registers = 1..=0;
-        }
+    {
+        ur.registers = 1..=0;
+        ur.int_registers = 1..=0;
+    }
+    let mut ints: Vec<u32> = Vec::new();
+    if let Some(map) = cfg.write_back.registers {
+        ur.registers = map.double_start..=map.double_start + 5;
+        ints.push(map.sequence_int);
+    }
+    if let Some(p) = cfg.daemon.pendant {
+        ints.extend([p.request_register, p.status_register]);
+    }
+    if let (Some(lo), Some(hi)) = (ints.iter().min(), ints.iter().max()) {
+        ur.int_registers = *lo..=*hi;
     }
     UrRobot::connect(ur)
         .await

@@ -217,6 +217,7 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
         mode: RunMode::Calibrate,
         dry_run: false,
         run_id: None,
+        program_handover: false,
     };
     let record = execute(&cfg, req, shutdown, args.json).await?;
     let estimate = record

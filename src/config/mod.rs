@@ -77,6 +77,19 @@ pub struct DaemonConfig {
     pub keep_captures_runs: usize,
     /// … and of every run younger than this many days (`keep_captures_days`).
     pub keep_captures_days: f64,
+    /// The pendant button (`[daemon.pendant]`); `None`: not used.
+    pub pendant: Option<PendantConfig>,
+}
+
+/// The register handshake with a pendant program (`[daemon.pendant]`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PendantConfig {
+    /// `output_int_register_<request>`: the program writes 1 to ask for a calibration, 2 for a
+    /// check, 0 when it has read the answer (`request_register`).
+    pub request_register: u32,
+    /// `input_int_register_<status>`: the daemon answers 1 busy, 2 done (accepted), 3 failed
+    /// (rejected, aborted or error), 4 refused (busy with another run) (`status_register`).
+    pub status_register: u32,
 }
 
 /// The arm and its controller (`[robot]`).
@@ -310,6 +323,7 @@ pub mod defaults {
             recalibrate_on_drift: false,
             keep_captures_runs: KEEP_CAPTURES_RUNS,
             keep_captures_days: KEEP_CAPTURES_DAYS,
+            pendant: None,
         }
     }
     /// `robot.allow_power_on`: never power on or release brakes by ourselves.
@@ -624,6 +638,14 @@ struct RawDaemon {
     recalibrate_on_drift: Option<bool>,
     keep_captures_runs: Option<i64>,
     keep_captures_days: Option<f64>,
+    pendant: Option<RawPendant>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawPendant {
+    request_register: i64,
+    status_register: i64,
 }
 
 #[derive(Debug, Deserialize)]
@@ -1023,6 +1045,17 @@ impl Ctx<'_> {
             keep_captures: raw.storage.keep_captures.unwrap_or(defaults::KEEP_CAPTURES),
         };
         let daemon = self.daemon(raw.daemon)?;
+        if let (Some(p), Some(r)) = (daemon.pendant, write_back.registers) {
+            if p.status_register == r.sequence_int {
+                return Err(self.invalid(
+                    "daemon.pendant.status_register",
+                    format!(
+                        "daemon.pendant.status_register = {} is write_back.registers.sequence_int too; give the answer its own input_int register",
+                        p.status_register
+                    ),
+                ));
+            }
+        }
         Ok(Config {
             origin: self.origin.to_string(),
             robot,
@@ -1077,7 +1110,27 @@ impl Ctx<'_> {
             Some(v) => self.int("daemon.keep_captures_runs", v, ranges::KEEP_RUNS)? as usize,
             None => base.keep_captures_runs,
         };
+        let pendant = match d.pendant {
+            None => None,
+            Some(p) => {
+                let request = self.int(
+                    "daemon.pendant.request_register",
+                    p.request_register,
+                    ranges::REGISTER,
+                )? as u32;
+                let status = self.int(
+                    "daemon.pendant.status_register",
+                    p.status_register,
+                    ranges::REGISTER,
+                )? as u32;
+                Some(PendantConfig {
+                    request_register: request,
+                    status_register: status,
+                })
+            }
+        };
         Ok(DaemonConfig {
+            pendant,
             startup,
             listen,
             token_file,

@@ -185,6 +185,8 @@ struct Job {
     run_id: String,
     mode: RunMode,
     trigger: Trigger,
+    /// The program on the controller asked for the run (preflight accepts it running).
+    handover: bool,
     cancel: CancellationToken,
 }
 
@@ -208,6 +210,16 @@ impl DaemonHandle {
     /// Asks for a run. Returns its id at once (it runs in the background), or why not: one
     /// run at a time.
     pub fn request(&self, mode: RunMode, trigger: Trigger) -> Result<String, Refusal> {
+        self.enqueue(mode, trigger, false)
+    }
+
+    /// Like [`Self::request`], for a program on the controller that asked for the run and
+    /// hands the arm over (preflight accepts the program running).
+    fn request_with_handover(&self, mode: RunMode, trigger: Trigger) -> Result<String, Refusal> {
+        self.enqueue(mode, trigger, true)
+    }
+
+    fn enqueue(&self, mode: RunMode, trigger: Trigger, handover: bool) -> Result<String, Refusal> {
         if self.shared.shutdown.is_cancelled() {
             return Err(Refusal::ShuttingDown);
         }
@@ -226,6 +238,7 @@ impl DaemonHandle {
             run_id: run_id.clone(),
             mode,
             trigger,
+            handover,
             cancel: cancel.clone(),
         };
         // The queue holds one job; a full queue would mean a run is going, which the state
@@ -579,6 +592,9 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
         t
     });
     let mut schedule = schedule;
+    let mut pendant = tokio::time::interval(PENDANT_POLL);
+    pendant.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut last_request = 0;
     let mut health = tokio::time::interval(HEALTH_EVERY);
     health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
@@ -598,6 +614,14 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
                 if let Some(n) = &notifier {
                     n.status(&format!("last run {}: {}", record.run_id, record.outcome));
                 }
+                if let (Trigger::Pendant, Some(p)) = (job.trigger, cfg.daemon.pendant) {
+                    let answer = if record.outcome == Outcome::Accepted {
+                        PENDANT_DONE
+                    } else {
+                        PENDANT_FAILED
+                    };
+                    answer_pendant(&robot, p.status_register, answer).await;
+                }
                 let drifted = record.drift.as_ref().is_some_and(|d| d.drifted);
                 if job.trigger == Trigger::Schedule
                     && drifted
@@ -607,6 +631,11 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
                     if let Err(e) = handle.request(RunMode::Calibrate, Trigger::Drift) {
                         tracing::warn!("recalibration after drift not started: {e}");
                     }
+                }
+            }
+            _ = pendant.tick(), if cfg.daemon.pendant.is_some() => {
+                if let Some(p) = cfg.daemon.pendant {
+                    last_request = poll_pendant(&robot, &handle, p, last_request).await;
                 }
             }
             _ = health.tick() => {
@@ -636,6 +665,66 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
         tracing::info!(run_id = %record.run_id, "run accepted before the shutdown: {}", record.outcome);
     }
     let _ = frontend_task.await;
+}
+
+/// How often the pendant's request register is read.
+const PENDANT_POLL: Duration = Duration::from_millis(200);
+/// Answers in the pendant's status register.
+const PENDANT_IDLE: i32 = 0;
+const PENDANT_BUSY: i32 = 1;
+const PENDANT_DONE: i32 = 2;
+const PENDANT_FAILED: i32 = 3;
+const PENDANT_REFUSED: i32 = 4;
+
+/// Reads the pendant program's request register; a new request (1 calibrate, 2 check) starts
+/// a run and is answered busy (or refused, when another run is going); a request cleared to 0
+/// resets the answer. Returns the value seen.
+async fn poll_pendant<R: Robot>(
+    robot: &R,
+    handle: &DaemonHandle,
+    p: crate::config::PendantConfig,
+    last: i32,
+) -> i32 {
+    let v = match robot.read_output_int_register(p.request_register).await {
+        Ok(v) => v,
+        Err(e) => {
+            tracing::debug!("cannot read the pendant's request register: {e}");
+            return last;
+        }
+    };
+    if v == last {
+        return v;
+    }
+    let mode = match v {
+        1 => Some(RunMode::Calibrate),
+        2 => Some(RunMode::Check),
+        _ => None,
+    };
+    match mode {
+        Some(mode) => {
+            let answer = match handle.request_with_handover(mode, Trigger::Pendant) {
+                Ok(_) => PENDANT_BUSY,
+                Err(e) => {
+                    tracing::warn!("pendant request refused: {e}");
+                    PENDANT_REFUSED
+                }
+            };
+            answer_pendant(robot, p.status_register, answer).await;
+        }
+        None if v == 0 => answer_pendant(robot, p.status_register, PENDANT_IDLE).await,
+        None => tracing::warn!(
+            "pendant request register output_int_register_{} = {v}: expected 1 (calibrate), 2 (check) or 0",
+            p.request_register
+        ),
+    }
+    v
+}
+
+/// Writes the pendant's status register (`input_int_register_N`).
+async fn answer_pendant<R: Robot>(robot: &R, register: u32, value: i32) {
+    if let Err(e) = robot.write_int_register(register, value).await {
+        tracing::warn!("cannot answer the pendant in input_int_register_{register}: {e}");
+    }
 }
 
 /// Whether no program is running on the controller (scheduled checks wait for that).
@@ -669,6 +758,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         mode: job.mode,
         dry_run: false,
         run_id: Some(job.run_id.clone()),
+        program_handover: job.handover,
     };
     let span = tracing::info_span!("run", trigger = job.trigger.name());
     let progress = StageReporter { handle };

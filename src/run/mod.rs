@@ -65,6 +65,10 @@ pub struct RunRequest {
     /// The run's id ([`new_run_id`]), when the caller needs it before the run starts (the
     /// daemon records the start); `None`: a new one.
     pub run_id: Option<String>,
+    /// The program running on the controller asked for this run (the pendant handshake) and
+    /// hands the arm over: preflight accepts it running. Our first move stops it, as any
+    /// remote script does on a UR.
+    pub program_handover: bool,
 }
 
 /// Progress of a run, as it happens: the stage entered and a one-line detail.
@@ -459,7 +463,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             tcp_offset: to_row_major(&tcp),
             kinematics,
         });
-        preflight_status(&status, self.req.dry_run)?;
+        preflight_status(&status, self.req.program_handover)?;
         camera_info?;
         Ok((controller_dh, reference))
     }
@@ -1042,8 +1046,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
 }
 
 /// Whether the robot may move: powered with brakes released, safety normal or reduced, in
-/// remote control, no program running. A dry run reports a stopped or powered-off arm too.
-fn preflight_status(st: &handeye_hal::RobotStatus, _dry_run: bool) -> Result<(), Failure> {
+/// remote control, no program running unless that program asked for the run (`handover`).
+fn preflight_status(st: &handeye_hal::RobotStatus, handover: bool) -> Result<(), Failure> {
     let stage = Stage::Preflight;
     let fail = |m: String| Err(Failure::error(stage, m));
     match st.safety_mode {
@@ -1071,7 +1075,7 @@ fn preflight_status(st: &handeye_hal::RobotStatus, _dry_run: bool) -> Result<(),
             "the robot is in local control; enable Remote Control on the teach pendant".into(),
         );
     }
-    if st.program_running {
+    if st.program_running && !handover {
         return fail(
             "a program is running on the controller; stop it on the pendant before calibrating"
                 .into(),

@@ -160,6 +160,7 @@ async fn start<R: Robot, C: DepthCamera>(
         mode,
         dry_run,
         run_id: None,
+        program_handover: false,
     };
     run(
         robot,
@@ -476,6 +477,7 @@ async fn a_run_cancelled_before_it_starts_moves_nothing() {
         mode: RunMode::Calibrate,
         dry_run: false,
         run_id: None,
+        program_handover: false,
     };
     let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
     assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
@@ -531,6 +533,7 @@ async fn a_cancel_during_a_hanging_capture_aborts_at_once_and_stays_put() {
         mode: RunMode::Calibrate,
         dry_run: false,
         run_id: None,
+        program_handover: false,
     };
     let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
     let ended = Instant::now();

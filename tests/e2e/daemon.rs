@@ -325,3 +325,97 @@ fn sigterm_and_kill_mid_run_leave_an_honest_history() {
         "{row}"
     );
 }
+
+/// Sends a URScript `sec` program to the controller's secondary interface, as a pendant
+/// program's statements would run there.
+fn urscript(robot_ip: &str, name: &str, body: &str) {
+    let mut s = TcpStream::connect((robot_ip, 30002)).expect("secondary interface");
+    write!(s, "sec {name}():\n{body}end\n").expect("send script");
+    std::thread::sleep(Duration::from_millis(300));
+}
+
+/// What ur-rtde's RTDEReceiveInterface reads from `output_int_register_N`.
+fn ur_rtde_output_int(py: &Path, host: &str, register: u32) -> i64 {
+    let code = format!(
+        "import rtde_receive\nr = rtde_receive.RTDEReceiveInterface('{host}', 125.0, ['timestamp', 'output_int_register_{register}'])\nprint(r.getOutputIntRegister({register}))\nr.disconnect()\n"
+    );
+    let out = std::process::Command::new(py)
+        .arg("-c")
+        .arg(code)
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "ur-rtde: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout)
+        .trim()
+        .parse()
+        .expect("an integer from ur-rtde")
+}
+
+#[test]
+fn the_pendant_button_asks_for_a_calibration_through_registers() {
+    let Some(_) = shared("the_pendant_button_asks_for_a_calibration_through_registers") else {
+        return;
+    };
+    let dir = TempDir::new("pendant");
+    let (robot_ip, camera_ip) = ("127.0.0.134", "127.0.0.135");
+    let _rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let cfg = config(
+        &dir,
+        robot_ip,
+        camera_ip,
+        "[daemon.pendant]\nrequest_register = 25\nstatus_register = 26\n\n[write_back.registers]\ndouble_start = 24\nsequence_int = 24",
+    );
+    let daemon = start_daemon(&dir, "daemon", &cfg);
+    let api = format!("{robot_ip}:8650");
+
+    // The button: the pendant program writes 1 into output_int_register_25.
+    urscript(robot_ip, "ask", "  write_output_integer_register(25, 1)\n");
+    let st = wait_status(&api, secs(90), "the pendant's calibration ends", |s| {
+        s["last"]["trigger"] == "pendant"
+    });
+    assert_eq!(st["last"]["outcome"], "accepted", "{st}\n{}", daemon.log());
+
+    // The program reads the answer (2 = done) and the result's sequence number; a real client
+    // (ur-rtde) reads what the program copied into its output registers.
+    urscript(
+        robot_ip,
+        "answer",
+        "  write_output_integer_register(12, read_input_integer_register(26))\n  write_output_integer_register(13, read_input_integer_register(24))\n",
+    );
+    if let Some(py) = crate::support::python() {
+        assert_eq!(ur_rtde_output_int(&py, robot_ip, 12), 2, "status register");
+        assert_eq!(ur_rtde_output_int(&py, robot_ip, 13), 1, "sequence number");
+    }
+    // Clearing the request resets the answer to 0; the next press runs again.
+    urscript(
+        robot_ip,
+        "clear",
+        "  write_output_integer_register(25, 0)\n",
+    );
+    std::thread::sleep(Duration::from_millis(600));
+    urscript(
+        robot_ip,
+        "answer2",
+        "  write_output_integer_register(12, read_input_integer_register(26))\n",
+    );
+    if let Some(py) = crate::support::python() {
+        assert_eq!(
+            ur_rtde_output_int(&py, robot_ip, 12),
+            0,
+            "status after clearing"
+        );
+    }
+    urscript(
+        robot_ip,
+        "check",
+        "  write_output_integer_register(25, 2)\n",
+    );
+    let st = wait_status(&api, secs(90), "the pendant's check ends", |s| {
+        s["last"]["mode"] == "check" && s["last"]["trigger"] == "pendant"
+    });
+    assert_eq!(st["last"]["outcome"], "accepted", "{st}");
+}

@@ -22,6 +22,7 @@ struct RobotState {
     protective_stop_at_move: Option<usize>,
     registers: HashMap<u32, f64>,
     int_registers: HashMap<u32, i32>,
+    output_int_registers: HashMap<u32, i32>,
 }
 
 /// A UR arm that moves instantly, records every commanded move and can be told to
@@ -56,6 +57,7 @@ impl FakeRobot {
             protective_stop_at_move: None,
             registers: HashMap::new(),
             int_registers: HashMap::new(),
+            output_int_registers: HashMap::new(),
         };
         Self {
             model,
@@ -85,6 +87,11 @@ impl FakeRobot {
     /// Make the move with this 0-based index end in a protective stop (arm stays where it was).
     pub fn protective_stop_at_move(&self, index: usize) {
         self.lock().protective_stop_at_move = Some(index);
+    }
+
+    /// Set an integer output register, as a program on the controller would.
+    pub fn set_output_int_register(&self, index: u32, value: i32) {
+        self.lock().output_int_registers.insert(index, value);
     }
 
     /// Replace the reported status (e.g. remote control off).
@@ -173,6 +180,15 @@ impl Robot for FakeRobot {
 
     async fn read_int_register(&self, index: u32) -> Result<i32, HalError> {
         Ok(self.lock().int_registers.get(&index).copied().unwrap_or(0))
+    }
+
+    async fn read_output_int_register(&self, index: u32) -> Result<i32, HalError> {
+        Ok(self
+            .lock()
+            .output_int_registers
+            .get(&index)
+            .copied()
+            .unwrap_or(0))
     }
 
     async fn tcp_offset(&self) -> Result<Isometry3<f64>, HalError> {

@@ -158,6 +158,13 @@ pub trait Robot: Send + Sync + 'static {
     /// Read an integer input register (`input_int_register_N`) as the controller reflects it.
     fn read_int_register(&self, index: u32) -> impl Future<Output = Result<i32, HalError>> + Send;
 
+    /// Read an integer output register (`output_int_register_N`): what a program on the
+    /// controller wrote (`write_output_integer_register`), e.g. a pendant program's request.
+    fn read_output_int_register(
+        &self,
+        index: u32,
+    ) -> impl Future<Output = Result<i32, HalError>> + Send;
+
     /// The active TCP offset `flange_from_tcp` (metres, radians; `flange` = UR `tool0`) as the
     /// controller reports it, i.e. what `set_tcp` or the pendant installation left active.
     fn tcp_offset(&self) -> impl Future<Output = Result<Isometry3<f64>, HalError>> + Send;

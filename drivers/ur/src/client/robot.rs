@@ -362,11 +362,6 @@ impl UrRobot {
         self.register("output_double_register_", index).await
     }
 
-    /// Read `output_int_register_N` (what a pendant program wrote).
-    pub async fn read_output_int_register(&self, index: u32) -> Result<i32, HalError> {
-        self.int_register("output_int_register_", index).await
-    }
-
     fn check_register(&self, index: u32) -> Result<(), HalError> {
         if self.inner.cfg.registers.contains(&index) {
             Ok(())
@@ -710,6 +705,10 @@ impl Robot for UrRobot {
 
     async fn read_int_register(&self, index: u32) -> Result<i32, HalError> {
         self.int_register("input_int_register_", index).await
+    }
+
+    async fn read_output_int_register(&self, index: u32) -> Result<i32, HalError> {
+        self.int_register("output_int_register_", index).await
     }
 
     async fn tcp_offset(&self) -> Result<Isometry3<f64>, HalError> {
