@@ -655,6 +655,11 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         let mut frames = Vec::new();
         let views: Vec<Vec<f64>> = self.record.views.iter().map(|v| v.joints.clone()).collect();
         let keep = self.cfg.storage.keep_captures;
+        let start = self
+            .record
+            .preflight
+            .as_ref()
+            .map(|p| p.start_joints.clone());
         let mut capture_file = CaptureFile {
             model: self.model.name().to_string(),
             mount: self.cfg.mount.mount,
@@ -669,10 +674,14 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 Stage::Move,
                 &format!("moving to view {v} of {}", views.len()),
             );
-            self.moved = true;
-            self.move_to(q, Stage::Move, &format!("move to view {v}"))
-                .await?;
-            self.record.timings_ms.moves += ms(t);
+            // A view at the start joints (eye-to-hand without targets: measure where the arm
+            // stands) needs no motion at all.
+            if !(v == 0 && start.as_deref() == Some(q.as_slice())) {
+                self.moved = true;
+                self.move_to(q, Stage::Move, &format!("move to view {v}"))
+                    .await?;
+                self.record.timings_ms.moves += ms(t);
+            }
 
             let t = Instant::now();
             self.progress.stage(Stage::Settle, "letting the arm settle");

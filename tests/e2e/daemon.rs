@@ -283,6 +283,8 @@ fn sigterm_and_kill_mid_run_leave_an_honest_history() {
     daemon.signal(libc::SIGTERM);
     let status = daemon.wait_exit(secs(10));
     assert!(status.success(), "{status}\n{}", daemon.log());
+    // The stop decelerates the arm (stopj, ≥ 2 rad/s²): give it a second, then it stands.
+    std::thread::sleep(Duration::from_millis(1000));
     let q1 = joints(robot_ip);
     std::thread::sleep(Duration::from_millis(500));
     let q2 = joints(robot_ip);
