@@ -413,8 +413,21 @@ impl UrRobot {
             other => format!("{other:?}"),
         };
         self.inner.rtde.write(recipe, vec![value]).await?;
-        let deadline = t0 + self.inner.cfg.timeout;
-        let mut last = t0;
+        self.read_back(t0, name, wrote, same).await
+    }
+
+    /// Waits until an RTDE sample received after `since` satisfies `same` (which returns
+    /// whether the sample shows what was written, and what it shows, or `None` when it does
+    /// not carry the field); fails with `ReadBackMismatch` after `cfg.timeout`.
+    async fn read_back(
+        &self,
+        since: Instant,
+        what: String,
+        wrote: String,
+        same: impl Fn(&Sample) -> Option<(bool, String)>,
+    ) -> Result<(), HalError> {
+        let deadline = since + self.inner.cfg.timeout;
+        let mut last = since;
         let mut read = String::from("nothing");
         while Instant::now() < deadline {
             let s = self
@@ -430,11 +443,7 @@ impl UrRobot {
                 read = r;
             }
         }
-        Err(HalError::ReadBackMismatch {
-            what: name,
-            wrote,
-            read,
-        })
+        Err(HalError::ReadBackMismatch { what, wrote, read })
     }
 
     /// The active TCP offset (`flange_from_tcp`) as the controller reports it.
@@ -625,30 +634,12 @@ impl Robot for UrRobot {
         }
         let body = format!("  set_tcp({})\n", p.to_script());
         let started = Instant::now();
-        let readback = async {
-            let deadline = started + self.inner.cfg.timeout;
-            let mut last = started;
-            let mut read = UrPose([f64::NAN; 6]);
-            while Instant::now() < deadline {
-                let s = self
-                    .inner
-                    .rtde
-                    .next_sample(last, self.inner.cfg.timeout)
-                    .await?;
-                last = s.received;
-                if let Some(t) = s.vec6("tcp_offset") {
-                    read = UrPose(t);
-                    if read.approx_eq(&p, 1e-6, 1e-6) {
-                        return Ok(());
-                    }
-                }
-            }
-            Err(HalError::ReadBackMismatch {
-                what: "TCP offset".into(),
-                wrote: format!("{:?}", p.0),
-                read: format!("{:?}", read.0),
+        let readback = self.read_back(started, "TCP offset".into(), format!("{:?}", p.0), |s| {
+            s.vec6("tcp_offset").map(|t| {
+                let read = UrPose(t);
+                (read.approx_eq(&p, 1e-6, 1e-6), format!("{:?}", read.0))
             })
-        };
+        });
         let send = self.run_secondary("handeye_set_tcp", &body);
         tokio::pin!(readback, send);
         // The read-back is the confirmation: once the controller reports the new TCP the
