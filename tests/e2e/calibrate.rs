@@ -9,44 +9,20 @@ use handeye_hal::ur_dh::DhParams;
 use nalgebra::{Isometry3, Vector3};
 
 use crate::support::{
-    iso, joints, max_change, pose_arg, pose_error, python, run, secs, shared, start_rig, ur_pose,
-    Output, TempDir,
+    iso, joints, max_change, pose_arg, pose_error, python, rig_config, run, secs, shared,
+    start_rig, ur_pose, Output, TempDir,
 };
 
-/// A configuration for the rig at `robot_ip`/`camera_ip`, results in `dir/data`.
-fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, extra: &str) -> PathBuf {
-    let text = format!(
-        r#"
-[robot]
-model = "ur5e"
-host = "{robot_ip}"
-max_joint_speed_rad_s = 1.0
-max_joint_accel_rad_s2 = 2.0
-
-[camera]
-backend = "gige"
-address = "{camera_ip}"
-settle_s = 0.2
-frames = 3
-
-[mount]
-type = "eye-in-hand"
-prior = [0.0, -0.08, 0.04, -0.26, 0.0, 0.0]
-
-[write_back]
-tcp = true
-[write_back.registers]
-double_start = 24
-sequence_int = 24
-
-[storage]
-dir = "data"
-{extra}
-"#
-    );
-    let path = dir.join("handeye.toml");
-    std::fs::write(&path, text).expect("config");
-    path
+/// A configuration for the rig at `robot_ip`/`camera_ip`: 3 frames per view, the result
+/// also in registers 24..29 / 24.
+fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str) -> PathBuf {
+    rig_config(
+        dir,
+        robot_ip,
+        camera_ip,
+        "frames = 3",
+        "[write_back.registers]\ndouble_start = 24\nsequence_int = 24",
+    )
 }
 
 fn handeye(cmd: &str, config: &Path, extra: &[&str]) -> Output {
@@ -91,7 +67,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     let dir = TempDir::new("calibrate");
     let (robot_ip, camera_ip) = ("127.0.0.120", "127.0.0.121");
     let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
-    let cfg = config(&dir, robot_ip, camera_ip, "");
+    let cfg = config(&dir, robot_ip, camera_ip);
     let start = joints(robot_ip);
 
     // Calibrate: accepted, on the truth, written back, the arm back where it started.
@@ -227,7 +203,7 @@ fn faults_and_failed_preflight_write_nothing() {
         camera_ip,
         &["--protective-stop-during-move", "0.4"],
     );
-    let cfg = config(&dir, robot_ip, camera_ip, "");
+    let cfg = config(&dir, robot_ip, camera_ip);
     let start = joints(robot_ip);
 
     // A protective stop mid-move aborts the run: nothing written, the arm not moved back.
@@ -290,7 +266,7 @@ fn dry_run_plans_and_moves_nothing() {
     let dir = TempDir::new("dry-run");
     let (robot_ip, camera_ip) = ("127.0.0.124", "127.0.0.125");
     let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
-    let cfg = config(&dir, robot_ip, camera_ip, "");
+    let cfg = config(&dir, robot_ip, camera_ip);
     let before = joints(robot_ip);
     let out = handeye("calibrate", &cfg, &["--dry-run"]);
     assert_eq!(out.code(), 0, "{out}\n{}", rig.log());

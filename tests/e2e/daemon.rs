@@ -10,12 +10,14 @@ use std::time::{Duration, Instant};
 use nalgebra::{Isometry3, Vector3};
 
 use crate::support::{
-    iso, joints, pose_arg, pose_error, run, secs, shared, start_rig, true_mount, Daemon, TempDir,
+    iso, joints, pose_arg, pose_error, rig_config, run, secs, shared, start_rig, true_mount,
+    Daemon, TempDir,
 };
 
 const TOKEN: &str = "e2e-secret-token";
 
-/// A daemon configuration for the rig; `daemon` is the `[daemon]` table's body.
+/// A daemon configuration for the rig; `daemon` is the `[daemon]` table's body (more tables
+/// may follow it).
 fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &str) -> PathBuf {
     let token = dir.join("token");
     std::fs::write(&token, format!("{TOKEN}\n")).expect("token");
@@ -24,38 +26,13 @@ fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &str) -> PathB
         use std::os::unix::fs::PermissionsExt;
         std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o600)).expect("chmod");
     }
-    let text = format!(
-        r#"
-[robot]
-model = "ur5e"
-host = "{robot_ip}"
-max_joint_speed_rad_s = 1.0
-max_joint_accel_rad_s2 = 2.0
-
-[camera]
-backend = "gige"
-address = "{camera_ip}"
-settle_s = 0.2
-
-[mount]
-type = "eye-in-hand"
-prior = [0.0, -0.08, 0.04, -0.26, 0.0, 0.0]
-
-[write_back]
-tcp = true
-
-[storage]
-dir = "data"
-
-[daemon]
-listen = "{robot_ip}:8650"
-token_file = "token"
-{daemon}
-"#
-    );
-    let path = dir.join("handeye.toml");
-    std::fs::write(&path, text).expect("config");
-    path
+    rig_config(
+        dir,
+        robot_ip,
+        camera_ip,
+        "",
+        &format!("[daemon]\nlisten = \"{robot_ip}:8650\"\ntoken_file = \"token\"\n{daemon}"),
+    )
 }
 
 /// One HTTP/1.0 request to `addr`; (status code, body).

@@ -396,3 +396,45 @@ pub(crate) fn max_change(a: &[f64], b: &[f64]) -> f64 {
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f64::max)
 }
+
+/// A configuration (`dir/handeye.toml`) for the rig at `robot_ip`/`camera_ip`: a UR5e at
+/// 1 rad/s, the GigE camera (`camera_extra`: more `[camera]` keys), the default mount as the
+/// prior, the TCP written back, results in `dir/data`; `tail` (more tables) goes last.
+pub(crate) fn rig_config(
+    dir: &TempDir,
+    robot_ip: &str,
+    camera_ip: &str,
+    camera_extra: &str,
+    tail: &str,
+) -> PathBuf {
+    let text = format!(
+        r#"
+[robot]
+model = "ur5e"
+host = "{robot_ip}"
+max_joint_speed_rad_s = 1.0
+max_joint_accel_rad_s2 = 2.0
+
+[camera]
+backend = "gige"
+address = "{camera_ip}"
+settle_s = 0.2
+{camera_extra}
+
+[mount]
+type = "eye-in-hand"
+prior = [0.0, -0.08, 0.04, -0.26, 0.0, 0.0]
+
+[write_back]
+tcp = true
+
+[storage]
+dir = "data"
+
+{tail}
+"#
+    );
+    let path = dir.join("handeye.toml");
+    std::fs::write(&path, text).expect("config");
+    path
+}
