@@ -550,6 +550,11 @@ mod tests {
             })
             .clone();
         if m.is_none() {
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "{} is missing and CI is set",
+                path.display()
+            );
             eprintln!("SKIP: {} not found; the API tests need it", path.display());
         }
         m
