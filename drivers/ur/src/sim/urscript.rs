@@ -4,6 +4,12 @@
 
 use std::collections::HashMap;
 
+/// Most nested blocks (`if`/`while`) a program may have; deeper is a compile error, so no
+/// program can exhaust the parser's or the interpreter's stack.
+pub(crate) const MAX_BLOCK_DEPTH: usize = 64;
+/// Most nested expression levels (parentheses, unary operators, `not`, calls, lists, indices).
+pub(crate) const MAX_EXPR_DEPTH: usize = 64;
+
 /// Built-ins the simulator knows, with whether they take physical time (not allowed in `sec`).
 pub(crate) const BUILTINS: &[(&str, bool)] = &[
     ("movej", true),
@@ -39,6 +45,10 @@ pub(crate) const BUILTINS: &[(&str, bool)] = &[
     ("to_str", false),
 ];
 
+/// Most elements (counted through nested lists) and string bytes one value may hold, so a loop
+/// such as `x = [x, x]` or `s = s + s` ends in a runtime error, not in exhausted memory.
+pub(crate) const MAX_VALUE_SIZE: usize = 1 << 16;
+
 /// A script value.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) enum Val {
@@ -48,6 +58,49 @@ pub(crate) enum Val {
     List(Vec<Val>),
     Pose([f64; 6]),
     None,
+}
+
+impl Val {
+    /// Elements, nested elements and string bytes; stops counting past [`MAX_VALUE_SIZE`].
+    fn size(&self) -> usize {
+        match self {
+            Val::Str(s) => s.len(),
+            Val::List(v) => {
+                let mut n = v.len();
+                for x in v {
+                    if n > MAX_VALUE_SIZE {
+                        break;
+                    }
+                    n += x.size();
+                }
+                n
+            }
+            _ => 1,
+        }
+    }
+
+    /// Nesting depth of lists (a scalar is 0).
+    fn depth(&self) -> usize {
+        match self {
+            Val::List(v) => 1 + v.iter().map(Val::depth).max().unwrap_or(0),
+            _ => 0,
+        }
+    }
+
+    /// `Err` when the value is larger or deeper than a program may build.
+    fn bounded(self) -> Result<Self, String> {
+        if self.size() > MAX_VALUE_SIZE {
+            return Err(format!(
+                "value too large (more than {MAX_VALUE_SIZE} elements or bytes)"
+            ));
+        }
+        if self.depth() > MAX_EXPR_DEPTH {
+            return Err(format!(
+                "lists nested too deeply (more than {MAX_EXPR_DEPTH} levels)"
+            ));
+        }
+        Ok(self)
+    }
 }
 
 impl std::fmt::Display for Val {
@@ -242,14 +295,25 @@ impl ExprParser<'_> {
             err(self.line, format!("expected `{op}`"))
         }
     }
-    fn expr(&mut self) -> Result<Expr, CompileError> {
+    /// Runs `f` one nesting level deeper; every recursive path of the grammar goes through
+    /// here (sub-expressions, unary minus/plus chains, `not` chains), so the depth is bounded.
+    fn nested(
+        &mut self,
+        f: impl FnOnce(&mut Self) -> Result<Expr, CompileError>,
+    ) -> Result<Expr, CompileError> {
         self.depth += 1;
-        if self.depth > 64 {
-            return err(self.line, "expression nested too deeply");
+        if self.depth > MAX_EXPR_DEPTH {
+            return err(
+                self.line,
+                format!("expression nested too deeply (more than {MAX_EXPR_DEPTH} levels)"),
+            );
         }
-        let r = self.or();
+        let r = f(self);
         self.depth -= 1;
         r
+    }
+    fn expr(&mut self) -> Result<Expr, CompileError> {
+        self.nested(Self::or)
     }
     fn or(&mut self) -> Result<Expr, CompileError> {
         let mut l = self.and()?;
@@ -267,7 +331,7 @@ impl ExprParser<'_> {
     }
     fn not(&mut self) -> Result<Expr, CompileError> {
         if self.eat_kw("not") {
-            return Ok(Expr::Unary("not", Box::new(self.not()?)));
+            return Ok(Expr::Unary("not", Box::new(self.nested(Self::not)?)));
         }
         self.cmp()
     }
@@ -310,10 +374,10 @@ impl ExprParser<'_> {
     }
     fn unary(&mut self) -> Result<Expr, CompileError> {
         if self.eat_op("-") {
-            return Ok(Expr::Unary("-", Box::new(self.unary()?)));
+            return Ok(Expr::Unary("-", Box::new(self.nested(Self::unary)?)));
         }
         if self.eat_op("+") {
-            return self.unary();
+            return self.nested(Self::unary);
         }
         let mut e = self.atom()?;
         while self.eat_op("[") {
@@ -438,7 +502,7 @@ pub(crate) fn parse_program(text: &str) -> Result<Program, CompileError> {
         None => ("unnamed".to_string(), false, &lines[..]),
     };
     let mut i = 0;
-    let body = parse_block(body_lines, &mut i, &[])?;
+    let body = parse_block(body_lines, &mut i, &[], 0)?;
     if i != body_lines.len() {
         return err(body_lines[i].0, format!("unexpected `{}`", body_lines[i].1));
     }
@@ -497,7 +561,15 @@ fn parse_block(
     lines: &[(usize, &str)],
     i: &mut usize,
     stops: &[&str],
+    depth: usize,
 ) -> Result<Vec<Stmt>, CompileError> {
+    if depth > MAX_BLOCK_DEPTH {
+        let line = lines.get(i.saturating_sub(1)).map_or(1, |l| l.0);
+        return err(
+            line,
+            format!("blocks nested too deeply (more than {MAX_BLOCK_DEPTH} levels)"),
+        );
+    }
     let mut out = Vec::new();
     while *i < lines.len() {
         let (no, l) = lines[*i];
@@ -520,7 +592,7 @@ fn parse_block(
             "if" => {
                 let mut arms = vec![(
                     cond_of(&toks)?,
-                    parse_block(lines, i, &["elif", "else", "end"])?,
+                    parse_block(lines, i, &["elif", "else", "end"], depth + 1)?,
                 )];
                 let mut otherwise = Vec::new();
                 loop {
@@ -536,9 +608,12 @@ fn parse_block(
                             Some(Tok::Op(":")) => parse_expr(no2, &t2[1..t2.len() - 1])?,
                             _ => return err(no2, "expected `:`"),
                         };
-                        arms.push((c, parse_block(lines, i, &["elif", "else", "end"])?));
+                        arms.push((
+                            c,
+                            parse_block(lines, i, &["elif", "else", "end"], depth + 1)?,
+                        ));
                     } else {
-                        otherwise = parse_block(lines, i, &["end"])?;
+                        otherwise = parse_block(lines, i, &["end"], depth + 1)?;
                         if lines.get(*i).map(|l| l.1) != Some("end") {
                             return err(no, "`if` without `end`");
                         }
@@ -554,7 +629,7 @@ fn parse_block(
             }
             "while" => {
                 let cond = cond_of(&toks)?;
-                let body = parse_block(lines, i, &["end"])?;
+                let body = parse_block(lines, i, &["end"], depth + 1)?;
                 if lines.get(*i).map(|l| l.1) != Some("end") {
                     return err(no, "`while` without `end`");
                 }
@@ -717,7 +792,8 @@ fn eval(e: &Expr, vars: &HashMap<String, Val>, host: &mut dyn Host) -> Result<Va
                 .iter()
                 .map(|x| eval(x, vars, host))
                 .collect::<Result<_, _>>()?,
-        ),
+        )
+        .bounded()?,
         Expr::Pose(items) => {
             if items.len() != 6 {
                 return Err(format!("a pose needs 6 values, got {}", items.len()));
@@ -762,7 +838,7 @@ fn eval(e: &Expr, vars: &HashMap<String, Val>, host: &mut dyn Host) -> Result<Va
                 "==" => Val::Bool(l == r),
                 "!=" => Val::Bool(l != r),
                 "+" if matches!((&l, &r), (Val::Str(_), _) | (_, Val::Str(_))) => {
-                    Val::Str(format!("{l}{r}"))
+                    Val::Str(format!("{l}{r}")).bounded()?
                 }
                 _ => {
                     let (x, y) = (num(&l)?, num(&r)?);
@@ -864,6 +940,128 @@ mod tests {
                 .secondary
         );
         assert!(parse_program("textmsg(\"hi\")\n").is_ok());
+    }
+
+    /// Parses `text` on a thread with a quarter of a tokio worker's stack (the primary server
+    /// parses on one): a program must fail to compile long before the stack runs out.
+    fn parse_on_small_stack(text: String) -> Result<Program, CompileError> {
+        std::thread::Builder::new()
+            .stack_size(512 * 1024)
+            .spawn(move || parse_program(&text))
+            .expect("thread")
+            .join()
+            .expect("the parser did not overflow its stack")
+    }
+
+    #[test]
+    fn issue_14_deep_nesting_is_a_compile_error_not_a_crash() {
+        let nested_ifs = format!("def p():\n{}end\n", "if 1:\n".repeat(5000));
+        let e = parse_on_small_stack(nested_ifs).expect_err("refused");
+        assert!(e.message.contains("nested too deeply"), "{e:?}");
+        assert_eq!(e.line, MAX_BLOCK_DEPTH as usize + 2, "{e:?}");
+        let cases = [
+            format!("x = {}1\n", "-".repeat(100_000)),
+            format!("x = {}1\n", "+".repeat(100_000)),
+            format!("x = {}True\n", "not ".repeat(50_000)),
+            format!("x = {}1{}\n", "(".repeat(50_000), ")".repeat(50_000)),
+            format!("x = {}1{}\n", "[".repeat(50_000), "]".repeat(50_000)),
+            format!("x = {}1{}\n", "sin(".repeat(50_000), ")".repeat(50_000)),
+            format!("x = y{}\n", "[y".repeat(50_000) + &"]".repeat(50_000)),
+            format!("x = {}1{}\n", "p[".repeat(20_000), "]".repeat(20_000)),
+        ];
+        for text in cases {
+            let head = text[..20].to_string();
+            let e = parse_on_small_stack(text).expect_err("refused");
+            assert!(e.message.contains("nested too deeply"), "{head}: {e:?}");
+        }
+        // At the limits everything still compiles.
+        let ok_blocks = format!(
+            "def p():\n{}x = 1\n{}end\n",
+            "while False:\n".repeat(MAX_BLOCK_DEPTH),
+            "end\n".repeat(MAX_BLOCK_DEPTH)
+        );
+        parse_on_small_stack(ok_blocks).expect("64 nested blocks compile");
+        let ok_expr = format!("x = {}1\n", "-".repeat(MAX_EXPR_DEPTH - 2));
+        parse_on_small_stack(ok_expr).expect("a short minus chain compiles");
+    }
+
+    #[test]
+    fn issue_14_values_cannot_grow_without_bound() {
+        let prog = parse_program(
+            "def p():\n  x = [1]\n  s = \"ab\"\n  while True:\n    x = [x, x]\n  end\nend\n",
+        )
+        .expect("parses");
+        let e = run(&prog, &mut Rec(Vec::new(), 0)).expect_err("stops");
+        assert!(e.message.contains("too large"), "{e:?}");
+        let prog =
+            parse_program("def p():\n  s = \"ab\"\n  while True:\n    s = s + s\n  end\nend\n")
+                .expect("parses");
+        let e = run(&prog, &mut Rec(Vec::new(), 0)).expect_err("stops");
+        assert!(e.message.contains("too large"), "{e:?}");
+        let prog = parse_program("def p():\n  x = 1\n  while True:\n    x = [x]\n  end\nend\n")
+            .expect("parses");
+        let e = run(&prog, &mut Rec(Vec::new(), 0)).expect_err("stops");
+        assert!(e.message.contains("nested too deeply"), "{e:?}");
+    }
+
+    /// Random programs of random nesting (blocks, parentheses, unary chains, `not`, calls,
+    /// lists, indices) and length: every one either compiles or is refused with a compile
+    /// error, on a small stack; the deep ones are always refused.
+    #[test]
+    fn fuzzed_nesting_and_long_programs_never_crash() {
+        let mut rng = crate::rtde::tests::Lcg(14);
+        let (mut ok, mut refused) = (0, 0);
+        for _ in 0..300 {
+            let depth = rng.below(3 * MAX_EXPR_DEPTH);
+            let mut open = String::new();
+            let mut close = String::new();
+            for _ in 0..depth {
+                // (`not` chains are in the test above: `-not x` is not URScript.)
+                let (o, c) = match rng.below(6) {
+                    0 => ("(", ")"),
+                    1 => ("-", ""),
+                    2 => ("sin(", ")"),
+                    3 => ("sin(", ")"),
+                    4 => ("[", "]"),
+                    5 => ("[0,", "][0]"),
+                    _ => ("+", ""),
+                };
+                open.push_str(o);
+                close.insert_str(0, c);
+            }
+            let blocks = rng.below(3 * MAX_BLOCK_DEPTH);
+            let lines = 1 + rng.below(2000);
+            let mut text = String::from("def p():\n");
+            for b in 0..blocks {
+                text.push_str(if b % 2 == 0 {
+                    "if 1:\n"
+                } else {
+                    "while False:\n"
+                });
+            }
+            for i in 0..lines {
+                text.push_str(&format!("x{} = {open}{i}{close}\n", i % 50));
+            }
+            text.push_str(&"end\n".repeat(blocks));
+            text.push_str("end\n");
+            let too_deep = blocks > MAX_BLOCK_DEPTH || depth + 1 > MAX_EXPR_DEPTH;
+            match parse_on_small_stack(text) {
+                Ok(_) => {
+                    assert!(
+                        !too_deep,
+                        "blocks {blocks}, expression depth {depth} compiled"
+                    );
+                    ok += 1;
+                }
+                Err(e) => {
+                    if too_deep {
+                        assert!(e.message.contains("nested too deeply"), "{e:?}");
+                    }
+                    refused += 1;
+                }
+            }
+        }
+        assert!(ok > 10 && refused > 10, "{ok} compiled, {refused} refused");
     }
 
     #[test]
