@@ -958,7 +958,7 @@ mod tests {
         let nested_ifs = format!("def p():\n{}end\n", "if 1:\n".repeat(5000));
         let e = parse_on_small_stack(nested_ifs).expect_err("refused");
         assert!(e.message.contains("nested too deeply"), "{e:?}");
-        assert_eq!(e.line, MAX_BLOCK_DEPTH as usize + 2, "{e:?}");
+        assert_eq!(e.line, MAX_BLOCK_DEPTH + 2, "{e:?}");
         let cases = [
             format!("x = {}1\n", "-".repeat(100_000)),
             format!("x = {}1\n", "+".repeat(100_000)),
