@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
-# Installs the real UR client `ur-rtde` (SDU, PyPI) into $REPO/.venv for the peer tests in
-# drivers/ur/tests. Idempotent; runs as root on a fresh Debian machine.
+# Installs the real UR clients `ur-rtde` (SDU, PyPI) and `urx` (python-urx, PyPI, with its
+# dependency math3d) into $REPO/.venv for the peer tests in drivers/ur/tests and tests/e2e.
+# Idempotent; runs as root on a fresh Debian machine.
 set -euo pipefail
 REPO="$(cd "$(dirname "$0")/../.." && pwd)"
 UR_RTDE_VERSION="1.6.5"
+URX_VERSION="0.11.0"
+MATH3D_VERSION="4.0.0"
 
 if ! command -v python3 >/dev/null 2>&1 || ! python3 -c 'import venv, ensurepip' >/dev/null 2>&1; then
   if command -v apt-get >/dev/null 2>&1; then
@@ -33,4 +36,9 @@ import importlib.metadata as m; sys.exit(m.version('ur_rtde') != '$UR_RTDE_VERSI
   "$REPO/.venv/bin/python" -m pip install --quiet --upgrade pip
   "$REPO/.venv/bin/python" -m pip install --quiet "ur-rtde==$UR_RTDE_VERSION"
 fi
-"$REPO/.venv/bin/python" -c "import rtde_receive, rtde_io, dashboard_client; print('ur-rtde ready')"
+if ! "$REPO/.venv/bin/python" -c "import urx, sys; \
+import importlib.metadata as m; sys.exit(m.version('urx') != '$URX_VERSION')" >/dev/null 2>&1; then
+  "$REPO/.venv/bin/python" -m pip install --quiet "urx==$URX_VERSION" "math3d==$MATH3D_VERSION"
+fi
+"$REPO/.venv/bin/python" -c "import rtde_receive, rtde_control, rtde_io, dashboard_client; print('ur-rtde ready')"
+"$REPO/.venv/bin/python" -c "import urx; print('urx ready')"

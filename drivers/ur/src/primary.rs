@@ -194,14 +194,152 @@ impl KinematicsInfo {
     }
 }
 
-/// ROBOT_STATE with sub-packages 0 (mode data), 1 (joint data, positions only) and 5
-/// (kinematics info: checksums, `θ, a, d, α` × 6, calibration status).
-pub fn encode_robot_state(m: &RobotModeData, q: &[f64; 6], kin: &KinematicsInfo) -> Vec<u8> {
-    let mut body = Vec::new();
+/// Cartesian info (ROBOT_STATE sub-package 4): where the TCP is and the active TCP offset.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CartesianInfo {
+    /// `base_from_tcp` as UR's `[x, y, z, rx, ry, rz]` (m, rotation vector).
+    pub tool_pose: [f64; 6],
+    /// `flange_from_tcp` (the TCP offset set by `set_tcp`), same convention.
+    pub tcp_offset: [f64; 6],
+}
+
+impl CartesianInfo {
+    /// Payload size on the wire: 12 × f64 (CB3.2 and later).
+    pub const SIZE: usize = 12 * 8;
+}
+
+/// Configuration data (ROBOT_STATE sub-package 6): joint limits, default speeds, the DH set and
+/// the robot type, as the controller's configuration holds them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConfigurationData {
+    /// Joint position limits (min, max), rad.
+    pub joint_limits: [(f64, f64); 6],
+    /// Joint speed (rad/s) and acceleration (rad/s²) limits.
+    pub joint_motion_limits: [(f64, f64); 6],
+    /// Default joint speed (rad/s), joint acceleration (rad/s²), tool speed (m/s), tool
+    /// acceleration (m/s²) and equivalent radius (m) of the pendant's move screens.
+    pub defaults: [f64; 5],
+    /// The DH parameters (the same set as KinematicsInfo).
+    pub dh: DhParams,
+    /// Masterboard version.
+    pub masterboard_version: i32,
+    /// Controller box type.
+    pub controller_box_type: i32,
+    /// Robot type (URCL's numbering: UR3 1, UR5 2, UR10 3, UR16 4, UR20 7, UR30 8).
+    pub robot_type: i32,
+    /// Robot sub-type.
+    pub robot_sub_type: i32,
+}
+
+impl ConfigurationData {
+    /// Payload size on the wire: 24 × f64 limits, 5 defaults, 24 DH values, 4 × i32.
+    pub const SIZE: usize = 24 * 8 + 5 * 8 + 24 * 8 + 4 * 4;
+
+    fn encode(&self, p: &mut Vec<u8>) {
+        for (lo, hi) in self.joint_limits.iter().chain(&self.joint_motion_limits) {
+            p.extend_from_slice(&lo.to_be_bytes());
+            p.extend_from_slice(&hi.to_be_bytes());
+        }
+        for v in self.defaults {
+            p.extend_from_slice(&v.to_be_bytes());
+        }
+        for arr in [&self.dh.a, &self.dh.d, &self.dh.alpha, &self.dh.theta] {
+            for v in arr.iter() {
+                p.extend_from_slice(&v.to_be_bytes());
+            }
+        }
+        for v in [
+            self.masterboard_version,
+            self.controller_box_type,
+            self.robot_type,
+            self.robot_sub_type,
+        ] {
+            p.extend_from_slice(&v.to_be_bytes());
+        }
+    }
+
+    fn decode(r: &mut Reader<'_>) -> Result<Self, UrError> {
+        let mut pairs = || -> Result<[(f64, f64); 6], UrError> {
+            let mut a = [(0.0, 0.0); 6];
+            for v in &mut a {
+                *v = (r.f64()?, r.f64()?);
+            }
+            Ok(a)
+        };
+        let joint_limits = pairs()?;
+        let joint_motion_limits = pairs()?;
+        let mut defaults = [0.0; 5];
+        for v in &mut defaults {
+            *v = r.f64()?;
+        }
+        let mut six = || -> Result<[f64; 6], UrError> {
+            let mut a = [0.0; 6];
+            for v in &mut a {
+                *v = r.f64()?;
+            }
+            Ok(a)
+        };
+        let (a, d, alpha, theta) = (six()?, six()?, six()?, six()?);
+        Ok(Self {
+            joint_limits,
+            joint_motion_limits,
+            defaults,
+            dh: DhParams { a, d, alpha, theta },
+            masterboard_version: r.i32()?,
+            controller_box_type: r.i32()?,
+            robot_type: r.i32()?,
+            robot_sub_type: r.i32()?,
+        })
+    }
+}
+
+/// Everything one ROBOT_STATE package carries, as the simulator publishes it at 10 Hz.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RobotStateData {
+    /// Sub-package 0.
+    pub mode: RobotModeData,
+    /// Actual joint positions (rad), sub-package 1.
+    pub q_actual: [f64; 6],
+    /// Target joint positions (rad), sub-package 1.
+    pub q_target: [f64; 6],
+    /// Actual joint speeds (rad/s), sub-package 1.
+    pub qd_actual: [f64; 6],
+    /// Joint mode of every joint (253 running, 239 power off, 255 idle), sub-package 1.
+    pub joint_mode: u8,
+    /// Sub-package 4.
+    pub cartesian: CartesianInfo,
+    /// Sub-package 5.
+    pub kinematics: KinematicsInfo,
+    /// Sub-package 6.
+    pub configuration: ConfigurationData,
+    /// Standard (bits 0–7), configurable (8–15) and tool (16–17) digital outputs, sub-package 3.
+    pub digital_outputs: u32,
+    /// Standard analog outputs (A or V), sub-package 3.
+    pub analog_outputs: [f64; 2],
+    /// Safety mode code (as RTDE `safety_mode`), sub-package 3.
+    pub safety_mode: u8,
+}
+
+/// ROBOT_STATE in the e-Series order: 0 robot mode data, 1 joint data, 2 tool data, 3
+/// masterboard data, 4 Cartesian info, 5 kinematics info, 6 configuration data, 7 force mode
+/// data, 8 additional info. Under 2000 bytes (python-urx drops larger packages).
+pub fn encode_robot_state(st: &RobotStateData) -> Vec<u8> {
+    let m = &st.mode;
+    let mut body = Vec::with_capacity(1300);
     let mut sub = |t: u8, p: Vec<u8>| {
         body.extend_from_slice(&((p.len() + 5) as u32).to_be_bytes());
         body.push(t);
         body.extend_from_slice(&p);
+    };
+    let f64s = |p: &mut Vec<u8>, v: &[f64]| {
+        for x in v {
+            p.extend_from_slice(&x.to_be_bytes());
+        }
+    };
+    let f32s = |p: &mut Vec<u8>, v: &[f32]| {
+        for x in v {
+            p.extend_from_slice(&x.to_be_bytes());
+        }
     };
     let mut p = Vec::new();
     p.extend_from_slice(&m.timestamp_us.to_be_bytes());
@@ -218,26 +356,58 @@ pub fn encode_robot_state(m: &RobotModeData, q: &[f64; 6], kin: &KinematicsInfo)
     }
     p.push(m.robot_mode as u8);
     p.push(0);
-    for v in [m.target_speed_fraction, 1.0, 1.0] {
-        p.extend_from_slice(&v.to_be_bytes());
-    }
+    // target speed fraction, speed scaling, target speed fraction limit
+    f64s(&mut p, &[m.target_speed_fraction, 1.0, 1.0]);
     sub(0, p);
     let mut p = Vec::new();
-    for qi in q {
+    for i in 0..6 {
         // q_actual, q_target, qd_actual, I_actual, V_actual, T_motor, T_micro, mode
-        for v in [*qi, *qi, 0.0] {
-            p.extend_from_slice(&v.to_be_bytes());
-        }
-        p.extend_from_slice(&0f32.to_be_bytes());
-        p.extend_from_slice(&48f32.to_be_bytes());
-        p.extend_from_slice(&30f32.to_be_bytes());
-        p.extend_from_slice(&0f32.to_be_bytes());
-        p.push(253);
+        f64s(&mut p, &[st.q_actual[i], st.q_target[i], st.qd_actual[i]]);
+        f32s(&mut p, &[0.0, 48.0, 30.0, 0.0]);
+        p.push(st.joint_mode);
     }
     sub(1, p);
+    let mut p = Vec::new();
+    // analog input ranges 2/3, analog inputs 2/3, tool voltage, output voltage, current,
+    // temperature, tool mode
+    p.extend_from_slice(&[0, 0]);
+    f64s(&mut p, &[0.0, 0.0]);
+    f32s(&mut p, &[24.0]);
+    p.push(0);
+    f32s(&mut p, &[0.0, 30.0]);
+    p.push(st.joint_mode);
+    sub(2, p);
+    let mut p = Vec::new();
+    p.extend_from_slice(&0i32.to_be_bytes());
+    p.extend_from_slice(&(st.digital_outputs as i32).to_be_bytes());
+    p.extend_from_slice(&[0, 0]);
+    f64s(&mut p, &[0.0, 0.0]);
+    p.extend_from_slice(&[0, 0]);
+    f64s(&mut p, &st.analog_outputs);
+    // masterboard temperature, robot voltage, robot current, IO current
+    f32s(&mut p, &[35.0, 48.0, 0.5, 0.1]);
+    // safety mode, in reduced mode, euromap67 installed (no), unused, operational mode
+    // selector input, three-position enabling device input, unused
+    p.extend_from_slice(&[st.safety_mode, 0, 0]);
+    p.extend_from_slice(&0u32.to_be_bytes());
+    p.extend_from_slice(&[0, 0, 0]);
+    sub(3, p);
+    let mut p = Vec::with_capacity(CartesianInfo::SIZE);
+    f64s(&mut p, &st.cartesian.tool_pose);
+    f64s(&mut p, &st.cartesian.tcp_offset);
+    sub(4, p);
     let mut p = Vec::with_capacity(KinematicsInfo::SIZE);
-    kin.encode(&mut p);
+    st.kinematics.encode(&mut p);
     sub(5, p);
+    let mut p = Vec::with_capacity(ConfigurationData::SIZE);
+    st.configuration.encode(&mut p);
+    sub(6, p);
+    let mut p = Vec::new();
+    // wrench x, y, z, rx, ry, rz, robot dexterity
+    f64s(&mut p, &[0.0; 7]);
+    sub(7, p);
+    // freedrive button pressed, enabled, IO-enabled freedrive, reserved
+    sub(8, vec![0, 0, 0, 0]);
     frame(ROBOT_STATE, &body)
 }
 
@@ -262,8 +432,14 @@ pub enum PrimaryPackage {
     RobotState {
         /// Robot mode data (sub-package 0).
         mode: Option<RobotModeData>,
+        /// Actual joint positions, rad (sub-package 1).
+        joints: Option<[f64; 6]>,
+        /// Cartesian info (sub-package 4).
+        cartesian: Option<CartesianInfo>,
         /// Kinematics info (sub-package 5; sent on connect and on change).
         kinematics: Option<KinematicsInfo>,
+        /// Configuration data (sub-package 6).
+        configuration: Option<ConfigurationData>,
     },
     /// Text message.
     Text(String),
@@ -325,7 +501,10 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
     match kind {
         ROBOT_STATE => {
             let mut mode = None;
+            let mut joints = None;
+            let mut cartesian = None;
             let mut kinematics = None;
+            let mut configuration = None;
             while r.remaining() > 0 {
                 let len = r.u32()? as usize;
                 if len < 5 {
@@ -352,11 +531,35 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
                         robot_mode,
                         target_speed_fraction,
                     });
+                } else if t == 1 {
+                    let mut q = [0.0; 6];
+                    for qi in &mut q {
+                        *qi = s.f64()?;
+                        s.take(2 * 8 + 4 * 4 + 1)?;
+                    }
+                    joints = Some(q);
+                } else if t == 4 {
+                    let mut v = [0.0; 12];
+                    for x in &mut v {
+                        *x = s.f64()?;
+                    }
+                    let mut c = CartesianInfo::default();
+                    c.tool_pose.copy_from_slice(&v[..6]);
+                    c.tcp_offset.copy_from_slice(&v[6..]);
+                    cartesian = Some(c);
                 } else if t == 5 {
                     kinematics = Some(KinematicsInfo::decode(&mut s)?);
+                } else if t == 6 {
+                    configuration = Some(ConfigurationData::decode(&mut s)?);
                 }
             }
-            Ok(PrimaryPackage::RobotState { mode, kinematics })
+            Ok(PrimaryPackage::RobotState {
+                mode,
+                joints,
+                cartesian,
+                kinematics,
+                configuration,
+            })
         }
         ROBOT_MESSAGE => {
             let _ts = r.u64()?;
@@ -416,6 +619,34 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
 mod tests {
     use super::*;
 
+    fn state(mode: RobotModeData, q: [f64; 6], kinematics: KinematicsInfo) -> RobotStateData {
+        RobotStateData {
+            mode,
+            q_actual: q,
+            q_target: q,
+            qd_actual: [0.0; 6],
+            joint_mode: 253,
+            cartesian: CartesianInfo {
+                tool_pose: [0.1, -0.2, 0.3, 0.4, -0.5, 0.6],
+                tcp_offset: [0.0, 0.0, 0.15, 0.0, 0.0, 0.1],
+            },
+            kinematics,
+            configuration: ConfigurationData {
+                joint_limits: [(-6.28, 6.28); 6],
+                joint_motion_limits: [(3.14, 40.0); 6],
+                defaults: [1.05, 1.4, 0.25, 1.2, 0.045],
+                dh: kinematics.dh,
+                masterboard_version: 3,
+                controller_box_type: 5,
+                robot_type: 2,
+                robot_sub_type: 3,
+            },
+            digital_outputs: 0x105,
+            analog_outputs: [0.004, 0.0],
+            safety_mode: 1,
+        }
+    }
+
     #[test]
     fn round_trips_and_fuzz() {
         let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
@@ -436,9 +667,13 @@ mod tests {
             encode_key(1, 0, "PROGRAM_XXX_STARTED", "prog"),
             encode_error_code(1, 210, 3, "read-only"),
             encode_runtime_exception(1, 3, 1, "unknown function: foo"),
-            encode_robot_state(&m, &[0.1; 6], &kin),
-            encode_robot_state(&m, &[-0.2; 6], &KinematicsInfo::for_arm(nominal, 0)),
+            encode_robot_state(&state(m, [0.1; 6], kin)),
+            encode_robot_state(&state(m, [-0.2; 6], KinematicsInfo::for_arm(nominal, 0))),
         ];
+        assert!(
+            seeds[5].len() < 2000,
+            "python-urx drops packages of 2000 bytes or more"
+        );
         let (p, n) = split(&seeds[0]).expect("ok").expect("whole");
         assert_eq!(n, seeds[0].len());
         assert_eq!(
@@ -451,11 +686,15 @@ mod tests {
             }
         );
         let (p, _) = split(&seeds[5]).expect("ok").expect("whole");
+        let st = state(m, [0.1; 6], kin);
         assert_eq!(
             p,
             PrimaryPackage::RobotState {
                 mode: Some(m),
-                kinematics: Some(kin)
+                joints: Some([0.1; 6]),
+                cartesian: Some(st.cartesian),
+                kinematics: Some(kin),
+                configuration: Some(st.configuration),
             }
         );
         let k = kin.to_controller_kinematics();
@@ -495,7 +734,10 @@ mod tests {
             p,
             PrimaryPackage::RobotState {
                 mode: None,
-                kinematics: Some(kin)
+                joints: None,
+                cartesian: None,
+                kinematics: Some(kin),
+                configuration: None,
             }
         );
         assert!(split(&kinematics_only(-1)).is_err());

@@ -37,11 +37,11 @@ fn state_package(shared: &Shared) -> Vec<u8> {
         emergency_stopped: s.safety_mode == super::SafetyModeCode::RobotEmergencyStop,
         protective_stopped: s.safety_mode == super::SafetyModeCode::ProtectiveStop,
         program_running: s.runtime_state == RUNTIME_PLAYING,
-        program_paused: false,
+        program_paused: s.runtime_state == super::state::RUNTIME_PAUSED,
         robot_mode: s.robot_mode as i8,
         target_speed_fraction: s.speed_slider,
     };
-    primary::encode_robot_state(&m, &s.q, &s.kinematics_info())
+    primary::encode_robot_state(&s.primary_state(m, shared.config.model))
 }
 
 async fn connection(

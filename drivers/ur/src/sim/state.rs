@@ -3,7 +3,7 @@
 use std::collections::{HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
-use handeye_hal::ur_dh::DhParams;
+use handeye_hal::ur_dh::{DhParams, UrModel};
 use nalgebra::Isometry3;
 
 use super::motion::Motion;
@@ -15,6 +15,35 @@ pub(crate) const RUNTIME_STOPPED: u32 = 1;
 pub(crate) const RUNTIME_PLAYING: u32 = 2;
 pub(crate) const RUNTIME_PAUSED: u32 = 4;
 const LOG_LINES: usize = 32;
+
+/// Joint position limit of every joint, rad (±2π, as the controller's default configuration).
+pub(crate) const JOINT_LIMIT: f64 = 2.0 * std::f64::consts::PI;
+
+/// Maximum speed of joint `i` (rad/s): the base joints of the large arms are slower, the wrists of
+/// the small ones faster (the datasheets' values).
+pub(crate) fn max_joint_speed(model: UrModel, i: usize) -> f64 {
+    use std::f64::consts::PI;
+    match model {
+        UrModel::Ur3 | UrModel::Ur3e if i >= 3 => 2.0 * PI,
+        UrModel::Ur10 | UrModel::Ur10e | UrModel::Ur12e | UrModel::Ur16e if i < 2 => 2.0 * PI / 3.0,
+        UrModel::Ur20 | UrModel::Ur30 if i < 2 => 2.0 * PI / 3.0,
+        _ => PI,
+    }
+}
+
+/// ConfigurationData robot type (URCL's numbering; the e-Series variants share their CB3
+/// sibling's number, the newer arms have their own).
+fn robot_type(model: UrModel) -> i32 {
+    match model {
+        UrModel::Ur3 | UrModel::Ur3e => 1,
+        UrModel::Ur5 | UrModel::Ur5e | UrModel::Ur7e => 2,
+        UrModel::Ur10 | UrModel::Ur10e | UrModel::Ur12e => 3,
+        UrModel::Ur16e => 4,
+        UrModel::Ur20 => 7,
+        UrModel::Ur30 => 8,
+        UrModel::Ur15 => 9,
+    }
+}
 
 /// Robot mode codes (RTDE `robot_mode`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -167,6 +196,51 @@ impl State {
         crate::primary::KinematicsInfo::for_arm(self.dh, crate::primary::CALIBRATION_LINEARISED)
     }
 
+    /// Everything the primary/secondary ROBOT_STATE package reports, mode data given.
+    pub(crate) fn primary_state(
+        &self,
+        mode: crate::primary::RobotModeData,
+        model: UrModel,
+    ) -> crate::primary::RobotStateData {
+        use crate::primary::{CartesianInfo, ConfigurationData, RobotStateData};
+        RobotStateData {
+            mode,
+            q_actual: self.q,
+            q_target: self.target_q,
+            qd_actual: self.qd,
+            joint_mode: self.joint_mode(),
+            cartesian: CartesianInfo {
+                tool_pose: self.tcp_pose().0,
+                tcp_offset: self.tcp.0,
+            },
+            kinematics: self.kinematics_info(),
+            configuration: ConfigurationData {
+                joint_limits: [(-JOINT_LIMIT, JOINT_LIMIT); 6],
+                joint_motion_limits: std::array::from_fn(|i| (max_joint_speed(model, i), 40.0)),
+                defaults: [1.05, 1.4, 0.25, 1.2, 0.045],
+                dh: self.dh,
+                masterboard_version: if model.is_cb3() { 3 } else { 4 },
+                controller_box_type: if model.is_cb3() { 3 } else { 5 },
+                robot_type: robot_type(model),
+                robot_sub_type: if model.is_cb3() { 1 } else { 3 },
+            },
+            digital_outputs: u32::from(self.std_do)
+                | (u32::from(self.conf_do) << 8)
+                | (u32::from(self.tool_do) << 16),
+            analog_outputs: self.analog_out,
+            safety_mode: self.safety_mode as u8,
+        }
+    }
+
+    /// Joint mode code of every joint: 253 running, 239 power off, 255 idle (brakes on).
+    pub(crate) fn joint_mode(&self) -> u8 {
+        match self.robot_mode {
+            RobotModeCode::Running => 253,
+            RobotModeCode::PowerOff => 239,
+            _ => 255,
+        }
+    }
+
     pub(crate) fn flange_pose(&self) -> Isometry3<f64> {
         self.dh.forward(&self.q)
     }
@@ -252,13 +326,7 @@ impl State {
             "actual_TCP_pose" | "target_TCP_pose" => Value::Vector6d(self.tcp_pose().0),
             "tcp_offset" => Value::Vector6d(self.tcp.0),
             "robot_mode" => Value::Int32(self.robot_mode as i32),
-            "joint_mode" => Value::Vector6Int32(
-                [if self.robot_mode == RobotModeCode::Running {
-                    253
-                } else {
-                    236
-                }; 6],
-            ),
+            "joint_mode" => Value::Vector6Int32([i32::from(self.joint_mode()); 6]),
             "safety_mode" | "safety_status" => Value::Int32(self.safety_mode as i32),
             "safety_status_bits" => Value::Uint32(self.safety_status_bits()),
             "robot_status_bits" => Value::Uint32(self.robot_status_bits()),
