@@ -13,19 +13,33 @@
 
 use std::collections::HashMap;
 
+use handeye_hal::limits;
 use nalgebra::{Matrix4, Point3, Rotation3, Unit, Vector3};
-use roxmltree::{Document, Node};
+use roxmltree::{Document, Node, ParsingOptions};
 
-use super::TriMesh;
+use super::{TriMesh, MAX_MODEL_TRIANGLES};
 
 /// Deepest node nesting (including `<instance_node>` hops) before we call it a cycle.
 const MAX_DEPTH: usize = 64;
+
+/// Most XML nodes (elements, text, …) in one document; a UR30 mesh has ~500.
+const MAX_XML_NODES: u32 = 5_000_000;
+
+/// Most scene nodes visited (`<instance_node>` can make a small file a huge tree).
+const MAX_NODE_VISITS: usize = 1_000_000;
 
 /// Parses a Collada document into one mesh in the document's root frame, converted to metres
 /// and Z-up. Errors are human-readable reasons (the caller adds the path).
 pub(crate) fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
     let text = std::str::from_utf8(bytes).map_err(|e| format!("not UTF-8 text: {e}"))?;
-    let doc = Document::parse(text).map_err(|e| format!("not well-formed XML: {e}"))?;
+    // roxmltree's tokenizer recurses per element: bound the nesting before it parses.
+    limits::check_xml_nesting(text, limits::MAX_XML_DEPTH)?;
+    let options = ParsingOptions {
+        nodes_limit: MAX_XML_NODES,
+        ..ParsingOptions::default()
+    };
+    let doc = Document::parse_with_options(text, options)
+        .map_err(|e| format!("not well-formed XML: {e}"))?;
     let root = doc.root_element();
     if root.tag_name().name() != "COLLADA" {
         return Err(format!(
@@ -34,6 +48,7 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         ));
     }
     let mut reader = Reader {
+        visits: 0,
         ids: HashMap::new(),
         geometries: HashMap::new(),
         positions: HashMap::new(),
@@ -118,8 +133,13 @@ fn floats(node: Node<'_, '_>) -> Result<Vec<f64>, String> {
         .unwrap_or("")
         .split_ascii_whitespace()
         .map(|t| {
-            t.parse::<f64>()
-                .map_err(|_| format!("bad number `{t}` in <{}>", node.tag_name().name()))
+            t.parse::<f64>().map_err(|_| {
+                format!(
+                    "bad number `{}` in <{}>",
+                    limits::Quoted(t),
+                    node.tag_name().name()
+                )
+            })
         })
         .collect()
 }
@@ -129,8 +149,13 @@ fn indices(node: Node<'_, '_>) -> Result<Vec<u32>, String> {
         .unwrap_or("")
         .split_ascii_whitespace()
         .map(|t| {
-            t.parse::<u32>()
-                .map_err(|_| format!("bad index `{t}` in <{}>", node.tag_name().name()))
+            t.parse::<u32>().map_err(|_| {
+                format!(
+                    "bad index `{}` in <{}>",
+                    limits::Quoted(t),
+                    node.tag_name().name()
+                )
+            })
         })
         .collect()
 }
@@ -147,6 +172,8 @@ fn fixed<const N: usize>(node: Node<'_, '_>) -> Result<[f64; N], String> {
 }
 
 struct Reader<'a, 'i> {
+    /// Scene nodes visited so far (bounded by [`MAX_NODE_VISITS`]).
+    visits: usize,
     ids: HashMap<&'a str, Node<'a, 'i>>,
     /// Parsed geometries by id.
     geometries: HashMap<&'a str, std::rc::Rc<TriMesh>>,
@@ -169,6 +196,12 @@ impl<'a, 'i> Reader<'a, 'i> {
         if depth > MAX_DEPTH {
             return Err(format!(
                 "node hierarchy deeper than {MAX_DEPTH} (an <instance_node> cycle?)"
+            ));
+        }
+        self.visits += 1;
+        if self.visits > MAX_NODE_VISITS {
+            return Err(format!(
+                "the scene instances more than {MAX_NODE_VISITS} nodes (<instance_node> repeated)"
             ));
         }
         let mut local = Matrix4::identity();
@@ -215,6 +248,11 @@ impl<'a, 'i> Reader<'a, 'i> {
                             format!("<instance_geometry url=\"{url}\"> names no geometry")
                         })?;
                     let mesh = self.geometry(g)?;
+                    if out.triangles.len() + mesh.triangles.len() > MAX_MODEL_TRIANGLES {
+                        return Err(format!(
+                            "the scene makes more than {MAX_MODEL_TRIANGLES} triangles"
+                        ));
+                    }
                     out.append_transformed(&mesh, &world);
                 }
                 _ => {}

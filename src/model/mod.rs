@@ -22,12 +22,24 @@ use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use handeye_hal::limits;
 use handeye_hal::ur_dh::{DhParams, UrModel};
 use nalgebra::{Isometry3, Matrix4, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 pub use kinematic::KinematicError;
 pub use mesh::TriMesh;
+
+/// Largest URDF file read (a UR URDF is ~20 kB).
+pub const MAX_URDF_BYTES: u64 = 16 << 20;
+/// Largest mesh file read (the largest mesh of the 21 reference robots is ~10 MB).
+pub const MAX_MESH_FILE_BYTES: u64 = 512 << 20;
+/// Most triangles one mesh file may produce (after Collada instancing) and a whole model may
+/// hold, per kind (visual, collision); the UR5e has 129 k.
+pub const MAX_MODEL_TRIANGLES: usize = 20_000_000;
+/// Largest coordinate of any geometry in its link's frame, metres (after `<origin>` and
+/// `<mesh scale>`): no robot link reaches that far from its joint.
+pub const MAX_LINK_EXTENT_M: f64 = 20.0;
 
 /// Which of a link's geometries: what it looks like (`<visual>`, use it to synthesise and
 /// register scans) or its simplified hull (`<collision>`, use it for collision checks).
@@ -297,15 +309,20 @@ pub fn find_urdfs(dir: &Path) -> Vec<PathBuf> {
 impl RobotModel {
     /// Loads a URDF and all its meshes (visual and collision).
     pub fn load(urdf_path: &Path) -> Result<Self, ModelError> {
-        let text = std::fs::read_to_string(urdf_path).map_err(|source| ModelError::ReadUrdf {
+        let read_error = |source| ModelError::ReadUrdf {
             path: urdf_path.to_path_buf(),
             source,
-        })?;
+        };
+        limits::check_regular_file(urdf_path, MAX_URDF_BYTES).map_err(read_error)?;
+        let text = std::fs::read_to_string(urdf_path).map_err(read_error)?;
         let malformed = |reason: String| ModelError::MalformedUrdf {
             path: urdf_path.to_path_buf(),
             reason,
         };
-        let robot = urdf_rs::read_from_string(&text).map_err(|e| malformed(e.to_string()))?;
+        // urdf-rs parses and re-serializes recursively: bound the nesting before it sees it.
+        limits::check_xml_nesting(&text, limits::MAX_XML_DEPTH).map_err(malformed)?;
+        let robot = urdf_rs::read_from_string(&text)
+            .map_err(|e| malformed(limits::sanitize_message(&e.to_string())))?;
         let mut model = Self::from_urdf(&robot, urdf_path).map_err(malformed)?;
         let base_dir = urdf_path.parent().unwrap_or(Path::new("."));
         model.load_geometry(&robot, base_dir)?;
@@ -580,6 +597,11 @@ impl RobotModel {
                     }
                     let m = link_from_geometry * Matrix4::new_nonuniform_scaling(&Vector3::from(s));
                     if let Some(mesh) = meshes.get(&path) {
+                        if out.triangles.len() + mesh.triangles.len() > MAX_MODEL_TRIANGLES {
+                            return Err(bad(format!(
+                                "link `{link}` has more than {MAX_MODEL_TRIANGLES} triangles"
+                            )));
+                        }
                         out.append_transformed(mesh, &m);
                     }
                 }
@@ -602,6 +624,11 @@ impl RobotModel {
                     if !dims.iter().all(|v| v.is_finite() && *v >= 0.0) {
                         return Err(bad(format!("geometry {primitive:?} of link `{link}` has a negative or non-finite size")));
                     }
+                    if dims.iter().any(|v| *v > MAX_LINK_EXTENT_M) {
+                        return Err(bad(format!(
+                            "geometry {primitive:?} of link `{link}` is larger than {MAX_LINK_EXTENT_M} m; sizes are in metres"
+                        )));
+                    }
                     // Zero-size placeholders (`<box size="0 0 0">`, as in the Elite URDFs) add nothing.
                     if dims.iter().all(|v| *v > 0.0)
                         || matches!(primitive, urdf_rs::Geometry::Capsule { .. } if dims[0] > 0.0)
@@ -609,6 +636,23 @@ impl RobotModel {
                         out.append_transformed(&mesh(&dims), &link_from_geometry);
                     }
                 }
+            }
+        }
+        for ((l, _), mesh) in &merged {
+            let outside = mesh.vertices.iter().any(|v| {
+                v.coords
+                    .iter()
+                    .any(|c| !c.is_finite() || c.abs() > MAX_LINK_EXTENT_M)
+            });
+            if outside {
+                return Err(ModelError::MalformedUrdf {
+                    path: self.urdf_path.clone(),
+                    reason: format!(
+                        "the geometry of link `{}` reaches farther than {MAX_LINK_EXTENT_M} m from the link's origin \
+                         (a <mesh scale> or <origin> in the wrong unit?); lengths are in metres",
+                        self.link_names[*l]
+                    ),
+                });
             }
         }
         for l in 0..self.link_names.len() {
@@ -1067,11 +1111,13 @@ fn read_mesh(path: &Path, link: &str) -> Result<TriMesh, ModelError> {
             path: path.to_path_buf(),
         });
     }
-    let bytes = std::fs::read(path).map_err(|e| ModelError::MissingMesh {
+    let unreadable = |e: std::io::Error| ModelError::MissingMesh {
         link: link.to_string(),
         path: path.to_path_buf(),
         reason: e.to_string(),
-    })?;
+    };
+    limits::check_regular_file(path, MAX_MESH_FILE_BYTES).map_err(unreadable)?;
+    let bytes = std::fs::read(path).map_err(unreadable)?;
     let malformed = |reason: String| ModelError::MalformedMesh {
         link: link.to_string(),
         path: path.to_path_buf(),
@@ -1087,7 +1133,7 @@ fn read_mesh(path: &Path, link: &str) -> Result<TriMesh, ModelError> {
                 // Materials are not needed: never read the .mtl files.
                 loader.load_obj_from_slice_with_reader(&bytes, path, |_| Ok(Vec::new()))
             }
-            .map_err(|e| malformed(e.to_string()))?;
+            .map_err(|e| malformed(limits::sanitize_message(&e.to_string())))?;
             from_scene(&scene).map_err(malformed)?
         }
     };
@@ -1098,6 +1144,9 @@ fn read_mesh(path: &Path, link: &str) -> Result<TriMesh, ModelError> {
 fn from_scene(scene: &mesh_loader::Scene) -> Result<TriMesh, String> {
     let mut out = TriMesh::default();
     for m in &scene.meshes {
+        if out.triangles.len() + m.faces.len() > MAX_MODEL_TRIANGLES {
+            return Err(format!("more than {MAX_MODEL_TRIANGLES} triangles"));
+        }
         let base = u32::try_from(out.vertices.len()).map_err(|_| "too many vertices")?;
         out.vertices.extend(
             m.vertices

@@ -755,3 +755,168 @@ fn controller_dh_needs_a_six_joint_ur_arm() {
         .expect_err("5 joints");
     assert!(matches!(e, ModelError::JointCount { .. }), "{e}");
 }
+
+/// Issue 16: structure-aware hostile inputs — nesting far beyond any real file (the parsers
+/// behind URDF and Collada recurse per element), sizes and counts that parse but cannot be a
+/// robot. Each must be a clear error, quickly, never a stack overflow or an allocation abort.
+#[test]
+fn issue_16_deep_nesting_and_huge_sizes_are_clear_errors() {
+    let dir = scratch("hostile");
+    let urdf = dir.join("r.urdf");
+    let load = |text: &str| {
+        std::fs::write(&urdf, text).expect("write");
+        let t = std::time::Instant::now();
+        let r = RobotModel::load(&urdf);
+        assert!(t.elapsed().as_secs_f64() < 5.0, "took {:?}", t.elapsed());
+        r
+    };
+    let mesh_urdf = |file: &str, scale: &str| {
+        format!(
+            r#"<robot name="r"><link name="l"><visual><geometry><mesh filename="{file}" {scale}/></geometry></visual></link></robot>"#
+        )
+    };
+    let n = 50_000;
+    let nest = |tag: &str| {
+        format!(
+            "{}{}",
+            format!("<{tag}>").repeat(n),
+            format!("</{tag}>").repeat(n)
+        )
+    };
+    // URDF nested in every place a parser descends into.
+    for text in [
+        format!("<robot name=\"r\"><link name=\"l\"/>{}</robot>", nest("x")),
+        format!(
+            "<robot name=\"r\"><link name=\"l\"><visual>{}</visual></link></robot>",
+            nest("geometry")
+        ),
+        format!(
+            "{}<robot name=\"r\"/>{}",
+            "<robot>".repeat(n),
+            "</robot>".repeat(n)
+        ),
+    ] {
+        let e = load(&text).expect_err("too deep").to_string();
+        assert!(e.contains("nested more than"), "{e}");
+    }
+    // Collada nested: elements, scene nodes.
+    let dae = |body: &str| {
+        format!(
+            r#"<?xml version="1.0"?><COLLADA xmlns="http://www.collada.org/2005/11/COLLADASchema" version="1.4.1">{body}</COLLADA>"#
+        )
+    };
+    for body in [
+        format!("<library_visual_scenes><visual_scene id=\"s\">{}</visual_scene></library_visual_scenes>", nest("node")),
+        format!("<asset>{}</asset>", nest("contributor")),
+    ] {
+        std::fs::write(dir.join("deep.dae"), dae(&body)).expect("write");
+        let e = load(&mesh_urdf("deep.dae", "")).expect_err("too deep").to_string();
+        assert!(e.contains("nested more than"), "{e}");
+        assert!(collada::parse(dae(&body).as_bytes()).is_err());
+    }
+    // A few hundred bytes that instance a node tree of 2^60 triangles.
+    let mut nodes = String::from(r##"<node id="n0"><instance_geometry url="#g"/></node>"##);
+    for i in 1..60 {
+        let p = i - 1;
+        nodes += &format!(
+            r##"<node id="n{i}"><instance_node url="#n{p}"/><instance_node url="#n{p}"/></node>"##
+        );
+    }
+    let geometry = &DAE[DAE.find("<library_geometries>").expect("has")
+        ..DAE.find("<library_visual_scenes>").expect("has")];
+    let bomb = dae(&format!(
+        r##"{geometry}<library_nodes>{nodes}</library_nodes><library_visual_scenes><visual_scene id="s"><node><instance_node url="#n59"/></node></visual_scene></library_visual_scenes><scene><instance_visual_scene url="#s"/></scene>"##
+    ));
+    std::fs::write(dir.join("bomb.dae"), &bomb).expect("write");
+    let e = load(&mesh_urdf("bomb.dae", ""))
+        .expect_err("too many")
+        .to_string();
+    assert!(e.contains("more than"), "{e}");
+    // A binary STL header claiming four billion triangles, in 144 bytes.
+    let mut stl = vec![0u8; 80];
+    stl.extend(4_000_000_000u32.to_le_bytes());
+    stl.extend([0u8; 60]);
+    std::fs::write(dir.join("huge.stl"), &stl).expect("write");
+    load(&mesh_urdf("huge.stl", "")).expect_err("lying header");
+    // Sizes that parse but are no robot: primitives, scale, origin.
+    std::fs::write(dir.join("t.stl"), STL_MM).expect("write");
+    for (text, says) in [
+        (r#"<robot name="r"><link name="l"><visual><geometry><cylinder radius="1e300" length="1"/></geometry></visual></link></robot>"#.to_string(), "larger than 20 m"),
+        (r#"<robot name="r"><link name="l"><visual><geometry><box size="1 1e12 1"/></geometry></visual></link></robot>"#.to_string(), "larger than 20 m"),
+        (mesh_urdf("t.stl", r#"scale="1e30 1e30 1e30""#), "farther than 20 m"),
+        (r#"<robot name="r"><link name="l"><visual><origin xyz="1e200 0 0"/><geometry><sphere radius="0.1"/></geometry></visual></link></robot>"#.to_string(), "farther than 20 m"),
+    ] {
+        let e = load(&text).expect_err(&text).to_string();
+        assert!(e.contains(says), "{text}: {e}");
+    }
+    // Millimetre meshes scaled to metres still load.
+    load(&mesh_urdf("t.stl", r#"scale="0.001 0.001 0.001""#)).expect("mm mesh at scale 0.001");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 16: a URDF or mesh path that is a FIFO would block the read forever; a directory is
+/// no file either. Both are refused before they are opened.
+#[cfg(unix)]
+#[test]
+fn issue_16_special_files_are_refused_without_blocking() {
+    let dir = scratch("fifo");
+    let fifo = dir.join("r.urdf");
+    let status = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .expect("mkfifo runs");
+    assert!(status.success());
+    let e = RobotModel::load(&fifo).expect_err("a FIFO").to_string();
+    assert!(e.contains("FIFO"), "{e}");
+    let e = RobotModel::load(&dir).expect_err("a directory").to_string();
+    assert!(e.contains("directory"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 16: seeded structure-aware fuzzing — random nesting depths around the limit, random
+/// repetition counts and huge numbers spliced into URDF and Collada; loading is Ok or Err,
+/// quickly, never a crash.
+#[test]
+fn issue_16_structured_fuzz_of_nesting_counts_and_numbers() {
+    let dir = scratch("structfuzz");
+    let urdf = dir.join("r.urdf");
+    let mut rng = StdRng::seed_from_u64(16);
+    let numbers = [
+        "1e308",
+        "-1e308",
+        "1e-320",
+        "0",
+        "-0",
+        "nan",
+        "inf",
+        "4294967296",
+        "1e30",
+    ];
+    let t0 = std::time::Instant::now();
+    for round in 0..120 {
+        let depth = rng.random_range(1..400);
+        let reps = rng.random_range(0..2000);
+        let num = numbers[rng.random_range(0..numbers.len())];
+        let tag = ["x", "node", "visual", "geometry", "link"][round % 5];
+        let inner = format!(
+            "{}{}",
+            format!("<{tag}>").repeat(depth),
+            format!("</{tag}>").repeat(depth)
+        );
+        let text = format!(
+            r#"<robot name="r"><link name="l"><visual><origin xyz="{num} 0 0"/><geometry><cylinder radius="{num}" length="0.1"/></geometry></visual>{inner}</link>{}</robot>"#,
+            "<link name=\"l\"/>".repeat(reps.min(3))
+        );
+        std::fs::write(&urdf, text).expect("write");
+        let _ = RobotModel::load(&urdf);
+        let dae = format!(
+            r#"<COLLADA><asset><unit meter="{num}"/></asset><library_visual_scenes><visual_scene id="s">{}{}{}</visual_scene></library_visual_scenes></COLLADA>"#,
+            "<node><scale>1e30 1e30 1e30</scale>".repeat(depth),
+            "<node/>".repeat(reps),
+            "</node>".repeat(depth)
+        );
+        let _ = collada::parse(dae.as_bytes());
+    }
+    assert!(t0.elapsed().as_secs() < 20, "took {:?}", t0.elapsed());
+    let _ = std::fs::remove_dir_all(&dir);
+}

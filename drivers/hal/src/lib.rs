@@ -13,6 +13,7 @@ mod cloud;
 mod error;
 #[cfg(feature = "fake")]
 pub mod fake;
+pub mod limits;
 mod pose;
 mod robot;
 pub mod ur_dh;
