@@ -128,14 +128,32 @@ async fn ctrl_c() {
 }
 
 fn main() -> ExitCode {
+    use std::io::IsTerminal as _;
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
         )
         .with_writer(std::io::stderr)
+        // Colour codes only for a person at a terminal, never into a log file or journal.
+        .with_ansi(std::io::stderr().is_terminal())
         .init();
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            // Help and version go to stdout as clap writes them; a usage error echoes the bad
+            // token, bounded and escaped (exit 2).
+            if e.use_stderr() {
+                eprint!(
+                    "{}",
+                    handeye_hal::limits::sanitize_message(&e.render().to_string())
+                );
+            } else {
+                print!("{}", e.render());
+            }
+            return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
+        }
+    };
     let result = match cli.command {
         // Synchronous: computation on the calling thread and rayon, no I/O to wait for. They
         // run without a runtime, so Ctrl-C ends them the default way, at once.
@@ -162,7 +180,7 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", cli::args::error_text(&e));
             ExitCode::from(2)
         }
     }

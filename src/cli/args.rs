@@ -64,6 +64,25 @@ fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
         .collect()
 }
 
+/// An error and its causes as one line for the operator (`a: b: c`, as `{:#}` prints it),
+/// with every cause whose text the message before it already contains left out (an error
+/// that quotes its OS error and also chains it would say it twice), bad input echoed bounded
+/// and escaped ([`handeye_hal::limits::sanitize_message`]).
+pub(crate) fn error_text(e: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in e.chain() {
+        let part = cause.to_string();
+        if text.contains(&part) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&part);
+    }
+    handeye_hal::limits::sanitize_message(&text)
+}
+
 /// Where the robot models are: `$HANDEYE_ROBOTS`, else `../shared/robots` from the current
 /// directory, else `../shared/robots` beside the source tree this binary was built from.
 pub(crate) fn robots_dir() -> Option<std::path::PathBuf> {
@@ -109,6 +128,27 @@ mod tests {
             .contains("`x`"));
         assert!(parse_joints("0,nan").is_err());
         assert_eq!(parse_joints("0,1.5").expect("valid").0, vec![0.0, 1.5]);
+    }
+
+    #[test]
+    fn issue_16_error_text_says_the_os_error_once_and_bounds_tokens() {
+        let os = std::io::Error::from_raw_os_error(2);
+        let e = anyhow::Error::new(std::io::Error::new(os.kind(), os.to_string()))
+            .context(format!("cannot open x.ply: {os}; check the path"))
+            .context("reading scan x.ply");
+        let text = error_text(&e);
+        assert_eq!(text.matches("os error 2").count(), 1, "{text}");
+        assert!(
+            text.starts_with("reading scan x.ply: cannot open x.ply"),
+            "{text}"
+        );
+        let long = format!("bad `{}\u{1b}[2J`", "x".repeat(10 << 20));
+        let text = error_text(&anyhow::anyhow!(long));
+        assert!(
+            text.len() < 300 && !text.contains('\u{1b}'),
+            "{}",
+            text.len()
+        );
     }
 
     #[test]

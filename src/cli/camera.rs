@@ -1,12 +1,11 @@
 //! `handeye camera`: probe a GigE Vision 3D camera and capture point clouds from it, or from
 //! the file (`--file`) and external-command (`--exec`) backends.
 
-use std::path::PathBuf;
-use std::process::ExitCode;
-use std::time::Duration;
-
 use anyhow::Context;
 use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
+use handeye_hal::limits;
+use std::path::PathBuf;
+use std::process::ExitCode;
 use tokio_util::sync::CancellationToken;
 
 /// Arguments of this subcommand.
@@ -48,7 +47,8 @@ enum CameraCommand {
         /// Number of complete frames to capture [default: 1; with --file, the number of files].
         #[arg(long)]
         frames: Option<u32>,
-        /// Write the (first) cloud to this PLY file.
+        /// Write the clouds as binary PLY: one frame to this path, several to `<stem>_<i>.ply`
+        /// beside it. Without it nothing is written (only the statistics are printed).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Print JSON (`frames`, `complete`, `incomplete`, `resent_packets`, …).
@@ -66,6 +66,17 @@ enum CameraCommand {
         confidence: bool,
     },
 }
+
+/// Most frames one `capture` takes (each is held in memory until written).
+const MAX_FRAMES: u32 = 1000;
+/// GVSP packet sizes a GigE Vision link can carry, bytes (IP datagram).
+const MIN_PACKET_SIZE: u32 = 576;
+const MAX_PACKET_SIZE: u32 = 16_000;
+/// Longest wait for one GigE Vision frame, seconds.
+const MAX_FRAME_TIMEOUT_S: f64 = 600.0;
+/// Shortest and longest time one `--exec` frame may take, seconds.
+const MIN_EXEC_TIMEOUT_S: f64 = 0.1;
+const MAX_EXEC_TIMEOUT_S: f64 = 3600.0;
 
 fn connect(addr: &str) -> anyhow::Result<GigeCamera> {
     let addr = GvcpClient::parse_address(addr)?;
@@ -121,9 +132,21 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
             } else {
                 u32::try_from(file.len()).unwrap_or(u32::MAX)
             });
-            if frames == 0 {
-                anyhow::bail!("--frames must be at least 1");
+            if !(1..=MAX_FRAMES).contains(&frames) {
+                anyhow::bail!("--frames = {frames}: expected 1 to {MAX_FRAMES} frames");
             }
+            if !(MIN_PACKET_SIZE..=MAX_PACKET_SIZE).contains(&packet_size) {
+                anyhow::bail!(
+                    "--packet-size = {packet_size}: expected {MIN_PACKET_SIZE} to {MAX_PACKET_SIZE} bytes (1500 on ordinary Ethernet, 9000 with jumbo frames)"
+                );
+            }
+            let frame_timeout = limits::duration_from_secs(
+                "--frame-timeout-ms (as seconds)",
+                frame_timeout_ms as f64 / 1000.0,
+                0.001,
+                MAX_FRAME_TIMEOUT_S,
+            )
+            .map_err(anyhow::Error::msg)?;
             let (clouds, stats) = if let Some(gige) = gige {
                 // Not the driver's `DepthCamera::capture`: that drops the stream statistics
                 // printed here.
@@ -131,7 +154,7 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
                     let mut cam = connect(&gige)?;
                     cam.options.packet_size = packet_size;
                     cam.options.confidence = confidence;
-                    Ok(cam.capture_blocking(frames, Duration::from_millis(frame_timeout_ms))?)
+                    Ok(cam.capture_blocking(frames, frame_timeout)?)
                 })
                 .await?;
                 let stats = serde_json::json!({
@@ -172,12 +195,20 @@ async fn capture_local(
         ..CaptureSettings::default()
     };
     let clouds = if let Some(exec) = exec {
-        let argv = shlex::split(&exec)
-            .with_context(|| format!("cannot split --exec {exec:?}: unbalanced quotes?"))?;
-        if !(timeout_s.is_finite() && timeout_s > 0.0) {
-            anyhow::bail!("--timeout-s must be a positive number of seconds");
-        }
-        let cam = handeye::camera::ExecCamera::new(argv, Duration::from_secs_f64(timeout_s))?;
+        let argv = shlex::split(&exec).with_context(|| {
+            format!(
+                "cannot split --exec `{}`: unbalanced quotes?",
+                limits::Quoted(&exec)
+            )
+        })?;
+        let timeout = limits::duration_from_secs(
+            "--timeout-s",
+            timeout_s,
+            MIN_EXEC_TIMEOUT_S,
+            MAX_EXEC_TIMEOUT_S,
+        )
+        .map_err(anyhow::Error::msg)?;
+        let cam = handeye::camera::ExecCamera::new(argv, timeout)?;
         cam.capture(&settings).await
     } else {
         let cam = handeye::camera::FileCamera::new(file)?;
@@ -228,6 +259,9 @@ fn report(
             clouds.len(),
             valid
         );
+    }
+    if out.is_none() {
+        eprintln!("no --out given: the clouds were not written");
     }
     if let Some(path) = out {
         // Several frames go to `<stem>_<i>.ply`; one frame to the path given.
@@ -315,6 +349,12 @@ mod tests {
             .await
             .expect_err("bad timeout");
         assert!(err.to_string().contains("--timeout-s"), "{err}");
+        for bad in [1e300, f64::NAN, -1.0] {
+            let err = capture_local(Vec::new(), Some("true".into()), bad, 1)
+                .await
+                .expect_err("bad timeout");
+            assert!(err.to_string().starts_with("--timeout-s = "), "{err}");
+        }
         std::fs::remove_dir_all(&dir).expect("cleanup");
     }
 }

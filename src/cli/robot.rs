@@ -3,10 +3,9 @@
 
 use std::net::IpAddr;
 use std::process::ExitCode;
-use std::time::Duration;
 
 use anyhow::Context;
-use handeye_hal::{MotionLimits, Robot};
+use handeye_hal::{limits, MotionLimits, Robot};
 use handeye_ur::{UrConfig, UrPose, UrRobot};
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
@@ -17,7 +16,8 @@ pub(crate) struct Args {
     /// Controller address (e.g. 192.168.56.101, or 127.0.0.1 for `handeye sim robot`).
     #[arg(long, global = true, default_value = "127.0.0.1")]
     host: IpAddr,
-    /// Limit for each request to the controller, seconds.
+    /// Limit for each request to the controller (connect, dashboard, RTDE setup, script
+    /// read-back), seconds (0.1–600). A move's own limit is `move --move-timeout-s`.
     #[arg(long, global = true, default_value_t = 3.0)]
     timeout_s: f64,
     #[command(subcommand)]
@@ -51,9 +51,10 @@ enum Command {
         /// Joint acceleration, rad/s².
         #[arg(long, default_value_t = 0.5)]
         accel: f64,
-        /// Give up (and stop the arm) after this many seconds.
+        /// Give up on the move (and stop the arm) after this many seconds (1–3600). Not the
+        /// same as `--timeout-s`, the limit for each request to the controller.
         #[arg(long, default_value_t = 60.0)]
-        timeout_s: f64,
+        move_timeout_s: f64,
     },
     /// Set the runtime TCP (flange → TCP, UR pose `x,y,z,rx,ry,rz` in m and rad) and read it back.
     SetTcp {
@@ -75,12 +76,26 @@ enum Command {
 /// Connects and runs one command. `shutdown` (Ctrl-C, SIGTERM) stops a move — the arm is
 /// stopped before this returns — and abandons any other command (exit 2, "interrupted").
 pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
-    anyhow::ensure!(
-        args.timeout_s > 0.0 && args.timeout_s.is_finite(),
-        "--timeout-s must be positive"
-    );
+    let request_timeout = limits::duration_from_secs(
+        "--timeout-s",
+        args.timeout_s,
+        MIN_REQUEST_TIMEOUT_S,
+        MAX_REQUEST_TIMEOUT_S,
+    )
+    .map_err(anyhow::Error::msg)?;
+    // Everything the user gave is checked before anything is connected or moved.
+    let checked_move = match &args.command {
+        Command::Move {
+            joints,
+            deg,
+            speed,
+            accel,
+            move_timeout_s,
+        } => Some(check_move(joints, *deg, *speed, *accel, *move_timeout_s)?),
+        _ => None,
+    };
     let mut cfg = UrConfig::new(args.host);
-    cfg.timeout = Duration::from_secs_f64(args.timeout_s);
+    cfg.timeout = request_timeout;
     let robot = tokio::select! {
         r = UrRobot::connect(cfg) => {
             r.with_context(|| format!("connecting to the controller at {}", args.host))?
@@ -90,32 +105,8 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         }
     };
     match args.command {
-        Command::Move {
-            joints,
-            deg,
-            speed,
-            accel,
-            timeout_s,
-        } => {
-            anyhow::ensure!(
-                joints.len() == 6,
-                "--joints needs 6 comma-separated values, got {}",
-                joints.len()
-            );
-            let q: Vec<f64> = if deg {
-                joints.iter().map(|d| d.to_radians()).collect()
-            } else {
-                joints
-            };
-            anyhow::ensure!(
-                timeout_s > 0.0 && timeout_s.is_finite(),
-                "--timeout-s must be positive"
-            );
-            let lim = MotionLimits {
-                max_joint_speed_rad_s: speed,
-                max_joint_accel_rad_s2: accel,
-                timeout: Duration::from_secs_f64(timeout_s),
-            };
+        Command::Move { .. } => {
+            let (q, lim) = checked_move.context("move arguments were checked")?;
             // Not raced against `shutdown` from outside: the move watches it and stops the
             // arm itself before returning `Cancelled`.
             robot
@@ -155,20 +146,112 @@ async fn set_tcp(robot: &UrRobot, p: UrPose) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// Shortest and longest limit for one request to the controller (`--timeout-s`), seconds.
+const MIN_REQUEST_TIMEOUT_S: f64 = 0.1;
+const MAX_REQUEST_TIMEOUT_S: f64 = 600.0;
+/// Shortest and longest limit for one move (`move --move-timeout-s`), seconds.
+const MIN_MOVE_TIMEOUT_S: f64 = 1.0;
+const MAX_MOVE_TIMEOUT_S: f64 = 3600.0;
+/// Highest joint speed cap, rad/s (a UR's fastest joints turn at π rad/s).
+const MAX_JOINT_SPEED_RAD_S: f64 = 3.15;
+/// Highest joint acceleration, rad/s² (UR's own limit is 40).
+const MAX_JOINT_ACCEL_RAD_S2: f64 = 40.0;
+/// A UR joint turns at most ±2π from zero (radians; a little slack for rounding).
+const MAX_JOINT_RAD: f64 = std::f64::consts::TAU + 1e-6;
+
+/// `move`'s joints (radians after `--deg`), speed, acceleration and timeout, each checked
+/// against its range; errors name the flag and say why.
+fn check_move(
+    joints: &[f64],
+    deg: bool,
+    speed: f64,
+    accel: f64,
+    move_timeout_s: f64,
+) -> anyhow::Result<(Vec<f64>, MotionLimits)> {
+    anyhow::ensure!(
+        joints.len() == 6,
+        "--joints needs 6 comma-separated values, got {}",
+        joints.len()
+    );
+    let q: Vec<f64> = if deg {
+        joints.iter().map(|d| d.to_radians()).collect()
+    } else {
+        joints.to_vec()
+    };
+    for (i, v) in q.iter().enumerate() {
+        limits::check_range(
+            &format!("--joints value {}", i + 1),
+            *v,
+            -MAX_JOINT_RAD,
+            MAX_JOINT_RAD,
+            "rad",
+            "a UR joint turns at most ±360°; with --deg the values are degrees",
+        )
+        .map_err(anyhow::Error::msg)?;
+    }
+    let positive = |flag: &str, v: f64, max: f64, unit: &str, why: &str| {
+        limits::check_range(flag, v, 0.0, max, unit, why)
+            .and_then(|v| {
+                if v > 0.0 {
+                    Ok(v)
+                } else {
+                    Err(format!("{flag} = 0: must be above 0 {unit}"))
+                }
+            })
+            .map_err(anyhow::Error::msg)
+    };
+    let speed = positive(
+        "--speed",
+        speed,
+        MAX_JOINT_SPEED_RAD_S,
+        "rad/s",
+        "a UR joint turns at most π rad/s",
+    )?;
+    let accel = positive(
+        "--accel",
+        accel,
+        MAX_JOINT_ACCEL_RAD_S2,
+        "rad/s²",
+        "UR joints accelerate at most 40 rad/s²",
+    )?;
+    let timeout = limits::duration_from_secs(
+        "--move-timeout-s",
+        move_timeout_s,
+        MIN_MOVE_TIMEOUT_S,
+        MAX_MOVE_TIMEOUT_S,
+    )
+    .map_err(anyhow::Error::msg)?;
+    Ok((
+        q,
+        MotionLimits {
+            max_joint_speed_rad_s: speed,
+            max_joint_accel_rad_s2: accel,
+            timeout,
+        },
+    ))
+}
+
 /// Writes `INDEX=VALUE` pairs, then prints input and output double registers 24–47.
 async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Result<ExitCode> {
     for s in set {
         let (i, v) = s
             .split_once('=')
-            .with_context(|| format!("`{s}` is not INDEX=VALUE"))?;
+            .with_context(|| format!("`{}` is not INDEX=VALUE", limits::Quoted(s)))?;
         let i: u32 = i
             .trim()
             .parse()
-            .with_context(|| format!("bad register index in `{s}`"))?;
+            .with_context(|| format!("bad register index in `{}`", limits::Quoted(s)))?;
         let v: f64 = v
             .trim()
             .parse()
-            .with_context(|| format!("bad value in `{s}`"))?;
+            .ok()
+            .filter(|v: &f64| v.is_finite())
+            .with_context(|| {
+                format!(
+                    "bad value in `{}`: expected a finite number",
+                    limits::Quoted(s)
+                )
+            })?;
         robot
             .write_double_register(i, v)
             .await

@@ -10,6 +10,7 @@ use handeye::plan::{ViewConstraints, ViewPlanner};
 use handeye::sim::{Intrinsics, KinematicError, SimSettings};
 use handeye_gige::sim::{FrameSource, SceneSource, SimCamera, SimOptions};
 use handeye_gige::GvcpClient;
+use handeye_hal::limits;
 use handeye_hal::ur_dh::DhParams;
 use tokio_util::sync::CancellationToken;
 
@@ -72,6 +73,13 @@ pub(crate) struct Args {
     mount_file: Option<PathBuf>,
 }
 
+/// Frame rates the simulated camera serves, frames per second.
+const MIN_FRAME_RATE_HZ: f64 = 0.01;
+const MAX_FRAME_RATE_HZ: f64 = 120.0;
+/// Sensor sizes the simulated camera renders, pixels per side.
+pub(crate) const MIN_PIXELS: u32 = 16;
+pub(crate) const MAX_PIXELS: u32 = 8192;
+
 /// Serves until `shutdown` is cancelled (Ctrl-C or SIGTERM), then stops the camera and prints
 /// what it served.
 pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
@@ -97,6 +105,22 @@ fn start(args: Args) -> anyhow::Result<SimCamera> {
     if !(0.0..1.0).contains(&args.loss) {
         anyhow::bail!("--loss must be in [0, 1)");
     }
+    limits::check_range(
+        "--frame-rate",
+        args.frame_rate,
+        MIN_FRAME_RATE_HZ,
+        MAX_FRAME_RATE_HZ,
+        "frames/s",
+        "",
+    )
+    .map_err(anyhow::Error::msg)?;
+    anyhow::ensure!(
+        (MIN_PIXELS..=MAX_PIXELS).contains(&args.width)
+            && (MIN_PIXELS..=MAX_PIXELS).contains(&args.height),
+        "--width {} --height {}: each must be {MIN_PIXELS}–{MAX_PIXELS} pixels",
+        args.width,
+        args.height
+    );
     let bind = GvcpClient::parse_address(&args.bind)?;
     let robot = args.robot.as_deref().map(parse_robot_addr).transpose()?;
     if robot.is_some() && args.test_pattern {

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::Context;
+use handeye_hal::limits;
 use handeye_hal::ur_dh::UrModel;
 use handeye_ur::sim::{SimConfig, Simulator};
 use tokio_util::sync::CancellationToken;
@@ -53,6 +54,14 @@ pub(crate) struct Args {
     factory_calibration: Option<u64>,
 }
 
+/// Longest simulated reply delay (`--latency-ms`), milliseconds.
+const MAX_LATENCY_MS: u64 = 60_000;
+/// Shortest interval between dropped connections (`--drop-connections-every-s`), seconds: a
+/// client needs some time connected to do anything.
+const MIN_DROP_INTERVAL_S: f64 = 0.01;
+/// Longest fault timing (`--drop-connections-every-s`, `--unlock-delay-s`), seconds (a day).
+const MAX_FAULT_DELAY_S: f64 = 86_400.0;
+
 /// Serves until `shutdown` is cancelled (Ctrl-C or SIGTERM), then stops the simulator.
 pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
     let mut c = SimConfig::new(args.model, args.bind);
@@ -64,7 +73,8 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     for f in &args.hold {
         anyhow::ensure!(
             handeye_ur::rtde::is_input_field(f),
-            "`{f}` is not an RTDE input field"
+            "`{}` is not an RTDE input field",
+            limits::Quoted(f)
         );
     }
     c.fieldbus_held.extend(args.hold);
@@ -75,20 +85,31 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         );
         c.protective_stop_during_move = Some(f);
     }
+    anyhow::ensure!(
+        args.latency_ms <= MAX_LATENCY_MS,
+        "--latency-ms = {}: expected 0 to {MAX_LATENCY_MS} ms (a reply later than that is no reply)",
+        args.latency_ms
+    );
     c.latency = Duration::from_millis(args.latency_ms);
     if let Some(s) = args.drop_connections_every_s {
-        anyhow::ensure!(
-            s > 0.0 && s.is_finite(),
-            "--drop-connections-every-s must be positive"
+        c.drop_connections_every = Some(
+            limits::duration_from_secs(
+                "--drop-connections-every-s",
+                s,
+                MIN_DROP_INTERVAL_S,
+                MAX_FAULT_DELAY_S,
+            )
+            .map_err(anyhow::Error::msg)?,
         );
-        c.drop_connections_every = Some(Duration::from_secs_f64(s));
     }
     c.rtde_v2 = !args.rtde_v1_only;
-    anyhow::ensure!(
-        args.unlock_delay_s >= 0.0 && args.unlock_delay_s.is_finite(),
-        "--unlock-delay-s must be ≥ 0"
-    );
-    c.unlock_delay = Duration::from_secs_f64(args.unlock_delay_s);
+    c.unlock_delay = limits::duration_from_secs(
+        "--unlock-delay-s",
+        args.unlock_delay_s,
+        0.0,
+        MAX_FAULT_DELAY_S,
+    )
+    .map_err(anyhow::Error::msg)?;
     if let Some(seed) = args.factory_calibration {
         c = c.factory_calibrated(seed);
         if let Some(d) = &c.dh_delta {

@@ -216,6 +216,9 @@ pub(crate) fn push_row(
     }
 }
 
+/// Longest word of a (non-comment) header line, bytes.
+const MAX_HEADER_WORD: usize = 256;
+
 /// The next non-empty header line of a text header, as `(keyword, other words)`, starting at
 /// `*pos` and leaving `*pos` after it; `*line_no` counts lines (1-based after the call).
 /// `Ok(None)` when the input ends or `max_bytes` of header have been read. `format` names the
@@ -245,16 +248,37 @@ pub(crate) fn next_header_line<'a>(
         })?;
         let mut words = text.split_ascii_whitespace();
         if let Some(keyword) = words.next() {
-            return Ok(Some((keyword, words.collect())));
+            let words: Vec<&str> = words.collect();
+            // Header words are echoed in errors: none may carry control characters (terminal
+            // escapes) or be longer than any real keyword, type or number. Comments may.
+            let is_comment = keyword == "comment" || keyword.starts_with('#');
+            let bad = |w: &&str| w.len() > MAX_HEADER_WORD || w.chars().any(char::is_control);
+            if !is_comment && (bad(&keyword) || words.iter().any(bad)) {
+                return Err(CloudError::BadHeader {
+                    format,
+                    line: *line_no,
+                    reason: format!(
+                        "a word longer than {MAX_HEADER_WORD} bytes or with control characters (starts `{}`)",
+                        handeye_hal::limits::Quoted(&text[..text.len().min(40)])
+                    ),
+                });
+            }
+            return Ok(Some((keyword, words)));
         }
     }
 }
 
-/// Reads a PLY or PCD file, memory-mapped, detecting the format from its first bytes.
+/// Largest point-cloud file read (a 2448×2048 scan with intensity and confidence is ~100 MB).
+pub const MAX_CLOUD_FILE_BYTES: u64 = 8 << 30;
+
+/// Reads a PLY or PCD file (a regular file, at most [`MAX_CLOUD_FILE_BYTES`]), memory-mapped, detecting the format from its first bytes.
 ///
 /// Blocks on file I/O (run it off async runtime workers). Errors do not repeat the path;
 /// callers add it as context.
 pub fn read_cloud(path: &Path) -> Result<PointCloud, CloudError> {
+    // Before opening: opening a FIFO blocks until a writer comes, reading a device never ends.
+    handeye_hal::limits::check_regular_file(path, MAX_CLOUD_FILE_BYTES)
+        .map_err(|e| CloudError::io("open", path, e))?;
     let file = std::fs::File::open(path).map_err(|e| CloudError::io("open", path, e))?;
     let len = file
         .metadata()

@@ -97,7 +97,10 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
                     scale = unit_scale(u).ok_or_else(|| {
                         bad_header(
                             line_no,
-                            format!("unknown unit `{u}` (expected m, cm, mm or um)"),
+                            format!(
+                                "unknown unit `{}` (expected m, cm, mm or um)",
+                                handeye_hal::limits::Quoted(u)
+                            ),
                         )
                     })?;
                 }
@@ -470,7 +473,7 @@ fn read_ascii(
                             location: format!("line {line}, point #{k}, field `{}`", f.name),
                             reason: format!(
                                 "`{}` is not a valid {:?} number",
-                                String::from_utf8_lossy(tok),
+                                handeye_hal::limits::Quoted(&String::from_utf8_lossy(tok)),
                                 f.ty
                             ),
                         })?;

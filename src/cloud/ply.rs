@@ -179,7 +179,10 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
                             scale = unit_scale(value).ok_or_else(|| {
                                 bad_header(
                                     line_no,
-                                    format!("unknown unit `{value}` (expected m, cm, mm or um)"),
+                                    format!(
+                                        "unknown unit `{}` (expected m, cm, mm or um)",
+                                        handeye_hal::limits::Quoted(value)
+                                    ),
                                 )
                             })?
                         }
@@ -605,7 +608,7 @@ fn read_ascii(h: &Header, vi: usize, want: &Wanted, data: &[u8]) -> Result<Colum
                     *v = s.parse_f32(tok).ok_or_else(|| {
                         format!(
                             "`{}` is not a valid {s:?} number",
-                            String::from_utf8_lossy(tok)
+                            handeye_hal::limits::Quoted(&String::from_utf8_lossy(tok))
                         )
                     })?;
                 }
@@ -659,7 +662,7 @@ fn parse_ascii_record(
                         &p.name,
                         format!(
                             "list length `{}` is not a valid count",
-                            String::from_utf8_lossy(tok)
+                            handeye_hal::limits::Quoted(&String::from_utf8_lossy(tok))
                         ),
                     )
                 })?;

@@ -995,7 +995,9 @@ fn fuzz_mutated_files_never_panic_or_over_allocate() {
             }
             Err(e) => {
                 failures += 1;
-                assert!(!e.to_string().is_empty());
+                let msg = e.to_string();
+                assert!(!msg.is_empty());
+                assert_safe_message(&msg);
             }
         }
     }
@@ -1004,4 +1006,94 @@ fn fuzz_mutated_files_never_panic_or_over_allocate() {
         failures > iterations / 4,
         "only {failures} of {iterations} mutated files failed"
     );
+}
+
+/// An error message fit for a terminal: bounded, and no control characters from the input.
+fn assert_safe_message(msg: &str) {
+    assert!(
+        msg.len() < 2048,
+        "{}-byte message: {}",
+        msg.len(),
+        &msg[..200]
+    );
+    assert!(
+        !msg.chars().any(|c| c.is_control()),
+        "control character in {msg:?}"
+    );
+}
+
+/// Issue 16: a 10 MB token or terminal escape bytes where a header word belongs are echoed
+/// bounded and escaped; structure-aware cases: every header keyword followed by a huge token,
+/// counts and sizes at the integer limits.
+#[test]
+fn issue_16_hostile_header_tokens_are_echoed_bounded_and_escaped() {
+    let long = "9".repeat(10 << 20);
+    let tokens = [
+        long.as_str(),
+        "\u{1b}[2J\u{1b}]0;pwned\u{7}",
+        "x\u{202e}y",
+        "1e309",
+        "-0",
+    ];
+    let ply_bytes = ply_ok();
+    let header_end = ply_bytes
+        .windows(10)
+        .position(|w| w == b"end_header")
+        .expect("header");
+    let ply = format!(
+        "{}end_header\n0 0 1\n",
+        String::from_utf8(ply_bytes[..header_end].to_vec()).expect("ASCII header")
+    )
+    .replace("binary_little_endian", "ascii");
+    let pcd = "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1\nDATA ascii\n1 2 3\n";
+    let mut checked = 0;
+    for t in tokens {
+        // Each word of each header line in turn replaced by the token.
+        for (text, end) in [
+            (&ply[..], header_end),
+            (pcd, pcd.find("DATA").expect("data")),
+        ] {
+            let mut at = 0;
+            while at < end {
+                let word_end = text[at..].find([' ', '\n']).map_or(text.len(), |i| at + i);
+                let mut bytes = text.as_bytes()[..at].to_vec();
+                bytes.extend_from_slice(t.as_bytes());
+                bytes.extend_from_slice(&text.as_bytes()[word_end..]);
+                if let Err(e) = read_cloud_bytes(&bytes) {
+                    assert_safe_message(&e.to_string());
+                    checked += 1;
+                }
+                at = word_end + 1;
+            }
+        }
+    }
+    assert!(checked > 50, "only {checked} hostile headers refused");
+}
+
+/// Issue 16: a scan path that is a FIFO is refused at once instead of blocking the reader
+/// until a writer comes (forever); so is a directory.
+#[cfg(unix)]
+#[test]
+fn issue_16_a_fifo_is_not_read() {
+    let fifo = tmp("issue16.fifo.ply");
+    let _ = std::fs::remove_file(&fifo);
+    let ok = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .expect("mkfifo runs")
+        .success();
+    assert!(ok);
+    let t = std::time::Instant::now();
+    let msg = read_cloud(&fifo).expect_err("a FIFO").to_string();
+    assert!(
+        msg.contains("FIFO (named pipe), not a regular file"),
+        "{msg}"
+    );
+    assert!(t.elapsed().as_secs() < 2);
+    let _ = std::fs::remove_file(&fifo);
+    let dir = fifo.with_extension("d");
+    std::fs::create_dir_all(&dir).expect("dir");
+    let msg = read_cloud(&dir).expect_err("a directory").to_string();
+    assert!(msg.contains("directory"), "{msg}");
+    let _ = std::fs::remove_dir(&dir);
 }

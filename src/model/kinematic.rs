@@ -42,7 +42,44 @@ fn link_direction(parent_from_joint: &Isometry3<f64>) -> Vector3<f64> {
     link.try_normalize(1e-9).unwrap_or_else(Vector3::zeros)
 }
 
+/// Largest 1σ of any kinematic error: 50 mrad (~3°) of joint offset or misalignment, 50 mm of
+/// link length. A robot that far from its model is not calibrated by registering its CAD.
+pub const MAX_KINEMATIC_SIGMA: f64 = 0.05;
+
 impl KinematicError {
+    /// Whether the standard deviations are plausible (finite, 0 ≤ σ ≤
+    /// [`MAX_KINEMATIC_SIGMA`] in radians and metres); the message names the key (as in a
+    /// `[kinematic_error]` table).
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, v, unit) in [
+            (
+                "kinematic_error.joint_offset_sigma_rad",
+                self.joint_offset_sigma_rad,
+                "rad",
+            ),
+            (
+                "kinematic_error.link_length_sigma_m",
+                self.link_length_sigma_m,
+                "m",
+            ),
+            (
+                "kinematic_error.axis_misalignment_sigma_rad",
+                self.axis_misalignment_sigma_rad,
+                "rad",
+            ),
+        ] {
+            handeye_hal::limits::check_range(
+                key,
+                v,
+                0.0,
+                MAX_KINEMATIC_SIGMA,
+                unit,
+                "a real arm is within a few tenths of a millimetre and milliradian of its model",
+            )?;
+        }
+        Ok(())
+    }
+
     /// The arm is exactly its nominal model.
     pub fn none() -> Self {
         Self {

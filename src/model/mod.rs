@@ -27,7 +27,7 @@ use handeye_hal::ur_dh::{DhParams, UrModel};
 use nalgebra::{Isometry3, Matrix4, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-pub use kinematic::KinematicError;
+pub use kinematic::{KinematicError, MAX_KINEMATIC_SIGMA};
 pub use mesh::TriMesh;
 
 /// Largest URDF file read (a UR URDF is ~20 kB).

@@ -39,7 +39,31 @@ impl Default for CellOptions {
     }
 }
 
+/// Most clutter objects (`cell.clutter_objects`) a cell may have.
+pub(crate) const MAX_CLUTTER_OBJECTS: usize = 200;
+/// Thickest mounting plate (`cell.plate_thickness_m`), metres.
+pub(crate) const MAX_PLATE_THICKNESS_M: f64 = 0.5;
+
 impl CellOptions {
+    /// Whether the knobs make sense; the message names the key, its unit and range.
+    pub fn validate(&self) -> Result<(), String> {
+        handeye_hal::limits::check_range(
+            "cell.plate_thickness_m",
+            self.plate_thickness_m,
+            0.0,
+            MAX_PLATE_THICKNESS_M,
+            "m",
+            "0 for no plate",
+        )?;
+        if self.clutter_objects > MAX_CLUTTER_OBJECTS {
+            return Err(format!(
+                "cell.clutter_objects = {}: expected 0 <= value <= {MAX_CLUTTER_OBJECTS} (boxes and cylinders on the floor)",
+                self.clutter_objects
+            ));
+        }
+        Ok(())
+    }
+
     /// Only the robot, floating in empty space.
     pub fn none() -> Self {
         Self {

@@ -30,6 +30,15 @@ pub struct ScanNoise {
     pub max_range_m: f64,
 }
 
+/// Largest `noise.depth_sigma_at_1m_m`, metres.
+pub(crate) const MAX_DEPTH_SIGMA_AT_1M_M: f64 = 0.05;
+/// Largest `noise.random_dropout_probability`.
+pub(crate) const MAX_RANDOM_DROPOUT: f64 = 0.9;
+/// Range of a finite `noise.max_range_m`, metres.
+pub(crate) const MIN_RANGE_M: f64 = 0.05;
+/// Longest finite `noise.max_range_m`, metres.
+pub(crate) const MAX_RANGE_M: f64 = 100.0;
+
 impl Default for ScanNoise {
     fn default() -> Self {
         Self {
@@ -60,36 +69,79 @@ impl ScanNoise {
         }
     }
 
-    /// Whether the knobs make sense; the message names the bad one.
+    /// Whether the knobs make sense for a 3D camera; the message names the key, its unit and
+    /// the range it must lie in (NaN, infinities and absurd values are refused; `max_range_m`
+    /// may be infinite: no range limit).
     pub fn validate(&self) -> Result<(), String> {
-        let prob = |name: &str, p: f64| {
-            (0.0..=1.0)
-                .contains(&p)
-                .then_some(())
-                .ok_or_else(|| format!("{name} must be in [0, 1], got {p}"))
-        };
-        prob("flying_pixel_probability", self.flying_pixel_probability)?;
-        prob(
-            "random_dropout_probability",
-            self.random_dropout_probability,
+        use handeye_hal::limits::check_range;
+        check_range(
+            "noise.depth_sigma_at_1m_m",
+            self.depth_sigma_at_1m_m,
+            0.0,
+            MAX_DEPTH_SIGMA_AT_1M_M,
+            "m",
+            "a 3D camera with more noise than that at 1 m sees no robot",
         )?;
-        if !(self.depth_sigma_at_1m_m >= 0.0 && self.depth_sigma_at_1m_m.is_finite()) {
+        check_range(
+            "noise.flying_pixel_probability",
+            self.flying_pixel_probability,
+            0.0,
+            1.0,
+            "",
+            "a probability",
+        )?;
+        check_range(
+            "noise.flying_pixel_edge_m",
+            self.flying_pixel_edge_m,
+            1e-4,
+            1.0,
+            "m",
+            "the depth step that makes an edge",
+        )?;
+        for (key, v) in [
+            ("noise.dropout_start_deg", self.dropout_start_deg),
+            ("noise.dropout_full_deg", self.dropout_full_deg),
+        ] {
+            check_range(
+                key,
+                v,
+                0.0,
+                90.0,
+                "degrees",
+                "an incidence angle from the normal",
+            )?;
+        }
+        if self.dropout_start_deg > self.dropout_full_deg {
             return Err(format!(
-                "depth_sigma_at_1m_m must be ≥ 0, got {}",
-                self.depth_sigma_at_1m_m
+                "noise.dropout_start_deg = {} is above noise.dropout_full_deg = {}: dropouts start before every point is lost",
+                self.dropout_start_deg, self.dropout_full_deg
             ));
         }
-        if !(self.dropout_start_deg <= self.dropout_full_deg && self.dropout_full_deg <= 90.0) {
-            return Err("dropout_start_deg ≤ dropout_full_deg ≤ 90 required".into());
-        }
-        if self.depth_scale_error.is_nan() || self.depth_scale_error.abs() >= 0.2 {
-            return Err(format!(
-                "depth_scale_error must be within ±0.2, got {}",
-                self.depth_scale_error
-            ));
-        }
-        if self.max_range_m.is_nan() || self.max_range_m <= 0.0 {
-            return Err(format!("max_range_m must be > 0, got {}", self.max_range_m));
+        check_range(
+            "noise.random_dropout_probability",
+            self.random_dropout_probability,
+            0.0,
+            MAX_RANDOM_DROPOUT,
+            "",
+            "a probability; more would leave almost nothing to register",
+        )?;
+        check_range(
+            "noise.depth_scale_error",
+            self.depth_scale_error,
+            -0.2,
+            0.2,
+            "",
+            "a relative error: 0.01 is 1 %",
+        )?;
+        if self.max_range_m != f64::INFINITY {
+            check_range(
+                "noise.max_range_m",
+                self.max_range_m,
+                MIN_RANGE_M,
+                MAX_RANGE_M,
+                "m",
+                "inf for no limit",
+            )?;
         }
         Ok(())
     }

@@ -161,6 +161,8 @@ pub enum SimError {
 /// Renders one scan.
 pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     req.noise.validate().map_err(SimError::Setting)?;
+    req.cell.validate().map_err(SimError::Setting)?;
+    req.kinematic_error.validate().map_err(SimError::Setting)?;
     let model = req.model;
     let mut rng = rand::rngs::StdRng::seed_from_u64(req.seed);
     // Drawn even when unused, so the rest of the scan's draws do not depend on `controller_dh`.

@@ -2,6 +2,9 @@ use std::path::Path;
 
 use super::{CellOptions, KinematicError, ScanNoise};
 
+/// Largest simulator settings file read (the commented example is ~3 kB).
+const MAX_SETTINGS_BYTES: u64 = 1 << 20;
+
 /// All simulator knobs, as loaded from a TOML file with `[noise]`, `[cell]` and
 /// `[kinematic_error]` tables (each optional; missing keys take the realistic defaults).
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -48,27 +51,34 @@ impl SimSettings {
         }
     }
 
+    /// Whether every knob is plausible; the message names the key, unit and range.
+    pub fn validate(&self) -> Result<(), String> {
+        self.noise.validate()?;
+        self.cell.validate()?;
+        self.kinematic_error.validate()
+    }
+
     /// Parses settings from TOML text.
     pub fn from_toml(text: &str, origin: &str) -> Result<Self, SettingsError> {
         let s: SimSettings = toml::from_str(text).map_err(|e| SettingsError::Invalid {
             path: origin.to_string(),
             message: e.to_string(),
         })?;
-        s.noise
-            .validate()
-            .map_err(|message| SettingsError::Invalid {
-                path: origin.to_string(),
-                message,
-            })?;
+        s.validate().map_err(|message| SettingsError::Invalid {
+            path: origin.to_string(),
+            message,
+        })?;
         Ok(s)
     }
 
     /// Loads settings from a TOML file.
     pub fn load(path: &Path) -> Result<Self, SettingsError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SettingsError::Read {
+        let read_error = |source| SettingsError::Read {
             path: path.display().to_string(),
             source,
-        })?;
+        };
+        handeye_hal::limits::check_regular_file(path, MAX_SETTINGS_BYTES).map_err(read_error)?;
+        let text = std::fs::read_to_string(path).map_err(read_error)?;
         Self::from_toml(&text, &path.display().to_string())
     }
 }
@@ -95,5 +105,96 @@ mod tests {
             err.to_string().contains("random_dropout_probability"),
             "{err}"
         );
+    }
+
+    /// Issue 16: every knob is range-checked (negative, NaN, infinite, absurd), the message
+    /// names the key; the TOML parser survives deep nesting; a FIFO is not read.
+    #[test]
+    fn issue_16_absurd_knobs_are_refused_by_key() {
+        for (text, key) in [
+            (
+                "[noise]\ndepth_sigma_at_1m_m = -0.001\n",
+                "noise.depth_sigma_at_1m_m",
+            ),
+            (
+                "[noise]\ndepth_sigma_at_1m_m = nan\n",
+                "noise.depth_sigma_at_1m_m",
+            ),
+            (
+                "[noise]\ndepth_sigma_at_1m_m = 1e300\n",
+                "noise.depth_sigma_at_1m_m",
+            ),
+            (
+                "[noise]\nflying_pixel_edge_m = -1\n",
+                "noise.flying_pixel_edge_m",
+            ),
+            (
+                "[noise]\ndropout_start_deg = -10\n",
+                "noise.dropout_start_deg",
+            ),
+            (
+                "[noise]\ndropout_full_deg = inf\n",
+                "noise.dropout_full_deg",
+            ),
+            (
+                "[noise]\ndropout_start_deg = 89\ndropout_full_deg = 80\n",
+                "noise.dropout_start_deg",
+            ),
+            ("[noise]\nmax_range_m = -inf\n", "noise.max_range_m"),
+            ("[noise]\nmax_range_m = 1e9\n", "noise.max_range_m"),
+            (
+                "[noise]\ndepth_scale_error = nan\n",
+                "noise.depth_scale_error",
+            ),
+            (
+                "[cell]\nplate_thickness_m = -0.01\n",
+                "cell.plate_thickness_m",
+            ),
+            (
+                "[cell]\nplate_thickness_m = inf\n",
+                "cell.plate_thickness_m",
+            ),
+            (
+                "[cell]\nclutter_objects = 1000000000\n",
+                "cell.clutter_objects",
+            ),
+            (
+                "[kinematic_error]\nlink_length_sigma_m = 1e160\n",
+                "kinematic_error.link_length_sigma_m",
+            ),
+            (
+                "[kinematic_error]\njoint_offset_sigma_rad = -1\n",
+                "kinematic_error.joint_offset_sigma_rad",
+            ),
+        ] {
+            let t = std::time::Instant::now();
+            let err = SimSettings::from_toml(text, "t.toml")
+                .expect_err(text)
+                .to_string();
+            assert!(err.contains(&format!("{key} = ")), "{text}: {err}");
+            assert!(t.elapsed().as_millis() < 100);
+        }
+        // Infinite range is the documented "no limit".
+        SimSettings::from_toml("[noise]\nmax_range_m = inf\n", "t.toml").expect("no range limit");
+        // Deeply nested TOML values are an error from the parser, not a stack overflow.
+        let n = 100_000;
+        let deep = format!("[cell]\nfloor = {}{}\n", "[".repeat(n), "]".repeat(n));
+        SimSettings::from_toml(&deep, "t.toml").expect_err("deep");
+        let deep = format!("[cell]\nfloor = {}1{}\n", "{a=".repeat(n), "}".repeat(n));
+        SimSettings::from_toml(&deep, "t.toml").expect_err("deep");
+        #[cfg(unix)]
+        {
+            let fifo =
+                std::env::temp_dir().join(format!("handeye-sim-{}.toml", std::process::id()));
+            let _ = std::fs::remove_file(&fifo);
+            let ok = std::process::Command::new("mkfifo")
+                .arg(&fifo)
+                .status()
+                .expect("mkfifo");
+            assert!(ok.success());
+            let err = SimSettings::load(&fifo).expect_err("fifo").to_string();
+            assert!(err.contains("FIFO"), "{err}");
+            let _ = std::fs::remove_file(&fifo);
+        }
     }
 }

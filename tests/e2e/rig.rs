@@ -55,7 +55,7 @@ fn move_robot(ip: &str, q: &[f64]) -> Output {
             "1.0",
             "--accel",
             "2.0",
-            "--timeout-s",
+            "--move-timeout-s",
             "30",
         ],
         secs(40),

@@ -34,8 +34,7 @@ pub fn duration_from_secs(
         Ok(Duration::from_secs_f64(seconds.max(0.0)))
     } else {
         Err(format!(
-            "{what} = {}: expected {min} <= seconds <= {max}",
-            Quoted(&seconds.to_string())
+            "{what} = {seconds:?}: expected {min} <= seconds <= {max}"
         ))
     }
 }
@@ -65,7 +64,7 @@ pub fn check_range(
             format!(" ({why})")
         };
         Err(format!(
-            "{what} = {value}: expected {min} <= value <= {max}{unit}{why}"
+            "{what} = {value:?}: expected {min} <= value <= {max}{unit}{why}"
         ))
     }
 }
@@ -279,7 +278,7 @@ mod tests {
         .expect_err("negative");
         assert_eq!(
             e,
-            "noise.depth_sigma_at_1m_m = -1: expected 0 <= value <= 0.05 m (a camera)"
+            "noise.depth_sigma_at_1m_m = -1.0: expected 0 <= value <= 0.05 m (a camera)"
         );
         assert!(check_range("--x", f64::NAN, 0.0, 1.0, "", "").is_err());
     }
