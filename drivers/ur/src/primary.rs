@@ -632,8 +632,8 @@ mod tests {
             },
             kinematics,
             configuration: ConfigurationData {
-                joint_limits: [(-6.28, 6.28); 6],
-                joint_motion_limits: [(3.14, 40.0); 6],
+                joint_limits: [(-6.0, 6.0); 6],
+                joint_motion_limits: [(3.0, 40.0); 6],
                 defaults: [1.05, 1.4, 0.25, 1.2, 0.045],
                 dh: kinematics.dh,
                 masterboard_version: 3,

@@ -9,6 +9,7 @@
 mod dashboard;
 mod motion;
 mod realtime;
+mod rtde_control;
 mod rtde_server;
 mod script;
 mod state;

@@ -79,6 +79,20 @@ pub(crate) enum Motion {
     Stop {
         decel: f64,
     },
+    /// `speedj` (joint speeds, rad/s) or `speedl` (TCP twist in `base`: m/s, rad/s): the speed
+    /// ramps towards `target` at `accel` and holds until the next command or a stop.
+    Speed {
+        joint: bool,
+        target: [f64; 6],
+        accel: f64,
+        /// The speed reached (joint speeds or twist), before the speed slider.
+        current: [f64; 6],
+    },
+    /// `servoj`: follow `target` (rad), reaching it in `time` s, no faster than the joints can.
+    Servo {
+        target: [f64; 6],
+        time: f64,
+    },
 }
 
 impl Motion {
@@ -109,6 +123,39 @@ impl Motion {
     pub(crate) fn stop(_qd: [f64; 6], decel: f64) -> Self {
         Motion::Stop { decel }
     }
+
+    /// A `speedj`/`speedl` that starts from the speed the arm has (a running speed command
+    /// keeps its ramp; anything else starts from rest).
+    pub(crate) fn speed(
+        previous: Option<&Motion>,
+        joint: bool,
+        target: [f64; 6],
+        accel: f64,
+    ) -> Self {
+        let current = match previous {
+            Some(Motion::Speed {
+                joint: j, current, ..
+            }) if *j == joint => *current,
+            _ => [0.0; 6],
+        };
+        Motion::Speed {
+            joint,
+            target,
+            accel,
+            current,
+        }
+    }
+}
+
+/// Moves `current` towards `target` by at most `accel * dt` (the whole vector, so the
+/// direction of motion is kept).
+fn ramp(current: &mut [f64; 6], target: &[f64; 6], accel: f64, dt: f64) {
+    let diff: Vec<f64> = current.iter().zip(target).map(|(c, t)| t - c).collect();
+    let n = diff.iter().map(|d| d * d).sum::<f64>().sqrt();
+    let k = if n > accel * dt { accel * dt / n } else { 1.0 };
+    for (c, d) in current.iter_mut().zip(diff) {
+        *c += k * d;
+    }
 }
 
 /// Linear path length: metres plus 0.1 m per radian of rotation (so pure rotations move too).
@@ -118,11 +165,17 @@ fn path_len(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
         .max(0.1 * a.rotation.angle_to(&b.rotation))
 }
 
-/// Advance the state by `dt` seconds.
-pub(crate) fn step(s: &mut State, dt: f64) {
+/// Advance the state by `dt` seconds of wall time. Programmed motion runs at the speed
+/// slider's fraction (the controller scales trajectory time); stops are not scaled.
+pub(crate) fn step(s: &mut State, wall_dt: f64) {
     let Some(mut m) = s.motion.take() else {
         s.qd = [0.0; 6];
         return;
+    };
+    let dt = if matches!(m, Motion::Stop { .. }) {
+        wall_dt
+    } else {
+        wall_dt * s.speed_slider
     };
     let done;
     let mut fraction = 0.0;
@@ -148,7 +201,7 @@ pub(crate) fn step(s: &mut State, dt: f64) {
                     0.0
                 };
                 s.q[i] = start[i] + k * d;
-                s.qd[i] = k * v;
+                s.qd[i] = k * v * s.speed_slider;
             }
             s.target_q = *goal;
             done = *t >= profile.total;
@@ -170,7 +223,7 @@ pub(crate) fn step(s: &mut State, dt: f64) {
             match inverse(&s.dh, &pose, &s.q, 50) {
                 Some(q) => {
                     for ((qd, new), old) in s.qd.iter_mut().zip(q).zip(s.q) {
-                        *qd = (new - old) / dt.max(1e-6);
+                        *qd = (new - old) / wall_dt.max(1e-6);
                     }
                     s.q = q;
                     s.target_q = q;
@@ -182,6 +235,57 @@ pub(crate) fn step(s: &mut State, dt: f64) {
                 }
             }
             done = *t >= profile.total;
+        }
+        Motion::Speed {
+            joint,
+            target,
+            accel,
+            current,
+        } => {
+            ramp(current, target, *accel, dt);
+            let next = if *joint {
+                let mut q = s.q;
+                for (qi, v) in q.iter_mut().zip(current.iter()) {
+                    *qi += v * dt;
+                }
+                q
+            } else {
+                let tcp = Isometry3::from(s.tcp);
+                let now = s.flange_pose() * tcp;
+                let v = nalgebra::Vector3::new(current[0], current[1], current[2]);
+                let w = nalgebra::Vector3::new(current[3], current[4], current[5]);
+                let next_tcp = Isometry3::from_parts(
+                    (now.translation.vector + v * dt).into(),
+                    nalgebra::UnitQuaternion::from_scaled_axis(w * dt) * now.rotation,
+                );
+                match inverse(&s.dh, &(next_tcp * tcp.inverse()), &s.q, 50) {
+                    Some(q) => q,
+                    None => {
+                        s.stop_program(Some("speedl: the tool cannot move on along this twist (no inverse kinematics solution)"));
+                        return;
+                    }
+                }
+            };
+            for ((qd, new), old) in s.qd.iter_mut().zip(next).zip(s.q) {
+                *qd = (new - old) / wall_dt.max(1e-6);
+            }
+            s.q = next;
+            s.target_q = next;
+            done = false;
+        }
+        Motion::Servo { target, time } => {
+            let max_step = std::f64::consts::PI * dt;
+            let k = (dt / time.max(dt)).min(1.0);
+            let mut next = s.q;
+            for ((n, t), q) in next.iter_mut().zip(target.iter()).zip(s.q) {
+                *n = q + (k * (t - q)).clamp(-max_step, max_step);
+            }
+            for ((qd, new), old) in s.qd.iter_mut().zip(next).zip(s.q) {
+                *qd = (new - old) / wall_dt.max(1e-6);
+            }
+            s.q = next;
+            s.target_q = *target;
+            done = false;
         }
         Motion::Stop { decel } => {
             let mut moving = false;
@@ -199,6 +303,15 @@ pub(crate) fn step(s: &mut State, dt: f64) {
             s.target_q = s.q;
             done = !moving;
         }
+    }
+    if !matches!(m, Motion::Stop { .. })
+        && s.q
+            .iter()
+            .any(|q| q.abs() > super::state::JOINT_LIMIT + 1e-9)
+    {
+        s.push_log("C153: joint position limit violated".into());
+        s.protective_stop();
+        return;
     }
     if let (Some(f), Motion::Joint { .. } | Motion::Linear { .. }) = (s.pstop_at_fraction, &m) {
         if fraction >= f && fraction > 0.0 {

@@ -10,9 +10,9 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::broadcast::error::RecvError;
 
 use super::motion::{self, Motion};
-use super::state::{RUNTIME_PLAYING, RUNTIME_STOPPED};
-use super::urscript::{self, num, Host, Program, Val};
-use super::Shared;
+use super::state::{State, JOINT_LIMIT, RUNTIME_PLAYING, RUNTIME_STOPPED};
+use super::urscript::{self, num, Host, Program, RuntimeError, Val};
+use super::{rtde_control, Shared};
 use crate::primary;
 use crate::UrPose;
 
@@ -155,6 +155,24 @@ pub(crate) fn submit(shared: &Arc<Shared>, text: &str, opened_remote: bool) -> V
             "C210: socket is read-only: the robot is in local control (switch to remote control and reconnect)",
         )];
     }
+    if let Some(control) = rtde_control::recognise(text) {
+        match control {
+            Ok(c) => start_program(shared, "rtde_control".into(), false, move |host| {
+                rtde_control::run(&c, host)
+            }),
+            Err(e) => {
+                let msg = format!("compile error: {}", e.message);
+                shared.lock().push_log(format!("line {}: {msg}", e.line));
+                shared.publish(primary::encode_runtime_exception(
+                    ts,
+                    e.line as i32,
+                    0,
+                    &msg,
+                ));
+            }
+        }
+        return Vec::new();
+    }
     let prog = match urscript::parse_program(text) {
         Ok(p) => p,
         Err(e) => {
@@ -171,51 +189,60 @@ pub(crate) fn submit(shared: &Arc<Shared>, text: &str, opened_remote: bool) -> V
 }
 
 fn start(shared: &Arc<Shared>, prog: Program) {
+    let name = prog.name.clone();
+    let secondary = prog.secondary;
+    start_program(shared, name, secondary, move |host| {
+        urscript::run(&prog, host)
+    });
+}
+
+/// Start a program on its own thread: a primary program needs an arm that can move, stops the
+/// one running, sets the runtime state PLAYING and announces PROGRAM_XXX_STARTED on the primary
+/// stream; when `body` returns, a runtime error is published as a runtime exception, the state
+/// returns to STOPPED and PROGRAM_XXX_STOPPED is announced. A secondary program runs beside.
+pub(crate) fn start_program<F>(shared: &Arc<Shared>, name: String, secondary: bool, body: F)
+where
+    F: FnOnce(&mut SimHost<'_>) -> Result<(), RuntimeError> + Send + 'static,
+{
     let ts = shared.timestamp_us();
     let gen = {
         let mut s = shared.lock();
-        if prog.secondary {
+        if secondary {
             s.program_gen
         } else {
             if let Err(why) = s.can_move() {
                 drop(s);
-                let msg = format!("program {} not started: {why}", prog.name);
+                let msg = format!("program {name} not started: {why}");
                 shared.lock().push_log(msg.clone());
                 shared.publish(primary::encode_error_code(ts, 0, 3, &msg));
                 return;
             }
             s.stop_program(None);
             s.runtime_state = RUNTIME_PLAYING;
-            s.program_name = Some(prog.name.clone());
+            s.program_name = Some(name.clone());
             s.program_gen
         }
     };
-    if !prog.secondary {
-        shared.publish(primary::encode_key(
-            ts,
-            0,
-            "PROGRAM_XXX_STARTED",
-            &prog.name,
-        ));
+    if !secondary {
+        shared.publish(primary::encode_key(ts, 0, "PROGRAM_XXX_STARTED", &name));
     }
     let shared = shared.clone();
     let spawned = std::thread::Builder::new()
-        .name(format!("urscript-{}", prog.name))
+        .name(format!("urscript-{name}"))
         .spawn(move || {
             let mut host = SimHost {
                 shared: &shared,
                 gen,
-                secondary: prog.secondary,
+                secondary,
                 steps: 0,
             };
-            let result = urscript::run(&prog, &mut host);
+            let result = body(&mut host);
             let ts = shared.timestamp_us();
             if let Err(e) = result {
                 if e.message != STOPPED {
                     tracing::warn!(
                         line = e.line,
-                        "URScript runtime error in `{}`: {}",
-                        prog.name,
+                        "URScript runtime error in `{name}`: {}",
                         e.message
                     );
                     shared
@@ -229,19 +256,14 @@ fn start(shared: &Arc<Shared>, prog: Program) {
                     ));
                 }
             }
-            if !prog.secondary {
+            if !secondary {
                 let mut s = shared.lock();
                 if s.program_gen == gen {
                     s.runtime_state = RUNTIME_STOPPED;
                     s.program_name = None;
                 }
                 drop(s);
-                shared.publish(primary::encode_key(
-                    ts,
-                    0,
-                    "PROGRAM_XXX_STOPPED",
-                    &prog.name,
-                ));
+                shared.publish(primary::encode_key(ts, 0, "PROGRAM_XXX_STOPPED", &name));
             }
         });
     if let Err(e) = spawned {
@@ -249,24 +271,28 @@ fn start(shared: &Arc<Shared>, prog: Program) {
     }
 }
 
+/// The message of a program ended by a stop request (not reported as a runtime exception).
 const STOPPED: &str = "program stopped";
 
-struct SimHost<'a> {
-    shared: &'a Shared,
+/// The controller as a running program sees it.
+pub(crate) struct SimHost<'a> {
+    pub(crate) shared: &'a Shared,
     gen: u64,
     secondary: bool,
     steps: u32,
 }
 
 impl SimHost<'_> {
-    fn alive(&self) -> Result<(), String> {
+    /// `Err(STOPPED)` once the program has been asked to stop.
+    pub(crate) fn alive(&self) -> Result<(), String> {
         if !self.secondary && self.shared.lock().program_gen != self.gen {
             return Err(STOPPED.into());
         }
         Ok(())
     }
 
-    fn wait(&mut self, d: Duration) -> Result<(), String> {
+    /// Let `d` pass (physical time), `Err` if the program is stopped meanwhile.
+    pub(crate) fn wait(&mut self, d: Duration) -> Result<(), String> {
         let end = Instant::now() + d;
         self.steps = 0;
         loop {
@@ -279,7 +305,8 @@ impl SimHost<'_> {
         }
     }
 
-    fn wait_motion(&mut self) -> Result<(), String> {
+    /// Wait until the arm has finished its motion, `Err` if the program is stopped meanwhile.
+    pub(crate) fn wait_motion(&mut self) -> Result<(), String> {
         self.steps = 0;
         loop {
             self.alive()?;
@@ -289,6 +316,56 @@ impl SimHost<'_> {
             std::thread::sleep(Duration::from_millis(2));
         }
     }
+}
+
+/// Where a move goes: joint angles (rad) or a TCP pose (`base_from_tcp`, UR pose).
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Target {
+    Joints([f64; 6]),
+    Pose([f64; 6]),
+}
+
+/// Start a `movej` (`linear` false) or `movel` on the simulated arm without waiting: checks
+/// the arm can move, the speeds, the inverse kinematics and the joint limits, as the
+/// controller does before a move starts.
+pub(crate) fn begin_move(
+    s: &mut State,
+    linear: bool,
+    target: Target,
+    a: f64,
+    v: f64,
+) -> Result<(), String> {
+    let name = if linear { "movel" } else { "movej" };
+    if !(a > 0.0 && v > 0.0 && a.is_finite() && v.is_finite()) {
+        return Err(format!("{name}: speed and acceleration must be positive"));
+    }
+    let (Target::Joints(q) | Target::Pose(q)) = target;
+    if q.iter().any(|x| !x.is_finite()) {
+        return Err(format!("{name}: the target is not finite"));
+    }
+    s.can_move()?;
+    let m = if linear {
+        let goal = match target {
+            Target::Pose(p) => motion::flange_target(&UrPose(p), &s.tcp),
+            Target::Joints(q) => s.dh.forward(&q),
+        };
+        Motion::linear(s.flange_pose(), goal, v.min(3.0), a)
+    } else {
+        let goal = match target {
+            Target::Pose(p) => {
+                let f = motion::flange_target(&UrPose(p), &s.tcp);
+                motion::inverse(&s.dh, &f, &s.q, 300)
+                    .ok_or("movej: no inverse kinematics solution for the pose")?
+            }
+            Target::Joints(q) => q,
+        };
+        if goal.iter().any(|g| g.abs() > JOINT_LIMIT + 1e-9) {
+            return Err("movej: joint target outside ±2π".into());
+        }
+        Motion::joint(s.q, goal, v.min(std::f64::consts::PI), a)
+    };
+    s.motion = Some(m);
+    Ok(())
 }
 
 fn joints(v: &Val) -> Result<[f64; 6], String> {
@@ -344,44 +421,16 @@ impl Host for SimHost<'_> {
         let sh = self.shared;
         match name {
             "movej" | "movel" => {
-                let target = arg(0, "q").ok_or(format!("{name} needs a target"))?;
+                let target = match arg(0, "q").ok_or(format!("{name} needs a target"))? {
+                    Val::Pose(p) => Target::Pose(*p),
+                    other => Target::Joints(joints(other)?),
+                };
                 let (a, v) = if name == "movej" {
                     (num_or(1, "a", 1.4)?, num_or(2, "v", 1.05)?)
                 } else {
                     (num_or(1, "a", 1.2)?, num_or(2, "v", 0.25)?)
                 };
-                if !(a > 0.0 && v > 0.0 && a.is_finite() && v.is_finite()) {
-                    return Err(format!("{name}: speed and acceleration must be positive"));
-                }
-                {
-                    let mut s = sh.lock();
-                    s.can_move()?;
-                    let max_v = std::f64::consts::PI;
-                    let m = if name == "movej" {
-                        let goal = match target {
-                            Val::Pose(p) => {
-                                let f = motion::flange_target(&UrPose(*p), &s.tcp);
-                                motion::inverse(&s.dh, &f, &s.q, 300)
-                                    .ok_or("movej: no inverse kinematics solution for the pose")?
-                            }
-                            other => joints(other)?,
-                        };
-                        if goal
-                            .iter()
-                            .any(|g| !g.is_finite() || g.abs() > 2.0 * std::f64::consts::PI + 1e-9)
-                        {
-                            return Err("movej: joint target outside ±2π".into());
-                        }
-                        Motion::joint(s.q, goal, v.min(max_v), a)
-                    } else {
-                        let goal = match target {
-                            Val::Pose(p) => motion::flange_target(&UrPose(*p), &s.tcp),
-                            other => s.dh.forward(&joints(other)?),
-                        };
-                        Motion::linear(s.flange_pose(), goal, v.min(3.0), a)
-                    };
-                    s.motion = Some(m);
-                }
+                begin_move(&mut sh.lock(), name == "movel", target, a, v)?;
                 self.wait_motion()?;
                 let s = sh.lock();
                 s.can_move()?;

@@ -31,6 +31,22 @@ pub(crate) fn max_joint_speed(model: UrModel, i: usize) -> f64 {
     }
 }
 
+/// Rated payload of the arm, kg (the datasheets').
+pub(crate) fn max_payload(model: UrModel) -> f64 {
+    match model {
+        UrModel::Ur3 | UrModel::Ur3e => 3.0,
+        UrModel::Ur5 | UrModel::Ur5e => 5.0,
+        UrModel::Ur7e => 7.5,
+        UrModel::Ur10 => 10.0,
+        UrModel::Ur10e => 12.5,
+        UrModel::Ur12e => 12.0,
+        UrModel::Ur15 => 15.0,
+        UrModel::Ur16e => 16.0,
+        UrModel::Ur20 => 20.0,
+        UrModel::Ur30 => 30.0,
+    }
+}
+
 /// ConfigurationData robot type (URCL's numbering; the e-Series variants share their CB3
 /// sibling's number, the newer arms have their own).
 fn robot_type(model: UrModel) -> i32 {
@@ -109,12 +125,18 @@ pub(crate) struct State {
     pub(crate) loaded_program: Option<String>,
     pub(crate) dashboard_playing: u32,
     pub(crate) in_int: [i32; 48],
+    /// When each input int register was last written by an RTDE client (controller seconds;
+    /// the RTDE watchdog of ur_rtde's control program watches one).
+    pub(crate) in_int_written: [f64; 48],
     pub(crate) in_double: [f64; 48],
     pub(crate) in_bits: u128,
     pub(crate) out_int: [i32; 48],
     pub(crate) out_double: [f64; 48],
     pub(crate) out_bits: u128,
     pub(crate) speed_slider: f64,
+    /// Payload mass (kg), centre of gravity (m, flange frame) and inertia (kg m²: Ixx, Iyy,
+    /// Izz, Ixy, Ixz, Iyz) set by `set_payload` / `set_target_payload`.
+    pub(crate) payload: (f64, [f64; 3], [f64; 6]),
     pub(crate) std_do: u8,
     pub(crate) conf_do: u8,
     pub(crate) tool_do: u8,
@@ -161,12 +183,14 @@ impl State {
             loaded_program: None,
             dashboard_playing: RUNTIME_STOPPED,
             in_int: [0; 48],
+            in_int_written: [0.0; 48],
             in_double: [0.0; 48],
             in_bits: 0,
             out_int: [0; 48],
             out_double: [0.0; 48],
             out_bits: 0,
             speed_slider: 1.0,
+            payload: (0.0, [0.0; 3], [0.0; 6]),
             std_do: 0,
             conf_do: 0,
             tool_do: 0,
@@ -333,6 +357,9 @@ impl State {
             "runtime_state" => Value::Uint32(self.runtime_state),
             "speed_scaling" => Value::Double(1.0),
             "target_speed_fraction" => Value::Double(self.speed_slider),
+            "payload" => Value::Double(self.payload.0),
+            "payload_cog" => Value::Vector3d(self.payload.1),
+            "payload_inertia" => Value::Vector6d(self.payload.2),
             "actual_digital_output_bits" => Value::Uint64(
                 u64::from(self.std_do)
                     | (u64::from(self.conf_do) << 8)
@@ -436,9 +463,9 @@ impl State {
                     self.analog_out[1] = x;
                 }
                 (_, Value::Int32(x)) => {
-                    if let Some(r) = idx("input_int_register_").and_then(|i| self.in_int.get_mut(i))
-                    {
-                        *r = x;
+                    if let Some(i) = idx("input_int_register_").filter(|i| *i < 48) {
+                        self.in_int[i] = x;
+                        self.in_int_written[i] = self.boot.elapsed().as_secs_f64();
                     }
                 }
                 (_, Value::Double(x)) => {
