@@ -13,6 +13,11 @@ use crate::gvcp::{
     FLAG_ACK_REQUIRED, FLAG_BROADCAST_ACK, GVCP_PORT, MAX_MEM_BLOCK,
 };
 
+/// Hard ceiling on one command, whatever the device answers: a device may ask for more time
+/// with PENDING_ACK, but one that keeps doing so (or floods us with acks for other requests)
+/// gets an error after this long, not an endless wait.
+pub const MAX_COMMAND_WAIT: Duration = Duration::from_secs(5);
+
 /// Timeouts and retries of the control channel.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ControlConfig {
@@ -22,6 +27,9 @@ pub struct ControlConfig {
     pub tries: u32,
     /// Heartbeat timeout written to the device (0x0938); we send a heartbeat every third of it.
     pub heartbeat_timeout: Duration,
+    /// Longest wait for one command, PENDING_ACK extensions included (at most
+    /// [`MAX_COMMAND_WAIT`], which is also the default).
+    pub max_command_wait: Duration,
 }
 
 impl Default for ControlConfig {
@@ -30,6 +38,7 @@ impl Default for ControlConfig {
             timeout: Duration::from_millis(500),
             tries: 5,
             heartbeat_timeout: Duration::from_secs(3),
+            max_command_wait: MAX_COMMAND_WAIT,
         }
     }
 }
@@ -135,13 +144,23 @@ impl Channel {
         let bytes = cmd.encode();
         let expected = cmd.kind.code() + 1;
         let mut buf = [0u8; 1500];
+        let start = Instant::now();
+        let ceiling = start + self.cfg.max_command_wait.min(MAX_COMMAND_WAIT);
+        let mut pending = false;
         for _ in 0..self.cfg.tries.max(1) {
             self.sock
                 .send_to(&bytes, self.peer)
                 .map_err(|e| GigeError::io(self.peer, e))?;
-            let mut deadline = Instant::now() + self.cfg.timeout;
+            let mut deadline = (Instant::now() + self.cfg.timeout).min(ceiling);
             loop {
                 let now = Instant::now();
+                if now >= ceiling && pending {
+                    return Err(GigeError::Stalled {
+                        peer: self.peer,
+                        what: cmd.kind.describe(),
+                        waited: now - start,
+                    });
+                }
                 if now >= deadline {
                     break;
                 }
@@ -177,8 +196,10 @@ impl Channel {
                 }
                 if ack.ack_code == code::PENDING_ACK {
                     let ms = ack.pending_ms().unwrap_or(0).max(1);
+                    pending = true;
                     deadline =
-                        Instant::now() + Duration::from_millis(u64::from(ms)) + self.cfg.timeout;
+                        (Instant::now() + Duration::from_millis(u64::from(ms)) + self.cfg.timeout)
+                            .min(ceiling);
                     continue;
                 }
                 check_status(ack.status, &cmd.kind)?;
@@ -194,6 +215,13 @@ impl Channel {
                 }
                 return Ok(ack);
             }
+        }
+        if pending {
+            return Err(GigeError::Stalled {
+                peer: self.peer,
+                what: cmd.kind.describe(),
+                waited: start.elapsed(),
+            });
         }
         Err(GigeError::Timeout {
             peer: self.peer,
@@ -416,6 +444,72 @@ impl Drop for ControlGuard {
         if self.lost.lock().map(|l| l.is_none()).unwrap_or(false) {
             if let Err(e) = self.client.write_reg(reg::CCP, 0) {
                 tracing::warn!("releasing control failed: {e}");
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 16: a device that answers every request with PENDING_ACK (asking for more time,
+    /// forever) gets an error after the command's hard ceiling, not an endless wait; so does
+    /// one that floods acks for other requests.
+    #[test]
+    fn issue_16_a_device_that_always_pends_is_cut_off() {
+        for flood in [false, true] {
+            let dev = UdpSocket::bind("127.0.0.170:0").expect("bind the stalling device");
+            let addr = dev.local_addr().expect("addr");
+            dev.set_read_timeout(Some(Duration::from_millis(50)))
+                .expect("timeout");
+            let stop = Arc::new(AtomicBool::new(false));
+            let stop2 = Arc::clone(&stop);
+            let device = std::thread::spawn(move || {
+                let mut buf = [0u8; 1500];
+                let mut last: Option<(u16, SocketAddr)> = None;
+                while !stop2.load(Ordering::Relaxed) {
+                    if let Ok((n, from)) = dev.recv_from(&mut buf) {
+                        if n >= 8 {
+                            last = Some((u16::from_be_bytes([buf[6], buf[7]]), from));
+                        }
+                    }
+                    if let Some((req_id, from)) = last {
+                        let ack = Ack {
+                            status: 0,
+                            ack_code: if flood { 0x0081 } else { code::PENDING_ACK },
+                            ack_id: if flood {
+                                req_id.wrapping_add(7)
+                            } else {
+                                req_id
+                            },
+                            // PENDING_ACK: reserved(2) + time to completion (ms, 2).
+                            payload: vec![0, 0, 0xFF, 0xFF],
+                        };
+                        let _ = dev.send_to(&ack.encode(), from);
+                    }
+                }
+            });
+            let cfg = ControlConfig {
+                timeout: Duration::from_millis(100),
+                tries: 3,
+                max_command_wait: Duration::from_millis(1500),
+                ..ControlConfig::default()
+            };
+            let client = GvcpClient::connect(addr, cfg).expect("socket");
+            let t = Instant::now();
+            let e = client
+                .read_reg(reg::GVCP_CAPABILITY)
+                .expect_err("never answered");
+            let took = t.elapsed();
+            stop.store(true, Ordering::Relaxed);
+            device.join().expect("device thread");
+            assert!(took < Duration::from_secs(3), "waited {took:?}");
+            if flood {
+                assert!(matches!(e, GigeError::Timeout { .. }), "{e}");
+            } else {
+                assert!(matches!(e, GigeError::Stalled { .. }), "{e}");
+                assert!(e.to_string().contains("PENDING_ACK"), "{e}");
             }
         }
     }

@@ -41,6 +41,17 @@ pub enum GigeError {
         /// Number of tries.
         tries: u32,
     },
+    /// The device kept answering "pending" (PENDING_ACK) past the hard ceiling of one
+    /// command ([`crate::client::MAX_COMMAND_WAIT`]).
+    #[error("camera at {peer} kept answering PENDING_ACK to {what} for {waited:?} without finishing it; power-cycle the camera or check its firmware")]
+    Stalled {
+        /// The device's control address.
+        peer: SocketAddr,
+        /// What was asked.
+        what: String,
+        /// How long we waited.
+        waited: Duration,
+    },
     /// A socket operation failed.
     #[error("network error talking to {peer}: {source}; check the address and the interface")]
     Io {
@@ -114,6 +125,10 @@ impl From<GigeError> for HalError {
     fn from(e: GigeError) -> Self {
         match e {
             GigeError::Timeout { what, timeout, .. } => HalError::Timeout { what, timeout },
+            GigeError::Stalled { what, waited, .. } => HalError::Timeout {
+                what: format!("{what} (the camera kept answering PENDING_ACK)"),
+                timeout: waited,
+            },
             GigeError::FrameTimeout { timeout, detail } => HalError::Timeout {
                 what: format!("camera frame ({detail})"),
                 timeout,

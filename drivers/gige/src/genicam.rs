@@ -73,7 +73,7 @@ impl XmlUrl {
                         })
                 };
                 let (address, length) = (hex(parts[1])?, hex(parts[2])?);
-                if length == 0 || length > 64 << 20 {
+                if length == 0 || length as usize > MAX_XML_BYTES {
                     return Err(GigeError::malformed(
                         W,
                         format!("`{s}`: absurd XML length {length}"),
@@ -95,6 +95,9 @@ impl XmlUrl {
     }
 }
 
+/// Largest unzipped GenICam XML, bytes.
+const MAX_UNZIPPED_XML_BYTES: u64 = 256 << 20;
+
 /// Unzip `bytes` when they are a ZIP archive (first entry), else return them; then UTF-8.
 pub fn xml_text(bytes: &[u8]) -> Result<String> {
     const W: &str = "GenICam XML";
@@ -107,7 +110,7 @@ pub fn xml_text(bytes: &[u8]) -> Result<String> {
         let mut out = Vec::new();
         entry
             .by_ref()
-            .take(256 << 20)
+            .take(MAX_UNZIPPED_XML_BYTES)
             .read_to_end(&mut out)
             .map_err(|e| GigeError::malformed(W, format!("cannot unzip: {e}")))?;
         out
@@ -118,6 +121,10 @@ pub fn xml_text(bytes: &[u8]) -> Result<String> {
     String::from_utf8(data[..end].to_vec())
         .map_err(|e| GigeError::malformed(W, format!("not UTF-8: {e}")))
 }
+
+/// Largest GenICam XML (or ZIP of it) read from a device or file, bytes; real ones are a few
+/// hundred kB (ZIP: tens of kB), and each 536 bytes of device memory is one GVCP round trip.
+pub const MAX_XML_BYTES: usize = 16 << 20;
 
 /// Read the XML of a device: first URL register, then the second one as fallback.
 pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
@@ -131,8 +138,14 @@ pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
                     address, length, ..
                 } => xml_text(&client.read_mem(address, length as usize)?),
                 XmlUrl::File(path) => {
-                    let bytes = std::fs::read(&path).map_err(|e| GigeError::io(path, e))?;
-                    xml_text(&bytes)
+                    // The device names the file: never a FIFO or device, never unbounded.
+                    handeye_hal::limits::check_regular_file(
+                        std::path::Path::new(&path),
+                        MAX_XML_BYTES as u64,
+                    )
+                    .and_then(|_| std::fs::read(&path))
+                    .map_err(|e| GigeError::io(path, e))
+                    .and_then(|bytes| xml_text(&bytes))
                 }
                 XmlUrl::Http(u) => Err(GigeError::malformed(
                     "XML URL",
@@ -143,6 +156,8 @@ pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
             });
         match fetched {
             Ok(x) => return Ok(x),
+            // A device that does not answer (or stalls) will not answer the second URL either.
+            Err(e @ (GigeError::Timeout { .. } | GigeError::Stalled { .. })) => return Err(e),
             Err(e) => last_err = Some(e),
         }
     }
@@ -205,6 +220,10 @@ fn gerr(feature: &str, e: impl std::fmt::Display) -> GigeError {
 impl NodeMap {
     /// Parse an XML text. Malformed XML is an error (the parser is guarded against panics).
     pub fn from_xml(xml: &str) -> Result<Self> {
+        // The XML parser and the node-map builder recurse per element: bound the nesting
+        // first (a stack overflow cannot be caught like the panics below).
+        handeye_hal::limits::check_xml_nesting(xml, handeye_hal::limits::MAX_XML_DEPTH)
+            .map_err(|e| GigeError::malformed("GenICam XML", e))?;
         let built = std::panic::catch_unwind(AssertUnwindSafe(|| {
             GenApiBuilder::<
                 DefaultNodeStore,
@@ -492,6 +511,48 @@ mod tests {
             b.truncate(rng.random_range(0..=b.len()));
             let _ = XmlUrl::parse(&String::from_utf8_lossy(&b));
             let _ = xml_text(&b);
+        }
+    }
+
+    /// Issue 16: a device's XML nested tens of thousands of elements deep is an error, not a
+    /// stack overflow; structure-aware cases around the limit, huge repetition counts and huge
+    /// numbers through the node-map builder.
+    #[test]
+    fn issue_16_deep_and_huge_genicam_xml_are_errors() {
+        use rand::{Rng, SeedableRng};
+        let n = 50_000;
+        for tag in ["Category", "pFeature", "x"] {
+            let xml = format!(
+                r#"<?xml version="1.0"?><RegisterDescription ModelName="m" VendorName="v" StandardNameSpace="None" SchemaMajorVersion="1" SchemaMinorVersion="1" SchemaSubMinorVersion="0" MajorVersion="1" MinorVersion="0" SubMinorVersion="0" ProductGuid="0" VersionGuid="0" xmlns="http://www.genicam.org/GenApi/Version_1_1">{}{}</RegisterDescription>"#,
+                format!("<{tag}>").repeat(n),
+                format!("</{tag}>").repeat(n)
+            );
+            let e = NodeMap::from_xml(&xml).expect_err("too deep").to_string();
+            assert!(e.contains("nested more than"), "{e}");
+        }
+        let real = include_str!("sim/camera.xml");
+        NodeMap::from_xml(real).expect("the simulated camera's XML loads");
+        let mut rng = rand::rngs::StdRng::seed_from_u64(16);
+        let numbers = [
+            "18446744073709551616",
+            "-9223372036854775809",
+            "1e308",
+            "0x",
+            "nan",
+        ];
+        for _ in 0..20 {
+            let at = real.find("</RegisterDescription>").expect("root end");
+            let depth = rng.random_range(1..300);
+            let reps = rng.random_range(0..500);
+            let num = numbers[rng.random_range(0..numbers.len())];
+            let extra = format!(
+                "{}{}{}",
+                "<Category Name=\"C\"><pFeature>".repeat(depth),
+                format!("<Integer Name=\"I\"><Value>{num}</Value></Integer>").repeat(reps),
+                "</pFeature></Category>".repeat(depth),
+            );
+            let xml = format!("{}{extra}{}", &real[..at], &real[at..]);
+            let _ = NodeMap::from_xml(&xml);
         }
     }
 }

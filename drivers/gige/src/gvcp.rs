@@ -509,7 +509,7 @@ impl Ack {
 
     /// Values of a READREG ack for `n` registers.
     pub fn readreg_values(&self, n: usize) -> Result<Vec<u32>> {
-        if self.payload.len() != 4 * n {
+        if n.checked_mul(4) != Some(self.payload.len()) {
             return Err(GigeError::malformed(
                 "READREG ack",
                 format!("{} bytes for {n} registers", self.payload.len()),
@@ -521,7 +521,7 @@ impl Ack {
     /// Data of a READMEM ack, checked against the request.
     pub fn readmem_data(&self, address: u32, count: usize) -> Result<&[u8]> {
         const W: &str = "READMEM ack";
-        if self.payload.len() != 4 + count {
+        if self.payload.len().checked_sub(4) != Some(count) {
             return Err(GigeError::malformed(
                 W,
                 format!(
@@ -820,6 +820,29 @@ mod tests {
                 let _ = a.readmem_data(0x200, rng.random_range(0..600));
                 let _ = a.pending_ms();
                 let _ = DiscoveryInfo::parse(&a.payload);
+            }
+        }
+        // Structure-aware huge counts: the length field and every count/address word at its
+        // largest, and the largest counts a caller may ask an ack for.
+        for seed in &seeds {
+            for off in (0..seed.len().min(64)).step_by(2) {
+                for value in [0xFFFFu16, 0x8000, 0x0218] {
+                    let mut b = seed.clone();
+                    for (i, byte) in value.to_be_bytes().into_iter().enumerate() {
+                        if let Some(x) = b.get_mut(off + i) {
+                            *x = byte;
+                        }
+                    }
+                    let _ = Command::decode(&b);
+                    if let Ok(a) = Ack::decode(&b) {
+                        for n in [0, MAX_READREG, MAX_READREG + 1, usize::MAX / 4] {
+                            let _ = a.readreg_values(n);
+                        }
+                        for len in [0, MAX_MEM_BLOCK, MAX_MEM_BLOCK + 1, usize::MAX] {
+                            let _ = a.readmem_data(u32::MAX, len);
+                        }
+                    }
+                }
             }
         }
     }

@@ -1277,4 +1277,38 @@ mod tests {
         r.housekeeping(now + Duration::from_secs(5));
         assert!(r.frames.is_empty());
     }
+
+    /// Issue 16: structure-aware huge counts — every 16- and 32-bit field of a leader, data
+    /// and trailer packet set in turn to the largest values (sizes, part counts, packet and
+    /// block ids, offsets); the receiver stays within its frame budget and never panics.
+    #[test]
+    fn issue_16_huge_fields_in_every_packet_position() {
+        let t0 = Instant::now();
+        for (mp, ext) in [(false, false), (true, true)] {
+            let packets = packetize(&block(5, mp), 400, ext).expect("p");
+            let mut r = receiver(ext, true);
+            let now = Instant::now();
+            let picks = [0, 1, packets.len() - 1];
+            for &k in &picks {
+                let seed = &packets[k];
+                for off in 0..seed.len().min(96) {
+                    for value in [u32::MAX, 0x7FFF_FFFF, 0x8000_0000, 0x0001_0000] {
+                        let mut b = seed.clone();
+                        for (i, byte) in value.to_be_bytes().iter().enumerate() {
+                            if let Some(x) = b.get_mut(off + i) {
+                                *x = *byte;
+                            }
+                        }
+                        if let Ok((h, body)) = Header::parse(&b) {
+                            let _ = Leader::parse(&h, body);
+                        }
+                        r.handle(&b, now);
+                        assert!(r.frames.len() <= r.cfg.max_frames_in_flight.max(1));
+                    }
+                }
+            }
+            r.housekeeping(now + Duration::from_secs(5));
+        }
+        assert!(t0.elapsed() < Duration::from_secs(10), "{:?}", t0.elapsed());
+    }
 }

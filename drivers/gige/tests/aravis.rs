@@ -144,6 +144,7 @@ fn fast() -> ControlConfig {
         timeout: Duration::from_millis(300),
         tries: 3,
         heartbeat_timeout: Duration::from_secs(3),
+        ..ControlConfig::default()
     }
 }
 

@@ -20,6 +20,7 @@ fn fast() -> ControlConfig {
         timeout: Duration::from_millis(200),
         tries: 3,
         heartbeat_timeout: Duration::from_millis(900),
+        ..ControlConfig::default()
     }
 }
 
