@@ -1,6 +1,6 @@
 //! Parsers for values given on the command line.
 
-use handeye::model::KinematicError;
+use handeye::model::{KinematicError, MAX_KINEMATIC_SIGMA};
 use handeye_hal::UrPose;
 use nalgebra::Isometry3;
 
@@ -30,14 +30,22 @@ pub(crate) fn parse_joints(s: &str) -> Result<JointList, String> {
 /// (mm) and axis misalignment (mrad) of the real arm against its URDF.
 pub(crate) fn parse_kinematic_error(s: &str) -> Result<KinematicError, String> {
     let v = parse_numbers(s)?;
+    // 1σ in mrad / mm: a real arm is within tenths of its model, and beyond this limit the
+    // propagated uncertainty is meaningless (1e160 made it 0 and the result accepted).
+    let max = MAX_KINEMATIC_SIGMA * 1e3;
     match v[..] {
-        [offset, length, misalignment] if v.iter().all(|x| *x >= 0.0) => Ok(KinematicError {
-            joint_offset_sigma_rad: offset * 1e-3,
-            link_length_sigma_m: length * 1e-3,
-            axis_misalignment_sigma_rad: misalignment * 1e-3,
-        }),
+        [offset, length, misalignment]
+            if v.iter().all(|x| (0.0..=max).contains(x)) =>
+        {
+            Ok(KinematicError {
+                joint_offset_sigma_rad: offset * 1e-3,
+                link_length_sigma_m: length * 1e-3,
+                axis_misalignment_sigma_rad: misalignment * 1e-3,
+            })
+        }
         _ => Err(format!(
-            "expected 3 non-negative numbers offset_mrad,length_mm,misalignment_mrad (e.g. 0.3,0.3,0.1; 0,0,0 when the URDF is the controller's calibrated kinematics), got `{s}`"
+            "expected 3 numbers from 0 to {max} offset_mrad,length_mm,misalignment_mrad (e.g. 0.3,0.3,0.1; 0,0,0 when the URDF is the controller's calibrated kinematics), got `{}`",
+            handeye_hal::limits::Quoted(s)
         )),
     }
 }
@@ -45,9 +53,10 @@ pub(crate) fn parse_kinematic_error(s: &str) -> Result<KinematicError, String> {
 /// Parses a positive finite distance in metres.
 pub(crate) fn parse_distance(s: &str) -> Result<f64, String> {
     match parse_numbers(s)?[..] {
-        [d] if d > 0.0 => Ok(d),
+        [d] if d > 0.0 && d <= 10.0 => Ok(d),
         _ => Err(format!(
-            "expected one positive distance in metres (e.g. 0.3), got `{s}`"
+            "expected one distance above 0 and at most 10 metres (e.g. 0.3), got `{}`",
+            handeye_hal::limits::Quoted(s)
         )),
     }
 }
@@ -59,7 +68,12 @@ fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
             t.parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| format!("`{t}` is not a finite number"))
+                .ok_or_else(|| {
+                    format!(
+                        "`{}` is not a finite number",
+                        handeye_hal::limits::Quoted(t)
+                    )
+                })
         })
         .collect()
 }
@@ -170,7 +184,14 @@ mod tests {
             parse_kinematic_error("0,0,0").expect("valid"),
             KinematicError::none()
         );
-        for bad in ["0.3,0.3", "0.3,-0.3,0.1", "0.3,0.3,0.1,0", "a,b,c"] {
+        for bad in [
+            "0.3,0.3",
+            "0.3,-0.3,0.1",
+            "0.3,0.3,0.1,0",
+            "a,b,c",
+            "1e160,0.3,0.1",
+            "0.3,51,0.1",
+        ] {
             let e = parse_kinematic_error(bad).expect_err(bad);
             assert!(
                 e.contains("offset_mrad,length_mm,misalignment_mrad") || e.contains("finite"),

@@ -31,8 +31,8 @@ pub(crate) struct Args {
     /// calibrated kinematics recorded in the capture.
     #[arg(long, requires = "capture")]
     nominal_kinematics: bool,
-    /// Robot description (URDF with meshes relative to it); with `--capture` the default is the
-    /// capture's model under the robots directory.
+    /// Robot description: a URDF (meshes relative to it) or a robot name (`ur5e`) under the
+    /// robots directory; with `--capture` the default is the capture's model.
     #[arg(long)]
     robot: Option<PathBuf>,
     /// Joint angles at capture, radians, comma-separated, URDF order (once, or once per scan).
@@ -104,10 +104,13 @@ struct Inputs {
 /// The frames of a run's capture file.
 fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
     let capture = load_capture(path).map_err(anyhow::Error::msg)?;
-    let urdf = match &args.robot {
-        Some(p) => p.clone(),
-        None => resolve_robot(&capture.model).map_err(anyhow::Error::msg)?,
-    };
+    let urdf = resolve_robot(
+        &args
+            .robot
+            .as_ref()
+            .map_or(capture.model.clone(), |p| p.to_string_lossy().into_owned()),
+    )
+    .map_err(anyhow::Error::msg)?;
     let model =
         RobotModel::load(&urdf).with_context(|| format!("loading robot {}", urdf.display()))?;
     let model_from_base = fixed_frame(&model, &capture.base_frame)
@@ -163,15 +166,49 @@ fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
     })
 }
 
+/// How far a `--flange-pose` may be from the URDF's forward kinematics of its joints: a real
+/// arm's factory calibration moves its flange by millimetres and hundredths of a degree, so
+/// more than this is a pose of other joints, of the TCP instead of the flange, in another
+/// frame, or of another robot model — a wrong result if accepted.
+const MAX_FLANGE_POSE_DEVIATION_M: f64 = 0.03;
+const MAX_FLANGE_POSE_DEVIATION_RAD: f64 = 0.05;
+
+/// Refuses a reported flange pose (`model_from_flange`) that cannot belong to `joints`.
+fn check_flange_pose(
+    model: &RobotModel,
+    joints: &[f64],
+    reported: &Isometry3<f64>,
+    base_frame: &str,
+) -> anyhow::Result<()> {
+    let fk = model.frame_pose(model.flange_link(), joints)?;
+    let d = fk.inverse() * reported;
+    let (dt, dr) = (d.translation.vector.norm(), d.rotation.angle());
+    if dt > MAX_FLANGE_POSE_DEVIATION_M || dr > MAX_FLANGE_POSE_DEVIATION_RAD {
+        let base_from_model = fixed_frame(model, base_frame)?.inverse();
+        bail!(
+            "--flange-pose is {:.3} m / {:.2}° from the flange pose the URDF gives for --joints \
+             ({} in `{base_frame}`; at most {MAX_FLANGE_POSE_DEVIATION_M} m / {:.1}° are a real \
+             arm's calibration): give the controller's flange pose (not the TCP) for these \
+             joints, in --base-frame (`base` for UR controller poses), for this robot model",
+            dt,
+            dr.to_degrees(),
+            handeye_hal::UrPose::from(&(base_from_model * fk)),
+            MAX_FLANGE_POSE_DEVIATION_RAD.to_degrees()
+        );
+    }
+    Ok(())
+}
+
 /// The frames given scan by scan on the command line.
 fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
-    let urdf = args
+    let robot = args
         .robot
         .as_ref()
         .context("--robot is required with --scan (or replay a run with --capture)")?;
     if args.scan.is_empty() {
         bail!("give --scan (with --joints) or --capture");
     }
+    let urdf = &resolve_robot(&robot.to_string_lossy()).map_err(anyhow::Error::msg)?;
     let model =
         RobotModel::load(urdf).with_context(|| format!("loading robot {}", urdf.display()))?;
     let base_frame = args
@@ -200,6 +237,10 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
             .map(|p| parse_pose(p).map(|p| model_from_base * p))
             .transpose()
             .map_err(|e| anyhow::anyhow!("--flange-pose: {e}"))?;
+        if let Some(reported) = &model_from_flange {
+            check_flange_pose(&model, &joints, reported, &base_frame)
+                .with_context(|| format!("scan {}", scan_path.display()))?;
+        }
         let cloud = handeye::cloud::read_cloud(scan_path)
             .with_context(|| format!("reading scan {}", scan_path.display()))?;
         let view = match view_keys.iter().position(|k| k == joints_text) {
@@ -231,7 +272,25 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
     })
 }
 
+/// Runs the solve; with `--json` a failure is also one JSON object on stdout,
+/// `{"status": "error", "error": "<message>"}` (exit 2), so a script always gets an object.
 pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+    let json = args.json;
+    match solve(args) {
+        Err(e) if json => {
+            let message = super::args::error_text(&e);
+            println!(
+                "{}",
+                serde_json::json!({"status": "error", "outcome": "error", "error": message})
+            );
+            eprintln!("error: {message}");
+            Ok(ExitCode::from(2))
+        }
+        other => other,
+    }
+}
+
+fn solve(args: Args) -> anyhow::Result<ExitCode> {
     let inputs = match &args.capture {
         Some(path) => from_capture(path, &args)?,
         None => from_scans(&args)?,
@@ -358,11 +417,34 @@ mod tests {
             .map(|v| format!("{v}"))
             .collect::<Vec<_>>()
             .join(",");
-        let e = run(args(urdf.clone(), &short, ply.clone(), None)).expect_err("mismatch");
+        let e = solve(args(urdf.clone(), &short, ply.clone(), None)).expect_err("mismatch");
         assert!(format!("{e:#}").contains("joint"), "{e:#}");
         let e =
-            run(args(urdf.clone(), &joints, tmp.join("missing.ply"), None)).expect_err("no scan");
+            solve(args(urdf.clone(), &joints, tmp.join("missing.ply"), None)).expect_err("no scan");
         assert!(format!("{e:#}").contains("missing.ply"), "{e:#}");
+        // With --json a failure is an exit code 2 (and one JSON object on stdout).
+        let code = run(args(urdf.clone(), &short, ply.clone(), None)).expect("json error");
+        assert_eq!(code, ExitCode::from(2));
+        // Issue 16: robot names as `demo` and `bench` take them.
+        let e = solve(args("ur5e".into(), &short, ply.clone(), None)).expect_err("mismatch");
+        assert!(format!("{e:#}").contains("joint"), "{e:#}");
+        // Issue 16: a flange pose metres (or degrees) away from the joints' forward kinematics
+        // is refused, naming both.
+        let mut far = base_from_flange;
+        far.translation.vector.x += 5.0;
+        for wrong in [
+            far,
+            base_from_flange * Isometry3::rotation(Vector3::new(0.0, 0.0, 10f64.to_radians())),
+        ] {
+            let flange = handeye_hal::UrPose::from(&wrong).to_string();
+            let e = solve(args(urdf.clone(), &joints, ply.clone(), Some(flange)))
+                .expect_err("flange pose of other joints");
+            let text = format!("{e:#}");
+            assert!(
+                text.contains("from the flange pose the URDF gives for --joints"),
+                "{text}"
+            );
+        }
         let _ = std::fs::remove_dir_all(&tmp);
     }
 }
