@@ -17,6 +17,8 @@
 //!   preflight to the return move, returning one record.
 //! - [`daemon`]: the service: triggers (startup, schedule, API), one run at a time, state,
 //!   metrics, systemd readiness and watchdog.
+//! - [`report`]: the report picture of a run (scan, distances, outline, numbers) and the
+//!   drift chart, as PNG.
 //! - [`store`]: the history of every run (SQLite).
 //!
 //! The binary (`src/main.rs` and its `src/cli/` modules, which the library does not use) wires
@@ -32,6 +34,7 @@ pub mod daemon;
 pub mod frames;
 pub mod model;
 pub mod plan;
+pub mod report;
 pub mod run;
 pub mod sim;
 pub mod store;

@@ -17,11 +17,11 @@ pub mod export;
 mod fine;
 pub mod gate;
 mod kdtree;
-mod range;
+pub(crate) mod range;
 pub mod register;
 pub mod report;
 pub mod solve;
-mod surface;
+pub(crate) mod surface;
 mod verify;
 
 /// Whether `b` is within `metres` and `degrees` of `a`, measured in `a`'s frame (for

@@ -14,8 +14,11 @@
 //! | `GET /api/runs?limit=N&before=UNIX_S` | the history, newest first |
 //! | `GET /api/runs/{id}` | one run's record |
 //! | `GET /api/latest` | the record of the latest accepted calibration |
+//! | `GET /api/runs/{id}/report.png` | the run's report picture |
+//! | `GET /api/runs/{id}/exports` | the run's result as ROS arguments, URDF joint, tf YAML |
+//! | `GET /api/drift`, `GET /api/drift.png` | every check's drift and the thresholds; as a chart |
 //! | `GET /metrics` | Prometheus text format |
-//! | `GET /` | the web page (for now a pointer to the API) |
+//! | `GET /` (and `/app.js`, `/app.css`, `/favicon.svg`) | the web page, embedded in the binary |
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -28,10 +31,12 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
+use handeye::calib::export::{ExportMeta, Exports};
 use handeye::config::Config;
 use handeye::daemon::{DaemonHandle, Frontend, Refusal, Trigger};
-use handeye::run::{Outcome, RunMode};
-use handeye::store::Store;
+use handeye::report::{DriftLimits, DriftPoint};
+use handeye::run::{Outcome, RunMode, REPORT_PICTURE, RUNS_DIR};
+use handeye::store::{RunStatus, Store};
 use serde_json::json;
 use tokio_util::sync::CancellationToken;
 
@@ -46,10 +51,48 @@ const MAX_RUNS: usize = 1000;
 const NO_TOKEN: &str =
     "no API token configured (daemon.token_file); nothing that moves the arm is accepted";
 
+/// Most checks the drift chart and `GET /api/drift` show (the newest).
+const DRIFT_RUNS: usize = 1000;
+/// Largest drift chart `GET /api/drift.png` draws, px.
+const MAX_CHART: usize = 2000;
+
+/// The web page and its assets, compiled into the binary (cells are offline: nothing comes
+/// from elsewhere).
+const INDEX_HTML: &str = include_str!("web/index.html");
+const APP_JS: &str = include_str!("web/app.js");
+const APP_CSS: &str = include_str!("web/app.css");
+const FAVICON_SVG: &str = include_str!("web/favicon.svg");
+/// The page loads only its own scripts, styles and pictures.
+const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; \
+                   connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'";
+
+/// What the page and the pictures read besides the daemon: the run folders and the drift
+/// thresholds.
+#[derive(Debug, Clone)]
+pub(crate) struct Site {
+    /// `storage.dir`: run folders hold the report pictures (`runs/<id>/report.png`).
+    storage: Option<PathBuf>,
+    /// `[check]`'s thresholds, drawn in the drift chart.
+    drift_limits: DriftLimits,
+}
+
+impl Default for Site {
+    fn default() -> Site {
+        Site {
+            storage: None,
+            drift_limits: DriftLimits {
+                translation_mm: 1.0,
+                rotation_deg: 0.2,
+            },
+        }
+    }
+}
+
 /// The HTTP API: where it listens and the token that requests which move the arm must carry.
 pub(crate) struct Api {
     listen: SocketAddr,
     token: Option<String>,
+    site: Site,
 }
 
 impl std::fmt::Debug for Api {
@@ -57,6 +100,7 @@ impl std::fmt::Debug for Api {
         f.debug_struct("Api")
             .field("listen", &self.listen)
             .field("token", &self.token.as_ref().map(|_| "<redacted>"))
+            .field("site", &self.site)
             .finish()
     }
 }
@@ -64,7 +108,21 @@ impl std::fmt::Debug for Api {
 impl Api {
     /// The API on `listen`; `token: None` refuses everything that moves the arm.
     pub(crate) fn new(listen: SocketAddr, token: Option<String>) -> Api {
-        Api { listen, token }
+        Api {
+            listen,
+            token,
+            site: Site::default(),
+        }
+    }
+
+    /// The same API serving the report pictures from `storage` (the configuration's
+    /// `storage.dir`) and drawing `drift_limits` in the drift chart.
+    pub(crate) fn with_site(mut self, storage: PathBuf, drift_limits: DriftLimits) -> Api {
+        self.site = Site {
+            storage: Some(storage),
+            drift_limits,
+        };
+        self
     }
 
     /// The API as configured: `daemon.listen`, and the token from `$CREDENTIALS_DIRECTORY/token`
@@ -103,7 +161,13 @@ impl Api {
                 "the HTTP API listens on {listen}, reachable from the network (daemon.listen)"
             );
         }
-        Ok(Api::new(listen, token))
+        Ok(Api::new(listen, token).with_site(
+            cfg.storage.dir.clone(),
+            DriftLimits {
+                translation_mm: cfg.check.max_drift_translation_mm,
+                rotation_deg: cfg.check.max_drift_rotation_deg,
+            },
+        ))
     }
 }
 
@@ -167,7 +231,8 @@ impl Frontend for Api {
             Ok(addr) => tracing::info!("HTTP API on http://{addr}/"),
             Err(e) => tracing::warn!("HTTP API listening, address unknown: {e}"),
         }
-        let app = router(handle, self.token).into_make_service_with_connect_info::<SocketAddr>();
+        let app = router(handle, self.token, self.site)
+            .into_make_service_with_connect_info::<SocketAddr>();
         if let Err(e) = axum::serve(listener, app)
             .with_graceful_shutdown(shutdown.cancelled_owned())
             .await
@@ -182,16 +247,25 @@ impl Frontend for Api {
 struct AppState {
     handle: DaemonHandle,
     token: Option<Arc<str>>,
+    site: Arc<Site>,
 }
 
 /// The API's routes over `handle`; `token: None` refuses everything that moves the arm.
-pub(crate) fn router(handle: DaemonHandle, token: Option<String>) -> Router {
+pub(crate) fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router {
     let state = AppState {
         handle,
         token: token.map(Arc::from),
+        site: Arc::new(site),
     };
     Router::new()
         .route("/", get(index))
+        .route("/app.js", get(app_js))
+        .route("/app.css", get(app_css))
+        .route("/favicon.svg", get(favicon))
+        .route("/api/runs/{id}/report.png", get(report_picture))
+        .route("/api/runs/{id}/exports", get(exports))
+        .route("/api/drift", get(drift))
+        .route("/api/drift.png", get(drift_png))
         .route("/api/status", get(status))
         .route("/api/calibrate", post(calibrate))
         .route("/api/check", post(check))
@@ -318,11 +392,252 @@ async fn refuse_large_bodies(req: Request, next: Next) -> Response {
     next.run(req).await
 }
 
-async fn index() -> &'static str {
-    "handeye daemon. The web page is not here yet; the JSON API is: GET /api/status, \
-     POST /api/calibrate, POST /api/check, POST /api/cancel (these three need \
-     `Authorization: Bearer <token>`), GET /api/runs?limit=N&before=UNIX_S, GET /api/runs/{id}, \
-     GET /api/latest, GET /metrics. Or run `handeye status --config FILE`.\n"
+/// An embedded asset with its type; the page is re-read on every load (`no-cache`), so a new
+/// binary's page is never mixed with an old script.
+fn asset(content_type: &'static str, body: &'static str) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static(content_type)),
+            (header::CACHE_CONTROL, HeaderValue::from_static("no-cache")),
+            (
+                header::X_CONTENT_TYPE_OPTIONS,
+                HeaderValue::from_static("nosniff"),
+            ),
+            (
+                header::CONTENT_SECURITY_POLICY,
+                HeaderValue::from_static(CSP),
+            ),
+        ],
+        body,
+    )
+        .into_response()
+}
+
+async fn index() -> Response {
+    asset("text/html; charset=utf-8", INDEX_HTML)
+}
+
+async fn app_js() -> Response {
+    asset("text/javascript; charset=utf-8", APP_JS)
+}
+
+async fn app_css() -> Response {
+    asset("text/css; charset=utf-8", APP_CSS)
+}
+
+async fn favicon() -> Response {
+    asset("image/svg+xml", FAVICON_SVG)
+}
+
+/// A PNG answer; pictures of finished runs never change, charts do (`no-cache`).
+fn png(bytes: Vec<u8>) -> Response {
+    (
+        [
+            (header::CONTENT_TYPE, HeaderValue::from_static("image/png")),
+            (header::CACHE_CONTROL, HeaderValue::from_static("no-cache")),
+        ],
+        bytes,
+    )
+        .into_response()
+}
+
+/// Whether `id` can be a run id (and so a folder name): letters, digits, `-` and `_`.
+fn is_run_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= 64
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
+}
+
+async fn report_picture(
+    State(state): State<AppState>,
+    UrlPath(id): UrlPath<String>,
+) -> Result<Response, ApiError> {
+    let missing = || {
+        ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!(
+                "no report picture for run `{id}`: it is still running, it predates report \
+                 pictures, or its folder was removed; GET /api/runs/{id} has its record"
+            ),
+        )
+    };
+    if !is_run_id(&id) {
+        return Err(missing());
+    }
+    let Some(storage) = &state.site.storage else {
+        return Err(missing());
+    };
+    let path = storage.join(RUNS_DIR).join(&id).join(REPORT_PICTURE);
+    match tokio::fs::read(&path).await {
+        Ok(bytes) => Ok(png(bytes)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(missing()),
+        Err(e) => {
+            tracing::error!("reading {}: {e}", path.display());
+            Err(ApiError::new(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                format!("cannot read the report picture of run `{id}`; see the daemon's log"),
+            ))
+        }
+    }
+}
+
+/// `GET /api/runs/{id}/exports`: the run's result as the files an accepted calibration writes
+/// (ROS 1/2 `static_transform_publisher` arguments, the URDF joint, tf YAML), from its record.
+async fn exports(
+    State(state): State<AppState>,
+    UrlPath(id): UrlPath<String>,
+) -> Result<Response, ApiError> {
+    let key = id.clone();
+    let Some(record) = with_store(&state, move |s| Ok(s.get(&key)?)).await? else {
+        return Err(ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!("no run `{id}` in the history; GET /api/runs lists them"),
+        ));
+    };
+    let result = &record["result"];
+    let eye_to_hand = result["mount"] == "eye_to_hand";
+    let (matrix, parent) = if eye_to_hand {
+        (&result["base_from_camera"], "base")
+    } else {
+        (&result["flange_from_camera"], "tool0")
+    };
+    let pose = serde_json::from_value::<[[f64; 4]; 4]>(matrix.clone())
+        .ok()
+        .and_then(|m| handeye::frames::from_row_major(&m))
+        .ok_or_else(|| {
+            ApiError::new(
+                StatusCode::NOT_FOUND,
+                format!("run `{id}` has no result to export (see its outcome and reasons)"),
+            )
+        })?;
+    let number = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+    let meta = ExportMeta {
+        run_id: id.clone(),
+        outcome: record["outcome"].as_str().unwrap_or("?").to_string(),
+        uncertainty_translation_mm: number(&result["uncertainty"]["translation_mm"]),
+        uncertainty_rotation_deg: number(&result["uncertainty"]["rotation_deg"]),
+        timestamp: id.clone(),
+    };
+    let e = Exports::new(&pose, parent, "camera", meta);
+    Ok(Json(json!({
+        "run_id": id,
+        "outcome": record["outcome"],
+        "transform": e.result().transform,
+        "static_transform_publisher": e.static_transform_publisher(),
+        "urdf_joint": e.urdf_joint(),
+        "tf_yaml": e.tf_yaml(),
+    }))
+    .into_response())
+}
+
+/// Every check's drift (oldest first) and the accepted calibrations' times, from the history.
+async fn drift_data(state: &AppState) -> Result<(Vec<(String, DriftPoint)>, Vec<f64>), ApiError> {
+    let runs = with_store(state, |s| Ok(s.list(DRIFT_RUNS, None)?)).await?;
+    let mut checks = Vec::new();
+    let mut calibrations = Vec::new();
+    for r in runs.iter().rev() {
+        match (r.mode, r.outcome) {
+            (RunMode::Check, _) => {
+                if let (Some(t), Some(d)) = (r.drift_translation_mm, r.drift_rotation_deg) {
+                    checks.push((
+                        r.run_id.clone(),
+                        DriftPoint {
+                            unix_s: r.started_unix_s,
+                            translation_mm: t,
+                            rotation_deg: d,
+                            drifted: r.drifted.unwrap_or(false),
+                        },
+                    ));
+                }
+            }
+            (RunMode::Calibrate, RunStatus::Ended(Outcome::Accepted)) => {
+                calibrations.push(r.started_unix_s)
+            }
+            _ => {}
+        }
+    }
+    Ok((checks, calibrations))
+}
+
+async fn drift(State(state): State<AppState>) -> Result<Response, ApiError> {
+    let (checks, calibrations) = drift_data(&state).await?;
+    let limits = state.site.drift_limits;
+    let checks: Vec<_> = checks
+        .iter()
+        .map(|(id, p)| {
+            json!({
+                "run_id": id,
+                "unix_s": p.unix_s,
+                "translation_mm": p.translation_mm,
+                "rotation_deg": p.rotation_deg,
+                "drifted": p.drifted,
+            })
+        })
+        .collect();
+    Ok(Json(json!({
+        "max_translation_mm": limits.translation_mm,
+        "max_rotation_deg": limits.rotation_deg,
+        "checks": checks,
+        "calibrations_unix_s": calibrations,
+    }))
+    .into_response())
+}
+
+/// `width` and `height` of `GET /api/drift.png` (defaults 900×340).
+fn chart_size(query: Option<&str>) -> Result<(usize, usize), String> {
+    let (mut w, mut h) = (900, 340);
+    for pair in query.unwrap_or("").split('&').filter(|p| !p.is_empty()) {
+        let (key, value) = pair.split_once('=').unwrap_or((pair, ""));
+        let n = value
+            .parse::<usize>()
+            .ok()
+            .filter(|n| (240..=MAX_CHART).contains(n));
+        match (key, n) {
+            ("width", Some(n)) => w = n.max(320),
+            ("height", Some(n)) => h = n,
+            ("t", _) => {} // cache buster of the page
+            _ => {
+                return Err(format!(
+                    "{pair}: use width=N and height=N (240..{MAX_CHART} pixels)"
+                ))
+            }
+        }
+    }
+    Ok((w, h))
+}
+
+async fn drift_png(
+    State(state): State<AppState>,
+    RawQuery(query): RawQuery,
+) -> Result<Response, ApiError> {
+    let (w, h) =
+        chart_size(query.as_deref()).map_err(|m| ApiError::new(StatusCode::BAD_REQUEST, m))?;
+    let (checks, calibrations) = drift_data(&state).await?;
+    let limits = state.site.drift_limits;
+    let points: Vec<DriftPoint> = checks.into_iter().map(|(_, p)| p).collect();
+    let drawn = tokio::task::spawn_blocking(move || {
+        handeye::report::drift_chart(&points, &calibrations, limits, w, h)
+    })
+    .await;
+    match drawn {
+        Ok(Ok(bytes)) => Ok(png(bytes)),
+        Ok(Err(e)) => {
+            tracing::error!("drift chart: {e}");
+            Err(ApiError::new(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "cannot draw the drift chart; see the daemon's log",
+            ))
+        }
+        Err(e) => {
+            tracing::error!("drift chart: {e}");
+            Err(ApiError::new(
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "cannot draw the drift chart; see the daemon's log",
+            ))
+        }
+    }
 }
 
 async fn status(State(state): State<AppState>) -> Response {
@@ -871,7 +1186,29 @@ mod tests {
                 m.body
             );
 
-            assert_eq!(rig.get("/").await.code, 200);
+            let page = rig.get("/").await;
+            assert_eq!(page.code, 200);
+            assert!(page
+                .header("content-type")
+                .is_some_and(|c| c.starts_with("text/html")));
+            assert!(page.header("content-security-policy").is_some());
+            assert!(page.body.contains("/app.js"), "{}", page.body);
+            for asset in ["/app.js", "/app.css", "/favicon.svg"] {
+                assert_eq!(rig.get(asset).await.code, 200, "{asset}");
+            }
+            let drift = rig.get("/api/drift").await.json();
+            assert_eq!(drift["checks"], json!([]), "{drift}");
+            assert_eq!(drift["max_translation_mm"], 1.0);
+            // No storage behind this API, and a run that ended in error has no result.
+            let a = rig.get(&format!("/api/runs/{run_id}/report.png")).await;
+            assert_eq!(a.code, 404, "{a:?}");
+            assert_eq!(rig.get("/api/runs/..%2F..%2Fx/report.png").await.code, 404);
+            let a = rig.get(&format!("/api/runs/{run_id}/exports")).await;
+            assert_eq!(a.code, 404, "{a:?}");
+            assert!(a.json()["error"]
+                .as_str()
+                .is_some_and(|e| e.contains("no result")));
+            assert_eq!(rig.get("/api/drift.png?width=5").await.code, 400);
             let a = rig.get("/api/nothing").await;
             assert_eq!(a.code, 404);
             assert!(a.json()["error"].is_string());

@@ -73,6 +73,10 @@ pub(crate) struct Args {
     /// Print one JSON object instead of a summary.
     #[arg(long)]
     json: bool,
+    /// Also write the report picture (PNG): the first scan as the camera saw it, coloured by
+    /// distance to the posed model, with the model's outline, the residuals and the numbers.
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
 }
 
 /// Picks the value for frame `i` from a list given once or once per frame.
@@ -329,11 +333,51 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
     } else {
         print!("{}", calibration.report.summary());
     }
+    if let Some(path) = &args.report {
+        write_report(path, &inputs, &opts, &calibration)?;
+    }
     Ok(if calibration.verdict.passed() {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(1)
     })
+}
+
+/// `--report`: the picture of the first frame and the result.
+fn write_report(
+    path: &Path,
+    inputs: &Inputs,
+    opts: &PipelineOptions,
+    calibration: &handeye::run::Calibration,
+) -> anyhow::Result<()> {
+    let (Some(frame), Some(registration)) =
+        (inputs.frames.first(), calibration.registrations.first())
+    else {
+        bail!("no frame to draw in {}", path.display());
+    };
+    let caption = format!(
+        "view {}, frame 1 of {}: {}",
+        frame.view,
+        inputs.frames.len(),
+        frame.source
+    );
+    let view = handeye::report::scan_view(
+        &inputs.model,
+        &frame.joints,
+        opts.controller_dh.as_ref(),
+        &frame.cloud,
+        registration,
+        &caption,
+    )?;
+    let name = Path::new(&frame.source)
+        .file_name()
+        .map_or(frame.source.clone(), |n| n.to_string_lossy().into_owned());
+    let summary = handeye::report::Summary::from_report(&calibration.report, &name);
+    let png = handeye::report::render(&summary, Some(&view))?;
+    std::fs::write(path, png)
+        .with_context(|| format!("writing the report picture {}", path.display()))?;
+    eprintln!("report picture: {}", path.display());
+    Ok(())
 }
 
 #[cfg(test)]
@@ -359,6 +403,7 @@ mod tests {
             max_camera_flange_distance: None,
             eye_to_hand: false,
             json: true,
+            report: None,
         }
     }
 

@@ -46,7 +46,9 @@ pub use record::{
     ResultRecord, RunMode, RunRecord, RunTimings, Stage, Written,
 };
 pub(crate) use storage::civil_from_days;
-pub use storage::{load_capture, load_current, new_run_id, CaptureFile, CURRENT_DIR, RUNS_DIR};
+pub use storage::{
+    load_capture, load_current, new_run_id, CaptureFile, CURRENT_DIR, REPORT_PICTURE, RUNS_DIR,
+};
 
 /// Generated candidates tried per automatic view before the plan gives up.
 const AUTO_VIEW_TRIES: usize = 8;
@@ -199,6 +201,8 @@ struct Context<'a, R, C> {
     run_dir: PathBuf,
     /// Whether a move was commanded (the arm may have moved even if the move failed).
     moved: bool,
+    /// The scan the report picture shows, once registered.
+    picture: Option<storage::PictureScan>,
 }
 
 /// Runs one calibration or check on `robot` and `camera` for `model` as `cfg` says. Returns the
@@ -250,6 +254,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
         record,
         run_dir: cfg.storage.dir.join(RUNS_DIR).join(&run_id),
         moved: false,
+        picture: None,
     };
     let span = tracing::info_span!("calibration", run_id = %run_id);
     let result = tracing::Instrument::instrument(cx.steps(), span).await;
@@ -271,6 +276,16 @@ pub async fn run<R: Robot, C: DepthCamera>(
         cx.record
             .reasons
             .push(format!("the run record could not be written: {e}"));
+    }
+    // The picture comes last: whatever happens to it, the run and its write-back are done.
+    let (picture, record, dir) = (cx.picture.take(), cx.record.clone(), cx.run_dir.clone());
+    let model = Arc::clone(model);
+    if let Err(e) = tokio::task::spawn_blocking(move || {
+        storage::write_report_picture(&dir, &record, &model, picture.as_ref());
+    })
+    .await
+    {
+        tracing::error!("the report picture failed: {e}");
     }
     cx.record
 }
@@ -300,6 +315,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         self.progress
             .stage(Stage::Register, &format!("registering {n} frame(s)"));
         let opts = self.pipeline_options(controller_dh, reference.as_ref());
+        let (first_frame, picture_dh) = (frames.first().cloned(), opts.controller_dh);
         let model = self.model.clone();
         let calibration = cancellable(self.cancel, Stage::Register, async move {
             tokio::task::spawn_blocking(move || calibrate_frames(&model, &frames, &opts))
@@ -310,6 +326,13 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 .map_err(|e| Failure::error(Stage::Register, error_chain(&e)))
         })
         .await?;
+        self.picture = first_frame
+            .zip(calibration.registrations.first().cloned())
+            .map(|(frame, registration)| storage::PictureScan {
+                frame,
+                registration,
+                controller_dh: picture_dh,
+            });
         let reg_ms: f64 = calibration
             .registrations
             .iter()

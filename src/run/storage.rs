@@ -5,6 +5,7 @@
 //! <storage>/runs/<run_id>/capture.json       joints and flange poses per view (replay)
 //! <storage>/runs/<run_id>/view<V>_frame<F>.ply  the raw scans (when kept)
 //! <storage>/runs/<run_id>/result.*           the exports of an accepted calibration
+//! <storage>/runs/<run_id>/report.png         the report picture (every run)
 //! <storage>/current/                         the exports of the last accepted calibration
 //! ```
 //!
@@ -28,6 +29,8 @@ pub const CURRENT_DIR: &str = "current";
 const CAPTURE_FILE: &str = "capture.json";
 const RECORD_FILE: &str = "record.json";
 const CALIBRATION_FILE: &str = "calibration.json";
+/// The report picture in a run's folder.
+pub const REPORT_PICTURE: &str = "report.png";
 
 /// What `capture.json` holds: enough to replay a run with `handeye solve --capture`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -105,6 +108,67 @@ fn json<T: Serialize>(value: &T) -> std::io::Result<Vec<u8>> {
 /// Writes the run record.
 pub(crate) fn write_record(run_dir: &Path, record: &RunRecord) -> std::io::Result<()> {
     write_atomically(&run_dir.join(RECORD_FILE), &json(record)?)
+}
+
+/// The scan a run's report picture shows: its first frame, that frame's registration and the
+/// kinematics the model was posed with.
+#[derive(Debug)]
+pub(crate) struct PictureScan {
+    pub(crate) frame: super::Frame,
+    pub(crate) registration: crate::calib::Registration,
+    pub(crate) controller_dh: Option<handeye_hal::ur_dh::DhParams>,
+}
+
+/// Renders the run's report picture into `run_dir/report.png` (blocking; a few hundred ms with
+/// a scan). Never fails the run: what goes wrong is logged.
+pub(crate) fn write_report_picture(
+    run_dir: &Path,
+    record: &RunRecord,
+    model: &crate::model::RobotModel,
+    scan: Option<&PictureScan>,
+) {
+    let t = std::time::Instant::now();
+    let view = scan.and_then(|s| {
+        let frames = record
+            .captures
+            .iter()
+            .map(|c| c.frames.len())
+            .sum::<usize>();
+        let caption = format!(
+            "view {}, frame 1 of {frames}: {}",
+            s.frame.view, s.frame.source
+        );
+        match crate::report::scan_view(
+            model,
+            &s.frame.joints,
+            s.controller_dh.as_ref(),
+            &s.frame.cloud,
+            &s.registration,
+            &caption,
+        ) {
+            Ok(v) => Some(v),
+            Err(e) => {
+                tracing::warn!("report picture without the scan: {e}");
+                None
+            }
+        }
+    });
+    let summary = crate::report::Summary::from_run(record);
+    let written = crate::report::render(&summary, view.as_ref())
+        .map_err(|e| e.to_string())
+        .and_then(|png| {
+            write_atomically(&run_dir.join(REPORT_PICTURE), &png).map_err(|e| e.to_string())
+        });
+    match written {
+        Ok(()) => tracing::debug!(
+            ms = t.elapsed().as_secs_f64() * 1e3,
+            "report picture written"
+        ),
+        Err(e) => tracing::error!(
+            "cannot write the report picture into {}: {e}",
+            run_dir.display()
+        ),
+    }
 }
 
 /// Keeps one raw frame as a binary PLY; returns its path.

@@ -1,0 +1,371 @@
+// handeye web page: polls the daemon's JSON API once a second and redraws what changed.
+// No framework, no external file: the daemon serves this file from its binary.
+"use strict";
+
+const STAGES = ["preflight", "plan", "move", "settle", "capture", "register", "solve", "write_back", "return"];
+const POLL_MS = 1000;
+const TOKEN_KEY = "handeye-token";
+
+const $ = (id) => document.getElementById(id);
+let token = sessionStorage.getItem(TOKEN_KEY);
+let pending = null;       // the action waiting for the token
+let lastSeen = undefined; // last.run_id the page last drew
+let latestCal = undefined;
+let failures = 0;
+
+function text(el, s) { el.textContent = s; }
+function show(el, on) { el.hidden = !on; }
+function fmt(v, digits) { return (typeof v === "number" && isFinite(v)) ? v.toFixed(digits) : "-"; }
+function when(unixS) {
+  if (typeof unixS !== "number") return "-";
+  const d = new Date(unixS * 1000);
+  const pad = (n) => String(n).padStart(2, "0");
+  return `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} ${pad(d.getHours())}:${pad(d.getMinutes())}:${pad(d.getSeconds())}`;
+}
+function toneOf(outcome, drifted) {
+  if (outcome === "accepted") return drifted ? "bad" : "good";
+  if (outcome === "aborted") return "warn";
+  if (outcome === "running" || outcome === "planned") return "muted";
+  return "bad";
+}
+function chip(id, label, tone) {
+  const el = $(id);
+  text(el, label);
+  el.dataset.tone = tone;
+}
+async function getJson(path) {
+  const r = await fetch(path, { cache: "no-store" });
+  if (!r.ok) {
+    const body = await r.json().catch(() => ({}));
+    const e = new Error(body.error || `${r.status} ${r.statusText}`);
+    e.status = r.status;
+    throw e;
+  }
+  return r.json();
+}
+
+// ---- actions: the token is asked once, then sent as the bearer token ----
+function message(s, tone) {
+  const el = $("message");
+  text(el, s);
+  el.dataset.tone = tone || "";
+  show(el, true);
+}
+
+function ask(action) {
+  pending = action;
+  text($("token-action"), action);
+  show($("token-box"), true);
+  $("token").value = "";
+  $("token").focus();
+}
+
+async function act(action) {
+  if (token === null) { ask(action); return; }
+  const path = { calibrate: "/api/calibrate", check: "/api/check", cancel: "/api/cancel" }[action];
+  const headers = token ? { Authorization: `Bearer ${token}` } : {};
+  let r, body;
+  try {
+    r = await fetch(path, { method: "POST", headers, cache: "no-store" });
+    body = await r.json().catch(() => ({}));
+  } catch (e) {
+    message(`Not sent: the daemon does not answer (${e.message}).`, "bad");
+    return;
+  }
+  if (r.status === 401 || r.status === 403) {
+    // A refused token is forgotten: the next press asks again.
+    token = null;
+    sessionStorage.removeItem(TOKEN_KEY);
+    message(`Refused (${r.status}): ${body.error || r.statusText}. Nothing moved.`, "bad");
+    return;
+  }
+  if (!r.ok) {
+    message(`Refused (${r.status}): ${body.error || r.statusText}`, "bad");
+    return;
+  }
+  if (token) sessionStorage.setItem(TOKEN_KEY, token);
+  if (action === "cancel") {
+    message(body.cancelled ? "Cancel sent: the arm is stopped where it is." : "Nothing was running.", "good");
+  } else {
+    message(`${action === "check" ? "Check" : "Calibration"} accepted: run ${body.run_id}.`, "good");
+  }
+  poll();
+}
+
+function wireActions() {
+  $("btn-calibrate").addEventListener("click", () => act("calibrate"));
+  $("btn-check").addEventListener("click", () => act("check"));
+  $("btn-cancel").addEventListener("click", () => act("cancel"));
+  $("token-box").addEventListener("submit", (ev) => {
+    ev.preventDefault();
+    token = $("token").value.trim();
+    show($("token-box"), false);
+    const action = pending;
+    pending = null;
+    if (action) act(action);
+  });
+  $("token-cancel").addEventListener("click", () => {
+    show($("token-box"), false);
+    pending = null;
+    message("Not sent: no token given. Nothing moved.", "");
+  });
+  document.querySelectorAll("button[data-copy]").forEach((b) => {
+    b.addEventListener("click", () => copy($(b.dataset.copy).textContent, b));
+  });
+  $("run-close").addEventListener("click", () => $("run-dialog").close());
+}
+
+async function copy(s, button) {
+  try {
+    await navigator.clipboard.writeText(s);
+  } catch (_) {
+    // Not a secure context (plain http from another host): select it for Ctrl+C.
+    const ta = document.createElement("textarea");
+    ta.value = s;
+    document.body.appendChild(ta);
+    ta.select();
+    try { document.execCommand("copy"); } catch (_) { /* left selected */ }
+    ta.remove();
+  }
+  const was = button.textContent;
+  text(button, "Copied");
+  setTimeout(() => text(button, was), 1200);
+}
+
+// ---- status ----
+function drawStatus(st) {
+  const running = st.state === "running";
+  chip("chip-daemon", `daemon: ${st.state}`, running ? "busy" : st.state === "idle" ? "good" : "warn");
+  chip("chip-robot", `robot: ${st.robot_connected ? "connected" : "not connected"}`, st.robot_connected ? "good" : "bad");
+  chip("chip-camera", `camera: ${st.camera_connected ? "connected" : "not connected"}`, st.camera_connected ? "good" : "bad");
+  show($("chip-alarm"), !!st.drift_alarm);
+  $("btn-calibrate").disabled = running;
+  $("btn-check").disabled = running;
+  $("btn-cancel").disabled = !running;
+
+  const now = $("now");
+  const stages = $("stages");
+  stages.replaceChildren();
+  const cur = st.current;
+  const at = cur && cur.stage ? STAGES.indexOf(cur.stage) : -1;
+  STAGES.forEach((s, i) => {
+    const li = document.createElement("li");
+    text(li, s.replace("_", " "));
+    if (cur && i < at) li.className = "done";
+    if (cur && i === at) li.className = "active";
+    stages.appendChild(li);
+  });
+  if (cur) {
+    now.replaceChildren();
+    const head = document.createElement("span");
+    const step = at >= 0 ? ` - stage ${at + 1} of ${STAGES.length}: ${cur.stage.replace("_", " ")}` : "";
+    text(head, `${cur.mode} ${cur.run_id} (${cur.trigger})${step}`);
+    const detail = document.createElement("span");
+    detail.className = "detail";
+    text(detail, cur.detail || "");
+    now.append(head, detail);
+  } else {
+    text(now, st.state === "idle" ? "Idle: ready for a run." : st.state);
+  }
+
+  const last = $("last");
+  last.replaceChildren();
+  if (st.last) {
+    const l = st.last;
+    const o = document.createElement("span");
+    const drifted = l.drift ? l.drift[2] : false;
+    o.className = `outcome tone-${toneOf(l.outcome, drifted)}`;
+    text(o, drifted ? "drifted" : l.outcome);
+    const info = document.createElement("span");
+    let d = "";
+    if (l.drift) d = `, drift ${fmt(l.drift[0], 3)} mm / ${fmt(l.drift[1], 4)}°`;
+    text(info, ` ${l.mode} ${l.run_id}, ${when(l.finished_unix_s)}, ${fmt(l.duration_ms / 1000, 1)} s${d}`);
+    last.append(o, info);
+    (l.reasons || []).slice(0, 3).forEach((r) => {
+      const div = document.createElement("div");
+      div.className = "reason";
+      text(div, r);
+      last.appendChild(div);
+    });
+  } else {
+    text(last, "No run since the daemon started.");
+  }
+}
+
+function drawPicture(runId) {
+  if (!runId) { show($("picture-link"), false); show($("picture-none"), true); return; }
+  const src = `/api/runs/${encodeURIComponent(runId)}/report.png`;
+  const img = $("picture");
+  img.onerror = () => { show($("picture-link"), false); text($("picture-none"), `Run ${runId} has no report picture.`); show($("picture-none"), true); };
+  img.onload = () => { show($("picture-link"), true); show($("picture-none"), false); };
+  img.src = src;
+  img.dataset.run = runId;
+  $("picture-link").href = src;
+  text($("picture-run"), runId);
+}
+
+// ---- history ----
+function driftText(r) {
+  if (r.drift_translation_mm != null) {
+    return `drift ${fmt(r.drift_translation_mm, 3)} mm / ${fmt(r.drift_rotation_deg, 4)}°${r.drifted ? " (over the limit)" : ""}`;
+  }
+  if (r.reason) return r.reason;
+  if (r.uncertainty_translation_mm != null) {
+    return `±${fmt(r.uncertainty_translation_mm, 3)} mm / ±${fmt(r.uncertainty_rotation_deg, 4)}° (1σ)`;
+  }
+  return "";
+}
+
+async function drawHistory(fresh) {
+  const data = await getJson("/api/runs?limit=50");
+  const body = $("history").tBodies[0];
+  body.replaceChildren();
+  for (const r of data.runs) {
+    const tr = document.createElement("tr");
+    tr.dataset.run = r.run_id;
+    if (r.run_id === fresh) tr.className = "fresh";
+    const cells = [
+      [when(r.started_unix_s), "when"],
+      [r.mode, ""],
+      [r.trigger, ""],
+      [r.drifted ? "drifted" : r.outcome, `outcome tone-${toneOf(r.outcome, r.drifted)}`],
+      [driftText(r), "detail"],
+      [r.duration_ms != null ? `${fmt(r.duration_ms / 1000, 1)} s` : "-", ""],
+      [r.run_id, "run"],
+    ];
+    for (const [v, cls] of cells) {
+      const td = document.createElement("td");
+      if (cls) td.className = cls;
+      text(td, v);
+      tr.appendChild(td);
+    }
+    tr.addEventListener("click", () => openRun(r.run_id));
+    body.appendChild(tr);
+  }
+  if (!data.runs.length) {
+    const tr = document.createElement("tr");
+    const td = document.createElement("td");
+    td.colSpan = 7;
+    td.className = "tone-muted";
+    text(td, "No runs recorded yet.");
+    tr.appendChild(td);
+    body.appendChild(tr);
+  }
+}
+
+async function openRun(runId) {
+  const dlg = $("run-dialog");
+  text($("run-title"), `Run ${runId}`);
+  text($("run-record"), "loading");
+  $("run-reasons").replaceChildren();
+  const src = `/api/runs/${encodeURIComponent(runId)}/report.png`;
+  const img = $("run-picture");
+  img.onerror = () => { show($("run-picture-link"), false); show($("run-picture-none"), true); };
+  img.onload = () => { show($("run-picture-link"), true); show($("run-picture-none"), false); };
+  img.src = src;
+  $("run-picture-link").href = src;
+  $("run-json").href = `/api/runs/${encodeURIComponent(runId)}`;
+  if (!dlg.open) dlg.showModal();
+  try {
+    const rec = await getJson(`/api/runs/${encodeURIComponent(runId)}`);
+    text($("run-title"), `${rec.mode || "run"} ${runId}: ${rec.outcome}`);
+    for (const r of rec.reasons || []) {
+      const div = document.createElement("div");
+      text(div, r);
+      $("run-reasons").appendChild(div);
+    }
+    text($("run-record"), JSON.stringify(rec, null, 2));
+  } catch (e) {
+    text($("run-record"), `cannot read the record: ${e.message}`);
+  }
+}
+
+// ---- current calibration ----
+async function drawCalibration() {
+  let rec;
+  try {
+    rec = await getJson("/api/latest");
+  } catch (e) {
+    if (e.status === 404) { show($("cal-body"), false); show($("cal-none"), true); text($("cal-run"), ""); return; }
+    throw e;
+  }
+  if (rec.run_id === latestCal) return;
+  const ex = await getJson(`/api/runs/${encodeURIComponent(rec.run_id)}/exports`);
+  latestCal = rec.run_id;
+  const p = rec.result.ur_pose;
+  text($("cal-x"), `${fmt(p[0] * 1000, 3)} mm`);
+  text($("cal-y"), `${fmt(p[1] * 1000, 3)} mm`);
+  text($("cal-z"), `${fmt(p[2] * 1000, 3)} mm`);
+  text($("cal-rx"), `${fmt(p[3], 6)} rad`);
+  text($("cal-ry"), `${fmt(p[4], 6)} rad`);
+  text($("cal-rz"), `${fmt(p[5], 6)} rad`);
+  const u = rec.result.uncertainty;
+  const q = rec.result.report.quality;
+  text($("cal-meta"), `uncertainty (1σ) ${fmt(u.translation_mm, 3)} mm / ${fmt(u.rotation_deg, 4)}°, coverage ${fmt(q.coverage * 100, 1)} %, rms ${fmt(q.rmse_mm, 3)} mm; written: ${(rec.written || []).map((w) => w.target).join(", ") || "nothing"}`);
+  const eyeToHand = rec.result.mount === "eye_to_hand";
+  text($("cal-unknown"), eyeToHand ? "base_from_camera" : "flange_from_camera (camera in tool0)");
+  const m = ex.transform.matrix_row_major;
+  text($("cal-matrix"), m.map((row) => row.map((v) => v.toFixed(6).padStart(10)).join(" ")).join("\n"));
+  text($("exp-ur"), ex.transform.ur_pose);
+  text($("exp-ros"), ex.static_transform_publisher.trim());
+  text($("exp-urdf"), ex.urdf_joint.trim());
+  text($("cal-run"), `run ${rec.run_id}`);
+  show($("cal-none"), false);
+  show($("cal-body"), true);
+}
+
+// ---- drift ----
+async function drawDrift() {
+  const img = $("drift");
+  const w = Math.max(480, Math.min(1400, Math.round(img.clientWidth || 900)));
+  img.src = `/api/drift.png?width=${w}&height=340&t=${Date.now()}`;
+  const d = await getJson("/api/drift");
+  const n = d.checks.length;
+  const last = n ? d.checks[n - 1] : null;
+  text($("drift-text"), n
+    ? `${n} check(s); the last: ${fmt(last.translation_mm, 3)} mm / ${fmt(last.rotation_deg, 4)}° (limits ${d.max_translation_mm} mm / ${d.max_rotation_deg}°).`
+    : `No checks yet (limits ${d.max_translation_mm} mm / ${d.max_rotation_deg}°).`);
+}
+
+// ---- the loop ----
+async function poll() {
+  let st;
+  try {
+    st = await getJson("/api/status");
+    failures = 0;
+    const t = new Date();
+    chip("chip-link", `page: live ${t.toLocaleTimeString()}`, "good");
+  } catch (e) {
+    failures += 1;
+    chip("chip-link", `page: no answer from the daemon (${failures})`, "bad");
+    chip("chip-daemon", "daemon: unknown", "muted");
+    chip("chip-robot", "robot: unknown", "muted");
+    chip("chip-camera", "camera: unknown", "muted");
+    return;
+  }
+  drawStatus(st);
+  const lastId = st.last ? st.last.run_id : null;
+  const runningId = st.current ? st.current.run_id : null;
+  const key = `${lastId}|${runningId}`;
+  if (key !== lastSeen) {
+    lastSeen = key;
+    try {
+      await drawHistory(lastId);
+      if (lastId) {
+        drawPicture(lastId);
+      } else {
+        // Right after a restart the status has no last run: the history has.
+        const first = $("history").tBodies[0].rows[0];
+        drawPicture(first && first.dataset.run ? first.dataset.run : null);
+      }
+      await drawCalibration();
+      await drawDrift();
+    } catch (e) {
+      message(`Cannot read the history: ${e.message}`, "bad");
+    }
+  }
+}
+
+wireActions();
+poll();
+setInterval(poll, POLL_MS);

@@ -1,0 +1,217 @@
+use std::path::PathBuf;
+
+use nalgebra::{Isometry3, Vector3};
+
+use super::*;
+use crate::run::{calibrate_frames, Frame, PipelineOptions};
+use crate::sim::{
+    simulate_scan, CellOptions, Intrinsics, KinematicError, Placement, ScanNoise, ScanRequest,
+};
+use crate::testutil::shared_robot;
+
+/// Where the tests leave their pictures for a person to look at.
+fn out_dir() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/report-test");
+    std::fs::create_dir_all(&dir).expect("target/report-test");
+    dir
+}
+
+fn decode(bytes: &[u8]) -> (u32, u32, Vec<u8>) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .expect("a PNG");
+    let mut buf = vec![0; reader.output_buffer_size().expect("size")];
+    let info = reader.next_frame(&mut buf).expect("a frame");
+    assert_eq!(info.color_type, png::ColorType::Rgb);
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+fn pixel(img: &(u32, u32, Vec<u8>), x: u32, y: u32) -> [u8; 3] {
+    let i = ((y * img.0 + x) * 3) as usize;
+    [img.2[i], img.2[i + 1], img.2[i + 2]]
+}
+
+/// Share of the scan points within 5 mm of the model that are within 1 mm.
+fn tight_share(view: &ScanView) -> f64 {
+    let d = view.distances(5.0);
+    d.iter().filter(|v| **v <= 1.0).count() as f64 / d.len().max(1) as f64
+}
+
+#[test]
+fn a_right_fit_looks_right_and_a_wrong_one_wrong() {
+    let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+        return;
+    };
+    let mount = Isometry3::new(
+        Vector3::new(0.0, -0.08, 0.03),
+        Vector3::new(-15f64.to_radians(), 0.0, 0.0),
+    );
+    let intr = Intrinsics::compact_1280x960();
+    let planner =
+        crate::plan::ViewPlanner::new(&model, mount, intr, crate::plan::ViewConstraints::default());
+    let q = planner.generate(1, 5).expect("a view").remove(0);
+    let sim = simulate_scan(&ScanRequest {
+        model: &model,
+        joints: q.clone(),
+        placement: Placement::EyeInHand {
+            flange_from_camera: mount,
+        },
+        intrinsics: intr,
+        noise: ScanNoise::default(),
+        cell: CellOptions::default(),
+        kinematic_error: KinematicError::none(),
+        controller_dh: None,
+        seed: 4,
+    })
+    .expect("simulated");
+    let frame = Frame {
+        view: 0,
+        cloud: sim.cloud.clone(),
+        joints: q.clone(),
+        model_from_flange: Some(sim.truth.model_from_flange_reported),
+        source: "simulated".into(),
+    };
+    let calibration = calibrate_frames(
+        &model,
+        std::slice::from_ref(&frame),
+        &PipelineOptions::new(Mount::EyeInHand),
+    )
+    .expect("calibrates");
+    assert!(calibration.verdict.passed(), "{:?}", calibration.verdict);
+
+    let t = std::time::Instant::now();
+    let right = scan_view(
+        &model,
+        &q,
+        None,
+        &sim.cloud,
+        &calibration.registrations[0],
+        "view 0, frame 0: simulated UR5e scan",
+    )
+    .expect("scan view");
+    let summary = Summary::from_report(&calibration.report, "simulated UR5e scan");
+    let png_right = render(&summary, Some(&right)).expect("renders");
+    eprintln!(
+        "report: scan view + render {:.0} ms, {} bytes",
+        t.elapsed().as_secs_f64() * 1e3,
+        png_right.len()
+    );
+
+    // The model 2 cm and 8° away from where registration put it: the picture a wrong fit gives.
+    let off = Isometry3::new(Vector3::new(0.02, 0.0, 0.0), Vector3::new(0.0, 0.0, 0.14));
+    let mut misplaced = calibration.registrations[0].clone();
+    misplaced.camera_from_model *= off;
+    let wrong = scan_view(
+        &model,
+        &q,
+        None,
+        &sim.cloud,
+        &misplaced,
+        "view 0, frame 0: the model misplaced by 2 cm / 8°",
+    )
+    .expect("scan view");
+    let mut rejected = summary.clone();
+    rejected.outcome = Outcome::Rejected;
+    rejected.headline = "REJECTED".into();
+    rejected.reasons = vec![
+        "coverage 31 % is below 60 %: the scan does not show the model where it was fitted".into(),
+    ];
+    let png_wrong = render(&rejected, Some(&wrong)).expect("renders");
+    let dir = out_dir();
+    std::fs::write(dir.join("right.png"), &png_right).expect("write");
+    std::fs::write(dir.join("wrong.png"), &png_wrong).expect("write");
+
+    // The right fit: the robot's points hug the model; the wrong one: they do not.
+    let (r, w) = (tight_share(&right), tight_share(&wrong));
+    eprintln!("points within 1 mm (of those within 5 mm): right {r:.2}, wrong {w:.2}");
+    assert!(r > 0.8, "right fit: {r}");
+    assert!(w < 0.4, "wrong fit: {w}");
+    assert!(right.edge_pixels() > 500, "an outline is drawn");
+    assert!(right.valid() > 100_000, "{}", right.valid());
+
+    let a = decode(&png_right);
+    let b = decode(&png_wrong);
+    assert_eq!((a.0, a.1), (REPORT_WIDTH as u32, REPORT_HEIGHT as u32));
+    // The verdict bar under the header: green for accepted, red for rejected.
+    assert_eq!(pixel(&a, 5, 61), GOOD);
+    assert_eq!(pixel(&b, 5, 61), BAD);
+    // The right fit's scan is mostly blue (≤ 1 mm), the wrong one's is not.
+    let blue = |img: &(u32, u32, Vec<u8>)| {
+        let mut n = 0;
+        for y in 80..560 {
+            for x in 16..656 {
+                let p = pixel(img, x, y);
+                if p[2] > 120 && u16::from(p[2]) > u16::from(p[0]) + 60 && p[2] > p[1] {
+                    n += 1;
+                }
+            }
+        }
+        n
+    };
+    let (blue_right, blue_wrong) = (blue(&a), blue(&b));
+    assert!(
+        blue_right > 3 * blue_wrong,
+        "blue pixels: right {blue_right}, wrong {blue_wrong}"
+    );
+}
+
+#[test]
+fn a_run_without_a_scan_still_gets_a_picture() {
+    let summary = Summary {
+        title: "calibration 20261124T142300Z-3f9a".into(),
+        subtitle: "2026-11-24 14:23:00 UTC  |  /etc/handeye/handeye.toml".into(),
+        outcome: Outcome::Error,
+        headline: "ERROR".into(),
+        reasons: vec![
+            "preflight: robot is in local control; enable Remote Control on the teach pendant"
+                .into(),
+        ],
+        result: None,
+        drift: None,
+        notes: vec!["failed at stage: preflight".into()],
+    };
+    let png = render(&summary, None).expect("renders");
+    let img = decode(&png);
+    assert_eq!((img.0, img.1), (REPORT_WIDTH as u32, REPORT_HEIGHT as u32));
+    assert_eq!(pixel(&img, 5, 61), BAD);
+    std::fs::write(out_dir().join("error.png"), &png).expect("write");
+}
+
+#[test]
+fn the_drift_chart_shows_checks_against_the_limits() {
+    let limits = DriftLimits {
+        translation_mm: 1.0,
+        rotation_deg: 0.2,
+    };
+    let t0 = 1_795_000_000.0;
+    let points: Vec<DriftPoint> = (0..12)
+        .map(|k| {
+            let slip = if k >= 9 { 2.0 } else { 0.05 * f64::from(k) };
+            DriftPoint {
+                unix_s: t0 + 3600.0 * f64::from(k),
+                translation_mm: slip,
+                rotation_deg: slip * 0.25,
+                drifted: k >= 9,
+            }
+        })
+        .collect();
+    let png = drift_chart(&points, &[t0 - 600.0], limits, 900, 360).expect("renders");
+    std::fs::write(out_dir().join("drift.png"), &png).expect("write");
+    let img = decode(&png);
+    assert_eq!((img.0, img.1), (900, 360));
+    let count = |c: [u8; 3]| {
+        (0..img.1)
+            .flat_map(|y| (0..img.0).map(move |x| (x, y)))
+            .filter(|&(x, y)| pixel(&img, x, y) == c)
+            .count()
+    };
+    // Three drifted checks in red dots, nine in green, and the red limit lines.
+    assert!(count(GOOD) > 9 * 2 * 20, "green {}", count(GOOD));
+    assert!(count(BAD) > 3 * 2 * 20 + 400, "red {}", count(BAD));
+    let empty = drift_chart(&[], &[], limits, 900, 360).expect("renders");
+    assert!(
+        decode(&empty).2.iter().any(|v| *v < 200),
+        "says no checks yet"
+    );
+}
