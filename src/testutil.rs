@@ -17,11 +17,19 @@ pub(crate) fn shared_robots() -> Option<PathBuf> {
         "{} is missing and CI is set",
         dir.display()
     );
-    eprintln!(
+    skip(&format!(
         "SKIP: {} not found; this test needs ../shared/robots",
         dir.display()
-    );
+    ));
     None
+}
+
+/// Prints a SKIP line where the person running the tests sees it: straight to the process's
+/// stderr, which the test harness does not capture (`eprintln!` output is shown only for
+/// failing tests, so a passing skip would be silent).
+pub(crate) fn skip(line: &str) {
+    use std::io::Write as _;
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// A robot from `../shared/robots` (e.g. `ur/ur5e/ur5e.urdf`), loaded once per test binary.

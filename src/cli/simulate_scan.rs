@@ -12,12 +12,15 @@ use handeye::model::RobotModel;
 use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings, SimulatedScan};
 use handeye_hal::ur_dh::DhParams;
 
-use super::args::{parse_joints, parse_pose, JointList};
+use handeye_hal::UrPose;
+
+use super::args::{parse_joints, parse_pose, resolve_robot, JointList};
 
 /// Render a simulated scan of a robot seen by a 3D camera.
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
-    /// Robot URDF (meshes resolved relative to it).
+    /// Robot: a URDF (meshes resolved relative to it) or a robot name (`ur5e`) under the
+    /// robots directory.
     #[arg(long)]
     robot: PathBuf,
     /// Joint angles in radians, comma-separated, URDF chain order.
@@ -53,7 +56,8 @@ pub(crate) struct Args {
 }
 
 pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let model = RobotModel::load(&args.robot)?;
+    let urdf = resolve_robot(&args.robot.to_string_lossy()).map_err(anyhow::Error::msg)?;
+    let model = RobotModel::load(&urdf)?;
     let intrinsics = Intrinsics::preset(&args.camera).with_context(|| {
         format!(
             "unknown camera preset `{}`; use zivid2-m60 or compact",
@@ -95,15 +99,54 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let gt = ground_truth_json(&model, &req, &scan, &settings);
     std::fs::write(&gt_path, serde_json::to_string_pretty(&gt)?)
         .with_context(|| format!("writing {}", gt_path.display()))?;
+    let seen = base_in_view(&model, &scan);
     println!(
-        "wrote {} ({}×{}, {} valid points) and {}",
+        "wrote {} ({}×{}, {} valid points; the robot's base and shoulder cover {:.1} % of the image) and {}",
         args.out.display(),
         scan.cloud.width,
         scan.cloud.height,
         scan.cloud.valid_count(),
+        100.0 * seen,
         gt_path.display()
     );
+    if seen < MIN_BASE_IN_VIEW {
+        eprintln!(
+            "warning: the robot's base and shoulder cover {:.2} % of the image (less than {} %): \
+             `solve` registers the base and the first links and will not find the robot in this \
+             scan; choose joints from which the camera looks at the base from 0.4–0.8 m",
+            100.0 * seen,
+            100.0 * MIN_BASE_IN_VIEW
+        );
+    }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Below this fraction of the image showing the base and shoulder (measured points),
+/// `simulate-scan` warns that the robot is not in view.
+const MIN_BASE_IN_VIEW: f64 = 0.01;
+
+/// Fraction of the image's pixels with a measured point on the robot's base or shoulder
+/// (links at chain depth 0 or 1): what registration needs to see.
+fn base_in_view(model: &RobotModel, scan: &SimulatedScan) -> f64 {
+    let is_base: Vec<bool> = scan
+        .objects
+        .iter()
+        .map(|o| {
+            o.strip_prefix("link:")
+                .and_then(|l| model.chain_depth(l))
+                .is_some_and(|d| d <= 1)
+        })
+        .collect();
+    let n = scan
+        .labels
+        .iter()
+        .zip(&scan.cloud.points)
+        .filter(|(l, p)| {
+            is_base.get(**l as usize).copied().unwrap_or(false)
+                && p.coords.iter().all(|c| c.is_finite())
+        })
+        .count();
+    n as f64 / scan.labels.len().max(1) as f64
 }
 
 /// `scan.ply` → `scan.gt.json`.
@@ -133,6 +176,8 @@ pub(crate) fn ground_truth_json(
         "camera_from_base": to_row_major(&t.camera_from_model),
         "base_from_flange_reported": to_row_major(&t.model_from_flange_reported),
         "base_from_flange_nominal": to_row_major(&t.model_from_flange_nominal),
+        // The same as `solve --flange-pose` takes it (in `base_frame`, the URDF root).
+        "flange_pose": UrPose::from(&t.model_from_flange_reported).to_string(),
         "flange_from_camera": t.flange_from_camera.as_ref().map(to_row_major),
         "joints_rad": t.joints,
         "intrinsics": req.intrinsics,
@@ -151,6 +196,11 @@ pub(crate) fn ground_truth_json(
             doc["controller_base_from_camera"] = serde_json::json!(to_row_major(
                 &(model_from_base.inverse() * t.model_from_camera)
             ));
+            // What the controller reports: `solve --flange-pose … --base-frame base`.
+            doc["controller_flange_pose"] =
+                UrPose::from(&(model_from_base.inverse() * t.model_from_flange_reported))
+                    .to_string()
+                    .into();
         }
     }
     doc

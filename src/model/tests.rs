@@ -740,7 +740,7 @@ fn controller_dh_needs_a_six_joint_ur_arm() {
             std::env::var_os("CI").is_none(),
             "franka_fr3/franka_fr3.urdf does not load and CI is set"
         );
-        eprintln!("SKIP: no franka_fr3/franka_fr3.urdf");
+        crate::testutil::skip("SKIP: no franka_fr3/franka_fr3.urdf");
         return;
     };
     let q = vec![0.0; m.dof()];

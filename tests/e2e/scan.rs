@@ -326,3 +326,265 @@ fn solve_recovers_the_mount_from_a_simulated_scan() {
     );
     assert!(!out.stderr.trim().is_empty(), "{out}");
 }
+
+/// Issue 16: hostile or careless input to the binary — each a clear error, exit 2, within a
+/// few seconds; the bad token echoed bounded and escaped, the OS error said once.
+#[test]
+fn issue_16_bad_input_is_a_clear_error_quickly() {
+    let dir = TempDir::new("issue16");
+    let quick = |args: &[&str]| {
+        let t = std::time::Instant::now();
+        let out = run(args, secs(30));
+        assert!(t.elapsed() < secs(10), "took {:?}: {out}", t.elapsed());
+        assert_eq!(out.code(), 2, "{out}");
+        assert!(
+            out.stderr.len() < 2048,
+            "{} bytes of stderr",
+            out.stderr.len()
+        );
+        assert!(!out.stderr.contains('\u{1b}'), "raw escape in {out}");
+        out
+    };
+    // Floats into durations.
+    for args in [
+        &["robot", "--timeout-s", "1e300", "status"][..],
+        &[
+            "robot",
+            "move",
+            "--joints",
+            "0,0,0,0,0,0",
+            "--move-timeout-s",
+            "1e300",
+        ],
+        &[
+            "camera",
+            "capture",
+            "--exec",
+            "true",
+            "--timeout-s",
+            "1e300",
+        ],
+        &[
+            "sim",
+            "robot",
+            "--bind",
+            "127.0.0.173",
+            "--unlock-delay-s",
+            "1e300",
+        ],
+        &[
+            "sim",
+            "robot",
+            "--bind",
+            "127.0.0.173",
+            "--drop-connections-every-s",
+            "nan",
+        ],
+    ] {
+        let out = quick(args);
+        assert!(out.stderr.contains("expected"), "{out}");
+    }
+    // The two timeouts of `robot` are different flags.
+    let out = quick(&["robot", "move", "--joints", "0,0,0,0,0,0", "--speed=-1"]);
+    assert!(out.stderr.contains("--speed"), "{out}");
+    // A huge and an escape-laden token (one argument can hold 128 kB on Linux).
+    let huge = format!("0,{}", "9".repeat(100_000));
+    let out = quick(&[
+        "solve", "--robot", "ur5e", "--joints", &huge, "--scan", "x.ply",
+    ]);
+    assert!(out.stderr.contains("more bytes"), "{out}");
+    let out = quick(&[
+        "solve",
+        "--robot",
+        "ur5e",
+        "--joints",
+        "0,\u{1b}[2J\u{1b}]0;x\u{7}",
+        "--scan",
+        "x.ply",
+    ]);
+    assert!(out.stderr.contains("\\u{1b}"), "{out}");
+    // The OS error once.
+    let urdf = dir.join("absent.urdf");
+    let out = quick(&[
+        "solve",
+        "--robot",
+        &urdf.to_string_lossy(),
+        "--joints",
+        "0",
+        "--scan",
+        "x.ply",
+    ]);
+    assert_eq!(out.stderr.matches("os error 2").count(), 1, "{out}");
+    // Nesting: a URDF 50 000 elements deep (exit 134 before).
+    let deep = dir.join("deep.urdf");
+    let n = 50_000;
+    std::fs::write(
+        &deep,
+        format!(
+            "<robot name=\"r\"><link name=\"a\"/>{}{}</robot>",
+            "<x>".repeat(n),
+            "</x>".repeat(n)
+        ),
+    )
+    .expect("write");
+    let out = quick(&[
+        "solve",
+        "--robot",
+        &deep.to_string_lossy(),
+        "--joints",
+        "0",
+        "--scan",
+        "x.ply",
+    ]);
+    assert!(out.stderr.contains("nested more than"), "{out}");
+    // Sizes: a cylinder of radius 1e300.
+    let big = dir.join("big.urdf");
+    std::fs::write(&big, r#"<robot name="r"><link name="a"><visual><geometry><cylinder radius="1e300" length="1"/></geometry></visual></link></robot>"#).expect("write");
+    let out = quick(&[
+        "solve",
+        "--robot",
+        &big.to_string_lossy(),
+        "--joints",
+        "0",
+        "--scan",
+        "x.ply",
+    ]);
+    assert!(out.stderr.contains("larger than"), "{out}");
+    // A scan that is a FIFO would block forever.
+    let fifo = dir.join("scan.ply");
+    assert!(std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .expect("mkfifo")
+        .success());
+    let Some(_shared) = shared("issue_16_bad_input_is_a_clear_error_quickly") else {
+        return;
+    };
+    let out = quick(&[
+        "solve",
+        "--robot",
+        "ur5e",
+        "--joints",
+        "0,0,0,0,0,0",
+        "--scan",
+        &fifo.to_string_lossy(),
+    ]);
+    assert!(out.stderr.contains("FIFO"), "{out}");
+    // Numbers that cannot be right: a kinematic error of 1e160, simulator settings.
+    let out = quick(&[
+        "solve",
+        "--robot",
+        "ur5e",
+        "--joints",
+        "0,0,0,0,0,0",
+        "--scan",
+        "x.ply",
+        "--kinematic-error",
+        "1e160,0.3,0.1",
+    ]);
+    assert!(out.stderr.contains("--kinematic-error"), "{out}");
+    let settings = dir.join("sim.toml");
+    for (toml, key) in [
+        (
+            "[noise]\ndepth_sigma_at_1m_m = -1\n",
+            "noise.depth_sigma_at_1m_m",
+        ),
+        (
+            "[cell]\nclutter_objects = 1000000000\n",
+            "cell.clutter_objects",
+        ),
+        (
+            "[cell]\nplate_thickness_m = nan\n",
+            "cell.plate_thickness_m",
+        ),
+        (
+            "[noise]\ndropout_full_deg = 1e300\n",
+            "noise.dropout_full_deg",
+        ),
+    ] {
+        std::fs::write(&settings, toml).expect("write");
+        let out = quick(&[
+            "simulate-scan",
+            "--robot",
+            "ur5e",
+            "--joints",
+            "0,0,0,0,0,0",
+            "--mount",
+            "0,0,0,0,0,0",
+            "--camera",
+            "compact",
+            "--settings",
+            &settings.to_string_lossy(),
+            "--out",
+            &dir.join("s.ply").to_string_lossy(),
+        ]);
+        assert!(out.stderr.contains(key), "{out}");
+    }
+}
+
+/// Issue 16: `simulate-scan` warns when the robot's base is not in view (the README's former
+/// example: the camera looked away and `solve` could not find the robot); `solve --json`
+/// then prints one JSON object with `status: "error"` (exit 2), and the ground truth gives
+/// the flange pose as `solve --flange-pose` takes it.
+#[test]
+fn issue_16_simulate_scan_warns_when_the_robot_is_out_of_view() {
+    let Some(_shared) = shared("issue_16_simulate_scan_warns_when_the_robot_is_out_of_view") else {
+        return;
+    };
+    let dir = TempDir::new("issue16-view");
+    let ply = dir.join("away.ply");
+    let ply_s = ply.to_string_lossy();
+    let q = "0.5,-1.2,1.4,-2.4,-1.6,0.3";
+    let out = run(
+        &[
+            "simulate-scan",
+            "--robot",
+            "ur10e",
+            "--mount",
+            "0,-0.08,0.03,-0.26,0,0",
+            "--joints",
+            q,
+            "--camera",
+            "compact",
+            "--out",
+            &ply_s,
+        ],
+        secs(60),
+    )
+    .success();
+    assert!(
+        out.stderr
+            .contains("warning: the robot's base and shoulder cover"),
+        "{out}"
+    );
+    let gt = read_json(&dir.join("away.gt.json"));
+    let flange = gt["controller_flange_pose"]
+        .as_str()
+        .expect("a pose string");
+    assert_eq!(flange.split(',').count(), 6, "{flange}");
+    assert!(gt["flange_pose"].as_str().is_some(), "{gt}");
+    let out = run(
+        &[
+            "solve",
+            "--robot",
+            "ur10e",
+            "--joints",
+            q,
+            "--scan",
+            &ply_s,
+            "--flange-pose",
+            flange,
+            "--base-frame",
+            "base",
+            "--json",
+        ],
+        secs(60),
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    let v = out.json();
+    assert_eq!(v["status"], "error", "{out}");
+    assert!(
+        v["error"].as_str().is_some_and(|e| e.contains("not found")),
+        "{out}"
+    );
+}

@@ -23,8 +23,18 @@ pub(crate) fn shared(test: &str) -> Option<PathBuf> {
         std::env::var_os("CI").is_none(),
         "{test}: ../shared/robots is missing (CI is set, so this is a failure)"
     );
-    eprintln!("SKIP {test}: ../shared/robots not found beside the repository");
+    skip(&format!(
+        "SKIP {test}: ../shared/robots not found beside the repository"
+    ));
     None
+}
+
+/// Prints a SKIP line where the person running the tests sees it: straight to the process's
+/// stderr, which the test harness does not capture (it captures `eprintln!`, shown only for
+/// failing tests, so a passing skip would be silent).
+pub(crate) fn skip(line: &str) {
+    use std::io::Write as _;
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// A directory removed on drop.
@@ -374,7 +384,10 @@ pub(crate) fn python() -> Option<PathBuf> {
         "{} is missing in CI: run .ci/install.d/ur-rtde.sh",
         py.display()
     );
-    eprintln!("SKIP the ur-rtde part: {} not found", py.display());
+    skip(&format!(
+        "SKIP the ur-rtde part: {} not found",
+        py.display()
+    ));
     None
 }
 

@@ -6,6 +6,7 @@
 //! Without aravis or `ip netns` the tests print why and pass, unless env `CI` is set.
 
 use std::io::Read;
+use std::io::Write as _;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
@@ -110,7 +111,11 @@ fn in_netns(test: &str, body: impl FnOnce()) {
             std::env::var_os("CI").is_none(),
             "{test}: {why}; run .ci/install.d/aravis.sh"
         );
-        eprintln!("SKIP {test}: {why}; run .ci/install.d/aravis.sh as root");
+        // Straight to stderr: the harness captures eprintln! and shows it only on failure.
+        let _ = writeln!(
+            std::io::stderr(),
+            "SKIP {test}: {why}; run .ci/install.d/aravis.sh as root"
+        );
         return;
     }
     let _ns = Netns(ns.clone());

@@ -2,6 +2,7 @@
 //! `$REPO/.venv` by `.ci/install.d/aravis.sh`). Skips with a message without the venv, unless
 //! env `CI` is set.
 
+use std::io::Write as _;
 use std::path::Path;
 use std::process::Command;
 
@@ -37,7 +38,9 @@ fn simulated_camera_xml_passes_the_emva_reference_genapi() {
             "no genicam in {}; run .ci/install.d/aravis.sh",
             python.display()
         );
-        eprintln!(
+        // Straight to stderr: the harness captures eprintln! and shows it only on failure.
+        let _ = writeln!(
+            std::io::stderr(),
             "SKIP: no `genicam` in {}; run .ci/install.d/aravis.sh",
             python.display()
         );
