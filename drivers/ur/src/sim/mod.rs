@@ -436,6 +436,15 @@ pub(crate) async fn accept_loop<F, Fut, E>(
     }
 }
 
+/// Aborts a connection's helper task (its stream writer) when the connection ends.
+pub(crate) struct AbortOnDrop(pub(crate) tokio::task::JoinHandle<()>);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
+}
+
 /// Wait for the next drop signal (used by every connection task).
 pub(crate) async fn dropped(rx: &mut watch::Receiver<u64>) {
     if rx.changed().await.is_err() {

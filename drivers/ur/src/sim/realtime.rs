@@ -51,28 +51,34 @@ async fn connection(sock: TcpStream, shared: &Arc<Shared>) -> std::io::Result<()
     } else {
         Duration::from_millis(2)
     };
-    let mut tick = tokio::time::interval(period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    // The packets are written by their own task, so a client that only sends scripts (and
+    // never reads) still has them read and run: once its buffers are full, only its stream
+    // stalls.
+    let stream_shared = shared.clone();
+    let writer = tokio::spawn(async move {
+        let mut tick = tokio::time::interval(period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let mut pkt = Vec::with_capacity(SIZE);
+        loop {
+            tick.tick().await;
+            packet(&stream_shared, &mut pkt);
+            if w.write_all(&pkt).await.is_err() {
+                return;
+            }
+        }
+    });
+    let _writer = super::AbortOnDrop(writer);
     let mut rx = ScriptReceiver::default();
     let mut buf = vec![0u8; 8192];
-    let mut pkt = Vec::with_capacity(SIZE);
     loop {
-        tokio::select! {
-            n = r.read(&mut buf) => {
-                let n = n?;
-                if n == 0 {
-                    return Ok(());
-                }
-                // 30003 has no robot messages: errors go to the primary stream only.
-                let _ = rx.feed(&buf[..n], shared, opened_remote);
-                if rx.overflowed {
-                    return Ok(());
-                }
-            }
-            _ = tick.tick() => {
-                packet(shared, &mut pkt);
-                w.write_all(&pkt).await?;
-            }
+        let n = r.read(&mut buf).await?;
+        if n == 0 {
+            return Ok(());
+        }
+        // 30003 has no robot messages: errors go to the primary stream only.
+        let _ = rx.feed(&buf[..n], shared, opened_remote);
+        if rx.overflowed {
+            return Ok(());
         }
     }
 }

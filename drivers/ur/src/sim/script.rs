@@ -50,6 +50,9 @@ async fn connection(
     is_primary: bool,
 ) -> std::io::Result<()> {
     let (mut r, mut w) = sock.into_split();
+    // Subscribed before the first package goes out: a client that has read it misses no
+    // robot message published afterwards.
+    let mut messages = shared.messages.subscribe();
     let opened_remote = shared.lock().remote_control;
     let (maj, min, bug, build) = shared.version();
     w.write_all(&primary::encode_version(
@@ -61,33 +64,47 @@ async fn connection(
     ))
     .await?;
     w.write_all(&state_package(shared)).await?;
-    let mut messages = shared.messages.subscribe();
-    let mut tick = tokio::time::interval(Duration::from_millis(100));
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    // The stream is written by its own task, so a client that never reads (a script sender)
+    // still has its programs read and run: once its buffers are full, only its stream stalls.
+    let (reply_tx, mut replies) = tokio::sync::mpsc::channel::<Vec<u8>>(16);
+    let stream_shared = shared.clone();
+    let writer = tokio::spawn(async move {
+        let shared = stream_shared;
+        let mut tick = tokio::time::interval(Duration::from_millis(100));
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        loop {
+            let pkg = tokio::select! {
+                _ = tick.tick() => state_package(&shared),
+                Some(reply) = replies.recv() => reply,
+                m = messages.recv(), if is_primary => match m {
+                    Ok(m) => m,
+                    Err(RecvError::Lagged(_)) => continue,
+                    Err(RecvError::Closed) => return,
+                },
+            };
+            if w.write_all(&pkg).await.is_err() {
+                return;
+            }
+        }
+    });
+    let _writer = super::AbortOnDrop(writer);
     let mut rx = ScriptReceiver::default();
     let mut buf = vec![0u8; 8192];
     loop {
-        tokio::select! {
-            n = r.read(&mut buf) => {
-                let n = n?;
-                if n == 0 {
-                    return Ok(());
-                }
-                for reply in rx.feed(&buf[..n], shared, opened_remote) {
-                    if is_primary {
-                        w.write_all(&reply).await?;
-                    }
-                }
-                if rx.overflowed {
-                    return Ok(());
-                }
+        let n = r.read(&mut buf).await?;
+        if n == 0 {
+            return Ok(());
+        }
+        for reply in rx.feed(&buf[..n], shared, opened_remote) {
+            // A reader too slow to take its own error replies loses them, never the program.
+            if is_primary {
+                let _ = reply_tx.try_send(reply);
             }
-            _ = tick.tick() => w.write_all(&state_package(shared)).await?,
-            m = messages.recv(), if is_primary => match m {
-                Ok(m) => w.write_all(&m).await?,
-                Err(RecvError::Lagged(_)) => {}
-                Err(RecvError::Closed) => return Ok(()),
-            },
+        }
+        if rx.overflowed {
+            // Let the writer send the reason before the connection closes.
+            tokio::time::sleep(Duration::from_millis(50)).await;
+            return Ok(());
         }
     }
 }
