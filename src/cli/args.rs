@@ -108,6 +108,25 @@ pub(crate) fn robots_dir() -> Option<std::path::PathBuf> {
     candidates.into_iter().flatten().find(|p| p.is_dir())
 }
 
+/// [`robots_dir`] for a test: `None` after a SKIP line (written past the test harness's
+/// capture, so it shows when the test passes); a failure when env `CI` is set.
+#[cfg(test)]
+pub(crate) fn robots_dir_or_skip(test: &str) -> Option<std::path::PathBuf> {
+    use std::io::Write as _;
+    let dir = robots_dir();
+    if dir.is_none() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "{test}: no robot models (../shared/robots or HANDEYE_ROBOTS) and CI is set"
+        );
+        let _ = writeln!(
+            std::io::stderr(),
+            "SKIP {test}: no robot models (../shared/robots or HANDEYE_ROBOTS)"
+        );
+    }
+    dir
+}
+
 /// A robot given as a URDF path, or as a name (`ur5e`, `kuka_iiwa7`) looked up as
 /// `<name>.urdf` under [`robots_dir`].
 pub(crate) fn resolve_robot(name_or_path: &str) -> Result<std::path::PathBuf, String> {

@@ -226,7 +226,9 @@ mod tests {
 
     #[test]
     fn factory_calibration_poses_the_arm_by_the_controllers_dh() {
-        let Some(dir) = super::super::args::robots_dir() else {
+        let Some(dir) = super::super::args::robots_dir_or_skip(
+            "factory_calibration_poses_the_arm_by_the_controllers_dh",
+        ) else {
             return;
         };
         let tmp = std::env::temp_dir().join(format!("handeye-simscan-{}", std::process::id()));

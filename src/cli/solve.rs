@@ -409,7 +409,9 @@ mod tests {
 
     #[test]
     fn solve_command_on_a_simulated_scan_and_bad_inputs() {
-        let Some(dir) = super::super::args::robots_dir() else {
+        let Some(dir) = super::super::args::robots_dir_or_skip(
+            "solve_command_on_a_simulated_scan_and_bad_inputs",
+        ) else {
             return;
         };
         let urdf = dir.join("ur/ur5e/ur5e.urdf");
