@@ -350,6 +350,7 @@ fn write_report(
     opts: &PipelineOptions,
     calibration: &handeye::run::Calibration,
 ) -> anyhow::Result<()> {
+    let t = std::time::Instant::now();
     let (Some(frame), Some(registration)) =
         (inputs.frames.first(), calibration.registrations.first())
     else {
@@ -376,7 +377,11 @@ fn write_report(
     let png = handeye::report::render(&summary, Some(&view))?;
     std::fs::write(path, png)
         .with_context(|| format!("writing the report picture {}", path.display()))?;
-    eprintln!("report picture: {}", path.display());
+    eprintln!(
+        "report picture: {} ({:.0} ms)",
+        path.display(),
+        t.elapsed().as_secs_f64() * 1e3
+    );
     Ok(())
 }
 

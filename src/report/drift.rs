@@ -175,10 +175,10 @@ fn dot(c: &mut Canvas, x: i64, y: i64, col: Rgb) {
     }
 }
 
-/// The smallest 1, 2, 2.5 or 5 × 10^k at or above `v`.
+/// The smallest 1, 2 or 4 × 10^k at or above `v` (its quarters are round numbers).
 fn nice_ceiling(v: f64) -> f64 {
     let e = 10f64.powf(v.log10().floor());
-    for m in [1.0, 2.0, 2.5, 5.0, 10.0] {
+    for m in [1.0, 2.0, 4.0, 10.0] {
         if m * e >= v * (1.0 - 1e-9) {
             return m * e;
         }
@@ -221,8 +221,8 @@ mod tests {
     fn axis_helpers() {
         assert_eq!(nice_ceiling(0.7), 1.0);
         assert_eq!(nice_ceiling(1.4), 2.0);
-        assert_eq!(nice_ceiling(2.1), 2.5);
-        assert_eq!(nice_ceiling(0.28), 0.5);
+        assert_eq!(nice_ceiling(2.1), 4.0);
+        assert!((nice_ceiling(0.28) - 0.4).abs() < 1e-12);
         assert_eq!(tick_step(3000.0), 600.0);
         assert_eq!(tick_step(86_400.0 * 3.0), 43_200.0);
     }

@@ -38,6 +38,8 @@ const SCAN_W: usize = 640;
 const SCAN_H: usize = 480;
 /// The distance colour scale ends here, mm; farther points are grey.
 const SCALE_MM: f32 = 5.0;
+/// The scan's colours change in steps of this, mm (bands read like contour lines).
+const STEP_MM: f32 = 0.25;
 /// The histogram covers distances up to this, mm.
 const HIST_MM: f32 = 5.0;
 /// Links up to this many joints from the root are fitted by registration (its default).
@@ -301,7 +303,8 @@ fn scan_canvas(view: &ScanView) -> Canvas {
     for (i, p) in view.pixels.iter().enumerate() {
         let Some(p) = p else { continue };
         let base = match p.distance_mm {
-            Some(d) if d <= SCALE_MM => distance_colour(d),
+            // In steps of STEP_MM, as the colour bar shows them.
+            Some(d) if d <= SCALE_MM => distance_colour(((d / STEP_MM).floor() + 0.5) * STEP_MM),
             _ => FAR,
         };
         c.set(
@@ -510,7 +513,7 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
     }
 
     // Bottom right: the histogram.
-    let hy = (y + 12).max(h - 260);
+    let hy = (y + 16).min(h - 200);
     if let Some(view) = scan {
         histogram(&mut c, rx, hy, rw, h - hy - 16, view, summary);
     }
@@ -533,7 +536,8 @@ fn legend(c: &mut Canvas, x: i64, y: i64) {
     c.text(x, y, "distance to the posed model", Size::Small, false, INK);
     let (bx, by, bw, bh) = (x + 240, y + 2, 300i64, 14i64);
     for k in 0..bw {
-        let col = distance_colour(SCALE_MM * k as f32 / (bw - 1) as f32);
+        let d = SCALE_MM * k as f32 / bw as f32;
+        let col = distance_colour(((d / STEP_MM).floor() + 0.5) * STEP_MM);
         c.line(bx + k, by, bx + k, by + bh - 1, col);
     }
     c.stroke_rect(bx - 1, by - 1, bw + 2, bh + 2, RULE);

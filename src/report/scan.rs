@@ -113,8 +113,8 @@ impl ScanView {
         let normal = |i: usize| -> Option<Vector3<f64>> {
             let (u, v) = (i % w, i / w);
             let at = |uu: usize, vv: usize| points.get(vv * w + uu).copied().flatten();
-            let (l, r) = (at(u.saturating_sub(2), v)?, at((u + 2).min(w - 1), v)?);
-            let (t, b) = (at(u, v.saturating_sub(2))?, at(u, (v + 2).min(h - 1))?);
+            let (l, r) = (at(u.saturating_sub(3), v)?, at((u + 3).min(w - 1), v)?);
+            let (t, b) = (at(u, v.saturating_sub(3))?, at(u, (v + 3).min(h - 1))?);
             let n = (r - l).cross(&(b - t));
             let len = n.norm();
             // Neighbours on another surface (a depth edge) give no normal.
@@ -131,10 +131,10 @@ impl ScanView {
                     let d = (tri.closest_point(&q) - q).norm();
                     (d <= SEARCH_M).then_some((d * 1e3) as f32)
                 });
-                // Eight shading levels: enough for the shape, and the PNG stays small.
+                // Six shading levels: enough for the shape, and the PNG stays small.
                 let shade = normal(i).map_or(0.75, |n| {
                     let view = -p.coords.normalize();
-                    ((n.dot(&view).abs() * 8.0).round() / 8.0) as f32
+                    ((n.dot(&view).abs() * 6.0).round() / 6.0) as f32
                 });
                 Some(ScanPixel { distance_mm, shade })
             })

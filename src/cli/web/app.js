@@ -54,6 +54,8 @@ function message(s, tone) {
 
 function ask(action) {
   pending = action;
+  show($("message"), false);
+  text($("message"), "");
   text($("token-action"), action);
   show($("token-box"), true);
   $("token").value = "";
@@ -62,6 +64,7 @@ function ask(action) {
 
 async function act(action) {
   if (token === null) { ask(action); return; }
+  message(`Sending ${action}...`, "");
   const path = { calibrate: "/api/calibrate", check: "/api/check", cancel: "/api/cancel" }[action];
   const headers = token ? { Authorization: `Bearer ${token}` } : {};
   let r, body;
