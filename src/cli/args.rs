@@ -50,6 +50,50 @@ pub(crate) fn parse_kinematic_error(s: &str) -> Result<KinematicError, String> {
     }
 }
 
+/// Farthest a camera mount (`flange_from_camera`) may be from the flange origin, metres: a
+/// bracket or a long tool, not a camera across the cell.
+pub(crate) const MAX_MOUNT_DISTANCE_M: f64 = 2.0;
+/// Farthest a camera fixed in the cell may be from the robot's root frame, metres.
+pub(crate) const MAX_CELL_CAMERA_DISTANCE_M: f64 = 20.0;
+
+/// Refuses a pose given by `flag` whose translation is farther than `max_m` metres.
+pub(crate) fn check_pose_distance(
+    flag: &str,
+    pose: &Isometry3<f64>,
+    max_m: f64,
+    what: &str,
+) -> Result<(), String> {
+    let d = pose.translation.vector.norm();
+    if d <= max_m {
+        Ok(())
+    } else {
+        Err(format!(
+            "{flag} is {d:.3} m from its origin: expected at most {max_m} m ({what}); poses are in metres"
+        ))
+    }
+}
+
+/// Refuses joint values (given by `flag`) outside the model's joint limits (with 1 mrad of
+/// slack for rounding); the message names the joint and its limits.
+pub(crate) fn check_joint_limits(
+    flag: &str,
+    model: &handeye::model::RobotModel,
+    q: &[f64],
+) -> Result<(), String> {
+    for (i, (v, lim)) in q.iter().zip(model.joint_limits()).enumerate() {
+        if !(*v >= lim.lower - 1e-3 && *v <= lim.upper + 1e-3) {
+            return Err(format!(
+                "{flag} value {} (joint `{}`) = {v}: outside its limits [{}, {}] (radians, metres for prismatic joints)",
+                i + 1,
+                model.joint_names()[i],
+                lim.lower,
+                lim.upper
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Parses a positive finite distance in metres.
 pub(crate) fn parse_distance(s: &str) -> Result<f64, String> {
     match parse_numbers(s)?[..] {

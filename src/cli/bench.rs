@@ -42,7 +42,21 @@ pub(crate) struct Args {
     out: Option<PathBuf>,
 }
 
+/// Most views per robot and scans per view a benchmark takes (the paper's protocol is 30 × 3).
+const MAX_VIEWS: usize = 1000;
+const MAX_SCANS_PER_VIEW: usize = 100;
+
 pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
+    anyhow::ensure!(
+        (1..=MAX_VIEWS).contains(&args.views),
+        "--views = {}: expected 1 to {MAX_VIEWS} views per robot",
+        args.views
+    );
+    anyhow::ensure!(
+        (1..=MAX_SCANS_PER_VIEW).contains(&args.scans_per_view),
+        "--scans-per-view = {}: expected 1 to {MAX_SCANS_PER_VIEW}",
+        args.scans_per_view
+    );
     let intrinsics = Intrinsics::preset(&args.camera).with_context(|| {
         format!(
             "unknown camera preset `{}`; use compact or zivid2-m60",

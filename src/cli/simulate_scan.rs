@@ -14,7 +14,10 @@ use handeye_hal::ur_dh::DhParams;
 
 use handeye_hal::UrPose;
 
-use super::args::{parse_joints, parse_pose, resolve_robot, JointList};
+use super::args::{
+    check_joint_limits, check_pose_distance, parse_joints, parse_pose, resolve_robot, JointList,
+    MAX_CELL_CAMERA_DISTANCE_M, MAX_MOUNT_DISTANCE_M,
+};
 
 /// Render a simulated scan of a robot seen by a 3D camera.
 #[derive(Debug, clap::Args)]
@@ -64,9 +67,30 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             args.camera
         )
     })?;
+    if model.dof() == args.joints.0.len() {
+        check_joint_limits("--joints", &model, &args.joints.0).map_err(anyhow::Error::msg)?;
+    }
     let placement = match (args.mount, args.camera_pose) {
-        (Some(flange_from_camera), None) => Placement::EyeInHand { flange_from_camera },
-        (None, Some(model_from_camera)) => Placement::EyeToHand { model_from_camera },
+        (Some(flange_from_camera), None) => {
+            check_pose_distance(
+                "--mount",
+                &flange_from_camera,
+                MAX_MOUNT_DISTANCE_M,
+                "a camera on the flange",
+            )
+            .map_err(anyhow::Error::msg)?;
+            Placement::EyeInHand { flange_from_camera }
+        }
+        (None, Some(model_from_camera)) => {
+            check_pose_distance(
+                "--camera-pose",
+                &model_from_camera,
+                MAX_CELL_CAMERA_DISTANCE_M,
+                "a camera in the robot's cell",
+            )
+            .map_err(anyhow::Error::msg)?;
+            Placement::EyeToHand { model_from_camera }
+        }
         _ => anyhow::bail!("give either --mount (eye-in-hand) or --camera-pose (eye-to-hand)"),
     };
     let settings = match (&args.settings, args.ideal) {

@@ -18,7 +18,10 @@ use handeye::run::{calibrate_frames, load_capture, pipeline::fixed_frame, Frame,
 use handeye_hal::ur_dh::DhParams;
 use nalgebra::Isometry3;
 
-use super::args::{parse_distance, parse_joints, parse_kinematic_error, parse_pose, resolve_robot};
+use super::args::{
+    check_joint_limits, parse_distance, parse_joints, parse_kinematic_error, parse_pose,
+    resolve_robot,
+};
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -237,6 +240,7 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
             })
             .with_context(|| format!("scan {}", scan_path.display()));
         }
+        check_joint_limits("--joints", &model, &joints).map_err(anyhow::Error::msg)?;
         let model_from_flange = per_frame(&args.flange_pose, i, "flange-pose", n)?
             .map(|p| parse_pose(p).map(|p| model_from_base * p))
             .transpose()

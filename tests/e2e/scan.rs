@@ -483,6 +483,35 @@ fn issue_16_bad_input_is_a_clear_error_quickly() {
         "1e160,0.3,0.1",
     ]);
     assert!(out.stderr.contains("--kinematic-error"), "{out}");
+    // A mount across the cell, joints in degrees instead of radians, a billion views.
+    let s_ply = dir.join("s.ply");
+    let s_ply = s_ply.to_string_lossy();
+    let out = quick(&[
+        "simulate-scan",
+        "--robot",
+        "ur5e",
+        "--joints",
+        "0,0,0,0,0,0",
+        "--mount",
+        "1e6,0,0,0,0,0",
+        "--camera",
+        "compact",
+        "--out",
+        &s_ply,
+    ]);
+    assert!(out.stderr.contains("--mount"), "{out}");
+    let out = quick(&[
+        "solve",
+        "--robot",
+        "ur5e",
+        "--joints",
+        "0,-90,90,-90,-90,0",
+        "--scan",
+        "x.ply",
+    ]);
+    assert!(out.stderr.contains("outside its limits"), "{out}");
+    let out = quick(&["bench", "--robots", "ur5e", "--views", "1000000000"]);
+    assert!(out.stderr.contains("--views"), "{out}");
     let settings = dir.join("sim.toml");
     for (toml, key) in [
         (
