@@ -617,3 +617,51 @@ fn issue_16_simulate_scan_warns_when_the_robot_is_out_of_view() {
         "{out}"
     );
 }
+
+/// Issue 16: a simulator's log redirected to a file carries no colour codes (they are for a
+/// person at a terminal), and a simulator given hostile GigE Vision packets keeps answering.
+#[test]
+fn issue_16_simulator_logs_have_no_colour_codes_and_it_keeps_answering() {
+    let dir = TempDir::new("issue16-log");
+    let mut cam = crate::support::Daemon::start(
+        &dir,
+        "sim-camera",
+        &["sim", "camera", "--bind", "127.0.0.174", "--test-pattern"],
+    );
+    cam.wait_for_log("Ctrl-C to stop", secs(30));
+    // Hostile control packets: truncated, huge lengths and counts, random bytes.
+    let sock = std::net::UdpSocket::bind("127.0.0.1:0").expect("socket");
+    let dev: std::net::SocketAddr = "127.0.0.174:3956".parse().expect("addr");
+    let mut x: u32 = 16;
+    for i in 0..2000u32 {
+        x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let len = (x >> 24) as usize % 600;
+        let mut p: Vec<u8> = (0..len)
+            .map(|k| (x.rotate_left(k as u32) >> 3) as u8)
+            .collect();
+        if p.len() >= 8 {
+            p[0] = 0x42;
+            p[1] = 0x01;
+            p[2] = 0;
+            p[3] = [0x02, 0x80, 0x84, 0x86, 0x82][i as usize % 5];
+            p[4] = 0xFF;
+            p[5] = 0xFF;
+        }
+        let _ = sock.send_to(&p, dev);
+    }
+    // Still answering a real client.
+    let out = run(
+        &["camera", "probe", "--gige", "127.0.0.174", "--json"],
+        secs(30),
+    )
+    .success();
+    assert!(out.json()["serial"].is_string(), "{out}");
+    cam.signal(libc::SIGTERM);
+    cam.wait_exit(secs(10));
+    let log = cam.log();
+    assert!(log.contains("shutdown requested"), "{log}");
+    assert!(
+        !log.contains('\u{1b}'),
+        "colour codes in a redirected log: {log:?}"
+    );
+}
