@@ -1300,6 +1300,22 @@ mod tests {
     }
 
     #[test]
+    fn report_paths_and_chart_sizes_are_checked() {
+        assert!(is_run_id("20261124T142300Z-3f9a"));
+        for bad in ["", "..", "../x", "a/b", "a b", "x%2F", &"a".repeat(65)] {
+            assert!(!is_run_id(bad), "{bad}");
+        }
+        assert_eq!(chart_size(None), Ok((900, 340)));
+        assert_eq!(
+            chart_size(Some("width=1200&height=400&t=17")),
+            Ok((1200, 400))
+        );
+        assert!(chart_size(Some("width=100")).is_err());
+        assert!(chart_size(Some("height=99999")).is_err());
+        assert!(chart_size(Some("depth=3")).is_err());
+    }
+
+    #[test]
     fn runs_query_defaults_and_bounds() {
         assert_eq!(runs_query(None), Ok((DEFAULT_RUNS, None)));
         assert_eq!(runs_query(Some("")), Ok((DEFAULT_RUNS, None)));

@@ -376,11 +376,18 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
         }
     }
     c.stroke_rect(sx - 1, sy - 1, SCAN_W as i64 + 2, SCAN_H as i64 + 2, RULE);
-    let mut y = sy + SCAN_H as i64 + 8;
-    let caption = scan.map_or("the scan as the camera saw it", |v| v.caption.as_str());
-    c.text(sx, y, &truncate(caption, 80), Size::Small, false, MUTED);
-    y += 24;
-    legend(&mut c, sx, y);
+    if let Some(view) = scan {
+        let y = sy + SCAN_H as i64 + 8;
+        c.text(
+            sx,
+            y,
+            &truncate(&view.caption, 80),
+            Size::Small,
+            false,
+            MUTED,
+        );
+        legend(&mut c, sx, y + 24);
+    }
 
     // Right: the numbers.
     let (rx, rw) = (sx + SCAN_W as i64 + 32, w - (sx + SCAN_W as i64 + 32) - 16);
@@ -468,7 +475,12 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
         );
         y += 30;
     }
-    y = heading(&mut c, rx, y, rw, "GATE");
+    let why = if summary.result.is_some() {
+        "GATE"
+    } else {
+        "WHY IT ENDED"
+    };
+    y = heading(&mut c, rx, y, rw, why);
     let max_chars = (rw / Size::Small.advance() as i64) as usize;
     if summary.reasons.is_empty() {
         let ok = match summary.outcome {
@@ -513,7 +525,7 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
     }
 
     // Bottom right: the histogram.
-    let hy = (y + 16).min(h - 200);
+    let hy = (y + 16).min(h - 140);
     if let Some(view) = scan {
         histogram(&mut c, rx, hy, rw, h - hy - 16, view, summary);
     }

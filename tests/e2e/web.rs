@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 use serde_json::{json, Value};
 
 use crate::support::{
-    joints, max_change, rig_config, run, secs, shared, start_rig, Daemon, TempDir,
+    joints, max_change, rig_config, run, secs, shared, skip, start_rig, Daemon, TempDir,
 };
 
 const TOKEN: &str = "web-e2e-secret-token";
@@ -48,7 +48,10 @@ fn browser_tools(test: &str) -> Option<(PathBuf, PathBuf)> {
             "{test}: chromium/chromedriver are missing (CI is set, so this is a failure; \
              .ci/install.d/chromium.sh installs them)"
         );
-        eprintln!("SKIP {test}: chromium and chromedriver not found (Debian `chromium`, `chromium-driver`)");
+        skip(&format!(
+            "SKIP {test}: chromium and chromedriver not found (Debian `chromium`, \
+             `chromium-driver`; .ci/install.d/chromium.sh)"
+        ));
     }
     found
 }
