@@ -164,6 +164,57 @@ pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
     Err(last_err.unwrap_or_else(|| GigeError::malformed("XML URL", "no URL register")))
 }
 
+/// Longest formula (`<Formula>`, `<FormulaTo>`, `<FormulaFrom>`, `<Expression>` text, as
+/// written in the XML) accepted; real ones are a few dozen characters.
+const MAX_FORMULA_CHARS: usize = 2048;
+/// Deepest parenthesis nesting in a formula.
+const MAX_FORMULA_DEPTH: usize = 32;
+
+/// Refuses formulas long or nested enough to drive the node map's recursive formula parser
+/// and evaluator past the stack.
+fn check_formulas(xml: &str) -> std::result::Result<(), String> {
+    for tag in ["Formula", "FormulaTo", "FormulaFrom", "Expression"] {
+        let open = format!("<{tag}");
+        let close = format!("</{tag}>");
+        let mut rest = xml;
+        while let Some(i) = rest.find(&open) {
+            let after = &rest[i + open.len()..];
+            // `<FormulaTo` also starts with `<Formula`: only the exact tag.
+            if !after.starts_with(['>', ' ', '\t', '\n', '\r']) {
+                rest = after;
+                continue;
+            }
+            let Some(start) = after.find('>') else { break };
+            let body = &after[start + 1..];
+            let end = body.find(&close).unwrap_or(body.len());
+            let formula = &body[..end];
+            if formula.len() > MAX_FORMULA_CHARS {
+                return Err(format!(
+                    "a <{tag}> of {} characters (at most {MAX_FORMULA_CHARS})",
+                    formula.len()
+                ));
+            }
+            let mut depth = 0usize;
+            for c in formula.chars() {
+                match c {
+                    '(' => {
+                        depth += 1;
+                        if depth > MAX_FORMULA_DEPTH {
+                            return Err(format!(
+                                "a <{tag}> nests parentheses more than {MAX_FORMULA_DEPTH} deep"
+                            ));
+                        }
+                    }
+                    ')' => depth = depth.saturating_sub(1),
+                    _ => {}
+                }
+            }
+            rest = &body[end..];
+        }
+    }
+    Ok(())
+}
+
 /// Register access for the node map over GVCP: 4-byte aligned accesses use READREG/WRITEREG
 /// (always supported), others READMEM/WRITEMEM.
 #[derive(Debug, Clone)]
@@ -224,6 +275,8 @@ impl NodeMap {
         // first (a stack overflow cannot be caught like the panics below).
         handeye_hal::limits::check_xml_nesting(xml, handeye_hal::limits::MAX_XML_DEPTH)
             .map_err(|e| GigeError::malformed("GenICam XML", e))?;
+        // So do the formula parser and evaluator (SwissKnife, Converter): bound each formula.
+        check_formulas(xml).map_err(|e| GigeError::malformed("GenICam XML", e))?;
         let built = std::panic::catch_unwind(AssertUnwindSafe(|| {
             GenApiBuilder::<
                 DefaultNodeStore,
@@ -532,6 +585,20 @@ mod tests {
         }
         let real = include_str!("sim/camera.xml");
         NodeMap::from_xml(real).expect("the simulated camera's XML loads");
+        // Formulas: deep parentheses, a huge chain of operators.
+        let formula = "<Formula>(HIGH &lt;&lt; 32) | LOW</Formula>";
+        assert!(real.contains(formula));
+        for bad in [
+            format!("{}1{}", "(".repeat(100_000), ")".repeat(100_000)),
+            "1+".repeat(500_000) + "1",
+            "-".repeat(1_000_000) + "1",
+        ] {
+            let xml = real.replace(formula, &format!("<Formula>{bad}</Formula>"));
+            let e = NodeMap::from_xml(&xml)
+                .expect_err("hostile formula")
+                .to_string();
+            assert!(e.contains("<Formula>"), "{e}");
+        }
         let mut rng = rand::rngs::StdRng::seed_from_u64(16);
         let numbers = [
             "18446744073709551616",
