@@ -248,6 +248,64 @@ fn issue_14_ur_rtde_control_interface_drives_the_simulated_arm() {
         "getInverseKinematics: {st}"
     );
 
+    // The other motion and kinematics calls.
+    let mc = step("more_calls");
+    let ik = &mc["moveJ_IK"];
+    assert_eq!(ik[0], true, "{mc}");
+    assert_poses_close(six(&ik[1]), six(&ik[2]), 1e-6, "moveJ_IK");
+    let fk = &mc["moveL_FK"];
+    assert_eq!(fk[0], true, "{mc}");
+    assert!(
+        max_diff(&six(&fk[1]), &six(&fk[2])) < 1e-6,
+        "moveL_FK: {fk}"
+    );
+    let sl = &mc["speedL"];
+    assert_eq!(sl[0], true, "{mc}");
+    let twist = six(&sl[1]);
+    assert!(
+        (twist[2] - 0.02).abs() < 1e-4 && max_diff(&[twist[0], twist[1]], &[0.0; 2]) < 1e-4,
+        "speedL: TCP speed {twist:?}"
+    );
+    let rise = sl[2].as_f64().expect("dz");
+    assert!(
+        (0.006..0.012).contains(&rise),
+        "speedL raised the TCP {rise} m"
+    );
+    let sv = &mc["servoJ"];
+    assert_eq!(sv[0], true, "{mc}");
+    let turned = sv[1].as_f64().expect("dq");
+    assert!(
+        (0.15..=0.2 + 1e-9).contains(&turned),
+        "servoJ turned wrist 3 by {turned}"
+    );
+    let sj = &mc["stopJ"];
+    assert_eq!(sj[0], true, "{mc}");
+    let part = sj[1].as_f64().expect("dq");
+    assert!((0.02..0.5).contains(&part), "stopJ after {part} rad of 1.0");
+    assert!(
+        sj[2].as_i64().expect("progress") < 0,
+        "async move finished: {sj}"
+    );
+    assert!(six(&sj[3]).iter().all(|v| v.abs() < 1e-9), "{sj}");
+    let pl = &mc["setPayload"];
+    assert_eq!(pl[0], true, "{mc}");
+    assert_eq!(pl[1], 1.5, "{mc}");
+    assert_eq!(pl[2], serde_json::json!([0.0, 0.01, 0.05]), "{mc}");
+    let qs = &mc["queries"];
+    for (key, want) in [
+        ("steady", true),
+        ("joints_ok", true),
+        ("joints_out", false),
+        ("ik_has_solution", true),
+        ("ik_no_solution", false),
+    ] {
+        assert_eq!(qs[key], want, "{key}: {qs}");
+    }
+    assert!(max_diff(&six(&qs["pose_trans"]), &[0.1, 0.2, 0.0, 0.0, 0.0, 0.0]) < 1e-12);
+    let flange = UrPose::from(sim.dh().forward(&six(&qs["q"]))).0;
+    assert_poses_close(six(&qs["flange"]), flange, 1e-9, "getActualToolFlangePose");
+    assert_eq!(qs["step_time"], 0.002, "{qs}");
+
     // speedJ then speedStop: the joints ran at the commanded speed, then stopped.
     let sj = step("speedJ");
     assert_eq!(

@@ -88,6 +88,70 @@ settle(r)
 emit("setTcp", ok=ok, offset=c.getTCPOffset(), q=r.getActualQ(), pose=r.getActualTCPPose(),
      fk=c.getForwardKinematics(), ik=c.getInverseKinematics(r.getActualTCPPose()))
 
+# The other motion and kinematics calls of the control program.
+home = r.getActualQ()
+pose = r.getActualTCPPose()
+goal = list(pose)
+goal[1] += 0.04
+ok = c.moveJ_IK(goal, 1.0, 1.4)
+settle(r)
+steps = {"moveJ_IK": [ok, r.getActualTCPPose(), goal]}
+fk_q = [a + d for a, d in zip(home, [0.1, -0.05, 0.05, 0.0, 0.1, 0.0])]
+ok = c.moveL_FK(fk_q, 0.25, 1.2)
+settle(r)
+steps["moveL_FK"] = [ok, r.getActualQ(), fk_q]
+ok_speed = c.speedL([0.0, 0.0, 0.02, 0.0, 0.0, 0.0], 0.5, 0.0)
+z0 = r.getActualTCPPose()[2]
+time.sleep(0.5)
+tcp_speed = r.getActualTCPSpeed()
+ok_stop = c.speedStop(1.0)
+settle(r)
+steps["speedL"] = [ok_speed and ok_stop, tcp_speed, r.getActualTCPPose()[2] - z0]
+start = r.getActualQ()
+servo_target = list(start)
+for i in range(100):
+    t0 = c.initPeriod()
+    servo_target[5] = start[5] + 0.002 * (i + 1)
+    c.servoJ(servo_target, 0.0, 0.0, 0.008, 0.1, 300)
+    c.waitPeriod(t0)
+time.sleep(0.05)
+ok = c.servoStop(2.0)
+settle(r)
+steps["servoJ"] = [ok, r.getActualQ()[5] - start[5]]
+far = list(start)
+far[0] += 1.0
+ok_async = c.moveJ(far, 0.5, 1.0, True)
+time.sleep(0.4)
+c.stopJ(2.0, False)
+settle(r)
+q_stop = r.getActualQ()
+steps["stopJ"] = [ok_async, q_stop[0] - start[0], c.getAsyncOperationProgress(), r.getActualQd()]
+ok = c.setPayload(1.5, [0.0, 0.01, 0.05])
+settle(r)
+steps["setPayload"] = [ok, r.getPayload(), r.getPayloadCog()]
+# getActualToolFlangePose and getStepTime are real-time commands for the client: it reads the answer registers
+# before the program has written them, so the first call returns what was there (also on a
+# controller); asked again a few cycles later it answers.
+pose_trans = c.poseTrans([0.1, 0, 0, 0, 0, 0], [0, 0.2, 0, 0, 0, 0])
+c.getActualToolFlangePose()
+time.sleep(0.05)
+flange = c.getActualToolFlangePose()
+c.getStepTime()  # real-time as well
+time.sleep(0.05)
+step_time = c.getStepTime()
+steps["queries"] = {
+    "steady": c.isSteady(),
+    "joints_ok": c.isJointsWithinSafetyLimits(r.getActualQ()),
+    "joints_out": c.isJointsWithinSafetyLimits([7.0, 0, 0, 0, 0, 0]),
+    "ik_has_solution": c.getInverseKinematicsHasSolution(r.getActualTCPPose()),
+    "ik_no_solution": c.getInverseKinematicsHasSolution([3.0, 0, 0, 0, 0, 0]),
+    "pose_trans": pose_trans,
+    "flange": flange,
+    "q": r.getActualQ(),
+    "step_time": step_time,
+}
+emit("more_calls", **steps)
+
 q_before = r.getActualQ()
 ok = c.speedJ([0.15, 0.0, 0.0, 0.0, 0.0, -0.1], 0.8, 0.0)
 time.sleep(0.8)

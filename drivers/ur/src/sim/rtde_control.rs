@@ -175,6 +175,7 @@ pub(crate) fn run(p: &ControlProgram, host: &mut SimHost<'_>) -> Result<(), Runt
         c.signal(&mut s, 1);
     }
     let mut executing = false;
+    let mut last_cmd = 0;
     loop {
         host.alive().map_err(rt(0))?;
         let cmd = {
@@ -184,6 +185,10 @@ pub(crate) fn run(p: &ControlProgram, host: &mut SimHost<'_>) -> Result<(), Runt
             s.in_int[p.int_offset]
         };
         let line = p.lines.get(&cmd).copied().unwrap_or(0);
+        if cmd != last_cmd {
+            tracing::debug!(cmd, "ur_rtde control program: command word");
+            last_cmd = cmd;
+        }
         if REAL_TIME.contains(&cmd) {
             c.process(host, cmd).map_err(rt(line))?;
             c.signal(&mut host.shared.lock(), 1);

@@ -269,6 +269,22 @@ impl State {
         self.dh.forward(&self.q)
     }
 
+    /// The TCP's twist in `base` (m/s, rad/s) from the joint speeds, by differentiating the
+    /// forward kinematics along `qd`.
+    pub(crate) fn tcp_speed(&self) -> [f64; 6] {
+        if self.qd.iter().all(|v| *v == 0.0) {
+            return [0.0; 6];
+        }
+        let h = 1e-6;
+        let tcp = Isometry3::from(self.tcp);
+        let now = self.flange_pose() * tcp;
+        let q: [f64; 6] = std::array::from_fn(|i| self.q[i] + self.qd[i] * h);
+        let next = self.dh.forward(&q) * tcp;
+        let v = (next.translation.vector - now.translation.vector) / h;
+        let w = (next.rotation * now.rotation.inverse()).scaled_axis() / h;
+        [v.x, v.y, v.z, w.x, w.y, w.z]
+    }
+
     pub(crate) fn tcp_pose(&self) -> UrPose {
         UrPose::from(self.flange_pose() * Isometry3::from(self.tcp))
     }
@@ -349,6 +365,7 @@ impl State {
             "actual_qd" | "target_qd" => Value::Vector6d(self.qd),
             "actual_TCP_pose" | "target_TCP_pose" => Value::Vector6d(self.tcp_pose().0),
             "tcp_offset" => Value::Vector6d(self.tcp.0),
+            "actual_TCP_speed" | "target_TCP_speed" => Value::Vector6d(self.tcp_speed()),
             "robot_mode" => Value::Int32(self.robot_mode as i32),
             "joint_mode" => Value::Vector6Int32([i32::from(self.joint_mode()); 6]),
             "safety_mode" | "safety_status" => Value::Int32(self.safety_mode as i32),
