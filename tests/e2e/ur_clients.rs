@@ -10,7 +10,8 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{IpAddr, SocketAddr, TcpStream};
 use std::path::Path;
 use std::process::{Command, Stdio};
-use std::sync::mpsc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 use handeye_hal::ur_dh::UrModel;
@@ -175,6 +176,22 @@ fn issue_14_ur_rtde_control_interface_drives_the_simulated_arm() {
     let ip = "127.0.0.150";
     let s = start_sim(ip);
     let sim = &s.sim;
+    // A primary-interface client listening all along: program start/stop and exceptions.
+    let mut primary_sock = TcpStream::connect((ip, 30001)).expect("primary");
+    let stop = Arc::new(AtomicBool::new(false));
+    primary_messages(
+        &mut primary_sock,
+        Instant::now() + Duration::from_millis(300),
+        &stop,
+    );
+    let stop_listening = stop.clone();
+    let listener = std::thread::spawn(move || {
+        primary_messages(
+            &mut primary_sock,
+            Instant::now() + secs(150),
+            &stop_listening,
+        )
+    });
     let steps = drive_python(
         &py,
         "ur_rtde_control.py",
@@ -388,6 +405,31 @@ fn issue_14_ur_rtde_control_interface_drives_the_simulated_arm() {
     assert!(log.contains("RTDE input watchdog"), "{log}");
     assert!(log.contains("teachMode) is not supported"), "{log}");
     assert!(steps.contains_key("done"));
+
+    // The primary interface announced each run of the program and its two runtime exceptions.
+    stop.store(true, Ordering::Relaxed);
+    let primary = listener.join().expect("listener");
+    let runs = |title: &str| {
+        primary
+            .keys
+            .iter()
+            .filter(|(t, n)| t == title && n == "rtde_control")
+            .count()
+    };
+    // connect, reupload after the protective stop, reconnect, reupload after the watchdog
+    assert_eq!(runs("PROGRAM_XXX_STARTED"), 4, "{primary:?}");
+    assert_eq!(runs("PROGRAM_XXX_STOPPED"), 4, "{primary:?}");
+    assert!(
+        primary
+            .exceptions
+            .iter()
+            .any(|e| e.contains("RTDE input watchdog"))
+            && primary
+                .exceptions
+                .iter()
+                .any(|e| e.contains("(teachMode) is not supported")),
+        "{primary:?}"
+    );
 }
 
 #[test]
@@ -430,13 +472,21 @@ fn issue_14_python_urx_reads_state_and_moves() {
     assert!(max_diff(&sim.joint_positions(), &q) < 1e-9);
 }
 
-/// Reads primary-interface packages from `sock` until `deadline`, returning every runtime
-/// exception's text and every text message.
-fn primary_messages(sock: &mut TcpStream, deadline: Instant) -> (Vec<String>, Vec<String>) {
-    let (mut exceptions, mut texts) = (Vec::new(), Vec::new());
+/// What a primary-interface client saw: runtime exceptions, text messages and key messages
+/// (title, text).
+#[derive(Debug, Default)]
+struct PrimaryLog {
+    exceptions: Vec<String>,
+    texts: Vec<String>,
+    keys: Vec<(String, String)>,
+}
+
+/// Reads primary-interface packages from `sock` until `deadline` or until `stop` is set.
+fn primary_messages(sock: &mut TcpStream, deadline: Instant, stop: &AtomicBool) -> PrimaryLog {
+    let mut log = PrimaryLog::default();
     let mut buf = Vec::new();
     let mut chunk = [0u8; 65536];
-    while Instant::now() < deadline {
+    while Instant::now() < deadline && !stop.load(Ordering::Relaxed) {
         sock.set_read_timeout(Some(Duration::from_millis(100)))
             .expect("timeout");
         match sock.read(&mut chunk) {
@@ -452,13 +502,14 @@ fn primary_messages(sock: &mut TcpStream, deadline: Instant) -> (Vec<String>, Ve
         while let Some((p, n)) = primary::split(&buf).expect("well-formed primary stream") {
             buf.drain(..n);
             match p {
-                PrimaryPackage::RuntimeException { text, .. } => exceptions.push(text),
-                PrimaryPackage::Text(t) => texts.push(t),
+                PrimaryPackage::RuntimeException { text, .. } => log.exceptions.push(text),
+                PrimaryPackage::Text(t) => log.texts.push(t),
+                PrimaryPackage::Key { title, text, .. } => log.keys.push((title, text)),
                 _ => {}
             }
         }
     }
-    (exceptions, texts)
+    log
 }
 
 #[test]
@@ -469,7 +520,12 @@ fn issue_14_programs_built_to_overflow_the_parser_get_a_compile_error() {
     let at = |port: u16| SocketAddr::new(ip.parse().expect("ip"), port);
     let mut listener = TcpStream::connect(at(30001)).expect("primary");
     // Once the first packages arrived, the connection receives every robot message.
-    primary_messages(&mut listener, Instant::now() + Duration::from_millis(300));
+    let never = AtomicBool::new(false);
+    primary_messages(
+        &mut listener,
+        Instant::now() + Duration::from_millis(300),
+        &never,
+    );
     let nested_ifs = format!(
         "def deep():\n{} x = 1\n{}end\n",
         " if 1:\n".repeat(5000),
@@ -487,7 +543,7 @@ fn issue_14_programs_built_to_overflow_the_parser_get_a_compile_error() {
         }
     }
     let sent = senders.len();
-    let (exceptions, _) = primary_messages(&mut listener, Instant::now() + secs(3));
+    let exceptions = primary_messages(&mut listener, Instant::now() + secs(3), &never).exceptions;
     let refused: Vec<&String> = exceptions
         .iter()
         .filter(|e| e.contains("compile error") && e.contains("nested too deeply"))
@@ -507,7 +563,7 @@ fn issue_14_programs_built_to_overflow_the_parser_get_a_compile_error() {
     let mut sock = TcpStream::connect(at(30002)).expect("secondary");
     sock.write_all(b"def alive():\n  textmsg(\"still answering\")\nend\n")
         .expect("send");
-    let (_, texts) = primary_messages(&mut listener, Instant::now() + secs(2));
+    let texts = primary_messages(&mut listener, Instant::now() + secs(2), &never).texts;
     assert!(texts.iter().any(|t| t == "still answering"), "{texts:?}");
     drop(senders);
     let log = d.stop();
