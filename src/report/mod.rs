@@ -414,19 +414,36 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
             c.text(rx + 250, y, &b, Size::Body, false, INK);
             y += 22;
         }
-        let angle = (ax * ax + ay * ay + az * az).sqrt().to_degrees();
+        let rotation =
+            nalgebra::UnitQuaternion::from_scaled_axis(nalgebra::Vector3::new(ax, ay, az));
+        let (roll, pitch, yaw) = rotation.euler_angles();
         c.text(
             rx,
             y,
             &format!(
-                "rotation {angle:.3}°   uncertainty (1 sigma) {:.3} mm / {:.4}°",
-                r.uncertainty.translation_mm, r.uncertainty.rotation_deg
+                "rotation {:.3}°  (roll {:.3}°, pitch {:.3}°, yaw {:.3}°)",
+                rotation.angle().to_degrees(),
+                roll.to_degrees(),
+                pitch.to_degrees(),
+                yaw.to_degrees()
             ),
             Size::Small,
             false,
             MUTED,
         );
-        y += 28;
+        y += 18;
+        c.text(
+            rx,
+            y,
+            &format!(
+                "uncertainty (1 sigma)  {:.3} mm / {:.4}°",
+                r.uncertainty.translation_mm, r.uncertainty.rotation_deg
+            ),
+            Size::Small,
+            true,
+            INK,
+        );
+        y += 26;
         y = heading(&mut c, rx, y, rw, "QUALITY");
         let q = &r.quality;
         let lines = [
@@ -525,7 +542,7 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
     }
 
     // Bottom right: the histogram.
-    let hy = (y + 16).min(h - 140);
+    let hy = (y + 16).max(h - 300).min(h - 140);
     if let Some(view) = scan {
         histogram(&mut c, rx, hy, rw, h - hy - 16, view, summary);
     }
