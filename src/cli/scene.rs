@@ -66,10 +66,21 @@ impl SceneMount {
             let modified = std::fs::metadata(&*path).and_then(|m| m.modified()).ok();
             if modified.is_some() && modified != *seen {
                 *seen = modified;
-                match std::fs::read_to_string(&*path)
+                // Never a FIFO (the read would stall the streaming thread), never a huge file;
+                // a mount within reach of the flange.
+                match handeye_hal::limits::check_regular_file(path, MAX_MOUNT_FILE_BYTES)
+                    .and_then(|_| std::fs::read_to_string(&*path))
                     .map_err(|e| e.to_string())
                     .and_then(|t| parse_pose(&t))
-                {
+                    .and_then(|m| {
+                        super::args::check_pose_distance(
+                            "the mount file's pose",
+                            &m,
+                            super::args::MAX_MOUNT_DISTANCE_M,
+                            "a camera on the flange",
+                        )
+                        .map(|()| m)
+                    }) {
                     Ok(m) => {
                         eprintln!(
                             "sim camera: mount is now {} (from {})",
@@ -85,6 +96,9 @@ impl SceneMount {
         self.current
     }
 }
+
+/// Largest mount file read (one `x,y,z,rx,ry,rz` line).
+const MAX_MOUNT_FILE_BYTES: u64 = 4096;
 
 /// Where the rendered robot's joints come from.
 pub(crate) enum SceneJoints {
@@ -347,6 +361,39 @@ mod tests {
         assert_eq!(a.port(), 40004);
         let e = parse_robot_addr("robot.local").expect_err("not an ip");
         assert!(e.to_string().contains("robot.local"), "{e}");
+    }
+
+    /// Issue 16: a mount file that is a FIFO does not stall the camera (it is not read), one
+    /// with a pose across the cell is ignored, a good one is taken.
+    #[cfg(unix)]
+    #[test]
+    fn issue_16_mount_file_is_read_only_when_plausible() {
+        let dir = std::env::temp_dir().join(format!("handeye-scene-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let initial = Isometry3::translation(0.0, -0.08, 0.04);
+        let fifo = dir.join("mount.fifo");
+        let _ = std::fs::remove_file(&fifo);
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .expect("mkfifo");
+        assert!(made.success());
+        let mut m = SceneMount::watched(initial, fifo.clone());
+        let t = Instant::now();
+        assert_eq!(m.get(), initial);
+        assert!(t.elapsed() < Duration::from_secs(1), "{:?}", t.elapsed());
+        let file = dir.join("mount.txt");
+        std::fs::write(&file, "1e6,0,0,0,0,0").expect("write");
+        let mut m = SceneMount::watched(initial, file.clone());
+        assert_eq!(
+            m.get(),
+            initial,
+            "a mount 1000 km from the flange is ignored"
+        );
+        std::fs::write(&file, "0.01,-0.07,0.05,0,0,0.1").expect("write");
+        let mut m = SceneMount::watched(initial, file);
+        assert!((m.get().translation.vector.x - 0.01).abs() < 1e-12);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]
