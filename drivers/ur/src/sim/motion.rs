@@ -88,10 +88,12 @@ pub(crate) enum Motion {
         /// The speed reached (joint speeds or twist), before the speed slider.
         current: [f64; 6],
     },
-    /// `servoj`: follow `target` (rad), reaching it in `time` s, no faster than the joints can.
+    /// `servoj`: go to `target` (rad) in a straight joint-space line arriving `time` s after the
+    /// command (`left` s from now), no faster than the joints can; then hold it.
     Servo {
         target: [f64; 6],
         time: f64,
+        left: f64,
     },
 }
 
@@ -273,9 +275,10 @@ pub(crate) fn step(s: &mut State, wall_dt: f64) {
             s.target_q = next;
             done = false;
         }
-        Motion::Servo { target, time } => {
+        Motion::Servo { target, left, .. } => {
             let max_step = std::f64::consts::PI * dt;
-            let k = (dt / time.max(dt)).min(1.0);
+            let k = (dt / left.max(dt)).min(1.0);
+            *left = (*left - dt).max(0.0);
             let mut next = s.q;
             for ((n, t), q) in next.iter_mut().zip(target.iter()).zip(s.q) {
                 *n = q + (k * (t - q)).clamp(-max_step, max_step);
@@ -409,6 +412,106 @@ mod tests {
                 t += 0.01;
             }
         }
+    }
+
+    fn state() -> State {
+        let c = crate::sim::SimConfig::new(UrModel::Ur5e, [127, 0, 0, 1].into());
+        let mut s = State::new(&c);
+        s.robot_mode = crate::sim::RobotModeCode::Running;
+        s
+    }
+
+    fn run_until_done(s: &mut State, limit_s: f64) -> f64 {
+        let mut t = 0.0;
+        while s.motion.is_some() && t < limit_s {
+            step(s, 0.002);
+            t += 0.002;
+        }
+        t
+    }
+
+    #[test]
+    fn the_speed_slider_scales_trajectory_time() {
+        let mut times = Vec::new();
+        for slider in [1.0, 0.5, 0.25] {
+            let mut s = state();
+            s.speed_slider = slider;
+            let mut goal = s.q;
+            goal[0] += 0.5;
+            s.motion = Some(Motion::joint(s.q, goal, 1.0, 2.0));
+            times.push(run_until_done(&mut s, 20.0));
+            assert!(
+                (s.q[0] - goal[0]).abs() < 1e-12,
+                "reaches the goal at {slider}"
+            );
+        }
+        // 0.5 rad at 1 rad/s, 2 rad/s²: 1.0 s at full speed.
+        assert!((times[0] - 1.0).abs() < 0.01, "{times:?}");
+        assert!((times[1] / times[0] - 2.0).abs() < 0.02, "{times:?}");
+        assert!((times[2] / times[0] - 4.0).abs() < 0.04, "{times:?}");
+    }
+
+    #[test]
+    fn a_speed_command_running_into_a_joint_limit_protective_stops() {
+        let mut s = state();
+        s.q[5] = super::super::state::JOINT_LIMIT - 0.05;
+        s.motion = Some(Motion::speed(
+            None,
+            true,
+            [0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            5.0,
+        ));
+        let mut t = 0.0;
+        while s.safety_mode == crate::sim::SafetyModeCode::Normal && t < 2.0 {
+            step(&mut s, 0.002);
+            t += 0.002;
+        }
+        assert_eq!(s.safety_mode, crate::sim::SafetyModeCode::ProtectiveStop);
+        assert!(s.log.iter().any(|l| l.contains("joint position limit")));
+        run_until_done(&mut s, 2.0);
+        assert!(s.qd.iter().all(|v| *v == 0.0));
+        assert!(
+            s.q[5] - super::super::state::JOINT_LIMIT < 0.05,
+            "{}",
+            s.q[5]
+        );
+    }
+
+    #[test]
+    fn speedj_ramps_to_the_commanded_speed_and_servoj_follows_its_target() {
+        let mut s = state();
+        s.motion = Some(Motion::speed(
+            None,
+            true,
+            [0.4, 0.0, 0.0, 0.0, 0.0, -0.2],
+            1.0,
+        ));
+        for _ in 0..100 {
+            step(&mut s, 0.002);
+        }
+        // After 0.2 s at 1 rad/s² the speed vector is 0.2 long, in the commanded direction.
+        let expect = 0.2 * 0.4 / 0.4f64.hypot(0.2);
+        assert!((s.qd[0] - expect).abs() < 1e-6, "on the ramp: {:?}", s.qd);
+        for _ in 0..500 {
+            step(&mut s, 0.002);
+        }
+        assert!((s.qd[0] - 0.4).abs() < 1e-9 && (s.qd[5] + 0.2).abs() < 1e-9);
+        let mut target = s.q;
+        target[2] += 0.01;
+        s.motion = Some(Motion::Servo {
+            target,
+            time: 0.008,
+            left: 0.008,
+        });
+        for _ in 0..20 {
+            step(&mut s, 0.002);
+        }
+        assert!(
+            (s.q[2] - target[2]).abs() < 1e-9,
+            "{} vs {}",
+            s.q[2],
+            target[2]
+        );
     }
 
     #[test]

@@ -401,7 +401,17 @@ impl Control<'_> {
                 if !(time.is_finite() && time > 0.0) {
                     return Err(format!("servoj: time {time} must be positive"));
                 }
-                s.motion = Some(Motion::Servo { target, time });
+                // The program calls servoj with the latest target on every cycle; a repeated
+                // target keeps its arrival time.
+                let same = matches!(&s.motion,
+                    Some(Motion::Servo { target: t, time: d, .. }) if *t == target && *d == time);
+                if !same {
+                    s.motion = Some(Motion::Servo {
+                        target,
+                        time,
+                        left: time,
+                    });
+                }
             }
             15 | 16 => {
                 {
