@@ -386,10 +386,6 @@ fn issue_14_ur_rtde_control_interface_drives_the_simulated_arm() {
         (true.into(), true.into())
     );
     assert!(max_diff(&six(&re["q"]), &six(&re["target"])) < 1e-6, "{re}");
-    assert!(
-        max_diff(&sim.joint_positions(), &six(&re["q"])) < 1e-9,
-        "RTDE and the arm agree"
-    );
 
     let wd = step("watchdog");
     assert_eq!(wd["ok"], true, "{wd}");
@@ -404,6 +400,14 @@ fn issue_14_ur_rtde_control_interface_drives_the_simulated_arm() {
     let log = sim.recent_log().join("\n");
     assert!(log.contains("RTDE input watchdog"), "{log}");
     assert!(log.contains("teachMode) is not supported"), "{log}");
+    let up = step("upper_range");
+    assert_eq!(up["ok"], serde_json::json!([true, true]), "{up}");
+    assert!(max_diff(&six(&up["q"]), &six(&up["target"])) < 1e-6, "{up}");
+    assert!(max_diff(&six(&up["offset"]), &[0.0, 0.0, 0.05, 0.0, 0.0, 0.0]) < 1e-12);
+    assert!(
+        max_diff(&sim.joint_positions(), &six(&up["q"])) < 1e-9,
+        "RTDE and the arm agree"
+    );
     assert!(steps.contains_key("done"));
 
     // The primary interface announced each run of the program and its two runtime exceptions.
@@ -416,9 +420,10 @@ fn issue_14_ur_rtde_control_interface_drives_the_simulated_arm() {
             .filter(|(t, n)| t == title && n == "rtde_control")
             .count()
     };
-    // connect, reupload after the protective stop, reconnect, reupload after the watchdog
-    assert_eq!(runs("PROGRAM_XXX_STARTED"), 4, "{primary:?}");
-    assert_eq!(runs("PROGRAM_XXX_STOPPED"), 4, "{primary:?}");
+    // connect, reupload after the protective stop, reconnect, reupload after the watchdog,
+    // the upper register range
+    assert_eq!(runs("PROGRAM_XXX_STARTED"), 5, "{primary:?}");
+    assert_eq!(runs("PROGRAM_XXX_STOPPED"), 5, "{primary:?}");
     assert!(
         primary
             .exceptions

@@ -217,5 +217,17 @@ ok, secs = timed(c.teachMode)
 emit("unsupported", running_before=running_before, ok=ok, seconds=secs,
      running=c.isProgramRunning())
 c.disconnect()
+
+# The upper register range (registers 24-47; the lower range free for a fieldbus).
+RTDEControl = rtde_control.RTDEControlInterface
+upper = RTDEControl(host, -1.0, RTDEControl.FLAG_UPLOAD_SCRIPT | RTDEControl.FLAG_UPPER_RANGE_REGISTERS)
+q = r.getActualQ()
+target = [a + d for a, d in zip(q, [-0.2, 0.1, 0.0, 0.0, 0.0, 0.1])]
+ok = upper.moveJ(target, 1.05, 1.4)
+settle(r)
+ok_tcp = upper.setTcp([0.0, 0.0, 0.05, 0.0, 0.0, 0.0])
+emit("upper_range", ok=[ok, ok_tcp], target=target, q=r.getActualQ(), offset=upper.getTCPOffset())
+upper.stopScript()
+upper.disconnect()
 r.disconnect()
 emit("done")
