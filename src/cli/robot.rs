@@ -138,6 +138,13 @@ async fn interruptible(
 
 /// Sets the runtime TCP from a UR pose `x,y,z,rx,ry,rz` and reads it back.
 async fn set_tcp(robot: &UrRobot, p: UrPose) -> anyhow::Result<ExitCode> {
+    super::args::check_pose_distance(
+        "--pose",
+        &Isometry3::from(p),
+        super::args::MAX_MOUNT_DISTANCE_M,
+        "a TCP on a tool at the flange",
+    )
+    .map_err(anyhow::Error::msg)?;
     robot
         .set_tcp(&Isometry3::from(p))
         .await

@@ -41,6 +41,9 @@ pub const MAX_MODEL_TRIANGLES: usize = 20_000_000;
 /// `<mesh scale>`): no robot link reaches that far from its joint.
 pub const MAX_LINK_EXTENT_M: f64 = 20.0;
 
+/// Largest joint limit (and mimic multiplier or offset) accepted, radians or metres.
+pub const MAX_JOINT_LIMIT: f64 = 1000.0;
+
 /// Which of a link's geometries: what it looks like (`<visual>`, use it to synthesise and
 /// register scans) or its simplified hull (`<collision>`, use it for collision checks).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -363,6 +366,14 @@ impl RobotModel {
             if !pose_is_finite(&joint.origin) {
                 return Err(format!("joint `{}` has a non-finite <origin>", joint.name));
             }
+            let [x, y, z] = joint.origin.xyz.0;
+            if Vector3::new(x, y, z).norm() > MAX_LINK_EXTENT_M {
+                return Err(format!(
+                    "joint `{}` has its <origin> {:.3e} m from its parent link (at most {MAX_LINK_EXTENT_M} m; lengths are in metres)",
+                    joint.name,
+                    Vector3::new(x, y, z).norm()
+                ));
+            }
         }
         let roots: Vec<usize> = (0..link_names.len())
             .filter(|&i| parent_joint[i].is_none())
@@ -459,6 +470,12 @@ impl RobotModel {
                     joint.name
                 ));
             }
+            if lower.abs() > MAX_JOINT_LIMIT || upper.abs() > MAX_JOINT_LIMIT {
+                return Err(format!(
+                    "joint `{}` has limits [{lower:e}, {upper:e}]: expected within ±{MAX_JOINT_LIMIT} (radians, metres for prismatic joints; use type=\"continuous\" for an unlimited joint)",
+                    joint.name
+                ));
+            }
             joint_names.push(joint.name.clone());
             joint_limits.push(JointLimit {
                 lower,
@@ -482,11 +499,22 @@ impl RobotModel {
             let q = match (chain_slot.get(&l), &joint.mimic) {
                 (Some(&i), _) => QSource::Chain(i),
                 (None, Some(m)) => match joint_slot.get(m.joint.as_str()) {
-                    Some(&index) => QSource::Mimic {
-                        index,
-                        multiplier: m.multiplier.unwrap_or(1.0),
-                        offset: m.offset.unwrap_or(0.0),
-                    },
+                    Some(&index) => {
+                        let (multiplier, offset) =
+                            (m.multiplier.unwrap_or(1.0), m.offset.unwrap_or(0.0));
+                        if !(multiplier.abs() <= MAX_JOINT_LIMIT && offset.abs() <= MAX_JOINT_LIMIT)
+                        {
+                            return Err(format!(
+                                "joint `{}` has <mimic multiplier=\"{multiplier}\" offset=\"{offset}\">: expected finite values within ±{MAX_JOINT_LIMIT}",
+                                joint.name
+                            ));
+                        }
+                        QSource::Mimic {
+                            index,
+                            multiplier,
+                            offset,
+                        }
+                    }
                     None => QSource::Zero,
                 },
                 (None, None) => QSource::Zero,

@@ -849,6 +849,29 @@ fn issue_16_deep_nesting_and_huge_sizes_are_clear_errors() {
         let e = load(&text).expect_err(&text).to_string();
         assert!(e.contains(says), "{text}: {e}");
     }
+    // Joint origins, limits and mimic factors that parse but are no robot.
+    let arm = |joint: &str| {
+        format!(
+            r#"<robot name="r"><link name="a"/><link name="b"/><link name="c"/><link name="d"/>{joint}<joint name="k" type="revolute"><parent link="b"/><child link="c"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint><joint name="m" type="prismatic"><parent link="a"/><child link="d"/><axis xyz="0 0 1"/><limit lower="0" upper="1" velocity="1" effort="1"/><mimic joint="j" multiplier="1e300"/></joint></robot>"#
+        )
+    };
+    for (joint, says) in [
+        (
+            r#"<joint name="j" type="revolute"><origin xyz="1e300 0 0"/><parent link="a"/><child link="b"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>"#,
+            "from its parent link",
+        ),
+        (
+            r#"<joint name="j" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/><limit lower="-1e300" upper="1" velocity="1" effort="1"/></joint>"#,
+            "has limits",
+        ),
+        (
+            r#"<joint name="j" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" velocity="1" effort="1"/></joint>"#,
+            "mimic",
+        ),
+    ] {
+        let e = load(&arm(joint)).expect_err(joint).to_string();
+        assert!(e.contains(says), "{joint}: {e}");
+    }
     // Millimetre meshes scaled to metres still load.
     load(&mesh_urdf("t.stl", r#"scale="0.001 0.001 0.001""#)).expect("mm mesh at scale 0.001");
     let _ = std::fs::remove_dir_all(&dir);
