@@ -96,6 +96,23 @@ async fn ur_rtde_dashboard_power_brake_play_stop() {
     assert_eq!(out["running_after_stop"], false, "{out}");
     assert!(out["version"].as_str().expect("s").contains('5'), "{out}");
     assert_eq!(out["remote"], true, "{out}");
+    assert_eq!(
+        out["loaded_program"],
+        "Loaded program: /programs/handeye.urp"
+    );
+    assert_eq!(out["program_state_stopped"], "STOPPED handeye.urp");
+    // The controller's reply, and ur-rtde's reading of it (it looks for "True"): a client
+    // quirk kept as it is, documented in the README.
+    assert_eq!(out["program_saved_reply"], "true handeye.urp");
+    assert_eq!(out["program_saved"], false, "{out}");
+    assert_eq!(out["robot_model"], "UR5");
+    let serial = out["serial_number"].as_str().expect("s");
+    assert!(
+        serial.starts_with("20") && serial.chars().all(|c| c.is_ascii_digit()),
+        "{serial}"
+    );
+    assert_eq!(out["safetymode"], "Safetymode: NORMAL");
+    assert_eq!(out["pause_when_stopped"], "Failed to execute: pause");
     assert_eq!(sim.robot_mode(), handeye_ur::sim::RobotModeCode::Running);
 }
 

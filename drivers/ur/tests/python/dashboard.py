@@ -20,5 +20,19 @@ d.stop()
 out["running_after_stop"] = d.running()
 out["version"] = str(d.polyscopeVersion())
 out["remote"] = d.isInRemoteControl()
+out["loaded_program"] = str(d.getLoadedProgram())
+out["program_state_stopped"] = str(d.programState())
+# ur-rtde looks for "True" in a reply controllers give as "true <name>": False on both.
+out["program_saved"] = d.isProgramSaved()
+d.send("isProgramSaved\n")
+out["program_saved_reply"] = d.receive().strip()
+out["robot_model"] = str(d.getRobotModel())
+out["serial_number"] = str(d.getSerialNumber())
+out["safetymode"] = str(d.safetymode())
+try:  # nothing plays: the controller answers "Failed to execute: pause", ur-rtde raises it
+    d.pause()
+    out["pause_when_stopped"] = "no error"
+except RuntimeError as e:
+    out["pause_when_stopped"] = str(e)
 d.disconnect()
 print(json.dumps(out))
