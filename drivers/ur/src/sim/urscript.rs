@@ -940,6 +940,16 @@ mod tests {
                 .secondary
         );
         assert!(parse_program("textmsg(\"hi\")\n").is_ok());
+        // Non-ASCII text: inside strings it is kept, elsewhere it is refused, never a panic.
+        assert!(parse_program("textmsg(\"grüße ✓\")\n").is_ok());
+        for text in [
+            "x = é\n",
+            "x = 1 ✓ 2\n",
+            "é = 1\n",
+            "def ä():\n  x = 1\nend\n",
+        ] {
+            assert!(parse_program(text).is_err(), "{text}");
+        }
     }
 
     /// Parses `text` on a thread with a quarter of a tokio worker's stack (the primary server
