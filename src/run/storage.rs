@@ -188,6 +188,9 @@ pub(crate) fn save_frame(
     Ok(path)
 }
 
+/// Largest `capture.json` read (a run with many views is a few hundred kB).
+const MAX_CAPTURE_FILE_BYTES: u64 = 64 << 20;
+
 /// Writes `capture.json`; returns its path.
 pub(crate) fn write_capture_file(
     run_dir: &Path,
@@ -200,7 +203,9 @@ pub(crate) fn write_capture_file(
 
 /// Reads a `capture.json` written by a run (its frame paths are absolute or relative to it).
 pub fn load_capture(path: &Path) -> Result<CaptureFile, String> {
-    let text = std::fs::read_to_string(path)
+    // A regular file of bounded size: a FIFO would block the read forever.
+    let text = handeye_hal::limits::check_regular_file(path, MAX_CAPTURE_FILE_BYTES)
+        .and_then(|_| std::fs::read_to_string(path))
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     serde_json::from_str(&text).map_err(|e| {
         format!(

@@ -457,6 +457,8 @@ fn issue_16_bad_input_is_a_clear_error_quickly() {
         .status()
         .expect("mkfifo")
         .success());
+    let out = quick(&["solve", "--capture", &fifo.to_string_lossy()]);
+    assert!(out.stderr.contains("FIFO"), "{out}");
     let Some(_shared) = shared("issue_16_bad_input_is_a_clear_error_quickly") else {
         return;
     };
