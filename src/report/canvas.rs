@@ -250,7 +250,7 @@ impl Canvas {
             let mut enc = png::Encoder::new(&mut out, self.width as u32, self.height as u32);
             enc.set_color(png::ColorType::Rgb);
             enc.set_depth(png::BitDepth::Eight);
-            enc.set_compression(png::Compression::High);
+            enc.set_compression(png::Compression::Balanced);
             let mut writer = enc.write_header()?;
             let bytes: Vec<u8> = self.pixels.iter().flatten().copied().collect();
             writer.write_image_data(&bytes)?;
