@@ -315,15 +315,19 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         self.progress
             .stage(Stage::Register, &format!("registering {n} frame(s)"));
         let opts = self.pipeline_options(controller_dh, reference.as_ref());
-        let (first_frame, picture_dh) = (frames.first().cloned(), opts.controller_dh);
+        let picture_dh = opts.controller_dh;
         let model = self.model.clone();
-        let calibration = cancellable(self.cancel, Stage::Register, async move {
-            tokio::task::spawn_blocking(move || calibrate_frames(&model, &frames, &opts))
-                .await
-                .map_err(|e| {
-                    Failure::error(Stage::Register, format!("registration panicked: {e}"))
-                })?
-                .map_err(|e| Failure::error(Stage::Register, error_chain(&e)))
+        // The first frame comes back for the report picture (no copy of the scan is made).
+        let (calibration, first_frame) = cancellable(self.cancel, Stage::Register, async move {
+            let (calibration, first) = tokio::task::spawn_blocking(move || {
+                let calibration = calibrate_frames(&model, &frames, &opts);
+                (calibration, frames.into_iter().next())
+            })
+            .await
+            .map_err(|e| Failure::error(Stage::Register, format!("registration panicked: {e}")))?;
+            let calibration =
+                calibration.map_err(|e| Failure::error(Stage::Register, error_chain(&e)))?;
+            Ok((calibration, first))
         })
         .await?;
         self.picture = first_frame
