@@ -181,3 +181,35 @@ fn camera_that_stops_streaming_mid_capture_is_a_frame_timeout() {
         .expect_err("stalls");
     assert!(matches!(e, GigeError::FrameTimeout { .. }), "{e}");
 }
+
+/// Issue 16: options the streaming thread would turn into a panic (a zero or NaN bandwidth, an
+/// infinite frame rate) are refused when the camera is started.
+#[test]
+fn issue_16_unusable_options_are_refused_at_start() {
+    for opts in [
+        SimOptions {
+            bandwidth_bps: Some(0.0),
+            ..SimOptions::default()
+        },
+        SimOptions {
+            bandwidth_bps: Some(f64::NAN),
+            ..SimOptions::default()
+        },
+        SimOptions {
+            frame_rate: f64::INFINITY,
+            ..SimOptions::default()
+        },
+        SimOptions {
+            loss_ratio: 1.0,
+            ..SimOptions::default()
+        },
+    ] {
+        let e = SimCamera::spawn(
+            "127.0.0.175:0".parse().expect("addr"),
+            Box::new(SceneSource::new(64, 48)),
+            opts,
+        )
+        .expect_err("refused");
+        assert!(matches!(e, GigeError::InvalidArgument(_)), "{e}");
+    }
+}

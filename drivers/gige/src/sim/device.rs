@@ -76,6 +76,31 @@ impl Default for SimOptions {
     }
 }
 
+impl SimOptions {
+    /// Whether the numbers are usable (the streaming thread turns them into durations): a
+    /// loss ratio in [0, 1), a frame rate of 0.01–1000 per second, a bandwidth of at least
+    /// 1 Mbit/s and finite.
+    pub fn check(&self) -> std::result::Result<(), String> {
+        if !(0.0..1.0).contains(&self.loss_ratio) {
+            return Err(format!("loss ratio {} is not in [0, 1)", self.loss_ratio));
+        }
+        if !(self.frame_rate.is_finite() && (0.01..=1000.0).contains(&self.frame_rate)) {
+            return Err(format!(
+                "frame rate {} is not within 0.01–1000 frames/s",
+                self.frame_rate
+            ));
+        }
+        if let Some(bps) = self.bandwidth_bps {
+            if !(bps.is_finite() && bps >= 1e6) {
+                return Err(format!(
+                    "bandwidth {bps} bit/s is not a finite rate of at least 1 Mbit/s"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// What the simulator did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct SimStats {
@@ -331,6 +356,7 @@ impl SimCamera {
                 "GigE Vision is IPv4 only".into(),
             ));
         };
+        opts.check().map_err(GigeError::InvalidArgument)?;
         let gvcp_sock = UdpSocket::bind(bind).map_err(|e| GigeError::io(bind, e))?;
         let addr = gvcp_sock.local_addr().map_err(|e| GigeError::io(bind, e))?;
         gvcp_sock
