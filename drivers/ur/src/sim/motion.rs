@@ -391,7 +391,20 @@ pub(crate) async fn run(shared: Arc<Shared>) {
         let now = Instant::now();
         let dt = (now - last).as_secs_f64().min(0.05);
         last = now;
-        step(&mut shared.lock(), dt);
+        let fired = {
+            let mut s = shared.lock();
+            step(&mut s, dt);
+            s.check_rtde_watchdog()
+        };
+        if let Some(msg) = fired {
+            tracing::warn!("{msg}");
+            shared.publish(crate::primary::encode_runtime_exception(
+                shared.timestamp_us(),
+                0,
+                0,
+                &msg,
+            ));
+        }
     }
 }
 

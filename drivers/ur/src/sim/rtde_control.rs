@@ -165,7 +165,6 @@ pub(crate) fn run(p: &ControlProgram, host: &mut SimHost<'_>) -> Result<(), Runt
         wr_count: 0,
         op_id: 0,
         async_op: None,
-        watchdog: None,
     };
     let rt = |line: usize| move |message: String| RuntimeError { line, message };
     host.textmsg("RTDE Control Script Loaded (handeye simulator: native protocol)");
@@ -181,7 +180,6 @@ pub(crate) fn run(p: &ControlProgram, host: &mut SimHost<'_>) -> Result<(), Runt
         let cmd = {
             let mut s = host.shared.lock();
             c.poll(&mut s);
-            c.check_watchdog(&s).map_err(rt(0))?;
             s.in_int[p.int_offset]
         };
         let line = p.lines.get(&cmd).copied().unwrap_or(0);
@@ -220,8 +218,6 @@ struct Control<'a> {
     wr_count: i32,
     op_id: i32,
     async_op: Option<AsyncOp>,
-    /// Minimum update frequency (Hz) of the command register, once `setWatchdog` ran.
-    watchdog: Option<f64>,
 }
 
 impl Control<'_> {
@@ -274,21 +270,6 @@ impl Control<'_> {
             self.async_op = None;
             self.write_async(s, -1);
         }
-    }
-
-    fn check_watchdog(&self, s: &State) -> Result<(), String> {
-        let Some(hz) = self.watchdog else {
-            return Ok(());
-        };
-        let reg = self.p.int_offset;
-        let age = s.timestamp() - s.in_int_written[reg];
-        if age > 1.0 / hz {
-            return Err(format!(
-                "RTDE input watchdog: input_int_register_{reg} was not updated for {age:.3} s \
-                 (minimum frequency {hz} Hz); program stopped"
-            ));
-        }
-        Ok(())
     }
 
     /// The program's `stop_async_move`: an asynchronous move in progress is abandoned (the
@@ -501,7 +482,15 @@ impl Control<'_> {
                         "rtde_set_watchdog: frequency {hz} must be positive"
                     ));
                 }
-                self.watchdog = Some(hz);
+                // `rtde_set_watchdog(…, "stop")`: the controller watches the register from now
+                // on, also while this program waits in a move, for as long as it runs.
+                let mut s = sh.lock();
+                let program_gen = s.program_gen;
+                s.rtde_watchdog = Some(super::state::RtdeWatchdog {
+                    register: self.p.int_offset,
+                    min_hz: hz,
+                    program_gen,
+                });
             }
             36 | 37 | 47 | 60 | 61 => {
                 let mut s = sh.lock();
@@ -606,7 +595,6 @@ mod tests {
             wr_count: 0,
             op_id: 0,
             async_op: None,
-            watchdog: None,
         };
         c.write_async(&mut s, -1);
         assert_eq!(s.out_int[26], 65536, "finished, write 1, operation 0");

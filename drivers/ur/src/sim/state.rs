@@ -61,6 +61,17 @@ fn robot_type(model: UrModel) -> i32 {
     }
 }
 
+/// An RTDE input watchdog set by a running program (`rtde_set_watchdog(name, hz, "stop")`).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct RtdeWatchdog {
+    /// The watched `input_int_register_N`.
+    pub(crate) register: usize,
+    /// Least update frequency, Hz.
+    pub(crate) min_hz: f64,
+    /// The program that set it (the watchdog ends with it).
+    pub(crate) program_gen: u64,
+}
+
 /// Robot mode codes (RTDE `robot_mode`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[allow(missing_docs)]
@@ -128,6 +139,8 @@ pub(crate) struct State {
     /// When each input int register was last written by an RTDE client (controller seconds;
     /// the RTDE watchdog of ur_rtde's control program watches one).
     pub(crate) in_int_written: [f64; 48],
+    /// The RTDE watchdog of the running program, if it set one.
+    pub(crate) rtde_watchdog: Option<RtdeWatchdog>,
     pub(crate) in_double: [f64; 48],
     pub(crate) in_bits: u128,
     pub(crate) out_int: [i32; 48],
@@ -184,6 +197,7 @@ impl State {
             dashboard_playing: RUNTIME_STOPPED,
             in_int: [0; 48],
             in_int_written: [0.0; 48],
+            rtde_watchdog: None,
             in_double: [0.0; 48],
             in_bits: 0,
             out_int: [0; 48],
@@ -287,6 +301,30 @@ impl State {
 
     pub(crate) fn tcp_pose(&self) -> UrPose {
         UrPose::from(self.flange_pose() * Isometry3::from(self.tcp))
+    }
+
+    /// Enforces the RTDE watchdog: `Some(message)` when the watched register was not updated
+    /// in time, after stopping the program that set it (a watchdog of a program that already
+    /// ended is dropped).
+    pub(crate) fn check_rtde_watchdog(&mut self) -> Option<String> {
+        let w = self.rtde_watchdog?;
+        if w.program_gen != self.program_gen || self.runtime_state == RUNTIME_STOPPED {
+            self.rtde_watchdog = None;
+            return None;
+        }
+        let age = self.timestamp() - self.in_int_written[w.register];
+        if age <= 1.0 / w.min_hz {
+            return None;
+        }
+        self.rtde_watchdog = None;
+        let msg = format!(
+            "RTDE input watchdog: input_int_register_{} was not updated for {age:.3} s \
+             (minimum frequency {} Hz); program stopped",
+            w.register, w.min_hz
+        );
+        self.push_log(msg.clone());
+        self.stop_program(None);
+        Some(msg)
     }
 
     pub(crate) fn can_move(&self) -> Result<(), String> {
@@ -504,5 +542,51 @@ impl State {
                 _ => {}
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_rtde_watchdog_stops_its_program_and_ends_with_it() {
+        let c = SimConfig::new(UrModel::Ur5e, [127, 0, 0, 1].into());
+        let mut s = State::new(&c);
+        s.runtime_state = RUNTIME_PLAYING;
+        let write = |s: &mut State| {
+            s.apply_inputs(&["input_int_register_0".into()], &[Value::Int32(0)]);
+        };
+        write(&mut s);
+        s.rtde_watchdog = Some(RtdeWatchdog {
+            register: 0,
+            min_hz: 10.0,
+            program_gen: s.program_gen,
+        });
+        // Kicked every 5 ms for 100 ms: the program runs on.
+        for _ in 0..20 {
+            std::thread::sleep(Duration::from_millis(5));
+            write(&mut s);
+            assert_eq!(s.check_rtde_watchdog(), None);
+        }
+        assert_eq!(s.runtime_state, RUNTIME_PLAYING);
+        // Not kicked for 150 ms (more than 1/10 Hz): the program stops, once.
+        std::thread::sleep(Duration::from_millis(150));
+        let msg = s.check_rtde_watchdog().expect("fires");
+        assert!(msg.contains("input_int_register_0"), "{msg}");
+        assert_eq!(s.runtime_state, RUNTIME_STOPPED);
+        assert_eq!(s.check_rtde_watchdog(), None);
+        // A watchdog of a program that ended is dropped without firing.
+        s.runtime_state = RUNTIME_PLAYING;
+        s.rtde_watchdog = Some(RtdeWatchdog {
+            register: 0,
+            min_hz: 10.0,
+            program_gen: s.program_gen,
+        });
+        s.stop_program(None);
+        s.runtime_state = RUNTIME_PLAYING;
+        std::thread::sleep(Duration::from_millis(150));
+        assert_eq!(s.check_rtde_watchdog(), None);
+        assert!(s.rtde_watchdog.is_none());
     }
 }
