@@ -225,3 +225,58 @@ fn the_drift_chart_shows_checks_against_the_limits() {
         "says no checks yet"
     );
 }
+
+/// Every run gets its picture, also one that ends in an error before any scan: here the camera
+/// delivers nothing after the arm moved to the view.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_run_that_fails_still_writes_its_picture() {
+    use std::f64::consts::FRAC_PI_2;
+    use std::net::{IpAddr, Ipv4Addr};
+
+    use handeye_hal::fake::{FakeCamera, FakeRobot};
+    use handeye_hal::ur_dh::UrModel;
+
+    use crate::config::{RobotPorts, ViewTargets};
+    use crate::run::{RunMode, RunRequest, Silent, REPORT_PICTURE, RUNS_DIR};
+
+    let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("handeye-report-run-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut cfg = crate::config::sim_rig(
+        IpAddr::V4(Ipv4Addr::LOCALHOST),
+        RobotPorts::UR_STANDARD,
+        "127.0.0.1".into(),
+        dir.clone(),
+    );
+    let home = [0.0, -FRAC_PI_2, FRAC_PI_2, -FRAC_PI_2, -FRAC_PI_2, 0.0];
+    let mut view = home;
+    view[0] += 0.3;
+    cfg.views.targets = ViewTargets::Joints(vec![view]);
+    cfg.camera.settle = std::time::Duration::from_millis(10);
+    let robot = FakeRobot::new(UrModel::Ur5e, home);
+    let camera = FakeCamera::new(Vec::new());
+    let record = crate::run::run(
+        &robot,
+        &camera,
+        &model,
+        &cfg,
+        RunRequest {
+            mode: RunMode::Check,
+            dry_run: false,
+            run_id: None,
+            program_handover: false,
+        },
+        &tokio_util::sync::CancellationToken::new(),
+        &Silent,
+    )
+    .await;
+    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
+    let path = dir.join(RUNS_DIR).join(&record.run_id).join(REPORT_PICTURE);
+    let png = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let img = decode(&png);
+    assert_eq!((img.0, img.1), (REPORT_WIDTH as u32, REPORT_HEIGHT as u32));
+    assert_eq!(pixel(&img, 5, 61), BAD, "the error shows red");
+    let _ = std::fs::remove_dir_all(&dir);
+}
