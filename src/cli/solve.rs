@@ -19,8 +19,8 @@ use handeye_hal::ur_dh::DhParams;
 use nalgebra::Isometry3;
 
 use super::args::{
-    check_joint_limits, parse_distance, parse_joints, parse_kinematic_error, parse_pose,
-    resolve_robot,
+    check_joint_limits, check_pose_distance, parse_distance, parse_joints, parse_kinematic_error,
+    parse_pose, resolve_robot, MAX_CELL_CAMERA_DISTANCE_M, MAX_MOUNT_DISTANCE_M,
 };
 
 /// Arguments of this subcommand.
@@ -317,10 +317,19 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     let guess = |flag: &str, text: &Option<String>| -> anyhow::Result<Option<Isometry3<f64>>> {
-        text.as_deref()
+        let pose = text
+            .as_deref()
             .map(parse_pose)
             .transpose()
-            .map_err(|e| anyhow::anyhow!("--{flag}: {e}"))
+            .map_err(|e| anyhow::anyhow!("--{flag}: {e}"))?;
+        if let Some(p) = &pose {
+            let (max, what) = match inputs.mount {
+                Mount::EyeInHand => (MAX_MOUNT_DISTANCE_M, "a camera on the flange"),
+                Mount::EyeToHand => (MAX_CELL_CAMERA_DISTANCE_M, "a camera in the robot's cell"),
+            };
+            check_pose_distance(&format!("--{flag}"), p, max, what).map_err(anyhow::Error::msg)?;
+        }
+        Ok(pose)
     };
     // A guess on the command line, else the one the run registered with.
     opts.prior = match inputs.mount {

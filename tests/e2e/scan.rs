@@ -512,6 +512,20 @@ fn issue_16_bad_input_is_a_clear_error_quickly() {
         "x.ply",
     ]);
     assert!(out.stderr.contains("outside its limits"), "{out}");
+    let plane = dir.join("plane.ply");
+    write_plane(&plane);
+    let out = quick(&[
+        "solve",
+        "--robot",
+        "ur5e",
+        "--joints",
+        "0,0,0,0,0,0",
+        "--scan",
+        &plane.to_string_lossy(),
+        "--guess-flange-from-camera",
+        "0,0,1e9,0,0,0",
+    ]);
+    assert!(out.stderr.contains("--guess-flange-from-camera"), "{out}");
     let out = quick(&["bench", "--robots", "ur5e", "--views", "1000000000"]);
     assert!(out.stderr.contains("--views"), "{out}");
     let settings = dir.join("sim.toml");
