@@ -18,6 +18,10 @@ use crate::gvcp::{
 /// gets an error after this long, not an endless wait.
 pub const MAX_COMMAND_WAIT: Duration = Duration::from_secs(5);
 
+/// Hard ceiling on one multi-block memory read (the GenICam XML: up to 16 MiB in 512-byte
+/// blocks), however promptly each block is answered.
+pub const MAX_BULK_READ: Duration = Duration::from_secs(60);
+
 /// Timeouts and retries of the control channel.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ControlConfig {
@@ -310,7 +314,18 @@ impl GvcpClient {
     pub fn read_mem(&self, address: u32, len: usize) -> Result<Vec<u8>> {
         let mut out = Vec::with_capacity(len);
         let mut chan = self.lock();
+        let start = Instant::now();
         while out.len() < len {
+            if start.elapsed() > MAX_BULK_READ {
+                return Err(GigeError::Stalled {
+                    peer: chan.peer,
+                    what: format!(
+                        "READMEM of {len} bytes at 0x{address:08x} ({} read)",
+                        out.len()
+                    ),
+                    waited: start.elapsed(),
+                });
+            }
             let a = address.checked_add(out.len() as u32).ok_or_else(|| {
                 GigeError::InvalidArgument(format!(
                     "read of {len} bytes at 0x{address:08x} wraps the address space"

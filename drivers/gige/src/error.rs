@@ -42,8 +42,9 @@ pub enum GigeError {
         tries: u32,
     },
     /// The device kept answering "pending" (PENDING_ACK) past the hard ceiling of one
-    /// command ([`crate::client::MAX_COMMAND_WAIT`]).
-    #[error("camera at {peer} kept answering PENDING_ACK to {what} for {waited:?} without finishing it; power-cycle the camera or check its firmware")]
+    /// command ([`crate::client::MAX_COMMAND_WAIT`]), or a multi-block read took longer than
+    /// [`crate::client::MAX_BULK_READ`].
+    #[error("camera at {peer} kept {what} waiting for {waited:?} (PENDING_ACK or too slow) without finishing it; power-cycle the camera or check its firmware")]
     Stalled {
         /// The device's control address.
         peer: SocketAddr,
@@ -126,7 +127,7 @@ impl From<GigeError> for HalError {
         match e {
             GigeError::Timeout { what, timeout, .. } => HalError::Timeout { what, timeout },
             GigeError::Stalled { what, waited, .. } => HalError::Timeout {
-                what: format!("{what} (the camera kept answering PENDING_ACK)"),
+                what: format!("{what} (the camera stalled: PENDING_ACK or too slow)"),
                 timeout: waited,
             },
             GigeError::FrameTimeout { timeout, detail } => HalError::Timeout {
