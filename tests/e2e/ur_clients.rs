@@ -322,6 +322,22 @@ fn issue_14_ur_rtde_control_interface_drives_the_simulated_arm() {
     let flange = UrPose::from(sim.dh().forward(&six(&qs["q"]))).0;
     assert_poses_close(six(&qs["flange"]), flange, 1e-9, "getActualToolFlangePose");
     assert_eq!(qs["step_time"], 0.002, "{qs}");
+    let st = &mc["stopL"];
+    assert_eq!(st[0], true, "{mc}");
+    let part = st[1].as_f64().expect("dz");
+    assert!((0.01..0.14).contains(&part), "stopL after {part} m of 0.15");
+    assert!(six(&st[2]).iter().all(|v| v.abs() < 1e-9), "stopped: {st}");
+    assert!(st[3].as_i64().expect("progress") < 0, "{st}");
+    // While moving, the target waypoint was the move's goal.
+    assert_poses_close(six(&st[4]), six(&st[5]), 1e-6, "getTargetWaypoint");
+    let tp = &mc["setTargetPayload"];
+    assert_eq!(tp[0], true, "{mc}");
+    assert_eq!(tp[1], 2.0);
+    assert_eq!(tp[2], serde_json::json!([0.0, 0.0, 0.1]));
+    assert_eq!(tp[3], serde_json::json!([0.01, 0.01, 0.02, 0.0, 0.0, 0.0]));
+    let ikn = &mc["ik_near"];
+    assert!(max_diff(&six(&ikn[0]), &six(&ikn[1])) < 1e-6, "{ikn}");
+    assert_eq!(mc["pose_limits"], serde_json::json!([true, false]), "{mc}");
 
     // speedJ then speedStop: the joints ran at the commanded speed, then stopped.
     let sj = step("speedJ");

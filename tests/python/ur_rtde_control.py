@@ -150,6 +150,24 @@ steps["queries"] = {
     "q": r.getActualQ(),
     "step_time": step_time,
 }
+# stopL during an asynchronous moveL; the target waypoint; payload with inertia; IK near a
+# given joint set with the client's default tolerances; pose limits.
+start_pose = r.getActualTCPPose()
+far_pose = list(start_pose)
+far_pose[2] += 0.15
+ok_async = c.moveL(far_pose, 0.1, 0.5, True)
+time.sleep(0.4)
+waypoint = c.getTargetWaypoint()
+c.stopL(2.0)
+settle(r)
+steps["stopL"] = [ok_async, r.getActualTCPPose()[2] - start_pose[2], r.getActualTCPSpeed(),
+                  c.getAsyncOperationProgress(), waypoint, far_pose]
+steps["setTargetPayload"] = [c.setTargetPayload(2.0, [0.0, 0.0, 0.1], [0.01, 0.01, 0.02, 0.0, 0.0, 0.0]),
+                             r.getPayload(), r.getPayloadCog(), r.getPayloadInertia()]
+q_now = r.getActualQ()
+steps["ik_near"] = [c.getInverseKinematics(r.getActualTCPPose(), q_now), q_now]
+steps["pose_limits"] = [c.isPoseWithinSafetyLimits(r.getActualTCPPose()),
+                        c.isPoseWithinSafetyLimits([3.0, 0.0, 0.0, 0.0, 0.0, 0.0])]
 emit("more_calls", **steps)
 
 q_before = r.getActualQ()

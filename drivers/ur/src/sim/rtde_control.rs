@@ -429,8 +429,15 @@ impl Control<'_> {
                 s.out_double[o] = self.period.as_secs_f64();
             }
             28 => {
+                // `get_target_waypoint`: where the active move goes (not the pose of this
+                // control step); without a move, the target pose.
                 let mut s = sh.lock();
-                let pose = UrPose::from(s.dh.forward(&s.target_q) * Isometry3::from(s.tcp));
+                let flange = match &s.motion {
+                    Some(Motion::Joint { goal, .. }) => s.dh.forward(goal),
+                    Some(Motion::Linear { goal, .. }) => *goal,
+                    _ => s.dh.forward(&s.target_q),
+                };
+                let pose = UrPose::from(flange * Isometry3::from(s.tcp));
                 self.out6(&mut s, 0, pose.0);
             }
             29 => {
