@@ -35,7 +35,9 @@ fn unit_passes_systemd_analyze_verify() {
             std::env::var_os("CI").is_none(),
             "{test}: systemd-analyze is missing (CI is set, so this is a failure; .ci/install.d/systemd.sh installs it)"
         );
-        eprintln!("SKIP {test}: systemd-analyze not found (Debian package `systemd`)");
+        crate::support::skip(&format!(
+            "SKIP {test}: systemd-analyze not found (Debian package `systemd`)"
+        ));
         return;
     }
 
