@@ -9,7 +9,7 @@
 //! - [`Quoted`]: how an input token is echoed in an error message: bounded in length, control
 //!   characters escaped, so a 10 MB token or terminal escape sequences never reach stderr raw.
 
-use std::fmt;
+use std::fmt::{self, Write as _};
 use std::time::Duration;
 
 /// How many characters of an echoed token an error message shows ([`Quoted`]).
@@ -78,20 +78,29 @@ pub struct Quoted<'a>(pub &'a str);
 
 impl fmt::Display for Quoted<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        for (shown, (i, c)) in self.0.char_indices().enumerate() {
-            if shown == MAX_ECHOED_CHARS {
-                return write!(f, "… ({} more bytes)", self.0.len() - i);
-            }
-            match c {
-                '\n' => f.write_str("\\n")?,
-                '\r' => f.write_str("\\r")?,
-                '\t' => f.write_str("\\t")?,
-                c if c.is_control() || is_invisible(c) => write!(f, "\\u{{{:x}}}", c as u32)?,
-                c => fmt::Write::write_char(f, c)?,
-            }
-        }
-        Ok(())
+        write_bounded(f, self.0, MAX_ECHOED_CHARS)
     }
+}
+
+/// Longest word [`sanitize_message`] leaves whole: long enough for any real path, short
+/// enough that a 10 MB token becomes a line.
+pub const MAX_MESSAGE_WORD_CHARS: usize = 1024;
+
+/// Writes `s` escaped, cut after `max` characters (then `…` and how many bytes were left out).
+fn write_bounded(f: &mut impl fmt::Write, s: &str, max: usize) -> fmt::Result {
+    for (shown, (i, c)) in s.char_indices().enumerate() {
+        if shown == max {
+            return write!(f, "… ({} more bytes)", s.len() - i);
+        }
+        match c {
+            '\n' => f.write_str("\\n")?,
+            '\r' => f.write_str("\\r")?,
+            '\t' => f.write_str("\\t")?,
+            c if c.is_control() || is_invisible(c) => write!(f, "\\u{{{:x}}}", c as u32)?,
+            c => f.write_char(c)?,
+        }
+    }
+    Ok(())
 }
 
 /// Characters that change how a terminal shows text without being control characters:
@@ -101,7 +110,7 @@ fn is_invisible(c: char) -> bool {
 }
 
 /// A whole message made safe for a terminal and bounded: every run of non-whitespace longer
-/// than [`MAX_ECHOED_CHARS`] is cut as [`Quoted`] cuts it and control characters (other than
+/// than [`MAX_MESSAGE_WORD_CHARS`] is cut as [`Quoted`] cuts it and control characters (other than
 /// newlines) are escaped. For messages that may already contain raw input (a library's error
 /// text, clap's), where the token cannot be wrapped at the source.
 pub fn sanitize_message(message: &str) -> String {
@@ -119,7 +128,8 @@ pub fn sanitize_message(message: &str) -> String {
                 out.push(' ');
             }
             first = false;
-            out.push_str(&Quoted(word).to_string());
+            // Writing to a String cannot fail.
+            let _ = write_bounded(&mut out, word, MAX_MESSAGE_WORD_CHARS);
         }
         match tail {
             Some(t) => {
@@ -293,7 +303,10 @@ mod tests {
         assert_eq!(Quoted("a\u{202e}b").to_string(), "a\\u{202e}b");
         let msg = format!("error: invalid value '{long}\u{1b}[2J' for '--joints'\n\nFor more");
         let clean = sanitize_message(&msg);
-        assert!(clean.len() < 300 && !clean.contains('\u{1b}'), "{clean}");
+        assert!(clean.len() < 1200 && !clean.contains('\u{1b}'), "{clean}");
+        // Real paths stay whole.
+        let path = format!("/tmp/{}/scan.ply", "d".repeat(300));
+        assert_eq!(sanitize_message(&path), path);
         assert!(clean.ends_with("for '--joints'\n\nFor more"), "{clean}");
     }
 
