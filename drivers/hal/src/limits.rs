@@ -9,7 +9,7 @@
 //! - [`Quoted`]: how an input token is echoed in an error message: bounded in length, control
 //!   characters escaped, so a 10 MB token or terminal escape sequences never reach stderr raw.
 
-use std::fmt::{self, Write as _};
+use std::fmt;
 use std::time::Duration;
 
 /// How many characters of an echoed token an error message shows ([`Quoted`]).
