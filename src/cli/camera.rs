@@ -68,7 +68,7 @@ enum CameraCommand {
 }
 
 /// Most frames one `capture` takes (each is held in memory until written).
-const MAX_FRAMES: u32 = 1000;
+const MAX_FRAMES: u32 = 100;
 /// GVSP packet sizes a GigE Vision link can carry, bytes (IP datagram).
 const MIN_PACKET_SIZE: u32 = 576;
 const MAX_PACKET_SIZE: u32 = 16_000;
