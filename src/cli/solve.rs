@@ -173,6 +173,9 @@ fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
     })
 }
 
+/// Most scans one solve takes.
+const MAX_SCANS: usize = 100;
+
 /// How far a `--flange-pose` may be from the URDF's forward kinematics of its joints: a real
 /// arm's factory calibration moves its flange by millimetres and hundredths of a degree, so
 /// more than this is a pose of other joints, of the TCP instead of the flange, in another
@@ -214,6 +217,12 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
         .context("--robot is required with --scan (or replay a run with --capture)")?;
     if args.scan.is_empty() {
         bail!("give --scan (with --joints) or --capture");
+    }
+    if args.scan.len() > MAX_SCANS {
+        bail!(
+            "{} --scan files: at most {MAX_SCANS} (every scan is held in memory)",
+            args.scan.len()
+        );
     }
     let urdf = &resolve_robot(&robot.to_string_lossy()).map_err(anyhow::Error::msg)?;
     let model =
