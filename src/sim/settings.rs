@@ -107,6 +107,77 @@ mod tests {
         );
     }
 
+    /// Issue 16: seeded fuzzing of the settings file — byte mutations of the commented
+    /// example, huge and odd numbers in every value, nesting at random depths: Ok or Err,
+    /// quickly, and what loads is within range.
+    #[test]
+    fn issue_16_fuzzed_settings_never_panic_and_loaded_ones_are_valid() {
+        use rand::{Rng, SeedableRng};
+        let example = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/config/simulator.example.toml"
+        ))
+        .expect("example");
+        let mut rng = rand::rngs::StdRng::seed_from_u64(16);
+        let numbers = [
+            "1e308",
+            "-1e308",
+            "nan",
+            "inf",
+            "-inf",
+            "-0.0",
+            "18446744073709551616",
+            "1e-320",
+            "9999999999",
+        ];
+        let t0 = std::time::Instant::now();
+        let (mut ok, mut err) = (0, 0);
+        for i in 0..3000 {
+            let mut text = example.clone().into_bytes();
+            match i % 3 {
+                0 => {
+                    for _ in 0..rng.random_range(1..4) {
+                        let at = rng.random_range(0..text.len());
+                        text[at] = rng.random_range(0x20..0x7f);
+                    }
+                }
+                1 => {
+                    // Replace one value (after `= `) with an odd number.
+                    let t = String::from_utf8_lossy(&text).into_owned();
+                    let lines: Vec<&str> = t.lines().collect();
+                    let k = rng.random_range(0..lines.len());
+                    let mut out = String::new();
+                    for (j, l) in lines.iter().enumerate() {
+                        match (j == k, l.split_once(" = ")) {
+                            (true, Some((key, _))) => {
+                                out += &format!(
+                                    "{key} = {}\n",
+                                    numbers[rng.random_range(0..numbers.len())]
+                                );
+                            }
+                            _ => out += &format!("{l}\n"),
+                        }
+                    }
+                    text = out.into_bytes();
+                }
+                _ => {
+                    let d = rng.random_range(1..200);
+                    let nest = format!("[cell]\nfloor = {}true{}\n", "[".repeat(d), "]".repeat(d));
+                    text = nest.into_bytes();
+                }
+            }
+            match SimSettings::from_toml(&String::from_utf8_lossy(&text), "fuzz.toml") {
+                Ok(s) => {
+                    ok += 1;
+                    s.validate().expect("what loads is valid");
+                }
+                Err(_) => err += 1,
+            }
+        }
+        assert!(ok > 0 && err > 0, "ok {ok}, err {err}");
+        assert!(t0.elapsed().as_secs() < 20, "{:?}", t0.elapsed());
+    }
+
     /// Issue 16: every knob is range-checked (negative, NaN, infinite, absurd), the message
     /// names the key; the TOML parser survives deep nesting; a FIFO is not read.
     #[test]
