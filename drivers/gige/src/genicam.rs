@@ -96,7 +96,7 @@ impl XmlUrl {
 }
 
 /// Largest unzipped GenICam XML, bytes.
-const MAX_UNZIPPED_XML_BYTES: u64 = 256 << 20;
+const MAX_UNZIPPED_XML_BYTES: u64 = 32 << 20;
 
 /// Unzip `bytes` when they are a ZIP archive (first entry), else return them; then UTF-8.
 pub fn xml_text(bytes: &[u8]) -> Result<String> {
@@ -110,9 +110,15 @@ pub fn xml_text(bytes: &[u8]) -> Result<String> {
         let mut out = Vec::new();
         entry
             .by_ref()
-            .take(MAX_UNZIPPED_XML_BYTES)
+            .take(MAX_UNZIPPED_XML_BYTES + 1)
             .read_to_end(&mut out)
             .map_err(|e| GigeError::malformed(W, format!("cannot unzip: {e}")))?;
+        if out.len() as u64 > MAX_UNZIPPED_XML_BYTES {
+            return Err(GigeError::malformed(
+                W,
+                format!("the ZIP archive unzips to more than {MAX_UNZIPPED_XML_BYTES} bytes"),
+            ));
+        }
         out
     } else {
         bytes.to_vec()
@@ -544,6 +550,22 @@ mod tests {
         assert_eq!(xml_text(b"<a/>\0\0\0").expect("plain"), "<a/>");
         assert!(xml_text(b"PK\x03\x04garbage").is_err());
         assert!(NodeMap::from_xml("<not xml").is_err());
+        // Issue 16: a zip bomb (33 MiB of spaces in a few kB) is refused, not truncated.
+        let mut buf = std::io::Cursor::new(Vec::new());
+        {
+            let mut w = zip::ZipWriter::new(&mut buf);
+            w.start_file("a.xml", zip::write::SimpleFileOptions::default())
+                .expect("zip");
+            let chunk = vec![b' '; 1 << 20];
+            for _ in 0..33 {
+                w.write_all(&chunk).expect("zip");
+            }
+            w.finish().expect("zip");
+        }
+        let bomb = buf.into_inner();
+        assert!(bomb.len() < 1 << 20, "{} bytes", bomb.len());
+        let e = xml_text(&bomb).expect_err("bomb").to_string();
+        assert!(e.contains("unzips to more than"), "{e}");
     }
 
     #[test]
