@@ -144,10 +144,22 @@ fn main() -> ExitCode {
             // Help and version go to stdout as clap writes them; a usage error echoes the bad
             // token, bounded and escaped (exit 2).
             if e.use_stderr() {
-                eprint!(
-                    "{}",
-                    handeye_hal::limits::sanitize_message(&e.render().to_string())
-                );
+                let message = handeye_hal::limits::sanitize_message(&e.render().to_string());
+                eprint!("{message}");
+                // `solve --json` promises one JSON object on stdout, also for a usage error.
+                let argv: Vec<String> = std::env::args().skip(1).collect();
+                if argv.first().is_some_and(|c| c == "solve") && argv.iter().any(|a| a == "--json")
+                {
+                    let first = message.lines().next().unwrap_or("");
+                    println!(
+                        "{}",
+                        serde_json::json!({
+                            "status": "error",
+                            "outcome": "error",
+                            "error": first.trim_start_matches("error: "),
+                        })
+                    );
+                }
             } else {
                 print!("{}", e.render());
             }

@@ -628,6 +628,10 @@ fn issue_16_simulate_scan_warns_when_the_robot_is_out_of_view() {
     assert_eq!(out.code(), 2, "{out}");
     let v = out.json();
     assert_eq!(v["status"], "error", "{out}");
+    // A usage error too.
+    let usage = run(&["solve", "--json", "--joints"], secs(10));
+    assert_eq!(usage.code(), 2, "{usage}");
+    assert_eq!(usage.json()["status"], "error", "{usage}");
     assert!(
         v["error"].as_str().is_some_and(|e| e.contains("not found")),
         "{out}"
