@@ -6,8 +6,12 @@
 //! - [`check_xml_nesting`]: refuses XML nested deeper than a bound *before* a recursive parser
 //!   (roxmltree's tokenizer, urdf-rs, cameleon-genapi) sees it, so a hostile file is an error
 //!   instead of a stack overflow.
+//! - [`check_range`]: a number with its flag or key, unit, range and reason.
+//! - [`check_regular_file`]: an input path is a regular file of bounded size (a FIFO would
+//!   block the reader forever) before it is opened.
 //! - [`Quoted`]: how an input token is echoed in an error message: bounded in length, control
-//!   characters escaped, so a 10 MB token or terminal escape sequences never reach stderr raw.
+//!   characters escaped, so a 10 MB token or terminal escape sequences never reach stderr raw;
+//!   [`sanitize_message`] does the same for a whole message (the binary's last line of defence).
 
 use std::fmt;
 use std::time::Duration;
@@ -29,13 +33,12 @@ pub fn duration_from_secs(
     min: f64,
     max: f64,
 ) -> Result<Duration, String> {
+    let refused = || format!("{what} = {seconds:?}: expected {min} <= seconds <= {max}");
     if seconds.is_finite() && seconds >= min && seconds <= max {
-        // In range, so finite, non-negative and far below Duration's limit: cannot panic.
-        Ok(Duration::from_secs_f64(seconds.max(0.0)))
+        // Checked even in range: a caller's `max` may exceed what a Duration holds.
+        Duration::try_from_secs_f64(seconds.max(0.0)).map_err(|_| refused())
     } else {
-        Err(format!(
-            "{what} = {seconds:?}: expected {min} <= seconds <= {max}"
-        ))
+        Err(refused())
     }
 }
 
@@ -265,6 +268,7 @@ mod tests {
             duration_from_secs("--timeout-s", 1.5, 0.0, 10.0),
             Ok(Duration::from_millis(1500))
         );
+        assert!(duration_from_secs("--x", 1e300, 0.0, f64::MAX).is_err());
         for bad in [1e300, -1.0, f64::NAN, f64::INFINITY, 11.0] {
             let e = duration_from_secs("--timeout-s", bad, 0.0, 10.0).expect_err("refused");
             assert!(
