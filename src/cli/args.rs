@@ -74,13 +74,18 @@ pub(crate) fn check_pose_distance(
 }
 
 /// Refuses joint values (given by `flag`) outside the model's joint limits (with 1 mrad of
-/// slack for rounding); the message names the joint and its limits.
+/// slack for rounding; continuous joints take any finite angle); the message names the joint
+/// and its limits.
 pub(crate) fn check_joint_limits(
     flag: &str,
     model: &handeye::model::RobotModel,
     q: &[f64],
 ) -> Result<(), String> {
     for (i, (v, lim)) in q.iter().zip(model.joint_limits()).enumerate() {
+        // A continuous joint takes any angle.
+        if model.joint_is_continuous(i) && v.is_finite() {
+            continue;
+        }
         if !(*v >= lim.lower - 1e-3 && *v <= lim.upper + 1e-3) {
             return Err(format!(
                 "{flag} value {} (joint `{}`) = {v}: outside its limits [{}, {}] (radians, metres for prismatic joints)",

@@ -261,6 +261,8 @@ pub struct RobotModel {
     flange: usize,
     joint_names: Vec<String>,
     joint_limits: Vec<JointLimit>,
+    /// Per chain joint: continuous (no position limit in the URDF; `joint_limits` holds ±2π).
+    continuous: Vec<bool>,
     visual: Vec<LinkGeometry>,
     collision: Vec<LinkGeometry>,
 }
@@ -455,6 +457,7 @@ impl RobotModel {
 
         let mut joint_names = Vec::new();
         let mut joint_limits = Vec::new();
+        let mut continuous = Vec::new();
         for &l in &chain_links {
             let Some(j) = parent_joint[l] else { continue };
             let joint = &robot.joints[j];
@@ -477,6 +480,7 @@ impl RobotModel {
                 ));
             }
             joint_names.push(joint.name.clone());
+            continuous.push(joint.joint_type == urdf_rs::JointType::Continuous);
             joint_limits.push(JointLimit {
                 lower,
                 upper,
@@ -560,6 +564,7 @@ impl RobotModel {
             flange,
             joint_names,
             joint_limits,
+            continuous,
             visual: Vec::new(),
             collision: Vec::new(),
         })
@@ -735,6 +740,12 @@ impl RobotModel {
     /// Limits of the chain joints, in [`joint_names`](Self::joint_names) order.
     pub fn joint_limits(&self) -> &[JointLimit] {
         &self.joint_limits
+    }
+
+    /// Whether chain joint `i` is continuous (any angle; its [`JointLimit`] is ±2π only to
+    /// keep samplers finite). `false` for an index out of range.
+    pub fn joint_is_continuous(&self, i: usize) -> bool {
+        self.continuous.get(i).copied().unwrap_or(false)
     }
 
     /// Every link, in URDF document order.

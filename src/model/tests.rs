@@ -424,6 +424,10 @@ fn synthetic_urdf_kinematics_meshes_and_primitives() {
         "continuous"
     );
     assert_eq!(
+        (0..4).map(|i| m.joint_is_continuous(i)).collect::<Vec<_>>(),
+        [false, true, false, false]
+    );
+    assert_eq!(
         m.chain_depth("finger"),
         Some(2),
         "the mimic finger is not a chain joint"
