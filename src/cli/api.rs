@@ -677,7 +677,9 @@ fn start(
             tracing::info!(%peer, run_id = %run_id, "{what}: run accepted");
             Ok((StatusCode::ACCEPTED, Json(json!({ "run_id": run_id }))).into_response())
         }
-        Err(e @ Refusal::Busy { .. }) => Err(ApiError::new(StatusCode::CONFLICT, e.to_string())),
+        Err(e @ (Refusal::Busy { .. } | Refusal::QueueFull { .. })) => {
+            Err(ApiError::new(StatusCode::CONFLICT, e.to_string()))
+        }
         Err(e) => Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
             format!("{e}; try again once it runs again"),

@@ -5,12 +5,14 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use handeye::config::Config;
 use handeye::store::Store;
+use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
 use tokio_util::sync::CancellationToken;
 
 use super::api::Api;
@@ -68,6 +70,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     let Some(camera) = with_backoff("camera", &shutdown, || AnyCamera::connect(&cfg)).await else {
         return Ok(ExitCode::SUCCESS);
     };
+    let camera = ReconnectingCamera::new(cfg.clone(), camera);
     let listen = cfg.daemon.listen;
     handeye::daemon::run(
         cfg,
@@ -82,4 +85,107 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     .await;
     eprintln!("handeye daemon stopped");
     Ok(ExitCode::SUCCESS)
+}
+
+/// The configured camera, connected anew after it failed: a failed request drops the
+/// connection and the next request connects again (at most once per backoff, 1 s doubling to
+/// 30 s), so a camera that was restarted or re-cabled comes back without restarting the daemon.
+/// Each new connection raises the link generation, which makes a run in progress abort.
+#[derive(Debug)]
+struct ReconnectingCamera {
+    cfg: Config,
+    link: tokio::sync::Mutex<Link>,
+    generation: AtomicU64,
+}
+
+#[derive(Debug)]
+struct Link {
+    camera: Option<Arc<AnyCamera>>,
+    next_attempt: Instant,
+    backoff: Duration,
+}
+
+impl ReconnectingCamera {
+    fn new(cfg: Config, camera: AnyCamera) -> Self {
+        Self {
+            cfg,
+            link: tokio::sync::Mutex::new(Link {
+                camera: Some(Arc::new(camera)),
+                next_attempt: Instant::now(),
+                backoff: Duration::from_secs(1),
+            }),
+            generation: AtomicU64::new(0),
+        }
+    }
+
+    /// The connected camera, connecting it if it is not (and the backoff allows).
+    async fn connected(&self) -> Result<Arc<AnyCamera>, HalError> {
+        let mut link = self.link.lock().await;
+        if let Some(c) = &link.camera {
+            return Ok(c.clone());
+        }
+        let now = Instant::now();
+        if now < link.next_attempt {
+            return Err(disconnected(format!(
+                "the camera is not connected; next attempt in {:.0} s",
+                (link.next_attempt - now).as_secs_f64()
+            )));
+        }
+        match AnyCamera::connect(&self.cfg).await {
+            Ok(c) => {
+                let c = Arc::new(c);
+                link.camera = Some(c.clone());
+                link.backoff = Duration::from_secs(1);
+                self.generation.fetch_add(1, Ordering::Relaxed);
+                tracing::info!("camera connected again");
+                Ok(c)
+            }
+            Err(e) => {
+                link.next_attempt = now + link.backoff;
+                tracing::warn!("camera: {e:#}; retrying in {:?}", link.backoff);
+                link.backoff = (link.backoff * 2).min(MAX_BACKOFF);
+                Err(disconnected(format!("{e:#}")))
+            }
+        }
+    }
+
+    /// Forgets `failed` (unless it was replaced already): the next request connects again.
+    async fn drop_link(&self, failed: &Arc<AnyCamera>, e: &HalError) {
+        let mut link = self.link.lock().await;
+        if link.camera.as_ref().is_some_and(|c| Arc::ptr_eq(c, failed)) {
+            tracing::warn!("camera request failed ({e}); reconnecting at the next request");
+            link.camera = None;
+        }
+    }
+}
+
+fn disconnected(detail: String) -> HalError {
+    HalError::Connection {
+        peer: "camera".into(),
+        source: std::io::Error::new(std::io::ErrorKind::NotConnected, detail),
+    }
+}
+
+impl DepthCamera for ReconnectingCamera {
+    async fn info(&self) -> Result<CameraInfo, HalError> {
+        let camera = self.connected().await?;
+        let r = camera.info().await;
+        if let Err(e) = &r {
+            self.drop_link(&camera, e).await;
+        }
+        r
+    }
+
+    async fn capture(&self, settings: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
+        let camera = self.connected().await?;
+        let r = camera.capture(settings).await;
+        if let Err(e) = &r {
+            self.drop_link(&camera, e).await;
+        }
+        r
+    }
+
+    fn link_generation(&self) -> u64 {
+        self.generation.load(Ordering::Relaxed)
+    }
 }

@@ -239,10 +239,16 @@ fn render(addr: SocketAddr, st: &Value, now: f64) -> String {
             "NOT ANSWERING"
         }
     };
+    let reconnects = |key: &str| match st[key].as_u64() {
+        Some(n) if n > 0 => format!(" (reconnected {n}×)"),
+        _ => String::new(),
+    };
     out += &format!(
-        "robot: {}, camera: {}\n",
+        "robot: {}{}, camera: {}{}\n",
         up("robot_connected"),
-        up("camera_connected")
+        reconnects("robot_reconnects"),
+        up("camera_connected"),
+        reconnects("camera_reconnects")
     );
     let current = &st["current"];
     if current.is_object() {
@@ -262,6 +268,15 @@ fn render(addr: SocketAddr, st: &Value, now: f64) -> String {
         out.push('\n');
     } else {
         out += "current run: none\n";
+    }
+    for (i, q) in st["queued"].as_array().into_iter().flatten().enumerate() {
+        out += &format!(
+            "queued {}: {} {} (asked by {})\n",
+            i + 1,
+            text(q, "run_id"),
+            text(q, "mode"),
+            text(q, "trigger")
+        );
     }
     for (label, key) in [
         ("last run", "last"),
@@ -307,9 +322,15 @@ mod tests {
                 "outcome": "accepted", "reasons": [], "finished_unix_s": 800.0,
                 "duration_ms": 900.0, "drift": [1.5, 0.25, true]
             },
+            "queued": [{
+                "run_id": "20261124T150001Z-00ac", "mode": "calibrate", "trigger": "api",
+                "since_unix_s": 1001.0, "stage": null, "detail": "queued"
+            }],
             "drift_alarm": true,
             "robot_connected": true,
             "camera_connected": false,
+            "robot_reconnects": 2,
+            "camera_reconnects": 0,
             "started_unix_s": 0.0
         })
     }
@@ -320,7 +341,8 @@ mod tests {
         let text = render(addr, &sample(), 1010.0);
         for want in [
             "handeye daemon at 127.0.0.1:8650: running, up 16 min",
-            "robot: connected, camera: NOT ANSWERING",
+            "robot: connected (reconnected 2×), camera: NOT ANSWERING\n",
+            "queued 1: 20261124T150001Z-00ac calibrate (asked by api)",
             "current run: 20261124T150000Z-00ab check (asked by schedule) for 10 s, stage move: moving to view 1 of 1",
             "last run: 20261124T140000Z-0001 calibrate (asked by api): rejected in 1.2 s",
             "    residual 3.1 mm > 2.0 mm",

@@ -70,6 +70,11 @@ pub struct DaemonConfig {
     pub token_file: Option<PathBuf>,
     /// Scheduled drift checks every this long (`check_interval_s`); `None`: no schedule.
     pub check_interval: Option<Duration>,
+    /// Scheduled drift checks at these local times (`check_at = ["Mon-Fri 06:00"]`), besides
+    /// or instead of the interval.
+    pub check_at: Vec<crate::daemon::CalendarTime>,
+    /// What a trigger gets while a run is going (`when_busy`).
+    pub when_busy: WhenBusy,
     /// After a scheduled check finds drift, calibrate and write back (`recalibrate_on_drift`);
     /// off by default.
     pub recalibrate_on_drift: bool,
@@ -79,6 +84,16 @@ pub struct DaemonConfig {
     pub keep_captures_days: f64,
     /// The pendant button (`[daemon.pendant]`); `None`: not used.
     pub pendant: Option<PendantConfig>,
+}
+
+/// What a trigger gets while a run is going (`daemon.when_busy`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum WhenBusy {
+    /// Refused with who is busy since when (`"refuse"`, the default).
+    #[default]
+    Refuse,
+    /// Queued behind it, up to [`crate::daemon::QUEUE_LIMIT`] runs (`"queue"`).
+    Queue,
 }
 
 /// The register handshake with a pendant program (`[daemon.pendant]`).
@@ -320,6 +335,8 @@ pub mod defaults {
                 .unwrap_or_else(|_| std::net::SocketAddr::from(([127, 0, 0, 1], 8650))),
             token_file: None,
             check_interval: None,
+            check_at: Vec::new(),
+            when_busy: super::WhenBusy::Refuse,
             recalibrate_on_drift: false,
             keep_captures_runs: KEEP_CAPTURES_RUNS,
             keep_captures_days: KEEP_CAPTURES_DAYS,
@@ -635,6 +652,8 @@ struct RawDaemon {
     listen: Option<String>,
     token_file: Option<String>,
     check_interval_s: Option<f64>,
+    check_at: Option<Vec<String>>,
+    when_busy: Option<String>,
     recalibrate_on_drift: Option<bool>,
     keep_captures_runs: Option<i64>,
     keep_captures_days: Option<f64>,
@@ -1106,6 +1125,25 @@ impl Ctx<'_> {
                     .map(Duration::from_secs_f64)
             })
             .transpose()?;
+        let mut check_at = Vec::new();
+        for (i, t) in d.check_at.iter().flatten().enumerate() {
+            let key = format!("daemon.check_at[{i}]");
+            check_at.push(
+                t.parse::<crate::daemon::CalendarTime>()
+                    .map_err(|e| self.invalid(&key, format!("{key}: {e}")))?,
+            );
+        }
+        let when_busy = match d.when_busy.as_deref().map(str::trim) {
+            None | Some("refuse") => WhenBusy::Refuse,
+            Some("queue") => WhenBusy::Queue,
+            Some(other) => {
+                let shown: String = other.chars().take(40).collect();
+                return Err(self.invalid(
+                    "daemon.when_busy",
+                    format!("daemon.when_busy = {shown:?}: expected \"refuse\" (answer busy) or \"queue\" (run it after the current one)"),
+                ));
+            }
+        };
         let keep_captures_runs = match d.keep_captures_runs {
             Some(v) => self.int("daemon.keep_captures_runs", v, ranges::KEEP_RUNS)? as usize,
             None => base.keep_captures_runs,
@@ -1135,6 +1173,8 @@ impl Ctx<'_> {
             listen,
             token_file,
             check_interval,
+            check_at,
+            when_busy,
             recalibrate_on_drift: d.recalibrate_on_drift.unwrap_or(base.recalibrate_on_drift),
             keep_captures_runs,
             keep_captures_days: self.num(

@@ -491,3 +491,25 @@ fn view_keys_are_checked_against_the_mode() {
     let text = with("views", "count = 11");
     refused(&text, "views.count", line_of(&text, "count"));
 }
+
+#[test]
+fn calendar_checks_and_the_busy_policy_are_read_and_checked() {
+    let text = with(
+        "daemon",
+        "check_at = [\"Mon-Fri 06:00\", \"22:30\"]\nwhen_busy = \"queue\"",
+    );
+    let cfg = parse(&text).expect("valid");
+    let shown: Vec<String> = cfg.daemon.check_at.iter().map(|t| t.to_string()).collect();
+    assert_eq!(shown, ["Mon,Tue,Wed,Thu,Fri 06:00", "22:30"]);
+    assert_eq!(cfg.daemon.when_busy, WhenBusy::Queue);
+    let base = parse(MINIMAL).expect("valid");
+    assert!(base.daemon.check_at.is_empty());
+    assert_eq!(base.daemon.when_busy, WhenBusy::Refuse);
+
+    let text = with("daemon", "check_at = [\"06:00\",\n  \"25:00\"]");
+    let e = refused(&text, "daemon.check_at[1]", line_of(&text, "\"25:00\""));
+    assert!(e.to_string().contains("HH:MM"), "{e}");
+    let text = with("daemon", "when_busy = \"wait\"");
+    let e = refused(&text, "daemon.when_busy", line_of(&text, "when_busy"));
+    assert!(e.to_string().contains("\"queue\""), "{e}");
+}

@@ -1,13 +1,16 @@
 //! The daemon (mini-redis shape): one task owns the robot and camera and runs one calibration
 //! run at a time; triggers — startup, the schedule, the HTTP API, the CLI — ask through a
 //! cloneable [`DaemonHandle`]. A trigger while a run is going is refused with who is busy since
-//! when. Every run is recorded in the history store before it starts and when it ends, so a
+//! when, or queued behind it (`daemon.when_busy`). Every run is recorded in the history store before it starts and when it ends, so a
 //! crash leaves it marked as interrupted. One shutdown token stops everything: a running move
 //! is stopped, the run recorded as aborted.
 //!
 //! The binary builds the concrete robot and camera from the configuration and calls [`run`].
 
 mod notify;
+pub mod schedule;
+
+pub use schedule::CalendarTime;
 
 use std::fmt::Write as _;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -18,7 +21,7 @@ use serde::Serialize;
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
-use crate::config::Config;
+use crate::config::{Config, WhenBusy};
 use crate::model::RobotModel;
 use crate::run::{new_run_id, Outcome, Progress, RunMode, RunRecord, RunRequest, Stage};
 use crate::store::{RunStart, Store};
@@ -29,7 +32,7 @@ use crate::store::{RunStart, Store};
 pub enum Trigger {
     /// The daemon's start (`daemon.startup`).
     Startup,
-    /// The drift-check schedule (`daemon.check_interval_s`).
+    /// The drift-check schedule (`daemon.check_interval_s`, `daemon.check_at`).
     Schedule,
     /// A scheduled check found drift and `daemon.recalibrate_on_drift` is on.
     Drift,
@@ -97,6 +100,8 @@ pub struct Status {
     pub state: &'static str,
     /// The run in progress.
     pub current: Option<Current>,
+    /// Runs accepted behind it (`daemon.when_busy = "queue"`), next first.
+    pub queued: Vec<Current>,
     /// The last run that ended.
     pub last: Option<Finished>,
     /// The last calibrate run that was accepted.
@@ -109,6 +114,10 @@ pub struct Status {
     pub robot_connected: bool,
     /// Whether the camera answered its last request.
     pub camera_connected: bool,
+    /// How often the robot's connection was re-established since the daemon started.
+    pub robot_reconnects: u64,
+    /// How often the camera's connection was re-established since the daemon started.
+    pub camera_reconnects: u64,
     /// Unix time the daemon started, s.
     pub started_unix_s: f64,
 }
@@ -132,7 +141,18 @@ pub enum Refusal {
     /// The daemon is shutting down.
     #[error("the daemon is shutting down")]
     ShuttingDown,
+    /// `when_busy = "queue"` and the queue is full.
+    #[error("busy: {running} running and {queued} queued behind it (the most the daemon queues); cancel or wait")]
+    QueueFull {
+        /// The running run's id.
+        running: String,
+        /// How many wait.
+        queued: usize,
+    },
 }
+
+/// The most runs `daemon.when_busy = "queue"` keeps waiting behind the running one.
+pub const QUEUE_LIMIT: usize = 4;
 
 /// Counters for `/metrics`.
 #[derive(Debug, Default, Clone)]
@@ -161,12 +181,15 @@ const DURATION_BUCKETS: [f64; 8] = [1.0, 2.5, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0
 struct State {
     current: Option<Current>,
     cancel: Option<CancellationToken>,
+    /// Accepted behind `current`, in the order the job channel delivers them.
+    queued: std::collections::VecDeque<(Current, CancellationToken)>,
     last: Option<Finished>,
     last_calibration: Option<Finished>,
     last_check: Option<Finished>,
     drift_alarm: bool,
     robot_connected: bool,
     camera_connected: bool,
+    links: (u64, u64),
     metrics: Metrics,
 }
 
@@ -174,6 +197,7 @@ struct State {
 struct Shared {
     state: Mutex<State>,
     queue: mpsc::Sender<Job>,
+    when_busy: WhenBusy,
     store: Arc<Store>,
     shutdown: CancellationToken,
     started_unix_s: f64,
@@ -208,7 +232,7 @@ impl DaemonHandle {
     }
 
     /// Asks for a run. Returns its id at once (it runs in the background), or why not: one
-    /// run at a time.
+    /// run at a time; while one runs, the next is refused or queued (`daemon.when_busy`).
     pub fn request(&self, mode: RunMode, trigger: Trigger) -> Result<String, Refusal> {
         self.enqueue(mode, trigger, false)
     }
@@ -225,12 +249,23 @@ impl DaemonHandle {
         }
         let mut st = self.lock();
         if let Some(c) = &st.current {
-            return Err(Refusal::Busy {
-                run_id: c.run_id.clone(),
-                mode: c.mode,
-                trigger: c.trigger,
-                since_unix_s: c.since_unix_s,
-            });
+            match self.shared.when_busy {
+                WhenBusy::Refuse => {
+                    return Err(Refusal::Busy {
+                        run_id: c.run_id.clone(),
+                        mode: c.mode,
+                        trigger: c.trigger,
+                        since_unix_s: c.since_unix_s,
+                    })
+                }
+                WhenBusy::Queue if st.queued.len() >= QUEUE_LIMIT => {
+                    return Err(Refusal::QueueFull {
+                        running: c.run_id.clone(),
+                        queued: st.queued.len(),
+                    })
+                }
+                WhenBusy::Queue => {}
+            }
         }
         let run_id = new_run_id();
         let cancel = self.shared.shutdown.child_token();
@@ -241,28 +276,37 @@ impl DaemonHandle {
             handover,
             cancel: cancel.clone(),
         };
-        // The queue holds one job; a full queue would mean a run is going, which the state
-        // says already.
+        // The channel holds the running job and the queue; the state above bounds both.
         self.shared
             .queue
             .try_send(job)
             .map_err(|_| Refusal::ShuttingDown)?;
-        st.current = Some(Current {
+        let entry = Current {
             run_id: run_id.clone(),
             mode,
             trigger,
             since_unix_s: unix_now(),
             stage: None,
             detail: "queued".into(),
-        });
-        st.cancel = Some(cancel);
-        tracing::info!(run_id = %run_id, trigger = trigger.name(), ?mode, "run accepted");
+        };
+        if st.current.is_some() {
+            tracing::info!(run_id = %run_id, trigger = trigger.name(), ?mode, position = st.queued.len() + 1, "run queued");
+            st.queued.push_back((entry, cancel));
+        } else {
+            tracing::info!(run_id = %run_id, trigger = trigger.name(), ?mode, "run accepted");
+            st.current = Some(entry);
+            st.cancel = Some(cancel);
+        }
         Ok(run_id)
     }
 
-    /// Cancels the run in progress (the arm is stopped); `false` when nothing runs.
+    /// Cancels the run in progress (the arm is stopped) and every queued one (recorded as
+    /// aborted without moving); `false` when nothing runs.
     pub fn cancel(&self) -> bool {
         let st = self.lock();
+        for (_, c) in &st.queued {
+            c.cancel();
+        }
         match &st.cancel {
             Some(c) => {
                 c.cancel();
@@ -284,12 +328,15 @@ impl DaemonHandle {
                 "idle"
             },
             current: st.current.clone(),
+            queued: st.queued.iter().map(|(c, _)| c.clone()).collect(),
             last: st.last.clone(),
             last_calibration: st.last_calibration.clone(),
             last_check: st.last_check.clone(),
             drift_alarm: st.drift_alarm,
             robot_connected: st.robot_connected,
             camera_connected: st.camera_connected,
+            robot_reconnects: st.links.0,
+            camera_reconnects: st.links.1,
             started_unix_s: self.shared.started_unix_s,
         }
     }
@@ -380,9 +427,9 @@ impl DaemonHandle {
         let _ = writeln!(s, "# HELP handeye_alarms_total Drift alarms raised.");
         let _ = writeln!(s, "# TYPE handeye_alarms_total counter");
         let _ = writeln!(s, "handeye_alarms_total {}", m.alarms);
-        for (name, up) in [
-            ("robot", st.robot_connected),
-            ("camera", st.camera_connected),
+        for (name, up, reconnects) in [
+            ("robot", st.robot_connected, st.links.0),
+            ("camera", st.camera_connected, st.links.1),
         ] {
             let _ = writeln!(
                 s,
@@ -390,15 +437,40 @@ impl DaemonHandle {
             );
             let _ = writeln!(s, "# TYPE handeye_{name}_connected gauge");
             let _ = writeln!(s, "handeye_{name}_connected {}", u8::from(up));
+            let _ = writeln!(
+                s,
+                "# HELP handeye_{name}_reconnects_total Times the {name}'s connection was re-established."
+            );
+            let _ = writeln!(s, "# TYPE handeye_{name}_reconnects_total counter");
+            let _ = writeln!(s, "handeye_{name}_reconnects_total {reconnects}");
         }
         let _ = writeln!(s, "# HELP handeye_busy 1 while a run is going.");
         let _ = writeln!(s, "# TYPE handeye_busy gauge");
         let _ = writeln!(s, "handeye_busy {}", u8::from(st.current.is_some()));
+        let _ = writeln!(
+            s,
+            "# HELP handeye_queued Runs waiting behind the running one."
+        );
+        let _ = writeln!(s, "# TYPE handeye_queued gauge");
+        let _ = writeln!(s, "handeye_queued {}", st.queued.len());
         s
     }
 
-    fn set_connections(&self, robot: bool, camera: bool) {
+    fn set_connections(&self, robot: bool, camera: bool, links: (u64, u64)) {
         let mut st = self.lock();
+        if links.0 > st.links.0 {
+            tracing::warn!(
+                "the robot's connection was re-established ({} time(s) since the start)",
+                links.0
+            );
+        }
+        if links.1 > st.links.1 {
+            tracing::warn!(
+                "the camera's connection was re-established ({} time(s) since the start)",
+                links.1
+            );
+        }
+        st.links = links;
         if st.robot_connected != robot {
             tracing::warn!(
                 "robot {}",
@@ -493,8 +565,17 @@ impl DaemonHandle {
             }
         }
         st.last = Some(f);
-        st.current = None;
-        st.cancel = None;
+        // The next queued run (the job channel delivers it next) becomes the current one.
+        match st.queued.pop_front() {
+            Some((next, cancel)) => {
+                st.current = Some(next);
+                st.cancel = Some(cancel);
+            }
+            None => {
+                st.current = None;
+                st.cancel = None;
+            }
+        }
     }
 }
 
@@ -511,21 +592,28 @@ impl Progress for StageReporter<'_> {
 }
 
 /// Creates the handle and the job queue (the worker side is [`run`]).
-fn handle(store: Arc<Store>, shutdown: CancellationToken) -> (DaemonHandle, mpsc::Receiver<Job>) {
-    let (tx, rx) = mpsc::channel(1);
+fn handle(
+    store: Arc<Store>,
+    when_busy: WhenBusy,
+    shutdown: CancellationToken,
+) -> (DaemonHandle, mpsc::Receiver<Job>) {
+    let (tx, rx) = mpsc::channel(1 + QUEUE_LIMIT);
     let shared = Arc::new(Shared {
         state: Mutex::new(State {
             current: None,
             cancel: None,
+            queued: std::collections::VecDeque::new(),
             last: None,
             last_calibration: None,
             last_check: None,
             drift_alarm: false,
             robot_connected: true,
             camera_connected: true,
+            links: (0, 0),
             metrics: Metrics::default(),
         }),
         queue: tx,
+        when_busy,
         store,
         shutdown,
         started_unix_s: unix_now(),
@@ -568,7 +656,7 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
     shutdown: CancellationToken,
     ready: impl FnOnce(&DaemonHandle),
 ) {
-    let (handle, mut jobs) = handle(store, shutdown.clone());
+    let (handle, mut jobs) = handle(store, cfg.daemon.when_busy, shutdown.clone());
     let notifier = notify::Notifier::from_env();
     let digest = crate::store::config_digest(&format!("{cfg:?}"));
     let frontend_task = tokio::spawn(frontend.serve(handle.clone(), shutdown.clone()));
@@ -592,6 +680,20 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
         t
     });
     let mut schedule = schedule;
+    let next_calendar = || {
+        schedule::next_after(
+            &cfg.daemon.check_at,
+            unix_now().floor() as i64,
+            schedule::local_offset_s,
+        )
+    };
+    let mut calendar_due = next_calendar();
+    if let Some(due) = calendar_due {
+        tracing::info!(
+            "next scheduled check at {} (daemon.check_at)",
+            crate::store::utc_text(due as f64)
+        );
+    }
     let mut pendant = tokio::time::interval(PENDANT_POLL);
     pendant.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last_request = 0;
@@ -602,6 +704,17 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
             match &mut schedule {
                 Some(t) => {
                     t.tick().await;
+                }
+                None => std::future::pending::<()>().await,
+            }
+        };
+        // The wall clock is asked again at least every 30 s: a clock set forward or back (NTP,
+        // daylight saving) moves the calendar's next check with it.
+        let calendar = async {
+            match calendar_due {
+                Some(due) => {
+                    let wait = (due as f64 - unix_now()).clamp(0.0, 30.0);
+                    tokio::time::sleep(Duration::from_secs_f64(wait)).await;
                 }
                 None => std::future::pending::<()>().await,
             }
@@ -642,16 +755,14 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
                 if handle.status().current.is_none() {
                     let robot_up = tokio::time::timeout(HEALTH_TIMEOUT, robot.status()).await.is_ok_and(|r| r.is_ok());
                     let camera_up = tokio::time::timeout(HEALTH_TIMEOUT, camera.info()).await.is_ok_and(|r| r.is_ok());
-                    handle.set_connections(robot_up, camera_up);
+                    handle.set_connections(robot_up, camera_up, (robot.link_generation(), camera.link_generation()));
                 }
             }
-            _ = tick => {
-                if robot_idle(&robot).await {
-                    if let Err(e) = handle.request(RunMode::Check, Trigger::Schedule) {
-                        tracing::info!("scheduled check skipped: {e}");
-                    }
-                } else {
-                    tracing::info!("scheduled check skipped: a program is running on the controller");
+            _ = tick => scheduled_check(&robot, &handle).await,
+            _ = calendar => {
+                if calendar_due.is_some_and(|due| unix_now() >= due as f64) {
+                    scheduled_check(&robot, &handle).await;
+                    calendar_due = next_calendar();
                 }
             }
         }
@@ -727,6 +838,17 @@ async fn answer_pendant<R: Robot>(robot: &R, register: u32, value: i32) {
     }
 }
 
+/// A scheduled drift check: started when the robot is idle, else skipped (logged).
+async fn scheduled_check<R: Robot>(robot: &R, handle: &DaemonHandle) {
+    if robot_idle(robot).await {
+        if let Err(e) = handle.request(RunMode::Check, Trigger::Schedule) {
+            tracing::info!("scheduled check skipped: {e}");
+        }
+    } else {
+        tracing::info!("scheduled check skipped: a program is running on the controller");
+    }
+}
+
 /// Whether no program is running on the controller (scheduled checks wait for that).
 async fn robot_idle<R: Robot>(robot: &R) -> bool {
     matches!(robot.status().await, Ok(s) if !s.program_running)
@@ -789,4 +911,99 @@ async fn execute<R: Robot, C: DepthCamera>(
     );
     handle.finished(job, &record);
     record
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn store(tag: &str) -> (Arc<Store>, std::path::PathBuf) {
+        let dir = std::env::temp_dir().join(format!("handeye-daemon-{}-{tag}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("dir");
+        let s = Store::open(&dir.join("history.sqlite")).expect("store");
+        (Arc::new(s), dir)
+    }
+
+    #[test]
+    fn a_busy_daemon_refuses_or_queues_as_configured() {
+        let (s, dir) = store("refuse");
+        let (h, _jobs) = handle(s, WhenBusy::Refuse, CancellationToken::new());
+        let first = h
+            .request(RunMode::Check, Trigger::Api)
+            .expect("idle: accepted");
+        let e = h
+            .request(RunMode::Calibrate, Trigger::Pendant)
+            .expect_err("busy");
+        assert!(
+            matches!(&e, Refusal::Busy { run_id, .. } if *run_id == first),
+            "{e}"
+        );
+        assert!(e.to_string().starts_with("busy: Check run "), "{e}");
+        let _ = std::fs::remove_dir_all(dir);
+
+        let (s, dir) = store("queue");
+        let (h, mut jobs) = handle(s, WhenBusy::Queue, CancellationToken::new());
+        let running = h
+            .request(RunMode::Calibrate, Trigger::Api)
+            .expect("accepted");
+        let queued: Vec<String> = (0..QUEUE_LIMIT)
+            .map(|_| {
+                h.request(RunMode::Check, Trigger::Schedule)
+                    .expect("queued")
+            })
+            .collect();
+        let e = h
+            .request(RunMode::Check, Trigger::Api)
+            .expect_err("queue full");
+        assert!(
+            matches!(
+                e,
+                Refusal::QueueFull {
+                    queued: QUEUE_LIMIT,
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let st = h.status();
+        assert_eq!(st.current.as_ref().map(|c| &c.run_id), Some(&running));
+        let ids: Vec<&String> = st.queued.iter().map(|c| &c.run_id).collect();
+        assert_eq!(ids, queued.iter().collect::<Vec<_>>());
+
+        // The channel delivers them in the same order; a finished run promotes the next.
+        let job = jobs.try_recv().expect("running job");
+        assert_eq!(job.run_id, running);
+        let record = RunRecord {
+            run_id: running.clone(),
+            mode: RunMode::Calibrate,
+            dry_run: false,
+            config: "test".into(),
+            started_unix_s: 0.0,
+            outcome: Outcome::Rejected,
+            reasons: vec!["test".into()],
+            failed_stage: None,
+            preflight: None,
+            views: Vec::new(),
+            captures: Vec::new(),
+            capture_file: None,
+            result: None,
+            drift: None,
+            written: Vec::new(),
+            returned_to_start: true,
+            timings_ms: Default::default(),
+        };
+        h.finished(&job, &record);
+        let st = h.status();
+        assert_eq!(st.current.as_ref().map(|c| &c.run_id), Some(&queued[0]));
+        assert_eq!(st.queued.len(), QUEUE_LIMIT - 1);
+
+        // Cancel stops the running one and every queued one.
+        let waiting: Vec<Job> = std::iter::from_fn(|| jobs.try_recv().ok()).collect();
+        assert_eq!(waiting.len(), QUEUE_LIMIT);
+        assert!(waiting.iter().all(|j| !j.cancel.is_cancelled()));
+        assert!(h.cancel());
+        assert!(waiting.iter().all(|j| j.cancel.is_cancelled()));
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }

@@ -203,6 +203,8 @@ struct Context<'a, R, C> {
     moved: bool,
     /// The scan the report picture shows, once registered.
     picture: Option<storage::PictureScan>,
+    /// The robot's and the camera's link generations when the run started.
+    links: (u64, u64),
 }
 
 /// Runs one calibration or check on `robot` and `camera` for `model` as `cfg` says. Returns the
@@ -255,6 +257,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
         run_dir: cfg.storage.dir.join(RUNS_DIR).join(&run_id),
         moved: false,
         picture: None,
+        links: (robot.link_generation(), camera.link_generation()),
     };
     let span = tracing::info_span!("calibration", run_id = %run_id);
     let result = tracing::Instrument::instrument(cx.steps(), span).await;
@@ -291,6 +294,25 @@ pub async fn run<R: Robot, C: DepthCamera>(
 }
 
 impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
+    /// Fails when the robot's or the camera's connection was re-established since the run
+    /// started: what was measured before the drop and after it are not combined.
+    fn links_intact(&self, stage: Stage) -> Result<(), Failure> {
+        let now = (self.robot.link_generation(), self.camera.link_generation());
+        let which = match (now.0 != self.links.0, now.1 != self.links.1) {
+            (false, false) => return Ok(()),
+            (true, false) => "the robot",
+            (false, true) => "the camera",
+            (true, true) => "the robot and the camera",
+        };
+        Err(Failure {
+            outcome: Outcome::Aborted,
+            stage,
+            message: format!(
+                "the connection to {which} dropped and was re-established during the run; nothing measured before the drop is used; run again"
+            ),
+        })
+    }
+
     async fn steps(&mut self) -> Result<(), Failure> {
         let t = Instant::now();
         self.progress
@@ -378,6 +400,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         match self.req.mode {
             RunMode::Check => self.compare(&unknown, reference),
             RunMode::Calibrate => {
+                self.links_intact(Stage::WriteBack)?;
                 let t = Instant::now();
                 self.progress.stage(Stage::WriteBack, "writing the result");
                 let written = self.write_back(&unknown).await;
@@ -707,6 +730,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 self.moved = true;
                 self.move_to(q, Stage::Move, &format!("move to view {v}"))
                     .await?;
+                self.links_intact(Stage::Move)?;
                 self.record.timings_ms.moves += ms(t);
             }
 
@@ -727,6 +751,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 &format!("capturing {n} frame(s) at view {v}"),
             );
             let (capture, clouds) = self.capture(v).await?;
+            self.links_intact(Stage::Capture)?;
             self.record.timings_ms.capture += ms(t);
             let base_from_flange = crate::frames::from_row_major(&capture.base_from_flange)
                 .unwrap_or_else(Isometry3::identity);

@@ -343,6 +343,28 @@ async fn a_protective_stop_at_the_first_move_aborts_without_writing_or_moving_ag
 }
 
 #[tokio::test]
+async fn a_connection_that_drops_and_comes_back_mid_run_aborts_without_writing() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("relink");
+    let cfg = test_config(&storage.0, f.view);
+    let robot = calibrated_robot(f);
+    // The driver reconnects during the move: the move itself reports success.
+    robot.reconnect_at_move(0);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::Move));
+    assert!(
+        reasons(&record).contains("connection to the robot dropped"),
+        "{:?}",
+        record.reasons
+    );
+    assert_eq!(camera.captures(), 0, "no capture on a link that dropped");
+    assert_nothing_written(&record, &robot, &storage.0).await;
+}
+
+#[tokio::test]
 async fn a_camera_that_stops_answering_fails_the_capture_and_the_arm_returns() {
     let Some(f) = fixture() else { return };
     let storage = Storage::new("camera");

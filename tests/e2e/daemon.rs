@@ -1,6 +1,7 @@
 //! `handeye daemon` against `handeye sim rig` over loopback: the startup calibration, the HTTP
 //! API with and without its token, one run at a time, the scheduled drift check and its alarm,
-//! SIGTERM mid-run, kill -9 mid-run and the history after a restart.
+//! SIGTERM mid-run, kill -9 mid-run and the history after a restart, the queue, and the
+//! reconnection after the simulated controller and camera restart.
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -397,4 +398,72 @@ fn the_pendant_button_asks_for_a_calibration_through_registers() {
         s["last"]["mode"] == "check" && s["last"]["trigger"] == "pendant"
     });
     assert_eq!(st["last"]["outcome"], "accepted", "{st}");
+}
+
+#[test]
+fn the_daemon_queues_when_told_and_reconnects_after_the_rig_restarts() {
+    let Some(_) = shared("the_daemon_queues_when_told_and_reconnects_after_the_rig_restarts")
+    else {
+        return;
+    };
+    let dir = TempDir::new("reconnect");
+    let (robot_ip, camera_ip) = ("127.0.0.130", "127.0.0.131");
+    let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let cfg = config(&dir, robot_ip, camera_ip, "when_busy = \"queue\"");
+    let daemon = start_daemon(&dir, "daemon", &cfg);
+    let api = format!("{robot_ip}:8650");
+
+    // A calibration, and a check asked for while it runs: queued behind it, then run.
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let (code, body) = http(&api, "POST", "/api/check", Some(TOKEN));
+    assert_eq!(code, 202, "queued, not refused: {body}");
+    let check_id = json(&body)["run_id"].as_str().expect("run id").to_string();
+    let (_, body) = http(&api, "GET", "/api/status", None);
+    let st = json(&body);
+    assert_eq!(st["current"]["mode"], "calibrate", "{st}");
+    assert_eq!(st["queued"][0]["run_id"], check_id.as_str(), "{st}");
+    let st = wait_status(&api, secs(120), "both runs end", |s| {
+        s["state"] == "idle" && s["last"]["run_id"] == check_id.as_str()
+    });
+    assert_eq!(
+        st["last_calibration"]["outcome"],
+        "accepted",
+        "{st}\n{}",
+        daemon.log()
+    );
+    assert_eq!(st["last"]["outcome"], "accepted", "{st}");
+    assert_eq!(st["queued"].as_array().map(Vec::len), Some(0), "{st}");
+
+    // The controller and the camera go away: the daemon keeps running and says so.
+    drop(rig);
+    let st = wait_status(&api, secs(30), "the robot shows as down", |s| {
+        s["robot_connected"] == false
+    });
+    assert_eq!(st["state"], "idle", "{st}");
+    // They come back (a restarted controller: a new RTDE session, the same mount).
+    let _rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let st = wait_status(&api, secs(60), "the robot answers again", |s| {
+        s["robot_connected"] == true && s["camera_connected"] == true
+    });
+    assert!(
+        st["robot_reconnects"].as_u64().is_some_and(|n| n >= 1),
+        "{st}\n{}",
+        daemon.log()
+    );
+    let (_, metrics) = http(&api, "GET", "/metrics", None);
+    assert!(metrics.contains("handeye_robot_connected 1"), "{metrics}");
+    assert!(
+        !metrics.contains("handeye_robot_reconnects_total 0"),
+        "{metrics}"
+    );
+    // A check on the new connections: the mount has not moved, no alarm.
+    let (code, body) = http(&api, "POST", "/api/check", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let again = json(&body)["run_id"].as_str().expect("run id").to_string();
+    let st = wait_status(&api, secs(90), "the check after the restart ends", |s| {
+        s["state"] == "idle" && s["last"]["run_id"] == again.as_str()
+    });
+    assert_eq!(st["last"]["outcome"], "accepted", "{st}\n{}", daemon.log());
+    assert_eq!(st["drift_alarm"], false, "{st}");
 }

@@ -55,4 +55,11 @@ pub trait DepthCamera: Send + Sync + 'static {
         &self,
         settings: &CaptureSettings,
     ) -> impl Future<Output = Result<Vec<PointCloud>, HalError>> + Send;
+
+    /// How many times the connection to the device had to be re-established since this handle
+    /// was made (see [`crate::Robot::link_generation`]); the default 0 for backends that never
+    /// reconnect.
+    fn link_generation(&self) -> u64 {
+        0
+    }
 }

@@ -20,6 +20,8 @@ struct RobotState {
     tcp: Isometry3<f64>,
     moves: Vec<Vec<f64>>,
     protective_stop_at_move: Option<usize>,
+    reconnect_at_move: Option<usize>,
+    link_generation: u64,
     registers: HashMap<u32, f64>,
     int_registers: HashMap<u32, i32>,
     output_int_registers: HashMap<u32, i32>,
@@ -55,6 +57,8 @@ impl FakeRobot {
             tcp: Isometry3::identity(),
             moves: Vec::new(),
             protective_stop_at_move: None,
+            reconnect_at_move: None,
+            link_generation: 0,
             registers: HashMap::new(),
             int_registers: HashMap::new(),
             output_int_registers: HashMap::new(),
@@ -87,6 +91,12 @@ impl FakeRobot {
     /// Make the move with this 0-based index end in a protective stop (arm stays where it was).
     pub fn protective_stop_at_move(&self, index: usize) {
         self.lock().protective_stop_at_move = Some(index);
+    }
+
+    /// Make the connection drop and come back during the move with this 0-based index: the
+    /// move succeeds (the driver reconnected) and [`Robot::link_generation`] goes up by one.
+    pub fn reconnect_at_move(&self, index: usize) {
+        self.lock().reconnect_at_move = Some(index);
     }
 
     /// Set an integer output register, as a program on the controller would.
@@ -151,8 +161,15 @@ impl Robot for FakeRobot {
                 during: format!("move {index}"),
             });
         }
+        if s.reconnect_at_move == Some(index) {
+            s.link_generation += 1;
+        }
         s.q = q.to_vec();
         Ok(())
+    }
+
+    fn link_generation(&self) -> u64 {
+        self.lock().link_generation
     }
 
     async fn stop(&self) -> Result<(), HalError> {

@@ -176,4 +176,12 @@ pub trait Robot: Send + Sync + 'static {
     fn kinematics(
         &self,
     ) -> impl Future<Output = Result<Option<ControllerKinematics>, HalError>> + Send;
+
+    /// How many times the connection had to be re-established since this handle was made.
+    /// A calibration run compares it between its steps: joints, poses and captures taken on
+    /// either side of a reconnection (a restarted controller, a new RTDE session) are not
+    /// trusted together. Implementations that never reconnect keep the default 0.
+    fn link_generation(&self) -> u64 {
+        0
+    }
 }

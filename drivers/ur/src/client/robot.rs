@@ -709,4 +709,10 @@ impl Robot for UrRobot {
     async fn kinematics(&self) -> Result<Option<ControllerKinematics>, HalError> {
         Ok(self.inner.kinematics)
     }
+
+    /// The RTDE reconnections: each is a new session (recipes set up again), possibly with a
+    /// restarted controller.
+    fn link_generation(&self) -> u64 {
+        self.inner.rtde.reconnects()
+    }
 }
