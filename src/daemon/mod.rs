@@ -974,25 +974,9 @@ mod tests {
         // The channel delivers them in the same order; a finished run promotes the next.
         let job = jobs.try_recv().expect("running job");
         assert_eq!(job.run_id, running);
-        let record = RunRecord {
-            run_id: running.clone(),
-            mode: RunMode::Calibrate,
-            dry_run: false,
-            config: "test".into(),
-            started_unix_s: 0.0,
-            outcome: Outcome::Rejected,
-            reasons: vec!["test".into()],
-            failed_stage: None,
-            preflight: None,
-            views: Vec::new(),
-            captures: Vec::new(),
-            capture_file: None,
-            result: None,
-            drift: None,
-            written: Vec::new(),
-            returned_to_start: true,
-            timings_ms: Default::default(),
-        };
+        let mut record =
+            RunRecord::starting(running.clone(), RunMode::Calibrate, false, "test".into());
+        record.outcome = Outcome::Rejected;
         h.finished(&job, &record);
         let st = h.status();
         assert_eq!(st.current.as_ref().map(|c| &c.run_id), Some(&queued[0]));

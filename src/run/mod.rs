@@ -220,25 +220,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
 ) -> RunRecord {
     let t0 = Instant::now();
     let run_id = req.run_id.clone().unwrap_or_else(new_run_id);
-    let record = RunRecord {
-        run_id: run_id.clone(),
-        mode: req.mode,
-        dry_run: req.dry_run,
-        config: cfg.origin.clone(),
-        started_unix_s: unix_now(),
-        outcome: Outcome::Error,
-        reasons: Vec::new(),
-        failed_stage: None,
-        preflight: None,
-        views: Vec::new(),
-        captures: Vec::new(),
-        capture_file: None,
-        result: None,
-        drift: None,
-        written: Vec::new(),
-        returned_to_start: false,
-        timings_ms: RunTimings::default(),
-    };
+    let record = RunRecord::starting(run_id.clone(), req.mode, req.dry_run, cfg.origin.clone());
     let model_from_base = match pipeline::fixed_frame(model, "base") {
         Ok(p) => p,
         // Not a UR URDF with a `base` link: the controller frame is the URDF root turned by π.

@@ -270,6 +270,30 @@ pub struct RunRecord {
 }
 
 impl RunRecord {
+    /// A record of a run that starts now: nothing done yet, the outcome `Error` until a stage
+    /// says otherwise.
+    pub fn starting(run_id: String, mode: RunMode, dry_run: bool, config: String) -> Self {
+        Self {
+            run_id,
+            mode,
+            dry_run,
+            config,
+            started_unix_s: super::unix_now(),
+            outcome: Outcome::Error,
+            reasons: Vec::new(),
+            failed_stage: None,
+            preflight: None,
+            views: Vec::new(),
+            captures: Vec::new(),
+            capture_file: None,
+            result: None,
+            drift: None,
+            written: Vec::new(),
+            returned_to_start: false,
+            timings_ms: RunTimings::default(),
+        }
+    }
+
     /// Process exit code: calibrate 0 accepted / 1 rejected / 2 error or aborted; check 0
     /// within thresholds / 1 drifted / 2 anything else; a dry run 0 when planned.
     pub fn exit_code(&self) -> u8 {
