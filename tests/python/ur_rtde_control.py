@@ -29,8 +29,14 @@ def ask(event):
 
 
 def settle(r):
-    """Two RTDE cycles, so a value read afterwards was sampled after the call returned."""
+    """Lets the receive interface catch up, so a value read afterwards was sampled after the
+    call returned: 20 ms, and at least 20 ms of controller time beyond the sample seen now (on
+    a loaded machine the receive thread can lag behind the controller)."""
+    t0 = r.getTimestamp()
     time.sleep(0.02)
+    deadline = time.monotonic() + 2.0
+    while r.getTimestamp() < t0 + 0.02 and time.monotonic() < deadline:
+        time.sleep(0.005)
 
 
 def wait_running(c, limit=5.0):
@@ -162,8 +168,10 @@ c.stopL(2.0)
 settle(r)
 steps["stopL"] = [ok_async, r.getActualTCPPose()[2] - start_pose[2], r.getActualTCPSpeed(),
                   c.getAsyncOperationProgress(), waypoint, far_pose]
-steps["setTargetPayload"] = [c.setTargetPayload(2.0, [0.0, 0.0, 0.1], [0.01, 0.01, 0.02, 0.0, 0.0, 0.0]),
-                             r.getPayload(), r.getPayloadCog(), r.getPayloadInertia()]
+ok = c.setTargetPayload(2.0, [0.0, 0.0, 0.1], [0.01, 0.01, 0.02, 0.0, 0.0, 0.0])
+# The receive interface's sample may predate the command's reply: read after a fresh one.
+settle(r)
+steps["setTargetPayload"] = [ok, r.getPayload(), r.getPayloadCog(), r.getPayloadInertia()]
 q_now = r.getActualQ()
 steps["ik_near"] = [c.getInverseKinematics(r.getActualTCPPose(), q_now), q_now]
 steps["pose_limits"] = [c.isPoseWithinSafetyLimits(r.getActualTCPPose()),
