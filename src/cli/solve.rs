@@ -13,7 +13,7 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context};
 use handeye::calib::{CalibError, Mount};
-use handeye::model::{KinematicError, RobotModel};
+use handeye::model::{KinematicError, RobotModel, UrCalibration};
 use handeye::run::{calibrate_frames, load_capture, pipeline::fixed_frame, Frame, PipelineOptions};
 use handeye_hal::ur_dh::DhParams;
 use nalgebra::Isometry3;
@@ -34,6 +34,12 @@ pub(crate) struct Args {
     /// calibrated kinematics recorded in the capture.
     #[arg(long, requires = "capture")]
     nominal_kinematics: bool,
+    /// The arm's calibrated kinematics from UR's ROS calibration tool (`ur_calibration`'s
+    /// YAML, `kinematics: {shoulder: {x, y, z, roll, pitch, yaw}, …, hash}`): the six joint
+    /// origins replace the URDF's, so every link is posed as the calibrated arm. Used unless
+    /// the capture holds the controller's own kinematics (those take precedence).
+    #[arg(long, value_name = "FILE.yaml")]
+    calibration: Option<PathBuf>,
     /// Robot description: a URDF (meshes relative to it) or a robot name (`ur5e`) under the
     /// robots directory; with `--capture` the default is the capture's model.
     #[arg(long)]
@@ -307,11 +313,43 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
 }
 
+/// Poses `inputs.model` by `--calibration` unless the controller's kinematics are there, and
+/// says which kinematics pose the model (the `kinematics` object of the JSON output).
+fn choose_kinematics(inputs: &mut Inputs, args: &Args) -> anyhow::Result<serde_json::Value> {
+    let used = match (&inputs.controller_dh, &args.calibration) {
+        (Some(_), Some(file)) => serde_json::json!({
+            "source": "controller",
+            "note": format!(
+                "the controller's kinematics recorded in the capture take precedence over \
+                 --calibration {}",
+                file.display()
+            ),
+        }),
+        (Some(_), None) => serde_json::json!({"source": "controller"}),
+        (None, Some(file)) => {
+            let calibration = UrCalibration::load(file)?;
+            inputs.model = inputs
+                .model
+                .with_ur_calibration(&calibration)
+                .with_context(|| format!("--calibration {}", file.display()))?;
+            serde_json::json!({
+                "source": "file",
+                "file": file.display().to_string(),
+                "hash": calibration.hash,
+            })
+        }
+        (None, None) => serde_json::json!({"source": "nominal"}),
+    };
+    eprintln!("kinematics: {used}");
+    Ok(used)
+}
+
 fn solve(args: Args) -> anyhow::Result<ExitCode> {
-    let inputs = match &args.capture {
+    let mut inputs = match &args.capture {
         Some(path) => from_capture(path, &args)?,
         None => from_scans(&args)?,
     };
+    let kinematics = choose_kinematics(&mut inputs, &args)?;
     let model = &inputs.model;
     let model_from_base = fixed_frame(model, &inputs.base_frame)?;
     let mut opts = PipelineOptions::new(inputs.mount);
@@ -319,6 +357,9 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
     opts.controller_dh = inputs.controller_dh;
     if let Some(k) = args.kinematic_error {
         opts.register.kinematic_error = k;
+    } else if kinematics["source"] == "file" {
+        // Posed by the arm's own calibration: no kinematic error for the covariance to cover.
+        opts.register.kinematic_error = KinematicError::none();
     }
     if inputs.mount == Mount::EyeInHand {
         if let Some(d) = args.max_camera_flange_distance {
@@ -351,7 +392,11 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
     };
     let calibration = calibrate_frames(model, &inputs.frames, &opts)?;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&calibration.report)?);
+        let mut out = serde_json::to_value(&calibration.report)?;
+        if let Some(o) = out.as_object_mut() {
+            o.insert("kinematics".into(), kinematics);
+        }
+        println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         print!("{}", calibration.report.summary());
     }
@@ -419,6 +464,7 @@ mod tests {
         Args {
             capture: None,
             nominal_kinematics: false,
+            calibration: None,
             robot: Some(robot),
             joints: vec![joints.to_string()],
             scan: vec![scan],

@@ -16,6 +16,7 @@ mod mesh;
 mod primitives;
 #[cfg(test)]
 mod tests;
+mod ur_calibration;
 
 use std::collections::{HashMap, VecDeque};
 use std::f64::consts::TAU;
@@ -29,6 +30,9 @@ use rayon::prelude::*;
 
 pub use kinematic::{KinematicError, MAX_KINEMATIC_SIGMA};
 pub use mesh::TriMesh;
+pub use ur_calibration::{
+    UrCalibration, UrCalibrationError, MAX_UR_CALIBRATION_BYTES, UR_CALIBRATION_JOINTS,
+};
 
 /// Largest URDF file read (a UR URDF is ~20 kB).
 pub const MAX_URDF_BYTES: u64 = 16 << 20;

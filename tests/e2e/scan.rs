@@ -685,3 +685,140 @@ fn issue_16_simulator_logs_have_no_colour_codes_and_it_keeps_answering() {
         "colour codes in a redirected log: {log:?}"
     );
 }
+
+/// `ur_calibration`'s YAML for the DH parameters `dh` (its chain: entry i is
+/// `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)`, xyz + URDF rpy; no entry beyond wrist_3).
+fn ur_calibration_yaml(dh: &handeye_hal::ur_dh::DhParams) -> String {
+    let mut s = String::from("kinematics:\n");
+    let names = [
+        "shoulder",
+        "upper_arm",
+        "forearm",
+        "wrist_1",
+        "wrist_2",
+        "wrist_3",
+    ];
+    for (i, name) in names.iter().enumerate() {
+        let mut t = Isometry3::identity();
+        if i > 0 {
+            t *= Isometry3::new(
+                Vector3::new(dh.a[i - 1], 0.0, 0.0),
+                Vector3::x() * dh.alpha[i - 1],
+            );
+        }
+        t *= Isometry3::new(Vector3::new(0.0, 0.0, dh.d[i]), Vector3::z() * dh.theta[i]);
+        let (r, p, y) = t.rotation.euler_angles();
+        let v = t.translation.vector;
+        s += &format!(
+            "  {name}:\n    x: {:e}\n    y: {:e}\n    z: {:e}\n    roll: {r:e}\n    pitch: {p:e}\n    yaw: {y:e}\n",
+            v.x, v.y, v.z
+        );
+    }
+    s + "  hash: calib_e2e\n"
+}
+
+/// Issue 17: `solve --calibration FILE.yaml` poses the arm by UR's calibration file and says so.
+#[test]
+fn issue_17_solve_takes_the_ur_calibration_file() {
+    let Some(shared) = shared("issue_17_solve_takes_the_ur_calibration_file") else {
+        return;
+    };
+    let dir = TempDir::new("solve-calibration");
+    let urdf = shared.join("robots/ur/ur10e/ur10e.urdf");
+    let model = RobotModel::load(&urdf).expect("ur10e loads");
+    let mount = Isometry3::new(
+        Vector3::new(0.01, -0.075, 0.045),
+        Vector3::new(-0.26, 0.02, 0.03),
+    );
+    let planner = ViewPlanner::new(
+        &model,
+        mount,
+        Intrinsics::compact_1280x960(),
+        ViewConstraints::default(),
+    );
+    let joints = planner.generate(1, 11).expect("a view").remove(0);
+    let ply = dir.join("scan.ply");
+    run(
+        &[
+            "simulate-scan",
+            "--robot",
+            &urdf.to_string_lossy(),
+            "--mount",
+            &pose_arg(&mount),
+            "--joints",
+            &csv(&joints),
+            "--camera",
+            "compact",
+            "--seed",
+            "11",
+            "--factory-calibration",
+            "3",
+            "--out",
+            &ply.to_string_lossy(),
+        ],
+        secs(30),
+    )
+    .success();
+    let gt = read_json(&dir.join("scan.gt.json"));
+    let dh: handeye_hal::ur_dh::DhParams =
+        serde_json::from_value(gt["controller_dh"].clone()).expect("controller_dh");
+    let yaml = dir.join("cal.yaml");
+    std::fs::write(&yaml, ur_calibration_yaml(&dh)).expect("write yaml");
+    let s = Scan {
+        model,
+        urdf,
+        joints: joints.clone(),
+        mount,
+        ply: ply.clone(),
+        gt: dir.join("scan.gt.json"),
+    };
+    let out = solve_with(
+        &s,
+        &csv(&joints),
+        &ply,
+        &["--calibration", &yaml.to_string_lossy()],
+    );
+    assert_eq!(out.code(), 0, "{out}");
+    let doc = out.json();
+    assert_eq!(doc["kinematics"]["source"], "file", "{out}");
+    assert_eq!(doc["kinematics"]["hash"], "calib_e2e", "{out}");
+    let (mm, deg) = pose_error(
+        &iso(&doc["flange_from_camera"]),
+        &iso(&gt["flange_from_camera"]),
+    );
+    eprintln!("solve with the calibration file: {mm:.3} mm / {deg:.4}° from the truth");
+    assert!(
+        mm < MAX_MM && deg < MAX_DEG,
+        "{mm:.3} mm / {deg:.4}°\n{out}"
+    );
+    let nominal = solve(&s, &csv(&joints), &ply);
+    assert_eq!(
+        nominal.json()["kinematics"]["source"],
+        "nominal",
+        "{nominal}"
+    );
+    let (mm, deg) = pose_error(
+        &iso(&nominal.json()["flange_from_camera"]),
+        &iso(&gt["flange_from_camera"]),
+    );
+    eprintln!("solve with the nominal URDF: {mm:.3} mm / {deg:.4}° from the truth");
+
+    // A broken file: exit 2, the message names the file, the line and the key.
+    let bad = dir.join("bad.yaml");
+    std::fs::write(
+        &bad,
+        ur_calibration_yaml(&dh).replacen("    z: ", "    z: .nan # ", 1),
+    )
+    .expect("write");
+    let out = solve_with(
+        &s,
+        &csv(&joints),
+        &ply,
+        &["--calibration", &bad.to_string_lossy()],
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(
+        out.stdout.contains("bad.yaml:5: kinematics.shoulder.z"),
+        "{out}"
+    );
+}
