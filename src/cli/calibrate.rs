@@ -97,6 +97,13 @@ pub(crate) fn load_model(cfg: &Config) -> anyhow::Result<Arc<RobotModel>> {
         path.display(),
         model.dof()
     );
+    // The run poses the model by the file when the controller tells no kinematics; a file that
+    // cannot serve is refused now, not at the first run.
+    if let Some(file) = &cfg.robot.calibration {
+        let calibration = handeye::model::UrCalibration::load(file)
+            .with_context(|| format!("robot.calibration in {}", cfg.origin))?;
+        calibration.dh().map_err(anyhow::Error::msg)?;
+    }
     Ok(Arc::new(model))
 }
 

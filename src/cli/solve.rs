@@ -313,7 +313,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
 }
 
-/// Poses `inputs.model` by `--calibration` unless the controller's kinematics are there, and
+/// Poses the model by `--calibration`'s DH set unless the controller's kinematics are there, and
 /// says which kinematics pose the model (the `kinematics` object of the JSON output).
 fn choose_kinematics(inputs: &mut Inputs, args: &Args) -> anyhow::Result<serde_json::Value> {
     let used = match (&inputs.controller_dh, &args.calibration) {
@@ -328,10 +328,12 @@ fn choose_kinematics(inputs: &mut Inputs, args: &Args) -> anyhow::Result<serde_j
         (Some(_), None) => serde_json::json!({"source": "controller"}),
         (None, Some(file)) => {
             let calibration = UrCalibration::load(file)?;
-            inputs.model = inputs
-                .model
-                .with_ur_calibration(&calibration)
-                .with_context(|| format!("--calibration {}", file.display()))?;
+            // The file's DH set poses the model exactly as the controller's would.
+            inputs.controller_dh = Some(
+                calibration
+                    .dh()
+                    .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?,
+            );
             serde_json::json!({
                 "source": "file",
                 "file": file.display().to_string(),
@@ -355,11 +357,10 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
     let mut opts = PipelineOptions::new(inputs.mount);
     opts.base_frame = Some(inputs.base_frame.clone());
     opts.controller_dh = inputs.controller_dh;
+    // Posed by the controller's or the file's kinematics, the pipeline covers no kinematic
+    // error; otherwise the nominal model's.
     if let Some(k) = args.kinematic_error {
         opts.register.kinematic_error = k;
-    } else if kinematics["source"] == "file" {
-        // Posed by the arm's own calibration: no kinematic error for the covariance to cover.
-        opts.register.kinematic_error = KinematicError::none();
     }
     if inputs.mount == Mount::EyeInHand {
         if let Some(d) = args.max_camera_flange_distance {

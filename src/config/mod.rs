@@ -127,6 +127,10 @@ pub struct RobotConfig {
     pub allow_power_on: bool,
     /// Where forward kinematics comes from (`kinematics`).
     pub kinematics: KinematicsSource,
+    /// The arm's calibration as `ur_calibration` writes it (`calibration`, a YAML file): a run
+    /// the controller tells no kinematics (or with `kinematics = "nominal"`) poses the model's
+    /// six joints by it; the controller's kinematics take precedence.
+    pub calibration: Option<PathBuf>,
 }
 
 /// TCP ports of a UR controller. Simulators on non-standard ports need them; real controllers
@@ -571,6 +575,7 @@ pub fn sim_rig(
             },
             allow_power_on: defaults::ALLOW_POWER_ON,
             kinematics: defaults::KINEMATICS,
+            calibration: None,
         },
         camera: CameraConfig {
             backend: CameraBackend::Gige {
@@ -680,6 +685,7 @@ struct RawRobot {
     move_timeout_s: Option<f64>,
     allow_power_on: Option<bool>,
     kinematics: Option<KinematicsSource>,
+    calibration: Option<String>,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -1251,6 +1257,11 @@ impl Ctx<'_> {
             limits,
             allow_power_on: r.allow_power_on.unwrap_or(defaults::ALLOW_POWER_ON),
             kinematics: r.kinematics.unwrap_or(defaults::KINEMATICS),
+            calibration: r
+                .calibration
+                .as_deref()
+                .map(|p| self.path("robot.calibration", p))
+                .transpose()?,
         })
     }
 

@@ -513,3 +513,13 @@ fn calendar_checks_and_the_busy_policy_are_read_and_checked() {
     let e = refused(&text, "daemon.when_busy", line_of(&text, "when_busy"));
     assert!(e.to_string().contains("\"queue\""), "{e}");
 }
+
+#[test]
+fn the_calibration_file_is_resolved_against_the_config_directory() {
+    let cfg = parse(&with("robot", "calibration = \"cal/my_robot.yaml\"")).expect("valid");
+    assert_eq!(
+        cfg.robot.calibration,
+        Some(PathBuf::from("/etc/handeye/cal/my_robot.yaml"))
+    );
+    assert_eq!(parse(MINIMAL).expect("valid").robot.calibration, None);
+}

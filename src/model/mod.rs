@@ -17,6 +17,8 @@ mod primitives;
 #[cfg(test)]
 mod tests;
 mod ur_calibration;
+#[cfg(test)]
+pub(crate) use ur_calibration::yaml_from_dh;
 
 use std::collections::{HashMap, VecDeque};
 use std::f64::consts::TAU;

@@ -316,6 +316,53 @@ impl UrCalibration {
         })
     }
 
+    /// The DH parameters the file describes (what the controller would publish): entry `i` is
+    /// `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)`, so `a`, `α` of joints 1–5 and `d`, `θ` of all
+    /// six are read back from it; `a_6`, `α_6` (absent from the file) are 0. Posing the model
+    /// through these (as the controller's kinematics are) puts each link where the run expects
+    /// it. Errors when an entry is not of that form (a file that is not a DH chain), naming it.
+    pub fn dh(&self) -> Result<handeye_hal::ur_dh::DhParams, String> {
+        let mut dh = handeye_hal::ur_dh::DhParams {
+            a: [0.0; 6],
+            d: [0.0; 6],
+            alpha: [0.0; 6],
+            theta: [0.0; 6],
+        };
+        for (i, t) in self.joint_origins().iter().enumerate() {
+            let r = t.rotation.to_rotation_matrix();
+            let r = r.matrix();
+            let v = t.translation.vector;
+            // R = Rx(α)·Rz(θ): third column (0, −sin α, cos α), first row (cos θ, −sin θ, 0).
+            let alpha = (-r[(1, 2)]).atan2(r[(2, 2)]);
+            let theta = (-r[(0, 1)]).atan2(r[(0, 0)]);
+            // p = (a, −d sin α, d cos α).
+            let d = v.z * alpha.cos() - v.y * alpha.sin();
+            let rebuilt = Isometry3::from_parts(
+                Translation3::new(v.x, -d * alpha.sin(), d * alpha.cos()),
+                UnitQuaternion::from_axis_angle(&nalgebra::Vector3::x_axis(), alpha)
+                    * UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), theta),
+            );
+            let off = (rebuilt.translation.vector - v).norm();
+            let turn = rebuilt.rotation.angle_to(&t.rotation);
+            if off > 1e-6 || turn > 1e-6 || (i == 0 && (v.x.abs() > 1e-6 || alpha.abs() > 1e-6)) {
+                return Err(format!(
+                    "{}: kinematics.{} is not a DH step (Tx(a)·Rx(α)·Tz(d)·Rz(θ)); off by {:.3} mm and {:.3} mrad",
+                    self.path.display(),
+                    entry_name(i),
+                    off * 1e3,
+                    turn * 1e3
+                ));
+            }
+            if i > 0 {
+                dh.a[i - 1] = v.x;
+                dh.alpha[i - 1] = alpha;
+            }
+            dh.d[i] = d;
+            dh.theta[i] = theta;
+        }
+        Ok(dh)
+    }
+
     /// `parent_from_joint` of each of the six joints, [`UR_CALIBRATION_JOINTS`] order.
     pub fn joint_origins(&self) -> [Isometry3<f64>; 6] {
         self.origins.map(|[x, y, z, r, p, yaw]| {
@@ -377,47 +424,48 @@ impl RobotModel {
     }
 }
 
+/// The file `ur_calibration` writes for `dh`, without its `correctChain` step (which moves
+/// d of joints 2 and 3 along their axes and changes nothing the forward kinematics sees):
+/// entry `i` is `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)` as xyz + URDF rpy. Like the tool,
+/// it has no entry for `a_6`, `α_6` (zero on a UR).
+#[cfg(test)]
+pub(crate) fn yaml_from_dh(dh: &handeye_hal::ur_dh::DhParams) -> String {
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    let mut s = String::from("# written by a test\nkinematics:\n");
+    for i in 0..6 {
+        let mut t = Isometry3::identity();
+        if i > 0 {
+            t *= Isometry3::from_parts(
+                Translation3::new(dh.a[i - 1], 0.0, 0.0),
+                UnitQuaternion::from_axis_angle(&Vector3::x_axis(), dh.alpha[i - 1]),
+            );
+        }
+        t *= Isometry3::from_parts(
+            Translation3::new(0.0, 0.0, dh.d[i]),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dh.theta[i]),
+        );
+        let (r, p, y) = t.rotation.euler_angles();
+        let v = t.translation.vector;
+        s += &format!(
+            "  {}:\n    x: {:e}\n    y: {:e}\n    z: {:e}\n    roll: {:e}\n    pitch: {:e}\n    yaw: {:e}\n",
+            entry_name(i),
+            v.x,
+            v.y,
+            v.z,
+            r,
+            p,
+            y
+        );
+    }
+    s + "  hash: \"calib_12345\"\n"
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use handeye_hal::ur_dh::DhParams;
-    use nalgebra::Vector3;
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
-
-    /// The file `ur_calibration` writes for `dh`, without its `correctChain` step (which moves
-    /// d of joints 2 and 3 along their axes and changes nothing the forward kinematics sees):
-    /// entry `i` is `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)` as xyz + URDF rpy. Like the tool,
-    /// it has no entry for `a_6`, `α_6` (zero on a UR).
-    fn yaml_from_dh(dh: &DhParams) -> String {
-        let mut s = String::from("# written by a test\nkinematics:\n");
-        for i in 0..6 {
-            let mut t = Isometry3::identity();
-            if i > 0 {
-                t *= Isometry3::from_parts(
-                    Translation3::new(dh.a[i - 1], 0.0, 0.0),
-                    UnitQuaternion::from_axis_angle(&Vector3::x_axis(), dh.alpha[i - 1]),
-                );
-            }
-            t *= Isometry3::from_parts(
-                Translation3::new(0.0, 0.0, dh.d[i]),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dh.theta[i]),
-            );
-            let (r, p, y) = t.rotation.euler_angles();
-            let v = t.translation.vector;
-            s += &format!(
-                "  {}:\n    x: {:e}\n    y: {:e}\n    z: {:e}\n    roll: {:e}\n    pitch: {:e}\n    yaw: {:e}\n",
-                entry_name(i),
-                v.x,
-                v.y,
-                v.z,
-                r,
-                p,
-                y
-            );
-        }
-        s + "  hash: \"calib_12345\"\n"
-    }
 
     fn parse(text: &str) -> Result<UrCalibration, UrCalibrationError> {
         UrCalibration::parse(text, Path::new("cal.yaml"))
@@ -480,6 +528,41 @@ mod tests {
 
     /// The model posed with a file written from calibrated DH puts the flange where the DH
     /// forward kinematics does (the controller's `actual_TCP_pose` with a zero TCP).
+    #[test]
+    fn the_file_gives_back_the_dh_it_was_written_from() {
+        for seed in [1, 5, 9] {
+            let dh = handeye_hal::ur_dh::UrModel::Ur10e
+                .dh()
+                .plus(&DhParams::factory_calibration_delta(seed));
+            let mut want = dh;
+            (want.a[5], want.alpha[5]) = (0.0, 0.0);
+            let got = parse(&yaml_from_dh(&dh))
+                .expect("parses")
+                .dh()
+                .expect("a DH chain");
+            for (g, w) in [
+                (got.a, want.a),
+                (got.d, want.d),
+                (got.alpha, want.alpha),
+                (got.theta, want.theta),
+            ] {
+                for k in 0..6 {
+                    assert!(
+                        (g[k] - w[k]).abs() < 1e-12,
+                        "seed {seed}: {got:?} vs {want:?}"
+                    );
+                }
+            }
+        }
+        // An entry that is no DH step (a y offset with no twist) is named.
+        let text = UR5E.replace(
+            "forearm: {x: -0.425, y: 0,",
+            "forearm: {x: -0.425, y: 0.01,",
+        );
+        let e = parse(&text).expect("parses").dh().expect_err("not DH");
+        assert!(e.contains("kinematics.forearm"), "{e}");
+    }
+
     #[test]
     fn file_posed_model_matches_calibrated_dh() {
         let Some(dir) = crate::testutil::shared_robots() else {

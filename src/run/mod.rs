@@ -435,12 +435,26 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 ),
             ));
         }
-        let kinematics = match self.cfg.robot.kinematics {
-            KinematicsSource::Nominal => KinematicsUsed {
-                source: "nominal",
-                note: None,
+        // Without the controller's kinematics: posed by `robot.calibration` when given, else
+        // the nominal URDF.
+        let fallback = |why: Option<String>| match &self.cfg.robot.calibration {
+            Some(file) => KinematicsUsed {
+                source: "file",
+                note: Some(format!(
+                    "{}posed by the calibration file {}",
+                    why.map_or_else(String::new, |w| format!("{w}; ")),
+                    file.display()
+                )),
                 dh: None,
             },
+            None => KinematicsUsed {
+                source: "nominal",
+                note: why.map(|w| format!("{w}; posed by the nominal URDF")),
+                dh: None,
+            },
+        };
+        let mut kinematics = match self.cfg.robot.kinematics {
+            KinematicsSource::Nominal => fallback(None),
             KinematicsSource::Controller => {
                 match cancellable(self.cancel, stage, async { Ok(robot.kinematics().await) })
                     .await?
@@ -452,27 +466,29 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                         }),
                         dh: Some(k.dh),
                     },
-                    Ok(None) => KinematicsUsed {
-                        source: "nominal",
-                        note: Some(
-                            "the controller publishes no kinematics; posed by the nominal URDF"
-                                .into(),
-                        ),
-                        dh: None,
-                    },
-                    Err(e) => KinematicsUsed {
-                        source: "nominal",
-                        note: Some(format!(
-                        "cannot read the controller's kinematics ({}); posed by the nominal URDF",
+                    Ok(None) => fallback(Some("the controller publishes no kinematics".into())),
+                    Err(e) => fallback(Some(format!(
+                        "cannot read the controller's kinematics ({})",
                         error_chain(&e)
-                    )),
-                        dh: None,
-                    },
+                    ))),
                 }
             }
         };
         if let Some(note) = &kinematics.note {
             tracing::warn!("{note}");
+        }
+        if let (Some(file), "file") = (&self.cfg.robot.calibration, kinematics.source) {
+            // The file's DH set poses the model as the controller's would.
+            let dh = crate::model::UrCalibration::load(file)
+                .map_err(|e| e.to_string())
+                .and_then(|c| c.dh())
+                .map_err(|e| {
+                    Failure::error(
+                        stage,
+                        format!("robot.calibration: {e}; fix the file or remove the key"),
+                    )
+                })?;
+            kinematics.dh = Some(dh);
         }
         let camera_info = cancellable(self.cancel, stage, async {
             camera.info().await.map_err(|e| {

@@ -98,12 +98,14 @@ impl RunTimings {
 /// Which kinematics posed the model.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct KinematicsUsed {
-    /// `controller` (the controller's calibrated DH) or `nominal` (the URDF).
+    /// `controller` (the controller's calibrated DH), `file` (`robot.calibration`) or `nominal`
+    /// (the URDF).
     pub source: &'static str,
-    /// Why nominal was used when the configuration asked for the controller's.
+    /// Why the controller's were not used when the configuration asked for them, and which
+    /// file posed the model.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
-    /// The controller's DH parameters, when used.
+    /// The DH parameters that posed the model: the controller's, or the file's.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dh: Option<DhParams>,
 }

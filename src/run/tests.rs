@@ -913,3 +913,77 @@ async fn an_automatic_eye_to_hand_run_measures_where_the_arm_stands() {
     assert_eq!(robot.tcp(), Isometry3::identity());
     assert_eq!(camera.captures(), 1);
 }
+
+#[tokio::test]
+async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_model() {
+    let Some(f) = fixture() else { return };
+    // The controller's kinematics are not used (as with a controller that publishes none):
+    // the model is posed by the nominal URDF, or by the arm's ur_calibration file.
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let error = |record: &RunRecord| {
+        let est = estimate(record);
+        let d = est.inverse() * f.mount;
+        (
+            d.translation.vector.norm() * 1e3,
+            d.rotation.angle().to_degrees(),
+        )
+    };
+    let storage = Storage::new("nominal-kinematics");
+    let mut cfg = test_config(&storage.0, f.view);
+    cfg.robot.kinematics = config::KinematicsSource::Nominal;
+    let nominal = start(
+        &calibrated_robot(f),
+        &camera,
+        f,
+        &cfg,
+        RunMode::Calibrate,
+        false,
+    )
+    .await;
+    let kin = &nominal.preflight.as_ref().expect("preflight").kinematics;
+    assert_eq!(kin.source, "nominal");
+
+    let file = storage.0.join("calibration.yaml");
+    std::fs::write(&file, crate::model::yaml_from_dh(&f.dh)).expect("yaml");
+    cfg.robot.calibration = Some(file.clone());
+    let posed = start(
+        &calibrated_robot(f),
+        &camera,
+        f,
+        &cfg,
+        RunMode::Calibrate,
+        false,
+    )
+    .await;
+    let kin = &posed.preflight.as_ref().expect("preflight").kinematics;
+    assert_eq!(kin.source, "file", "{kin:?}");
+    assert!(
+        kin.note
+            .as_deref()
+            .is_some_and(|n| n.contains("calibration.yaml")),
+        "{kin:?}"
+    );
+    let (nominal_mm, nominal_deg) = error(&nominal);
+    let (file_mm, file_deg) = error(&posed);
+    eprintln!(
+        "nominal URDF: {nominal_mm:.3} mm / {nominal_deg:.4}°; calibration file: {file_mm:.3} mm / {file_deg:.4}°"
+    );
+    assert!(file_mm < 0.5 * nominal_mm, "{file_mm} vs {nominal_mm} mm");
+
+    // A file that cannot be read fails the preflight, before anything moves.
+    std::fs::write(&file, "kinematics:\n  shoulder: {x: .nan}\n").expect("yaml");
+    let robot = calibrated_robot(f);
+    let bad = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(
+        bad.failed_stage,
+        Some(Stage::Preflight),
+        "{:?}",
+        bad.reasons
+    );
+    assert!(
+        reasons(&bad).contains("robot.calibration"),
+        "{:?}",
+        bad.reasons
+    );
+    assert!(robot.moves().is_empty());
+}
