@@ -1,8 +1,8 @@
 //! The daemon (mini-redis shape): one task owns the robot and camera and runs one calibration
 //! run at a time; triggers — startup, the schedule, the HTTP API, the CLI — ask through a
 //! cloneable [`DaemonHandle`]. A trigger while a run is going is refused with who is busy since
-//! when, or queued behind it (`daemon.when_busy`). Every run is recorded in the history store before it starts and when it ends, so a
-//! crash leaves it marked as interrupted. One shutdown token stops everything: a running move
+//! when, or queued behind it (`daemon.when_busy`). Every run is recorded in the history store
+//! before it starts and when it ends, so a crash leaves it marked as interrupted. One shutdown token stops everything: a running move
 //! is stopped, the run recorded as aborted.
 //!
 //! The binary builds the concrete robot and camera from the configuration and calls [`run`].
@@ -179,8 +179,8 @@ const DURATION_BUCKETS: [f64; 8] = [1.0, 2.5, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0
 
 #[derive(Debug)]
 struct State {
-    current: Option<Current>,
-    cancel: Option<CancellationToken>,
+    /// The run in progress and the token that cancels it.
+    current: Option<(Current, CancellationToken)>,
     /// Accepted behind `current`, in the order the job channel delivers them.
     queued: std::collections::VecDeque<(Current, CancellationToken)>,
     last: Option<Finished>,
@@ -248,7 +248,7 @@ impl DaemonHandle {
             return Err(Refusal::ShuttingDown);
         }
         let mut st = self.lock();
-        if let Some(c) = &st.current {
+        if let Some((c, _)) = &st.current {
             match self.shared.when_busy {
                 WhenBusy::Refuse => {
                     return Err(Refusal::Busy {
@@ -294,8 +294,7 @@ impl DaemonHandle {
             st.queued.push_back((entry, cancel));
         } else {
             tracing::info!(run_id = %run_id, trigger = trigger.name(), ?mode, "run accepted");
-            st.current = Some(entry);
-            st.cancel = Some(cancel);
+            st.current = Some((entry, cancel));
         }
         Ok(run_id)
     }
@@ -304,16 +303,10 @@ impl DaemonHandle {
     /// aborted without moving); `false` when nothing runs.
     pub fn cancel(&self) -> bool {
         let st = self.lock();
-        for (_, c) in &st.queued {
+        for (_, c) in st.current.iter().chain(&st.queued) {
             c.cancel();
         }
-        match &st.cancel {
-            Some(c) => {
-                c.cancel();
-                true
-            }
-            None => false,
-        }
+        st.current.is_some()
     }
 
     /// What the daemon is doing.
@@ -327,7 +320,7 @@ impl DaemonHandle {
             } else {
                 "idle"
             },
-            current: st.current.clone(),
+            current: st.current.as_ref().map(|(c, _)| c.clone()),
             queued: st.queued.iter().map(|(c, _)| c.clone()).collect(),
             last: st.last.clone(),
             last_calibration: st.last_calibration.clone(),
@@ -497,7 +490,7 @@ impl DaemonHandle {
 
     fn set_stage(&self, stage: Stage, detail: &str) {
         let mut st = self.lock();
-        if let Some(c) = &mut st.current {
+        if let Some((c, _)) = &mut st.current {
             c.stage = Some(stage);
             c.detail = detail.to_string();
         }
@@ -566,16 +559,7 @@ impl DaemonHandle {
         }
         st.last = Some(f);
         // The next queued run (the job channel delivers it next) becomes the current one.
-        match st.queued.pop_front() {
-            Some((next, cancel)) => {
-                st.current = Some(next);
-                st.cancel = Some(cancel);
-            }
-            None => {
-                st.current = None;
-                st.cancel = None;
-            }
-        }
+        st.current = st.queued.pop_front();
     }
 }
 
@@ -601,7 +585,6 @@ fn handle(
     let shared = Arc::new(Shared {
         state: Mutex::new(State {
             current: None,
-            cancel: None,
             queued: std::collections::VecDeque::new(),
             last: None,
             last_calibration: None,
