@@ -73,6 +73,12 @@ pub(crate) fn check_pose_distance(
     }
 }
 
+/// Refuses a camera mount (`flange_from_camera`, given by `flag`) beyond
+/// [`MAX_MOUNT_DISTANCE_M`] of the flange.
+pub(crate) fn check_mount(flag: &str, mount: &Isometry3<f64>) -> Result<(), String> {
+    check_pose_distance(flag, mount, MAX_MOUNT_DISTANCE_M, "a camera on the flange")
+}
+
 /// Refuses joint values (given by `flag`) outside the model's joint limits (with 1 mrad of
 /// slack for rounding; continuous joints take any finite angle); the message names the joint
 /// and its limits.

@@ -72,15 +72,8 @@ impl SceneMount {
                     .and_then(|_| std::fs::read_to_string(&*path))
                     .map_err(|e| e.to_string())
                     .and_then(|t| parse_pose(&t))
-                    .and_then(|m| {
-                        super::args::check_pose_distance(
-                            "the mount file's pose",
-                            &m,
-                            super::args::MAX_MOUNT_DISTANCE_M,
-                            "a camera on the flange",
-                        )
-                        .map(|()| m)
-                    }) {
+                    .and_then(|m| super::args::check_mount("the mount file's pose", &m).map(|()| m))
+                {
                     Ok(m) => {
                         eprintln!(
                             "sim camera: mount is now {} (from {})",

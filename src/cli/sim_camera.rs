@@ -140,13 +140,7 @@ fn start(args: Args) -> anyhow::Result<SimCamera> {
     } else {
         let mount = parse_pose(args.mount.as_deref().unwrap_or(DEFAULT_MOUNT))
             .map_err(|e| anyhow::anyhow!("--mount: {e}"))?;
-        super::args::check_pose_distance(
-            "--mount",
-            &mount,
-            super::args::MAX_MOUNT_DISTANCE_M,
-            "a camera on the flange",
-        )
-        .map_err(anyhow::Error::msg)?;
+        super::args::check_mount("--mount", &mount).map_err(anyhow::Error::msg)?;
         let model = Arc::new(RobotModel::load(
             &resolve_robot(&args.model).map_err(anyhow::Error::msg)?,
         )?);

@@ -239,13 +239,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             parse_pose(m.as_deref().unwrap_or(DEFAULT_MOUNT)).map_err(anyhow::Error::msg)?
         }
     };
-    super::args::check_pose_distance(
-        "--mount",
-        &mount,
-        super::args::MAX_MOUNT_DISTANCE_M,
-        "a camera on the flange",
-    )
-    .map_err(anyhow::Error::msg)?;
+    super::args::check_mount("--mount", &mount).map_err(anyhow::Error::msg)?;
     if let Some(f) = args.protective_stop_during_move {
         anyhow::ensure!(
             (0.0..=1.0).contains(&f),

@@ -15,8 +15,8 @@ use handeye_hal::ur_dh::DhParams;
 use handeye_hal::UrPose;
 
 use super::args::{
-    check_joint_limits, check_pose_distance, parse_joints, parse_pose, resolve_robot, JointList,
-    MAX_CELL_CAMERA_DISTANCE_M, MAX_MOUNT_DISTANCE_M,
+    check_joint_limits, check_mount, check_pose_distance, parse_joints, parse_pose, resolve_robot,
+    JointList, MAX_CELL_CAMERA_DISTANCE_M,
 };
 
 /// Render a simulated scan of a robot seen by a 3D camera.
@@ -72,13 +72,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     let placement = match (args.mount, args.camera_pose) {
         (Some(flange_from_camera), None) => {
-            check_pose_distance(
-                "--mount",
-                &flange_from_camera,
-                MAX_MOUNT_DISTANCE_M,
-                "a camera on the flange",
-            )
-            .map_err(anyhow::Error::msg)?;
+            check_mount("--mount", &flange_from_camera).map_err(anyhow::Error::msg)?;
             Placement::EyeInHand { flange_from_camera }
         }
         (None, Some(model_from_camera)) => {
