@@ -12,7 +12,8 @@
 //! `δ = (ρ, φ)` (metres, radians); scan points are multiplied by `κ` (true = κ · measured).
 
 use nalgebra::{
-    DMatrix, Isometry3, Matrix6, Point3, SMatrix, SVector, Translation3, UnitQuaternion, Vector3,
+    DMatrix, DVector, Isometry3, Matrix6, Matrix6xX, Point3, SMatrix, SVector, Translation3,
+    UnitQuaternion, Vector3,
 };
 use rayon::prelude::*;
 
@@ -23,7 +24,7 @@ type Mat7 = SMatrix<f64, 7, 7>;
 /// Residual scale of [`IcpResult::sharpness`], metres.
 const SHARP_M: f64 = 0.0005;
 type Vec7 = SVector<f64, 7>;
-/// Edge of the model-frame cubes whose residuals [`Reliability::meat`] treats as one error,
+/// Edge of the model-frame cubes whose residuals [`patch_scores`] treats as one error,
 /// metres.
 const PATCH_M: f64 = 0.03;
 /// Scan points on the moving links below which [`IcpResult::sharpness_moving`] says nothing.
@@ -44,8 +45,6 @@ pub(crate) struct Stage {
     pub(crate) scale: bool,
     /// Iteration cap.
     pub(crate) iterations: usize,
-    /// Weight of correspondences on the moving links (chain depth ≥ 1) relative to the base.
-    pub(crate) moving_weight: f64,
 }
 
 /// Result of [`icp`].
@@ -63,9 +62,6 @@ pub(crate) struct IcpResult {
     /// Cluster-robust covariance of the 6 pose parameters (model-frame left perturbation),
     /// m² / rad².
     pub(crate) cov6: Matrix6<f64>,
-    /// How the pose parameters follow small kinematic errors `e` of the arm (see
-    /// [`Reliability::kinematic`]): they move by `gain · e`, 6 × 6·joints.
-    pub(crate) kinematic_gain: DMatrix<f64>,
     /// Weighted centroid of the correspondences, model frame (metres).
     pub(crate) centroid: Point3<f64>,
     /// RMS distance of the correspondences from their centroid, metres.
@@ -86,10 +82,13 @@ pub(crate) struct IcpResult {
     pub(crate) sharpness_moving: f64,
 }
 
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Default)]
 struct Acc {
     h: Mat7,
     g: Vec7,
+    /// `(Σ w J Jᵀ, Σ w r J)` per chain depth of the fitted link (0..=fit depth), when asked for:
+    /// the links' displacements enter the normal equations through them.
+    by_depth: Vec<(Mat7, Vec7)>,
     wsum: f64,
     n: usize,
     close: usize,
@@ -104,9 +103,20 @@ struct Acc {
 }
 
 impl Acc {
-    fn add(mut self, o: Acc) -> Acc {
+    fn new(depths: usize) -> Acc {
+        Acc {
+            by_depth: vec![(Mat7::zeros(), Vec7::zeros()); depths],
+            ..Acc::default()
+        }
+    }
+
+    fn merge(mut self, o: Acc) -> Acc {
         self.h += o.h;
         self.g += o.g;
+        for (a, b) in self.by_depth.iter_mut().zip(o.by_depth) {
+            a.0 += b.0;
+            a.1 += b.1;
+        }
         self.wsum += o.wsum;
         self.n += o.n;
         self.close += o.close;
@@ -119,14 +129,43 @@ impl Acc {
         self.wxx += o.wxx;
         self
     }
+
+    /// Adds one scan point's standing against the model (see [`correspond`]).
+    fn add(&mut self, found: Result<Correspondence, u8>, kernel_m: f64) {
+        let depth = match &found {
+            Ok(c) => c.depth,
+            Err(d) => *d,
+        };
+        self.near += 1;
+        self.near_moving += usize::from(depth >= 1);
+        let Ok(c) = found else { return };
+        self.sharp += c.sharp;
+        if c.depth >= 1 {
+            self.sharp_moving += c.sharp;
+        }
+        let h = c.j * c.j.transpose() * c.w;
+        let g = c.j * (c.w * c.r);
+        self.h += h;
+        self.g += g;
+        if let Some(d) = self.by_depth.get_mut(c.depth as usize) {
+            d.0 += h;
+            d.1 += g;
+        }
+        self.wsum += c.w;
+        self.n += 1;
+        self.wx += c.x.coords * c.w;
+        self.wxx += c.w * c.x.coords.norm_squared();
+        if c.r.abs() < 3.0 * kernel_m {
+            self.close += 1;
+            self.r2_close += c.r * c.r;
+        }
+    }
 }
 
 /// One scan point's correspondence with the model at the current estimate.
 struct Correspondence {
     /// Model-frame point.
     x: Point3<f64>,
-    /// Normal of the model triangle it fits.
-    n: Vector3<f64>,
     /// Jacobian of the residual in (ρ, φ, κ).
     j: Vec7,
     /// Signed point-to-plane residual, metres.
@@ -141,12 +180,15 @@ struct Correspondence {
 
 /// Where a scan point stands against the model: not near the fitted links, near them but
 /// without a usable correspondence (`Err(depth)`), or a correspondence.
+/// `links[d − 1]` is the estimated displacement of the links at chain depth `d` (see
+/// [`super::links`]); the model surface there is taken as moved by it (empty: as posed).
 fn correspond(
     o: &Oriented,
     surface: &ModelSurface,
     t: &Isometry3<f64>,
     kappa: f64,
     st: &Stage,
+    links: &[Isometry3<f64>],
 ) -> Option<Result<Correspondence, u8>> {
     let cos_min = 0.5;
     let rp = t.rotation * o.p.coords;
@@ -156,21 +198,25 @@ fn correspond(
         return None;
     }
     let tri = &surface.triangles[s.tri as usize];
-    let c = tri.closest_point(&x);
-    if (x - c).norm() > st.gate_m || (t.rotation * o.n).dot(&tri.n) < cos_min {
+    // The point against the link as posed: undo the link's displacement.
+    let on_posed = match (s.depth as usize).checked_sub(1).and_then(|d| links.get(d)) {
+        Some(m) => m.inverse_transform_point(&x),
+        None => x,
+    };
+    let c = tri.closest_point(&on_posed);
+    if (on_posed - c).norm() > st.gate_m || (t.rotation * o.n).dot(&tri.n) < cos_min {
         return Some(Err(s.depth));
     }
     let n = tri.n;
-    let r = n.dot(&(x - c));
+    let r = n.dot(&(on_posed - c));
     let u = r / st.kernel_m;
-    let w = if s.depth >= 1 { st.moving_weight } else { 1.0 } / (1.0 + u * u);
+    let w = 1.0 / (1.0 + u * u);
     let mut j = Vec7::zeros();
     j.fixed_rows_mut::<3>(0).copy_from(&n);
     j.fixed_rows_mut::<3>(3).copy_from(&x.coords.cross(&n));
     j[6] = n.dot(&rp);
     Some(Ok(Correspondence {
         x,
-        n,
         j,
         r,
         w,
@@ -179,82 +225,54 @@ fn correspond(
     }))
 }
 
+/// The normal equations and fit statistics of `pts` at `t`, `kappa`, the links displaced by
+/// `links` (see [`correspond`]); with `by_depth`, also per chain depth of the fitted links.
 fn accumulate(
     pts: &[Oriented],
     surface: &ModelSurface,
     t: &Isometry3<f64>,
     kappa: f64,
     st: &Stage,
+    links: &[Isometry3<f64>],
+    by_depth: bool,
 ) -> Acc {
-    let one = |o: &Oriented| -> Acc {
-        let mut a = Acc::default();
-        let Some(found) = correspond(o, surface, t, kappa, st) else {
-            return a;
-        };
-        let depth = match &found {
-            Ok(c) => c.depth,
-            Err(d) => *d,
-        };
-        a.near = 1;
-        a.near_moving = usize::from(depth >= 1);
-        let Ok(c) = found else { return a };
-        a.sharp = c.sharp;
-        if c.depth >= 1 {
-            a.sharp_moving = c.sharp;
-        }
-        a.h = c.j * c.j.transpose() * c.w;
-        a.g = c.j * (c.w * c.r);
-        a.wsum = c.w;
-        a.n = 1;
-        a.wx = c.x.coords * c.w;
-        a.wxx = c.w * c.x.coords.norm_squared();
-        if c.r.abs() < 3.0 * st.kernel_m {
-            a.close = 1;
-            a.r2_close = c.r * c.r;
+    let depths = if by_depth { surface.fit_depth + 1 } else { 0 };
+    let chunk = |c: &[Oriented]| {
+        let mut a = Acc::new(depths);
+        for o in c {
+            if let Some(found) = correspond(o, surface, t, kappa, st, links) {
+                a.add(found, st.kernel_m);
+            }
         }
         a
     };
     if pts.len() > 2000 {
         pts.par_chunks(1024)
-            .map(|c| c.iter().map(one).fold(Acc::default(), Acc::add))
-            .reduce(Acc::default, Acc::add)
+            .map(chunk)
+            .reduce(|| Acc::new(depths), Acc::merge)
     } else {
-        pts.iter().map(one).fold(Acc::default(), Acc::add)
+        chunk(pts)
     }
 }
 
-/// What the converged fit's correspondences say about the reliability of the pose, beyond
-/// the formal information matrix (one pass over the points at the final estimate).
-struct Reliability {
-    /// Σ over patches of `ψ ψᵀ`, where `ψ` sums the weighted scores `w r J` of a patch's
-    /// correspondences: the "meat" of a cluster-robust sandwich covariance. Residuals of
-    /// neighbouring points are not independent (a CAD deviation or a depth bias moves a whole
-    /// patch together); a covariance that counts them as independent evidence is overconfident
-    /// by the square root of the points per patch. Summing per patch lets a shared error count
-    /// once.
-    meat: Mat7,
-    patches: usize,
-    /// `Σ w J (∂r/∂e)ᵀ`, 7 × 6·joints: how the normal equations respond to a small error `e`
-    /// (translation, rotation in the joint frame) of each joint that moves fitted links. The
-    /// model poses the shoulder and upper arm with the nominal kinematics; the real arm's
-    /// zero offsets and link lengths move them, and the fit follows them where the base
-    /// cannot hold it (its yaw, for a round base).
-    kinematic: DMatrix<f64>,
-}
-
-fn reliability(
+/// The scores of the converged fit's correspondences summed per 3 cm patch of the model (and
+/// chain depth): `ψ = Σ w r J` of each patch. Residuals of neighbouring points are not
+/// independent (a CAD deviation or a depth bias moves a whole patch together); a covariance
+/// that counts them as independent evidence is overconfident by the square root of the points
+/// per patch. `Σ ψ ψᵀ` is the "meat" of a cluster-robust sandwich covariance, in which a shared
+/// error counts once.
+fn patch_scores(
     pts: &[Oriented],
     surface: &ModelSurface,
     t: &Isometry3<f64>,
     kappa: f64,
     st: &Stage,
-) -> Reliability {
-    let joints = &surface.joint_frames;
+    links: &[Isometry3<f64>],
+) -> Vec<(u8, Vec7)> {
     let mut patches: std::collections::HashMap<(i32, i32, i32, u8), Vec7> =
         std::collections::HashMap::new();
-    let mut kinematic = DMatrix::zeros(7, 6 * joints.len());
     for o in pts {
-        let Some(Ok(c)) = correspond(o, surface, t, kappa, st) else {
+        let Some(Ok(c)) = correspond(o, surface, t, kappa, st, links) else {
             continue;
         };
         let key = (
@@ -264,26 +282,8 @@ fn reliability(
             c.depth,
         );
         *patches.entry(key).or_insert_with(Vec7::zeros) += c.j * (c.w * c.r);
-        // Joint k moves the parts beyond it: a translation e_t (joint frame) moves the point by
-        // R e_t, a rotation e_r by (R e_r) × (x − o); the residual changes by n · that.
-        for (k, frame) in joints.iter().enumerate().take(c.depth as usize) {
-            let rt = frame.rotation.inverse();
-            let lever = c.x - Point3::from(frame.translation.vector);
-            let d_trans = rt * c.n;
-            let d_rot = rt * lever.cross(&c.n);
-            for a in 0..3 {
-                let mut col = kinematic.column_mut(6 * k + a);
-                col += c.j * (c.w * d_trans[a]);
-                let mut col = kinematic.column_mut(6 * k + 3 + a);
-                col += c.j * (c.w * d_rot[a]);
-            }
-        }
     }
-    Reliability {
-        meat: patches.values().map(|psi| psi * psi.transpose()).sum(),
-        patches: patches.len(),
-        kinematic,
-    }
+    patches.into_iter().map(|(k, psi)| (k.3, psi)).collect()
 }
 
 /// Robust point-to-plane ICP from `init` (`model_from_camera`) through the `stages`.
@@ -294,45 +294,141 @@ pub(crate) fn icp(
     kappa0: f64,
     stages: &[Stage],
 ) -> Option<IcpResult> {
+    icp_with_links(pts, surface, init, kappa0, stages, &LinkPrior::none()).map(|(r, _)| r)
+}
+
+/// The fitted links' displacements as parameters of the fit (see [`super::links`]): the
+/// displacement of depth `d` is `a[d − 1] · z` with `z ~ N(0, I)`, weighed against the scan's
+/// residuals as if their variance were `residual_var` (m²; the effective variance of the fit
+/// without them, which counts a patch's shared error once).
+#[derive(Debug, Clone)]
+pub(crate) struct LinkPrior {
+    pub(crate) a: Vec<Matrix6xX<f64>>,
+    pub(crate) residual_var: f64,
+}
+
+impl LinkPrior {
+    /// No link parameters: the links are where the model is posed.
+    pub(crate) fn none() -> Self {
+        Self {
+            a: Vec::new(),
+            residual_var: 0.0,
+        }
+    }
+
+    fn params(&self) -> usize {
+        self.a.first().map_or(0, |m| m.ncols())
+    }
+
+    /// The displacements of depths `1..` at `z`, as isometries.
+    fn displacements(&self, z: &DVector<f64>) -> Vec<Isometry3<f64>> {
+        self.a
+            .iter()
+            .map(|a| {
+                let tw = a * z;
+                Isometry3::new(
+                    Vector3::new(tw[0], tw[1], tw[2]),
+                    Vector3::new(tw[3], tw[4], tw[5]),
+                )
+            })
+            .collect()
+    }
+
+    /// The normal equations of pose, scale and link parameters from the per-depth sums (the
+    /// residual's derivative by `z` at depth `d` is `−J₆ᵀ a[d − 1]`) and the prior at `z`.
+    fn normal_equations(
+        &self,
+        by_depth: &[(Mat7, Vec7)],
+        z: &DVector<f64>,
+    ) -> (DMatrix<f64>, DVector<f64>) {
+        let p = self.params();
+        let n = 7 + p;
+        let mut h = DMatrix::zeros(n, n);
+        let mut g = DVector::zeros(n);
+        for (d, (hd, gd)) in by_depth.iter().enumerate() {
+            let mut hv = h.view_mut((0, 0), (7, 7));
+            hv += hd;
+            let mut gv = g.rows_mut(0, 7);
+            gv += gd;
+            let Some(a) = d.checked_sub(1).and_then(|k| self.a.get(k)) else {
+                continue;
+            };
+            // ∂r/∂z = −a ᵀ J₆: cross terms −H₇₆ a, link block aᵀ H₆₆ a, gradient −aᵀ g₆.
+            let h76 = hd.fixed_view::<7, 6>(0, 0);
+            let cross = -(h76 * a);
+            let mut hv = h.view_mut((0, 7), (7, p));
+            hv += &cross;
+            let mut hv = h.view_mut((7, 0), (p, 7));
+            hv += cross.transpose();
+            let h66 = hd.fixed_view::<6, 6>(0, 0);
+            let mut hv = h.view_mut((7, 7), (p, p));
+            hv += a.transpose() * h66 * a;
+            let mut gv = g.rows_mut(7, p);
+            gv -= a.transpose() * gd.fixed_rows::<6>(0);
+        }
+        for k in 0..p {
+            h[(7 + k, 7 + k)] += self.residual_var;
+            g[7 + k] += self.residual_var * z[k];
+        }
+        (h, g)
+    }
+}
+
+/// [`icp`] with the fitted links' displacements estimated alongside (see [`LinkPrior`]);
+/// returns the fit and the link parameters `z`. The covariance is the pose block of the joint
+/// sandwich: what the links' prior leaves undetermined is in it.
+pub(crate) fn icp_with_links(
+    pts: &[Oriented],
+    surface: &ModelSurface,
+    init: &Isometry3<f64>,
+    kappa0: f64,
+    stages: &[Stage],
+    prior: &LinkPrior,
+) -> Option<(IcpResult, DVector<f64>)> {
+    let p = prior.params();
+    let with_links = p > 0;
     let mut t = *init;
     let mut kappa = kappa0;
-    let mut last: Option<(Acc, bool, f64, f64)> = None;
+    let mut z = DVector::zeros(p);
+    let mut last: Option<(bool, f64)> = None;
     let mut scale_ok = true;
+    // Pins the scale (row and column zeroed, unit diagonal) in a system of any size.
+    let pin_scale = |h: &mut DMatrix<f64>, g: &mut DVector<f64>| {
+        h.row_mut(6).fill(0.0);
+        h.column_mut(6).fill(0.0);
+        h[(6, 6)] = 1.0;
+        g[6] = 0.0;
+    };
     for st in stages {
         for it in 0..st.iterations {
             let free_scale = st.scale && scale_ok;
-            let a = accumulate(pts, surface, &t, kappa, st);
+            let links = prior.displacements(&z);
+            let a = accumulate(pts, surface, &t, kappa, st, &links, with_links);
             if a.n < 12 {
                 return None;
             }
-            let mut h = a.h;
-            let mut g = a.g;
+            let (mut h, mut g) = if with_links {
+                prior.normal_equations(&a.by_depth, &z)
+            } else {
+                (
+                    DMatrix::from_column_slice(7, 7, a.h.as_slice()),
+                    DVector::from_column_slice(a.g.as_slice()),
+                )
+            };
             if !free_scale {
-                // Pin the scale: zero its row/column, unit diagonal.
-                for k in 0..7 {
-                    h[(6, k)] = 0.0;
-                    h[(k, 6)] = 0.0;
-                }
-                h[(6, 6)] = 1.0;
-                g[6] = 0.0;
+                pin_scale(&mut h, &mut g);
             }
             // Light Levenberg damping for robustness far from the optimum.
-            let mut hd = h;
-            for k in 0..7 {
+            let mut hd = h.clone();
+            for k in 0..hd.nrows() {
                 hd[(k, k)] += 1e-9 + 1e-6 * h[(k, k)];
             }
-            let chol = hd.cholesky()?;
-            let mut delta = -chol.solve(&g);
+            let mut delta = -hd.clone().cholesky()?.solve(&g);
             if free_scale && (kappa + delta[6] - 1.0).abs() > MAX_SCALE_ERROR {
                 // Ill-conditioned scale: fall back to the fixed nominal scale.
                 scale_ok = false;
                 kappa = 1.0;
-                for k in 0..7 {
-                    hd[(6, k)] = 0.0;
-                    hd[(k, 6)] = 0.0;
-                }
-                hd[(6, 6)] = 1.0;
-                g[6] = 0.0;
+                pin_scale(&mut hd, &mut g);
                 delta = -hd.cholesky()?.solve(&g);
             }
             let rho = Vector3::new(delta[0], delta[1], delta[2]);
@@ -343,27 +439,29 @@ pub(crate) fn icp(
             );
             t = step * t;
             kappa += delta[6];
-            last = Some((a, free_scale, st.kernel_m, st.moving_weight));
+            z += delta.rows(7, p);
+            last = Some((free_scale, st.kernel_m));
+            let links_small = delta.rows(7, p).amax() < 1e-3;
             let small = rho.norm() < 2e-7 && phi.norm() < 2e-7 && delta[6].abs() < 1e-7;
-            if small && it > 0 {
+            if small && links_small && it > 0 {
                 break;
             }
         }
     }
-    let (_, scaled, kernel, last_moving) = last?;
+    let (scaled, kernel) = last?;
     // Final information at the converged pose.
     let st = Stage {
         gate_m: 3.0 * kernel.max(0.001),
         kernel_m: kernel,
         scale: scaled,
         iterations: 1,
-        moving_weight: last_moving,
     };
-    let a = accumulate(pts, surface, &t, kappa, &st);
+    let links = prior.displacements(&z);
+    let a = accumulate(pts, surface, &t, kappa, &st, &links, with_links);
     if a.n < 12 {
         return None;
     }
-    let dof = if scaled { 7.0 } else { 6.0 };
+    let dof = if scaled { 7.0 } else { 6.0 } + p as f64;
     let h66: Matrix6<f64> = a.h.fixed_view::<6, 6>(0, 0).into_owned();
     let h6: nalgebra::Vector6<f64> = a.h.fixed_view::<6, 1>(0, 6).into_owned();
     let h77 = a.h[(6, 6)];
@@ -372,52 +470,77 @@ pub(crate) fn icp(
     } else {
         h66
     };
-    // Cluster-robust ("sandwich") covariance H⁻¹ M H⁻¹, the scale marginalised by taking the
-    // pose block of the full inverse; and the gain of the kinematic errors, H⁻¹ B.
-    let rel = reliability(pts, surface, &t, kappa, &st);
-    let dim = if scaled { 7 } else { 6 };
-    let h_inv = a.h.view((0, 0), (dim, dim)).into_owned().try_inverse()?;
-    let small_sample = rel.patches as f64 / (rel.patches as f64 - dof).max(1.0);
-    let meat = rel.meat.view((0, 0), (dim, dim)).into_owned();
-    let cov6: Matrix6<f64> = (&h_inv * meat * &h_inv * small_sample)
-        .fixed_view::<6, 6>(0, 0)
-        .into_owned();
-    let kinematic_gain = (&h_inv * rel.kinematic.rows(0, dim))
-        .rows(0, 6)
-        .into_owned();
-    Some(IcpResult {
-        model_from_camera: t,
-        kappa,
-        scale_estimated: scaled,
-        info6,
-        cov6,
-        kinematic_gain,
-        centroid: Point3::from(a.wx / a.wsum),
-        spread_m: (a.wxx / a.wsum - (a.wx / a.wsum).norm_squared())
-            .max(0.0)
-            .sqrt(),
-        n_used: a.n,
-        rmse_m: if a.close > 0 {
-            (a.r2_close / a.close as f64).sqrt()
-        } else {
-            f64::INFINITY
+    // Cluster-robust ("sandwich") covariance H⁻¹ M H⁻¹ over the parameters in use (pose, the
+    // scale when estimated, the link parameters), the rest marginalised by taking the pose
+    // block of the full inverse. The links' prior adds its own information to H and, as the
+    // variance of its score, to M.
+    let (h, _) = if with_links {
+        prior.normal_equations(&a.by_depth, &z)
+    } else {
+        (
+            DMatrix::from_column_slice(7, 7, a.h.as_slice()),
+            DVector::zeros(7),
+        )
+    };
+    let used: Vec<usize> = (0..7 + p).filter(|&k| k != 6 || scaled).collect();
+    let patches = patch_scores(pts, surface, &t, kappa, &st, &links);
+    let mut meat = DMatrix::zeros(7 + p, 7 + p);
+    for (depth, psi) in &patches {
+        let mut full = DVector::zeros(7 + p);
+        full.rows_mut(0, 7).copy_from(psi);
+        if let Some(a) = (*depth as usize)
+            .checked_sub(1)
+            .and_then(|k| prior.a.get(k))
+        {
+            let psi6 = psi.fixed_rows::<6>(0);
+            full.rows_mut(7, p).copy_from(&(-(a.transpose() * psi6)));
+        }
+        meat += &full * full.transpose();
+    }
+    for k in 0..p {
+        meat[(7 + k, 7 + k)] += prior.residual_var.powi(2);
+    }
+    let h_used = h.select_rows(&used).select_columns(&used);
+    let meat_used = meat.select_rows(&used).select_columns(&used);
+    let h_inv = h_used.try_inverse()?;
+    let small_sample = patches.len() as f64 / (patches.len() as f64 - dof).max(1.0);
+    let cov = &h_inv * meat_used * &h_inv * small_sample;
+    let cov6: Matrix6<f64> = cov.fixed_view::<6, 6>(0, 0).into_owned();
+    Some((
+        IcpResult {
+            model_from_camera: t,
+            kappa,
+            scale_estimated: scaled,
+            info6,
+            cov6,
+            centroid: Point3::from(a.wx / a.wsum),
+            spread_m: (a.wxx / a.wsum - (a.wx / a.wsum).norm_squared())
+                .max(0.0)
+                .sqrt(),
+            n_used: a.n,
+            rmse_m: if a.close > 0 {
+                (a.r2_close / a.close as f64).sqrt()
+            } else {
+                f64::INFINITY
+            },
+            inlier_fraction: if a.near > 0 {
+                a.close as f64 / a.near as f64
+            } else {
+                0.0
+            },
+            sharpness: if a.near > 0 {
+                a.sharp / a.near as f64
+            } else {
+                0.0
+            },
+            sharpness_moving: if a.near_moving >= MIN_MOVING_POINTS {
+                a.sharp_moving / a.near_moving as f64
+            } else if a.near > 0 {
+                a.sharp / a.near as f64
+            } else {
+                0.0
+            },
         },
-        inlier_fraction: if a.near > 0 {
-            a.close as f64 / a.near as f64
-        } else {
-            0.0
-        },
-        sharpness: if a.near > 0 {
-            a.sharp / a.near as f64
-        } else {
-            0.0
-        },
-        sharpness_moving: if a.near_moving >= MIN_MOVING_POINTS {
-            a.sharp_moving / a.near_moving as f64
-        } else if a.near > 0 {
-            a.sharp / a.near as f64
-        } else {
-            0.0
-        },
-    })
+        z,
+    ))
 }

@@ -17,6 +17,7 @@ pub mod export;
 mod fine;
 pub mod gate;
 mod kdtree;
+mod links;
 pub(crate) mod range;
 pub mod register;
 pub mod report;

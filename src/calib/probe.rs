@@ -69,7 +69,10 @@ fn probe_bench_trials() {
                     mount.translation.vector.as_slice(),
                     mount.rotation.scaled_axis().as_slice()
                 );
-                let req = cfg.scan_request(&model, q, mount, seed);
+                let mut req = cfg.scan_request(&model, q, mount, seed);
+                if let Some(dh) = cfg.true_arm(&model, seeds[0]) {
+                    req = req.with_controller_dh(dh);
+                }
                 let sim = crate::sim::simulate_scan(&req).expect("sim");
                 let mut seen = std::collections::BTreeMap::<&str, usize>::new();
                 for (l, p) in sim.labels.iter().zip(&sim.cloud.points) {
@@ -99,7 +102,16 @@ fn probe_bench_trials() {
                         r.map(|r| (r.quality.from_prior, r.timings_ms.total, probe_err(&r)))
                     );
                 }
-                let t = run_trial(&model, mount, q, &cfg, seed, v, s);
+                let t = run_trial(
+                    &model,
+                    mount,
+                    q,
+                    cfg.true_arm(&model, seeds[0]),
+                    &cfg,
+                    seed,
+                    v,
+                    s,
+                );
                 eprintln!(
                     "=== {key}: {} {:.3} mm {:.4}° reg {:.0} ms (coarse {:.0} fine {:.0}) {:?}",
                     t.outcome,

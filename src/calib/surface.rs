@@ -34,6 +34,12 @@ pub struct PosedModel {
     /// Where the flange is at the measured joints, model frame; `None` when unknown. An
     /// eye-in-hand camera rides on it (see `RegisterOptions::max_camera_flange_distance_m`).
     pub model_from_flange: Option<Isometry3<f64>>,
+    /// UR arms: how the links of each chain depth (entry `k − 1` for depth `k`) move under small
+    /// changes of the 24 DH parameters the arm is posed by (see
+    /// [`RobotModel::dh_sensitivity`](crate::model::RobotModel::dh_sensitivity)); the arm's
+    /// kinematic error is then taken in the terms a UR calibration has. `None`: per-joint origin
+    /// errors at `joints`.
+    pub dh_sensitivity: Option<Vec<nalgebra::SMatrix<f64, 6, 24>>>,
 }
 
 /// A chain joint of the posed model.
@@ -122,8 +128,6 @@ pub(crate) struct ModelSurface {
     pub(crate) coarse: Vec<Sample>,
     /// Chain depth up to which parts are fitted.
     pub(crate) fit_depth: usize,
-    /// `model_from_joint` of the chain joints that move fitted parts (at most `fit_depth`).
-    pub(crate) joint_frames: Vec<Isometry3<f64>>,
 }
 
 impl ModelSurface {
@@ -210,12 +214,6 @@ impl ModelSurface {
             tree,
             coarse,
             fit_depth,
-            joint_frames: model
-                .joints
-                .iter()
-                .take(fit_depth)
-                .map(|j| j.model_from_joint)
-                .collect(),
         }
     }
 

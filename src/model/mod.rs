@@ -897,6 +897,52 @@ impl RobotModel {
         Ok(out)
     }
 
+    /// How the links of a UR arm posed by the DH set `dh` (as
+    /// [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh) poses them) move
+    /// under small changes of its 24 DH parameters, at joints `q`. Entry `k − 1` is for the links
+    /// of chain depth `k` (1..=6); column `6·f + j` is parameter `f` (0 θ, 1 d, 2 a, 3 α) of joint
+    /// `j + 1`; a column is the model-frame displacement `(t, ω)` per unit of that parameter
+    /// (metres or radians): a link point `x` moves by `t + ω × x`. The base (depth 0) never moves.
+    ///
+    /// Errors: those of [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh).
+    pub fn dh_sensitivity(
+        &self,
+        q: &[f64],
+        dh: &DhParams,
+    ) -> Result<Vec<nalgebra::SMatrix<f64, 6, 24>>, ModelError> {
+        let nominal = self.link_poses(q)?;
+        let at = self.controller_dh_corrections(q, &nominal, dh)?;
+        let mut out = vec![nalgebra::SMatrix::<f64, 6, 24>::zeros(); 6];
+        // Central differences; the corrections are smooth and the step is far above rounding.
+        let h = 1e-6;
+        for col in 0..24 {
+            let shifted = |step: f64| {
+                let mut p = *dh;
+                let field = match col / 6 {
+                    0 => &mut p.theta,
+                    1 => &mut p.d,
+                    2 => &mut p.a,
+                    _ => &mut p.alpha,
+                };
+                field[col % 6] += step;
+                self.controller_dh_corrections(q, &nominal, &p)
+            };
+            let (plus, minus) = (shifted(h)?, shifted(-h)?);
+            for k in 1..=6 {
+                let log = |c: &Isometry3<f64>| {
+                    let m = c * at[k].inverse();
+                    (m.translation.vector, m.rotation.scaled_axis())
+                };
+                let ((tp, wp), (tm, wm)) = (log(&plus[k]), log(&minus[k]));
+                let t = (tp - tm) / (2.0 * h);
+                let w = (wp - wm) / (2.0 * h);
+                out[k - 1].fixed_view_mut::<3, 1>(0, col).copy_from(&t);
+                out[k - 1].fixed_view_mut::<3, 1>(3, col).copy_from(&w);
+            }
+        }
+        Ok(out)
+    }
+
     /// The nominal origin of each chain joint in its parent link (`parent_from_joint`), chain
     /// order: its translation is the link vector that a link-length error scales.
     pub fn joint_origins(&self) -> Vec<Isometry3<f64>> {

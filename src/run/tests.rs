@@ -965,10 +965,28 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
     );
     let (nominal_mm, nominal_deg) = error(&nominal);
     let (file_mm, file_deg) = error(&posed);
+    let sigma = |record: &RunRecord| {
+        record
+            .result
+            .as_ref()
+            .expect("a result")
+            .uncertainty
+            .translation_mm
+    };
+    let (nominal_sigma, file_sigma) = (sigma(&nominal), sigma(&posed));
     eprintln!(
-        "nominal URDF: {nominal_mm:.3} mm / {nominal_deg:.4}°; calibration file: {file_mm:.3} mm / {file_deg:.4}°"
+        "nominal URDF: {nominal_mm:.3} mm / {nominal_deg:.4}° (1σ {nominal_sigma:.3} mm); \
+         calibration file: {file_mm:.3} mm / {file_deg:.4}° (1σ {file_sigma:.3} mm)"
     );
-    assert!(file_mm < 0.5 * nominal_mm, "{file_mm} vs {nominal_mm} mm");
+    // One scan says little about which error is smaller (the bench compares them over many);
+    // what the file buys on every scan is that the arm's kinematic error is gone from what the
+    // run can promise, and both results stay within what they promise.
+    assert!(file_mm < 0.5, "{file_mm} mm with the calibration file");
+    assert!(
+        file_sigma < 0.8 * nominal_sigma,
+        "1σ {file_sigma} mm with the file vs {nominal_sigma} mm nominal"
+    );
+    assert!(nominal_mm < 3.0 * nominal_sigma && file_mm < 3.0 * file_sigma);
 
     // A file that cannot be read fails the preflight, before anything moves.
     std::fs::write(&file, "kinematics:\n  shoulder: {x: .nan}\n").expect("yaml");
