@@ -26,7 +26,7 @@ const SHARP_M: f64 = 0.0005;
 type Vec7 = SVector<f64, 7>;
 /// Edge of the model-frame cubes whose residuals [`patch_scores`] treats as one error,
 /// metres.
-const PATCH_M: f64 = 0.03;
+const PATCH_M: f64 = 0.06;
 /// Scan points on the moving links below which [`IcpResult::sharpness_moving`] says nothing.
 const MIN_MOVING_POINTS: usize = 30;
 /// Largest depth-scale error the 7-parameter fit may estimate (real cameras are within a few

@@ -88,13 +88,18 @@ pub(crate) fn evidence(
         let Some(i) = range.cam.pixel_index(&p) else {
             return e;
         };
+        // Depth difference along the ray, converted to distance along the normal.
+        let along_normal = |z: f64| (z - p.z) * (dist / p.z) * cos;
         let z = range.depth(i) as f64;
         if !z.is_finite() {
-            e.missing = 1.0;
+            // A pixel without a depth next to pixels that see this surface is a dropout at an
+            // edge or a mixed pixel the camera removed, not the surface missing.
+            if !seen_nearby(range, i, |z| along_normal(z).abs() <= tol.matched_m) {
+                e.missing = 1.0;
+            }
             return e;
         }
-        // Depth difference along the ray, converted to distance along the normal.
-        let d = (z - p.z) * (dist / p.z) * cos;
+        let d = along_normal(z);
         if d.abs() <= tol.matched_m {
             e.matched = 1.0;
         } else if d > tol.free_m {
@@ -119,6 +124,31 @@ pub(crate) fn evidence(
             .map(classify)
             .fold(Evidence::default(), Evidence::add)
     }
+}
+
+/// Pixels either side of a pixel without depth that [`evidence`] looks at.
+const DROPOUT_REACH_PX: usize = 3;
+
+/// Whether a pixel within [`DROPOUT_REACH_PX`] of pixel `i` (along its row or column) has a
+/// depth that `fits`.
+fn seen_nearby(range: &RangeImage<'_>, i: usize, fits: impl Fn(f64) -> bool) -> bool {
+    let w = range.cam.width as usize;
+    let n = range.points.len();
+    let (x, y) = (i % w, i / w);
+    (1..=DROPOUT_REACH_PX).any(|k| {
+        [
+            (x >= k).then(|| i - k),
+            (x + k < w).then(|| i + k),
+            (y >= k).then(|| i - k * w),
+            (i + k * w < n).then(|| i + k * w),
+        ]
+        .into_iter()
+        .flatten()
+        .any(|j| {
+            let z = range.depth(j) as f64;
+            z.is_finite() && fits(z)
+        })
+    })
 }
 
 /// Hypothesis score for the coarse search: matched minus penalised violations.
