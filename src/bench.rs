@@ -85,17 +85,22 @@ impl BenchConfig {
     }
 
     /// The calibrated DH set of the arm seen in the view whose first scan has seed
-    /// `view_seed`: nominal plus a factory-size delta; `None` for arms without a DH set or
-    /// settings that make the arm exactly its model.
+    /// `view_seed`: nominal plus a calibration delta of the settings' `kinematic_error` sizes
+    /// (θ: joint offset, d and a: link length, α: axis misalignment; by default a UR factory
+    /// calibration's); `None` for arms without a DH set or settings that make the arm exactly
+    /// its model.
     pub fn true_arm(&self, model: &RobotModel, view_seed: u64) -> Option<DhParams> {
-        if self.settings.kinematic_error == KinematicError::none() {
+        let e = &self.settings.kinematic_error;
+        if *e == KinematicError::none() {
             return None;
         }
         let ur = model.ur_model()?;
-        Some(
-            ur.dh()
-                .plus(&DhParams::factory_calibration_delta(view_seed ^ ARM_SEED)),
-        )
+        Some(ur.dh().plus(&DhParams::calibration_delta(
+            view_seed ^ ARM_SEED,
+            e.joint_offset_sigma_rad,
+            e.link_length_sigma_m,
+            e.axis_misalignment_sigma_rad,
+        )))
     }
 }
 

@@ -25,12 +25,13 @@ pub struct KinematicError {
 
 impl Default for KinematicError {
     /// Typical of UR factory-calibration deltas: 0.3 mrad zero offsets, 0.3 mm link lengths,
-    /// 0.1 mrad axis misalignment.
+    /// 0.3 mrad axis misalignment (for UR arms: DH θ, d and a, α; the sizes of
+    /// `DhParams::factory_calibration_delta`).
     fn default() -> Self {
         Self {
             joint_offset_sigma_rad: 0.0003,
             link_length_sigma_m: 0.0003,
-            axis_misalignment_sigma_rad: 0.0001,
+            axis_misalignment_sigma_rad: 0.0003,
         }
     }
 }

@@ -165,6 +165,13 @@ impl DhParams {
     /// [`DhParams::plus`]. Simulators use it to model a controller that knows its calibrated
     /// arm; the same `seed` gives the same delta everywhere.
     pub fn factory_calibration_delta(seed: u64) -> DhParams {
+        Self::calibration_delta(seed, 3e-4, 3e-4, 3e-4)
+    }
+
+    /// [`factory_calibration_delta`](Self::factory_calibration_delta) with other 1σ sizes: θ
+    /// `theta_rad`, a and d `length_m`, α `alpha_rad` (zero gives zero; the draws are the same
+    /// for every size, so one seed scales).
+    pub fn calibration_delta(seed: u64, theta_rad: f64, length_m: f64, alpha_rad: f64) -> DhParams {
         // SplitMix64 + Box–Muller: no dependency, identical on every platform.
         let mut state = seed ^ 0x9e37_79b9_7f4a_7c15;
         let mut uniform = move || {
@@ -181,10 +188,10 @@ impl DhParams {
         };
         let mut draw = |sigma: f64| -> [f64; 6] { std::array::from_fn(|_| gauss(sigma)) };
         DhParams {
-            theta: draw(3e-4),
-            a: draw(3e-4),
-            d: draw(3e-4),
-            alpha: draw(3e-4),
+            theta: draw(theta_rad),
+            a: draw(length_m),
+            d: draw(length_m),
+            alpha: draw(alpha_rad),
         }
     }
 
