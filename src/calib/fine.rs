@@ -147,7 +147,13 @@ impl Acc {
         let g = c.j * (c.w * c.r);
         self.h += h;
         self.g += g;
-        if let Some(d) = self.by_depth.get_mut(c.depth as usize) {
+        // Links deeper than the displaced ones stay where they are posed, like the base.
+        let slot = if (c.depth as usize) < self.by_depth.len() {
+            c.depth as usize
+        } else {
+            0
+        };
+        if let Some(d) = self.by_depth.get_mut(slot) {
             d.0 += h;
             d.1 += g;
         }
@@ -197,12 +203,19 @@ fn correspond(
     if s.depth as usize > surface.fit_depth {
         return None;
     }
-    let tri = &surface.triangles[s.tri as usize];
-    // The point against the link as posed: undo the link's displacement.
-    let on_posed = match (s.depth as usize).checked_sub(1).and_then(|d| links.get(d)) {
-        Some(m) => m.inverse_transform_point(&x),
-        None => x,
+    // The point against the link as posed: undo the link's displacement, and look again from
+    // there (near an edge a millimetre decides the triangle).
+    let (s, on_posed) = match (s.depth as usize).checked_sub(1).and_then(|d| links.get(d)) {
+        Some(m) => {
+            let back = m.inverse_transform_point(&x);
+            match surface.nearest(&back, st.gate_m.max(0.01)) {
+                Some(b) if b.depth == s.depth => (b, back),
+                _ => (s, back),
+            }
+        }
+        None => (s, x),
     };
+    let tri = &surface.triangles[s.tri as usize];
     let c = tri.closest_point(&on_posed);
     if (on_posed - c).norm() > st.gate_m || (t.rotation * o.n).dot(&tri.n) < cos_min {
         return Some(Err(s.depth));
@@ -226,7 +239,8 @@ fn correspond(
 }
 
 /// The normal equations and fit statistics of `pts` at `t`, `kappa`, the links displaced by
-/// `links` (see [`correspond`]); with `by_depth`, also per chain depth of the fitted links.
+/// `links` (see [`correspond`]); when `links` is not empty, also per chain depth `0..=links.len()`
+/// (deeper links with the base: they are not displaced).
 fn accumulate(
     pts: &[Oriented],
     surface: &ModelSurface,
@@ -234,9 +248,8 @@ fn accumulate(
     kappa: f64,
     st: &Stage,
     links: &[Isometry3<f64>],
-    by_depth: bool,
 ) -> Acc {
-    let depths = if by_depth { surface.fit_depth + 1 } else { 0 };
+    let depths = if links.is_empty() { 0 } else { links.len() + 1 };
     let chunk = |c: &[Oriented]| {
         let mut a = Acc::new(depths);
         for o in c {
@@ -255,7 +268,7 @@ fn accumulate(
     }
 }
 
-/// The scores of the converged fit's correspondences summed per 3 cm patch of the model (and
+/// The scores of the converged fit's correspondences summed per 6 cm patch of the model (and
 /// chain depth): `ψ = Σ w r J` of each patch. Residuals of neighbouring points are not
 /// independent (a CAD deviation or a depth bias moves a whole patch together); a covariance
 /// that counts them as independent evidence is overconfident by the square root of the points
@@ -403,7 +416,7 @@ pub(crate) fn icp_with_links(
         for it in 0..st.iterations {
             let free_scale = st.scale && scale_ok;
             let links = prior.displacements(&z);
-            let a = accumulate(pts, surface, &t, kappa, st, &links, with_links);
+            let a = accumulate(pts, surface, &t, kappa, st, &links);
             if a.n < 12 {
                 return None;
             }
@@ -440,7 +453,7 @@ pub(crate) fn icp_with_links(
             t = step * t;
             kappa += delta[6];
             z += delta.rows(7, p);
-            last = Some((free_scale, st.kernel_m));
+            last = Some((free_scale && scale_ok, st.kernel_m));
             let links_small = delta.rows(7, p).amax() < 1e-3;
             let small = rho.norm() < 2e-7 && phi.norm() < 2e-7 && delta[6].abs() < 1e-7;
             if small && links_small && it > 0 {
@@ -457,11 +470,11 @@ pub(crate) fn icp_with_links(
         iterations: 1,
     };
     let links = prior.displacements(&z);
-    let a = accumulate(pts, surface, &t, kappa, &st, &links, with_links);
+    let a = accumulate(pts, surface, &t, kappa, &st, &links);
     if a.n < 12 {
         return None;
     }
-    let dof = if scaled { 7.0 } else { 6.0 } + p as f64;
+
     let h66: Matrix6<f64> = a.h.fixed_view::<6, 6>(0, 0).into_owned();
     let h6: nalgebra::Vector6<f64> = a.h.fixed_view::<6, 1>(0, 6).into_owned();
     let h77 = a.h[(6, 6)];
@@ -500,6 +513,18 @@ pub(crate) fn icp_with_links(
     for k in 0..p {
         meat[(7 + k, 7 + k)] += prior.residual_var.powi(2);
     }
+    // Degrees of freedom the fit spends on the scan: the pose, the scale, and of the link
+    // parameters only what the scan determines beyond their prior, tr(H_data (H_data + s²I)⁻¹).
+    let link_dof = if with_links {
+        let prior_info = DMatrix::identity(p, p) * prior.residual_var;
+        let data = h.view((7, 7), (p, p)) - &prior_info;
+        (data.clone() + prior_info)
+            .try_inverse()
+            .map_or(p as f64, |inv| (data * inv).trace())
+    } else {
+        0.0
+    };
+    let dof = if scaled { 7.0 } else { 6.0 } + link_dof;
     let h_used = h.select_rows(&used).select_columns(&used);
     let meat_used = meat.select_rows(&used).select_columns(&used);
     let h_inv = h_used.try_inverse()?;

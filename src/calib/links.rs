@@ -31,7 +31,11 @@ pub(crate) fn link_error_model(
     fit_depth: usize,
     error: &KinematicError,
 ) -> Vec<Matrix6xX<f64>> {
-    let depths = fit_depth.min(6);
+    // Only chain joints move links: a UR's DH set has six, another arm as many as its chain.
+    let depths = match &model.dh_sensitivity {
+        Some(dh) => fit_depth.min(dh.len()),
+        None => fit_depth.min(model.joints.len()),
+    };
     let sigma = |kind: usize| match kind {
         0 => error.joint_offset_sigma_rad,
         1 | 2 => error.link_length_sigma_m,

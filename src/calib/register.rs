@@ -719,7 +719,7 @@ pub fn register_posed(
                         if other.is_some() {
                             "wandered away from"
                         } else {
-                            "found too few correspondences near"
+                            "did not converge near"
                         }
                     ),
                 });
@@ -742,16 +742,16 @@ pub fn register_posed(
         quality: Quality {
             coverage: e.coverage(),
             free_space_violations: e.violation_fraction(),
-            rmse_mm: fine.rmse_m * 1000.0,
-            inlier_fraction: fine.inlier_fraction,
-            points_used: fine.n_used,
+            rmse_mm: estimate.rmse_m * 1000.0,
+            inlier_fraction: estimate.inlier_fraction,
+            points_used: estimate.n_used,
             visible_samples: (e.matched + e.violated + e.missing) as usize,
             hypotheses: n_hyp,
             from_prior,
             ambiguity,
         },
         degenerate_directions,
-        depth_scale: fine.scale_estimated.then_some(1.0 / fine.kappa),
+        depth_scale: estimate.scale_estimated.then_some(1.0 / estimate.kappa),
         timings_ms: timings,
     })
 }
@@ -942,9 +942,9 @@ fn evidence_scaled(
 
 /// Covariance in the camera frame (inflated), its 1-σ summary and the degenerate directions.
 ///
-/// `estimate` is the fit whose pose is returned (its residuals and kinematic gain give the
-/// covariance); `even` is the fit with all links weighted alike, whose information tells which
-/// directions the visible geometry constrains.
+/// `estimate` is the fit whose pose is returned (its covariance is the result's, plus the
+/// model's accuracy); `even` is the fit that trusts the posed links, whose information tells
+/// which directions the visible geometry constrains.
 fn uncertainty(
     estimate: &IcpResult,
     even: &IcpResult,

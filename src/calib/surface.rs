@@ -28,8 +28,8 @@ pub struct PosedModel {
     /// All links with geometry (the ones not used for fitting still explain scan points).
     pub parts: Vec<PosedPart>,
     /// The chain joints in chain order: joint `i` moves every part of chain depth > `i`.
-    /// Registration propagates the arm's kinematic error from here into its covariance; empty
-    /// when unknown (then none is propagated).
+    /// Registration estimates the fitted links' displacements by their origin errors (unless
+    /// `dh_sensitivity` describes them); empty when unknown (then the links are trusted).
     pub joints: Vec<PosedJoint>,
     /// Where the flange is at the measured joints, model frame; `None` when unknown. An
     /// eye-in-hand camera rides on it (see `RegisterOptions::max_camera_flange_distance_m`).

@@ -66,10 +66,12 @@ pub(crate) struct Args {
     #[arg(long, allow_hyphen_values = true)]
     guess_base_from_camera: Option<String>,
     /// How the real arm differs from the URDF, per joint (1σ): zero offset (mrad), link length
-    /// (mm), axis misalignment (mrad). The reported uncertainty carries what it does to the
-    /// result. Default: UR factory-calibration deltas (0.3,0.3,0.1); `0,0,0` when the URDF is
-    /// the controller's calibrated kinematics. Not used when the model is posed by the
-    /// controller's kinematics (`--capture` without `--nominal-kinematics`).
+    /// (mm), axis misalignment (mrad); for UR arms the DH θ, d and a, α. The shoulder's and
+    /// upper arm's displacements are estimated with this as their prior and the reported
+    /// uncertainty carries what the scan cannot tell apart from them. Default: UR
+    /// factory-calibration deltas (0.3,0.3,0.3); `0,0,0` when the URDF is the arm's calibrated
+    /// kinematics. Not used when the model is posed by the controller's kinematics or a
+    /// calibration file.
     #[arg(long, value_parser = parse_kinematic_error)]
     kinematic_error: Option<KinematicError>,
     /// Eye-in-hand: the camera is at most this far from the flange origin, metres (default
