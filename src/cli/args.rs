@@ -44,7 +44,7 @@ pub(crate) fn parse_kinematic_error(s: &str) -> Result<KinematicError, String> {
             })
         }
         _ => Err(format!(
-            "expected 3 numbers from 0 to {max} offset_mrad,length_mm,misalignment_mrad (e.g. 0.3,0.3,0.1; 0,0,0 when the URDF is the controller's calibrated kinematics), got `{}`",
+            "expected 3 numbers from 0 to {max} offset_mrad,length_mm,misalignment_mrad (e.g. 0.3,0.3,0.3; 0,0,0 when the URDF is the controller's calibrated kinematics), got `{}`",
             handeye_hal::limits::Quoted(s)
         )),
     }
