@@ -251,7 +251,7 @@ mod tests {
     #[test]
     fn kinematic_error_is_read_in_mrad_and_mm() {
         assert_eq!(
-            parse_kinematic_error("0.3,0.3,0.1").expect("valid"),
+            parse_kinematic_error("0.3,0.3,0.3").expect("valid"),
             KinematicError::default()
         );
         assert_eq!(
