@@ -18,8 +18,29 @@ use tokio_util::sync::CancellationToken;
 use super::api::Api;
 use super::calibrate::{connect_robot, load_model, AnyCamera};
 
-/// Longest pause between two connection attempts.
-const MAX_BACKOFF: Duration = Duration::from_secs(30);
+/// Pauses between connection attempts: 1 s, doubling to 30 s, back to 1 s once connected.
+#[derive(Debug)]
+struct Backoff(Duration);
+
+impl Backoff {
+    const FIRST: Duration = Duration::from_secs(1);
+    const LONGEST: Duration = Duration::from_secs(30);
+
+    fn new() -> Self {
+        Self(Self::FIRST)
+    }
+
+    /// The pause after a failed attempt (the next one is twice as long, up to the longest).
+    fn failed(&mut self) -> Duration {
+        let wait = self.0;
+        self.0 = (wait * 2).min(Self::LONGEST);
+        wait
+    }
+
+    fn connected(&mut self) {
+        self.0 = Self::FIRST;
+    }
+}
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -41,17 +62,20 @@ where
     F: Fn() -> Fut,
     Fut: std::future::Future<Output = anyhow::Result<T>>,
 {
-    let mut wait = Duration::from_secs(1);
+    let mut backoff = Backoff::new();
     loop {
-        match connect().await {
+        let wait = match connect().await {
             Ok(v) => return Some(v),
-            Err(e) => tracing::warn!("{what}: {e:#}; retrying in {wait:?}"),
-        }
+            Err(e) => {
+                let wait = backoff.failed();
+                tracing::warn!("{what}: {e:#}; retrying in {wait:?}");
+                wait
+            }
+        };
         tokio::select! {
             _ = shutdown.cancelled() => return None,
             _ = tokio::time::sleep(wait) => {}
         }
-        wait = (wait * 2).min(MAX_BACKOFF);
     }
 }
 
@@ -102,7 +126,7 @@ struct ReconnectingCamera {
 struct Link {
     camera: Option<Arc<AnyCamera>>,
     next_attempt: Instant,
-    backoff: Duration,
+    backoff: Backoff,
 }
 
 impl ReconnectingCamera {
@@ -112,7 +136,7 @@ impl ReconnectingCamera {
             link: tokio::sync::Mutex::new(Link {
                 camera: Some(Arc::new(camera)),
                 next_attempt: Instant::now(),
-                backoff: Duration::from_secs(1),
+                backoff: Backoff::new(),
             }),
             generation: AtomicU64::new(0),
         }
@@ -135,15 +159,15 @@ impl ReconnectingCamera {
             Ok(c) => {
                 let c = Arc::new(c);
                 link.camera = Some(c.clone());
-                link.backoff = Duration::from_secs(1);
+                link.backoff.connected();
                 self.generation.fetch_add(1, Ordering::Relaxed);
                 tracing::info!("camera connected again");
                 Ok(c)
             }
             Err(e) => {
-                link.next_attempt = now + link.backoff;
-                tracing::warn!("camera: {e:#}; retrying in {:?}", link.backoff);
-                link.backoff = (link.backoff * 2).min(MAX_BACKOFF);
+                let wait = link.backoff.failed();
+                link.next_attempt = now + wait;
+                tracing::warn!("camera: {e:#}; retrying in {wait:?}");
                 Err(disconnected(format!("{e:#}")))
             }
         }
@@ -187,5 +211,19 @@ impl DepthCamera for ReconnectingCamera {
 
     fn link_generation(&self) -> u64 {
         self.generation.load(Ordering::Relaxed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reconnection_waits_double_to_half_a_minute_and_start_over_once_connected() {
+        let mut b = Backoff::new();
+        let waits: Vec<u64> = (0..7).map(|_| b.failed().as_secs()).collect();
+        assert_eq!(waits, [1, 2, 4, 8, 16, 30, 30]);
+        b.connected();
+        assert_eq!(b.failed(), Duration::from_secs(1));
     }
 }
