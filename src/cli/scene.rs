@@ -68,8 +68,7 @@ impl SceneMount {
                 *seen = modified;
                 // Never a FIFO (the read would stall the streaming thread), never a huge file;
                 // a mount within reach of the flange.
-                match handeye_hal::limits::check_regular_file(path, MAX_MOUNT_FILE_BYTES)
-                    .and_then(|_| std::fs::read_to_string(&*path))
+                match handeye_hal::limits::read_text_file(path, MAX_MOUNT_FILE_BYTES)
                     .map_err(|e| e.to_string())
                     .and_then(|t| parse_pose(&t))
                     .and_then(|m| super::args::check_mount("the mount file's pose", &m).map(|()| m))

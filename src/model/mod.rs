@@ -324,8 +324,7 @@ impl RobotModel {
             path: urdf_path.to_path_buf(),
             source,
         };
-        limits::check_regular_file(urdf_path, MAX_URDF_BYTES).map_err(read_error)?;
-        let text = std::fs::read_to_string(urdf_path).map_err(read_error)?;
+        let text = limits::read_text_file(urdf_path, MAX_URDF_BYTES).map_err(read_error)?;
         let malformed = |reason: String| ModelError::MalformedUrdf {
             path: urdf_path.to_path_buf(),
             reason,

@@ -127,8 +127,7 @@ impl UrCalibration {
             path: path.to_path_buf(),
             source,
         };
-        limits::check_regular_file(path, MAX_UR_CALIBRATION_BYTES).map_err(read)?;
-        let text = std::fs::read_to_string(path).map_err(read)?;
+        let text = limits::read_text_file(path, MAX_UR_CALIBRATION_BYTES).map_err(read)?;
         Self::parse(&text, path)
     }
 

@@ -204,8 +204,7 @@ pub(crate) fn write_capture_file(
 /// Reads a `capture.json` written by a run (its frame paths are absolute or relative to it).
 pub fn load_capture(path: &Path) -> Result<CaptureFile, String> {
     // A regular file of bounded size: a FIFO would block the read forever.
-    let text = handeye_hal::limits::check_regular_file(path, MAX_CAPTURE_FILE_BYTES)
-        .and_then(|_| std::fs::read_to_string(path))
+    let text = handeye_hal::limits::read_text_file(path, MAX_CAPTURE_FILE_BYTES)
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     serde_json::from_str(&text).map_err(|e| {
         format!(

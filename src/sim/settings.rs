@@ -77,8 +77,8 @@ impl SimSettings {
             path: path.display().to_string(),
             source,
         };
-        handeye_hal::limits::check_regular_file(path, MAX_SETTINGS_BYTES).map_err(read_error)?;
-        let text = std::fs::read_to_string(path).map_err(read_error)?;
+        let text =
+            handeye_hal::limits::read_text_file(path, MAX_SETTINGS_BYTES).map_err(read_error)?;
         Self::from_toml(&text, &path.display().to_string())
     }
 }

@@ -8,7 +8,7 @@
 //!   instead of a stack overflow.
 //! - [`check_range`]: a number with its flag or key, unit, range and reason.
 //! - [`check_regular_file`]: an input path is a regular file of bounded size (a FIFO would
-//!   block the reader forever) before it is opened.
+//!   block the reader forever) before it is opened; [`read_text_file`] reads one so checked.
 //! - [`Quoted`]: how an input token is echoed in an error message: bounded in length, control
 //!   characters escaped, so a 10 MB token or terminal escape sequences never reach stderr raw;
 //!   [`sanitize_message`] does the same for a whole message (the binary's last line of defence).
@@ -174,6 +174,13 @@ pub fn check_regular_file(path: &std::path::Path, max_bytes: u64) -> std::io::Re
         ));
     }
     Ok(meta.len())
+}
+
+/// The text of `path` after [`check_regular_file`] (same errors, and those of reading it as
+/// UTF-8): how every bounded input file of text is read.
+pub fn read_text_file(path: &std::path::Path, max_bytes: u64) -> std::io::Result<String> {
+    check_regular_file(path, max_bytes)?;
+    std::fs::read_to_string(path)
 }
 
 #[cfg(unix)]
