@@ -17,8 +17,6 @@ mod primitives;
 #[cfg(test)]
 mod tests;
 mod ur_calibration;
-#[cfg(test)]
-pub(crate) use ur_calibration::yaml_from_dh;
 
 use std::collections::{HashMap, VecDeque};
 use std::f64::consts::TAU;
@@ -33,7 +31,8 @@ use rayon::prelude::*;
 pub use kinematic::{KinematicError, MAX_KINEMATIC_SIGMA};
 pub use mesh::TriMesh;
 pub use ur_calibration::{
-    UrCalibration, UrCalibrationError, MAX_UR_CALIBRATION_BYTES, UR_CALIBRATION_JOINTS,
+    ur_calibration_yaml, UrCalibration, UrCalibrationError, MAX_UR_CALIBRATION_BYTES,
+    UR_CALIBRATION_JOINTS,
 };
 
 /// Largest URDF file read (a UR URDF is ~20 kB).

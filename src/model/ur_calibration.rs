@@ -423,14 +423,14 @@ impl RobotModel {
     }
 }
 
-/// The file `ur_calibration` writes for `dh`, without its `correctChain` step (which moves
-/// d of joints 2 and 3 along their axes and changes nothing the forward kinematics sees):
-/// entry `i` is `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)` as xyz + URDF rpy. Like the tool,
-/// it has no entry for `a_6`, `α_6` (zero on a UR).
-#[cfg(test)]
-pub(crate) fn yaml_from_dh(dh: &handeye_hal::ur_dh::DhParams) -> String {
+/// The file `ur_calibration` writes for `dh`, with `hash` as its calibration's name, without
+/// the tool's `correctChain` step (which moves d of joints 2 and 3 along their axes and changes
+/// nothing the forward kinematics sees): entry `i` is `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)`
+/// as xyz + URDF rpy. Like the tool, it has no entry for `a_6`, `α_6` (zero on a UR).
+/// [`UrCalibration::parse`] reads it back to `dh`.
+pub fn ur_calibration_yaml(dh: &handeye_hal::ur_dh::DhParams, hash: &str) -> String {
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
-    let mut s = String::from("# written by a test\nkinematics:\n");
+    let mut s = String::from("kinematics:\n");
     for i in 0..6 {
         let mut t = Isometry3::identity();
         if i > 0 {
@@ -456,7 +456,7 @@ pub(crate) fn yaml_from_dh(dh: &handeye_hal::ur_dh::DhParams) -> String {
             y
         );
     }
-    s + "  hash: \"calib_12345\"\n"
+    s + &format!("  hash: \"{hash}\"\n")
 }
 
 #[cfg(test)]
@@ -535,7 +535,7 @@ mod tests {
                 .plus(&DhParams::factory_calibration_delta(seed));
             let mut want = dh;
             (want.a[5], want.alpha[5]) = (0.0, 0.0);
-            let got = parse(&yaml_from_dh(&dh))
+            let got = parse(&ur_calibration_yaml(&dh, "calib_12345"))
                 .expect("parses")
                 .dh()
                 .expect("a DH chain");
@@ -574,7 +574,9 @@ mod tests {
             let nominal = m.ur_model().expect("a UR arm").dh();
             // The nominal file is the URDF itself.
             let same = m
-                .with_ur_calibration(&parse(&yaml_from_dh(&nominal)).expect("parses"))
+                .with_ur_calibration(
+                    &parse(&ur_calibration_yaml(&nominal, "calib_12345")).expect("parses"),
+                )
                 .expect("posed");
             let q: [f64; 6] = std::array::from_fn(|_| rng.random_range(-3.0..3.0));
             let (a, b) = (
@@ -594,7 +596,9 @@ mod tests {
             delta.alpha[5] = 0.0;
             let calibrated = nominal.plus(&delta);
             let posed = m
-                .with_ur_calibration(&parse(&yaml_from_dh(&calibrated)).expect("parses"))
+                .with_ur_calibration(
+                    &parse(&ur_calibration_yaml(&calibrated, "calib_12345")).expect("parses"),
+                )
                 .expect("posed");
             let (mut worst_t, mut worst_r) = (0.0f64, 0.0f64);
             for _ in 0..50 {

@@ -944,7 +944,11 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
     assert_eq!(kin.source, "nominal");
 
     let file = storage.0.join("calibration.yaml");
-    std::fs::write(&file, crate::model::yaml_from_dh(&f.dh)).expect("yaml");
+    std::fs::write(
+        &file,
+        crate::model::ur_calibration_yaml(&f.dh, "calib_12345"),
+    )
+    .expect("yaml");
     cfg.robot.calibration = Some(file.clone());
     let posed = start(
         &calibrated_robot(f),

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
-use handeye::model::RobotModel;
+use handeye::model::{ur_calibration_yaml, RobotModel};
 use handeye::plan::{ViewConstraints, ViewPlanner};
 use handeye::sim::Intrinsics;
 
@@ -686,37 +686,6 @@ fn issue_16_simulator_logs_have_no_colour_codes_and_it_keeps_answering() {
     );
 }
 
-/// `ur_calibration`'s YAML for the DH parameters `dh` (its chain: entry i is
-/// `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)`, xyz + URDF rpy; no entry beyond wrist_3).
-fn ur_calibration_yaml(dh: &handeye_hal::ur_dh::DhParams) -> String {
-    let mut s = String::from("kinematics:\n");
-    let names = [
-        "shoulder",
-        "upper_arm",
-        "forearm",
-        "wrist_1",
-        "wrist_2",
-        "wrist_3",
-    ];
-    for (i, name) in names.iter().enumerate() {
-        let mut t = Isometry3::identity();
-        if i > 0 {
-            t *= Isometry3::new(
-                Vector3::new(dh.a[i - 1], 0.0, 0.0),
-                Vector3::x() * dh.alpha[i - 1],
-            );
-        }
-        t *= Isometry3::new(Vector3::new(0.0, 0.0, dh.d[i]), Vector3::z() * dh.theta[i]);
-        let (r, p, y) = t.rotation.euler_angles();
-        let v = t.translation.vector;
-        s += &format!(
-            "  {name}:\n    x: {:e}\n    y: {:e}\n    z: {:e}\n    roll: {r:e}\n    pitch: {p:e}\n    yaw: {y:e}\n",
-            v.x, v.y, v.z
-        );
-    }
-    s + "  hash: calib_e2e\n"
-}
-
 /// Issue 17: `solve --calibration FILE.yaml` poses the arm by UR's calibration file and says so.
 #[test]
 fn issue_17_solve_takes_the_ur_calibration_file() {
@@ -763,7 +732,7 @@ fn issue_17_solve_takes_the_ur_calibration_file() {
     let dh: handeye_hal::ur_dh::DhParams =
         serde_json::from_value(gt["controller_dh"].clone()).expect("controller_dh");
     let yaml = dir.join("cal.yaml");
-    std::fs::write(&yaml, ur_calibration_yaml(&dh)).expect("write yaml");
+    std::fs::write(&yaml, ur_calibration_yaml(&dh, "calib_e2e")).expect("write yaml");
     let s = Scan {
         model,
         urdf,
@@ -807,7 +776,7 @@ fn issue_17_solve_takes_the_ur_calibration_file() {
     let bad = dir.join("bad.yaml");
     std::fs::write(
         &bad,
-        ur_calibration_yaml(&dh).replacen("    z: ", "    z: .nan # ", 1),
+        ur_calibration_yaml(&dh, "calib_e2e").replacen("    z: ", "    z: .nan # ", 1),
     )
     .expect("write");
     let out = solve_with(
