@@ -61,6 +61,11 @@ struct Scan {
 }
 
 fn simulate(dir: &TempDir, shared: &Path, seed: u64) -> Scan {
+    simulate_with(dir, shared, seed, &[])
+}
+
+/// [`simulate`] with more `simulate-scan` flags.
+fn simulate_with(dir: &TempDir, shared: &Path, seed: u64, extra: &[&str]) -> Scan {
     let urdf = shared.join("robots/ur/ur10e/ur10e.urdf");
     let model = RobotModel::load(&urdf).expect("ur10e loads");
     let mount = Isometry3::new(
@@ -78,25 +83,30 @@ fn simulate(dir: &TempDir, shared: &Path, seed: u64) -> Scan {
         .expect("a view of the base")
         .remove(0);
     let ply = dir.join("scan.ply");
-    let out = run(
-        &[
-            "simulate-scan",
-            "--robot",
-            &urdf.to_string_lossy(),
-            "--mount",
-            &pose_arg(&mount),
-            "--joints",
-            &csv(&joints),
-            "--camera",
-            "compact",
-            "--seed",
-            &seed.to_string(),
-            "--out",
-            &ply.to_string_lossy(),
-        ],
-        secs(30),
+    let (urdf_arg, mount_arg, joints_arg, seed_arg, ply_arg) = (
+        urdf.to_string_lossy(),
+        pose_arg(&mount),
+        csv(&joints),
+        seed.to_string(),
+        ply.to_string_lossy(),
     );
-    out.success();
+    let mut args = vec![
+        "simulate-scan",
+        "--robot",
+        &urdf_arg,
+        "--mount",
+        &mount_arg,
+        "--joints",
+        &joints_arg,
+        "--camera",
+        "compact",
+        "--seed",
+        &seed_arg,
+        "--out",
+        &ply_arg,
+    ];
+    args.extend_from_slice(extra);
+    run(&args, secs(30)).success();
     Scan {
         model,
         urdf,
@@ -693,54 +703,13 @@ fn issue_17_solve_takes_the_ur_calibration_file() {
         return;
     };
     let dir = TempDir::new("solve-calibration");
-    let urdf = shared.join("robots/ur/ur10e/ur10e.urdf");
-    let model = RobotModel::load(&urdf).expect("ur10e loads");
-    let mount = Isometry3::new(
-        Vector3::new(0.01, -0.075, 0.045),
-        Vector3::new(-0.26, 0.02, 0.03),
-    );
-    let planner = ViewPlanner::new(
-        &model,
-        mount,
-        Intrinsics::compact_1280x960(),
-        ViewConstraints::default(),
-    );
-    let joints = planner.generate(1, 11).expect("a view").remove(0);
-    let ply = dir.join("scan.ply");
-    run(
-        &[
-            "simulate-scan",
-            "--robot",
-            &urdf.to_string_lossy(),
-            "--mount",
-            &pose_arg(&mount),
-            "--joints",
-            &csv(&joints),
-            "--camera",
-            "compact",
-            "--seed",
-            "11",
-            "--factory-calibration",
-            "3",
-            "--out",
-            &ply.to_string_lossy(),
-        ],
-        secs(30),
-    )
-    .success();
+    let s = simulate_with(&dir, &shared, 11, &["--factory-calibration", "3"]);
+    let (joints, ply) = (s.joints.clone(), s.ply.clone());
     let gt = read_json(&dir.join("scan.gt.json"));
     let dh: handeye_hal::ur_dh::DhParams =
         serde_json::from_value(gt["controller_dh"].clone()).expect("controller_dh");
     let yaml = dir.join("cal.yaml");
     std::fs::write(&yaml, ur_calibration_yaml(&dh, "calib_e2e")).expect("write yaml");
-    let s = Scan {
-        model,
-        urdf,
-        joints: joints.clone(),
-        mount,
-        ply: ply.clone(),
-        gt: dir.join("scan.gt.json"),
-    };
     let out = solve_with(
         &s,
         &csv(&joints),
