@@ -329,7 +329,8 @@ impl LinkPrior {
         }
     }
 
-    fn params(&self) -> usize {
+    /// How many link parameters there are (0: the links are trusted as posed).
+    pub(crate) fn params(&self) -> usize {
         self.a.first().map_or(0, |m| m.ncols())
     }
 

@@ -62,12 +62,7 @@ pub(crate) fn link_error_model(
             let rotation = joint.model_from_joint.rotation;
             let origin = joint.model_from_joint.translation.vector;
             let axis = joint.axis.into_inner();
-            let helper = if axis.x.abs() < 0.9 {
-                Vector3::x()
-            } else {
-                Vector3::y()
-            };
-            let u1 = axis.cross(&helper).normalize();
+            let u1 = crate::model::kinematic::perpendicular(&axis);
             let u2 = axis.cross(&u1);
             let link = joint.parent_from_joint.rotation.inverse()
                 * joint.parent_from_joint.translation.vector;

@@ -684,7 +684,7 @@ pub fn register_posed(
         a: link_error_model(model, surface.fit_depth, &opts.kinematic_error),
         residual_var: (fine.cov6 * fine.info6).trace() / 6.0,
     };
-    let (camera_from_model, estimate) = if link_prior.a.iter().any(|a| a.ncols() > 0) {
+    let (camera_from_model, estimate) = if link_prior.params() > 0 {
         let pts = pool.select(
             &range,
             &surface,

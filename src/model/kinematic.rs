@@ -43,6 +43,17 @@ fn link_direction(parent_from_joint: &Isometry3<f64>) -> Vector3<f64> {
     link.try_normalize(1e-9).unwrap_or_else(Vector3::zeros)
 }
 
+/// A unit vector perpendicular to `axis`: the direction about which [`KinematicError::sample`]
+/// draws a joint's misalignment (registration takes it and `axis × it` as the two).
+pub(crate) fn perpendicular(axis: &Vector3<f64>) -> Vector3<f64> {
+    axis.cross(&if axis.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    })
+    .normalize()
+}
+
 /// Largest 1σ of any kinematic error: 50 mrad (~3°) of joint offset or misalignment, 50 mm of
 /// link length. A robot that far from its model is not calibrated by registering its CAD.
 pub const MAX_KINEMATIC_SIGMA: f64 = 0.05;
@@ -106,15 +117,8 @@ impl KinematicError {
             .zip(model.joint_origins())
             .map(|(axis, origin)| {
                 let t = link_direction(&origin) * gauss(self.link_length_sigma_m);
-                let perpendicular = axis
-                    .cross(&if axis.x.abs() < 0.9 {
-                        Vector3::x()
-                    } else {
-                        Vector3::y()
-                    })
-                    .normalize();
                 let twist = UnitQuaternion::from_scaled_axis(
-                    perpendicular * gauss(self.axis_misalignment_sigma_rad),
+                    perpendicular(axis) * gauss(self.axis_misalignment_sigma_rad),
                 );
                 let zero =
                     UnitQuaternion::from_axis_angle(axis, gauss(self.joint_offset_sigma_rad));

@@ -11,7 +11,7 @@
 //! turned by π about z, see [`crate::frames::ur_base_from_base_link`]).
 
 mod collada;
-mod kinematic;
+pub(crate) mod kinematic;
 mod mesh;
 mod primitives;
 #[cfg(test)]
