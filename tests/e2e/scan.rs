@@ -709,7 +709,11 @@ fn issue_17_solve_takes_the_ur_calibration_file() {
     let dh: handeye_hal::ur_dh::DhParams =
         serde_json::from_value(gt["controller_dh"].clone()).expect("controller_dh");
     let yaml = dir.join("cal.yaml");
-    std::fs::write(&yaml, ur_calibration_yaml(&dh, "calib_e2e")).expect("write yaml");
+    std::fs::write(
+        &yaml,
+        ur_calibration_yaml(&dh, &handeye_hal::ur_dh::UrModel::Ur10e.dh(), "calib_e2e"),
+    )
+    .expect("write yaml");
     let out = solve_with(
         &s,
         &csv(&joints),
@@ -745,7 +749,11 @@ fn issue_17_solve_takes_the_ur_calibration_file() {
     let bad = dir.join("bad.yaml");
     std::fs::write(
         &bad,
-        ur_calibration_yaml(&dh, "calib_e2e").replacen("    z: ", "    z: .nan # ", 1),
+        ur_calibration_yaml(&dh, &handeye_hal::ur_dh::UrModel::Ur10e.dh(), "calib_e2e").replacen(
+            "    z: ",
+            "    z: .nan # ",
+            1,
+        ),
     )
     .expect("write");
     let out = solve_with(
