@@ -49,13 +49,13 @@ pub(crate) fn link_error_model(
         Some(axes) => {
             let depths = fit_depth.min(axes.len());
             for k in 1..=depths {
-                let (p, u) = (&axes[k - 1].0, axes[k - 1].1.into_inner());
+                let (p, u) = (Point3::from(axes[k - 1].point), axes[k - 1].direction);
                 // How far turned: the next axis' displacement over its lever when the axes
                 // are parallel (the turn is read from where the next axis is), else the
                 // next axis' misalignment.
                 let turn_sigma = match axes.get(k) {
-                    Some((p2, u2)) if u.cross(u2).norm() < PARALLEL_SINE => {
-                        let r = p2 - p;
+                    Some(next) if u.cross(&next.direction).norm() < PARALLEL_SINE => {
+                        let r = next.point - p.coords;
                         let lever = (r - u * r.dot(&u)).norm();
                         error.link_length_sigma_m / lever.max(error.link_length_sigma_m.max(1e-3))
                     }
@@ -66,7 +66,7 @@ pub(crate) fn link_error_model(
                         .map(|d| if d == k { v } else { [0.0; 6] })
                         .collect::<Vec<_>>()
                 };
-                columns.push((only(turn(p, u)), turn_sigma));
+                columns.push((only(turn(&p, u)), turn_sigma));
                 columns.push((only(twist(u, Vector3::zeros())), error.link_length_sigma_m));
             }
             depths
@@ -191,7 +191,10 @@ mod tests {
             let axes = model.dh_axes(&q, &dh).expect("axes");
             for (i, (link, axis)) in [(shoulder, 0), (upper, 1)].into_iter().enumerate() {
                 let d = by_dh[link] * physical[link].inverse();
-                let (p, u) = (&axes[axis].0, axes[axis].1.into_inner());
+                let (p, u) = (
+                    nalgebra::Point3::from(axes[axis].point),
+                    axes[axis].direction,
+                );
                 turns[i].push(d.rotation.scaled_axis().dot(&u));
                 slides[i].push(((d * p) - p).dot(&u));
             }

@@ -39,7 +39,7 @@ use super::fine::{icp, icp_with_links, IcpResult, LinkPrior, Stage};
 use super::links::link_error_model;
 use super::range::RangeImage;
 use super::surface::{ModelSurface, PosedJoint, PosedModel};
-use super::verify::{evidence, score, Evidence, Tolerances};
+use super::verify::{evidence, evidence_per_depth, score, Evidence, Tolerances};
 use super::CalibError;
 use crate::model::{GeometryKind, KinematicError, RobotModel};
 
@@ -158,6 +158,29 @@ pub struct Quality {
     /// visible base and shoulder are nearly symmetric) explains the scan, relative to the
     /// result: 0 when nothing else comes close, 1 when the scan cannot tell them apart.
     pub ambiguity: f64,
+    /// Coverage of each fitted moving link on its own (entry `k − 1` for chain depth `k`: the
+    /// shoulder, the upper arm, …), 0–1; `None` when the link is not fitted or too little of it
+    /// is expected in view to tell. A link the scan does not support where the model puts it
+    /// is posed by kinematics that are not the arm's (a wrong model, a wrong calibration).
+    pub link_coverage: [Option<f64>; MAX_REPORTED_LINKS],
+}
+
+/// Fitted moving links whose coverage [`Quality::link_coverage`] reports.
+pub const MAX_REPORTED_LINKS: usize = 3;
+
+/// A fitted link is judged on its own when at least this many of its samples, and this
+/// fraction of all the fitted links' expected visible samples, are expected in view.
+const MIN_LINK_SAMPLES: f64 = 100.0;
+const MIN_LINK_SHARE: f64 = 0.03;
+
+/// [`Quality::link_coverage`] from the evidence of each chain depth (entry 0 the base).
+fn link_coverage(per_depth: &[Evidence]) -> [Option<f64>; MAX_REPORTED_LINKS] {
+    let total: f64 = per_depth.iter().map(Evidence::visible).sum();
+    std::array::from_fn(|k| {
+        let e = per_depth.get(k + 1)?;
+        (e.visible() >= MIN_LINK_SAMPLES && e.visible() >= MIN_LINK_SHARE * total)
+            .then(|| e.coverage())
+    })
 }
 
 /// Wall-clock time per stage, milliseconds.
@@ -744,6 +767,13 @@ pub fn register_posed(
             hypotheses: n_hyp,
             from_prior,
             ambiguity,
+            link_coverage: link_coverage(&evidence_per_depth(
+                &range,
+                &surface.samples,
+                &camera_from_model,
+                surface.fit_depth,
+                tol,
+            )),
         },
         degenerate_directions,
         depth_scale: estimate.scale_estimated.then_some(1.0 / estimate.kappa),

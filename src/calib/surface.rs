@@ -34,13 +34,12 @@ pub struct PosedModel {
     /// Where the flange is at the measured joints, model frame; `None` when unknown. An
     /// eye-in-hand camera rides on it (see `RegisterOptions::max_camera_flange_distance_m`).
     pub model_from_flange: Option<Isometry3<f64>>,
-    /// UR arms posed by a controller's DH set: the calibrated joint axes (model frame, `(point,
-    /// direction)`, entry `k − 1` for joint `k`, see
+    /// UR arms posed by a controller's DH set: the calibrated joint axes (model frame, entry `k − 1` for joint `k`, see
     /// [`RobotModel::dh_axes`](crate::model::RobotModel::dh_axes)). The link of chain depth `k`
     /// is on axis `k − 1`, but how far along and how far turned about it the axes cannot tell;
     /// registration estimates that. `None`: the links are posed by the nominal model, and
     /// per-joint origin errors at `joints` describe how they may be off.
-    pub link_axes: Option<Vec<(Point3<f64>, Unit<Vector3<f64>>)>>,
+    pub link_axes: Option<Vec<handeye_hal::ur_dh::Line>>,
 }
 
 /// A chain joint of the posed model.

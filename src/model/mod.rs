@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use handeye_hal::limits;
-use handeye_hal::ur_dh::{DhParams, PhysicalArm, UrModel};
+use handeye_hal::ur_dh::{DhParams, Line, PhysicalArm, UrModel};
 use nalgebra::{Isometry3, Matrix4, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
@@ -855,15 +855,11 @@ impl RobotModel {
     }
 
     /// The six joint axes of a UR arm with the DH set `dh` at joints `q` (rad), model frame
-    /// (`(point, direction)`; joint `k + 1` turns about entry `k`; the point is the one nearest
+    /// (joint `k + 1` turns about entry `k`; the point is the one nearest
     /// the nominal arm's joint, not the DH frame's origin hundreds of metres away).
     ///
     /// Errors: those of [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh).
-    pub fn dh_axes(
-        &self,
-        q: &[f64],
-        dh: &DhParams,
-    ) -> Result<Vec<(nalgebra::Point3<f64>, Unit<Vector3<f64>>)>, ModelError> {
+    pub fn dh_axes(&self, q: &[f64], dh: &DhParams) -> Result<Vec<Line>, ModelError> {
         let (ur, q6) = self.ur_joints(q)?;
         let model_from_base = self.model_from_ur_base(&self.link_poses(q)?)?;
         let nominal = ur.dh().axes(&q6);
@@ -871,11 +867,11 @@ impl RobotModel {
             .axes(&q6)
             .iter()
             .zip(&nominal)
-            .map(|(l, n)| {
-                (
-                    model_from_base * nalgebra::Point3::from(l.nearest(&n.point)),
-                    Unit::new_normalize(model_from_base * l.direction),
-                )
+            .map(|(l, n)| Line {
+                point: model_from_base
+                    .transform_point(&l.nearest(&n.point).into())
+                    .coords,
+                direction: model_from_base * l.direction,
             })
             .collect())
     }

@@ -687,13 +687,14 @@ fn controller_dh_poses_the_urdf_where_the_physical_arm_is() {
             // The calibrated axes in the model frame: joint k + 1 turns about z of DH frame k.
             let axes = m.dh_axes(&q, &calibrated).expect("axes");
             let dh_frames = calibrated.link_poses(&q);
-            for (k, (p, u)) in axes.iter().enumerate() {
+            for (k, axis) in axes.iter().enumerate() {
+                let (p, u) = (Point3::from(axis.point), axis.direction);
                 let f = if k == 0 {
                     model_from_base
                 } else {
                     model_from_base * dh_frames[k - 1]
                 };
-                assert!((f * Vector3::z()).cross(u).norm() < 1e-9);
+                assert!((f * Vector3::z()).cross(&u).norm() < 1e-9);
                 let off = f.inverse() * p;
                 assert!(off.coords.xy().norm() < 1e-6, "{name} axis {k}: {off}");
             }
