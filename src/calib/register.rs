@@ -1336,8 +1336,11 @@ mod sim_tests {
         SimulatedScan,
     };
 
-    /// The UR5e with a wrist camera 8 cm off the flange, and `count` planned views (seeded).
-    fn ur5e_views(count: usize, seed: u64) -> Option<(RobotModel, Isometry3<f64>, Vec<Vec<f64>>)> {
+    /// The UR5e, a wrist camera 8 cm off the flange tilted 15°, and planned views of its base.
+    pub(super) type Ur5eViews = (RobotModel, Isometry3<f64>, Vec<Vec<f64>>);
+
+    /// [`Ur5eViews`] with `count` planned views (seeded); `None` without `../shared/robots`.
+    pub(super) fn ur5e_views(count: usize, seed: u64) -> Option<Ur5eViews> {
         let root = shared_robots()?;
         let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
         let mount = Isometry3::new(
@@ -1586,37 +1589,16 @@ mod controller_kinematics_tests {
         assert!(e.to_string().contains("robot.model"), "{e}");
     }
 
-    /// The UR5e, a wrist camera 8 cm off the tool axis tilted 15°, and planned views of its base.
-    type Ur5eViews = (RobotModel, Isometry3<f64>, Intrinsics, Vec<Vec<f64>>);
-
-    /// [`Ur5eViews`] with `n` views (planner seed 21); `None` without `../shared/robots`.
-    fn ur5e_views(n: usize) -> Option<Ur5eViews> {
-        let root = shared_robots()?;
-        let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
-        let mount = Isometry3::new(
-            Vector3::new(0.0, -0.08, 0.03),
-            Vector3::new(-15f64.to_radians(), 0.0, 0.0),
-        );
-        let intrinsics = Intrinsics::compact_1280x960();
-        let planner = crate::plan::ViewPlanner::new(
-            &model,
-            mount,
-            intrinsics,
-            crate::plan::ViewConstraints::default(),
-        );
-        let views = planner.generate(n, 21).expect("views");
-        Some((model, mount, intrinsics, views))
-    }
-
     /// Issue 26: a fitted link posed where the arm has none (as by kinematics that are not the
     /// arm's, which still leave it in view): the fitted links disagree, the scan sees through
     /// one of them where the model puts it beside the others, and the gate says so; posed by
     /// the arm's own DH, every fitted link is supported.
     #[test]
     fn a_link_posed_where_the_arm_has_none_shows_in_its_support() {
-        let Some((model, mount, intrinsics, mut views)) = ur5e_views(1) else {
+        let Some((model, mount, mut views)) = super::sim_tests::ur5e_views(1, 21) else {
             return;
         };
+        let intrinsics = Intrinsics::compact_1280x960();
         let ur = model.ur_model().expect("UR");
         let q = views.remove(0);
         let arm = handeye_hal::ur_dh::PhysicalArm::factory(ur, 2);
@@ -1683,9 +1665,10 @@ mod controller_kinematics_tests {
     /// its yaw from them.
     #[test]
     fn controller_kinematics_beat_the_nominal_model_on_a_calibrated_arm() {
-        let Some((model, mount, intrinsics, views)) = ur5e_views(SCANS) else {
+        let Some((model, mount, views)) = super::sim_tests::ur5e_views(SCANS, 21) else {
             return;
         };
+        let intrinsics = Intrinsics::compact_1280x960();
         let settings = SimSettings::default();
         let (mut nominal, mut trusting, mut controller) = (Vec::new(), Vec::new(), Vec::new());
         let (mut ratios, mut controller_ratios) = (Vec::new(), Vec::new());
