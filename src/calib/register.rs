@@ -1383,6 +1383,28 @@ mod sim_tests {
         simulate_scan(&req).expect("simulated")
     }
 
+    /// Issue 23: a scan whose every 7th pixel has no depth (invalid pixels repeating with the
+    /// period of the search's sampling grid) is registered from the rest, as the clean one.
+    #[test]
+    fn issue_23_periodic_holes_leave_the_rest_used() {
+        let Some((model, mount, views)) = ur5e_views(1, 21) else {
+            return;
+        };
+        let mut scan = wrist_scan(&model, mount, &views[0], KinematicError::none(), 3);
+        let truth = scan.truth.camera_from_model;
+        for p in scan.cloud.points.iter_mut().step_by(7) {
+            *p = Point3::new(f32::NAN, f32::NAN, f32::NAN);
+        }
+        let opts = RegisterOptions {
+            kinematic_error: KinematicError::none(),
+            ..RegisterOptions::default()
+        };
+        let reg = register(&scan.cloud, &model, &views[0], None, &opts).expect("found");
+        let off = (reg.camera_from_model.translation.vector - truth.translation.vector).norm();
+        assert!(off < 1e-3, "{off} m off");
+        assert!(reg.quality.coverage > 0.8, "{:?}", reg.quality);
+    }
+
     /// The shoulder and upper arm are posed with the nominal kinematics; the real arm's zero
     /// offsets and link lengths move them, and the yaw of the round base follows them. Their
     /// displacements are estimated with the arm's kinematic error as prior: the result is
