@@ -318,6 +318,25 @@ fn faults_and_failed_preflight_write_nothing() {
         );
         assert!(!dir.join("data/current").exists(), "{flag}: result files");
     }
+
+    // Issue 24: the configuration says ur5, the controller's kinematics are a UR5e's: refused
+    // in preflight naming both, nothing moves.
+    let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let wrong = dir.join("wrong-model.toml");
+    let text = std::fs::read_to_string(&cfg).expect("config");
+    assert!(text.contains("model = \"ur5e\""), "{text}");
+    std::fs::write(&wrong, text.replace("model = \"ur5e\"", "model = \"ur5\"")).expect("write");
+    let before = joints(robot_ip);
+    let out = handeye("calibrate", &wrong, &[]);
+    assert_eq!(out.code(), 2, "{out}\n{}", rig.log());
+    let doc = out.json();
+    assert_eq!(doc["failed_stage"], "preflight", "{out}");
+    let reasons = doc["reasons"][0].as_str().unwrap_or("");
+    assert!(
+        reasons.contains("robot.model is ur5 ") && reasons.contains("set robot.model = \"ur5e\""),
+        "{out}"
+    );
+    assert!(max_change(&joints(robot_ip), &before) < 1e-6, "moved");
 }
 
 #[test]
