@@ -31,6 +31,9 @@ use serde::Deserialize;
 use crate::calib::{GateThresholds, Mount};
 use locate::KeyIndex;
 
+/// Largest configuration file read (the example, every key commented, is ~10 kB).
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
 /// A validated configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
@@ -536,10 +539,14 @@ impl Config {
     /// Reads and validates a configuration file; relative paths in it are resolved against
     /// its directory (made absolute). Blocking I/O.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.display().to_string(),
-            source,
-        })?;
+        // A regular file of bounded size: a FIFO would block forever, `/dev/zero` never end.
+        let text =
+            handeye_hal::limits::read_text_file(path, MAX_CONFIG_BYTES).map_err(|source| {
+                ConfigError::Read {
+                    path: path.display().to_string(),
+                    source,
+                }
+            })?;
         let base_dir = match path.parent() {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),
