@@ -96,6 +96,11 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     };
     let mut cfg = UrConfig::new(args.host);
     cfg.timeout = request_timeout;
+    // Only `registers` reads and writes them: the others claim no RTDE input, so they work
+    // beside a running daemon (or another client) that holds the registers.
+    if !matches!(args.command, Command::Registers { .. }) {
+        cfg = cfg.without_registers();
+    }
     let robot = tokio::select! {
         r = UrRobot::connect(cfg) => {
             r.with_context(|| format!("connecting to the controller at {}", args.host))?

@@ -780,3 +780,23 @@ async fn wait_for_speed(robot: &UrRobot, want: f64) {
     }
     panic!("speed_fraction never became {want}");
 }
+
+/// Issue 24: a client that claims no register (`handeye robot status`, `robot move`) connects and
+/// reads beside one that holds them (a running daemon); a second claimer is refused by name.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_claiming_no_register_works_beside_one_that_holds_them() {
+    let (sim, holder) = start(sim_config()).await;
+    let mut cfg = UrConfig::new(LOCAL).without_registers();
+    cfg.ports = sim.ports();
+    let reader = UrRobot::connect(cfg)
+        .await
+        .expect("claims nothing, connects");
+    let status = reader.status().await.expect("status");
+    assert_eq!(status, holder.status().await.expect("status"));
+    let mut cfg = UrConfig::new(LOCAL);
+    cfg.ports = sim.ports();
+    let err = UrRobot::connect(cfg)
+        .await
+        .expect_err("the registers are held");
+    assert!(err.to_string().contains("handeye daemon"), "{err}");
+}

@@ -60,6 +60,15 @@ impl UrConfig {
             max_backoff: Duration::from_secs(5),
         }
     }
+
+    /// This configuration claiming no RTDE input register (double or int): for a client that
+    /// only reads and moves, beside another (a running daemon, a fieldbus) that holds them.
+    #[allow(clippy::reversed_empty_ranges)]
+    pub fn without_registers(mut self) -> Self {
+        self.registers = 1..=0;
+        self.int_registers = 1..=0;
+        self
+    }
 }
 
 /// Joint-space arrival tolerance, rad.
