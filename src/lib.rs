@@ -26,6 +26,7 @@
 //! in `handeye-hal`.
 
 pub mod bench;
+pub mod calendar;
 pub mod calib;
 pub mod camera;
 pub mod cloud;
@@ -34,6 +35,7 @@ pub mod daemon;
 pub mod frames;
 pub mod model;
 pub mod plan;
+pub mod record;
 pub mod report;
 pub mod run;
 pub mod sim;

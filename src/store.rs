@@ -25,12 +25,14 @@
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard};
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use rusqlite::{params, Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior};
 use serde::{Deserialize, Serialize};
 
-use crate::run::{Outcome, RunMode, RunRecord, RUNS_DIR};
+use crate::calendar::unix_now;
+use crate::record::{Outcome, RunMode, RunRecord, Trigger};
+use crate::run::RUNS_DIR;
 
 #[cfg(test)]
 mod tests;
@@ -210,8 +212,8 @@ pub enum StoreError {
 pub struct RunStart {
     /// Its id ([`crate::run::new_run_id`]); also its folder under `runs/`.
     pub run_id: String,
-    /// Who asked: `startup`, `pendant`, `api`, `schedule`, `drift`, `cli`.
-    pub trigger: String,
+    /// Who asked.
+    pub trigger: Trigger,
     /// Calibrate or check.
     pub mode: RunMode,
     /// Where the configuration came from (its file path).
@@ -288,8 +290,8 @@ impl<'de> Deserialize<'de> for RunStatus {
 pub struct RunSummary {
     /// Its id.
     pub run_id: String,
-    /// Who asked (`startup`, `pendant`, `api`, `schedule`, `drift`, `cli`).
-    pub trigger: String,
+    /// Who asked.
+    pub trigger: Trigger,
     /// Calibrate or check.
     pub mode: RunMode,
     /// `running`, or how it ended.
@@ -436,8 +438,8 @@ impl Store {
              VALUES (?1, ?2, ?3, 'running', ?4, ?5, ?6)",
             params![
                 run.run_id,
-                run.trigger,
-                mode_name(run.mode),
+                run.trigger.name(),
+                run.mode.name(),
                 run.started_unix_s,
                 run.config_origin,
                 run.config_digest,
@@ -457,12 +459,12 @@ impl Store {
     /// Records how a run ended: the whole record as JSON plus the indexed columns. A run
     /// that was never begun is inserted; one that was recovered as interrupted is completed
     /// (the real outcome wins). The start time and configuration given to `begin` are kept.
-    pub fn finish(&self, trigger: &str, record: &RunRecord) -> Result<(), StoreError> {
+    pub fn finish(&self, trigger: Trigger, record: &RunRecord) -> Result<(), StoreError> {
         let json = serde_json::to_string(record).map_err(|source| StoreError::Serialize {
             run_id: record.run_id.clone(),
             source,
         })?;
-        let written: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+        let written: Vec<&str> = record.written.iter().map(|w| w.target.name()).collect();
         let written = serde_json::to_string(&written).unwrap_or_else(|_| "[]".into());
         let pose = record.result.as_ref().map(|r| r.ur_pose);
         let pose = |i: usize| pose.map(|p| p[i]);
@@ -492,8 +494,8 @@ impl Store {
                 record_json = excluded.record_json",
             params![
                 record.run_id,
-                trigger,
-                mode_name(record.mode),
+                trigger.name(),
+                record.mode.name(),
                 record.outcome.name(),
                 record.started_unix_s,
                 unix_now(),
@@ -616,7 +618,7 @@ impl Store {
         );
         conn.query_row(
             &sql,
-            params![mode.map(mode_name), outcome.map(Outcome::name)],
+            params![mode.map(RunMode::name), outcome.map(Outcome::name)],
             summary_from_row,
         )
         .optional()
@@ -766,22 +768,6 @@ pub fn config_digest(text: &str) -> String {
     format!("{hash:016x}")
 }
 
-/// `YYYY-MM-DD HH:MM:SS` (UTC) of a unix time, s.
-pub fn utc_text(unix_s: f64) -> String {
-    if !unix_s.is_finite() {
-        return "?".into();
-    }
-    let secs = unix_s.floor() as i64;
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    let (y, m, d) = crate::run::civil_from_days(days);
-    format!(
-        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
-}
-
 /// The summary columns, in the order [`summary_from_row`] reads them.
 const SUMMARY_COLUMNS: &str = "run_id, trigger, mode, outcome, started_unix_s, finished_unix_s,
     duration_ms, failed_stage, reason, config_origin, config_digest, result_x_m, result_y_m,
@@ -793,12 +779,11 @@ fn summary_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RunSummary> {
     let bad = |i: usize, what: String| {
         rusqlite::Error::FromSqlConversionFailure(i, rusqlite::types::Type::Text, what.into())
     };
+    let trigger: String = r.get(1)?;
+    let trigger =
+        Trigger::parse(&trigger).ok_or_else(|| bad(1, format!("unknown trigger `{trigger}`")))?;
     let mode: String = r.get(2)?;
-    let mode = match mode.as_str() {
-        "calibrate" => RunMode::Calibrate,
-        "check" => RunMode::Check,
-        _ => return Err(bad(2, format!("unknown mode `{mode}`"))),
-    };
+    let mode = RunMode::parse(&mode).ok_or_else(|| bad(2, format!("unknown mode `{mode}`")))?;
     let outcome: String = r.get(3)?;
     let outcome =
         RunStatus::parse(&outcome).ok_or_else(|| bad(3, format!("unknown outcome `{outcome}`")))?;
@@ -821,7 +806,7 @@ fn summary_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RunSummary> {
     };
     Ok(RunSummary {
         run_id: r.get(0)?,
-        trigger: r.get(1)?,
+        trigger,
         mode,
         outcome,
         started_unix_s: r.get(4)?,
@@ -1055,13 +1040,6 @@ fn sql_error(path: &Path, action: &'static str, e: rusqlite::Error) -> StoreErro
     }
 }
 
-fn mode_name(mode: RunMode) -> &'static str {
-    match mode {
-        RunMode::Calibrate => "calibrate",
-        RunMode::Check => "check",
-    }
-}
-
 /// SQLite stores NaN as NULL anyway; say so explicitly.
 fn finite(x: f64) -> Option<f64> {
     x.is_finite().then_some(x)
@@ -1075,10 +1053,4 @@ fn is_raw_capture(name: &str) -> bool {
 /// A run id usable as one folder name (no separators, not `.`/`..`).
 fn is_plain_name(id: &str) -> bool {
     !id.is_empty() && id != "." && id != ".." && !id.contains(['/', '\\', '\0'])
-}
-
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }

@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
+use handeye::calendar::utc_text;
 use handeye::config::Config;
-use handeye::store::{utc_text, RunSummary, Store, HISTORY_FILE};
+use handeye::store::{RunSummary, Store, HISTORY_FILE};
 use serde_json::Value;
 
 /// Arguments of `history`.
@@ -128,7 +129,7 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
             utc_text(r.started_unix_s),
             r.run_id,
             r.trigger,
-            mode_name(r),
+            r.mode.name(),
             r.outcome.name(),
             time,
             result_cell(r),
@@ -139,13 +140,6 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
         writeln!(out, "{}", line.trim_end())?;
     }
     Ok(())
-}
-
-fn mode_name(r: &RunSummary) -> &'static str {
-    match r.mode {
-        handeye::run::RunMode::Calibrate => "calibrate",
-        handeye::run::RunMode::Check => "check",
-    }
 }
 
 /// The drift of a check, else the uncertainty of a result.
@@ -315,8 +309,8 @@ fn csv(runs: &[RunSummary]) -> String {
         let pose = |i: usize| num(r.ur_pose.map(|p| p[i]));
         let fields = [
             quote(&r.run_id),
-            quote(&r.trigger),
-            mode_name(r).to_string(),
+            quote(r.trigger.name()),
+            r.mode.name().to_string(),
             r.outcome.name().to_string(),
             utc_text(r.started_unix_s),
             r.started_unix_s.to_string(),
@@ -445,7 +439,7 @@ mod tests {
             }),
             written: if accepted && mode == RunMode::Calibrate {
                 vec![Written {
-                    target: "tcp",
+                    target: handeye::record::WriteTarget::Tcp,
                     detail: "set_tcp, read back".into(),
                 }]
             } else {
@@ -500,7 +494,7 @@ mod tests {
         writer
             .begin(&RunStart {
                 run_id: "run-a".into(),
-                trigger: "startup".into(),
+                trigger: handeye::record::Trigger::Startup,
                 mode: RunMode::Calibrate,
                 config_origin: cfg_path.display().to_string(),
                 config_digest: handeye::store::config_digest("cell"),
@@ -509,19 +503,19 @@ mod tests {
             .expect("begin");
         writer
             .finish(
-                "startup",
+                handeye::record::Trigger::Startup,
                 &record("run-a", RunMode::Calibrate, Outcome::Accepted, t),
             )
             .expect("finish");
         writer
             .finish(
-                "schedule",
+                handeye::record::Trigger::Schedule,
                 &record("run-b", RunMode::Check, Outcome::Accepted, t + 3600.0),
             )
             .expect("finish");
         writer
             .finish(
-                "api",
+                handeye::record::Trigger::Api,
                 &record("run-c", RunMode::Calibrate, Outcome::Rejected, t + 7200.0),
             )
             .expect("finish");

@@ -11,8 +11,8 @@ use std::process::ExitCode;
 use std::time::{Duration, SystemTime};
 
 use anyhow::{bail, Context};
+use handeye::calendar::utc_text;
 use handeye::config::Config;
-use handeye::store::utc_text;
 use serde_json::Value;
 
 /// How long connecting, sending and reading may each take.

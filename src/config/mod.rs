@@ -62,7 +62,7 @@ pub struct Config {
 pub struct DaemonConfig {
     /// Run at startup, once the robot and camera are connected (`startup = "none" |
     /// "calibrate" | "check"`).
-    pub startup: Option<crate::run::RunMode>,
+    pub startup: Option<crate::record::RunMode>,
     /// Address of the HTTP API and web page (`listen`, `IP:PORT`); localhost by default.
     pub listen: std::net::SocketAddr,
     /// File holding the bearer token that requests which move the arm must carry
@@ -72,7 +72,7 @@ pub struct DaemonConfig {
     pub check_interval: Option<Duration>,
     /// Scheduled drift checks at these local times (`check_at = ["Mon-Fri 06:00"]`), besides
     /// or instead of the interval.
-    pub check_at: Vec<crate::daemon::CalendarTime>,
+    pub check_at: Vec<crate::calendar::CalendarTime>,
     /// What a trigger gets while a run is going (`when_busy`).
     pub when_busy: WhenBusy,
     /// After a scheduled check finds drift, calibrate and write back (`recalibrate_on_drift`);
@@ -1099,16 +1099,17 @@ impl Ctx<'_> {
         let base = defaults::daemon();
         let startup = match d.startup.as_deref().map(str::trim) {
             None | Some("none") => None,
-            Some("calibrate") => Some(crate::run::RunMode::Calibrate),
-            Some("check") => Some(crate::run::RunMode::Check),
-            Some(other) => {
-                return Err(self.invalid(
-                    "daemon.startup",
-                    format!(
-                    "daemon.startup = \"{other}\": expected \"none\", \"calibrate\" or \"check\""
-                ),
-                ))
-            }
+            Some(name) => match crate::record::RunMode::parse(name) {
+                Some(mode) => Some(mode),
+                None => {
+                    return Err(self.invalid(
+                        "daemon.startup",
+                        format!(
+                            "daemon.startup = \"{name}\": expected \"none\", \"calibrate\" or \"check\""
+                        ),
+                    ))
+                }
+            },
         };
         let listen = match &d.listen {
             None => base.listen,
@@ -1135,7 +1136,7 @@ impl Ctx<'_> {
         for (i, t) in d.check_at.iter().flatten().enumerate() {
             let key = format!("daemon.check_at[{i}]");
             check_at.push(
-                t.parse::<crate::daemon::CalendarTime>()
+                t.parse::<crate::calendar::CalendarTime>()
                     .map_err(|e| self.invalid(&key, format!("{key}: {e}")))?,
             );
         }

@@ -8,52 +8,22 @@
 //! The binary builds the concrete robot and camera from the configuration and calls [`run`].
 
 mod notify;
-pub mod schedule;
-
-pub use schedule::CalendarTime;
 
 use std::fmt::Write as _;
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use handeye_hal::{DepthCamera, Robot};
 use serde::Serialize;
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
+use crate::calendar::{unix_now, utc_text};
 use crate::config::{Config, WhenBusy};
 use crate::model::RobotModel;
-use crate::run::{new_run_id, Outcome, Progress, RunMode, RunRecord, RunRequest, Stage};
+use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger};
+use crate::run::{new_run_id, Progress, RunRequest};
 use crate::store::{RunStart, Store};
-
-/// Who asked for a run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Trigger {
-    /// The daemon's start (`daemon.startup`).
-    Startup,
-    /// The drift-check schedule (`daemon.check_interval_s`, `daemon.check_at`).
-    Schedule,
-    /// A scheduled check found drift and `daemon.recalibrate_on_drift` is on.
-    Drift,
-    /// The HTTP API (or the web page).
-    Api,
-    /// The pendant program, through registers.
-    Pendant,
-}
-
-impl Trigger {
-    /// Lower-case name as stored in the history.
-    pub fn name(self) -> &'static str {
-        match self {
-            Trigger::Startup => "startup",
-            Trigger::Schedule => "schedule",
-            Trigger::Drift => "drift",
-            Trigger::Api => "api",
-            Trigger::Pendant => "pendant",
-        }
-    }
-}
 
 /// The run in progress.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -218,12 +188,6 @@ struct Job {
 #[derive(Debug, Clone)]
 pub struct DaemonHandle {
     shared: Arc<Shared>,
-}
-
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 impl DaemonHandle {
@@ -664,17 +628,17 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
     });
     let mut schedule = schedule;
     let next_calendar = || {
-        schedule::next_after(
+        crate::calendar::next_after(
             &cfg.daemon.check_at,
             unix_now().floor() as i64,
-            schedule::local_offset_s,
+            crate::calendar::local_offset_s,
         )
     };
     let mut calendar_due = next_calendar();
     if let Some(due) = calendar_due {
         tracing::info!(
             "next scheduled check at {} (daemon.check_at)",
-            crate::store::utc_text(due as f64)
+            utc_text(due as f64)
         );
     }
     let mut pendant = tokio::time::interval(PENDANT_POLL);
@@ -850,7 +814,7 @@ async fn execute<R: Robot, C: DepthCamera>(
     let t0 = Instant::now();
     let start = RunStart {
         run_id: job.run_id.clone(),
-        trigger: job.trigger.name().into(),
+        trigger: job.trigger,
         mode: job.mode,
         config_origin: cfg.origin.clone(),
         config_digest: digest.to_string(),
@@ -872,7 +836,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         span,
     )
     .await;
-    if let Err(e) = handle.store().finish(job.trigger.name(), &record) {
+    if let Err(e) = handle.store().finish(job.trigger, &record) {
         tracing::error!("cannot record the end of run {}: {e}", job.run_id);
     }
     let d = &cfg.daemon;

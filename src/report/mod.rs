@@ -23,7 +23,7 @@ use crate::calib::{
     Outcome, Registration, Uncertainty,
 };
 use crate::model::RobotModel;
-use crate::run::{RunMode, RunRecord};
+use crate::record::{RunMode, RunRecord};
 use canvas::{wrap, Canvas, Rgb, Size};
 
 pub use drift::{drift_chart, DriftLimits, DriftPoint};
@@ -158,7 +158,7 @@ impl Summary {
             ));
         }
         if !record.written.is_empty() {
-            let targets: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+            let targets: Vec<&str> = record.written.iter().map(|w| w.target.name()).collect();
             notes.push(format!("written back: {}", targets.join(", ")));
         } else if record.mode == RunMode::Calibrate {
             notes.push("nothing written back".into());
@@ -167,7 +167,7 @@ impl Summary {
             title: format!("{mode} {}", record.run_id),
             subtitle: format!(
                 "{} UTC  |  {}",
-                crate::store::utc_text(record.started_unix_s),
+                crate::calendar::utc_text(record.started_unix_s),
                 record.config
             ),
             outcome: record.outcome,

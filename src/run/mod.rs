@@ -18,7 +18,6 @@
 //! nothing but its own record.
 
 pub mod pipeline;
-mod record;
 mod storage;
 #[cfg(test)]
 mod tests;
@@ -26,7 +25,7 @@ mod tests;
 use std::future::Future;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use handeye_hal::{DepthCamera, HalError, Robot, RobotMode, SafetyMode, UrPose};
 use nalgebra::{Isometry3, Vector3};
@@ -39,13 +38,13 @@ use crate::model::RobotModel;
 use crate::plan::{Obstacle, ViewConstraints, ViewPlanner};
 use crate::sim::Intrinsics;
 
-pub use crate::calib::Outcome;
-pub use pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
-pub use record::{
-    CaptureRecord, DriftRecord, FrameRecord, KinematicsUsed, PlannedView, PreflightRecord,
-    ResultRecord, RunMode, RunRecord, RunTimings, Stage, Written,
+use crate::calendar::unix_now;
+pub use crate::record::{
+    CaptureRecord, DriftRecord, FrameRecord, KinematicsOrigin, KinematicsUsed, Outcome,
+    PlannedView, PreflightRecord, ResultRecord, RunMode, RunRecord, RunTimings, Stage, WriteTarget,
+    Written,
 };
-pub(crate) use storage::civil_from_days;
+pub use pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
 pub use storage::{
     load_capture, load_current, new_run_id, CaptureFile, CURRENT_DIR, REPORT_PICTURE, RUNS_DIR,
 };
@@ -169,12 +168,6 @@ async fn cancellable<T>(
 
 fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
-}
-
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// Position and rotation difference of two poses of the same unknown: mm, degrees.
@@ -439,7 +432,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         // the nominal URDF.
         let fallback = |why: Option<String>| match &self.cfg.robot.calibration {
             Some(file) => KinematicsUsed {
-                source: "file",
+                source: KinematicsOrigin::File,
                 note: Some(format!(
                     "{}posed by the calibration file {}",
                     why.map_or_else(String::new, |w| format!("{w}; ")),
@@ -448,7 +441,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 dh: None,
             },
             None => KinematicsUsed {
-                source: "nominal",
+                source: KinematicsOrigin::Nominal,
                 note: why.map(|w| format!("{w}; posed by the nominal URDF")),
                 dh: None,
             },
@@ -460,7 +453,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     .await?
                 {
                     Ok(Some(k)) => KinematicsUsed {
-                        source: "controller",
+                        source: KinematicsOrigin::Controller,
                         note: (!k.calibrated).then(|| {
                             "the controller says its arm is not factory calibrated".to_string()
                         }),
@@ -477,7 +470,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         if let Some(note) = &kinematics.note {
             tracing::warn!("{note}");
         }
-        if let (Some(file), "file") = (&self.cfg.robot.calibration, kinematics.source) {
+        if let (Some(file), KinematicsOrigin::File) =
+            (&self.cfg.robot.calibration, kinematics.source)
+        {
             // The file's DH set poses the model as the controller's would.
             let dh = crate::model::UrCalibration::load(file)
                 .map_err(|e| e.to_string())
@@ -988,7 +983,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             .await?;
             let p = UrPose::from(unknown).values();
             self.record.written.push(Written {
-                target: "tcp",
+                target: WriteTarget::Tcp,
                 detail: format!(
                     "set_tcp(p[{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}]), read back over RTDE",
                     p[0], p[1], p[2], p[3], p[4], p[5]
@@ -1018,7 +1013,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             })
             .await?;
             self.record.written.push(Written {
-                target: "registers",
+                target: WriteTarget::Registers,
                 detail: format!(
                     "input_double_register_{}..{} = x,y,z,rx,ry,rz (m, rad); input_int_register_{} = {seq}",
                     map.double_start,
@@ -1038,7 +1033,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 result.as_ref(),
             ) {
                 Ok(paths) => self.record.written.push(Written {
-                    target: "files",
+                    target: WriteTarget::Files,
                     detail: paths
                         .iter()
                         .map(|p| p.display().to_string())

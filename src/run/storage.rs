@@ -18,9 +18,9 @@ use handeye_hal::PointCloud;
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
-use super::record::{CaptureRecord, ResultRecord, RunRecord};
 use crate::calib::export::{ExportMeta, Exports};
 use crate::calib::Mount;
+use crate::record::{CaptureRecord, ResultRecord, RunRecord};
 
 /// Folder of the per-run folders.
 pub const RUNS_DIR: &str = "runs";
@@ -66,29 +66,9 @@ pub fn new_run_id() -> String {
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap_or_default();
-    let secs = now.as_secs();
-    let (days, rem) = (secs / 86_400, secs % 86_400);
-    let (y, m, d) = civil_from_days(days as i64);
+    let (y, m, d, hh, mm, ss) = crate::calendar::utc_fields(now.as_secs() as i64);
     let suffix = (now.subsec_nanos() ^ std::process::id().rotate_left(16)) & 0xffff;
-    format!(
-        "{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z-{suffix:04x}",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
-}
-
-/// Gregorian date of a day count since 1970-01-01 (H. Hinnant's algorithm).
-pub(crate) fn civil_from_days(z: i64) -> (i64, u32, u32) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    (yoe + era * 400 + i64::from(m <= 2), m, d)
+    format!("{y:04}{m:02}{d:02}T{hh:02}{mm:02}{ss:02}Z-{suffix:04x}")
 }
 
 /// Writes `bytes` to `path` through a temporary file and a rename.
@@ -291,9 +271,6 @@ mod tests {
 
     #[test]
     fn run_ids_carry_the_utc_date() {
-        assert_eq!(civil_from_days(0), (1970, 1, 1));
-        assert_eq!(civil_from_days(20_416), (2025, 11, 24));
-        assert_eq!(civil_from_days(11_016), (2000, 2, 29));
         let id = new_run_id();
         assert_eq!(id.len(), "20261124T142300Z-3f9a".len(), "{id}");
         assert!(id.as_bytes()[8] == b'T' && id.contains("Z-"), "{id}");

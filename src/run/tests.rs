@@ -21,8 +21,8 @@ use tokio::sync::Notify;
 use tokio_util::sync::CancellationToken;
 
 use super::{
-    pose_difference, run, Outcome, RunMode, RunRecord, RunRequest, Silent, Stage, CURRENT_DIR,
-    RUNS_DIR,
+    pose_difference, run, KinematicsOrigin, Outcome, RunMode, RunRecord, RunRequest, Silent, Stage,
+    CURRENT_DIR, RUNS_DIR,
 };
 use crate::config::{self, Config, RobotPorts, ViewTargets};
 use crate::frames::from_row_major;
@@ -258,7 +258,7 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
         robot.read_int_register(SEQUENCE_INT).await.expect("read"),
         1
     );
-    let targets: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+    let targets: Vec<&str> = record.written.iter().map(|w| w.target.name()).collect();
     assert_eq!(targets, ["tcp", "registers", "files"]);
 
     // To the view and back, nothing else.
@@ -268,7 +268,7 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
 
     // Posed by the controller's kinematics.
     let preflight = record.preflight.as_ref().expect("preflight recorded");
-    assert_eq!(preflight.kinematics.source, "controller");
+    assert_eq!(preflight.kinematics.source, KinematicsOrigin::Controller);
     assert_eq!(preflight.kinematics.dh, Some(f.dh));
     assert_eq!(preflight.start_joints, HOME.to_vec());
 
@@ -276,7 +276,17 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
     let dir = &storage.0;
     assert!(dir.join(CURRENT_DIR).join("result.json").is_file());
     let run_dir = dir.join(RUNS_DIR).join(&record.run_id);
-    assert!(run_dir.join("record.json").is_file());
+    // The record reads back as the typed record (`handeye history`, the page).
+    let text = std::fs::read_to_string(run_dir.join("record.json")).expect("record.json");
+    let back: RunRecord = serde_json::from_str(&text).expect("a record reads back");
+    assert_eq!(
+        (back.run_id.as_str(), back.outcome, back.written.len()),
+        (record.run_id.as_str(), record.outcome, record.written.len())
+    );
+    assert_eq!(
+        back.preflight.map(|p| p.kinematics.source),
+        Some(KinematicsOrigin::Controller)
+    );
     let capture = PathBuf::from(record.capture_file.as_ref().expect("capture file kept"));
     assert!(capture.is_file(), "{}", capture.display());
     assert!(capture.starts_with(&run_dir));
@@ -847,7 +857,7 @@ async fn an_eye_to_hand_run_finds_the_fixed_camera_in_the_base_frame_and_sets_no
     assert!(ur.approx_eq(&UrPose::from(&est), 1e-9, 1e-9), "{ur}");
 
     // Written: registers and files; never a TCP.
-    let targets: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+    let targets: Vec<&str> = record.written.iter().map(|w| w.target.name()).collect();
     assert_eq!(targets, ["registers", "files"]);
     assert_eq!(robot.tcp(), Isometry3::identity(), "the TCP was changed");
     let p = UrPose::from(&est).values();
@@ -941,7 +951,7 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
     )
     .await;
     let kin = &nominal.preflight.as_ref().expect("preflight").kinematics;
-    assert_eq!(kin.source, "nominal");
+    assert_eq!(kin.source, KinematicsOrigin::Nominal);
 
     let file = storage.0.join("calibration.yaml");
     std::fs::write(
@@ -960,7 +970,7 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
     )
     .await;
     let kin = &posed.preflight.as_ref().expect("preflight").kinematics;
-    assert_eq!(kin.source, "file", "{kin:?}");
+    assert_eq!(kin.source, KinematicsOrigin::File, "{kin:?}");
     assert!(
         kin.note
             .as_deref()

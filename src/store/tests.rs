@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 use super::*;
 use crate::calib::report::{QualitySummary, ReportTimings};
 use crate::calib::{CalibrationReport, Mount, Uncertainty};
-use crate::run::{DriftRecord, ResultRecord, RunTimings, Stage, Written};
+use crate::record::{DriftRecord, ResultRecord, RunTimings, Stage, WriteTarget, Written};
 
 /// A fresh folder for one test (removed first, so a failed earlier run leaves nothing).
 fn temp_dir(tag: &str) -> PathBuf {
@@ -94,11 +94,11 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
         written: if accepted && mode == RunMode::Calibrate {
             vec![
                 Written {
-                    target: "tcp",
+                    target: WriteTarget::Tcp,
                     detail: "set_tcp p[0,-0.08,0.04,-0.26,0,0]".into(),
                 },
                 Written {
-                    target: "files",
+                    target: WriteTarget::Files,
                     detail: "current/".into(),
                 },
             ]
@@ -116,7 +116,7 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
 fn start(run_id: &str, mode: RunMode, started: f64) -> RunStart {
     RunStart {
         run_id: run_id.into(),
-        trigger: "api".into(),
+        trigger: Trigger::Api,
         mode,
         config_origin: "/etc/handeye/cell.toml".into(),
         config_digest: config_digest("[robot]\nmodel = \"ur5e\"\n"),
@@ -151,20 +151,20 @@ fn runs_round_trip_through_begin_finish_list_get_latest() {
     assert_eq!(running.len(), 1);
     assert_eq!(running[0].outcome, RunStatus::Running);
     assert_eq!(running[0].outcome.outcome(), None);
-    store.finish("api", &a).expect("finish a");
+    store.finish(Trigger::Api, &a).expect("finish a");
     store
         .begin(&start("run-b", RunMode::Check, t + 10.0))
         .expect("begin b");
-    store.finish("schedule", &b).expect("finish b");
+    store.finish(Trigger::Schedule, &b).expect("finish b");
     // Finished without begin (the start could not be recorded): inserted whole.
-    store.finish("cli", &c).expect("finish c");
+    store.finish(Trigger::Cli, &c).expect("finish c");
 
     let list = store.list(10, None).expect("list");
     let ids: Vec<&str> = list.iter().map(|s| s.run_id.as_str()).collect();
     assert_eq!(ids, ["run-c", "run-b", "run-a"], "newest first");
     let sa = &list[2];
     assert_eq!(sa.outcome, RunStatus::Ended(Outcome::Accepted));
-    assert_eq!(sa.trigger, "api");
+    assert_eq!(sa.trigger, Trigger::Api);
     assert_eq!(sa.mode, RunMode::Calibrate);
     assert_eq!(sa.started_unix_s, t);
     assert_eq!(sa.duration_ms, Some(4200.0));
@@ -180,7 +180,7 @@ fn runs_round_trip_through_begin_finish_list_get_latest() {
     );
     assert!(sa.finished_unix_s.is_some());
     let sb = &list[1];
-    assert_eq!(sb.trigger, "schedule");
+    assert_eq!(sb.trigger, Trigger::Schedule);
     assert_eq!(sb.drift_translation_mm, Some(0.42));
     assert_eq!(sb.drift_rotation_deg, Some(0.05));
     assert_eq!(sb.drifted, Some(false));
@@ -242,7 +242,7 @@ fn a_run_left_running_is_aborted_on_the_next_open() {
             .expect("begin");
         store
             .finish(
-                "api",
+                Trigger::Api,
                 &record("done", RunMode::Check, Outcome::Accepted, t - 5.0),
             )
             .expect("finish");
@@ -300,7 +300,7 @@ fn killed_writer_child() {
             .expect("child begin");
         store
             .finish(
-                "schedule",
+                Trigger::Schedule,
                 &record(&id, RunMode::Check, Outcome::Accepted, started),
             )
             .expect("child finish");
@@ -404,7 +404,7 @@ fn a_reader_reads_while_a_writer_writes() {
             w.begin(&start(&id, RunMode::Check, t + i as f64))
                 .expect("begin");
             w.finish(
-                "schedule",
+                Trigger::Schedule,
                 &record(&id, RunMode::Check, Outcome::Accepted, t + i as f64),
             )
             .expect("finish");
@@ -478,7 +478,7 @@ fn pruning_removes_only_the_old_raw_captures() {
         if finished {
             store
                 .finish(
-                    "api",
+                    Trigger::Api,
                     &record(id, RunMode::Calibrate, Outcome::Accepted, started),
                 )
                 .expect("finish");
@@ -521,7 +521,7 @@ fn pruning_removes_only_the_old_raw_captures() {
     std::fs::remove_dir_all(dir.join(RUNS_DIR).join("old-running")).expect("rm");
     store
         .finish(
-            "api",
+            Trigger::Api,
             &record(
                 "old-running",
                 RunMode::Calibrate,
@@ -655,12 +655,6 @@ fn digests_and_times_are_stable() {
     assert_eq!(config_digest(""), "cbf29ce484222325");
     assert_eq!(config_digest("a"), "af63dc4c8601ec8c");
     assert_eq!(config_digest("foobar"), "85944171f73967e8");
-    assert_eq!(utc_text(0.0), "1970-01-01 00:00:00");
-    assert_eq!(
-        utc_text(20_416.0 * 86_400.0 + 14.0 * 3600.0 + 23.0 * 60.0 + 0.9),
-        "2025-11-24 14:23:00"
-    );
-    assert_eq!(utc_text(f64::NAN), "?");
     assert!(RunStatus::parse("bogus").is_none());
     for s in [
         "running", "accepted", "rejected", "aborted", "error", "planned",
