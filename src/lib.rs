@@ -39,6 +39,7 @@ pub mod record;
 pub mod report;
 pub mod run;
 pub mod sim;
+pub mod storage;
 pub mod store;
 
 #[cfg(test)]

@@ -279,6 +279,26 @@ pub struct CaptureRecord {
     pub frames: Vec<FrameRecord>,
 }
 
+impl Mount {
+    /// The unknown a run of this mount solves for: `flange_from_camera` (eye-in-hand) or
+    /// `base_from_camera` (eye-to-hand).
+    pub fn unknown_name(self) -> &'static str {
+        match self {
+            Mount::EyeInHand => "flange_from_camera",
+            Mount::EyeToHand => "base_from_camera",
+        }
+    }
+
+    /// The frame the unknown is expressed in, as the exports name it: `tool0` (the flange,
+    /// eye-in-hand) or `base` (the controller's base, eye-to-hand).
+    pub fn parent_frame(self) -> &'static str {
+        match self {
+            Mount::EyeInHand => "tool0",
+            Mount::EyeToHand => "base",
+        }
+    }
+}
+
 /// The measured result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ResultRecord {
@@ -299,13 +319,17 @@ pub struct ResultRecord {
 }
 
 impl ResultRecord {
-    /// The unknown the run solved for (`flange_from_camera` or `base_from_camera`).
+    /// The unknown the run solved for ([`Mount::unknown_name`]), 4×4, m.
+    pub fn unknown(&self) -> &[[f64; 4]; 4] {
+        match (self.mount, &self.flange_from_camera) {
+            (Mount::EyeInHand, Some(t)) => t,
+            _ => &self.base_from_camera,
+        }
+    }
+
+    /// The unknown the run solved for ([`Mount::unknown_name`]).
     pub fn estimate(&self) -> Option<Isometry3<f64>> {
-        crate::frames::from_row_major(
-            self.flange_from_camera
-                .as_ref()
-                .unwrap_or(&self.base_from_camera),
-        )
+        crate::frames::from_row_major(self.unknown())
     }
 }
 
@@ -435,15 +459,25 @@ impl RunRecord {
         }
     }
 
+    /// What the run says about drift: `Some(true)` when an accepted check measured the
+    /// camera beyond a threshold, `Some(false)` within both, `None` when the run is no check
+    /// that compared (calibrate, not accepted, or nothing to compare with).
+    pub fn drift_found(&self) -> Option<bool> {
+        match (self.mode, self.outcome, &self.drift) {
+            (RunMode::Check, Outcome::Accepted, Some(d)) => Some(d.drifted),
+            _ => None,
+        }
+    }
+
     /// Process exit code: calibrate 0 accepted / 1 rejected / 2 error or aborted; check 0
     /// within thresholds / 1 drifted / 2 anything else; a dry run 0 when planned.
     pub fn exit_code(&self) -> u8 {
         match (self.outcome, self.mode) {
             (Outcome::Planned, _) => 0,
             (Outcome::Accepted, RunMode::Calibrate) => 0,
-            (Outcome::Accepted, RunMode::Check) => match &self.drift {
-                Some(d) if d.drifted => 1,
-                Some(_) => 0,
+            (_, RunMode::Check) => match self.drift_found() {
+                Some(true) => 1,
+                Some(false) => 0,
                 None => 2,
             },
             (Outcome::Rejected, RunMode::Calibrate) => 1,

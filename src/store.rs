@@ -32,7 +32,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::calendar::unix_now;
 use crate::record::{Outcome, RunMode, RunRecord, Trigger};
-use crate::run::RUNS_DIR;
 
 #[cfg(test)]
 mod tests;
@@ -207,7 +206,8 @@ pub enum StoreError {
     },
 }
 
-/// A run that started ([`Store::begin`]).
+/// A run that started ([`Store::begin`]): the row's first columns, copied from the run's
+/// starting record ([`RunStart::new`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunStart {
     /// Its id ([`crate::run::new_run_id`]); also its folder under `runs/`.
@@ -222,6 +222,21 @@ pub struct RunStart {
     pub config_digest: String,
     /// Unix time of the start, s.
     pub started_unix_s: f64,
+}
+
+impl RunStart {
+    /// The start of the run `record` (as [`RunRecord::starting`] made it), asked for by
+    /// `trigger`, with the [`config_digest`] of its configuration.
+    pub fn new(record: &RunRecord, trigger: Trigger, config_digest: String) -> Self {
+        Self {
+            run_id: record.run_id.clone(),
+            trigger,
+            mode: record.mode,
+            config_origin: record.config.clone(),
+            config_digest,
+            started_unix_s: record.started_unix_s,
+        }
+    }
 }
 
 /// Where a run stands: still running, or ended with an outcome. Serialised as one string
@@ -625,104 +640,48 @@ impl Store {
         .map_err(|e| sql_error(&self.path, "find the latest run", e))
     }
 
-    /// Deletes the raw captures (`runs/<id>/view*_frame*.ply`) of the runs that are both
-    /// beyond the newest `keep_runs` and started more than `keep_days` ago, and notes it in
-    /// their rows; records, `capture.json` and results stay. Runs still running are never
-    /// touched; run folders that are not in the history are left alone. Returns the files
-    /// removed.
-    pub fn prune_captures(
+    /// The runs whose raw scans may go: beyond the newest `keep_runs` and started more than
+    /// `keep_days` ago, ended, not pruned yet; oldest last. The files are the run folder's
+    /// ([`crate::storage::remove_raw_captures`]); [`Self::mark_pruned`] notes it.
+    pub fn captures_to_prune(
         &self,
-        storage_dir: &Path,
         keep_runs: usize,
         keep_days: f64,
-    ) -> Result<Vec<PathBuf>, StoreError> {
+    ) -> Result<Vec<String>, StoreError> {
         if self.read_only {
             return Err(StoreError::ReadOnly {
                 path: self.path.clone(),
             });
         }
         let cutoff = unix_now() - keep_days * 86_400.0;
-        let candidates: Vec<String> = {
-            let conn = self.lock();
-            let run = || -> rusqlite::Result<Vec<String>> {
-                let mut stmt = conn.prepare(
-                    "SELECT run_id, started_unix_s, outcome, captures_pruned_unix_s FROM runs
-                     ORDER BY started_unix_s DESC, run_id DESC",
-                )?;
-                let rows = stmt.query_map([], |r| {
-                    Ok((
-                        r.get::<_, String>(0)?,
-                        r.get::<_, f64>(1)?,
-                        r.get::<_, String>(2)?,
-                        r.get::<_, Option<f64>>(3)?,
-                    ))
-                })?;
-                let mut out = Vec::new();
-                for (i, row) in rows.enumerate() {
-                    let (id, started, outcome, pruned) = row?;
-                    if i >= keep_runs
-                        && started < cutoff
-                        && outcome != "running"
-                        && pruned.is_none()
-                    {
-                        out.push(id);
-                    }
+        let conn = self.lock();
+        let run = || -> rusqlite::Result<Vec<String>> {
+            let mut stmt = conn.prepare(
+                "SELECT run_id, started_unix_s, outcome, captures_pruned_unix_s FROM runs
+                 ORDER BY started_unix_s DESC, run_id DESC",
+            )?;
+            let rows = stmt.query_map([], |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    r.get::<_, f64>(1)?,
+                    r.get::<_, String>(2)?,
+                    r.get::<_, Option<f64>>(3)?,
+                ))
+            })?;
+            let mut out = Vec::new();
+            for (i, row) in rows.enumerate() {
+                let (id, started, outcome, pruned) = row?;
+                if i >= keep_runs && started < cutoff && outcome != "running" && pruned.is_none() {
+                    out.push(id);
                 }
-                Ok(out)
-            };
-            run().map_err(|e| sql_error(&self.path, "find old captures", e))?
+            }
+            Ok(out)
         };
-        let runs_dir = storage_dir.join(RUNS_DIR);
-        let mut removed = Vec::new();
-        for run_id in candidates {
-            if !is_plain_name(&run_id) {
-                tracing::warn!("not pruning run `{run_id}`: its id is not a plain folder name");
-                continue;
-            }
-            let dir = runs_dir.join(&run_id);
-            let entries = match std::fs::read_dir(&dir) {
-                Ok(entries) => entries,
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                    self.mark_pruned(&run_id)?;
-                    continue;
-                }
-                Err(source) => {
-                    return Err(StoreError::Io {
-                        action: "read the folder",
-                        path: dir,
-                        source,
-                    })
-                }
-            };
-            for entry in entries {
-                let entry = entry.map_err(|source| StoreError::Io {
-                    action: "read the folder",
-                    path: dir.clone(),
-                    source,
-                })?;
-                let name = entry.file_name();
-                if !is_raw_capture(&name.to_string_lossy()) {
-                    continue;
-                }
-                let path = entry.path();
-                match std::fs::remove_file(&path) {
-                    Ok(()) => removed.push(path),
-                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                    Err(source) => {
-                        return Err(StoreError::Io {
-                            action: "remove",
-                            path,
-                            source,
-                        })
-                    }
-                }
-            }
-            self.mark_pruned(&run_id)?;
-        }
-        Ok(removed)
+        run().map_err(|e| sql_error(&self.path, "find old captures", e))
     }
 
-    fn mark_pruned(&self, run_id: &str) -> Result<(), StoreError> {
+    /// Notes that run `run_id`'s raw scans were removed (replay is then impossible).
+    pub fn mark_pruned(&self, run_id: &str) -> Result<(), StoreError> {
         self.writable()?
             .execute(
                 "UPDATE runs SET captures_pruned_unix_s = ?2 WHERE run_id = ?1",
@@ -1043,14 +1002,4 @@ fn sql_error(path: &Path, action: &'static str, e: rusqlite::Error) -> StoreErro
 /// SQLite stores NaN as NULL anyway; say so explicitly.
 fn finite(x: f64) -> Option<f64> {
     x.is_finite().then_some(x)
-}
-
-/// A raw scan a run kept: `view<V>_frame<F>.ply`.
-fn is_raw_capture(name: &str) -> bool {
-    name.starts_with("view") && name.contains("_frame") && name.ends_with(".ply")
-}
-
-/// A run id usable as one folder name (no separators, not `.`/`..`).
-fn is_plain_name(id: &str) -> bool {
-    !id.is_empty() && id != "." && id != ".." && !id.contains(['/', '\\', '\0'])
 }

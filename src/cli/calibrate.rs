@@ -12,7 +12,9 @@ use anyhow::Context;
 use handeye::camera::{ExecCamera, FileCamera};
 use handeye::config::{CameraBackend, Config};
 use handeye::model::RobotModel;
-use handeye::run::{run, Outcome, Progress, RunMode, RunRecord, RunRequest, Stage};
+use handeye::record::Trigger;
+use handeye::run::{Outcome, Progress, Recorder, RunMode, RunRecord, RunRequest, Stage};
+use handeye::store::{Store, HISTORY_FILE};
 use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
 use handeye_hal::DepthCamera;
 use handeye_ur::{Ports, UrConfig, UrRobot};
@@ -107,8 +109,10 @@ pub(crate) fn load_model(cfg: &Config) -> anyhow::Result<Arc<RobotModel>> {
     Ok(Arc::new(model))
 }
 
-/// Connects the configured robot and camera and runs once. Connection failures are errors;
-/// everything after that is in the record.
+/// Connects the configured robot and camera and runs once, recorded like the daemon's runs
+/// (trigger `cli`): in the history, so `handeye history`, the page and the next check see what
+/// the controller now holds. Connection failures are errors; everything after that is in the
+/// record.
 pub(crate) async fn execute(
     cfg: &Config,
     req: RunRequest,
@@ -118,10 +122,30 @@ pub(crate) async fn execute(
     let model = load_model(cfg)?;
     let robot = connect_robot(cfg).await?;
     let camera = AnyCamera::connect(cfg).await?;
+    let recorder = recorder(cfg).await;
     let progress = Terminal::new(quiet);
-    let record = run(&robot, &camera, &model, cfg, req, shutdown, &progress).await;
+    let record = recorder
+        .run(&robot, &camera, &model, cfg, req, shutdown, &progress)
+        .await;
     progress.done();
     Ok(record)
+}
+
+/// The recorder of a command's run: the history in the storage directory (opened beside a
+/// running daemon), or the run's files only when the history cannot be opened (said why).
+async fn recorder(cfg: &Config) -> Recorder {
+    let path = cfg.storage.dir.join(HISTORY_FILE);
+    let opened = tokio::task::spawn_blocking(move || Store::open(&path))
+        .await
+        .map_err(anyhow::Error::from)
+        .and_then(|r| r.map_err(anyhow::Error::from));
+    match opened {
+        Ok(store) => Recorder::new(Arc::new(store), Trigger::Cli),
+        Err(e) => {
+            tracing::warn!("this run is not recorded in the history: {e:#}");
+            Recorder::files_only()
+        }
+    }
 }
 
 /// The configured camera, whichever backend: one concrete type for the generic run.

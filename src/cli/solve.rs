@@ -14,7 +14,8 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use handeye::calib::{CalibError, Mount};
 use handeye::model::{KinematicError, RobotModel, UrCalibration};
-use handeye::run::{calibrate_frames, load_capture, pipeline::fixed_frame, Frame, PipelineOptions};
+use handeye::run::{calibrate_frames, pipeline::fixed_frame, Frame, PipelineOptions};
+use handeye::storage::load_capture;
 use handeye_hal::ur_dh::DhParams;
 use nalgebra::Isometry3;
 

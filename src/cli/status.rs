@@ -8,10 +8,10 @@ use std::io::{Read, Write};
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use anyhow::{bail, Context};
-use handeye::calendar::utc_text;
+use handeye::calendar::{unix_now, utc_text};
 use handeye::config::Config;
 use serde_json::Value;
 
@@ -161,12 +161,6 @@ fn dechunk(mut body: &[u8]) -> anyhow::Result<Vec<u8>> {
         out.extend_from_slice(&body[..size]);
         body = &body[size + 2..];
     }
-}
-
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// `3 s`, `4 min`, `2 h 5 min`, `3 d 4 h`.

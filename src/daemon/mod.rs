@@ -22,8 +22,9 @@ use crate::calendar::{unix_now, utc_text};
 use crate::config::{Config, WhenBusy};
 use crate::model::RobotModel;
 use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger};
-use crate::run::{new_run_id, Progress, RunRequest};
-use crate::store::{RunStart, Store};
+use crate::run::{Progress, Recorder, RunRequest};
+use crate::storage::new_run_id;
+use crate::store::Store;
 
 /// The run in progress.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -503,7 +504,7 @@ impl DaemonHandle {
                     st.drift_alarm = false;
                 }
                 RunMode::Check => {
-                    if let Some((mm, deg, drifted)) = drift {
+                    if let (Some((mm, deg, _)), Some(drifted)) = (drift, record.drift_found()) {
                         st.metrics.last_drift_mm = Some(mm);
                         st.metrics.last_drift_deg = Some(deg);
                         if drifted {
@@ -605,7 +606,6 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
 ) {
     let (handle, mut jobs) = handle(store, cfg.daemon.when_busy, shutdown.clone());
     let notifier = notify::Notifier::from_env();
-    let digest = crate::store::config_digest(&format!("{cfg:?}"));
     let frontend_task = tokio::spawn(frontend.serve(handle.clone(), shutdown.clone()));
     if let Some(n) = &notifier {
         if n.watchdog_interval().is_some() {
@@ -670,7 +670,7 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
             biased;
             _ = shutdown.cancelled() => break,
             Some(job) = jobs.recv() => {
-                let record = execute(&cfg, &model, &robot, &camera, &handle, &digest, &job).await;
+                let record = execute(&cfg, &model, &robot, &camera, &handle, &job).await;
                 if let Some(n) = &notifier {
                     n.status(&format!("last run {}: {}", record.run_id, record.outcome));
                 }
@@ -682,9 +682,8 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
                     };
                     answer_pendant(&robot, p.status_register, answer).await;
                 }
-                let drifted = record.drift.as_ref().is_some_and(|d| d.drifted);
                 if job.trigger == Trigger::Schedule
-                    && drifted
+                    && record.drift_found() == Some(true)
                     && cfg.daemon.recalibrate_on_drift
                     && !shutdown.is_cancelled()
                 {
@@ -719,7 +718,7 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
     }
     // A job accepted just before the shutdown is recorded as never started.
     while let Ok(job) = jobs.try_recv() {
-        let record = execute(&cfg, &model, &robot, &camera, &handle, &digest, &job).await;
+        let record = execute(&cfg, &model, &robot, &camera, &handle, &job).await;
         tracing::info!(run_id = %record.run_id, "run accepted before the shutdown: {}", record.outcome);
     }
     let _ = frontend_task.await;
@@ -801,28 +800,16 @@ async fn robot_idle<R: Robot>(robot: &R) -> bool {
     matches!(robot.status().await, Ok(s) if !s.program_running)
 }
 
-/// One job: recorded as started, run, recorded as ended, captures pruned.
+/// One job, run by the recorder (history row, record, picture, pruning).
 async fn execute<R: Robot, C: DepthCamera>(
     cfg: &Config,
     model: &Arc<RobotModel>,
     robot: &R,
     camera: &C,
     handle: &DaemonHandle,
-    digest: &str,
     job: &Job,
 ) -> RunRecord {
     let t0 = Instant::now();
-    let start = RunStart {
-        run_id: job.run_id.clone(),
-        trigger: job.trigger,
-        mode: job.mode,
-        config_origin: cfg.origin.clone(),
-        config_digest: digest.to_string(),
-        started_unix_s: unix_now(),
-    };
-    if let Err(e) = handle.store().begin(&start) {
-        tracing::error!("cannot record the start of run {}: {e}", job.run_id);
-    }
     let req = RunRequest {
         mode: job.mode,
         dry_run: false,
@@ -831,26 +818,12 @@ async fn execute<R: Robot, C: DepthCamera>(
     };
     let span = tracing::info_span!("run", trigger = job.trigger.name());
     let progress = StageReporter { handle };
+    let recorder = Recorder::new(Arc::clone(handle.store()), job.trigger);
     let record = tracing::Instrument::instrument(
-        crate::run::run(robot, camera, model, cfg, req, &job.cancel, &progress),
+        recorder.run(robot, camera, model, cfg, req, &job.cancel, &progress),
         span,
     )
     .await;
-    if let Err(e) = handle.store().finish(job.trigger, &record) {
-        tracing::error!("cannot record the end of run {}: {e}", job.run_id);
-    }
-    let d = &cfg.daemon;
-    match handle.store().prune_captures(
-        &cfg.storage.dir,
-        d.keep_captures_runs,
-        d.keep_captures_days,
-    ) {
-        Ok(removed) if !removed.is_empty() => {
-            tracing::info!("removed {} old raw capture file(s)", removed.len());
-        }
-        Ok(_) => {}
-        Err(e) => tracing::warn!("cannot prune old captures: {e}"),
-    }
     tracing::info!(
         outcome = record.outcome.name(),
         duration_ms = t0.elapsed().as_secs_f64() * 1e3,

@@ -15,10 +15,11 @@
 //! 6. **Return** to the start, unless a fault or a cancel stopped the arm (never auto-resume).
 //!
 //! [`run`] returns a [`RunRecord`] whatever happens; a run that did not pass its gate writes
-//! nothing but its own record.
+//! nothing but its own record. The [`Recorder`] keeps it: the history row, the record and the
+//! report picture in the run's folder (`crate::storage`), pruning.
 
 pub mod pipeline;
-mod storage;
+pub mod recorder;
 #[cfg(test)]
 mod tests;
 
@@ -44,10 +45,9 @@ pub use crate::record::{
     PlannedView, PreflightRecord, ResultRecord, RunMode, RunRecord, RunTimings, Stage, WriteTarget,
     Written,
 };
+use crate::storage::{self, load_current, new_run_id, CaptureFile};
 pub use pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
-pub use storage::{
-    load_capture, load_current, new_run_id, CaptureFile, CURRENT_DIR, REPORT_PICTURE, RUNS_DIR,
-};
+pub use recorder::Recorder;
 
 /// Generated candidates tried per automatic view before the plan gives up.
 const AUTO_VIEW_TRIES: usize = 8;
@@ -195,13 +195,24 @@ struct Context<'a, R, C> {
     /// Whether a move was commanded (the arm may have moved even if the move failed).
     moved: bool,
     /// The scan the report picture shows, once registered.
-    picture: Option<storage::PictureScan>,
+    picture: Option<PictureScan>,
     /// The robot's and the camera's link generations when the run started.
     links: (u64, u64),
 }
 
-/// Runs one calibration or check on `robot` and `camera` for `model` as `cfg` says. Returns the
-/// complete record whatever happens; cancelling `cancel` stops the arm and aborts the run.
+/// The scan a run's report picture shows: its first frame, that frame's registration and the
+/// kinematics the model was posed with.
+#[derive(Debug)]
+struct PictureScan {
+    frame: Frame,
+    registration: crate::calib::Registration,
+    controller_dh: Option<handeye_hal::ur_dh::DhParams>,
+}
+
+/// Runs one calibration or check on `robot` and `camera` for `model` as `cfg` says and keeps
+/// its files (record, report picture) without a history row; the daemon and the commands run
+/// through a [`Recorder`] with the history. Returns the complete record whatever happens;
+/// cancelling `cancel` stops the arm and aborts the run.
 pub async fn run<R: Robot, C: DepthCamera>(
     robot: &R,
     camera: &C,
@@ -211,9 +222,28 @@ pub async fn run<R: Robot, C: DepthCamera>(
     cancel: &CancellationToken,
     progress: &dyn Progress,
 ) -> RunRecord {
+    Recorder::files_only()
+        .run(robot, camera, model, cfg, req, cancel, progress)
+        .await
+}
+
+/// The run's steps from preflight to the return move, filling `record` (as
+/// [`RunRecord::starting`] made it); files go into `run_dir`. Returns the record and the scan
+/// its report picture shows.
+#[allow(clippy::too_many_arguments)]
+async fn execute<R: Robot, C: DepthCamera>(
+    robot: &R,
+    camera: &C,
+    model: &Arc<RobotModel>,
+    cfg: &Config,
+    req: RunRequest,
+    record: RunRecord,
+    run_dir: PathBuf,
+    cancel: &CancellationToken,
+    progress: &dyn Progress,
+) -> (RunRecord, Option<PictureScan>) {
     let t0 = Instant::now();
-    let run_id = req.run_id.clone().unwrap_or_else(new_run_id);
-    let record = RunRecord::starting(run_id.clone(), req.mode, req.dry_run, cfg.origin.clone());
+    let run_id = record.run_id.clone();
     let model_from_base = match pipeline::fixed_frame(model, "base") {
         Ok(p) => p,
         // Not a UR URDF with a `base` link: the controller frame is the URDF root turned by π.
@@ -229,7 +259,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
         progress,
         model_from_base,
         record,
-        run_dir: cfg.storage.dir.join(RUNS_DIR).join(&run_id),
+        run_dir,
         moved: false,
         picture: None,
         links: (robot.link_generation(), camera.link_generation()),
@@ -246,26 +276,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
         }
     }
     cx.record.timings_ms.total = ms(t0);
-    if let Err(e) = storage::write_record(&cx.run_dir, &cx.record) {
-        tracing::error!(
-            "cannot write the run record into {}: {e}",
-            cx.run_dir.display()
-        );
-        cx.record
-            .reasons
-            .push(format!("the run record could not be written: {e}"));
-    }
-    // The picture comes last: whatever happens to it, the run and its write-back are done.
-    let (picture, record, dir) = (cx.picture.take(), cx.record.clone(), cx.run_dir.clone());
-    let model = Arc::clone(model);
-    if let Err(e) = tokio::task::spawn_blocking(move || {
-        storage::write_report_picture(&dir, &record, &model, picture.as_ref());
-    })
-    .await
-    {
-        tracing::error!("the report picture failed: {e}");
-    }
-    cx.record
+    (cx.record, cx.picture)
 }
 
 impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
@@ -329,7 +340,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         .await?;
         self.picture = first_frame
             .zip(calibration.registrations.first().cloned())
-            .map(|(frame, registration)| storage::PictureScan {
+            .map(|(frame, registration)| PictureScan {
                 frame,
                 registration,
                 controller_dh: picture_dh,

@@ -22,13 +22,13 @@ use tokio_util::sync::CancellationToken;
 
 use super::{
     pose_difference, run, KinematicsOrigin, Outcome, RunMode, RunRecord, RunRequest, Silent, Stage,
-    CURRENT_DIR, RUNS_DIR,
 };
 use crate::config::{self, Config, RobotPorts, ViewTargets};
 use crate::frames::from_row_major;
 use crate::model::RobotModel;
 use crate::plan::{ViewConstraints, ViewPlanner};
 use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
+use crate::storage::{CURRENT_DIR, RUNS_DIR};
 use crate::testutil::shared_robot;
 
 /// Where the fake arm starts: the UR home pose, upright, clear of everything.
@@ -874,7 +874,7 @@ async fn an_eye_to_hand_run_finds_the_fixed_camera_in_the_base_frame_and_sets_no
     );
     assert!(storage.0.join(CURRENT_DIR).join("result.json").is_file());
     let (current, _) =
-        super::load_current(&storage.0, crate::calib::Mount::EyeToHand).expect("current");
+        crate::storage::load_current(&storage.0, crate::calib::Mount::EyeToHand).expect("current");
     assert!(close(&current, &est, 1e-9), "current {current:?}");
 
     // To the view and back.

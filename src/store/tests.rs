@@ -6,6 +6,8 @@ use super::*;
 use crate::calib::report::{QualitySummary, ReportTimings};
 use crate::calib::{CalibrationReport, Mount, Uncertainty};
 use crate::record::{DriftRecord, ResultRecord, RunTimings, Stage, WriteTarget, Written};
+use crate::run::recorder::prune_captures;
+use crate::storage::RUNS_DIR;
 
 /// A fresh folder for one test (removed first, so a failed earlier run leaves nothing).
 fn temp_dir(tag: &str) -> PathBuf {
@@ -439,7 +441,7 @@ fn a_reader_reads_while_a_writer_writes() {
         .begin(&start("x", RunMode::Check, t))
         .expect_err("read only");
     assert!(matches!(err, StoreError::ReadOnly { .. }), "{err}");
-    let err = reader.prune_captures(&dir, 0, 0.0).expect_err("read only");
+    let err = reader.captures_to_prune(0, 0.0).expect_err("read only");
     assert!(matches!(err, StoreError::ReadOnly { .. }), "{err}");
     drop((reader, writer));
     let _ = std::fs::remove_dir_all(&dir);
@@ -486,7 +488,7 @@ fn pruning_removes_only_the_old_raw_captures() {
     }
     // Keep the newest 3 runs (new-2, new-1, old-running) and everything younger than 30 days:
     // old-3, the 4th newest, goes.
-    let mut removed = store.prune_captures(&dir, 3, 30.0).expect("prune");
+    let mut removed = prune_captures(&store, &dir, 3, 30.0).expect("prune");
     removed.sort();
     let expected: Vec<PathBuf> = ["old-1", "old-2", "old-3"]
         .iter()
@@ -508,10 +510,10 @@ fn pruning_removes_only_the_old_raw_captures() {
     }
     // Nothing left to do; a run that is still running is never pruned, even with keep 0.
     assert_eq!(
-        store.prune_captures(&dir, 3, 30.0).expect("prune"),
+        prune_captures(&store, &dir, 3, 30.0).expect("prune"),
         Vec::<PathBuf>::new()
     );
-    let removed = store.prune_captures(&dir, 0, 0.0).expect("prune all");
+    let removed = prune_captures(&store, &dir, 0, 0.0).expect("prune all");
     assert_eq!(removed.len(), 4, "new-1, new-2: {removed:?}");
     assert!(dir
         .join(RUNS_DIR)
@@ -531,7 +533,7 @@ fn pruning_removes_only_the_old_raw_captures() {
         )
         .expect("finish");
     assert_eq!(
-        store.prune_captures(&dir, 0, 0.0).expect("prune"),
+        prune_captures(&store, &dir, 0, 0.0).expect("prune"),
         Vec::<PathBuf>::new()
     );
     assert!(store
