@@ -11,11 +11,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use handeye::config::Config;
+use handeye::daemon::api::Api;
 use handeye::store::Store;
 use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
 use tokio_util::sync::CancellationToken;
 
-use super::api::Api;
 use super::calibrate::{connect_robot, load_model, AnyCamera};
 
 /// Pauses between connection attempts: 1 s, doubling to 30 s, back to 1 s once connected.

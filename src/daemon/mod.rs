@@ -7,6 +7,7 @@
 //!
 //! The binary builds the concrete robot and camera from the configuration and calls [`run`].
 
+pub mod api;
 mod notify;
 
 use std::fmt::Write as _;

@@ -1,4 +1,5 @@
-//! The daemon's HTTP API (axum): the [`Frontend`] `handeye daemon` starts with its handle.
+//! The daemon's HTTP API (axum) and its web page: the [`Frontend`] `handeye daemon` starts
+//! with its handle.
 //!
 //! JSON everywhere; every error is `{"error": "..."}` saying what to do. Reading is open to
 //! whoever can reach `daemon.listen` (localhost by default); anything that moves the arm
@@ -8,7 +9,7 @@
 //!
 //! | route | what |
 //! |---|---|
-//! | `GET /api/status` | what the daemon is doing ([`handeye::daemon::Status`]) |
+//! | `GET /api/status` | what the daemon is doing ([`crate::daemon::Status`]) |
 //! | `POST /api/calibrate`, `POST /api/check` | token; 202 `{"run_id"}`, 409 when busy |
 //! | `POST /api/cancel` | token; `{"cancelled": bool}` |
 //! | `GET /api/runs?limit=N&before=UNIX_S` | the history, newest first |
@@ -31,13 +32,13 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use handeye::calib::export::{ExportMeta, Exports};
-use handeye::config::Config;
-use handeye::daemon::{DaemonHandle, Frontend, Refusal};
-use handeye::record::Trigger;
-use handeye::report::{DriftLimits, DriftPoint};
-use handeye::run::{Outcome, RunMode};
-use handeye::store::{RunStatus, Store};
+use crate::calib::export::{ExportMeta, Exports};
+use crate::config::Config;
+use crate::daemon::{DaemonHandle, Frontend, Refusal};
+use crate::record::Trigger;
+use crate::report::{DriftLimits, DriftPoint};
+use crate::run::{Outcome, RunMode};
+use crate::store::{RunStatus, Store};
 use serde_json::json;
 use tokio_util::sync::CancellationToken;
 
@@ -70,7 +71,7 @@ const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-
 /// What the page and the pictures read besides the daemon: the run folders and the drift
 /// thresholds.
 #[derive(Debug, Clone)]
-pub(crate) struct Site {
+pub struct Site {
     /// `storage.dir`: run folders hold the report pictures (`runs/<id>/report.png`).
     storage: Option<PathBuf>,
     /// `[check]`'s thresholds, drawn in the drift chart.
@@ -90,7 +91,7 @@ impl Default for Site {
 }
 
 /// The HTTP API: where it listens and the token that requests which move the arm must carry.
-pub(crate) struct Api {
+pub struct Api {
     listen: SocketAddr,
     token: Option<String>,
     site: Site,
@@ -108,7 +109,7 @@ impl std::fmt::Debug for Api {
 
 impl Api {
     /// The API on `listen`; `token: None` refuses everything that moves the arm.
-    pub(crate) fn new(listen: SocketAddr, token: Option<String>) -> Api {
+    pub fn new(listen: SocketAddr, token: Option<String>) -> Api {
         Api {
             listen,
             token,
@@ -118,7 +119,7 @@ impl Api {
 
     /// The same API serving the report pictures from `storage` (the configuration's
     /// `storage.dir`) and drawing `drift_limits` in the drift chart.
-    pub(crate) fn with_site(mut self, storage: PathBuf, drift_limits: DriftLimits) -> Api {
+    pub fn with_site(mut self, storage: PathBuf, drift_limits: DriftLimits) -> Api {
         self.site = Site {
             storage: Some(storage),
             drift_limits,
@@ -130,7 +131,7 @@ impl Api {
     /// when systemd passes one (`LoadCredential=token:/etc/handeye/token`), else from
     /// `daemon.token_file`. Refuses an empty token, or (Unix) a token file that group or others
     /// can access.
-    pub(crate) fn from_config(cfg: &Config) -> anyhow::Result<Api> {
+    pub fn from_config(cfg: &Config) -> anyhow::Result<Api> {
         let credentials = std::env::var_os("CREDENTIALS_DIRECTORY").map(PathBuf::from);
         Api::from_config_with(cfg, credentials.as_deref())
     }
@@ -252,7 +253,7 @@ struct AppState {
 }
 
 /// The API's routes over `handle`; `token: None` refuses everything that moves the arm.
-pub(crate) fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router {
+pub fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router {
     let state = AppState {
         handle,
         token: token.map(Arc::from),
@@ -456,7 +457,7 @@ async fn report_picture(
         )
     };
     let Some(path) = (state.site.storage.as_deref())
-        .and_then(|storage| handeye::storage::report_picture_path(storage, &id))
+        .and_then(|storage| crate::storage::report_picture_path(storage, &id))
     else {
         return Err(missing());
     };
@@ -495,7 +496,7 @@ async fn exports(
     };
     let pose = serde_json::from_value::<[[f64; 4]; 4]>(matrix.clone())
         .ok()
-        .and_then(|m| handeye::frames::from_row_major(&m))
+        .and_then(|m| crate::frames::from_row_major(&m))
         .ok_or_else(|| {
             ApiError::new(
                 StatusCode::NOT_FOUND,
@@ -608,7 +609,7 @@ async fn drift_png(
     let limits = state.site.drift_limits;
     let points: Vec<DriftPoint> = checks.into_iter().map(|(_, p)| p).collect();
     let drawn = tokio::task::spawn_blocking(move || {
-        handeye::report::drift_chart(&points, &calibrations, limits, w, h)
+        crate::report::drift_chart(&points, &calibrations, limits, w, h)
     })
     .await;
     match drawn {
@@ -832,8 +833,8 @@ mod tests {
     use std::sync::OnceLock;
     use std::time::Duration;
 
-    use handeye::config::{self, RobotPorts, ViewTargets};
-    use handeye::model::RobotModel;
+    use crate::config::{self, RobotPorts, ViewTargets};
+    use crate::model::RobotModel;
     use handeye_hal::fake::{FakeCamera, FakeRobot};
     use handeye_hal::ur_dh::UrModel;
     use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
@@ -945,7 +946,7 @@ mod tests {
         let addr = free_port();
         let api = Api::new(addr, token.map(String::from));
         let shutdown = CancellationToken::new();
-        let daemon = handeye::daemon::run(
+        let daemon = crate::daemon::run(
             cfg,
             model,
             robot.clone(),
@@ -1254,7 +1255,7 @@ mod tests {
         let store = Arc::new(Store::open(&dir.join("history.sqlite")).expect("store"));
         let shutdown = CancellationToken::new();
         let (tx, rx) = tokio::sync::oneshot::channel();
-        let daemon = handeye::daemon::run(
+        let daemon = crate::daemon::run(
             test_config(&dir),
             model,
             FakeRobot::new(UrModel::Ur5e, HOME),
