@@ -25,13 +25,6 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use anyhow::{bail, Context};
-use axum::extract::{ConnectInfo, DefaultBodyLimit, Path as UrlPath, RawQuery, Request, State};
-use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode, Uri};
-use axum::middleware::Next;
-use axum::response::{IntoResponse, Response};
-use axum::routing::{get, post};
-use axum::{Json, Router};
 use crate::calib::export::{ExportMeta, Exports};
 use crate::config::Config;
 use crate::daemon::{DaemonHandle, Frontend, Refusal};
@@ -39,6 +32,13 @@ use crate::record::Trigger;
 use crate::report::{DriftLimits, DriftPoint};
 use crate::run::{Outcome, RunMode};
 use crate::store::{RunStatus, Store};
+use anyhow::{bail, Context};
+use axum::extract::{ConnectInfo, DefaultBodyLimit, Path as UrlPath, RawQuery, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode, Uri};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
 use serde_json::json;
 use tokio_util::sync::CancellationToken;
 
