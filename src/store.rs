@@ -300,6 +300,38 @@ impl<'de> Deserialize<'de> for RunStatus {
     }
 }
 
+/// One run as the history holds it (`GET /api/runs/{id}`, `handeye history show`).
+/// Serialised as the record itself, or as the partial object with `"complete": false`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum StoredRun {
+    /// It ended: its whole record.
+    Complete(Box<RunRecord>),
+    /// Still running, or interrupted before it ended: what is known of it.
+    Partial(PartialRun),
+}
+
+/// What the history knows of a run that has no record (yet).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PartialRun {
+    /// Its id.
+    pub run_id: String,
+    /// Calibrate or check.
+    pub mode: RunMode,
+    /// Who asked.
+    pub trigger: Trigger,
+    /// The configuration's origin (file path).
+    pub config: String,
+    /// Unix time of the start, s.
+    pub started_unix_s: f64,
+    /// `running`, or `aborted` when it was interrupted.
+    pub outcome: RunStatus,
+    /// Why (the interruption), when known.
+    pub reasons: Vec<String>,
+    /// Always `false`: no record.
+    pub complete: bool,
+}
+
 /// One run in a list: the indexed columns, without the full record.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunSummary {
@@ -568,11 +600,10 @@ impl Store {
             .map_err(|e| sql_error(&self.path, "read a run", e))
     }
 
-    /// The record of one run as JSON (a [`RunRecord`]). A run without a record (still
-    /// running, or interrupted) gives what is known: id, mode, trigger, configuration, start,
-    /// `outcome` (`running` or `aborted`), `reasons` and `"complete": false`. Numbers are as
-    /// serde_json parses them back (long decimals within 1 ulp).
-    pub fn get(&self, run_id: &str) -> Result<Option<serde_json::Value>, StoreError> {
+    /// One run: its whole record once it ended; a run without a record (still running, or
+    /// interrupted) gives what is known ([`PartialRun`]). Numbers are as serde_json parses
+    /// them back (long decimals within 1 ulp).
+    pub fn get(&self, run_id: &str) -> Result<Option<StoredRun>, StoreError> {
         let row = {
             let conn = self.lock();
             conn.query_row(
@@ -597,24 +628,28 @@ impl Store {
         let Some((json, mode, trigger, config, started, outcome, reason)) = row else {
             return Ok(None);
         };
+        let bad = |what: String| StoreError::BadRecord {
+            run_id: run_id.to_string(),
+            source: serde::de::Error::custom(what),
+        };
         match json {
-            Some(json) => {
-                serde_json::from_str(&json)
-                    .map(Some)
-                    .map_err(|source| StoreError::BadRecord {
-                        run_id: run_id.to_string(),
-                        source,
-                    })
-            }
-            None => Ok(Some(serde_json::json!({
-                "run_id": run_id,
-                "mode": mode,
-                "trigger": trigger,
-                "config": config,
-                "started_unix_s": started,
-                "outcome": outcome,
-                "reasons": reason.into_iter().collect::<Vec<_>>(),
-                "complete": false,
+            Some(json) => serde_json::from_str(&json)
+                .map(|r| Some(StoredRun::Complete(Box::new(r))))
+                .map_err(|source| StoreError::BadRecord {
+                    run_id: run_id.to_string(),
+                    source,
+                }),
+            None => Ok(Some(StoredRun::Partial(PartialRun {
+                run_id: run_id.to_string(),
+                mode: RunMode::parse(&mode).ok_or_else(|| bad(format!("unknown mode `{mode}`")))?,
+                trigger: Trigger::parse(&trigger)
+                    .ok_or_else(|| bad(format!("unknown trigger `{trigger}`")))?,
+                config,
+                started_unix_s: started,
+                outcome: RunStatus::parse(&outcome)
+                    .ok_or_else(|| bad(format!("unknown outcome `{outcome}`")))?,
+                reasons: reason.into_iter().collect(),
+                complete: false,
             }))),
         }
     }

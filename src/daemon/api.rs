@@ -31,7 +31,7 @@ use crate::daemon::{DaemonHandle, Frontend, Refusal};
 use crate::record::Trigger;
 use crate::report::{DriftLimits, DriftPoint};
 use crate::run::{Outcome, RunMode};
-use crate::store::{RunStatus, Store};
+use crate::store::{RunStatus, Store, StoredRun};
 use anyhow::{bail, Context};
 use axum::extract::{ConnectInfo, DefaultBodyLimit, Path as UrlPath, RawQuery, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode, Uri};
@@ -283,6 +283,13 @@ pub fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router
         .with_state(state)
 }
 
+/// The body of every error answer: what went wrong and what to do.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ErrorBody {
+    /// One sentence for the operator.
+    pub error: String,
+}
+
 /// An error answer: `{"error": message}` with a status.
 #[derive(Debug)]
 struct ApiError {
@@ -311,7 +318,10 @@ impl ApiError {
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let mut resp = (self.status, Json(json!({ "error": self.message }))).into_response();
+        let body = ErrorBody {
+            error: self.message,
+        };
+        let mut resp = (self.status, Json(body)).into_response();
         if let Some(c) = self.challenge {
             resp.headers_mut()
                 .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static(c));
@@ -487,34 +497,29 @@ async fn exports(
             format!("no run `{id}` in the history; GET /api/runs lists them"),
         ));
     };
-    let result = &record["result"];
-    let eye_to_hand = result["mount"] == "eye_to_hand";
-    let (matrix, parent) = if eye_to_hand {
-        (&result["base_from_camera"], "base")
-    } else {
-        (&result["flange_from_camera"], "tool0")
+    let no_result = || {
+        ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!("run `{id}` has no result to export (see its outcome and reasons)"),
+        )
     };
-    let pose = serde_json::from_value::<[[f64; 4]; 4]>(matrix.clone())
-        .ok()
-        .and_then(|m| crate::frames::from_row_major(&m))
-        .ok_or_else(|| {
-            ApiError::new(
-                StatusCode::NOT_FOUND,
-                format!("run `{id}` has no result to export (see its outcome and reasons)"),
-            )
-        })?;
-    let number = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+    let StoredRun::Complete(record) = record else {
+        return Err(no_result());
+    };
+    let result = record.result.as_ref().ok_or_else(no_result)?;
+    let pose = result.estimate().ok_or_else(no_result)?;
+    let parent = result.mount.parent_frame();
     let meta = ExportMeta {
         run_id: id.clone(),
-        outcome: record["outcome"].as_str().unwrap_or("?").to_string(),
-        uncertainty_translation_mm: number(&result["uncertainty"]["translation_mm"]),
-        uncertainty_rotation_deg: number(&result["uncertainty"]["rotation_deg"]),
+        outcome: record.outcome.name().to_string(),
+        uncertainty_translation_mm: result.uncertainty.translation_mm,
+        uncertainty_rotation_deg: result.uncertainty.rotation_deg,
         timestamp: id.clone(),
     };
     let e = Exports::new(&pose, parent, "camera", meta);
     Ok(Json(json!({
         "run_id": id,
-        "outcome": record["outcome"],
+        "outcome": record.outcome,
         "transform": e.result().transform,
         "static_transform_publisher": e.static_transform_publisher(),
         "urdf_joint": e.urdf_joint(),
@@ -1271,7 +1276,7 @@ mod tests {
             let handle = rx.await.expect("ready");
             // The daemon runs on without its API.
             tokio::time::sleep(Duration::from_millis(300)).await;
-            assert_eq!(handle.status().state, "idle");
+            assert_eq!(handle.status().state, crate::daemon::DaemonState::Idle);
             assert!(handle.request(RunMode::Check, Trigger::Api).is_ok());
             shutdown.cancel();
         };

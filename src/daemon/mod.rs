@@ -17,7 +17,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use handeye_hal::{DepthCamera, Robot};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::Notify;
 use tokio_util::sync::CancellationToken;
 
@@ -30,7 +30,7 @@ use crate::storage::new_run_id;
 use crate::store::Store;
 
 /// The run in progress.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Current {
     /// Its id (also in the history).
     pub run_id: String,
@@ -47,7 +47,7 @@ pub struct Current {
 }
 
 /// A run's end, as the status shows it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Finished {
     /// Its id.
     pub run_id: String,
@@ -67,11 +67,34 @@ pub struct Finished {
     pub drift: Option<(f64, f64, bool)>,
 }
 
-/// What the daemon is doing; the API's `/api/status`.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// Whether the daemon runs something.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DaemonState {
+    /// Waiting for a trigger.
+    Idle,
+    /// A run is going.
+    Running,
+    /// Shutting down.
+    Stopping,
+}
+
+impl DaemonState {
+    /// Lower-case name as in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            DaemonState::Idle => "idle",
+            DaemonState::Running => "running",
+            DaemonState::Stopping => "stopping",
+        }
+    }
+}
+
+/// What the daemon is doing: the API's `GET /api/status`, read back by `handeye status`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Status {
     /// `idle`, `running` or `stopping`.
-    pub state: &'static str,
+    pub state: DaemonState,
     /// The run in progress.
     pub current: Option<Current>,
     /// Runs accepted behind it (`daemon.when_busy = "queue"`), next first.
@@ -254,11 +277,11 @@ impl DaemonHandle {
         let st = self.lock();
         Status {
             state: if self.shared.shutdown.is_cancelled() {
-                "stopping"
+                DaemonState::Stopping
             } else if st.runs.is_empty() {
-                "idle"
+                DaemonState::Idle
             } else {
-                "running"
+                DaemonState::Running
             },
             current: st.runs.front().map(|j| j.entry.clone()),
             queued: st.runs.iter().skip(1).map(|j| j.entry.clone()).collect(),
