@@ -169,6 +169,21 @@ pub struct RunTimings {
 }
 
 impl RunTimings {
+    /// Every stage's time with its JSON name, in run order (without the total).
+    pub fn stages(&self) -> [(&'static str, f64); 9] {
+        [
+            ("preflight", self.preflight),
+            ("plan", self.plan),
+            ("moves", self.moves),
+            ("settle", self.settle),
+            ("capture", self.capture),
+            ("register", self.register),
+            ("solve", self.solve),
+            ("write_back", self.write_back),
+            ("return_move", self.return_move),
+        ]
+    }
+
     /// Everything except arm motion, settling and the camera's own capture time: what the
     /// run itself costs.
     pub fn overhead(&self) -> f64 {

@@ -262,21 +262,12 @@ fn write_record(
         let label = if i == 0 { "written" } else { "" };
         writeln!(out, "{label:<9} {}: {}", w.target, w.detail)?;
     }
-    let t = &rec.timings_ms;
-    let parts: Vec<String> = [
-        ("preflight", t.preflight),
-        ("plan", t.plan),
-        ("moves", t.moves),
-        ("settle", t.settle),
-        ("capture", t.capture),
-        ("register", t.register),
-        ("solve", t.solve),
-        ("write_back", t.write_back),
-        ("return_move", t.return_move),
-    ]
-    .iter()
-    .map(|(k, ms)| format!("{k} {ms:.0}"))
-    .collect();
+    let parts: Vec<String> = rec
+        .timings_ms
+        .stages()
+        .iter()
+        .map(|(k, ms)| format!("{k} {ms:.0}"))
+        .collect();
     writeln!(out, "timings   ms: {}", parts.join(", "))?;
     if let Some(path) = &rec.capture_file {
         let pruned = summary.is_some_and(|sm| sm.captures_pruned_unix_s.is_some());
