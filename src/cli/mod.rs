@@ -17,3 +17,4 @@ pub(crate) mod sim_robot;
 pub(crate) mod simulate_scan;
 pub(crate) mod solve;
 pub(crate) mod status;
+pub(crate) mod wiring;
