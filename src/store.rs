@@ -210,7 +210,7 @@ pub enum StoreError {
 /// starting record ([`RunStart::new`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunStart {
-    /// Its id ([`crate::run::new_run_id`]); also its folder under `runs/`.
+    /// Its id ([`crate::storage::new_run_id`]); also its folder under `runs/`.
     pub run_id: String,
     /// Who asked.
     pub trigger: Trigger,
