@@ -9,7 +9,7 @@ use nalgebra::{Isometry3, Vector3};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use handeye_hal::ur_dh::DhParams;
+use handeye_hal::ur_dh::PhysicalArm;
 
 use crate::calib::{GateThresholds, Mount, Outcome, Quality, RegisterOptions};
 use crate::model::{KinematicError, RobotModel};
@@ -45,10 +45,11 @@ pub struct BenchConfig {
 
 /// What the solver knows of the simulated arm's kinematics.
 ///
-/// The true arm of a UR view is its nominal DH set plus a factory-calibration delta
-/// ([`DhParams::factory_calibration_delta`], one arm per view) and the controller reports the
-/// forward kinematics of that calibrated arm, as a real UR controller does; the scan shows the
-/// calibrated arm. Other arms (no DH set) draw per-joint origin errors from the settings'
+/// The true arm of a UR view is a physical arm ([`PhysicalArm`], one per view: every joint
+/// off by a small rigid error of the settings' `kinematic_error` sizes, by default a factory
+/// calibration's); the controller publishes its exact DH (nearly parallel joints 2–4 give `d`
+/// of hundreds of metres) and reports its flange, as a real UR controller does; the scan shows
+/// the physical arm. Other arms (no DH set) draw per-joint origin errors from the settings'
 /// `kinematic_error` and report the true flange the same way. Settings whose
 /// `kinematic_error` is zero make every arm exactly its URDF.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
@@ -84,23 +85,20 @@ impl BenchConfig {
         )
     }
 
-    /// The calibrated DH set of the arm seen in the view whose first scan has seed
-    /// `view_seed`: nominal plus a calibration delta of the settings' `kinematic_error` sizes
-    /// (θ: joint offset, d and a: link length, α: axis misalignment; by default a UR factory
-    /// calibration's); `None` for arms without a DH set or settings that make the arm exactly
-    /// its model.
-    pub fn true_arm(&self, model: &RobotModel, view_seed: u64) -> Option<DhParams> {
+    /// The physical arm seen in the view whose first scan has seed `view_seed`: joint errors of
+    /// the settings' `kinematic_error` sizes (by default a UR factory calibration's); `None`
+    /// for arms without a DH set or settings that make the arm exactly its model.
+    pub fn true_arm(&self, model: &RobotModel, view_seed: u64) -> Option<PhysicalArm> {
         let e = &self.settings.kinematic_error;
         if *e == KinematicError::none() {
             return None;
         }
         let ur = model.ur_model()?;
-        Some(ur.dh().plus(&DhParams::calibration_delta(
+        Some(PhysicalArm::draw(
+            ur.dh(),
+            &e.joint_sizes(),
             view_seed ^ ARM_SEED,
-            e.joint_offset_sigma_rad,
-            e.link_length_sigma_m,
-            e.axis_misalignment_sigma_rad,
-        )))
+        ))
     }
 }
 
@@ -361,15 +359,16 @@ pub fn plan_trials(model: &RobotModel, cfg: &BenchConfig) -> Result<TrialPlan, P
     })
 }
 
-/// Simulates one eye-in-hand scan of the arm `arm` (a calibrated DH set, see
+/// Simulates one eye-in-hand scan of the arm `arm` (a physical UR arm, see
 /// [`BenchConfig::true_arm`]; `None`: the settings' `kinematic_error`) and calibrates from it
-/// without a prior, the model posed as `cfg.kinematics` says.
+/// without a prior, the model posed as `cfg.kinematics` says (known: by the DH the arm's
+/// controller publishes).
 #[allow(clippy::too_many_arguments)]
 pub fn run_trial(
     model: &RobotModel,
     mount: Isometry3<f64>,
     joints: &[f64],
-    arm: Option<DhParams>,
+    arm: Option<PhysicalArm>,
     cfg: &BenchConfig,
     seed: u64,
     view: usize,
@@ -396,8 +395,8 @@ pub fn run_trial(
     };
     let t0 = Instant::now();
     let mut req = cfg.scan_request(model, joints, mount, seed);
-    if let Some(dh) = arm {
-        req = req.with_controller_dh(dh);
+    if let Some(arm) = arm {
+        req = req.with_arm(arm);
     }
     let scan = match simulate_scan(&req) {
         Ok(s) => s,
@@ -417,7 +416,10 @@ pub fn run_trial(
     let opts = PipelineOptions {
         register: cfg.register.clone(),
         gate: cfg.gate,
-        controller_dh: arm.filter(|_| trial.calibrated_kinematics),
+        controller_dh: scan
+            .truth
+            .controller_dh
+            .filter(|_| trial.calibrated_kinematics),
         ..PipelineOptions::new(Mount::EyeInHand)
     };
     let calibration = match calibrate_frames(model, std::slice::from_ref(&frame), &opts) {

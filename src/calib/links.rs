@@ -1,96 +1,114 @@
 //! The fitted moving links' kinematic error as parameters of the fit.
 //!
 //! The shoulder and upper arm are posed by the model's kinematics, and a real arm differs from
-//! its URDF by its factory calibration (tenths of a millimetre and milliradian per joint). The
+//! its URDF by small errors of every joint (tenths of a millimetre and milliradian). The
 //! reported flange pose is the controller's, of the true arm; the model's links are not. A fit
-//! that trusts the nominal links follows their error (a round base cannot hold the yaw), so the
+//! that trusts the links follows their error (a round base cannot hold the yaw), so the
 //! links' small displacements are estimated alongside the camera pose, each with a prior of the
-//! size the arm's calibration has: the base carries what it knows, the moving links what they
-//! know beyond their kinematic error, and the covariance of the result includes what neither
-//! can tell apart.
+//! size the arm's errors have: the base carries what it knows, the moving links what they
+//! know beyond their error, and the covariance of the result includes what neither can tell
+//! apart.
+//!
+//! Two cases:
+//! - posed by the nominal model: every joint up to the fitted depth may be off by a small
+//!   rigid error (as [`KinematicError::sample`] draws it: a zero offset, a displacement along
+//!   three axes, a misalignment about two; the first joint only about and along its axis),
+//!   which moves every link beyond it;
+//! - posed by a controller's DH (its kinematics or a calibration file): each link is on its
+//!   calibrated axis, but the axes cannot tell how far along and how far turned about its own
+//!   axis a link sits (a joint's displacement there is the same axes as the next joint's; see
+//!   [`DhParams::link_frames`](handeye_hal::ur_dh::DhParams::link_frames)): two parameters per
+//!   link, that link alone.
 //!
 //! Parameters `z ~ N(0, I)`: the links of chain depth `d` are displaced (model frame, a point
 //! `x` moves by `t + ω × x`) by `(t, ω) = A_d · z`.
 
-use nalgebra::{Matrix6xX, Vector3};
+use nalgebra::{Matrix6xX, Point3, Vector3};
 
 use super::surface::PosedModel;
 use crate::model::KinematicError;
 
+/// Below this sine of the angle between consecutive axes they are parallel (UR joints 2–4),
+/// as [`DhParams::link_frames`](handeye_hal::ur_dh::DhParams::link_frames) takes them.
+const PARALLEL_SINE: f64 = 0.1;
+
 /// `A_d` for the chain depths `1..=fit_depth` (entry `d − 1`), one column per kinematic
-/// parameter of the joints that move the fitted links, scaled by its prior 1σ; columns of
-/// parameters with σ = 0 are left out, so an arm known exactly has none.
-///
-/// UR arms posed by a DH set take the DH terms of a UR calibration (θ: joint offset σ, d and a:
-/// link length σ, α: axis misalignment σ of `error`); other arms take per-joint origin errors
-/// (a length error along the link vector, a zero offset about the joint axis and a
-/// misalignment about the two axes perpendicular to it), as [`KinematicError::sample`] draws
-/// them.
+/// parameter of the links' displacements, scaled by its prior 1σ; columns of parameters with
+/// σ = 0 are left out, so an arm known exactly has none.
 pub(crate) fn link_error_model(
     model: &PosedModel,
     fit_depth: usize,
     error: &KinematicError,
 ) -> Vec<Matrix6xX<f64>> {
-    // Only chain joints move links: a UR's DH set has six, another arm as many as its chain.
-    let depths = match &model.dh_sensitivity {
-        Some(dh) => fit_depth.min(dh.len()),
-        None => fit_depth.min(model.joints.len()),
-    };
-    let sigma = |kind: usize| match kind {
-        0 => error.joint_offset_sigma_rad,
-        1 | 2 => error.link_length_sigma_m,
-        _ => error.axis_misalignment_sigma_rad,
-    };
-    // (depth the parameter starts to move, 6-vector per depth ≥ it, σ) per parameter.
+    // (6-vector per depth, σ) per parameter.
     let mut columns: Vec<(Vec<[f64; 6]>, f64)> = Vec::new();
-    if let Some(dh) = &model.dh_sensitivity {
-        for kind in 0..4 {
-            for joint in 0..depths {
-                let s = sigma(kind);
-                if s <= 0.0 {
-                    continue;
-                }
-                let col = 6 * kind + joint;
-                let per_depth = (1..=depths)
-                    .map(|d| std::array::from_fn(|r| dh[d - 1][(r, col)]))
-                    .collect();
-                columns.push((per_depth, s));
+    let twist = |t: Vector3<f64>, w: Vector3<f64>| [t.x, t.y, t.z, w.x, w.y, w.z];
+    // A turn about the line through `p` along `u`: a point x moves by (p × u) + u × x.
+    let turn = |p: &Point3<f64>, u: Vector3<f64>| twist(p.coords.cross(&u), u);
+    let depths = match &model.link_axes {
+        Some(axes) => {
+            let depths = fit_depth.min(axes.len());
+            for k in 1..=depths {
+                let (p, u) = (Point3::from(axes[k - 1].point), axes[k - 1].direction);
+                // How far turned: the next axis' displacement over its lever when the axes
+                // are parallel (the turn is read from where the next axis is), else the
+                // next axis' misalignment.
+                let turn_sigma = match axes.get(k) {
+                    Some(next) if u.cross(&next.direction).norm() < PARALLEL_SINE => {
+                        let r = next.point - p.coords;
+                        let lever = (r - u * r.dot(&u)).norm();
+                        error.link_length_sigma_m / lever.max(error.link_length_sigma_m.max(1e-3))
+                    }
+                    _ => error.axis_misalignment_sigma_rad,
+                };
+                let only = |v: [f64; 6]| {
+                    (1..=depths)
+                        .map(|d| if d == k { v } else { [0.0; 6] })
+                        .collect::<Vec<_>>()
+                };
+                columns.push((only(turn(&p, u)), turn_sigma));
+                columns.push((only(twist(u, Vector3::zeros())), error.link_length_sigma_m));
             }
+            depths
         }
-    } else {
-        for (k, joint) in model.joints.iter().enumerate().take(depths) {
-            let rotation = joint.model_from_joint.rotation;
-            let origin = joint.model_from_joint.translation.vector;
-            let axis = joint.axis.into_inner();
-            let u1 = crate::model::kinematic::perpendicular(&axis);
-            let u2 = axis.cross(&u1);
-            let link = joint.parent_from_joint.rotation.inverse()
-                * joint.parent_from_joint.translation.vector;
-            let turn = |w: Vector3<f64>| {
-                let w = rotation * w;
-                let t = origin.cross(&w);
-                [t.x, t.y, t.z, w.x, w.y, w.z]
-            };
-            let mut params: Vec<([f64; 6], f64)> = vec![
-                (turn(axis), error.joint_offset_sigma_rad),
-                (turn(u1), error.axis_misalignment_sigma_rad),
-                (turn(u2), error.axis_misalignment_sigma_rad),
-            ];
-            if let Some(along) = link.try_normalize(1e-9) {
-                let t = rotation * along;
-                params.push(([t.x, t.y, t.z, 0.0, 0.0, 0.0], error.link_length_sigma_m));
-            }
-            for (v, s) in params {
-                if s <= 0.0 {
-                    continue;
+        None => {
+            let depths = fit_depth.min(model.joints.len());
+            for (k, joint) in model.joints.iter().enumerate().take(depths) {
+                let rotation = joint.model_from_joint.rotation;
+                let origin = Point3::from(joint.model_from_joint.translation.vector);
+                let axis = joint.axis.into_inner();
+                let u1 = crate::model::kinematic::perpendicular(&axis);
+                let u2 = axis.cross(&u1);
+                let along = |v: Vector3<f64>| twist(rotation * v, Vector3::zeros());
+                let mut params = vec![
+                    (turn(&origin, rotation * axis), error.joint_offset_sigma_rad),
+                    (along(axis), error.link_length_sigma_m),
+                ];
+                if k > 0 {
+                    params.extend([
+                        (
+                            turn(&origin, rotation * u1),
+                            error.axis_misalignment_sigma_rad,
+                        ),
+                        (
+                            turn(&origin, rotation * u2),
+                            error.axis_misalignment_sigma_rad,
+                        ),
+                        (along(u1), error.link_length_sigma_m),
+                        (along(u2), error.link_length_sigma_m),
+                    ]);
                 }
-                let per_depth = (1..=depths)
-                    .map(|d| if d > k { v } else { [0.0; 6] })
-                    .collect();
-                columns.push((per_depth, s));
+                for (v, s) in params {
+                    let per_depth = (1..=depths)
+                        .map(|d| if d > k { v } else { [0.0; 6] })
+                        .collect();
+                    columns.push((per_depth, s));
+                }
             }
+            depths
         }
-    }
+    };
+    columns.retain(|(_, s)| *s > 0.0);
     (0..depths)
         .map(|d| {
             let mut a = Matrix6xX::zeros(columns.len());
@@ -119,11 +137,10 @@ pub(crate) fn prior_covariance(a: &[Matrix6xX<f64>]) -> nalgebra::DMatrix<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calib::posed_model_with_controller_kinematics;
     use crate::calib::testutil::toy_robot;
-    use crate::calib::{posed_model, posed_model_with_controller_kinematics};
     use crate::model::RobotModel;
-    use handeye_hal::ur_dh::DhParams;
-    use nalgebra::Isometry3;
+    use handeye_hal::ur_dh::PhysicalArm;
 
     fn ur5e() -> Option<RobotModel> {
         let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -131,66 +148,75 @@ mod tests {
         RobotModel::load(&path).ok()
     }
 
+    /// Posed by a controller's DH, what is left of each fitted link's error is a turn about
+    /// and a slide along its calibrated axis; over many physical arms their spread is what the
+    /// prior says (the registration's σ stands on it).
     #[test]
-    fn the_dh_columns_move_the_links_as_a_calibrated_arm_does() {
+    fn the_axis_freedoms_prior_matches_what_physical_arms_leave() {
         let Some(model) = ur5e() else {
             crate::testutil::skip("no ../shared/robots/ur/ur5e");
             return;
         };
-        let q = [0.4, -1.2, 1.1, -1.3, -1.5, 0.2];
-        let posed = posed_model(&model, &q).expect("posed");
-        let error = KinematicError::default();
-        let a = link_error_model(&posed, 2, &error);
-        assert_eq!(a.len(), 2);
-        // θ, d, a, α of joints 1 and 2.
-        assert_eq!(a[0].ncols(), 8);
-        // A real calibration delta moves the shoulder and upper arm as A predicts (to first
-        // order): draw z, make the DH delta, pose the calibrated arm, compare.
         let ur = model.ur_model().expect("a UR");
-        let z = [0.7, -1.1, 0.4, 1.3, -0.6, 0.9, -1.4, 0.2];
-        let mut delta = DhParams {
-            a: [0.0; 6],
-            d: [0.0; 6],
-            alpha: [0.0; 6],
-            theta: [0.0; 6],
-        };
-        // Columns: kind-major (θ, d, a, α), joints 1 and 2 within.
-        for (c, zc) in z.iter().enumerate() {
-            let (kind, joint) = (c / 2, c % 2);
-            let s = match kind {
-                0 => error.joint_offset_sigma_rad,
-                1 | 2 => error.link_length_sigma_m,
-                _ => error.axis_misalignment_sigma_rad,
-            };
-            let field = match kind {
-                0 => &mut delta.theta,
-                1 => &mut delta.d,
-                2 => &mut delta.a,
-                _ => &mut delta.alpha,
-            };
-            field[joint] = zc * s;
+        let error = KinematicError::default();
+        let q = [0.4, -1.2, 1.1, -1.3, -1.5, 0.2];
+        let shoulder = model.link_index("shoulder_link").expect("shoulder");
+        let upper = model.link_index("upper_arm_link").expect("upper arm");
+        let (mut turns, mut slides) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
+        let mut priors = Vec::new();
+        for seed in 0..300 {
+            let arm = PhysicalArm::draw(ur.dh(), &error.joint_sizes(), seed);
+            let dh = arm.controller_dh();
+            let posed = posed_model_with_controller_kinematics(&model, &q, &dh).expect("posed");
+            if seed == 0 {
+                let a = link_error_model(&posed, 2, &error);
+                assert_eq!(a.len(), 2);
+                assert_eq!(a[0].ncols(), 4, "two per fitted link");
+                // Column σ: the turn and slide of each link (only its own depth moves).
+                priors = (0..4)
+                    .map(|c| {
+                        let depth = c / 2;
+                        let v = a[depth].column(c);
+                        assert!(a[1 - depth].column(c).norm() == 0.0);
+                        if c % 2 == 0 {
+                            v.fixed_rows::<3>(3).norm()
+                        } else {
+                            v.fixed_rows::<3>(0).norm()
+                        }
+                    })
+                    .collect::<Vec<_>>();
+            }
+            let physical = model.link_poses_of_arm(&q, &arm).expect("physical");
+            let by_dh = model.link_poses_with_controller_dh(&q, &dh).expect("posed");
+            let axes = model.dh_axes(&q, &dh).expect("axes");
+            for (i, (link, axis)) in [(shoulder, 0), (upper, 1)].into_iter().enumerate() {
+                let d = by_dh[link] * physical[link].inverse();
+                let (p, u) = (
+                    nalgebra::Point3::from(axes[axis].point),
+                    axes[axis].direction,
+                );
+                turns[i].push(d.rotation.scaled_axis().dot(&u));
+                slides[i].push(((d * p) - p).dot(&u));
+            }
         }
-        let calibrated = posed_model_with_controller_kinematics(&model, &q, &ur.dh().plus(&delta))
-            .expect("posed");
-        for depth in 1..=2 {
-            let zv = nalgebra::DVector::from_column_slice(&z);
-            let tw = &a[depth - 1] * zv;
-            let predicted = Isometry3::new(
-                Vector3::new(tw[0], tw[1], tw[2]),
-                Vector3::new(tw[3], tw[4], tw[5]),
+        let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+        for i in 0..2 {
+            let (turn, slide) = (rms(&turns[i]), rms(&slides[i]));
+            let (pt, ps) = (priors[2 * i], priors[2 * i + 1]);
+            eprintln!(
+                "link {}: turn rms {:.3} mrad (prior {:.3}), slide rms {:.3} mm (prior {:.3})",
+                i + 1,
+                turn * 1e3,
+                pt * 1e3,
+                slide * 1e3,
+                ps * 1e3
             );
-            let (nominal, actual) = posed
-                .parts
-                .iter()
-                .zip(&calibrated.parts)
-                .find(|(p, _)| p.chain_depth == depth)
-                .map(|(p, c)| (p.model_from_link, c.model_from_link))
-                .expect("a link at this depth");
-            let moved = predicted * nominal;
-            let dt = (moved.translation.vector - actual.translation.vector).norm();
-            let dr = (moved.rotation.inverse() * actual.rotation).angle();
-            // The displacement is ~1 mm / 1 mrad; second-order terms are ~1e-4 of it.
-            assert!(dt < 2e-7 && dr < 2e-7, "depth {depth}: {dt:e} m {dr:e} rad");
+            assert!(turn > 0.6 * pt && turn < 1.4 * pt, "link {}: turn", i + 1);
+            assert!(
+                slide > 0.6 * ps && slide < 1.4 * ps,
+                "link {}: slide",
+                i + 1
+            );
         }
     }
 
@@ -221,7 +247,7 @@ mod tests {
         ad.fixed_view_mut::<3, 3>(0, 3)
             .copy_from(&(o.cross_matrix() * r));
         ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-        let expected = ad * error.joint_covariance(&j.axis, &j.parent_from_joint) * ad.transpose();
+        let expected = ad * error.joint_covariance(&j.axis, true) * ad.transpose();
         let got = prior.view((0, 0), (6, 6));
         for r in 0..6 {
             for c in 0..6 {

@@ -70,8 +70,8 @@ fn probe_bench_trials() {
                     mount.rotation.scaled_axis().as_slice()
                 );
                 let mut req = cfg.scan_request(&model, q, mount, seed);
-                if let Some(dh) = cfg.true_arm(&model, seeds[0]) {
-                    req = req.with_controller_dh(dh);
+                if let Some(arm) = cfg.true_arm(&model, seeds[0]) {
+                    req = req.with_arm(arm);
                 }
                 let sim = crate::sim::simulate_scan(&req).expect("sim");
                 let mut seen = std::collections::BTreeMap::<&str, usize>::new();

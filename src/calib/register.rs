@@ -39,7 +39,7 @@ use super::fine::{icp, icp_with_links, IcpResult, LinkPrior, Stage};
 use super::links::link_error_model;
 use super::range::RangeImage;
 use super::surface::{ModelSurface, PosedJoint, PosedModel};
-use super::verify::{evidence, score, Evidence, Tolerances};
+use super::verify::{evidence, evidence_per_depth, score, Evidence, Tolerances};
 use super::CalibError;
 use crate::model::{GeometryKind, KinematicError, RobotModel};
 
@@ -158,6 +158,29 @@ pub struct Quality {
     /// visible base and shoulder are nearly symmetric) explains the scan, relative to the
     /// result: 0 when nothing else comes close, 1 when the scan cannot tell them apart.
     pub ambiguity: f64,
+    /// Coverage of each fitted moving link on its own (entry `k − 1` for chain depth `k`: the
+    /// shoulder, the upper arm, …), 0–1; `None` when the link is not fitted or too little of it
+    /// is expected in view to tell. A link the scan does not support where the model puts it
+    /// is posed by kinematics that are not the arm's (a wrong model, a wrong calibration).
+    pub link_coverage: [Option<f64>; MAX_REPORTED_LINKS],
+}
+
+/// Fitted moving links whose coverage [`Quality::link_coverage`] reports.
+pub const MAX_REPORTED_LINKS: usize = 3;
+
+/// A fitted link is judged on its own when at least this many of its samples, and this
+/// fraction of all the fitted links' expected visible samples, are expected in view.
+const MIN_LINK_SAMPLES: f64 = 100.0;
+const MIN_LINK_SHARE: f64 = 0.03;
+
+/// [`Quality::link_coverage`] from the evidence of each chain depth (entry 0 the base).
+fn link_coverage(per_depth: &[Evidence]) -> [Option<f64>; MAX_REPORTED_LINKS] {
+    let total: f64 = per_depth.iter().map(Evidence::visible).sum();
+    std::array::from_fn(|k| {
+        let e = per_depth.get(k + 1)?;
+        (e.visible() >= MIN_LINK_SAMPLES && e.visible() >= MIN_LINK_SHARE * total)
+            .then(|| e.coverage())
+    })
 }
 
 /// Wall-clock time per stage, milliseconds.
@@ -236,13 +259,7 @@ pub fn posed_model_with_kinematics(
         None => model.link_poses(joints),
     }
     .map_err(CalibError::Model)?;
-    // The nominal arm of a UR model takes its kinematic error in DH terms; an arm posed by
-    // per-joint origin errors keeps that description.
-    let dh = match joint_origin_errors {
-        None => model.ur_model().map(|ur| ur.dh()),
-        Some(_) => None,
-    };
-    Ok(assemble_posed_model(model, joints, &poses, dh.as_ref()))
+    Ok(assemble_posed_model(model, joints, &poses, None))
 }
 
 /// Like [`posed_model`], posed as a UR controller knows its arm: `calibrated` is the DH set the
@@ -284,7 +301,8 @@ fn check_joint_count(model: &RobotModel, joints: &[f64]) -> Result<(), CalibErro
 
 /// The visual parts, chain joints and flange of `model` at `poses` (`model_from_link` of
 /// every link, [`RobotModel::link_names`] order, at `joints`). The joint frames follow their
-/// parent links. `dh`: the DH set a UR arm is posed by, whose sensitivity the model carries.
+/// parent links. `dh`: the controller's DH set a UR arm is posed by, whose axes the model
+/// carries.
 fn assemble_posed_model(
     model: &RobotModel,
     joints: &[f64],
@@ -322,7 +340,7 @@ fn assemble_posed_model(
         parts,
         joints: chain,
         model_from_flange: flange,
-        dh_sensitivity: dh.and_then(|dh| model.dh_sensitivity(joints, dh).ok()),
+        link_axes: dh.and_then(|dh| model.dh_axes(joints, dh).ok()),
     }
 }
 
@@ -749,6 +767,13 @@ pub fn register_posed(
             hypotheses: n_hyp,
             from_prior,
             ambiguity,
+            link_coverage: link_coverage(&evidence_per_depth(
+                &range,
+                &surface.samples,
+                &camera_from_model,
+                surface.fit_depth,
+                tol,
+            )),
         },
         degenerate_directions,
         depth_scale: estimate.scale_estimated.then_some(1.0 / estimate.kappa),
@@ -1505,9 +1530,13 @@ mod controller_kinematics_tests {
     fn the_posed_flange_is_the_controllers() {
         let Some(root) = shared_robots() else { return };
         let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
-        let dh = handeye_hal::ur_dh::UrModel::Ur5e
-            .dh()
-            .plus(&DhParams::factory_calibration_delta(4));
+        let dh = handeye_hal::ur_dh::PhysicalArm::factory(handeye_hal::ur_dh::UrModel::Ur5e, 4)
+            .controller_dh();
+        assert!(
+            dh.d[1].abs() > 1.0,
+            "a real controller's parallel-axis DH: {:?}",
+            dh.d
+        );
         let q = [0.4, -1.3, 1.5, -2.0, -1.4, 0.7];
         let posed = posed_model_with_controller_kinematics(&model, &q, &dh).expect("posed");
         let want = model.frame_pose("base", &q).expect("base") * dh.forward(&q);
@@ -1520,15 +1549,15 @@ mod controller_kinematics_tests {
         ));
     }
 
-    /// A factory-calibrated UR5e (the controller reports its calibrated flange pose): the same
-    /// scans registered against the nominal URDF and against the URDF posed by the controller's
-    /// DH. Posed nominally, the shoulder and upper arm sit where the calibrated arm is not, and
-    /// the round base takes its yaw from them.
+    /// Physical UR5e arms (every joint off by a factory-size error; the controller reports the
+    /// flange and publishes the exact, parallel-axis DH): the same scans registered against the
+    /// nominal URDF and against the URDF posed by the controller's DH. Posed nominally, the
+    /// shoulder and upper arm sit where the physical arm's are not, and the round base takes
+    /// its yaw from them.
     #[test]
     fn controller_kinematics_beat_the_nominal_model_on_a_calibrated_arm() {
         let Some(root) = shared_robots() else { return };
         let model = RobotModel::load(&root.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
-        let nominal_dh = model.ur_model().expect("UR").dh();
         let mount = Isometry3::new(
             Vector3::new(0.0, -0.08, 0.03),
             Vector3::new(-15f64.to_radians(), 0.0, 0.0),
@@ -1543,9 +1572,13 @@ mod controller_kinematics_tests {
         let views = planner.generate(SCANS, 21).expect("views");
         let settings = SimSettings::default();
         let (mut nominal, mut trusting, mut controller) = (Vec::new(), Vec::new(), Vec::new());
-        let mut ratios = Vec::new();
+        let (mut ratios, mut controller_ratios) = (Vec::new(), Vec::new());
         for (k, q) in views.iter().enumerate() {
-            let calibrated = nominal_dh.plus(&DhParams::factory_calibration_delta(k as u64 + 1));
+            let arm = handeye_hal::ur_dh::PhysicalArm::factory(
+                model.ur_model().expect("UR"),
+                k as u64 + 1,
+            );
+            let calibrated = arm.controller_dh();
             let req = ScanRequest::new(
                 &model,
                 q.clone(),
@@ -1556,7 +1589,7 @@ mod controller_kinematics_tests {
                 &settings,
                 100 + k as u64,
             )
-            .with_controller_dh(calibrated);
+            .with_arm(arm);
             let scan = simulate_scan(&req).expect("simulated");
             let reported = scan.truth.model_from_flange_reported;
 
@@ -1576,13 +1609,11 @@ mod controller_kinematics_tests {
 
             let posed =
                 posed_model_with_controller_kinematics(&model, q, &calibrated).expect("posed");
-            let opts = RegisterOptions {
-                kinematic_error: KinematicError::none(),
-                ..RegisterOptions::default()
-            };
-            let reg = register_posed(&scan.cloud, &posed, None, &opts)
+            let reg = register_posed(&scan.cloud, &posed, None, &RegisterOptions::default())
                 .expect("registered with the controller's kinematics");
-            controller.push(hand_eye_error(&reg, reported, &mount));
+            let e = hand_eye_error(&reg, reported, &mount);
+            controller_ratios.push(e.0 / reg.uncertainty.translation_mm);
+            controller.push(e);
         }
         let medians = |e: &[(f64, f64)]| {
             (
@@ -1594,7 +1625,8 @@ mod controller_kinematics_tests {
         eprintln!(
             "calibrated UR5e, {SCANS} scans, median flange_from_camera error: nominal URDF \
              {:.3} mm {:.4} deg (its links trusted: {:.3} mm {:.4} deg), controller kinematics \
-             {:.3} mm {:.4} deg; nominal error / σ {ratios:.2?}",
+             {:.3} mm {:.4} deg; error / σ nominal {ratios:.2?}, controller \
+             {controller_ratios:.2?}",
             n.0, n.1, t.0, t.1, c.0, c.1
         );
         eprintln!("per scan (mm, deg): nominal {nominal:.3?}\n controller {controller:.3?}");
@@ -1604,6 +1636,10 @@ mod controller_kinematics_tests {
         // the reported σ covers what is left.
         assert!(n.0 < 0.6 * t.0, "nominal {n:?} vs trusting the links {t:?}");
         assert!(ratios.iter().all(|r| *r < 3.0), "beyond 3σ: {ratios:?}");
+        assert!(
+            controller_ratios.iter().all(|r| *r < 3.0),
+            "beyond 3σ: {controller_ratios:?}"
+        );
         assert!(
             c.0 < 0.5 * n.0,
             "translation: controller {c:?} vs nominal {n:?}"

@@ -16,6 +16,9 @@ use crate::frames::to_row_major;
 pub struct QualitySummary {
     /// Lowest coverage of any frame, 0–1.
     pub coverage: f64,
+    /// Lowest coverage of each fitted moving link of any frame that judged it (see
+    /// [`super::Quality::link_coverage`]).
+    pub link_coverage: [Option<f64>; super::register::MAX_REPORTED_LINKS],
     /// Highest free-space violation fraction of any frame, 0–1.
     pub free_space_violations: f64,
     /// Highest residual RMS of any frame, mm.
@@ -139,6 +142,12 @@ impl CalibrationReport {
         let views_used: Vec<&Residual> = solution.views.iter().filter(|v| v.used).collect();
         let quality = QualitySummary {
             coverage: fold(&|r| r.quality.coverage, f64::min, 1.0),
+            link_coverage: std::array::from_fn(|k| {
+                registrations
+                    .iter()
+                    .filter_map(|r| r.quality.link_coverage[k])
+                    .reduce(f64::min)
+            }),
             free_space_violations: fold(&|r| r.quality.free_space_violations, f64::max, 0.0),
             rmse_mm: fold(&|r| r.quality.rmse_mm, f64::max, 0.0),
             inlier_fraction: fold(&|r| r.quality.inlier_fraction, f64::min, 1.0),

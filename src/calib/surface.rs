@@ -29,17 +29,17 @@ pub struct PosedModel {
     pub parts: Vec<PosedPart>,
     /// The chain joints in chain order: joint `i` moves every part of chain depth > `i`.
     /// Registration estimates the fitted links' displacements by their origin errors (unless
-    /// `dh_sensitivity` describes them); empty when unknown (then the links are trusted).
+    /// `link_axes` describes them); empty when unknown (then the links are trusted).
     pub joints: Vec<PosedJoint>,
     /// Where the flange is at the measured joints, model frame; `None` when unknown. An
     /// eye-in-hand camera rides on it (see `RegisterOptions::max_camera_flange_distance_m`).
     pub model_from_flange: Option<Isometry3<f64>>,
-    /// UR arms: how the links of each chain depth (entry `k − 1` for depth `k`) move under small
-    /// changes of the 24 DH parameters the arm is posed by (see
-    /// [`RobotModel::dh_sensitivity`](crate::model::RobotModel::dh_sensitivity)); the arm's
-    /// kinematic error is then taken in the terms a UR calibration has. `None`: per-joint origin
-    /// errors at `joints`.
-    pub dh_sensitivity: Option<Vec<nalgebra::SMatrix<f64, 6, 24>>>,
+    /// UR arms posed by a controller's DH set: the calibrated joint axes (model frame, entry `k − 1` for joint `k`, see
+    /// [`RobotModel::dh_axes`](crate::model::RobotModel::dh_axes)). The link of chain depth `k`
+    /// is on axis `k − 1`, but how far along and how far turned about it the axes cannot tell;
+    /// registration estimates that. `None`: the links are posed by the nominal model, and
+    /// per-joint origin errors at `joints` describe how they may be off.
+    pub link_axes: Option<Vec<handeye_hal::ur_dh::Line>>,
 }
 
 /// A chain joint of the posed model.

@@ -143,7 +143,7 @@ pub(crate) fn toy_robot(q: &[f64]) -> PosedModel {
             joint(model_from_upper, model_from_fore, Vector3::y_axis(), q[2]),
         ],
         model_from_flange: None,
-        dh_sensitivity: None,
+        link_axes: None,
     }
 }
 

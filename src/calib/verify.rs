@@ -36,6 +36,11 @@ impl Evidence {
         }
     }
 
+    /// Expected visible model samples (matched, violated or missing).
+    pub(crate) fn visible(&self) -> f64 {
+        self.matched + self.violated + self.missing
+    }
+
     /// Fraction of the expected visible model surface where the scan sees through the model.
     pub(crate) fn violation_fraction(&self) -> f64 {
         let d = self.matched + self.violated + self.missing;
@@ -71,9 +76,34 @@ pub(crate) fn evidence(
     max_depth: usize,
     tol: Tolerances,
 ) -> Evidence {
+    evidence_where(range, samples, camera_from_model, |d| d <= max_depth, tol)
+}
+
+/// [`evidence`] of each chain depth `0..=max_depth` on its own: whether each fitted link is
+/// where the posed model has it.
+pub(crate) fn evidence_per_depth(
+    range: &RangeImage<'_>,
+    samples: &[Sample],
+    camera_from_model: &Isometry3<f64>,
+    max_depth: usize,
+    tol: Tolerances,
+) -> Vec<Evidence> {
+    (0..=max_depth)
+        .map(|depth| evidence_where(range, samples, camera_from_model, |d| d == depth, tol))
+        .collect()
+}
+
+/// [`evidence`] of the samples whose chain depth passes `keep`.
+fn evidence_where(
+    range: &RangeImage<'_>,
+    samples: &[Sample],
+    camera_from_model: &Isometry3<f64>,
+    keep: impl Fn(usize) -> bool + Sync,
+    tol: Tolerances,
+) -> Evidence {
     let classify = |s: &Sample| -> Evidence {
         let mut e = Evidence::default();
-        if s.depth as usize > max_depth {
+        if !keep(s.depth as usize) {
             return e;
         }
         let p = camera_from_model * s.p;

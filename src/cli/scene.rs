@@ -10,7 +10,7 @@ use std::time::{Duration, Instant, SystemTime};
 use handeye::model::RobotModel;
 use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 use handeye_gige::sim::{FrameSource, SourceError};
-use handeye_hal::ur_dh::DhParams;
+use handeye_hal::ur_dh::PhysicalArm;
 use handeye_hal::UrPose;
 use handeye_ur::client::{RtdeClient, RtdeConfig};
 use nalgebra::Isometry3;
@@ -29,9 +29,9 @@ pub(crate) struct RobotScene {
     pub(crate) mount: SceneMount,
     pub(crate) intrinsics: Intrinsics,
     pub(crate) settings: SimSettings,
-    /// The arm's true kinematics when the controller is factory calibrated (its DH, as the
-    /// controller reports); `None`: the nominal URDF (plus `settings.kinematic_error`).
-    pub(crate) controller_dh: Option<DhParams>,
+    /// The physical arm when the controller is factory calibrated (the arm the UR simulator
+    /// drives); `None`: the nominal URDF (plus `settings.kinematic_error`).
+    pub(crate) arm: Option<PhysicalArm>,
     pub(crate) frame: u64,
 }
 
@@ -326,8 +326,8 @@ impl FrameSource for RobotScene {
             &self.settings,
             self.frame,
         );
-        if let Some(dh) = self.controller_dh {
-            req = req.with_controller_dh(dh);
+        if let Some(arm) = self.arm {
+            req = req.with_arm(arm);
         }
         Ok(simulate_scan(&req)?.cloud)
     }

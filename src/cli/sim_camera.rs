@@ -11,7 +11,7 @@ use handeye::sim::{Intrinsics, KinematicError, SimSettings};
 use handeye_gige::sim::{FrameSource, SceneSource, SimCamera, SimOptions};
 use handeye_gige::GvcpClient;
 use handeye_hal::limits;
-use handeye_hal::ur_dh::DhParams;
+use handeye_hal::ur_dh::PhysicalArm;
 use tokio_util::sync::CancellationToken;
 
 use super::args::{parse_pose, resolve_robot};
@@ -176,8 +176,8 @@ fn start(args: Args) -> anyhow::Result<SimCamera> {
                 (SceneJoints::Fixed(joints), scene)
             }
         };
-        let controller_dh = match args.factory_calibration {
-            Some(seed) => Some(controller_dh(&model, seed)?),
+        let arm = match args.factory_calibration {
+            Some(seed) => Some(factory_arm(&model, seed)?),
             None => None,
         };
         let source = RobotScene {
@@ -189,7 +189,7 @@ fn start(args: Args) -> anyhow::Result<SimCamera> {
             },
             intrinsics,
             settings,
-            controller_dh,
+            arm,
             frame: 0,
         };
         (Box::new(source), scene)
@@ -204,14 +204,14 @@ fn start(args: Args) -> anyhow::Result<SimCamera> {
     Ok(cam)
 }
 
-/// The DH parameters of a factory-calibrated `model` as the UR simulator started with
-/// `--factory-calibration seed` reports them.
-pub(crate) fn controller_dh(model: &RobotModel, seed: u64) -> anyhow::Result<DhParams> {
+/// The physical arm of a factory-calibrated `model` as the UR simulator started with
+/// `--factory-calibration seed` drives it.
+pub(crate) fn factory_arm(model: &RobotModel, seed: u64) -> anyhow::Result<PhysicalArm> {
     let ur = model.ur_model().ok_or_else(|| {
         anyhow::anyhow!(
             "--factory-calibration needs a UR model; {} is not one",
             model.name()
         )
     })?;
-    Ok(ur.dh().plus(&DhParams::factory_calibration_delta(seed)))
+    Ok(PhysicalArm::factory(ur, seed))
 }

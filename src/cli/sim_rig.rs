@@ -126,7 +126,7 @@ impl Rig {
                 kinematic_error: KinematicError::none(),
                 ..opts.settings
             },
-            controller_dh: opts.factory_calibration.map(|_| controller_dh),
+            arm: robot.arm(),
             frame: 0,
         };
         let camera = SimCamera::spawn(

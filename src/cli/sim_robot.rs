@@ -112,14 +112,16 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     .map_err(anyhow::Error::msg)?;
     if let Some(seed) = args.factory_calibration {
         c = c.factory_calibrated(seed);
-        if let Some(d) = &c.dh_delta {
+        if let Some(arm) = &c.arm {
+            let d = arm.controller_dh();
             tracing::info!(
                 seed,
-                delta_theta_rad = ?d.theta,
-                delta_a_m = ?d.a,
-                delta_d_m = ?d.d,
-                delta_alpha_rad = ?d.alpha,
-                "factory-calibrated arm: DH delta added to the nominal {} kinematics",
+                theta_rad = ?d.theta,
+                a_m = ?d.a,
+                d_m = ?d.d,
+                alpha_rad = ?d.alpha,
+                "factory-calibrated {} arm: every joint off by a small error; the controller \
+                 publishes its exact DH",
                 c.model
             );
         }

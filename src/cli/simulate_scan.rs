@@ -10,7 +10,7 @@ use handeye::cloud::{write_ply, PlyEncoding};
 use handeye::frames::to_row_major;
 use handeye::model::RobotModel;
 use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings, SimulatedScan};
-use handeye_hal::ur_dh::DhParams;
+use handeye_hal::ur_dh::PhysicalArm;
 
 use handeye_hal::UrPose;
 
@@ -108,7 +108,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
                 model.name()
             )
         })?;
-        req = req.with_controller_dh(ur.dh().plus(&DhParams::factory_calibration_delta(seed)));
+        req = req.with_arm(PhysicalArm::factory(ur, seed));
     }
     let scan = simulate_scan(&req)?;
     write_ply(&args.out, &scan.cloud, PlyEncoding::BinaryLittleEndian)
@@ -285,10 +285,9 @@ mod tests {
         let gt: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(gt_path(&out)).expect("gt written"))
                 .expect("json");
-        let dh: DhParams = serde_json::from_value(gt["controller_dh"].clone()).expect("dh");
-        let want = handeye_hal::ur_dh::UrModel::Ur5e
-            .dh()
-            .plus(&DhParams::factory_calibration_delta(3));
+        let dh: handeye_hal::ur_dh::DhParams =
+            serde_json::from_value(gt["controller_dh"].clone()).expect("dh");
+        let want = PhysicalArm::factory(handeye_hal::ur_dh::UrModel::Ur5e, 3).controller_dh();
         let close =
             |a: &[f64; 6], b: &[f64; 6]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-15);
         assert!(

@@ -332,9 +332,20 @@ fn choose_kinematics(inputs: &mut Inputs, args: &Args) -> anyhow::Result<serde_j
         (None, Some(file)) => {
             let calibration = UrCalibration::load(file)?;
             // The file's DH set poses the model exactly as the controller's would.
+            let nominal = inputs
+                .model
+                .ur_model()
+                .ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "--calibration: {} is not a UR arm (its file or robot name must name the \
+                         model, e.g. ur5e)",
+                        inputs.model.name()
+                    )
+                })?
+                .dh();
             inputs.controller_dh = Some(
                 calibration
-                    .dh()
+                    .dh(&nominal)
                     .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?,
             );
             serde_json::json!({
@@ -515,7 +526,7 @@ mod tests {
             noise: ScanNoise::default(),
             cell: CellOptions::default(),
             kinematic_error: KinematicError::none(),
-            controller_dh: None,
+            arm: None,
             seed: 2,
         };
         let sim = simulate_scan(&req).expect("simulated");

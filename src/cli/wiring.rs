@@ -40,7 +40,9 @@ pub(crate) fn load_model(cfg: &Config) -> anyhow::Result<Arc<RobotModel>> {
     if let Some(file) = &cfg.robot.calibration {
         let calibration = handeye::model::UrCalibration::load(file)
             .with_context(|| format!("robot.calibration in {}", cfg.origin))?;
-        calibration.dh().map_err(anyhow::Error::msg)?;
+        calibration
+            .dh(&cfg.robot.model.dh())
+            .map_err(anyhow::Error::msg)?;
     }
     Ok(Arc::new(model))
 }

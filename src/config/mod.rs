@@ -771,6 +771,7 @@ struct RawObstacle {
 #[serde(deny_unknown_fields)]
 struct RawGate {
     min_coverage: Option<f64>,
+    min_link_coverage: Option<f64>,
     max_free_space_violations: Option<f64>,
     max_rmse_mm: Option<f64>,
     min_inlier_fraction: Option<f64>,
@@ -1537,6 +1538,7 @@ impl Ctx<'_> {
         // Destructured without `..`: a new threshold fails to compile here until it has a key.
         let GateThresholds {
             min_coverage,
+            min_link_coverage,
             max_free_space_violations,
             max_rmse_mm,
             min_inlier_fraction,
@@ -1553,6 +1555,12 @@ impl Ctx<'_> {
         use ranges::{DEPTH_SCALE_ERROR, FRACTION, GATE_DEG, GATE_MM};
         Ok(GateThresholds {
             min_coverage: self.num("gate.min_coverage", g.min_coverage, min_coverage, FRACTION)?,
+            min_link_coverage: self.num(
+                "gate.min_link_coverage",
+                g.min_link_coverage,
+                min_link_coverage,
+                FRACTION,
+            )?,
             max_free_space_violations: self.num(
                 "gate.max_free_space_violations",
                 g.max_free_space_violations,

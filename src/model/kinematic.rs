@@ -5,28 +5,33 @@ use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, Unit, UnitQuaternion, 
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
 
+use handeye_hal::ur_dh::JointErrorSizes;
+
 use super::RobotModel;
 
 /// How the real arm differs from its nominal model. The controller knows these deltas from its
 /// factory calibration and reports true flange poses; the CAD model we register against is
-/// nominal. Per chain joint: a zero offset (rotation about the joint axis), a link-length error
-/// (along the link vector leading to the joint), and a small axis misalignment (rotation about
-/// an axis perpendicular to the joint axis).
+/// nominal. Per chain joint, a small rigid error of its origin: a zero offset (rotation about
+/// the joint axis), a displacement along each of three axes, and a misalignment (rotation
+/// about the two axes perpendicular to the joint axis). The first joint's axis is the frame a
+/// controller reports in (standard DH's base frame is joint 1's axis), so its error is only a
+/// zero offset and a displacement along its axis. For UR arms these are the sizes of
+/// [`PhysicalArm`](handeye_hal::ur_dh::PhysicalArm)'s joint errors.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct KinematicError {
     /// Standard deviation of each joint's zero offset, radians.
     pub joint_offset_sigma_rad: f64,
-    /// Standard deviation of each link's length error, metres.
+    /// Standard deviation of each joint origin's displacement along each axis, metres (the
+    /// name is older than the model: a link-length error is one of the three).
     pub link_length_sigma_m: f64,
-    /// Standard deviation of each joint axis' misalignment, radians.
+    /// Standard deviation of each joint axis' misalignment about each perpendicular, radians.
     pub axis_misalignment_sigma_rad: f64,
 }
 
 impl Default for KinematicError {
-    /// Typical of UR factory-calibration deltas: 0.3 mrad zero offsets, 0.3 mm link lengths,
-    /// 0.3 mrad axis misalignment (for UR arms: DH θ, d and a, α; the sizes of
-    /// `DhParams::factory_calibration_delta`).
+    /// What a UR factory calibration finds: 0.3 mrad zero offsets, 0.3 mm joint displacements,
+    /// 0.3 mrad axis misalignments ([`JointErrorSizes::FACTORY`]).
     fn default() -> Self {
         Self {
             joint_offset_sigma_rad: 0.0003,
@@ -34,13 +39,6 @@ impl Default for KinematicError {
             axis_misalignment_sigma_rad: 0.0003,
         }
     }
-}
-
-/// The link vector leading to a joint, as a unit vector in the joint frame (where the error is
-/// inserted); zero for a joint at its parent's origin.
-fn link_direction(parent_from_joint: &Isometry3<f64>) -> Vector3<f64> {
-    let link = parent_from_joint.rotation.inverse() * parent_from_joint.translation.vector;
-    link.try_normalize(1e-9).unwrap_or_else(Vector3::zeros)
 }
 
 /// A unit vector perpendicular to `axis`: the direction about which [`KinematicError::sample`]
@@ -101,8 +99,17 @@ impl KinematicError {
         }
     }
 
-    /// One random draw of per-joint origin errors (one isometry per chain joint, for
-    /// [`RobotModel::link_poses_with_errors`]).
+    /// These sizes as a physical UR arm's joint errors.
+    pub fn joint_sizes(&self) -> JointErrorSizes {
+        JointErrorSizes {
+            zero_offset_rad: self.joint_offset_sigma_rad,
+            translation_m: self.link_length_sigma_m,
+            misalignment_rad: self.axis_misalignment_sigma_rad,
+        }
+    }
+
+    /// One random draw of per-joint origin errors (one isometry per chain joint, in the joint
+    /// frame, for [`RobotModel::link_poses_with_errors`]).
     pub fn sample(&self, model: &RobotModel, rng: &mut impl Rng) -> Vec<Isometry3<f64>> {
         let mut gauss = |s: f64| {
             if s > 0.0 {
@@ -114,38 +121,50 @@ impl KinematicError {
         model
             .joint_axes()
             .iter()
-            .zip(model.joint_origins())
-            .map(|(axis, origin)| {
-                let t = link_direction(&origin) * gauss(self.link_length_sigma_m);
-                let twist = UnitQuaternion::from_scaled_axis(
-                    perpendicular(axis) * gauss(self.axis_misalignment_sigma_rad),
-                );
-                let zero =
-                    UnitQuaternion::from_axis_angle(axis, gauss(self.joint_offset_sigma_rad));
-                Isometry3::from_parts(Translation3::from(t), twist * zero)
+            .enumerate()
+            .map(|(k, axis)| {
+                let a = axis.into_inner();
+                let (u1, u2) = (perpendicular(&a), a.cross(&perpendicular(&a)));
+                let zero = a * gauss(self.joint_offset_sigma_rad);
+                if k == 0 {
+                    let t = a * gauss(self.link_length_sigma_m);
+                    return Isometry3::from_parts(
+                        Translation3::from(t),
+                        UnitQuaternion::from_scaled_axis(zero),
+                    );
+                }
+                let tilt = u1 * gauss(self.axis_misalignment_sigma_rad)
+                    + u2 * gauss(self.axis_misalignment_sigma_rad);
+                let t = Vector3::from_fn(|_, _| gauss(self.link_length_sigma_m));
+                Isometry3::from_parts(
+                    Translation3::from(t),
+                    UnitQuaternion::from_scaled_axis(tilt + zero),
+                )
             })
             .collect()
     }
 
     /// Covariance of one joint's origin error as a small (translation, rotation vector) in
-    /// the joint frame, m² / rad², for a joint turning about `axis` at `parent_from_joint`.
-    /// The misalignment is taken about every direction perpendicular to the axis (a real arm's
-    /// is not known to be about one), so this errs on the large side of [`Self::sample`].
-    pub fn joint_covariance(
-        &self,
-        axis: &Unit<Vector3<f64>>,
-        parent_from_joint: &Isometry3<f64>,
-    ) -> Matrix6<f64> {
-        let along = link_direction(parent_from_joint);
+    /// the joint frame, m² / rad², for a joint turning about `axis`, as [`Self::sample`] draws
+    /// it (`first`: the chain's first joint, whose error is only about and along its axis).
+    pub fn joint_covariance(&self, axis: &Unit<Vector3<f64>>, first: bool) -> Matrix6<f64> {
         let a = axis.into_inner();
         let about_axis = a * a.transpose();
+        let (translation, misalignment) = if first {
+            (
+                about_axis * self.link_length_sigma_m.powi(2),
+                Matrix3::zeros(),
+            )
+        } else {
+            (
+                Matrix3::identity() * self.link_length_sigma_m.powi(2),
+                (Matrix3::identity() - about_axis) * self.axis_misalignment_sigma_rad.powi(2),
+            )
+        };
         let mut c = Matrix6::zeros();
-        c.fixed_view_mut::<3, 3>(0, 0)
-            .copy_from(&(along * along.transpose() * self.link_length_sigma_m.powi(2)));
-        c.fixed_view_mut::<3, 3>(3, 3).copy_from(
-            &(about_axis * self.joint_offset_sigma_rad.powi(2)
-                + (Matrix3::identity() - about_axis) * self.axis_misalignment_sigma_rad.powi(2)),
-        );
+        c.fixed_view_mut::<3, 3>(0, 0).copy_from(&translation);
+        c.fixed_view_mut::<3, 3>(3, 3)
+            .copy_from(&(about_axis * self.joint_offset_sigma_rad.powi(2) + misalignment));
         c
     }
 }

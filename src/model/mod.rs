@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use handeye_hal::limits;
-use handeye_hal::ur_dh::{DhParams, UrModel};
+use handeye_hal::ur_dh::{DhParams, Line, PhysicalArm, UrModel};
 use nalgebra::{Isometry3, Matrix4, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
@@ -819,14 +819,15 @@ impl RobotModel {
     /// `model_from_link` of every link at joint values `q` (rad), in
     /// [`link_names`](Self::link_names) order, for a UR arm whose controller uses the DH
     /// parameters `calibrated` (absolute values in UR's `base` frame, e.g. its factory
-    /// calibration as the primary interface's KinematicsInfo reports it): the arm as the
-    /// controller knows it, which is also the frame its reported flange poses are in.
+    /// calibration as the primary interface's KinematicsInfo reports it, or a ur_calibration
+    /// file): the arm as the controller knows it, which is also the frame its reported flange
+    /// poses are in.
     ///
-    /// Every link with [`chain_depth`](Self::chain_depth) `k` is rigid with DH frame `k` (the
-    /// base, `k = 0`, never moves). With `model_from_base` = `M` and the nominal DH frames
-    /// `DH_k(q)` (which this URDF follows), `model_from_link = M · DH_k(q) · C` for a constant
-    /// `C`, so the calibrated pose is `M · DH'_k(q) · DH_k(q)⁻¹ · M⁻¹ · model_from_link(q)`.
-    /// With the nominal parameters this is [`link_poses`](Self::link_poses).
+    /// A real controller's DH set places the frames of the nearly parallel joints 2–4 hundreds
+    /// of metres away; no link is rigid with those. Each link is put on its calibrated joint
+    /// axis where [`DhParams::link_frames`] says (at the common normal of crossing axes, or
+    /// nearest its nominal place along parallel ones); the flange's link is rigid with the
+    /// flange. With the nominal parameters this is [`link_poses`](Self::link_poses).
     ///
     /// Errors: [`ModelError::NotUrArm`] unless [`ur_model`](Self::ur_model) detects the arm and
     /// it has 6 chain joints; the errors of [`link_poses`](Self::link_poses).
@@ -835,35 +836,49 @@ impl RobotModel {
         q: &[f64],
         calibrated: &DhParams,
     ) -> Result<Vec<Isometry3<f64>>, ModelError> {
-        let nominal = self.link_poses(q)?;
-        let corrections = self.controller_dh_corrections(q, &nominal, calibrated)?;
-        Ok(nominal
+        let (ur, q6) = self.ur_joints(q)?;
+        self.link_poses_with_dh_frames(q, &calibrated.link_frames(&ur.dh(), &q6))
+    }
+
+    /// `model_from_link` of every link at joint values `q` (rad) of the physical UR arm `arm`
+    /// (its links rigid with its frames, [`PhysicalArm::frames`]): how the scan simulator poses
+    /// a real arm, whose controller publishes [`PhysicalArm::controller_dh`].
+    ///
+    /// Errors: those of [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh).
+    pub fn link_poses_of_arm(
+        &self,
+        q: &[f64],
+        arm: &PhysicalArm,
+    ) -> Result<Vec<Isometry3<f64>>, ModelError> {
+        let (_, q6) = self.ur_joints(q)?;
+        self.link_poses_with_dh_frames(q, &arm.frames(&q6))
+    }
+
+    /// The six joint axes of a UR arm with the DH set `dh` at joints `q` (rad), model frame
+    /// (joint `k + 1` turns about entry `k`; the point is the one nearest
+    /// the nominal arm's joint, not the DH frame's origin hundreds of metres away).
+    ///
+    /// Errors: those of [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh).
+    pub fn dh_axes(&self, q: &[f64], dh: &DhParams) -> Result<Vec<Line>, ModelError> {
+        let (ur, q6) = self.ur_joints(q)?;
+        let model_from_base = self.model_from_ur_base(&self.link_poses(q)?)?;
+        let nominal = ur.dh().axes(&q6);
+        Ok(dh
+            .axes(&q6)
             .iter()
-            .zip(&self.links)
-            .map(|(pose, node)| corrections[node.chain_depth.min(6)] * pose)
+            .zip(&nominal)
+            .map(|(l, n)| Line {
+                point: model_from_base
+                    .transform_point(&l.nearest(&n.point).into())
+                    .coords,
+                direction: model_from_base * l.direction,
+            })
             .collect())
     }
 
-    /// `model_from_joint` of each chain joint (see [`joint_frames`](Self::joint_frames)) for
-    /// the arm of [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh). A
-    /// joint's frame is rigid with its parent link, so it moves with the parent's correction:
-    /// its axis is the calibrated joint axis (`z` of DH frame `k − 1` for joint `k`).
-    pub fn joint_frames_with_controller_dh(
-        &self,
-        q: &[f64],
-        calibrated: &DhParams,
-    ) -> Result<Vec<Isometry3<f64>>, ModelError> {
-        Ok(self.joint_frames_of(&self.link_poses_with_controller_dh(q, calibrated)?))
-    }
-
-    /// `model_from_model'` per chain depth 0..=6: what moves a nominal link of that depth to
-    /// where the controller's DH puts it (`M · DH'_k · DH_k⁻¹ · M⁻¹`, identity at depth 0).
-    fn controller_dh_corrections(
-        &self,
-        q: &[f64],
-        nominal_poses: &[Isometry3<f64>],
-        calibrated: &DhParams,
-    ) -> Result<[Isometry3<f64>; 7], ModelError> {
+    /// The UR model and the six joint values, or [`ModelError::NotUrArm`].
+    fn ur_joints(&self, q: &[f64]) -> Result<(UrModel, [f64; 6]), ModelError> {
+        self.check_q(q)?;
         let not_ur = |reason: String| ModelError::NotUrArm {
             robot: self.name.clone(),
             reason,
@@ -874,71 +889,51 @@ impl RobotModel {
         let q6: [f64; 6] = q
             .try_into()
             .map_err(|_| not_ur(format!("it has {} chain joints, not 6", self.dof())))?;
-        // The base is rigid with the root (chain depth 0): its pose does not depend on q.
-        let model_from_base = match self.link_index.get("base") {
-            Some(&l) => nominal_poses[l],
+        Ok((ur, q6))
+    }
+
+    /// `model_from_base` (UR's controller frame) from the links' poses: the `base` link, or
+    /// `base_link` turned by π about z.
+    fn model_from_ur_base(&self, poses: &[Isometry3<f64>]) -> Result<Isometry3<f64>, ModelError> {
+        match self.link_index.get("base") {
+            Some(&l) => Ok(poses[l]),
             None => {
                 let &l = self
                     .link_index
                     .get("base_link")
-                    .ok_or_else(|| not_ur("it has neither a `base` nor a `base_link`".into()))?;
-                nominal_poses[l] * crate::frames::ur_base_from_base_link().inverse()
+                    .ok_or_else(|| ModelError::NotUrArm {
+                        robot: self.name.clone(),
+                        reason: "it has neither a `base` nor a `base_link`".into(),
+                    })?;
+                Ok(poses[l] * crate::frames::ur_base_from_base_link().inverse())
             }
-        };
-        let base_from_model = model_from_base.inverse();
-        let nominal = ur.dh().link_poses(&q6);
-        let actual = calibrated.link_poses(&q6);
-        let mut out = [Isometry3::identity(); 7];
-        for k in 1..=6 {
-            out[k] = model_from_base * actual[k - 1] * nominal[k - 1].inverse() * base_from_model;
         }
-        Ok(out)
     }
 
-    /// How the links of a UR arm posed by the DH set `dh` (as
-    /// [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh) poses them) move
-    /// under small changes of its 24 DH parameters, at joints `q`. Entry `k − 1` is for the links
-    /// of chain depth `k` (1..=6); column `6·f + j` is parameter `f` (0 θ, 1 d, 2 a, 3 α) of joint
-    /// `j + 1`; a column is the model-frame displacement `(t, ω)` per unit of that parameter
-    /// (metres or radians): a link point `x` moves by `t + ω × x`. The base (depth 0) never moves.
-    ///
-    /// Errors: those of [`link_poses_with_controller_dh`](Self::link_poses_with_controller_dh).
-    pub fn dh_sensitivity(
+    /// `model_from_link` of every link of a UR arm whose link of chain depth `k` is rigid with
+    /// `frames[k]` (`base_from_frame_k`, UR `base` frame, k = 0..=6): the nominal URDF follows
+    /// the nominal DH frames `N_k(q)`, so with `M` = `model_from_base` a link moves to
+    /// `M · frames[k] · N_k(q)⁻¹ · M⁻¹ · model_from_link(q)`.
+    fn link_poses_with_dh_frames(
         &self,
         q: &[f64],
-        dh: &DhParams,
-    ) -> Result<Vec<nalgebra::SMatrix<f64, 6, 24>>, ModelError> {
-        let nominal = self.link_poses(q)?;
-        let at = self.controller_dh_corrections(q, &nominal, dh)?;
-        let mut out = vec![nalgebra::SMatrix::<f64, 6, 24>::zeros(); 6];
-        // Central differences; the corrections are smooth and the step is far above rounding.
-        let h = 1e-6;
-        for col in 0..24 {
-            let shifted = |step: f64| {
-                let mut p = *dh;
-                let field = match col / 6 {
-                    0 => &mut p.theta,
-                    1 => &mut p.d,
-                    2 => &mut p.a,
-                    _ => &mut p.alpha,
-                };
-                field[col % 6] += step;
-                self.controller_dh_corrections(q, &nominal, &p)
-            };
-            let (plus, minus) = (shifted(h)?, shifted(-h)?);
-            for k in 1..=6 {
-                let log = |c: &Isometry3<f64>| {
-                    let m = c * at[k].inverse();
-                    (m.translation.vector, m.rotation.scaled_axis())
-                };
-                let ((tp, wp), (tm, wm)) = (log(&plus[k]), log(&minus[k]));
-                let t = (tp - tm) / (2.0 * h);
-                let w = (wp - wm) / (2.0 * h);
-                out[k - 1].fixed_view_mut::<3, 1>(0, col).copy_from(&t);
-                out[k - 1].fixed_view_mut::<3, 1>(3, col).copy_from(&w);
-            }
+        frames: &[Isometry3<f64>; 7],
+    ) -> Result<Vec<Isometry3<f64>>, ModelError> {
+        let (ur, q6) = self.ur_joints(q)?;
+        let nominal_poses = self.link_poses(q)?;
+        let model_from_base = self.model_from_ur_base(&nominal_poses)?;
+        let base_from_model = model_from_base.inverse();
+        let nominal = ur.dh().link_poses(&q6);
+        let mut corrections = [Isometry3::identity(); 7];
+        for k in 1..=6 {
+            corrections[k] =
+                model_from_base * frames[k] * nominal[k - 1].inverse() * base_from_model;
         }
-        Ok(out)
+        Ok(nominal_poses
+            .iter()
+            .zip(&self.links)
+            .map(|(pose, node)| corrections[node.chain_depth.min(6)] * pose)
+            .collect())
     }
 
     /// The nominal origin of each chain joint in its parent link (`parent_from_joint`), chain

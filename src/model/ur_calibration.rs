@@ -25,7 +25,8 @@
 use std::path::{Path, PathBuf};
 
 use handeye_hal::limits;
-use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+use handeye_hal::ur_dh::{DhParams, Line};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use super::{LinkNode, ModelError, Motion, QSource, RobotModel};
 
@@ -315,51 +316,41 @@ impl UrCalibration {
         })
     }
 
-    /// The DH parameters the file describes (what the controller would publish): entry `i` is
-    /// `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)`, so `a`, `α` of joints 1–5 and `d`, `θ` of all
-    /// six are read back from it; `a_6`, `α_6` (absent from the file) are 0. Posing the model
-    /// through these (as the controller's kinematics are) puts each link where the run expects
-    /// it. Errors when an entry is not of that form (a file that is not a DH chain), naming it.
-    pub fn dh(&self) -> Result<handeye_hal::ur_dh::DhParams, String> {
-        let mut dh = handeye_hal::ur_dh::DhParams {
-            a: [0.0; 6],
-            d: [0.0; 6],
-            alpha: [0.0; 6],
-            theta: [0.0; 6],
-        };
-        for (i, t) in self.joint_origins().iter().enumerate() {
-            let r = t.rotation.to_rotation_matrix();
-            let r = r.matrix();
-            let v = t.translation.vector;
-            // R = Rx(α)·Rz(θ): third column (0, −sin α, cos α), first row (cos θ, −sin θ, 0).
-            let alpha = (-r[(1, 2)]).atan2(r[(2, 2)]);
-            let theta = (-r[(0, 1)]).atan2(r[(0, 0)]);
-            // p = (a, −d sin α, d cos α).
-            let d = v.z * alpha.cos() - v.y * alpha.sin();
-            let rebuilt = Isometry3::from_parts(
-                Translation3::new(v.x, -d * alpha.sin(), d * alpha.cos()),
-                UnitQuaternion::from_axis_angle(&nalgebra::Vector3::x_axis(), alpha)
-                    * UnitQuaternion::from_axis_angle(&nalgebra::Vector3::z_axis(), theta),
-            );
-            let off = (rebuilt.translation.vector - v).norm();
-            let turn = rebuilt.rotation.angle_to(&t.rotation);
-            if off > 1e-6 || turn > 1e-6 || (i == 0 && (v.x.abs() > 1e-6 || alpha.abs() > 1e-6)) {
-                return Err(format!(
-                    "{}: kinematics.{} is not a DH step (Tx(a)·Rx(α)·Tz(d)·Rz(θ)); off by {:.3} mm and {:.3} mrad",
-                    self.path.display(),
-                    entry_name(i),
-                    off * 1e3,
-                    turn * 1e3
-                ));
-            }
-            if i > 0 {
-                dh.a[i - 1] = v.x;
-                dh.alpha[i - 1] = alpha;
-            }
-            dh.d[i] = d;
-            dh.theta[i] = theta;
+    /// The exact standard DH set the file's chain describes (what the controller publishes,
+    /// [`DhParams::from_axes`]): the file's six entries are joint origins, each joint turning
+    /// about its frame's z, the flange at the end of wrist_3. Any such chain reads back: the
+    /// raw DH steps or the chain after ur_calibration's correctChain (joints 2 and 3 moved
+    /// along their axes, so no entry is hundreds of metres long). `nominal` (the arm's model)
+    /// picks the sense of each DH x axis, so a nominal file gives back `nominal`.
+    ///
+    /// Errors when the shoulder joint does not turn about the base's z axis (the frame a UR
+    /// controller reports in), naming the file.
+    pub fn dh(&self, nominal: &DhParams) -> Result<DhParams, String> {
+        let mut at = Isometry3::identity();
+        let mut axes = [Line {
+            point: Vector3::zeros(),
+            direction: Vector3::z(),
+        }; 6];
+        for (axis, origin) in axes.iter_mut().zip(self.joint_origins()) {
+            at *= origin;
+            *axis = Line {
+                point: at.translation.vector,
+                direction: at.rotation * Vector3::z(),
+            };
         }
-        Ok(dh)
+        let first = &axes[0];
+        if first.direction.cross(&Vector3::z()).norm() > 1e-9
+            || first.direction.z < 0.0
+            || first.point.xy().norm() > 1e-9
+        {
+            return Err(format!(
+                "{}: kinematics.{} does not turn about the base's z axis (a UR controller's \
+                 frame is the shoulder's axis); the file is not a UR calibration",
+                self.path.display(),
+                entry_name(0)
+            ));
+        }
+        Ok(DhParams::from_axes(&axes, &at, nominal))
     }
 
     /// `parent_from_joint` of each of the six joints, [`UR_CALIBRATION_JOINTS`] order.
@@ -423,26 +414,13 @@ impl RobotModel {
     }
 }
 
-/// The file `ur_calibration` writes for `dh`, with `hash` as its calibration's name, without
-/// the tool's `correctChain` step (which moves d of joints 2 and 3 along their axes and changes
-/// nothing the forward kinematics sees): entry `i` is `Tx(a_{i−1})·Rx(α_{i−1})·Tz(d_i)·Rz(θ_i)`
-/// as xyz + URDF rpy. Like the tool, it has no entry for `a_6`, `α_6` (zero on a UR).
-/// [`UrCalibration::parse`] reads it back to `dh`.
-pub fn ur_calibration_yaml(dh: &handeye_hal::ur_dh::DhParams, hash: &str) -> String {
-    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+/// The file `ur_calibration` writes for `dh` (a controller's DH set of a `nominal` arm), with
+/// `hash` as its calibration's name: the chain after correctChain, each joint's frame on its
+/// axis near the nominal place ([`DhParams::near_chain`]), as xyz + URDF rpy. Like the tool's,
+/// it has no entry beyond wrist_3. [`UrCalibration::dh`] reads it back to `dh`.
+pub fn ur_calibration_yaml(dh: &DhParams, nominal: &DhParams, hash: &str) -> String {
     let mut s = String::from("kinematics:\n");
-    for i in 0..6 {
-        let mut t = Isometry3::identity();
-        if i > 0 {
-            t *= Isometry3::from_parts(
-                Translation3::new(dh.a[i - 1], 0.0, 0.0),
-                UnitQuaternion::from_axis_angle(&Vector3::x_axis(), dh.alpha[i - 1]),
-            );
-        }
-        t *= Isometry3::from_parts(
-            Translation3::new(0.0, 0.0, dh.d[i]),
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), dh.theta[i]),
-        );
+    for (i, t) in dh.near_chain(nominal).iter().enumerate() {
         let (r, p, y) = t.rotation.euler_angles();
         let v = t.translation.vector;
         s += &format!(
@@ -462,7 +440,6 @@ pub fn ur_calibration_yaml(dh: &handeye_hal::ur_dh::DhParams, hash: &str) -> Str
 #[cfg(test)]
 mod tests {
     use super::*;
-    use handeye_hal::ur_dh::DhParams;
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
 
@@ -530,36 +507,66 @@ mod tests {
     #[test]
     fn the_file_gives_back_the_dh_it_was_written_from() {
         for seed in [1, 5, 9] {
-            let dh = handeye_hal::ur_dh::UrModel::Ur10e
-                .dh()
-                .plus(&DhParams::factory_calibration_delta(seed));
+            // A real controller's DH: joints 2 and 3 hundreds of metres along their axes.
+            let dh =
+                handeye_hal::ur_dh::PhysicalArm::factory(handeye_hal::ur_dh::UrModel::Ur10e, seed)
+                    .controller_dh();
             let mut want = dh;
             (want.a[5], want.alpha[5]) = (0.0, 0.0);
-            let got = parse(&ur_calibration_yaml(&dh, "calib_12345"))
-                .expect("parses")
-                .dh()
-                .expect("a DH chain");
+            let nominal = handeye_hal::ur_dh::UrModel::Ur10e.dh();
+            let text = ur_calibration_yaml(&dh, &nominal, "calib_12345");
+            // After correctChain: no entry is far from the arm.
+            let file = parse(&text).expect("parses");
+            for o in file.joint_origins() {
+                assert!(o.translation.vector.norm() < 1.0, "{text}");
+            }
+            let got = file.dh(&nominal).expect("a UR chain");
+            // The same arm: the forward kinematics agree (the huge d of nearly parallel axes
+            // come back to a few µm of their hundreds of metres, which the kinematics do not
+            // feel), the other parameters to rounding.
+            for q in [
+                [0.0; 6],
+                [0.4, -1.2, 1.1, -1.3, -1.5, 0.2],
+                [2.0, -2.5, -1.0, 2.2, 0.3, -3.0],
+            ] {
+                let (g, w) = (got.forward(&q), want.forward(&q));
+                assert!((g.translation.vector - w.translation.vector).norm() < 1e-9);
+                assert!(g.rotation.angle_to(&w.rotation) < 1e-9);
+            }
             for (g, w) in [
                 (got.a, want.a),
-                (got.d, want.d),
                 (got.alpha, want.alpha),
                 (got.theta, want.theta),
             ] {
                 for k in 0..6 {
                     assert!(
-                        (g[k] - w[k]).abs() < 1e-12,
+                        (g[k] - w[k]).abs() < 1e-6,
                         "seed {seed}: {got:?} vs {want:?}"
                     );
                 }
             }
         }
-        // An entry that is no DH step (a y offset with no twist) is named.
-        let text = UR5E.replace(
-            "forearm: {x: -0.425, y: 0,",
-            "forearm: {x: -0.425, y: 0.01,",
+        // Any chain of joints turning about their z reads back, a shoulder off the base's z
+        // axis is named.
+        let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
+        let file = parse(UR5E).expect("parses");
+        let got = file.dh(&nominal).expect("the nominal file");
+        assert!(
+            (got.forward(&[0.3; 6]).translation.vector
+                - nominal.forward(&[0.3; 6]).translation.vector)
+                .norm()
+                < 1e-9
         );
-        let e = parse(&text).expect("parses").dh().expect_err("not DH");
-        assert!(e.contains("kinematics.forearm"), "{e}");
+        let text = UR5E.replace(
+            "x: 0\n    y: 0\n    z: 0.1625",
+            "x: 0.01\n    y: 0\n    z: 0.1625",
+        );
+        assert_ne!(text, UR5E);
+        let e = parse(&text)
+            .expect("parses")
+            .dh(&nominal)
+            .expect_err("off the axis");
+        assert!(e.contains("kinematics.shoulder"), "{e}");
     }
 
     #[test]
@@ -575,7 +582,8 @@ mod tests {
             // The nominal file is the URDF itself.
             let same = m
                 .with_ur_calibration(
-                    &parse(&ur_calibration_yaml(&nominal, "calib_12345")).expect("parses"),
+                    &parse(&ur_calibration_yaml(&nominal, &nominal, "calib_12345"))
+                        .expect("parses"),
                 )
                 .expect("posed");
             let q: [f64; 6] = std::array::from_fn(|_| rng.random_range(-3.0..3.0));
@@ -590,14 +598,15 @@ mod tests {
                 );
                 assert!(x.rotation.angle_to(&y.rotation) < 1e-9, "{name}");
             }
-            let mut delta = DhParams::factory_calibration_delta(5);
-            // The file has no entry beyond wrist_3 (UR's calibration keeps a_6 = α_6 = 0).
-            delta.a[5] = 0.0;
-            delta.alpha[5] = 0.0;
-            let calibrated = nominal.plus(&delta);
+            // The file has no entry beyond wrist_3 (a controller's DH has a_6 = α_6 = 0).
+            let mut calibrated =
+                handeye_hal::ur_dh::PhysicalArm::factory(m.ur_model().expect("a UR arm"), 5)
+                    .controller_dh();
+            (calibrated.a[5], calibrated.alpha[5]) = (0.0, 0.0);
             let posed = m
                 .with_ur_calibration(
-                    &parse(&ur_calibration_yaml(&calibrated, "calib_12345")).expect("parses"),
+                    &parse(&ur_calibration_yaml(&calibrated, &nominal, "calib_12345"))
+                        .expect("parses"),
                 )
                 .expect("posed");
             let (mut worst_t, mut worst_r) = (0.0f64, 0.0f64);

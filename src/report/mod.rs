@@ -454,6 +454,11 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
                 100.0 * q.free_space_violations
             ),
             format!(
+                "links in the scan: shoulder {}    upper arm {}",
+                percent(q.link_coverage[0]),
+                percent(q.link_coverage[1])
+            ),
+            format!(
                 "rms residual {:.3} mm    inliers {:5.1} %",
                 q.rmse_mm,
                 100.0 * q.inlier_fraction
@@ -664,3 +669,8 @@ fn histogram(c: &mut Canvas, x: i64, y: i64, w: i64, h: i64, view: &ScanView, su
 
 #[cfg(test)]
 mod tests;
+
+/// A coverage as `95.1 %`, or `-` when it was not judged.
+fn percent(fraction: Option<f64>) -> String {
+    fraction.map_or("-".into(), |f| format!("{:.1} %", 100.0 * f))
+}

@@ -61,7 +61,7 @@ fn a_right_fit_looks_right_and_a_wrong_one_wrong() {
         noise: ScanNoise::default(),
         cell: CellOptions::default(),
         kinematic_error: KinematicError::none(),
-        controller_dh: None,
+        arm: None,
         seed: 4,
     })
     .expect("simulated");

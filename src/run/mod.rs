@@ -487,7 +487,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             // The file's DH set poses the model as the controller's would.
             let dh = crate::model::UrCalibration::load(file)
                 .map_err(|e| e.to_string())
-                .and_then(|c| c.dh())
+                .and_then(|c| c.dh(&self.cfg.robot.model.dh()))
                 .map_err(|e| {
                     Failure::error(
                         stage,

@@ -14,7 +14,7 @@ use crate::calib::{
     CalibrationReport, FrameInput, GateThresholds, HandEyeSolution, Mount, RegisterOptions,
     Registration, SolveOptions, Verdict,
 };
-use crate::model::{KinematicError, RobotModel};
+use crate::model::RobotModel;
 
 /// One captured frame, ready to register.
 #[derive(Debug, Clone)]
@@ -129,16 +129,10 @@ pub fn calibrate_frames(
         .clone()
         .unwrap_or_else(|| model.root_link().to_string());
     let base_from_model = fixed_frame(model, &base_frame)?.inverse();
-    let register = RegisterOptions {
-        // Posed by the controller's own calibration, the moving links carry no kinematic
-        // error the covariance must cover.
-        kinematic_error: if opts.controller_dh.is_some() {
-            KinematicError::none()
-        } else {
-            opts.register.kinematic_error
-        },
-        ..opts.register.clone()
-    };
+    // Posed by the controller's DH, each fitted link is on its calibrated axis; how far along
+    // and turned about it the DH cannot tell, and the kinematic error's sizes say by how much
+    // it may be off (see `calib::links`).
+    let register = opts.register.clone();
     let mut registrations = Vec::with_capacity(frames.len());
     let mut inputs = Vec::with_capacity(frames.len());
     for (i, f) in frames.iter().enumerate() {

@@ -11,7 +11,7 @@ use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use handeye_hal::fake::{FakeCamera, FakeRobot};
-use handeye_hal::ur_dh::{DhParams, UrModel};
+use handeye_hal::ur_dh::{DhParams, PhysicalArm, UrModel};
 use handeye_hal::{
     CameraInfo, CaptureSettings, ControllerKinematics, DepthCamera, HalError, PointCloud, Robot,
     RobotMode, RobotStatus, SafetyMode, UrPose,
@@ -42,7 +42,10 @@ struct Fixture {
     model: Arc<RobotModel>,
     /// The true `flange_from_camera`.
     mount: Isometry3<f64>,
-    /// The arm's factory-calibrated DH set (the controller's kinematics).
+    /// The physical arm the scans show.
+    arm: PhysicalArm,
+    /// The exact DH set its controller publishes (joints 2–4 nearly parallel: hundreds of
+    /// metres of `d`).
     dh: DhParams,
     /// A view of the base whose straight joint path from [`HOME`] is free.
     view: [f64; 6],
@@ -68,9 +71,8 @@ fn build_fixture(model: Arc<RobotModel>) -> Fixture {
         Vector3::new(0.0, -0.08, 0.03),
         Vector3::new(-15f64.to_radians(), 0.0, 0.0),
     );
-    let dh = UrModel::Ur5e
-        .dh()
-        .plus(&DhParams::factory_calibration_delta(3));
+    let arm = PhysicalArm::factory(UrModel::Ur5e, 3);
+    let dh = arm.controller_dh();
     let intrinsics = Intrinsics::compact_1280x960();
     let views = ViewPlanner::new(&model, mount, intrinsics, ViewConstraints::default());
     // The run checks paths with the configured prior as the camera.
@@ -94,13 +96,14 @@ fn build_fixture(model: Arc<RobotModel>) -> Fixture {
             &SimSettings::default(),
             seed,
         )
-        .with_controller_dh(dh);
+        .with_arm(arm);
         simulate_scan(&req).expect("scan simulated").cloud
     };
     let (scan, rescan) = (scan(11), scan(12));
     Fixture {
         model,
         mount,
+        arm,
         dh,
         view,
         scan,
@@ -767,7 +770,7 @@ fn build_eye_to_hand_cell(f: &Fixture) -> EyeToHandCell {
         &SimSettings::default(),
         21,
     )
-    .with_controller_dh(f.dh);
+    .with_arm(f.arm);
     let sim = simulate_scan(&req).expect("scan simulated");
     // Enough of the robot in view: measured points on its links, the base among them.
     let mut on_links = std::collections::BTreeMap::<&str, usize>::new();
@@ -945,7 +948,7 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
     let file = storage.0.join("calibration.yaml");
     std::fs::write(
         &file,
-        crate::model::ur_calibration_yaml(&f.dh, "calib_12345"),
+        crate::model::ur_calibration_yaml(&f.dh, &UrModel::Ur5e.dh(), "calib_12345"),
     )
     .expect("yaml");
     cfg.robot.calibration = Some(file.clone());

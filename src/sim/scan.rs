@@ -1,12 +1,12 @@
-//! One simulated scan: the true robot (nominal model + kinematic error, or a UR controller's
-//! calibrated DH parameters) posed at the given joints, its cell around it, seen by a pinhole
+//! One simulated scan: the true robot (nominal model + kinematic error, or a physical UR arm
+//! whose controller publishes its exact DH) posed at the given joints, its cell around it, seen by a pinhole
 //! 3D camera with realistic imperfections.
 
 use nalgebra::{Isometry3, Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 
-use handeye_hal::ur_dh::DhParams;
+use handeye_hal::ur_dh::{DhParams, PhysicalArm};
 use handeye_hal::PointCloud;
 
 use super::cell::{build_cell, CellOptions, CellPart};
@@ -47,15 +47,15 @@ pub struct ScanRequest<'a> {
     pub noise: ScanNoise,
     /// Surroundings (CAD mismatch, background).
     pub cell: CellOptions,
-    /// Real arm vs nominal model: a random draw per scan. Not applied when `controller_dh`
-    /// is given (the draw is still made, so a seed's cell and sensor noise stay the same).
+    /// Real arm vs nominal model: a random draw per scan. Not applied when `arm` is given (the
+    /// draw is still made, so a seed's cell and sensor noise stay the same).
     pub kinematic_error: KinematicError,
-    /// The true arm is this calibrated DH set (absolute values, UR `base` frame) and the
-    /// controller reports its forward kinematics, as a factory-calibrated UR controller does
-    /// (see [`RobotModel::link_poses_with_controller_dh`]); `None`: nominal model +
-    /// `kinematic_error`. Only for UR arms (else [`simulate_scan`] fails with
+    /// The true arm is this physical UR arm (see [`RobotModel::link_poses_of_arm`]) and the
+    /// controller reports its flange and publishes its exact DH
+    /// ([`PhysicalArm::controller_dh`]), as a factory-calibrated UR controller does; `None`:
+    /// nominal model + `kinematic_error`. Only for UR arms (else [`simulate_scan`] fails with
     /// `ModelError::NotUrArm`).
-    pub controller_dh: Option<DhParams>,
+    pub arm: Option<PhysicalArm>,
     /// Seed for every random draw; the same request gives the same scan.
     pub seed: u64,
 }
@@ -78,16 +78,15 @@ impl<'a> ScanRequest<'a> {
             noise: settings.noise,
             cell: settings.cell,
             kinematic_error: settings.kinematic_error,
-            controller_dh: None,
+            arm: None,
             seed,
         }
     }
 
-    /// This request with the true arm given by a UR controller's calibrated DH parameters
-    /// (see [`ScanRequest::controller_dh`]).
-    pub fn with_controller_dh(self, calibrated: DhParams) -> Self {
+    /// This request with the true arm a physical UR arm (see [`ScanRequest::arm`]).
+    pub fn with_arm(self, arm: PhysicalArm) -> Self {
         Self {
-            controller_dh: Some(calibrated),
+            arm: Some(arm),
             ..self
         }
     }
@@ -118,8 +117,8 @@ pub struct GroundTruth {
     pub model_from_camera: Isometry3<f64>,
     /// Its inverse: what registration should find.
     pub camera_from_model: Isometry3<f64>,
-    /// The flange pose the controller reports (its calibrated = true kinematics; with
-    /// `controller_dh`, its DH forward kinematics in the model frame).
+    /// The flange pose the controller reports (its calibrated = true kinematics; with a
+    /// physical arm, its published DH's forward kinematics in the model frame).
     pub model_from_flange_reported: Isometry3<f64>,
     /// The flange pose of the nominal model at the same joints.
     pub model_from_flange_nominal: Isometry3<f64>,
@@ -127,10 +126,13 @@ pub struct GroundTruth {
     pub flange_from_camera: Option<Isometry3<f64>>,
     /// Joint angles, radians.
     pub joints: Vec<f64>,
-    /// Per-joint origin errors of the true arm; empty when it is posed by `controller_dh`.
+    /// Per-joint origin errors of the true arm (URDF joint frames); empty for a physical UR
+    /// arm (whose errors are in DH frames, `arm_joint_errors`).
     pub joint_origin_errors: Vec<Isometry3<f64>>,
-    /// The calibrated DH set that posed the true arm (and that the controller reports), if any.
+    /// The exact DH set the controller of a physical UR arm publishes, if any.
     pub controller_dh: Option<DhParams>,
+    /// A physical UR arm's joint errors (DH frame `k − 1`, [`PhysicalArm::joint_errors`]).
+    pub arm_joint_errors: Option<[Isometry3<f64>; 6]>,
 }
 
 /// A simulated scan with its truth.
@@ -167,11 +169,8 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(req.seed);
     // Drawn even when unused, so the rest of the scan's draws do not depend on `controller_dh`.
     let errors = req.kinematic_error.sample(model, &mut rng);
-    let (true_poses, errors) = match &req.controller_dh {
-        Some(dh) => (
-            model.link_poses_with_controller_dh(&req.joints, dh)?,
-            Vec::new(),
-        ),
+    let (true_poses, errors) = match &req.arm {
+        Some(arm) => (model.link_poses_of_arm(&req.joints, arm)?, Vec::new()),
         None => (model.link_poses_with_errors(&req.joints, &errors)?, errors),
     };
     let flange_index = model
@@ -226,7 +225,8 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
             flange_from_camera,
             joints: req.joints.clone(),
             joint_origin_errors: errors,
-            controller_dh: req.controller_dh,
+            controller_dh: req.arm.as_ref().map(PhysicalArm::controller_dh),
+            arm_joint_errors: req.arm.map(|a| a.joint_errors),
         },
     })
 }
@@ -375,7 +375,7 @@ mod tests {
             noise,
             cell,
             kinematic_error: KinematicError::none(),
-            controller_dh: None,
+            arm: None,
             seed,
         };
         let scan = simulate_scan(&req).expect("simulates");
@@ -442,7 +442,7 @@ mod tests {
             noise: ScanNoise::default(),
             cell: CellOptions::default(),
             kinematic_error: KinematicError::none(),
-            controller_dh: None,
+            arm: None,
             seed: 7,
         };
         let a = simulate_scan(&req).expect("simulates");
@@ -484,29 +484,36 @@ mod tests {
             .norm()
                 < 1e-12
         );
-        // Posed by the nominal DH, the arm is its URDF: the same scan as the exact arm.
+        // An exactly built arm is its URDF: the same scan as the exact arm.
         let dh = model.ur_model().expect("UR").dh();
         let exact = ScanRequest {
             kinematic_error: KinematicError::none(),
             ..req.clone()
         };
-        let d = simulate_scan(&exact.with_controller_dh(dh)).expect("simulates");
+        let d = simulate_scan(&exact.with_arm(PhysicalArm::exact(dh))).expect("simulates");
         assert!(a
             .cloud
             .points
             .iter()
             .zip(&d.cloud.points)
             .all(|(p, q)| (p - q).norm() < 1e-6 || (p.x.is_nan() && q.x.is_nan())));
-        // The random kinematic error is not applied on top of the controller's DH.
-        let d = simulate_scan(&req.clone().with_controller_dh(dh)).expect("simulates");
+        // The random kinematic error is not applied on top of the physical arm.
+        let d = simulate_scan(&req.clone().with_arm(PhysicalArm::exact(dh))).expect("simulates");
         assert!(d.truth.joint_origin_errors.is_empty());
         assert!(
             (d.truth.model_from_flange_reported.to_homogeneous() - nominal.to_homogeneous()).norm()
                 < 1e-9
         );
-        // A calibrated controller: the flange is its DH forward kinematics.
-        let calibrated = dh.plus(&DhParams::factory_calibration_delta(1));
-        let e = simulate_scan(&req.clone().with_controller_dh(calibrated)).expect("simulates");
+        // A physical arm: the flange is the forward kinematics of the DH its controller
+        // publishes.
+        let arm = PhysicalArm::factory(model.ur_model().expect("UR"), 1);
+        let calibrated = arm.controller_dh();
+        assert!(
+            calibrated.d[1].abs() > 1.0,
+            "parallel-axis DH: {:?}",
+            calibrated.d
+        );
+        let e = simulate_scan(&req.clone().with_arm(arm)).expect("simulates");
         let q6: [f64; 6] = q.as_slice().try_into().expect("6 joints");
         let reported = model.frame_pose("base", &q).expect("base") * calibrated.forward(&q6);
         assert!(

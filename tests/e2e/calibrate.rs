@@ -80,6 +80,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
         "{out}"
     );
     let (mount, dh) = truth(&dir);
+    assert!(dh.d[1].abs() > 1.0, "a real controller's DH: {:?}", dh.d);
     let result = iso(&record["result"]["flange_from_camera"]);
     let (mm, deg) = pose_error(&mount, &result);
     eprintln!("calibrate over the rig: {mm:.3} mm / {deg:.4}° from the truth");

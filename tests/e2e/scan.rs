@@ -25,6 +25,12 @@ fn demo_calibrates_the_simulated_rig_through_the_real_protocols() {
     assert_eq!(doc["passed"], true, "{out}");
     let (mm, deg) = pose_error(&iso(&doc["ground_truth"]), &iso(&doc["flange_from_camera"]));
     assert!(mm < 0.5 && deg < 0.1, "error {mm} mm / {deg}°\n{out}");
+    // Posed by what the controller publishes: a real controller's DH, its nearly parallel
+    // joints' common normals hundreds of metres away.
+    let kinematics = &doc["record"]["preflight"]["kinematics"];
+    assert_eq!(kinematics["source"], "controller", "{out}");
+    let d2 = kinematics["dh"]["d"][1].as_f64().expect("d2");
+    assert!(d2.abs() > 1.0, "d2 = {d2} m\n{out}");
     assert!((doc["error"]["translation_mm"].as_f64().expect("mm") - mm).abs() < 1e-6);
     assert_eq!(doc["written_back"], true, "{out}");
     // What the demo says the controller's TCP now is, is the result.
@@ -709,7 +715,11 @@ fn issue_17_solve_takes_the_ur_calibration_file() {
     let dh: handeye_hal::ur_dh::DhParams =
         serde_json::from_value(gt["controller_dh"].clone()).expect("controller_dh");
     let yaml = dir.join("cal.yaml");
-    std::fs::write(&yaml, ur_calibration_yaml(&dh, "calib_e2e")).expect("write yaml");
+    std::fs::write(
+        &yaml,
+        ur_calibration_yaml(&dh, &handeye_hal::ur_dh::UrModel::Ur10e.dh(), "calib_e2e"),
+    )
+    .expect("write yaml");
     let out = solve_with(
         &s,
         &csv(&joints),
@@ -745,7 +755,11 @@ fn issue_17_solve_takes_the_ur_calibration_file() {
     let bad = dir.join("bad.yaml");
     std::fs::write(
         &bad,
-        ur_calibration_yaml(&dh, "calib_e2e").replacen("    z: ", "    z: .nan # ", 1),
+        ur_calibration_yaml(&dh, &handeye_hal::ur_dh::UrModel::Ur10e.dh(), "calib_e2e").replacen(
+            "    z: ",
+            "    z: .nan # ",
+            1,
+        ),
     )
     .expect("write");
     let out = solve_with(

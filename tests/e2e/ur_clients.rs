@@ -36,7 +36,11 @@ fn start_sim(ip: &str) -> InProcessSim {
         .enable_all()
         .build()
         .expect("runtime");
-    let mut c = SimConfig::new(UrModel::Ur5e, ip.parse::<IpAddr>().expect("ip"));
+    // A physical arm: the controller publishes the exact DH of its nearly parallel joints 2–4
+    // (d of hundreds of metres) and computes every pose from it, as a real one does.
+    let mut c =
+        SimConfig::new(UrModel::Ur5e, ip.parse::<IpAddr>().expect("ip")).factory_calibrated(4);
+    assert!(c.arm.expect("an arm").controller_dh().d[1].abs() > 1.0);
     c.start_running = true;
     c.unlock_delay = Duration::ZERO;
     let sim = runtime

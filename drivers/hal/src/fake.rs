@@ -330,9 +330,7 @@ mod tests {
         assert!((flange.translation.vector - nominal.translation.vector).norm() < 1e-12);
 
         let k = ControllerKinematics {
-            dh: UrModel::Ur5e
-                .dh()
-                .plus(&DhParams::factory_calibration_delta(7)),
+            dh: crate::ur_dh::PhysicalArm::factory(UrModel::Ur5e, 7).controller_dh(),
             checksum: [1, 2, 3, 4, 5, 6],
             calibrated: true,
         };

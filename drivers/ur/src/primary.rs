@@ -651,7 +651,8 @@ mod tests {
     fn round_trips_and_fuzz() {
         let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
         let kin = KinematicsInfo::for_arm(
-            nominal.plus(&DhParams::factory_calibration_delta(7)),
+            handeye_hal::ur_dh::PhysicalArm::factory(handeye_hal::ur_dh::UrModel::Ur5e, 7)
+                .controller_dh(),
             CALIBRATION_LINEARISED,
         );
         let m = RobotModeData {

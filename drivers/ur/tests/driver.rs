@@ -4,7 +4,7 @@
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::time::Duration;
 
-use handeye_hal::ur_dh::{DhParams, UrModel};
+use handeye_hal::ur_dh::{DhParams, JointErrorSizes, PhysicalArm, UrModel};
 use handeye_hal::{HalError, MotionLimits, Robot, RobotMode, SafetyMode};
 use handeye_ur::client::{RtdeClient, RtdeConfig, ScriptClient};
 use handeye_ur::dashboard::DashboardClient;
@@ -548,13 +548,13 @@ async fn cb3_refuses_500_hz_and_has_no_remote_mode() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn true_kinematics_deviation_shows_in_the_controller_pose() {
     let mut c = sim_config();
-    let delta = DhParams {
-        a: [0.0, 0.002, -0.001, 0.0, 0.0, 0.0],
-        d: [0.001, 0.0, 0.0, 0.0005, 0.0, 0.0],
-        alpha: [0.0, 0.001, 0.0, 0.0, 0.0, 0.0],
-        theta: [0.0, 0.0, 0.002, 0.0, 0.0, 0.0],
+    let sizes = JointErrorSizes {
+        zero_offset_rad: 2e-3,
+        translation_m: 2e-3,
+        misalignment_rad: 2e-3,
     };
-    c.dh_delta = Some(delta);
+    let arm = PhysicalArm::draw(UrModel::Ur5e.dh(), &sizes, 3);
+    c.arm = Some(arm);
     let (sim, robot) = start(c).await;
     let q: [f64; 6] = robot
         .joint_positions()
@@ -564,7 +564,8 @@ async fn true_kinematics_deviation_shows_in_the_controller_pose() {
         .expect("6");
     let flange = robot.flange_pose().await.expect("flange");
     let nominal = UrModel::Ur5e.dh().forward(&q);
-    let truth = sim.dh().forward(&q);
+    let truth = arm.flange(&q);
+    assert!((sim.dh().forward(&q).translation.vector - truth.translation.vector).norm() < 1e-9);
     assert!((flange.translation.vector - truth.translation.vector).norm() < 1e-9);
     assert!((flange.translation.vector - nominal.translation.vector).norm() > 1e-3);
 }
@@ -598,12 +599,13 @@ async fn factory_calibrated_kinematics_come_over_the_primary_interface() {
     assert_eq!(got.checksum, published.checksum);
     assert!(dh_max_abs_diff(&got.dh, &published.dh) < 1e-12);
     assert!(dh_max_abs_diff(&got.dh, &sim.dh()) < 1e-12);
-    let off_nominal = dh_max_abs_diff(&got.dh, &UrModel::Ur5e.dh());
-    assert!(off_nominal > 1e-5 && off_nominal < 2e-3, "{off_nominal}");
+    // A real controller's DH: the nearly parallel joints 2–4 put d₂ and d₃ far away.
+    assert!(got.dh.d[1].abs() > 1.0, "{:?}", got.dh.d);
+    assert!((got.dh.d[1] + got.dh.d[2] + got.dh.d[3] - UrModel::Ur5e.dh().d[3]).abs() < 5e-3);
     // The same seed is the same arm; another seed is another arm.
     let again = SimConfig::new(UrModel::Ur5e, LOCAL).factory_calibrated(7);
-    assert_eq!(again.dh_delta, sim_config().factory_calibrated(7).dh_delta);
-    assert_ne!(again.dh_delta, sim_config().factory_calibrated(8).dh_delta);
+    assert_eq!(again.arm, sim_config().factory_calibrated(7).arm);
+    assert_ne!(again.arm, sim_config().factory_calibrated(8).arm);
     // The controller reports poses of its calibrated arm, at every joint configuration.
     for delta in [0.0, 0.4] {
         let target = target_from(sim.joint_positions(), delta);

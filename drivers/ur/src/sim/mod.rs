@@ -21,7 +21,7 @@ use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use handeye_hal::ur_dh::{DhParams, UrModel};
+use handeye_hal::ur_dh::{DhParams, PhysicalArm, UrModel};
 use handeye_hal::ControllerKinematics;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{broadcast, watch};
@@ -39,9 +39,12 @@ pub struct SimConfig {
     pub bind: IpAddr,
     /// Ports; [`Ports::STANDARD`] for real clients, or 0s for ephemeral ports in parallel tests.
     pub ports: Ports,
-    /// The arm's "true" kinematics (factory calibration) as deltas added to the nominal DH;
-    /// `None` = nominal. Reported in the primary KinematicsInfo and used for all poses.
-    pub dh_delta: Option<DhParams>,
+    /// The physical arm (its joints' small errors, as a real arm is built); `None` = exactly
+    /// nominal. The controller computes the arm's exact standard DH
+    /// ([`PhysicalArm::controller_dh`]: with a real arm's nearly parallel joints 2–4, `d` of
+    /// hundreds of metres), publishes it in the primary KinematicsInfo and uses it for every
+    /// pose, forward and inverse kinematics.
+    pub arm: Option<PhysicalArm>,
     /// Start powered with brakes released (RUNNING) instead of POWER_OFF.
     pub start_running: bool,
     /// Start in remote control (e-Series); CB3 is always remote.
@@ -70,7 +73,7 @@ impl SimConfig {
             model,
             bind,
             ports: Ports::STANDARD,
-            dh_delta: None,
+            arm: None,
             start_running: false,
             remote_control: true,
             fieldbus_held: Vec::new(),
@@ -95,13 +98,12 @@ impl SimConfig {
         self
     }
 
-    /// A factory-calibrated arm: [`SimConfig::dh_delta`] becomes a deterministic pseudo-random
-    /// delta of the size a UR factory calibration has (1σ per joint: θ and α 0.3 mrad, a and d
-    /// 0.3 mm; [`DhParams::factory_calibration_delta`]); the same `seed` gives the same arm.
-    /// The controller computes every pose with nominal + delta and publishes that set, with
-    /// calibration status "linearised", in the primary KinematicsInfo.
+    /// A factory-calibrated arm: [`SimConfig::arm`] becomes a deterministic pseudo-random
+    /// physical arm with joint errors of the size a UR factory calibration finds (1σ 0.3 mm and
+    /// 0.3 mrad per joint and axis; [`PhysicalArm::factory`]); the same `seed` gives the same
+    /// arm. The controller publishes its exact DH, with calibration status "linearised".
     pub fn factory_calibrated(mut self, seed: u64) -> Self {
-        self.dh_delta = Some(DhParams::factory_calibration_delta(seed));
+        self.arm = Some(PhysicalArm::factory(self.model, seed));
         self
     }
 
@@ -365,9 +367,16 @@ impl SimHandle {
         self.shared.lock().log.iter().cloned().collect()
     }
 
-    /// The simulated arm's kinematics (nominal + delta).
+    /// The kinematics the controller computes with: the physical arm's exact DH, or the
+    /// nominal set.
     pub fn dh(&self) -> DhParams {
         self.shared.lock().dh
+    }
+
+    /// The physical arm this controller drives (`None`: exactly nominal), for a simulated
+    /// camera that must see the same arm.
+    pub fn arm(&self) -> Option<PhysicalArm> {
+        self.shared.config.arm
     }
 
     /// The kinematics this controller publishes (primary KinematicsInfo): [`SimHandle::dh`],

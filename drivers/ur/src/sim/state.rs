@@ -3,7 +3,7 @@
 use std::collections::{HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
-use handeye_hal::ur_dh::{DhParams, UrModel};
+use handeye_hal::ur_dh::{DhParams, PhysicalArm, UrModel};
 use nalgebra::Isometry3;
 
 use super::motion::Motion;
@@ -167,9 +167,9 @@ impl State {
     pub(crate) fn new(c: &SimConfig) -> Self {
         // Every pose the controller reports (RTDE, URScript, primary) uses this one set.
         let dh = c
-            .dh_delta
+            .arm
             .as_ref()
-            .map_or_else(|| c.model.dh(), |d| c.model.dh().plus(d));
+            .map_or_else(|| c.model.dh(), PhysicalArm::controller_dh);
         Self {
             // Controllers report seconds since boot; clients (URCL) expect > 40 s.
             boot: Instant::now()
