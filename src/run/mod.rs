@@ -9,7 +9,7 @@
 //!    configured obstacles before the first motion.
 //! 3. **Move** (`movej` within the configured caps), **settle**, **capture** (joints and the
 //!    controller's flange pose at that instant, N frames, kept on disk for replay).
-//! 4. **Register, solve, gate** ([`pipeline::calibrate_frames`]).
+//! 4. **Register, solve, gate** ([`crate::calib::pipeline::calibrate_frames`]).
 //! 5. **Write back** only when the gate passed, in calibrate mode (files, TCP, registers; each
 //!    read back), or **compare** with the current calibration in check mode.
 //! 6. **Return** to the start, unless a fault or a cancel stopped the arm (never auto-resume).
@@ -18,7 +18,6 @@
 //! nothing but its own record. The [`Recorder`] keeps it: the history row, the record and the
 //! report picture in the run's folder (`crate::storage`), pruning.
 
-pub mod pipeline;
 pub mod recorder;
 #[cfg(test)]
 mod tests;
@@ -40,13 +39,14 @@ use crate::plan::{Obstacle, ViewConstraints, ViewPlanner};
 use crate::sim::Intrinsics;
 
 use crate::calendar::unix_now;
+use crate::calib::pipeline;
+pub use crate::calib::pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
 pub use crate::record::{
     CaptureRecord, DriftRecord, FrameRecord, KinematicsOrigin, KinematicsUsed, Outcome,
     PlannedView, PreflightRecord, ResultRecord, RunMode, RunRecord, RunTimings, Stage, WriteTarget,
     Written,
 };
 use crate::storage::{self, load_current, new_run_id, CaptureFile};
-pub use pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
 pub use recorder::Recorder;
 
 /// Generated candidates tried per automatic view before the plan gives up.

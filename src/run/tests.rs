@@ -732,7 +732,7 @@ fn build_eye_to_hand_cell(f: &Fixture) -> EyeToHandCell {
     );
     // The truth in the controller's `base` frame, both ways: the URDF's own `base` link and the
     // fixed UR convention (the model root is `base_link`).
-    let base_from_model = super::pipeline::fixed_frame(&f.model, "base")
+    let base_from_model = crate::calib::pipeline::fixed_frame(&f.model, "base")
         .expect("the UR5e URDF has a `base` link")
         .inverse();
     let base_from_camera = crate::frames::ur_base_from_base_link() * model_from_camera;
