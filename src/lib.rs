@@ -43,4 +43,6 @@ pub mod storage;
 pub mod store;
 
 #[cfg(test)]
+mod floors;
+#[cfg(test)]
 mod testutil;

@@ -92,9 +92,12 @@ pub enum WhenBusy {
     /// Refused with who is busy since when (`"refuse"`, the default).
     #[default]
     Refuse,
-    /// Queued behind it, up to [`crate::daemon::QUEUE_LIMIT`] runs (`"queue"`).
+    /// Queued behind it, up to [`QUEUE_LIMIT`] runs (`"queue"`).
     Queue,
 }
+
+/// The most runs `daemon.when_busy = "queue"` keeps waiting behind the running one.
+pub const QUEUE_LIMIT: usize = 4;
 
 /// The register handshake with a pendant program (`[daemon.pendant]`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -22,7 +22,7 @@ use tokio::sync::Notify;
 use tokio_util::sync::CancellationToken;
 
 use crate::calendar::{unix_now, utc_text};
-use crate::config::{Config, WhenBusy};
+use crate::config::{Config, WhenBusy, QUEUE_LIMIT};
 use crate::model::RobotModel;
 use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger};
 use crate::run::{Progress, Recorder, RunRequest};
@@ -147,9 +147,6 @@ pub enum Refusal {
         queued: usize,
     },
 }
-
-/// The most runs `daemon.when_busy = "queue"` keeps waiting behind the running one.
-pub const QUEUE_LIMIT: usize = 4;
 
 /// How often an idle daemon asks the robot and the camera whether they answer.
 const HEALTH_EVERY: Duration = Duration::from_secs(5);
