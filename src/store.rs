@@ -375,7 +375,7 @@ pub struct RunSummary {
     pub written: Vec<String>,
     /// The run's capture file (`capture.json`, for `handeye solve --capture`).
     pub capture_file: Option<String>,
-    /// When [`Store::prune_captures`] removed the raw scans, unix s (replay is then
+    /// When the raw scans were removed ([`Store::mark_pruned`]), unix s (replay is then
     /// impossible; the record stays).
     pub captures_pruned_unix_s: Option<f64>,
 }

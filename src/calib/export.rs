@@ -88,7 +88,7 @@ pub struct ResultFile {
     pub inverse: TransformRecord,
 }
 
-/// A result rendered into every export format; [`Exports::write_to`] writes them.
+/// A result rendered into every export format ([`Exports::files`]); the run folder writes them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Exports {
     result: ResultFile,
