@@ -127,6 +127,24 @@ pub enum Stage {
 }
 
 impl Stage {
+    /// Every stage, in order.
+    pub const ALL: [Stage; 9] = [
+        Stage::Preflight,
+        Stage::Plan,
+        Stage::Move,
+        Stage::Settle,
+        Stage::Capture,
+        Stage::Register,
+        Stage::Solve,
+        Stage::WriteBack,
+        Stage::Return,
+    ];
+
+    /// The stage of a name ([`Self::name`]).
+    pub fn parse(name: &str) -> Option<Stage> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+
     /// Lower-case name as in JSON.
     pub fn name(self) -> &'static str {
         match self {

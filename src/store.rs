@@ -31,7 +31,7 @@ use rusqlite::{params, Connection, ErrorCode, OpenFlags, OptionalExtension, Tran
 use serde::{Deserialize, Serialize};
 
 use crate::calendar::unix_now;
-use crate::record::{Outcome, RunMode, RunRecord, Trigger};
+use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger, WriteTarget};
 
 #[cfg(test)]
 mod tests;
@@ -350,7 +350,7 @@ pub struct RunSummary {
     /// The run's own total time, ms.
     pub duration_ms: Option<f64>,
     /// The stage that failed (aborted/error).
-    pub failed_stage: Option<String>,
+    pub failed_stage: Option<Stage>,
     /// The first reason (all of them are in the record).
     pub reason: Option<String>,
     /// The configuration's origin (file path).
@@ -372,7 +372,7 @@ pub struct RunSummary {
     /// Check: whether a drift threshold was exceeded.
     pub drifted: Option<bool>,
     /// What was written back (`tcp`, `registers`, `files`), in order.
-    pub written: Vec<String>,
+    pub written: Vec<WriteTarget>,
     /// The run's capture file (`capture.json`, for `handeye solve --capture`).
     pub capture_file: Option<String>,
     /// When the raw scans were removed ([`Store::mark_pruned`]), unix s (replay is then
@@ -778,6 +778,13 @@ fn summary_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RunSummary> {
         Trigger::parse(&trigger).ok_or_else(|| bad(1, format!("unknown trigger `{trigger}`")))?;
     let mode: String = r.get(2)?;
     let mode = RunMode::parse(&mode).ok_or_else(|| bad(2, format!("unknown mode `{mode}`")))?;
+    let failed_stage: Option<String> = r.get(7)?;
+    let failed_stage = match failed_stage {
+        Some(name) => {
+            Some(Stage::parse(&name).ok_or_else(|| bad(7, format!("unknown stage `{name}`")))?)
+        }
+        None => None,
+    };
     let outcome: String = r.get(3)?;
     let outcome =
         RunStatus::parse(&outcome).ok_or_else(|| bad(3, format!("unknown outcome `{outcome}`")))?;
@@ -806,7 +813,7 @@ fn summary_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RunSummary> {
         started_unix_s: r.get(4)?,
         finished_unix_s: r.get(5)?,
         duration_ms: r.get(6)?,
-        failed_stage: r.get(7)?,
+        failed_stage,
         reason: r.get(8)?,
         config_origin: r.get(9)?,
         config_digest: r.get(10)?,

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use handeye::calendar::utc_text;
 use handeye::config::Config;
+use handeye::record::Stage;
 use handeye::store::{RunSummary, Store, StoredRun, HISTORY_FILE};
 
 /// Arguments of `history`.
@@ -307,7 +308,7 @@ fn csv(runs: &[RunSummary]) -> String {
             r.started_unix_s.to_string(),
             num(r.finished_unix_s),
             num(r.duration_ms),
-            text(r.failed_stage.as_deref()),
+            text(r.failed_stage.map(Stage::name)),
             text(r.reason.as_deref()),
             pose(0),
             pose(1),
@@ -320,7 +321,13 @@ fn csv(runs: &[RunSummary]) -> String {
             num(r.drift_translation_mm),
             num(r.drift_rotation_deg),
             r.drifted.map_or(String::new(), |d| d.to_string()),
-            quote(&r.written.join("+")),
+            quote(
+                &r.written
+                    .iter()
+                    .map(|w| w.name())
+                    .collect::<Vec<_>>()
+                    .join("+"),
+            ),
             text(r.capture_file.as_deref()),
             num(r.captures_pruned_unix_s),
             quote(&r.config_origin),

@@ -174,7 +174,7 @@ fn runs_round_trip_through_begin_finish_list_get_latest() {
     assert_eq!(sa.ur_pose, Some([0.0, -0.08, 0.04, -0.26, 0.0, 0.0]));
     assert_eq!(sa.uncertainty_translation_mm, Some(0.21));
     assert_eq!(sa.uncertainty_rotation_deg, Some(0.03));
-    assert_eq!(sa.written, ["tcp", "files"]);
+    assert_eq!(sa.written, [WriteTarget::Tcp, WriteTarget::Files]);
     assert_eq!(sa.drifted, None);
     assert_eq!(sa.reason, None);
     assert_eq!(
@@ -189,7 +189,7 @@ fn runs_round_trip_through_begin_finish_list_get_latest() {
     assert_eq!(sb.drifted, Some(false));
     let sc = &list[0];
     assert_eq!(sc.outcome, RunStatus::Ended(Outcome::Rejected));
-    assert_eq!(sc.failed_stage.as_deref(), Some("solve"));
+    assert_eq!(sc.failed_stage, Some(Stage::Solve));
     assert!(sc
         .reason
         .as_deref()
