@@ -12,10 +12,10 @@ use super::Outcome;
 pub struct GateThresholds {
     /// Minimum fraction of the expected visible model surface with scan points on it.
     pub min_coverage: f64,
-    /// Minimum of the same for each fitted moving link on its own (shoulder, upper arm) that
-    /// is expected in view: a link the scan does not support where the model puts it means
-    /// kinematics that are not the arm's.
-    pub min_link_coverage: f64,
+    /// Minimum support of each fitted link on its own (base, shoulder, upper arm; see
+    /// [`super::Quality::link_support`]): a link the scan sees through where the model puts it,
+    /// while the fit follows the others, means kinematics that are not the arm's.
+    pub min_link_support: f64,
     /// Maximum fraction of the expected visible surface where the scan sees through the model.
     pub max_free_space_violations: f64,
     /// Maximum RMS point-to-surface residual, mm.
@@ -47,7 +47,7 @@ impl Default for GateThresholds {
     fn default() -> Self {
         GateThresholds {
             min_coverage: 0.6,
-            min_link_coverage: 0.3,
+            min_link_support: 0.5,
             max_free_space_violations: 0.03,
             max_rmse_mm: 1.5,
             min_inlier_fraction: 0.5,
@@ -99,18 +99,17 @@ pub fn gate(
                 100.0 * th.min_coverage
             ));
         }
-        for (k, c) in q.link_coverage.iter().enumerate() {
-            if let Some(c) = c.filter(|c| *c < th.min_link_coverage) {
+        for (k, c) in q.link_support.iter().enumerate() {
+            if let Some(c) = c.filter(|c| *c < th.min_link_support) {
                 reasons.push(format!(
-                    "frame {i}: only {:.0}% of the {} (chain link {}) is in the scan where the model puts it (min {:.0}%): the kinematics the model is posed by are not the arm's; check robot.model and the controller's or file's calibration",
-                    100.0 * c,
+                    "frame {i}: the fitted links disagree: the scan sees through the {} where the model puts it beside the others (only {:.0}% of what it measured there is its surface, min {:.0}%); the kinematics the model is posed by are not the arm's: check robot.model and the controller's or file's calibration",
                     match k {
-                        0 => "shoulder",
-                        1 => "upper arm",
-                        _ => "forearm",
+                        0 => "base",
+                        1 => "shoulder",
+                        _ => "upper arm",
                     },
-                    k + 1,
-                    100.0 * th.min_link_coverage
+                    100.0 * c,
+                    100.0 * th.min_link_support
                 ));
             }
         }
@@ -243,7 +242,7 @@ mod tests {
                 hypotheses: 3,
                 from_prior: false,
                 ambiguity: 0.2,
-                link_coverage: [Some(0.9), Some(0.85), None],
+                link_support: [Some(0.95), Some(0.9), Some(0.85)],
             },
             degenerate_directions: vec![],
             depth_scale: Some(1.001),
@@ -273,9 +272,9 @@ mod tests {
             Box::new(|r| r.degenerate_directions.push(nalgebra::Vector6::z())),
             Box::new(|r| r.depth_scale = Some(1.2)),
             Box::new(|r| r.quality.ambiguity = 0.95),
-            // The upper arm is not where the model puts it (the model's kinematics are not
-            // the arm's).
-            Box::new(|r| r.quality.link_coverage[1] = Some(0.05)),
+            // The upper arm is not where the model puts it beside the others (the model's
+            // kinematics are not the arm's).
+            Box::new(|r| r.quality.link_support[2] = Some(0.05)),
         ];
         for (k, f) in bad.iter().enumerate() {
             let mut r = reg.clone();

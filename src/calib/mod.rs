@@ -129,6 +129,19 @@ pub enum CalibError {
     /// The robot model could not be posed.
     #[error(transparent)]
     Model(crate::model::ModelError),
+    /// The kinematics the model is posed by (the controller's, a calibration file's) put a link
+    /// far from anywhere a calibration of this model can: they are another arm's.
+    #[error("the arm's kinematics (the controller's or the calibration file's) put {link} {off_mm:.0} mm / {turn_deg:.1}° from where the {model} model has it (a calibration moves links by a few mm): they are another arm's; check robot.model against the controller's robot type, or the calibration file")]
+    KinematicsNotThisArm {
+        /// The link furthest off.
+        link: String,
+        /// How far its origin is off, mm.
+        off_mm: f64,
+        /// How far it is turned, degrees.
+        turn_deg: f64,
+        /// The model's name.
+        model: String,
+    },
     /// Nothing to solve.
     #[error("no registered frames to solve from")]
     NoFrames,

@@ -26,8 +26,11 @@ pub(crate) struct RangeImage<'a> {
 }
 
 impl<'a> RangeImage<'a> {
-    /// Pixel indices on a regular grid whose spacing gives about `target` valid pixels, the
-    /// valid count being estimated from every `sample_step`-th pixel.
+    /// One valid pixel per cell of a regular grid whose spacing gives about `target` valid
+    /// pixels (the first valid one of the cell, row by row), the valid count being estimated
+    /// from every `sample_step`-th pixel. Per cell, not per grid point: a scan whose invalid
+    /// pixels repeat with the grid's period (every 7th pixel, a sensor's dead columns) would
+    /// leave a grid of points nothing.
     pub(crate) fn grid(
         &self,
         target: usize,
@@ -41,11 +44,15 @@ impl<'a> RangeImage<'a> {
             .count()
             * sample_step;
         let stride = ((valid as f64 / target as f64).sqrt().floor() as usize).max(1);
-        let (w, n) = (self.cam.width as usize, self.points.len());
-        (0..self.cam.height as usize)
-            .step_by(stride)
-            .flat_map(move |v| (0..w).step_by(stride).map(move |u| v * w + u))
-            .filter(move |&i| i < n)
+        let (w, h) = (self.cam.width as usize, self.cam.height as usize);
+        let n = self.points.len();
+        (0..h).step_by(stride).flat_map(move |v0| {
+            (0..w).step_by(stride).filter_map(move |u0| {
+                (v0..(v0 + stride).min(h))
+                    .flat_map(|v| (u0..(u0 + stride).min(w)).map(move |u| v * w + u))
+                    .find(|&i| i < n && self.point(i).is_some())
+            })
+        })
     }
 
     /// Wraps a scan; fails when it has too few valid points to be a scan of anything.

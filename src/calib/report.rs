@@ -16,9 +16,10 @@ use crate::frames::to_row_major;
 pub struct QualitySummary {
     /// Lowest coverage of any frame, 0–1.
     pub coverage: f64,
-    /// Lowest coverage of each fitted moving link of any frame that judged it (see
-    /// [`super::Quality::link_coverage`]).
-    pub link_coverage: [Option<f64>; super::register::MAX_REPORTED_LINKS],
+    /// Lowest support of each fitted link (base, shoulder, upper arm) of any frame that judged
+    /// it (see
+    /// [`super::Quality::link_support`]).
+    pub link_support: [Option<f64>; super::register::MAX_REPORTED_LINKS],
     /// Highest free-space violation fraction of any frame, 0–1.
     pub free_space_violations: f64,
     /// Highest residual RMS of any frame, mm.
@@ -142,10 +143,10 @@ impl CalibrationReport {
         let views_used: Vec<&Residual> = solution.views.iter().filter(|v| v.used).collect();
         let quality = QualitySummary {
             coverage: fold(&|r| r.quality.coverage, f64::min, 1.0),
-            link_coverage: std::array::from_fn(|k| {
+            link_support: std::array::from_fn(|k| {
                 registrations
                     .iter()
-                    .filter_map(|r| r.quality.link_coverage[k])
+                    .filter_map(|r| r.quality.link_support[k])
                     .reduce(f64::min)
             }),
             free_space_violations: fold(&|r| r.quality.free_space_violations, f64::max, 0.0),

@@ -36,11 +36,6 @@ impl Evidence {
         }
     }
 
-    /// Expected visible model samples (matched, violated or missing).
-    pub(crate) fn visible(&self) -> f64 {
-        self.matched + self.violated + self.missing
-    }
-
     /// Fraction of the expected visible model surface where the scan sees through the model.
     pub(crate) fn violation_fraction(&self) -> f64 {
         let d = self.matched + self.violated + self.missing;

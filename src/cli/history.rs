@@ -412,7 +412,7 @@ mod tests {
                     uncertainty,
                     quality: QualitySummary {
                         coverage: 0.8,
-                        link_coverage: [None; 3],
+                        link_support: [None; 3],
                         free_space_violations: 0.01,
                         rmse_mm: 0.4,
                         inlier_fraction: 0.9,

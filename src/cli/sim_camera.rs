@@ -63,8 +63,8 @@ pub(crate) struct Args {
     /// Serial number to report.
     #[arg(long, default_value = "SIM0001")]
     serial: String,
-    /// Render the arm as factory calibrated with this seed, as `handeye sim robot
-    /// --factory-calibration SEED` reports it (its DH = nominal + the seeded delta).
+    /// Render the physical arm with this seed, the one `handeye sim robot
+    /// --factory-calibration SEED` drives.
     #[arg(long, value_name = "SEED")]
     factory_calibration: Option<u64>,
     /// Read the mount from this file (`x,y,z,rx,ry,rz`) whenever it changes: a simulator-only

@@ -197,8 +197,8 @@ pub(crate) struct Args {
     /// GVCP address of the camera, `IP` or `IP:PORT` (default port 3956).
     #[arg(long, default_value = "127.0.0.2", value_name = "ADDR")]
     camera_bind: String,
-    /// The arm's factory calibration seed: its DH differs from nominal as a real arm's does
-    /// and the controller publishes it.
+    /// The physical arm's seed: its joints are off as a real arm's are, and the controller
+    /// publishes its exact DH.
     #[arg(long, default_value_t = 1, value_name = "SEED")]
     factory_calibration: u64,
     /// An arm exactly at its nominal DH (no factory calibration).

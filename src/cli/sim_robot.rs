@@ -47,9 +47,11 @@ pub(crate) struct Args {
     /// Seconds after a protective stop before `unlock protective stop` is accepted.
     #[arg(long, default_value_t = 5.0)]
     unlock_delay_s: f64,
-    /// Simulate a factory-calibrated arm: the DH parameters get a deterministic pseudo-random
-    /// delta of factory-calibration size (θ, α ~0.3 mrad; a, d ~0.3 mm, 1σ) drawn from SEED;
-    /// every reported pose and the primary KinematicsInfo use it (default: nominal DH).
+    /// Simulate a physical arm, as built: every joint off by a deterministic pseudo-random
+    /// error of factory-calibration size (0.3 mm, 0.3 mrad 1σ) drawn from SEED; the controller
+    /// publishes the arm's exact DH in the primary KinematicsInfo (its nearly parallel joints
+    /// 2–4 give d of hundreds of metres, as a real one's) and computes every pose from it
+    /// (default: an exactly nominal arm).
     #[arg(long, value_name = "SEED")]
     factory_calibration: Option<u64>,
 }

@@ -774,7 +774,7 @@ struct RawObstacle {
 #[serde(deny_unknown_fields)]
 struct RawGate {
     min_coverage: Option<f64>,
-    min_link_coverage: Option<f64>,
+    min_link_support: Option<f64>,
     max_free_space_violations: Option<f64>,
     max_rmse_mm: Option<f64>,
     min_inlier_fraction: Option<f64>,
@@ -1541,7 +1541,7 @@ impl Ctx<'_> {
         // Destructured without `..`: a new threshold fails to compile here until it has a key.
         let GateThresholds {
             min_coverage,
-            min_link_coverage,
+            min_link_support,
             max_free_space_violations,
             max_rmse_mm,
             min_inlier_fraction,
@@ -1558,10 +1558,10 @@ impl Ctx<'_> {
         use ranges::{DEPTH_SCALE_ERROR, FRACTION, GATE_DEG, GATE_MM};
         Ok(GateThresholds {
             min_coverage: self.num("gate.min_coverage", g.min_coverage, min_coverage, FRACTION)?,
-            min_link_coverage: self.num(
-                "gate.min_link_coverage",
-                g.min_link_coverage,
-                min_link_coverage,
+            min_link_support: self.num(
+                "gate.min_link_support",
+                g.min_link_support,
+                min_link_support,
                 FRACTION,
             )?,
             max_free_space_violations: self.num(

@@ -1221,6 +1221,22 @@ fn read_mesh(path: &Path, link: &str) -> Result<TriMesh, ModelError> {
             from_scene(&scene).map_err(malformed)?
         }
     };
+    // A link whose mesh reads as nothing would silently leave the model without it (the scan
+    // would then be fitted, and paths checked, without that link).
+    if mesh.triangles.is_empty() {
+        return Err(malformed(
+            "it holds no triangles (an empty or truncated file; an STL whose header claims more \
+             triangles than the file holds reads as none)"
+                .into(),
+        ));
+    }
+    if let Some(v) = mesh
+        .vertices
+        .iter()
+        .find(|v| !v.coords.iter().all(|c| c.is_finite()))
+    {
+        return Err(malformed(format!("a vertex is not finite ({v:?})")));
+    }
     Ok(mesh)
 }
 

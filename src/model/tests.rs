@@ -842,6 +842,16 @@ fn issue_16_deep_nesting_and_huge_sizes_are_clear_errors() {
     stl.extend([0u8; 60]);
     std::fs::write(dir.join("huge.stl"), &stl).expect("write");
     load(&mesh_urdf("huge.stl", "")).expect_err("lying header");
+    // Issue 23: meshes that read as nothing are errors naming the file and the link, never an
+    // empty link: a 0-triangle STL, a Collada without geometry.
+    let mut empty = vec![0u8; 80];
+    empty.extend(0u32.to_le_bytes());
+    std::fs::write(dir.join("empty.stl"), &empty).expect("write");
+    std::fs::write(dir.join("empty.dae"), dae("<asset/>")).expect("write");
+    for file in ["empty.stl", "empty.dae"] {
+        let e = load(&mesh_urdf(file, "")).expect_err(file).to_string();
+        assert!(e.contains(file) && e.contains("no triangles"), "{e}");
+    }
     // Sizes that parse but are no robot: primitives, scale, origin.
     std::fs::write(dir.join("t.stl"), STL_MM).expect("write");
     for (text, says) in [

@@ -454,9 +454,10 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
                 100.0 * q.free_space_violations
             ),
             format!(
-                "links in the scan: shoulder {}    upper arm {}",
-                percent(q.link_coverage[0]),
-                percent(q.link_coverage[1])
+                "support: base {}  shoulder {}  upper arm {}",
+                percent(q.link_support[0]),
+                percent(q.link_support[1]),
+                percent(q.link_support[2])
             ),
             format!(
                 "rms residual {:.3} mm    inliers {:5.1} %",

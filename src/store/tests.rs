@@ -42,7 +42,7 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
         uncertainty,
         quality: QualitySummary {
             coverage: 0.8,
-            link_coverage: [Some(0.9), Some(0.8), None],
+            link_support: [Some(0.9), Some(0.8), None],
             free_space_violations: 0.01,
             rmse_mm: 0.4,
             inlier_fraction: 0.9,
