@@ -9,6 +9,7 @@
 mod control;
 mod dashboard;
 mod motion;
+mod program;
 mod realtime;
 mod rtde_control;
 mod rtde_server;
