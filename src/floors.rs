@@ -1,9 +1,10 @@
 //! The floors of the core (see the top of `lib.rs`) kept true: a module may use the modules on
 //! its own floor and below, never above. Reads every `src/**/*.rs` the library builds (not
 //! the binary's `main.rs` and `cli/`, not test code) and fails naming each `crate::…` path
-//! that climbs.
+//! that climbs. The drivers' modules (and the UR simulator's) may not use each other in a
+//! circle either.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// The floors, lowest first; every top-level module of the library is on exactly one.
@@ -65,9 +66,9 @@ fn library_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// The top-level modules `text` names as `crate::name` (or in `crate::{a, b::c}`) in code,
-/// outside comments and the trailing `#[cfg(test)] mod … { … }`.
-fn used_modules(text: &str) -> BTreeSet<String> {
+/// The modules `text` names as `prefix name` (`crate::name`, or in `crate::{a, b::c}`) in
+/// code, outside comments and the trailing `#[cfg(test)] mod … { … }`.
+fn used_modules(text: &str, prefix: &str) -> BTreeSet<String> {
     let mut used = BTreeSet::new();
     let mut lines = text.lines().map(str::trim).peekable();
     while let Some(line) = lines.next() {
@@ -78,8 +79,8 @@ fn used_modules(text: &str) -> BTreeSet<String> {
             continue;
         }
         let code = line.split("//").next().unwrap_or("");
-        for (i, _) in code.match_indices("crate::") {
-            let rest = &code[i + "crate::".len()..];
+        for (i, _) in code.match_indices(prefix) {
+            let rest = &code[i + prefix.len()..];
             let names: Vec<&str> = match rest.strip_prefix('{') {
                 Some(group) => group
                     .split(['}', ','])
@@ -131,7 +132,7 @@ fn no_floor_of_the_core_uses_a_higher_one() {
         };
         seen.insert(top.clone());
         let text = std::fs::read_to_string(file).expect("source");
-        for used in used_modules(&text) {
+        for used in used_modules(&text, "crate::") {
             match floor(&used) {
                 Some(f) if f > own => climbs.push(format!(
                     "src/{} ({top}, floor {own}) uses crate::{used} (floor {f})",
@@ -152,6 +153,96 @@ fn no_floor_of_the_core_uses_a_higher_one() {
 #[test]
 fn the_reader_finds_uses_and_skips_comments_and_tests() {
     let text = "use crate::calib::Mount;\n// crate::daemon in a comment\nuse crate::{frames, record::RunMode};\nlet x = crate::calendar::unix_now(); // crate::run\n#[cfg(test)]\nmod tests {\n    use crate::daemon;\n}\n";
-    let used: Vec<String> = used_modules(text).into_iter().collect();
+    let used: Vec<String> = used_modules(text, "crate::").into_iter().collect();
     assert_eq!(used, ["calendar", "calib", "frames", "record"]);
+    let graph = [("a", ["b"]), ("b", ["c"]), ("c", ["a"])]
+        .map(|(m, u)| (m.to_string(), u.map(String::from).into_iter().collect()));
+    assert_eq!(
+        circle(&graph.into_iter().collect()),
+        Some(vec!["a".into(), "b".into(), "c".into(), "a".into()])
+    );
+}
+
+/// The modules of `dir` (its `.rs` files but `lib.rs`/`mod.rs`, and its folders) and which
+/// siblings each names with `prefix` (`crate::` at a crate's root, `super::` below it).
+fn sibling_graph(dir: &Path, prefix: &str) -> BTreeMap<String, BTreeSet<String>> {
+    let mut modules = BTreeMap::new();
+    for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+        let path = entry.expect("entry").path();
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if matches!(name.as_str(), "lib" | "mod" | "main" | "tests" | "testutil") {
+            continue;
+        }
+        let mut files = Vec::new();
+        if path.is_dir() {
+            library_files(&path, &mut files);
+        } else if path.extension().is_some_and(|x| x == "rs") {
+            files.push(path);
+        } else {
+            continue;
+        }
+        let used: BTreeSet<String> = files
+            .iter()
+            .flat_map(|f| used_modules(&std::fs::read_to_string(f).expect("source"), prefix))
+            .filter(|u| *u != name)
+            .collect();
+        modules.insert(name, used);
+    }
+    let names: BTreeSet<String> = modules.keys().cloned().collect();
+    for used in modules.values_mut() {
+        used.retain(|u| names.contains(u));
+    }
+    modules
+}
+
+/// A circle in `graph` (as the path that closes it), if there is one.
+fn circle(graph: &BTreeMap<String, BTreeSet<String>>) -> Option<Vec<String>> {
+    fn visit(
+        graph: &BTreeMap<String, BTreeSet<String>>,
+        node: &str,
+        path: &mut Vec<String>,
+        done: &mut BTreeSet<String>,
+    ) -> Option<Vec<String>> {
+        if let Some(i) = path.iter().position(|p| p == node) {
+            let mut c = path[i..].to_vec();
+            c.push(node.to_string());
+            return Some(c);
+        }
+        if done.contains(node) {
+            return None;
+        }
+        path.push(node.to_string());
+        for next in graph.get(node).into_iter().flatten() {
+            if let Some(c) = visit(graph, next, path, done) {
+                return Some(c);
+            }
+        }
+        path.pop();
+        done.insert(node.to_string());
+        None
+    }
+    let mut done = BTreeSet::new();
+    graph
+        .keys()
+        .find_map(|n| visit(graph, n, &mut Vec::new(), &mut done))
+}
+
+#[test]
+fn no_circle_among_the_drivers_modules() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("drivers");
+    for (dir, prefix) in [
+        ("hal/src", "crate::"),
+        ("ur/src", "crate::"),
+        ("ur/src/sim", "super::"),
+        ("gige/src", "crate::"),
+    ] {
+        let graph = sibling_graph(&root.join(dir), prefix);
+        assert!(graph.len() >= 4, "{dir}: read too little: {graph:?}");
+        if let Some(c) = circle(&graph) {
+            panic!("drivers/{dir}: modules in a circle: {}", c.join(" → "));
+        }
+    }
 }
