@@ -132,22 +132,49 @@ fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
     let model_from_base = fixed_frame(&model, &capture.base_frame)
         .with_context(|| format!("the capture's base frame `{}`", capture.base_frame))?;
     let dir = path.parent().unwrap_or(Path::new("."));
+    // A capture is input like any other: as many scans as `--scan` takes, joints this model
+    // can take, flange poses that belong to them, scans in the capture's own folder.
+    let listed: usize = capture.views.iter().map(|v| v.frames.len()).sum();
+    if listed > MAX_SCANS {
+        bail!(
+            "{}: {listed} frames listed: at most {MAX_SCANS} (every scan is held in memory)",
+            path.display()
+        );
+    }
     let mut frames = Vec::new();
     for view in &capture.views {
+        let what = format!("{}: view {}", path.display(), view.view);
         let base_from_flange = handeye::frames::from_row_major(&view.base_from_flange)
-            .with_context(|| {
-                format!(
-                    "view {}: the flange pose is not a rigid transform",
-                    view.view
-                )
-            })?;
+            .with_context(|| format!("{what}: the flange pose is not a rigid transform"))?;
+        if view.joints.len() != model.dof() {
+            return Err(CalibError::JointCountMismatch {
+                expected: model.dof(),
+                got: view.joints.len(),
+            })
+            .with_context(|| what.clone());
+        }
+        check_joint_limits(&format!("{what}: joints"), &model, &view.joints)
+            .map_err(anyhow::Error::msg)?;
+        check_flange_pose(
+            &model,
+            &view.joints,
+            &(model_from_base * base_from_flange),
+            &capture.base_frame,
+            &format!("{what}: the flange pose"),
+        )?;
         for f in &view.frames {
             let Some(p) = &f.path else {
-                bail!(
-                    "view {}: a frame was not kept (storage.keep_captures = false)",
-                    view.view
-                );
+                bail!("{what}: a frame was not kept (storage.keep_captures = false)");
             };
+            if !Path::new(p)
+                .components()
+                .all(|c| matches!(c, std::path::Component::Normal(_)))
+            {
+                bail!(
+                    "{what}: scan `{}` is not a file in the capture's folder",
+                    handeye_hal::limits::sanitize_message(p)
+                );
+            }
             let p = dir.join(p);
             let cloud = handeye::cloud::read_cloud(&p)
                 .with_context(|| format!("reading scan {}", p.display()))?;
@@ -192,12 +219,14 @@ const MAX_SCANS: usize = 100;
 const MAX_FLANGE_POSE_DEVIATION_M: f64 = 0.03;
 const MAX_FLANGE_POSE_DEVIATION_RAD: f64 = 0.05;
 
-/// Refuses a reported flange pose (`model_from_flange`) that cannot belong to `joints`.
+/// Refuses a reported flange pose (`model_from_flange`, `what` in messages) that cannot belong
+/// to `joints`.
 fn check_flange_pose(
     model: &RobotModel,
     joints: &[f64],
     reported: &Isometry3<f64>,
     base_frame: &str,
+    what: &str,
 ) -> anyhow::Result<()> {
     let fk = model.frame_pose(model.flange_link(), joints)?;
     let d = fk.inverse() * reported;
@@ -205,7 +234,7 @@ fn check_flange_pose(
     if dt > MAX_FLANGE_POSE_DEVIATION_M || dr > MAX_FLANGE_POSE_DEVIATION_RAD {
         let base_from_model = fixed_frame(model, base_frame)?.inverse();
         bail!(
-            "--flange-pose is {:.3} m / {:.2}° from the flange pose the URDF gives for --joints \
+            "{what} is {:.3} m / {:.2}° from the flange pose the URDF gives for its joints \
              ({} in `{base_frame}`; at most {MAX_FLANGE_POSE_DEVIATION_M} m / {:.1}° are a real \
              arm's calibration): give the controller's flange pose (not the TCP) for these \
              joints, in --base-frame (`base` for UR controller poses), for this robot model",
@@ -264,7 +293,7 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
             .transpose()
             .map_err(|e| anyhow::anyhow!("--flange-pose: {e}"))?;
         if let Some(reported) = &model_from_flange {
-            check_flange_pose(&model, &joints, reported, &base_frame)
+            check_flange_pose(&model, &joints, reported, &base_frame, "--flange-pose")
                 .with_context(|| format!("scan {}", scan_path.display()))?;
         }
         let cloud = handeye::cloud::read_cloud(scan_path)

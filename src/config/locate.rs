@@ -39,6 +39,7 @@ impl KeyIndex {
             b: text.as_bytes(),
             i: 0,
             entries: Vec::new(),
+            depth: 0,
         };
         // `None` only means the scanner stopped early; what it found so far is still right.
         let _ = s.document();
@@ -93,7 +94,13 @@ struct Scanner<'a> {
     b: &'a [u8],
     i: usize,
     entries: Vec<Entry>,
+    /// Arrays and inline tables open around the current value.
+    depth: usize,
 }
+
+/// Deepest nesting of arrays and inline tables the locator follows (a configuration nests two
+/// or three; beyond this the locator stops and the TOML parser reports the file).
+const MAX_NESTING: usize = 64;
 
 fn join(prefix: &str, key: &str) -> String {
     if prefix.is_empty() {
@@ -258,6 +265,16 @@ impl Scanner<'_> {
     }
 
     fn value(&mut self, path: &str) -> Option<()> {
+        if self.depth >= MAX_NESTING {
+            return None;
+        }
+        self.depth += 1;
+        let found = self.nested_value(path);
+        self.depth -= 1;
+        found
+    }
+
+    fn nested_value(&mut self, path: &str) -> Option<()> {
         match self.peek()? {
             b'"' | b'\'' => self.string(),
             b'[' => {

@@ -37,6 +37,9 @@ use validation::{schema_error, Ctx};
 pub use presets::sim_rig;
 pub use types::*;
 
+/// Largest configuration file read (the example, every key commented, is ~10 kB).
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
 /// A configuration that could not be used. Every variant but [`ConfigError::Read`] names the
 /// origin, the 1-based line and, where there is one, the dotted key (`robot.ports.rtde`,
 /// `views.obstacles[0].size_m`: arrays count from 0).
@@ -180,10 +183,14 @@ impl Config {
     /// Reads and validates a configuration file; relative paths in it are resolved against
     /// its directory (made absolute). Blocking I/O.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.display().to_string(),
-            source,
-        })?;
+        // A regular file of bounded size: a FIFO would block forever, `/dev/zero` never end.
+        let text =
+            handeye_hal::limits::read_text_file(path, MAX_CONFIG_BYTES).map_err(|source| {
+                ConfigError::Read {
+                    path: path.display().to_string(),
+                    source,
+                }
+            })?;
         let base_dir = match path.parent() {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),

@@ -527,3 +527,41 @@ fn the_calibration_file_is_resolved_against_the_config_directory() {
     );
     assert_eq!(parse(MINIMAL).expect("valid").robot.calibration, None);
 }
+
+/// Issue 23: configuration inputs that would crash or hang a reader are clear errors, quickly:
+/// 70 000 nested arrays (the key locator recursed past the stack), `/dev/zero` (never ends),
+/// a FIFO (blocks forever with no writer).
+#[test]
+fn issue_23_hostile_config_files_are_refused_quickly() {
+    let t0 = std::time::Instant::now();
+    let deep = format!(
+        "[views]\njoints = {}{}\n",
+        "[".repeat(70_000),
+        "]".repeat(70_000)
+    );
+    // On a thread with a small stack, as a worker's: depth must not depend on stack size.
+    let refused = std::thread::Builder::new()
+        .stack_size(2 << 20)
+        .spawn(move || parse(&deep).is_err())
+        .expect("thread")
+        .join()
+        .expect("no stack overflow");
+    assert!(refused);
+    let e = Config::load(Path::new("/dev/zero"))
+        .expect_err("not a regular file")
+        .to_string();
+    assert!(e.contains("/dev/zero"), "{e}");
+    let dir = std::env::temp_dir().join(format!("handeye-config-fifo-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let fifo = dir.join("cell.toml");
+    let _ = std::fs::remove_file(&fifo);
+    let status = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .expect("mkfifo runs");
+    assert!(status.success());
+    let e = Config::load(&fifo).expect_err("a FIFO").to_string();
+    assert!(e.contains("FIFO"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", t0.elapsed());
+}

@@ -496,6 +496,10 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 })?;
             kinematics.dh = Some(dh);
         }
+        if let Some(dh) = &kinematics.dh {
+            check_model_matches(self.cfg.robot.model, dh, kinematics.source)
+                .map_err(|m| Failure::error(stage, m))?;
+        }
         let camera_info = cancellable(self.cancel, stage, async {
             camera.info().await.map_err(|e| {
                 Failure::error(
@@ -1112,6 +1116,42 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
 
 /// Whether the robot may move: powered with brakes released, safety normal or reduced, in
 /// remote control, no program running unless that program asked for the run (`handover`).
+/// Whether the arm's kinematics (`source`: the controller's or the calibration file's) can be
+/// a calibration of the configured `model`; else what to configure, naming both.
+fn check_model_matches(
+    model: handeye_hal::ur_dh::UrModel,
+    dh: &handeye_hal::ur_dh::DhParams,
+    source: KinematicsOrigin,
+) -> Result<(), String> {
+    let matching = handeye_hal::ur_dh::UrModel::matching(dh);
+    if matching.iter().any(|(m, _)| *m == model) {
+        return Ok(());
+    }
+    let off = model.dh().flange_distance(dh);
+    let whose = if source == KinematicsOrigin::File {
+        "the calibration file's kinematics are"
+    } else {
+        "the controller's kinematics are"
+    };
+    Err(match matching.first() {
+        Some((found, _)) => format!(
+            "robot.model is {model} but {whose} a {}'s (the flange {:.0} mm from a nominal \
+             {model}'s); set robot.model = \"{found}\" (nothing moved)",
+            matching
+                .iter()
+                .map(|(m, _)| m.name())
+                .collect::<Vec<_>>()
+                .join(" or "),
+            off * 1e3
+        ),
+        None => format!(
+            "robot.model is {model} but {whose} no UR model's (the flange {:.0} mm from a \
+             nominal {model}'s); check the robot and its calibration (nothing moved)",
+            off * 1e3
+        ),
+    })
+}
+
 fn preflight_status(st: &handeye_hal::RobotStatus, handover: bool) -> Result<(), Failure> {
     let stage = Stage::Preflight;
     let fail = |m: String| Err(Failure::error(stage, m));

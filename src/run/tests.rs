@@ -464,6 +464,28 @@ async fn preflight_refusals_say_what_to_do_and_move_nothing() {
     }
 }
 
+/// Issue 24: a configured model that is not the arm (`model = "ur5"` on a UR5e controller) is
+/// refused in preflight, naming both, before anything moves.
+#[tokio::test]
+async fn a_configured_model_that_is_not_the_arm_is_refused_naming_both() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("wrong-model");
+    let mut cfg = test_config(&storage.0, f.view);
+    cfg.robot.model = UrModel::Ur5;
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::Preflight));
+    let why = reasons(&record);
+    assert!(
+        why.contains("robot.model is ur5") && why.contains("ur5e") && why.contains("ur7e"),
+        "{why}"
+    );
+    assert!(robot.moves().is_empty(), "moved {:?}", robot.moves());
+    assert_nothing_written(&record, &robot, &storage.0).await;
+}
+
 #[tokio::test]
 async fn a_dry_run_plans_and_moves_nothing() {
     let Some(f) = fixture() else { return };

@@ -140,6 +140,52 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     );
     assert!(nominal_mm < 0.5, "nominal URDF: {nominal_mm} mm");
 
+    // Issue 23: a capture is input like any other. Tampered copies beside the original (the
+    // same scans) are refused, each saying what is wrong, with exit 2 and nothing solved.
+    let original: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&capture).expect("capture")).expect("JSON");
+    let tampered = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut doc = original.clone();
+        edit(&mut doc);
+        let path = capture.with_file_name(name);
+        std::fs::write(&path, doc.to_string()).expect("write");
+        let out = run(
+            &[
+                "solve",
+                "--capture",
+                path.to_str().expect("utf-8"),
+                "--json",
+            ],
+            secs(60),
+        );
+        assert_eq!(out.code(), 2, "{name}: {out}");
+        out.stdout
+    };
+    let shifted = tampered("shifted.json", &|d| {
+        let m = &mut d["views"][0]["base_from_flange"][0][3];
+        *m = serde_json::json!(m.as_f64().expect("x") + 1.0);
+    });
+    assert!(
+        shifted.contains("from the flange pose the URDF gives"),
+        "{shifted}"
+    );
+    let beyond = tampered("beyond.json", &|d| {
+        d["views"][0]["joints"][1] = serde_json::json!(20.0);
+    });
+    assert!(beyond.contains("joints"), "{beyond}");
+    let outside = tampered("outside.json", &|d| {
+        d["views"][0]["frames"][0]["path"] = serde_json::json!("../../../etc/passwd");
+    });
+    assert!(
+        outside.contains("not a file in the capture's folder"),
+        "{outside}"
+    );
+    let many = tampered("many.json", &|d| {
+        let view = d["views"][0].clone();
+        d["views"] = serde_json::Value::Array(vec![view; 10_000]);
+    });
+    assert!(many.contains("at most 100"), "{many}");
+
     // A real client sees the camera as the controller's TCP: actual_TCP_pose is the
     // controller's (calibrated) flange pose times the result.
     if let Some(py) = python() {
@@ -300,6 +346,25 @@ fn faults_and_failed_preflight_write_nothing() {
         );
         assert!(!dir.join("data/current").exists(), "{flag}: result files");
     }
+
+    // Issue 24: the configuration says ur5, the controller's kinematics are a UR5e's: refused
+    // in preflight naming both, nothing moves.
+    let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let wrong = dir.join("wrong-model.toml");
+    let text = std::fs::read_to_string(&cfg).expect("config");
+    assert!(text.contains("model = \"ur5e\""), "{text}");
+    std::fs::write(&wrong, text.replace("model = \"ur5e\"", "model = \"ur5\"")).expect("write");
+    let before = joints(robot_ip);
+    let out = handeye("calibrate", &wrong, &[]);
+    assert_eq!(out.code(), 2, "{out}\n{}", rig.log());
+    let doc = out.json();
+    assert_eq!(doc["failed_stage"], "preflight", "{out}");
+    let reasons = doc["reasons"][0].as_str().unwrap_or("");
+    assert!(
+        reasons.contains("robot.model is ur5 ") && reasons.contains("set robot.model = \"ur5e\""),
+        "{out}"
+    );
+    assert!(max_change(&joints(robot_ip), &before) < 1e-6, "moved");
 }
 
 #[test]

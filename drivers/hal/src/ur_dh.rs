@@ -95,6 +95,26 @@ impl UrModel {
     }
 }
 
+impl UrModel {
+    /// The models whose nominal kinematics `dh` (a controller's published DH) can be a
+    /// calibration of, nearest first: the flange at a few joint configurations within
+    /// [`MAX_CALIBRATION_FLANGE_M`] of the model's nominal flange (a calibration moves it by
+    /// millimetres; another model by tens of centimetres). Models with the same nominal DH (UR5e
+    /// and UR7e, UR10e and UR12e) both match.
+    pub fn matching(dh: &DhParams) -> Vec<(UrModel, f64)> {
+        let mut out: Vec<(UrModel, f64)> = UrModel::ALL
+            .into_iter()
+            .map(|m| (m, m.dh().flange_distance(dh)))
+            .filter(|(_, d)| *d <= MAX_CALIBRATION_FLANGE_M)
+            .collect();
+        out.sort_by(|a, b| a.1.total_cmp(&b.1));
+        out
+    }
+}
+
+/// Farthest a calibration moves a UR's flange from the nominal kinematics', metres.
+pub const MAX_CALIBRATION_FLANGE_M: f64 = 0.02;
+
 impl fmt::Display for UrModel {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.name())
@@ -188,6 +208,20 @@ impl DhParams {
             out[i] = t;
         }
         out
+    }
+
+    /// The largest distance between this set's flange and `other`'s over a few joint
+    /// configurations spanning the workspace, metres.
+    pub fn flange_distance(&self, other: &DhParams) -> f64 {
+        [
+            [0.0; 6],
+            [0.4, -1.2, 1.1, -1.3, -1.5, 0.2],
+            [-2.0, -0.3, -2.1, 0.7, 1.9, -3.0],
+            [3.0, -2.6, 0.4, -2.2, 0.3, 1.0],
+        ]
+        .iter()
+        .map(|q| (self.forward(q).translation.vector - other.forward(q).translation.vector).norm())
+        .fold(0.0, f64::max)
     }
 
     /// `base_from_flange` (UR `base` frame, zero TCP offset) at joint angles `q`.
@@ -742,6 +776,23 @@ mod tests {
                 worst_turn[k]
             );
         }
+    }
+
+    #[test]
+    fn a_controllers_dh_names_its_model() {
+        for m in UrModel::ALL {
+            let dh = PhysicalArm::factory(m, 11).controller_dh();
+            let found = UrModel::matching(&dh);
+            assert!(found.iter().any(|(f, _)| *f == m), "{m}: {found:?}");
+            // Only models with the same nominal DH match too.
+            assert!(
+                found.iter().all(|(f, _)| f.dh() == m.dh()),
+                "{m}: {found:?}"
+            );
+        }
+        assert!(UrModel::matching(&documented_ur10())
+            .iter()
+            .any(|(m, _)| *m == UrModel::Ur10e));
     }
 
     #[test]
