@@ -1114,8 +1114,6 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     }
 }
 
-/// Whether the robot may move: powered with brakes released, safety normal or reduced, in
-/// remote control, no program running unless that program asked for the run (`handover`).
 /// Whether the arm's kinematics (`source`: the controller's or the calibration file's) can be
 /// a calibration of the configured `model`; else what to configure, naming both.
 fn check_model_matches(
@@ -1152,6 +1150,8 @@ fn check_model_matches(
     })
 }
 
+/// Whether the robot may move: powered with brakes released, safety normal or reduced, in
+/// remote control, no program running unless that program asked for the run (`handover`).
 fn preflight_status(st: &handeye_hal::RobotStatus, handover: bool) -> Result<(), Failure> {
     let stage = Stage::Preflight;
     let fail = |m: String| Err(Failure::error(stage, m));
