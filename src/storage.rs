@@ -86,9 +86,15 @@ pub fn is_run_id(id: &str) -> bool {
             .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
 }
 
-/// The folder of run `run_id` in `storage`; `None` when `run_id` is not a run id.
+/// The folder of run `run_id` in `storage`; `None` when `run_id` is not a run id (an id from
+/// outside: a URL, a history row).
 pub fn run_dir(storage: &Path, run_id: &str) -> Option<PathBuf> {
-    is_run_id(run_id).then(|| storage.join(RUNS_DIR).join(run_id))
+    is_run_id(run_id).then(|| run_folder(storage, run_id))
+}
+
+/// The folder of a run this program names ([`new_run_id`], checked with [`is_run_id`]).
+pub(crate) fn run_folder(storage: &Path, run_id: &str) -> PathBuf {
+    storage.join(RUNS_DIR).join(run_id)
 }
 
 /// The report picture of run `run_id` in `storage`; `None` when `run_id` is not a run id.

@@ -52,7 +52,14 @@ impl Recorder {
         cancel: &CancellationToken,
         progress: &dyn Progress,
     ) -> RunRecord {
-        let run_id = req.run_id.clone().unwrap_or_else(new_run_id);
+        let run_id = match req.run_id.clone() {
+            Some(id) if storage::is_run_id(&id) => id,
+            Some(id) => {
+                tracing::warn!("`{id}` cannot name a run's folder; the run gets a new id");
+                new_run_id()
+            }
+            None => new_run_id(),
+        };
         // Start time, mode and configuration are decided here, once; the row copies them.
         let record = RunRecord::starting(run_id, req.mode, req.dry_run, cfg.origin.clone());
         if let Some((store, trigger)) = &self.history {
@@ -61,7 +68,7 @@ impl Recorder {
                 tracing::error!("cannot record the start of run {}: {e}", record.run_id);
             }
         }
-        let run_dir = cfg.storage.dir.join(storage::RUNS_DIR).join(&record.run_id);
+        let run_dir = storage::run_folder(&cfg.storage.dir, &record.run_id);
         let (mut record, picture) = execute(
             robot,
             camera,
