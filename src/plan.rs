@@ -93,6 +93,9 @@ pub enum ViewRejection {
     /// The base is not in the image, or at the wrong distance.
     #[error("the base is not in view ({0})")]
     NotInView(String),
+    /// The planning was cancelled (the run was told to stop) before the check finished.
+    #[error("planning was cancelled")]
+    Cancelled,
     /// The arm hides the base, or the base and shoulder.
     #[error("only {percent:.0}% of the {what} is visible", percent = visible_fraction * 100.0)]
     Occluded {
@@ -120,6 +123,27 @@ pub enum PlanError {
         /// Random configurations tried.
         tries: usize,
     },
+    /// The planning was cancelled (the run was told to stop).
+    #[error("planning was cancelled")]
+    Cancelled,
+}
+
+/// Asked between the planner's checks (every path sample, every generated candidate): whether
+/// to stop, so a cancelled run or a SIGTERM never waits for a long plan.
+#[derive(Clone)]
+pub struct CancelCheck(std::sync::Arc<dyn Fn() -> bool + Send + Sync>);
+
+impl CancelCheck {
+    /// Stop when `cancelled` says so.
+    pub fn new(cancelled: impl Fn() -> bool + Send + Sync + 'static) -> Self {
+        Self(std::sync::Arc::new(cancelled))
+    }
+}
+
+impl std::fmt::Debug for CancelCheck {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("CancelCheck")
+    }
 }
 
 /// A posed mesh for the occlusion check: (1 base, 2 shoulder, 0 the rest; vertices in model
@@ -172,6 +196,8 @@ pub struct ViewPlanner<'a> {
     base_centre: Point3<f64>,
     /// Boxes in the cell no link and not the camera may touch.
     obstacles: Vec<(Obstacle, parry3d_f64::shape::Cuboid)>,
+    /// Whether to stop planning.
+    cancel: Option<CancelCheck>,
 }
 
 impl<'a> ViewPlanner<'a> {
@@ -238,6 +264,7 @@ impl<'a> ViewPlanner<'a> {
             floor_clearance_m,
             base_centre,
             obstacles: Vec::new(),
+            cancel: None,
         }
     }
 
@@ -257,10 +284,24 @@ impl<'a> ViewPlanner<'a> {
     /// Whether the arm may be at `q` at all: joint limits, floor, self-collision and the
     /// configured obstacles (not whether the view is good; see [`Self::check`]).
     pub fn check_motion(&self, q: &[f64]) -> Result<Result<(), ViewRejection>, ModelError> {
+        if self.is_cancelled() {
+            return Ok(Err(ViewRejection::Cancelled));
+        }
         if let Err(r) = self.within_limits(q) {
             return Ok(Err(r));
         }
         self.collision_free(q)
+    }
+
+    /// This planner, stopping with [`ViewRejection::Cancelled`] / [`PlanError::Cancelled`] as
+    /// soon as `cancel` says so.
+    pub fn with_cancel(mut self, cancel: CancelCheck) -> Self {
+        self.cancel = Some(cancel);
+        self
+    }
+
+    fn is_cancelled(&self) -> bool {
+        self.cancel.as_ref().is_some_and(|c| (c.0)())
     }
 
     /// Checks the straight joint-space path of a `movej` from `from` to `to` (both ends
@@ -366,6 +407,9 @@ impl<'a> ViewPlanner<'a> {
             // The camera body: a 6 cm ball around its optical origin.
             let ball = parry3d_f64::shape::Ball::new(0.03);
             for (o, cuboid) in &self.obstacles {
+                if self.is_cancelled() {
+                    return Ok(Err(ViewRejection::Cancelled));
+                }
                 let hit = |pose: &Isometry3<f64>, shape: &dyn parry3d_f64::shape::Shape| {
                     parry3d_f64::query::intersection_test(&o.model_from_box, cuboid, pose, shape)
                         .unwrap_or(true)
@@ -511,6 +555,9 @@ impl<'a> ViewPlanner<'a> {
         let max_tries = 200_000 + 20_000 * count;
         let mut tries = 0;
         while views.len() < count && tries < max_tries {
+            if self.is_cancelled() {
+                return Err(PlanError::Cancelled);
+            }
             tries += 1;
             let q: Vec<f64> = limits
                 .iter()

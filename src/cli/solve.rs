@@ -425,6 +425,26 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
         }
         Ok(pose)
     };
+    // A guess of the other mount's unknown would be ignored: refuse it instead.
+    let wrong_guess = match inputs.mount {
+        Mount::EyeInHand => args.guess_base_from_camera.as_ref().map(|_| {
+            (
+                "--guess-base-from-camera",
+                "an eye-in-hand solve",
+                "--guess-flange-from-camera",
+            )
+        }),
+        Mount::EyeToHand => args.guess_flange_from_camera.as_ref().map(|_| {
+            (
+                "--guess-flange-from-camera",
+                "--eye-to-hand",
+                "--guess-base-from-camera",
+            )
+        }),
+    };
+    if let Some((given, mount, right)) = wrong_guess {
+        bail!("{given} is a guess of the other mount's unknown and {mount} would ignore it; give {right}");
+    }
     // A guess on the command line, else the one the run registered with.
     opts.prior = match inputs.mount {
         Mount::EyeInHand => {
@@ -605,10 +625,19 @@ mod tests {
                 .expect_err("flange pose of other joints");
             let text = format!("{e:#}");
             assert!(
-                text.contains("from the flange pose the URDF gives for --joints"),
+                text.contains("--flange-pose is")
+                    && text.contains("from the flange pose the URDF gives for its joints"),
                 "{text}"
             );
         }
+        // Issue 25: a guess of the other mount's unknown is refused, not ignored.
+        let mut wrong_guess = args(urdf.clone(), &joints, ply.clone(), None);
+        wrong_guess.guess_base_from_camera = Some("0.5,0,0.5,0,0,0".into());
+        let e = solve(wrong_guess).expect_err("a base guess for an eye-in-hand solve");
+        assert!(
+            format!("{e:#}").contains("--guess-flange-from-camera"),
+            "{e:#}"
+        );
         let _ = std::fs::remove_dir_all(&tmp);
     }
 }

@@ -35,7 +35,7 @@ use crate::calib::Mount;
 use crate::config::{Config, KinematicsSource, ViewTargets};
 use crate::frames::to_row_major;
 use crate::model::RobotModel;
-use crate::plan::{Obstacle, ViewConstraints, ViewPlanner};
+use crate::plan::{CancelCheck, Obstacle, PlanError, ViewConstraints, ViewPlanner, ViewRejection};
 use crate::sim::Intrinsics;
 
 use crate::calendar::unix_now;
@@ -572,6 +572,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 half_extents_m: Vector3::from(o.size_m) / 2.0,
             })
             .collect();
+        let cancel = self.cancel.clone();
         ViewPlanner::new(
             self.model,
             flange_from_camera,
@@ -579,6 +580,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             constraints,
         )
         .with_obstacles(obstacles)
+        .with_cancel(CancelCheck::new(move || cancel.is_cancelled()))
     }
 
     /// `count` generated views of the base, each reachable from the previous one (the first from
@@ -602,11 +604,12 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             for _ in 0..AUTO_VIEW_TRIES {
                 let q = planner
                     .generate(1, next_seed)
-                    .map_err(|e| {
-                        Failure::error(
+                    .map_err(|e| match e {
+                        PlanError::Cancelled => Failure::cancelled(stage),
+                        e => Failure::error(
                             stage,
                             format!("{}; configure joint targets under [views]", error_chain(&e)),
-                        )
+                        ),
                     })?
                     .remove(0);
                 next_seed = next_seed.wrapping_add(1);
@@ -621,6 +624,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                         found = Some(q);
                         break;
                     }
+                    Ok(Err(ViewRejection::Cancelled)) => return Err(Failure::cancelled(stage)),
                     Ok(Err(r)) => last_refusal = Some(r.to_string()),
                     Err(e) => return Err(Failure::error(stage, error_chain(&e))),
                 }
@@ -667,13 +671,14 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             let path = planner
                 .check_path(&from, q, PATH_STEP_RAD)
                 .map_err(fk)?
-                .map_err(|r| {
-                    Failure::error(
+                .map_err(|r| match r {
+                    ViewRejection::Cancelled => Failure::cancelled(stage),
+                    r => Failure::error(
                         stage,
                         format!(
                             "the path to view {i} is not safe: {r}; change the view's joints or the obstacles"
                         ),
-                    )
+                    ),
                 })?;
             let distance_to_base_m = match (self.cfg.mount.mount, self.cfg.mount.prior) {
                 (Mount::EyeInHand, Some(_)) => planner.check(q).map_err(fk)?.ok(),
@@ -690,11 +695,12 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             planner
                 .check_path(&from, &start, PATH_STEP_RAD)
                 .map_err(fk)?
-                .map_err(|r| {
-                    Failure::error(
+                .map_err(|r| match r {
+                    ViewRejection::Cancelled => Failure::cancelled(stage),
+                    r => Failure::error(
                         stage,
                         format!("the path back to the start is not safe: {r}; move the arm to a free start pose"),
-                    )
+                    ),
                 })?;
         }
         self.progress.stage(

@@ -602,6 +602,60 @@ async fn a_cancel_during_a_hanging_capture_aborts_at_once_and_stays_put() {
     assert!(!record.returned_to_start);
 }
 
+/// Issue 23: planning among very many obstacles is long; a cancel (the API's, SIGTERM's)
+/// stops it at once, the record says it was cancelled while planning, and nothing moves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancel_during_a_long_plan_stops_it_at_once() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("cancel-plan");
+    let mut cfg = test_config(&storage.0, f.view);
+    cfg.views.obstacles = (0..200_000)
+        .map(|i| crate::config::Obstacle {
+            name: format!("box {i}"),
+            centre_m: [10.0 + (i % 100) as f64, 10.0, 0.0],
+            size_m: [0.1; 3],
+        })
+        .collect();
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let cancel = CancellationToken::new();
+    let canceller = {
+        let cancel = cancel.clone();
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(500));
+            cancel.cancel();
+            Instant::now()
+        })
+    };
+    let req = RunRequest {
+        mode: RunMode::Calibrate,
+        dry_run: false,
+        run_id: None,
+        program_handover: false,
+    };
+    let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
+    let ended = Instant::now();
+    let cancelled_at = canceller.join().expect("the canceller ran");
+    let took = ended.saturating_duration_since(cancelled_at);
+    assert!(
+        took < Duration::from_secs(2),
+        "the run ended {took:?} after the cancel"
+    );
+    assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
+    assert_eq!(
+        record.failed_stage,
+        Some(Stage::Plan),
+        "{:?}",
+        record.reasons
+    );
+    assert!(
+        reasons(&record).contains("cancelled"),
+        "{:?}",
+        record.reasons
+    );
+    assert!(robot.moves().is_empty(), "moved {:?}", robot.moves());
+}
+
 #[tokio::test]
 async fn a_check_reports_drift_and_writes_nothing() {
     let Some(f) = fixture() else { return };

@@ -146,6 +146,17 @@ fn second_controller_is_refused_and_writes_need_control() {
     );
     let e = a.read_mem(0x0FFF_0000, 8).expect_err("out of range");
     assert!(e.to_string().contains("INVALID_ADDRESS"), "{e}");
+    // Issue 23: a heartbeat timeout of days would let a dead client hold the camera that
+    // long: 0.5 s to 10 min are taken.
+    const HEARTBEAT_TIMEOUT: u32 = 0x0938;
+    for ms in [499, 600_001, u32::MAX] {
+        let e = a
+            .write_reg(HEARTBEAT_TIMEOUT, ms)
+            .expect_err("out of range");
+        assert!(e.to_string().contains("INVALID_PARAMETER"), "{ms}: {e}");
+    }
+    a.write_reg(HEARTBEAT_TIMEOUT, 600_000).expect("10 min");
+    a.write_reg(HEARTBEAT_TIMEOUT, 3000).expect("3 s");
     guard.check().expect("still in control");
     drop(guard);
     b.take_control().expect("released on drop");

@@ -120,6 +120,10 @@ pub struct SimStats {
     pub render_wait_us: u64,
 }
 
+/// Shortest and longest heartbeat timeout the simulated camera accepts, ms.
+const MIN_HEARTBEAT_MS: u32 = 500;
+const MAX_HEARTBEAT_MS: u32 = 600_000;
+
 #[derive(Debug)]
 struct State {
     regs: HashMap<u32, u32>,
@@ -284,7 +288,11 @@ impl State {
                 return Ok(());
             }
             TL_LOCKED | ACQ_MODE | COORD_SELECTOR | COMPONENT_SELECTOR => {}
-            reg::HEARTBEAT_TIMEOUT if v < 500 => return Err(0x8002),
+            // The standard allows any 32-bit value (49.7 days): a client that dies would hold
+            // the camera that long. Like cameras that bound it, 0.5 s to 10 min.
+            reg::HEARTBEAT_TIMEOUT if !(MIN_HEARTBEAT_MS..=MAX_HEARTBEAT_MS).contains(&v) => {
+                return Err(0x8002)
+            }
             reg::SCPS0 => {
                 let size = v & 0xFFFF;
                 if !(576..=16_000).contains(&size) {
