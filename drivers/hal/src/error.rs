@@ -44,7 +44,7 @@ pub enum HalError {
         what: String,
     },
     /// An RTDE/fieldbus register is held by another client.
-    #[error("RTDE input `{name}` is claimed by another client (EtherNet/IP, PROFINET, MODBUS, URCap); free it or use another register")]
+    #[error("RTDE input `{name}` is claimed by another client (a running handeye daemon, EtherNet/IP, PROFINET, MODBUS, a URCap); free it or use another register")]
     RegisterInUse {
         /// The RTDE field name.
         name: String,

@@ -90,7 +90,7 @@ pub(crate) fn in_use_hint(name: &str) -> &'static str {
     if name.starts_with("input_bit_registers") || (is_reg && index.is_some_and(|i| i < 24)) {
         " — registers 0–23 (and bits 0–63) are taken by fieldbus adapters (EtherNet/IP, PROFINET, MODBUS) when enabled in the installation, or by another RTDE client such as ur_rtde"
     } else {
-        " — held by another RTDE client (e.g. ur_rtde, a URCap or the ROS driver)"
+        " — held by another RTDE client: a running handeye daemon holds its configured registers (`handeye status`), or ur_rtde, a URCap or the ROS driver"
     }
 }
 
