@@ -11,10 +11,10 @@ use serde::Serialize;
 
 use handeye_hal::ur_dh::PhysicalArm;
 
+use crate::calib::pipeline::{calibrate_frames, Frame, PipelineOptions};
 use crate::calib::{GateThresholds, Mount, Outcome, Quality, RegisterOptions};
 use crate::model::{KinematicError, RobotModel};
 use crate::plan::{PlanError, ViewConstraints, ViewPlanner};
-use crate::run::{calibrate_frames, Frame, PipelineOptions};
 use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 
 /// A result off by more than this is wrong (and must have been rejected), mm.

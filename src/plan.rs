@@ -171,7 +171,7 @@ pub struct Obstacle {
 }
 
 /// How a joint-space path was checked.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PathCheck {
     /// Configurations checked along the path (both ends included).
     pub samples: usize,

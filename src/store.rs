@@ -25,12 +25,13 @@
 use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard};
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use rusqlite::{params, Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior};
 use serde::{Deserialize, Serialize};
 
-use crate::run::{Outcome, RunMode, RunRecord, RUNS_DIR};
+use crate::calendar::unix_now;
+use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger, WriteTarget};
 
 #[cfg(test)]
 mod tests;
@@ -205,13 +206,14 @@ pub enum StoreError {
     },
 }
 
-/// A run that started ([`Store::begin`]).
+/// A run that started ([`Store::begin`]): the row's first columns, copied from the run's
+/// starting record ([`RunStart::new`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunStart {
-    /// Its id ([`crate::run::new_run_id`]); also its folder under `runs/`.
+    /// Its id ([`crate::storage::new_run_id`]); also its folder under `runs/`.
     pub run_id: String,
-    /// Who asked: `startup`, `pendant`, `api`, `schedule`, `drift`, `cli`.
-    pub trigger: String,
+    /// Who asked.
+    pub trigger: Trigger,
     /// Calibrate or check.
     pub mode: RunMode,
     /// Where the configuration came from (its file path).
@@ -220,6 +222,21 @@ pub struct RunStart {
     pub config_digest: String,
     /// Unix time of the start, s.
     pub started_unix_s: f64,
+}
+
+impl RunStart {
+    /// The start of the run `record` (as [`RunRecord::starting`] made it), asked for by
+    /// `trigger`, with the [`config_digest`] of its configuration.
+    pub fn new(record: &RunRecord, trigger: Trigger, config_digest: String) -> Self {
+        Self {
+            run_id: record.run_id.clone(),
+            trigger,
+            mode: record.mode,
+            config_origin: record.config.clone(),
+            config_digest,
+            started_unix_s: record.started_unix_s,
+        }
+    }
 }
 
 /// Where a run stands: still running, or ended with an outcome. Serialised as one string
@@ -283,13 +300,45 @@ impl<'de> Deserialize<'de> for RunStatus {
     }
 }
 
+/// One run as the history holds it (`GET /api/runs/{id}`, `handeye history show`).
+/// Serialised as the record itself, or as the partial object with `"complete": false`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum StoredRun {
+    /// It ended: its whole record.
+    Complete(Box<RunRecord>),
+    /// Still running, or interrupted before it ended: what is known of it.
+    Partial(PartialRun),
+}
+
+/// What the history knows of a run that has no record (yet).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PartialRun {
+    /// Its id.
+    pub run_id: String,
+    /// Calibrate or check.
+    pub mode: RunMode,
+    /// Who asked.
+    pub trigger: Trigger,
+    /// The configuration's origin (file path).
+    pub config: String,
+    /// Unix time of the start, s.
+    pub started_unix_s: f64,
+    /// `running`, or `aborted` when it was interrupted.
+    pub outcome: RunStatus,
+    /// Why (the interruption), when known.
+    pub reasons: Vec<String>,
+    /// Always `false`: no record.
+    pub complete: bool,
+}
+
 /// One run in a list: the indexed columns, without the full record.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunSummary {
     /// Its id.
     pub run_id: String,
-    /// Who asked (`startup`, `pendant`, `api`, `schedule`, `drift`, `cli`).
-    pub trigger: String,
+    /// Who asked.
+    pub trigger: Trigger,
     /// Calibrate or check.
     pub mode: RunMode,
     /// `running`, or how it ended.
@@ -301,7 +350,7 @@ pub struct RunSummary {
     /// The run's own total time, ms.
     pub duration_ms: Option<f64>,
     /// The stage that failed (aborted/error).
-    pub failed_stage: Option<String>,
+    pub failed_stage: Option<Stage>,
     /// The first reason (all of them are in the record).
     pub reason: Option<String>,
     /// The configuration's origin (file path).
@@ -323,10 +372,10 @@ pub struct RunSummary {
     /// Check: whether a drift threshold was exceeded.
     pub drifted: Option<bool>,
     /// What was written back (`tcp`, `registers`, `files`), in order.
-    pub written: Vec<String>,
+    pub written: Vec<WriteTarget>,
     /// The run's capture file (`capture.json`, for `handeye solve --capture`).
     pub capture_file: Option<String>,
-    /// When [`Store::prune_captures`] removed the raw scans, unix s (replay is then
+    /// When the raw scans were removed ([`Store::mark_pruned`]), unix s (replay is then
     /// impossible; the record stays).
     pub captures_pruned_unix_s: Option<f64>,
 }
@@ -436,8 +485,8 @@ impl Store {
              VALUES (?1, ?2, ?3, 'running', ?4, ?5, ?6)",
             params![
                 run.run_id,
-                run.trigger,
-                mode_name(run.mode),
+                run.trigger.name(),
+                run.mode.name(),
                 run.started_unix_s,
                 run.config_origin,
                 run.config_digest,
@@ -457,12 +506,12 @@ impl Store {
     /// Records how a run ended: the whole record as JSON plus the indexed columns. A run
     /// that was never begun is inserted; one that was recovered as interrupted is completed
     /// (the real outcome wins). The start time and configuration given to `begin` are kept.
-    pub fn finish(&self, trigger: &str, record: &RunRecord) -> Result<(), StoreError> {
+    pub fn finish(&self, trigger: Trigger, record: &RunRecord) -> Result<(), StoreError> {
         let json = serde_json::to_string(record).map_err(|source| StoreError::Serialize {
             run_id: record.run_id.clone(),
             source,
         })?;
-        let written: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+        let written: Vec<&str> = record.written.iter().map(|w| w.target.name()).collect();
         let written = serde_json::to_string(&written).unwrap_or_else(|_| "[]".into());
         let pose = record.result.as_ref().map(|r| r.ur_pose);
         let pose = |i: usize| pose.map(|p| p[i]);
@@ -492,8 +541,8 @@ impl Store {
                 record_json = excluded.record_json",
             params![
                 record.run_id,
-                trigger,
-                mode_name(record.mode),
+                trigger.name(),
+                record.mode.name(),
                 record.outcome.name(),
                 record.started_unix_s,
                 unix_now(),
@@ -551,11 +600,10 @@ impl Store {
             .map_err(|e| sql_error(&self.path, "read a run", e))
     }
 
-    /// The record of one run as JSON (a [`RunRecord`]). A run without a record (still
-    /// running, or interrupted) gives what is known: id, mode, trigger, configuration, start,
-    /// `outcome` (`running` or `aborted`), `reasons` and `"complete": false`. Numbers are as
-    /// serde_json parses them back (long decimals within 1 ulp).
-    pub fn get(&self, run_id: &str) -> Result<Option<serde_json::Value>, StoreError> {
+    /// One run: its whole record once it ended; a run without a record (still running, or
+    /// interrupted) gives what is known ([`PartialRun`]). Numbers are as serde_json parses
+    /// them back (long decimals within 1 ulp).
+    pub fn get(&self, run_id: &str) -> Result<Option<StoredRun>, StoreError> {
         let row = {
             let conn = self.lock();
             conn.query_row(
@@ -580,24 +628,28 @@ impl Store {
         let Some((json, mode, trigger, config, started, outcome, reason)) = row else {
             return Ok(None);
         };
+        let bad = |what: String| StoreError::BadRecord {
+            run_id: run_id.to_string(),
+            source: serde::de::Error::custom(what),
+        };
         match json {
-            Some(json) => {
-                serde_json::from_str(&json)
-                    .map(Some)
-                    .map_err(|source| StoreError::BadRecord {
-                        run_id: run_id.to_string(),
-                        source,
-                    })
-            }
-            None => Ok(Some(serde_json::json!({
-                "run_id": run_id,
-                "mode": mode,
-                "trigger": trigger,
-                "config": config,
-                "started_unix_s": started,
-                "outcome": outcome,
-                "reasons": reason.into_iter().collect::<Vec<_>>(),
-                "complete": false,
+            Some(json) => serde_json::from_str(&json)
+                .map(|r| Some(StoredRun::Complete(Box::new(r))))
+                .map_err(|source| StoreError::BadRecord {
+                    run_id: run_id.to_string(),
+                    source,
+                }),
+            None => Ok(Some(StoredRun::Partial(PartialRun {
+                run_id: run_id.to_string(),
+                mode: RunMode::parse(&mode).ok_or_else(|| bad(format!("unknown mode `{mode}`")))?,
+                trigger: Trigger::parse(&trigger)
+                    .ok_or_else(|| bad(format!("unknown trigger `{trigger}`")))?,
+                config,
+                started_unix_s: started,
+                outcome: RunStatus::parse(&outcome)
+                    .ok_or_else(|| bad(format!("unknown outcome `{outcome}`")))?,
+                reasons: reason.into_iter().collect(),
+                complete: false,
             }))),
         }
     }
@@ -616,111 +668,55 @@ impl Store {
         );
         conn.query_row(
             &sql,
-            params![mode.map(mode_name), outcome.map(Outcome::name)],
+            params![mode.map(RunMode::name), outcome.map(Outcome::name)],
             summary_from_row,
         )
         .optional()
         .map_err(|e| sql_error(&self.path, "find the latest run", e))
     }
 
-    /// Deletes the raw captures (`runs/<id>/view*_frame*.ply`) of the runs that are both
-    /// beyond the newest `keep_runs` and started more than `keep_days` ago, and notes it in
-    /// their rows; records, `capture.json` and results stay. Runs still running are never
-    /// touched; run folders that are not in the history are left alone. Returns the files
-    /// removed.
-    pub fn prune_captures(
+    /// The runs whose raw scans may go: beyond the newest `keep_runs` and started more than
+    /// `keep_days` ago, ended, not pruned yet; oldest last. The files are the run folder's
+    /// ([`crate::storage::remove_raw_captures`]); [`Self::mark_pruned`] notes it.
+    pub fn captures_to_prune(
         &self,
-        storage_dir: &Path,
         keep_runs: usize,
         keep_days: f64,
-    ) -> Result<Vec<PathBuf>, StoreError> {
+    ) -> Result<Vec<String>, StoreError> {
         if self.read_only {
             return Err(StoreError::ReadOnly {
                 path: self.path.clone(),
             });
         }
         let cutoff = unix_now() - keep_days * 86_400.0;
-        let candidates: Vec<String> = {
-            let conn = self.lock();
-            let run = || -> rusqlite::Result<Vec<String>> {
-                let mut stmt = conn.prepare(
-                    "SELECT run_id, started_unix_s, outcome, captures_pruned_unix_s FROM runs
-                     ORDER BY started_unix_s DESC, run_id DESC",
-                )?;
-                let rows = stmt.query_map([], |r| {
-                    Ok((
-                        r.get::<_, String>(0)?,
-                        r.get::<_, f64>(1)?,
-                        r.get::<_, String>(2)?,
-                        r.get::<_, Option<f64>>(3)?,
-                    ))
-                })?;
-                let mut out = Vec::new();
-                for (i, row) in rows.enumerate() {
-                    let (id, started, outcome, pruned) = row?;
-                    if i >= keep_runs
-                        && started < cutoff
-                        && outcome != "running"
-                        && pruned.is_none()
-                    {
-                        out.push(id);
-                    }
+        let conn = self.lock();
+        let run = || -> rusqlite::Result<Vec<String>> {
+            let mut stmt = conn.prepare(
+                "SELECT run_id, started_unix_s, outcome, captures_pruned_unix_s FROM runs
+                 ORDER BY started_unix_s DESC, run_id DESC",
+            )?;
+            let rows = stmt.query_map([], |r| {
+                Ok((
+                    r.get::<_, String>(0)?,
+                    r.get::<_, f64>(1)?,
+                    r.get::<_, String>(2)?,
+                    r.get::<_, Option<f64>>(3)?,
+                ))
+            })?;
+            let mut out = Vec::new();
+            for (i, row) in rows.enumerate() {
+                let (id, started, outcome, pruned) = row?;
+                if i >= keep_runs && started < cutoff && outcome != "running" && pruned.is_none() {
+                    out.push(id);
                 }
-                Ok(out)
-            };
-            run().map_err(|e| sql_error(&self.path, "find old captures", e))?
+            }
+            Ok(out)
         };
-        let runs_dir = storage_dir.join(RUNS_DIR);
-        let mut removed = Vec::new();
-        for run_id in candidates {
-            if !is_plain_name(&run_id) {
-                tracing::warn!("not pruning run `{run_id}`: its id is not a plain folder name");
-                continue;
-            }
-            let dir = runs_dir.join(&run_id);
-            let entries = match std::fs::read_dir(&dir) {
-                Ok(entries) => entries,
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                    self.mark_pruned(&run_id)?;
-                    continue;
-                }
-                Err(source) => {
-                    return Err(StoreError::Io {
-                        action: "read the folder",
-                        path: dir,
-                        source,
-                    })
-                }
-            };
-            for entry in entries {
-                let entry = entry.map_err(|source| StoreError::Io {
-                    action: "read the folder",
-                    path: dir.clone(),
-                    source,
-                })?;
-                let name = entry.file_name();
-                if !is_raw_capture(&name.to_string_lossy()) {
-                    continue;
-                }
-                let path = entry.path();
-                match std::fs::remove_file(&path) {
-                    Ok(()) => removed.push(path),
-                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                    Err(source) => {
-                        return Err(StoreError::Io {
-                            action: "remove",
-                            path,
-                            source,
-                        })
-                    }
-                }
-            }
-            self.mark_pruned(&run_id)?;
-        }
-        Ok(removed)
+        run().map_err(|e| sql_error(&self.path, "find old captures", e))
     }
 
-    fn mark_pruned(&self, run_id: &str) -> Result<(), StoreError> {
+    /// Notes that run `run_id`'s raw scans were removed (replay is then impossible).
+    pub fn mark_pruned(&self, run_id: &str) -> Result<(), StoreError> {
         self.writable()?
             .execute(
                 "UPDATE runs SET captures_pruned_unix_s = ?2 WHERE run_id = ?1",
@@ -766,22 +762,6 @@ pub fn config_digest(text: &str) -> String {
     format!("{hash:016x}")
 }
 
-/// `YYYY-MM-DD HH:MM:SS` (UTC) of a unix time, s.
-pub fn utc_text(unix_s: f64) -> String {
-    if !unix_s.is_finite() {
-        return "?".into();
-    }
-    let secs = unix_s.floor() as i64;
-    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
-    let (y, m, d) = crate::run::civil_from_days(days);
-    format!(
-        "{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02}",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
-}
-
 /// The summary columns, in the order [`summary_from_row`] reads them.
 const SUMMARY_COLUMNS: &str = "run_id, trigger, mode, outcome, started_unix_s, finished_unix_s,
     duration_ms, failed_stage, reason, config_origin, config_digest, result_x_m, result_y_m,
@@ -793,11 +773,17 @@ fn summary_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RunSummary> {
     let bad = |i: usize, what: String| {
         rusqlite::Error::FromSqlConversionFailure(i, rusqlite::types::Type::Text, what.into())
     };
+    let trigger: String = r.get(1)?;
+    let trigger =
+        Trigger::parse(&trigger).ok_or_else(|| bad(1, format!("unknown trigger `{trigger}`")))?;
     let mode: String = r.get(2)?;
-    let mode = match mode.as_str() {
-        "calibrate" => RunMode::Calibrate,
-        "check" => RunMode::Check,
-        _ => return Err(bad(2, format!("unknown mode `{mode}`"))),
+    let mode = RunMode::parse(&mode).ok_or_else(|| bad(2, format!("unknown mode `{mode}`")))?;
+    let failed_stage: Option<String> = r.get(7)?;
+    let failed_stage = match failed_stage {
+        Some(name) => {
+            Some(Stage::parse(&name).ok_or_else(|| bad(7, format!("unknown stage `{name}`")))?)
+        }
+        None => None,
     };
     let outcome: String = r.get(3)?;
     let outcome =
@@ -821,13 +807,13 @@ fn summary_from_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<RunSummary> {
     };
     Ok(RunSummary {
         run_id: r.get(0)?,
-        trigger: r.get(1)?,
+        trigger,
         mode,
         outcome,
         started_unix_s: r.get(4)?,
         finished_unix_s: r.get(5)?,
         duration_ms: r.get(6)?,
-        failed_stage: r.get(7)?,
+        failed_stage,
         reason: r.get(8)?,
         config_origin: r.get(9)?,
         config_digest: r.get(10)?,
@@ -1055,30 +1041,7 @@ fn sql_error(path: &Path, action: &'static str, e: rusqlite::Error) -> StoreErro
     }
 }
 
-fn mode_name(mode: RunMode) -> &'static str {
-    match mode {
-        RunMode::Calibrate => "calibrate",
-        RunMode::Check => "check",
-    }
-}
-
 /// SQLite stores NaN as NULL anyway; say so explicitly.
 fn finite(x: f64) -> Option<f64> {
     x.is_finite().then_some(x)
-}
-
-/// A raw scan a run kept: `view<V>_frame<F>.ply`.
-fn is_raw_capture(name: &str) -> bool {
-    name.starts_with("view") && name.contains("_frame") && name.ends_with(".ply")
-}
-
-/// A run id usable as one folder name (no separators, not `.`/`..`).
-fn is_plain_name(id: &str) -> bool {
-    !id.is_empty() && id != "." && id != ".." && !id.contains(['/', '\\', '\0'])
-}
-
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }

@@ -7,13 +7,10 @@
 //! parent `base` (the controller's base frame). Metres and radians throughout, except the fields
 //! and names that say `mm` or `deg`. Quaternions are unit and have `w >= 0`.
 //!
-//! Files are written atomically (`name.tmp`, flushed to disk, then renamed over `name`), so a
-//! crash leaves either the old file or the new one, never half of one.
+//! The files' contents only ([`Exports::files`]); the run folder writes them
+//! (`crate::storage`), each atomically.
 
 use std::borrow::Cow;
-use std::fs::File;
-use std::io::Write;
-use std::path::{Path, PathBuf};
 
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -91,7 +88,7 @@ pub struct ResultFile {
     pub inverse: TransformRecord,
 }
 
-/// A result rendered into every export format; [`Exports::write_to`] writes them.
+/// A result rendered into every export format ([`Exports::files`]); the run folder writes them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Exports {
     result: ResultFile,
@@ -182,7 +179,7 @@ impl Exports {
         &self.urdf_joint
     }
 
-    /// Every file as (name, contents), in the order [`Exports::write_to`] writes them.
+    /// Every file as (name, contents).
     pub fn files(&self) -> [(&'static str, &str); 5] {
         [
             (RESULT_JSON, &self.json),
@@ -192,40 +189,6 @@ impl Exports {
             (URDF_JOINT, &self.urdf_joint),
         ]
     }
-
-    /// Writes every file into `dir` (created if missing), each atomically; returns their paths.
-    /// Blocking I/O.
-    pub fn write_to(&self, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
-        std::fs::create_dir_all(dir)?;
-        let mut paths = Vec::new();
-        for (name, contents) in self.files() {
-            let path = dir.join(name);
-            write_atomically(&path, contents.as_bytes())?;
-            paths.push(path);
-        }
-        // Make the renames durable too (best effort: not every platform can open a directory).
-        if let Ok(d) = File::open(dir) {
-            let _ = d.sync_all();
-        }
-        Ok(paths)
-    }
-}
-
-/// Writes `name.tmp` beside `path`, flushes it to disk and renames it over `path`.
-fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let result = (|| {
-        let mut f = File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 impl TransformRecord {
@@ -634,33 +597,5 @@ mod tests {
             "{}",
             e.tf_yaml()
         );
-    }
-
-    #[test]
-    fn write_to_writes_every_file_atomically() {
-        let dir = std::env::temp_dir().join(format!("handeye-export-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let p = pose([0.0, -0.08, 0.04], [1.0, 0.0, 0.0], -0.26);
-        let e = Exports::new(&p, "tool0", "camera", meta());
-        let paths = e.write_to(&dir.join("run")).expect("written");
-        assert_eq!(paths.len(), 5);
-        for ((name, contents), path) in e.files().into_iter().zip(&paths) {
-            assert_eq!(path.file_name().and_then(|n| n.to_str()), Some(name));
-            assert_eq!(std::fs::read_to_string(path).expect("read"), contents);
-        }
-        // Overwriting replaces the files and leaves no temporary behind.
-        let e2 = Exports::new(&p.inverse(), "tool0", "camera", meta());
-        e2.write_to(&dir.join("run")).expect("rewritten");
-        let names: Vec<String> = std::fs::read_dir(dir.join("run"))
-            .expect("dir")
-            .map(|d| d.expect("entry").file_name().to_string_lossy().into_owned())
-            .collect();
-        assert_eq!(names.len(), 5, "{names:?}");
-        assert!(names.iter().all(|n| !n.ends_with(".tmp")));
-        assert_eq!(
-            std::fs::read_to_string(dir.join("run").join(RESULT_JSON)).expect("read"),
-            e2.json()
-        );
-        std::fs::remove_dir_all(&dir).expect("cleanup");
     }
 }

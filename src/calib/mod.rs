@@ -18,6 +18,7 @@ mod fine;
 pub mod gate;
 mod kdtree;
 mod links;
+pub mod pipeline;
 pub(crate) mod range;
 pub mod register;
 pub mod report;

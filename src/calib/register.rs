@@ -125,7 +125,7 @@ impl Default for RegisterOptions {
 }
 
 /// 1-σ uncertainty of a pose.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct Uncertainty {
     /// Root-sum-square 1-σ of the camera origin's position, mm.
     pub translation_mm: f64,
@@ -134,7 +134,7 @@ pub struct Uncertainty {
 }
 
 /// How well the result is supported by the scan (independent of ICP fitness).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct Quality {
     /// Fraction of the model surface the camera should see (fitted links, front-facing, in
     /// the image, not occluded) that has scan points on it, 0–1.
@@ -189,7 +189,7 @@ fn link_support(per_depth: &[Evidence]) -> [Option<f64>; MAX_REPORTED_LINKS] {
 }
 
 /// Wall-clock time per stage, milliseconds.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct StageTimings {
     /// Range image, model sampling, scan subsampling.
     pub preprocess: f64,

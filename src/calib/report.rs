@@ -12,7 +12,7 @@ use super::Outcome;
 use crate::frames::to_row_major;
 
 /// Quality summed up over all frames (worst case of each figure).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
 pub struct QualitySummary {
     /// Lowest coverage of any frame, 0–1.
     pub coverage: f64,
@@ -39,7 +39,7 @@ pub struct QualitySummary {
 }
 
 /// One frame in the report.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct FrameReport {
     /// Where the scan came from (file name).
     pub source: String,
@@ -62,7 +62,7 @@ pub struct FrameReport {
 }
 
 /// Time per stage summed over frames, plus the solve, ms.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct ReportTimings {
     /// Sum over frames of [`StageTimings::preprocess`].
     pub preprocess: f64,
@@ -79,7 +79,7 @@ pub struct ReportTimings {
 }
 
 /// The calibration report.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct CalibrationReport {
     /// Accepted or rejected by the gate.
     pub outcome: Outcome,

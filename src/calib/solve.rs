@@ -55,7 +55,7 @@ impl Default for SolveOptions {
 }
 
 /// Difference of one frame's or view's estimate from the fused result.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
 pub struct Residual {
     /// Frame index (input order) or view id.
     pub index: usize,

@@ -7,7 +7,10 @@
 //!   PLY (or PCD) file, which is read back. This reaches cameras that only have a vendor SDK,
 //!   e.g. Zivid through `config/zivid_capture.py`.
 //!
-//! Both read files with [`crate::cloud::read_cloud`], so units follow that reader: metres, or
+//! [`ReconnectingCamera`] wraps any of them (or a driver's camera) and connects it anew after
+//! it failed.
+//!
+//! Both backends read files with [`crate::cloud::read_cloud`], so units follow that reader: metres, or
 //! the unit a `comment unit mm` (PLY) / `# unit mm` (PCD) header line names.
 //!
 //! Errors are [`CameraError`]; the [`DepthCamera`](handeye_hal::DepthCamera) implementations
@@ -16,6 +19,7 @@
 mod exec;
 mod file;
 mod intrinsics;
+mod reconnect;
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -27,6 +31,7 @@ use crate::cloud::CloudError;
 pub use exec::{ExecCamera, ENV_EXPOSURE_US, ENV_FRAME, ENV_OUTPUT};
 pub use file::{FileCamera, WhenExhausted};
 pub use intrinsics::Intrinsics;
+pub use reconnect::{Backoff, ReconnectingCamera};
 
 /// Everything that can go wrong in the file and exec camera backends.
 #[derive(Debug, thiserror::Error)]

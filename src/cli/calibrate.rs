@@ -1,6 +1,6 @@
 //! `handeye calibrate` and `handeye check`: one calibration run on the configured robot and
-//! camera (see `handeye::run`). This is where the concrete drivers are chosen from the
-//! configuration; the run itself only knows the hal traits.
+//! camera (see `handeye::run`), connected through [`super::wiring`]; the run itself only knows
+//! the hal traits.
 
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -8,18 +8,14 @@ use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
-use anyhow::Context;
-use handeye::camera::{ExecCamera, FileCamera};
-use handeye::config::{CameraBackend, Config};
-use handeye::model::RobotModel;
-use handeye::run::{run, Outcome, Progress, RunMode, RunRecord, RunRequest, Stage};
-use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
-use handeye_hal::DepthCamera;
-use handeye_ur::{Ports, UrConfig, UrRobot};
+use handeye::config::Config;
+use handeye::record::Trigger;
+use handeye::run::{Outcome, Progress, Recorder, RunMode, RunRecord, RunRequest, Stage};
+use handeye::store::Store;
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
-use super::args::resolve_robot;
+use super::wiring::{connect_robot, history_path, load_model, AnyCamera};
 
 /// Arguments of `calibrate`.
 #[derive(Debug, clap::Args)]
@@ -83,34 +79,10 @@ fn finish(record: RunRecord, json: bool) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::from(record.exit_code()))
 }
 
-/// The robot model the configuration names.
-pub(crate) fn load_model(cfg: &Config) -> anyhow::Result<Arc<RobotModel>> {
-    let path = match &cfg.robot.urdf {
-        Some(p) => p.clone(),
-        None => resolve_robot(cfg.robot.model.name()).map_err(anyhow::Error::msg)?,
-    };
-    let model = RobotModel::load(&path)
-        .with_context(|| format!("loading the robot model {}", path.display()))?;
-    anyhow::ensure!(
-        model.dof() == 6,
-        "{} has {} joints; a UR arm has 6",
-        path.display(),
-        model.dof()
-    );
-    // The run poses the model by the file when the controller tells no kinematics; a file that
-    // cannot serve is refused now, not at the first run.
-    if let Some(file) = &cfg.robot.calibration {
-        let calibration = handeye::model::UrCalibration::load(file)
-            .with_context(|| format!("robot.calibration in {}", cfg.origin))?;
-        calibration
-            .dh(&cfg.robot.model.dh())
-            .map_err(anyhow::Error::msg)?;
-    }
-    Ok(Arc::new(model))
-}
-
-/// Connects the configured robot and camera and runs once. Connection failures are errors;
-/// everything after that is in the record.
+/// Connects the configured robot and camera and runs once, recorded like the daemon's runs
+/// (trigger `cli`): in the history, so `handeye history`, the page and the next check see what
+/// the controller now holds. Connection failures are errors; everything after that is in the
+/// record.
 pub(crate) async fn execute(
     cfg: &Config,
     req: RunRequest,
@@ -120,99 +92,30 @@ pub(crate) async fn execute(
     let model = load_model(cfg)?;
     let robot = connect_robot(cfg).await?;
     let camera = AnyCamera::connect(cfg).await?;
+    let recorder = recorder(cfg).await;
     let progress = Terminal::new(quiet);
-    let record = run(&robot, &camera, &model, cfg, req, shutdown, &progress).await;
+    let record = recorder
+        .run(&robot, &camera, &model, cfg, req, shutdown, &progress)
+        .await;
     progress.done();
     Ok(record)
 }
 
-/// The configured camera, whichever backend: one concrete type for the generic run.
-#[derive(Debug, Clone)]
-pub(crate) enum AnyCamera {
-    /// GigE Vision.
-    Gige(GigeCamera),
-    /// A vendor SDK through a command.
-    Exec(ExecCamera),
-    /// Recorded files.
-    File(FileCamera),
-}
-
-impl AnyCamera {
-    /// Connects the camera `cfg.camera` names.
-    pub(crate) async fn connect(cfg: &Config) -> anyhow::Result<AnyCamera> {
-        Ok(match &cfg.camera.backend {
-            CameraBackend::Gige { address } => {
-                let addr = GvcpClient::parse_address(address)?;
-                let camera = tokio::task::spawn_blocking(move || {
-                    GigeCamera::connect(addr, ControlConfig::default())
-                })
-                .await?
-                .with_context(|| format!("connecting to the GigE Vision camera at {addr}"))?;
-                AnyCamera::Gige(camera)
-            }
-            CameraBackend::Exec { command, timeout } => {
-                AnyCamera::Exec(ExecCamera::new(command.clone(), *timeout)?)
-            }
-            CameraBackend::File { paths } => AnyCamera::File(FileCamera::new(paths.clone())?),
-        })
-    }
-}
-
-impl DepthCamera for AnyCamera {
-    async fn info(&self) -> Result<handeye_hal::CameraInfo, handeye_hal::HalError> {
-        match self {
-            AnyCamera::Gige(c) => c.info().await,
-            AnyCamera::Exec(c) => c.info().await,
-            AnyCamera::File(c) => c.info().await,
-        }
-    }
-
-    async fn capture(
-        &self,
-        settings: &handeye_hal::CaptureSettings,
-    ) -> Result<Vec<handeye_hal::PointCloud>, handeye_hal::HalError> {
-        match self {
-            AnyCamera::Gige(c) => c.capture(settings).await,
-            AnyCamera::Exec(c) => c.capture(settings).await,
-            AnyCamera::File(c) => c.capture(settings).await,
-        }
-    }
-}
-
-/// Connects RTDE, dashboard and primary of the configured controller.
-pub(crate) async fn connect_robot(cfg: &Config) -> anyhow::Result<UrRobot> {
-    let p = cfg.robot.ports;
-    let mut ur = UrConfig::new(cfg.robot.host);
-    ur.ports = Ports {
-        dashboard: p.dashboard,
-        primary: p.primary,
-        secondary: p.secondary,
-        realtime: p.realtime,
-        rtde: p.rtde,
-    };
-    ur.max_joint_speed_rad_s = cfg.robot.limits.max_joint_speed_rad_s;
-    ur.max_joint_accel_rad_s2 = cfg.robot.limits.max_joint_accel_rad_s2;
-    // Claim exactly the RTDE input registers the configuration writes (and the pendant
-    // handshake's), no others: they stay free for the cell's own clients.
-    #[allow(clippy::reversed_empty_ranges)]
-    {
-        ur.registers = 1..=0;
-        ur.int_registers = 1..=0;
-    }
-    let mut ints: Vec<u32> = Vec::new();
-    if let Some(map) = cfg.write_back.registers {
-        ur.registers = map.double_start..=map.double_start + 5;
-        ints.push(map.sequence_int);
-    }
-    if let Some(p) = cfg.daemon.pendant {
-        ints.extend([p.request_register, p.status_register]);
-    }
-    if let (Some(lo), Some(hi)) = (ints.iter().min(), ints.iter().max()) {
-        ur.int_registers = *lo..=*hi;
-    }
-    UrRobot::connect(ur)
+/// The recorder of a command's run: the history in the storage directory (opened beside a
+/// running daemon), or the run's files only when the history cannot be opened (said why).
+async fn recorder(cfg: &Config) -> Recorder {
+    let path = history_path(cfg);
+    let opened = tokio::task::spawn_blocking(move || Store::open(&path))
         .await
-        .with_context(|| format!("connecting to the UR controller at {}", cfg.robot.host))
+        .map_err(anyhow::Error::from)
+        .and_then(|r| r.map_err(anyhow::Error::from));
+    match opened {
+        Ok(store) => Recorder::new(Arc::new(store), Trigger::Cli),
+        Err(e) => {
+            tracing::warn!("this run is not recorded in the history: {e:#}");
+            Recorder::files_only()
+        }
+    }
 }
 
 /// Progress on the terminal: one updating line on a TTY, plain lines otherwise (stderr).
@@ -286,15 +189,7 @@ pub(crate) fn describe_pose(name: &str, t: &Isometry3<f64>) -> String {
 
 /// The text summary of a run record.
 pub(crate) fn summary(r: &RunRecord) -> String {
-    let mut s = format!(
-        "handeye {} — run {}: {}\n",
-        match r.mode {
-            RunMode::Calibrate => "calibrate",
-            RunMode::Check => "check",
-        },
-        r.run_id,
-        r.outcome
-    );
+    let mut s = format!("handeye {} — run {}: {}\n", r.mode, r.run_id, r.outcome);
     for reason in &r.reasons {
         s += &format!("  - {reason}\n");
     }

@@ -6,9 +6,10 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
+use handeye::calendar::utc_text;
 use handeye::config::Config;
-use handeye::store::{utc_text, RunSummary, Store, HISTORY_FILE};
-use serde_json::Value;
+use handeye::record::Stage;
+use handeye::store::{RunSummary, Store, StoredRun, HISTORY_FILE};
 
 /// Arguments of `history`.
 #[derive(Debug, clap::Args)]
@@ -128,7 +129,7 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
             utc_text(r.started_unix_s),
             r.run_id,
             r.trigger,
-            mode_name(r),
+            r.mode.name(),
             r.outcome.name(),
             time,
             result_cell(r),
@@ -139,13 +140,6 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
         writeln!(out, "{}", line.trim_end())?;
     }
     Ok(())
-}
-
-fn mode_name(r: &RunSummary) -> &'static str {
-    match r.mode {
-        handeye::run::RunMode::Calibrate => "calibrate",
-        handeye::run::RunMode::Check => "check",
-    }
 }
 
 /// The drift of a check, else the uncertainty of a result.
@@ -176,64 +170,66 @@ fn shorten(s: &str, max: usize) -> String {
     }
 }
 
-/// The main lines of a record (the JSON of a `RunRecord`, or the partial one of a run that
-/// never finished).
+/// The main lines of a run: its record, or what is known of a run that never finished.
 fn write_record(
     out: &mut dyn Write,
-    rec: &Value,
+    run: &StoredRun,
     summary: Option<&RunSummary>,
 ) -> std::io::Result<()> {
-    let s = |v: &Value| v.as_str().unwrap_or("?").to_string();
-    let f = |v: &Value| v.as_f64();
-    write!(
-        out,
-        "run {}: {}, {}",
-        s(&rec["run_id"]),
-        s(&rec["mode"]),
-        s(&rec["outcome"])
-    )?;
+    let (run_id, mode, outcome, started, config) = match run {
+        StoredRun::Complete(r) => (
+            &r.run_id,
+            r.mode,
+            r.outcome.name(),
+            r.started_unix_s,
+            &r.config,
+        ),
+        StoredRun::Partial(p) => (
+            &p.run_id,
+            p.mode,
+            p.outcome.name(),
+            p.started_unix_s,
+            &p.config,
+        ),
+    };
+    write!(out, "run {run_id}: {mode}, {outcome}")?;
     if let Some(sm) = summary {
         write!(out, " (trigger {})", sm.trigger)?;
     }
     writeln!(out)?;
-    let mut started = f(&rec["started_unix_s"]).map_or("?".into(), utc_text) + " UTC";
-    if let Some(ms) = f(&rec["timings_ms"]["total"]) {
-        started += &format!(", took {:.2} s", ms / 1e3);
+    let mut started = utc_text(started) + " UTC";
+    if let StoredRun::Complete(r) = run {
+        started += &format!(", took {:.2} s", r.timings_ms.total / 1e3);
     }
     writeln!(out, "started   {started}")?;
-    let mut config = s(&rec["config"]);
+    let mut config = config.clone();
     if let Some(digest) = summary.and_then(|sm| sm.config_digest.as_deref()) {
         config += &format!(" (digest {digest})");
     }
     writeln!(out, "config    {config}")?;
-    if rec["complete"] == Value::Bool(false) {
-        writeln!(
-            out,
-            "record    none: the run is still running, or was interrupted before it ended"
-        )?;
+    let rec = match run {
+        StoredRun::Complete(r) => r,
+        StoredRun::Partial(p) => {
+            writeln!(
+                out,
+                "record    none: the run is still running, or was interrupted before it ended"
+            )?;
+            return write_reasons(out, &p.reasons);
+        }
+    };
+    if let Some(stage) = rec.failed_stage {
+        writeln!(out, "failed    at {}", stage.name())?;
     }
-    if let Some(stage) = rec["failed_stage"].as_str() {
-        writeln!(out, "failed    at {stage}")?;
-    }
-    let reasons = rec["reasons"].as_array().cloned().unwrap_or_default();
-    for (i, reason) in reasons.iter().enumerate() {
-        let label = if i == 0 { "reasons" } else { "" };
-        writeln!(out, "{label:<9} - {}", s(reason))?;
-    }
-    let result = &rec["result"];
-    if let Some(p) = result["ur_pose"].as_array().filter(|p| p.len() == 6) {
-        let p: Vec<f64> = p.iter().map(|v| v.as_f64().unwrap_or(f64::NAN)).collect();
-        let unknown = if result["flange_from_camera"].is_array() {
-            "flange_from_camera"
-        } else {
-            "base_from_camera"
-        };
+    write_reasons(out, &rec.reasons)?;
+    if let Some(result) = &rec.result {
+        let p = result.ur_pose;
         let angle = (p[3] * p[3] + p[4] * p[4] + p[5] * p[5])
             .sqrt()
             .to_degrees();
         writeln!(
             out,
-            "result    {unknown}: translation ({:.3}, {:.3}, {:.3}) mm, rotation vector ({:.6}, {:.6}, {:.6}) rad ({angle:.3}°)",
+            "result    {}: translation ({:.3}, {:.3}, {:.3}) mm, rotation vector ({:.6}, {:.6}, {:.6}) rad ({angle:.3}°)",
+            result.mount.unknown_name(),
             p[0] * 1e3,
             p[1] * 1e3,
             p[2] * 1e3,
@@ -241,59 +237,40 @@ fn write_record(
             p[4],
             p[5]
         )?;
-        if let (Some(mm), Some(deg)) = (
-            f(&result["uncertainty"]["translation_mm"]),
-            f(&result["uncertainty"]["rotation_deg"]),
-        ) {
-            writeln!(out, "          1σ uncertainty ±{mm:.3} mm, ±{deg:.4}°")?;
-        }
+        let u = result.uncertainty;
+        writeln!(
+            out,
+            "          1σ uncertainty ±{:.3} mm, ±{:.4}°",
+            u.translation_mm, u.rotation_deg
+        )?;
     }
-    let drift = &rec["drift"];
-    if let (Some(mm), Some(deg)) = (f(&drift["translation_mm"]), f(&drift["rotation_deg"])) {
-        let verdict = if drift["drifted"] == Value::Bool(true) {
+    if let Some(d) = &rec.drift {
+        let verdict = if d.drifted {
             "DRIFTED"
         } else {
             "within thresholds"
         };
         writeln!(
             out,
-            "drift     {mm:.3} mm, {deg:.4}° from {} (thresholds {} mm, {}°): {verdict}",
-            s(&drift["reference"]),
-            f(&drift["max_translation_mm"]).unwrap_or(f64::NAN),
-            f(&drift["max_rotation_deg"]).unwrap_or(f64::NAN),
+            "drift     {:.3} mm, {:.4}° from {} (thresholds {} mm, {}°): {verdict}",
+            d.translation_mm, d.rotation_deg, d.reference, d.max_translation_mm, d.max_rotation_deg,
         )?;
     }
-    if let Some(written) = rec["written"].as_array() {
-        if written.is_empty() {
-            writeln!(out, "written   nothing")?;
-        }
-        for (i, w) in written.iter().enumerate() {
-            let label = if i == 0 { "written" } else { "" };
-            writeln!(out, "{label:<9} {}: {}", s(&w["target"]), s(&w["detail"]))?;
-        }
+    if rec.written.is_empty() {
+        writeln!(out, "written   nothing")?;
     }
-    if let Some(t) = rec["timings_ms"].as_object() {
-        let parts: Vec<String> = [
-            "preflight",
-            "plan",
-            "moves",
-            "settle",
-            "capture",
-            "register",
-            "solve",
-            "write_back",
-            "return_move",
-        ]
+    for (i, w) in rec.written.iter().enumerate() {
+        let label = if i == 0 { "written" } else { "" };
+        writeln!(out, "{label:<9} {}: {}", w.target, w.detail)?;
+    }
+    let parts: Vec<String> = rec
+        .timings_ms
+        .stages()
         .iter()
-        .filter_map(|k| {
-            t.get(*k)
-                .and_then(Value::as_f64)
-                .map(|ms| format!("{k} {ms:.0}"))
-        })
+        .map(|(k, ms)| format!("{k} {ms:.0}"))
         .collect();
-        writeln!(out, "timings   ms: {}", parts.join(", "))?;
-    }
-    if let Some(path) = rec["capture_file"].as_str() {
+    writeln!(out, "timings   ms: {}", parts.join(", "))?;
+    if let Some(path) = &rec.capture_file {
         let pruned = summary.is_some_and(|sm| sm.captures_pruned_unix_s.is_some());
         let note = if pruned {
             " (raw scans pruned; replay is no longer possible)"
@@ -301,6 +278,15 @@ fn write_record(
             ""
         };
         writeln!(out, "capture   {path}{note}")?;
+    }
+    Ok(())
+}
+
+/// `reasons   - …`, one line each.
+fn write_reasons(out: &mut dyn Write, reasons: &[String]) -> std::io::Result<()> {
+    for (i, reason) in reasons.iter().enumerate() {
+        let label = if i == 0 { "reasons" } else { "" };
+        writeln!(out, "{label:<9} - {reason}")?;
     }
     Ok(())
 }
@@ -315,14 +301,14 @@ fn csv(runs: &[RunSummary]) -> String {
         let pose = |i: usize| num(r.ur_pose.map(|p| p[i]));
         let fields = [
             quote(&r.run_id),
-            quote(&r.trigger),
-            mode_name(r).to_string(),
+            quote(r.trigger.name()),
+            r.mode.name().to_string(),
             r.outcome.name().to_string(),
             utc_text(r.started_unix_s),
             r.started_unix_s.to_string(),
             num(r.finished_unix_s),
             num(r.duration_ms),
-            text(r.failed_stage.as_deref()),
+            text(r.failed_stage.map(Stage::name)),
             text(r.reason.as_deref()),
             pose(0),
             pose(1),
@@ -335,7 +321,13 @@ fn csv(runs: &[RunSummary]) -> String {
             num(r.drift_translation_mm),
             num(r.drift_rotation_deg),
             r.drifted.map_or(String::new(), |d| d.to_string()),
-            quote(&r.written.join("+")),
+            quote(
+                &r.written
+                    .iter()
+                    .map(|w| w.name())
+                    .collect::<Vec<_>>()
+                    .join("+"),
+            ),
             text(r.capture_file.as_deref()),
             num(r.captures_pruned_unix_s),
             quote(&r.config_origin),
@@ -446,7 +438,7 @@ mod tests {
             }),
             written: if accepted && mode == RunMode::Calibrate {
                 vec![Written {
-                    target: "tcp",
+                    target: handeye::record::WriteTarget::Tcp,
                     detail: "set_tcp, read back".into(),
                 }]
             } else {
@@ -501,7 +493,7 @@ mod tests {
         writer
             .begin(&RunStart {
                 run_id: "run-a".into(),
-                trigger: "startup".into(),
+                trigger: handeye::record::Trigger::Startup,
                 mode: RunMode::Calibrate,
                 config_origin: cfg_path.display().to_string(),
                 config_digest: handeye::store::config_digest("cell"),
@@ -510,19 +502,19 @@ mod tests {
             .expect("begin");
         writer
             .finish(
-                "startup",
+                handeye::record::Trigger::Startup,
                 &record("run-a", RunMode::Calibrate, Outcome::Accepted, t),
             )
             .expect("finish");
         writer
             .finish(
-                "schedule",
+                handeye::record::Trigger::Schedule,
                 &record("run-b", RunMode::Check, Outcome::Accepted, t + 3600.0),
             )
             .expect("finish");
         writer
             .finish(
-                "api",
+                handeye::record::Trigger::Api,
                 &record("run-c", RunMode::Calibrate, Outcome::Rejected, t + 7200.0),
             )
             .expect("finish");
@@ -555,7 +547,7 @@ mod tests {
         );
         let limited =
             history(&store, &cfg_path, &["list", "--limit", "1", "--json"]).expect("list");
-        let json: Value = serde_json::from_str(&limited).expect("json");
+        let json: serde_json::Value = serde_json::from_str(&limited).expect("json");
         assert_eq!(json.as_array().map(Vec::len), Some(1));
         assert_eq!(json[0]["run_id"], "run-c");
         assert_eq!(json[0]["outcome"], "rejected");
@@ -582,7 +574,7 @@ mod tests {
         );
         assert!(show.contains("written   nothing"), "{show}");
         let json = history(&store, &cfg_path, &["show", "run-c", "--json"]).expect("show");
-        let json: Value = serde_json::from_str(&json).expect("json");
+        let json: serde_json::Value = serde_json::from_str(&json).expect("json");
         assert_eq!(
             json,
             serde_json::to_value(record(

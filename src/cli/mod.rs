@@ -2,7 +2,6 @@
 //! `run` returns the process exit code: 0 success, 1 a completed run whose result was rejected,
 //! 2 an error (bad input, unreachable device, …).
 
-pub(crate) mod api;
 pub(crate) mod args;
 pub(crate) mod bench;
 pub(crate) mod calibrate;
@@ -18,3 +17,4 @@ pub(crate) mod sim_robot;
 pub(crate) mod simulate_scan;
 pub(crate) mod solve;
 pub(crate) mod status;
+pub(crate) mod wiring;

@@ -1,7 +1,7 @@
 //! `handeye solve`: calibrate from recorded scans — a run's kept capture (`--capture
 //! capture.json`: its scans, joints, the controller's flange poses and kinematics), or scans
 //! given one by one with their joints (and flange poses). It goes through the same pipeline as
-//! a run (`handeye::run::calibrate_frames`).
+//! a run (`handeye::calib::pipeline::calibrate_frames`).
 //!
 //! With `--scan`, each scan is one frame; `--joints` (and `--flange-pose`) are given once for
 //! all frames or once per frame. Frames with identical joints form one view. Poses on the
@@ -12,9 +12,10 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{bail, Context};
+use handeye::calib::pipeline::{calibrate_frames, fixed_frame, Frame, PipelineOptions};
 use handeye::calib::{CalibError, Mount};
 use handeye::model::{KinematicError, RobotModel, UrCalibration};
-use handeye::run::{calibrate_frames, load_capture, pipeline::fixed_frame, Frame, PipelineOptions};
+use handeye::storage::load_capture;
 use handeye_hal::ur_dh::DhParams;
 use nalgebra::Isometry3;
 

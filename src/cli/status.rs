@@ -8,12 +8,13 @@ use std::io::{Read, Write};
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use anyhow::{bail, Context};
+use handeye::calendar::{unix_now, utc_text};
 use handeye::config::Config;
-use handeye::store::utc_text;
-use serde_json::Value;
+use handeye::daemon::api::ErrorBody;
+use handeye::daemon::{Finished, Status};
 
 /// How long connecting, sending and reading may each take.
 const TIMEOUT: Duration = Duration::from_secs(3);
@@ -50,17 +51,18 @@ fn status_at(listen: SocketAddr, config: &Path, json: bool) -> anyhow::Result<Ex
             return Ok(ExitCode::from(2));
         }
     };
-    let value: Value = serde_json::from_slice(&body).with_context(|| {
-        format!("the program at {addr} answered /api/status with something other than JSON; is it a handeye daemon?")
-    })?;
     if code != 200 {
-        let msg = value["error"].as_str().unwrap_or("no reason given");
+        let msg = serde_json::from_slice::<ErrorBody>(&body)
+            .map_or_else(|_| "no reason given".to_string(), |b| b.error);
         bail!("the daemon at {addr} answered {code}: {msg}");
     }
+    let status: Status = serde_json::from_slice(&body).with_context(|| {
+        format!("the program at {addr} answered /api/status with something other than a handeye daemon's status")
+    })?;
     if json {
-        println!("{}", serde_json::to_string_pretty(&value)?);
+        println!("{}", serde_json::to_string_pretty(&status)?);
     } else {
-        print!("{}", render(addr, &value, unix_now()));
+        print!("{}", render(addr, &status, unix_now()));
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -163,12 +165,6 @@ fn dechunk(mut body: &[u8]) -> anyhow::Result<Vec<u8>> {
     }
 }
 
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
 /// `3 s`, `4 min`, `2 h 5 min`, `3 d 4 h`.
 fn span(seconds: f64) -> String {
     let s = seconds.max(0.0).round() as u64;
@@ -185,111 +181,94 @@ fn when(unix_s: f64, now: f64) -> String {
     format!("{} UTC ({} ago)", utc_text(unix_s), span(now - unix_s))
 }
 
-fn text<'a>(v: &'a Value, key: &str) -> &'a str {
-    v[key].as_str().unwrap_or("?")
-}
-
 /// One finished run: `ID calibrate (asked by api): accepted in 0.9 s, ended … (… ago)`, its
 /// drift (checks) and its reasons (not accepted).
-fn finished(f: &Value, now: f64) -> String {
+fn finished(f: &Finished, now: f64) -> String {
     let mut s = format!(
-        "{} {} (asked by {}): {}",
-        text(f, "run_id"),
-        text(f, "mode"),
-        text(f, "trigger"),
-        text(f, "outcome"),
+        "{} {} (asked by {}): {} in {:.1} s, ended {}",
+        f.run_id,
+        f.mode,
+        f.trigger,
+        f.outcome,
+        f.duration_ms / 1e3,
+        when(f.finished_unix_s, now)
     );
-    if let Some(ms) = f["duration_ms"].as_f64() {
-        s += &format!(" in {:.1} s", ms / 1e3);
-    }
-    if let Some(t) = f["finished_unix_s"].as_f64() {
-        s += &format!(", ended {}", when(t, now));
-    }
-    if let Some([mm, deg, drifted]) = f["drift"].as_array().map(Vec::as_slice) {
-        let (mm, deg) = (
-            mm.as_f64().unwrap_or(f64::NAN),
-            deg.as_f64().unwrap_or(f64::NAN),
-        );
-        let verdict = if drifted.as_bool() == Some(true) {
+    if let Some((mm, deg, drifted)) = f.drift {
+        let verdict = if drifted {
             "beyond the thresholds"
         } else {
             "within the thresholds"
         };
         s += &format!("; drift {mm:.2} mm {deg:.3}° ({verdict})");
     }
-    for reason in f["reasons"].as_array().into_iter().flatten() {
-        if let Some(r) = reason.as_str() {
-            s += &format!("\n    {r}");
-        }
+    for r in &f.reasons {
+        s += &format!("\n    {r}");
     }
     s
 }
 
 /// The status as lines for a person.
-fn render(addr: SocketAddr, st: &Value, now: f64) -> String {
-    let mut out = format!("handeye daemon at {addr}: {}", text(st, "state"));
-    if let Some(t) = st["started_unix_s"].as_f64() {
-        out += &format!(", up {}", span(now - t));
-    }
-    out.push('\n');
-    let up = |key: &str| {
-        if st[key].as_bool() == Some(true) {
+fn render(addr: SocketAddr, st: &Status, now: f64) -> String {
+    let mut out = format!(
+        "handeye daemon at {addr}: {}, up {}\n",
+        st.state.name(),
+        span(now - st.started_unix_s)
+    );
+    let up = |connected: bool| {
+        if connected {
             "connected"
         } else {
             "NOT ANSWERING"
         }
     };
-    let reconnects = |key: &str| match st[key].as_u64() {
-        Some(n) if n > 0 => format!(" (reconnected {n}×)"),
-        _ => String::new(),
+    let reconnects = |n: u64| match n {
+        0 => String::new(),
+        n => format!(" (reconnected {n}×)"),
     };
     out += &format!(
         "robot: {}{}, camera: {}{}\n",
-        up("robot_connected"),
-        reconnects("robot_reconnects"),
-        up("camera_connected"),
-        reconnects("camera_reconnects")
+        up(st.robot_connected),
+        reconnects(st.robot_reconnects),
+        up(st.camera_connected),
+        reconnects(st.camera_reconnects)
     );
-    let current = &st["current"];
-    if current.is_object() {
-        out += &format!(
-            "current run: {} {} (asked by {})",
-            text(current, "run_id"),
-            text(current, "mode"),
-            text(current, "trigger"),
-        );
-        if let Some(t) = current["since_unix_s"].as_f64() {
-            out += &format!(" for {}", span(now - t));
+    match &st.current {
+        Some(c) => {
+            out += &format!(
+                "current run: {} {} (asked by {}) for {}",
+                c.run_id,
+                c.mode,
+                c.trigger,
+                span(now - c.since_unix_s)
+            );
+            match c.stage {
+                Some(stage) => out += &format!(", stage {}: {}", stage.name(), c.detail),
+                None => out += &format!(", {}", c.detail),
+            }
+            out.push('\n');
         }
-        match current["stage"].as_str() {
-            Some(stage) => out += &format!(", stage {stage}: {}", text(current, "detail")),
-            None => out += &format!(", {}", text(current, "detail")),
-        }
-        out.push('\n');
-    } else {
-        out += "current run: none\n";
+        None => out += "current run: none\n",
     }
-    for (i, q) in st["queued"].as_array().into_iter().flatten().enumerate() {
+    for (i, q) in st.queued.iter().enumerate() {
         out += &format!(
             "queued {}: {} {} (asked by {})\n",
             i + 1,
-            text(q, "run_id"),
-            text(q, "mode"),
-            text(q, "trigger")
+            q.run_id,
+            q.mode,
+            q.trigger
         );
     }
-    for (label, key) in [
-        ("last run", "last"),
-        ("last calibration", "last_calibration"),
-        ("last check", "last_check"),
+    for (label, f) in [
+        ("last run", &st.last),
+        ("last calibration", &st.last_calibration),
+        ("last check", &st.last_check),
     ] {
-        if st[key].is_object() {
-            out += &format!("{label}: {}\n", finished(&st[key], now));
-        } else {
-            out += &format!("{label}: none since the daemon started\n");
+        match f {
+            Some(f) => out += &format!("{label}: {}\n", finished(f, now)),
+            None => out += &format!("{label}: none since the daemon started\n"),
         }
     }
-    if st["drift_alarm"].as_bool() == Some(true) {
+    if st.drift_alarm {
         out += "drift alarm: ON: the last check found the camera moved beyond the thresholds; \
                 recalibrate (POST /api/calibrate, or the pendant)\n";
     } else {
@@ -304,8 +283,8 @@ mod tests {
 
     use super::*;
 
-    fn sample() -> Value {
-        serde_json::json!({
+    fn sample() -> Status {
+        serde_json::from_value(serde_json::json!({
             "state": "running",
             "current": {
                 "run_id": "20261124T150000Z-00ab", "mode": "check", "trigger": "schedule",
@@ -332,7 +311,8 @@ mod tests {
             "robot_reconnects": 2,
             "camera_reconnects": 0,
             "started_unix_s": 0.0
-        })
+        }))
+        .expect("a status")
     }
 
     #[test]
@@ -402,7 +382,7 @@ mod tests {
                 assert!(n > 0, "request cut short");
                 req.extend_from_slice(&buf[..n]);
             }
-            let body = sample().to_string();
+            let body = serde_json::to_string(&sample()).expect("JSON");
             let answer = format!(
                 "HTTP/1.1 200 OK\r\ncontent-type: application/json\r\ncontent-length: {}\r\n\r\n{body}",
                 body.len()

@@ -2,7 +2,11 @@ use std::net::{IpAddr, Ipv4Addr};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use handeye_hal::ur_dh::UrModel;
+use handeye_hal::{CaptureSettings, MotionLimits};
+
 use super::*;
+use crate::calib::{GateThresholds, Mount};
 
 const MINIMAL: &str = r#"
 [robot]

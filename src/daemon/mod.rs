@@ -7,56 +7,30 @@
 //!
 //! The binary builds the concrete robot and camera from the configuration and calls [`run`].
 
+pub mod api;
+mod metrics;
 mod notify;
-pub mod schedule;
+mod pendant;
 
-pub use schedule::CalendarTime;
-
-use std::fmt::Write as _;
+use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use handeye_hal::{DepthCamera, Robot};
-use serde::Serialize;
-use tokio::sync::mpsc;
+use serde::{Deserialize, Serialize};
+use tokio::sync::Notify;
 use tokio_util::sync::CancellationToken;
 
-use crate::config::{Config, WhenBusy};
+use crate::calendar::{unix_now, utc_text};
+use crate::config::{Config, WhenBusy, QUEUE_LIMIT};
 use crate::model::RobotModel;
-use crate::run::{new_run_id, Outcome, Progress, RunMode, RunRecord, RunRequest, Stage};
-use crate::store::{RunStart, Store};
-
-/// Who asked for a run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Trigger {
-    /// The daemon's start (`daemon.startup`).
-    Startup,
-    /// The drift-check schedule (`daemon.check_interval_s`, `daemon.check_at`).
-    Schedule,
-    /// A scheduled check found drift and `daemon.recalibrate_on_drift` is on.
-    Drift,
-    /// The HTTP API (or the web page).
-    Api,
-    /// The pendant program, through registers.
-    Pendant,
-}
-
-impl Trigger {
-    /// Lower-case name as stored in the history.
-    pub fn name(self) -> &'static str {
-        match self {
-            Trigger::Startup => "startup",
-            Trigger::Schedule => "schedule",
-            Trigger::Drift => "drift",
-            Trigger::Api => "api",
-            Trigger::Pendant => "pendant",
-        }
-    }
-}
+use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger};
+use crate::run::{Progress, Recorder, RunRequest};
+use crate::storage::new_run_id;
+use crate::store::Store;
 
 /// The run in progress.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Current {
     /// Its id (also in the history).
     pub run_id: String,
@@ -73,7 +47,7 @@ pub struct Current {
 }
 
 /// A run's end, as the status shows it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Finished {
     /// Its id.
     pub run_id: String,
@@ -93,11 +67,34 @@ pub struct Finished {
     pub drift: Option<(f64, f64, bool)>,
 }
 
-/// What the daemon is doing; the API's `/api/status`.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// Whether the daemon runs something.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DaemonState {
+    /// Waiting for a trigger.
+    Idle,
+    /// A run is going.
+    Running,
+    /// Shutting down.
+    Stopping,
+}
+
+impl DaemonState {
+    /// Lower-case name as in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            DaemonState::Idle => "idle",
+            DaemonState::Running => "running",
+            DaemonState::Stopping => "stopping",
+        }
+    }
+}
+
+/// What the daemon is doing: the API's `GET /api/status`, read back by `handeye status`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Status {
     /// `idle`, `running` or `stopping`.
-    pub state: &'static str,
+    pub state: DaemonState,
     /// The run in progress.
     pub current: Option<Current>,
     /// Runs accepted behind it (`daemon.when_busy = "queue"`), next first.
@@ -151,38 +148,15 @@ pub enum Refusal {
     },
 }
 
-/// The most runs `daemon.when_busy = "queue"` keeps waiting behind the running one.
-pub const QUEUE_LIMIT: usize = 4;
-
-/// Counters for `/metrics`.
-#[derive(Debug, Default, Clone)]
-struct Metrics {
-    /// Runs by (trigger, outcome).
-    runs: Vec<((Trigger, Outcome), u64)>,
-    /// Durations of every finished run, s, bucketed.
-    duration_buckets: [u64; DURATION_BUCKETS.len()],
-    duration_sum_s: f64,
-    duration_count: u64,
-    last_uncertainty_mm: Option<f64>,
-    last_uncertainty_deg: Option<f64>,
-    last_drift_mm: Option<f64>,
-    last_drift_deg: Option<f64>,
-    alarms: u64,
-}
-
 /// How often an idle daemon asks the robot and the camera whether they answer.
 const HEALTH_EVERY: Duration = Duration::from_secs(5);
 /// How long such a question may take.
 const HEALTH_TIMEOUT: Duration = Duration::from_secs(3);
-/// Upper bounds of the run-duration histogram, s.
-const DURATION_BUCKETS: [f64; 8] = [1.0, 2.5, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0];
-
 #[derive(Debug)]
 struct State {
-    /// The run in progress and the token that cancels it.
-    current: Option<(Current, CancellationToken)>,
-    /// Accepted behind `current`, in the order the job channel delivers them.
-    queued: std::collections::VecDeque<(Current, CancellationToken)>,
+    /// The one queue: every run accepted and not ended, in order. The first is the current
+    /// one (running, or about to); the others wait behind it.
+    runs: VecDeque<Job>,
     last: Option<Finished>,
     last_calibration: Option<Finished>,
     last_check: Option<Finished>,
@@ -190,13 +164,14 @@ struct State {
     robot_connected: bool,
     camera_connected: bool,
     links: (u64, u64),
-    metrics: Metrics,
+    metrics: metrics::Metrics,
 }
 
 #[derive(Debug)]
 struct Shared {
     state: Mutex<State>,
-    queue: mpsc::Sender<Job>,
+    /// Wakes the worker ([`run`]) when a run is accepted.
+    wake: Notify,
     when_busy: WhenBusy,
     store: Arc<Store>,
     shutdown: CancellationToken,
@@ -204,13 +179,13 @@ struct Shared {
 }
 
 /// One accepted trigger.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 struct Job {
-    run_id: String,
-    mode: RunMode,
-    trigger: Trigger,
+    /// What the status shows of it (id, mode, trigger, stage).
+    entry: Current,
     /// The program on the controller asked for the run (preflight accepts it running).
     handover: bool,
+    /// Cancels it (a child of the shutdown token).
     cancel: CancellationToken,
 }
 
@@ -218,12 +193,6 @@ struct Job {
 #[derive(Debug, Clone)]
 pub struct DaemonHandle {
     shared: Arc<Shared>,
-}
-
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 impl DaemonHandle {
@@ -248,7 +217,7 @@ impl DaemonHandle {
             return Err(Refusal::ShuttingDown);
         }
         let mut st = self.lock();
-        if let Some((c, _)) = &st.current {
+        if let Some(Job { entry: c, .. }) = st.runs.front() {
             match self.shared.when_busy {
                 WhenBusy::Refuse => {
                     return Err(Refusal::Busy {
@@ -258,29 +227,16 @@ impl DaemonHandle {
                         since_unix_s: c.since_unix_s,
                     })
                 }
-                WhenBusy::Queue if st.queued.len() >= QUEUE_LIMIT => {
+                WhenBusy::Queue if st.runs.len() > QUEUE_LIMIT => {
                     return Err(Refusal::QueueFull {
                         running: c.run_id.clone(),
-                        queued: st.queued.len(),
+                        queued: st.runs.len() - 1,
                     })
                 }
                 WhenBusy::Queue => {}
             }
         }
         let run_id = new_run_id();
-        let cancel = self.shared.shutdown.child_token();
-        let job = Job {
-            run_id: run_id.clone(),
-            mode,
-            trigger,
-            handover,
-            cancel: cancel.clone(),
-        };
-        // The channel holds the running job and the queue; the state above bounds both.
-        self.shared
-            .queue
-            .try_send(job)
-            .map_err(|_| Refusal::ShuttingDown)?;
         let entry = Current {
             run_id: run_id.clone(),
             mode,
@@ -289,13 +245,17 @@ impl DaemonHandle {
             stage: None,
             detail: "queued".into(),
         };
-        if st.current.is_some() {
-            tracing::info!(run_id = %run_id, trigger = trigger.name(), ?mode, position = st.queued.len() + 1, "run queued");
-            st.queued.push_back((entry, cancel));
-        } else {
+        if st.runs.is_empty() {
             tracing::info!(run_id = %run_id, trigger = trigger.name(), ?mode, "run accepted");
-            st.current = Some((entry, cancel));
+        } else {
+            tracing::info!(run_id = %run_id, trigger = trigger.name(), ?mode, position = st.runs.len(), "run queued");
         }
+        st.runs.push_back(Job {
+            entry,
+            handover,
+            cancel: self.shared.shutdown.child_token(),
+        });
+        self.shared.wake.notify_one();
         Ok(run_id)
     }
 
@@ -303,10 +263,10 @@ impl DaemonHandle {
     /// aborted without moving); `false` when nothing runs.
     pub fn cancel(&self) -> bool {
         let st = self.lock();
-        for (_, c) in st.current.iter().chain(&st.queued) {
-            c.cancel();
+        for job in &st.runs {
+            job.cancel.cancel();
         }
-        st.current.is_some()
+        !st.runs.is_empty()
     }
 
     /// What the daemon is doing.
@@ -314,14 +274,14 @@ impl DaemonHandle {
         let st = self.lock();
         Status {
             state: if self.shared.shutdown.is_cancelled() {
-                "stopping"
-            } else if st.current.is_some() {
-                "running"
+                DaemonState::Stopping
+            } else if st.runs.is_empty() {
+                DaemonState::Idle
             } else {
-                "idle"
+                DaemonState::Running
             },
-            current: st.current.as_ref().map(|(c, _)| c.clone()),
-            queued: st.queued.iter().map(|(c, _)| c.clone()).collect(),
+            current: st.runs.front().map(|j| j.entry.clone()),
+            queued: st.runs.iter().skip(1).map(|j| j.entry.clone()).collect(),
             last: st.last.clone(),
             last_calibration: st.last_calibration.clone(),
             last_check: st.last_check.clone(),
@@ -347,106 +307,18 @@ impl DaemonHandle {
     /// The metrics in the Prometheus text exposition format.
     pub fn metrics(&self) -> String {
         let st = self.lock();
-        let m = &st.metrics;
-        let mut s = String::new();
-        let _ = writeln!(
-            s,
-            "# HELP handeye_runs_total Calibration runs by trigger and outcome."
-        );
-        let _ = writeln!(s, "# TYPE handeye_runs_total counter");
-        for ((trigger, outcome), n) in &m.runs {
-            let _ = writeln!(
-                s,
-                "handeye_runs_total{{trigger=\"{}\",outcome=\"{}\"}} {n}",
-                trigger.name(),
-                outcome.name()
-            );
-        }
-        let _ = writeln!(
-            s,
-            "# HELP handeye_run_duration_seconds Duration of a run, start to end."
-        );
-        let _ = writeln!(s, "# TYPE handeye_run_duration_seconds histogram");
-        let mut cumulative = 0;
-        for (le, n) in DURATION_BUCKETS.iter().zip(m.duration_buckets) {
-            cumulative += n;
-            let _ = writeln!(
-                s,
-                "handeye_run_duration_seconds_bucket{{le=\"{le}\"}} {cumulative}"
-            );
-        }
-        let _ = writeln!(
-            s,
-            "handeye_run_duration_seconds_bucket{{le=\"+Inf\"}} {}",
-            m.duration_count
-        );
-        let _ = writeln!(s, "handeye_run_duration_seconds_sum {}", m.duration_sum_s);
-        let _ = writeln!(s, "handeye_run_duration_seconds_count {}", m.duration_count);
-        let gauge = |s: &mut String, name: &str, help: &str, v: Option<f64>| {
-            let _ = writeln!(s, "# HELP {name} {help}");
-            let _ = writeln!(s, "# TYPE {name} gauge");
-            let _ = writeln!(s, "{name} {}", v.unwrap_or(f64::NAN));
-        };
-        gauge(
-            &mut s,
-            "handeye_last_calibration_uncertainty_mm",
-            "Reported 1-sigma translation uncertainty of the last accepted calibration, mm.",
-            m.last_uncertainty_mm,
-        );
-        gauge(
-            &mut s,
-            "handeye_last_calibration_uncertainty_degrees",
-            "Reported 1-sigma rotation uncertainty of the last accepted calibration, degrees.",
-            m.last_uncertainty_deg,
-        );
-        gauge(
-            &mut s,
-            "handeye_last_drift_mm",
-            "Camera position drift found by the last check, mm.",
-            m.last_drift_mm,
-        );
-        gauge(
-            &mut s,
-            "handeye_last_drift_degrees",
-            "Camera rotation drift found by the last check, degrees.",
-            m.last_drift_deg,
-        );
-        gauge(
-            &mut s,
-            "handeye_drift_alarm",
-            "1 while the last check found drift beyond the thresholds.",
-            Some(f64::from(u8::from(st.drift_alarm))),
-        );
-        let _ = writeln!(s, "# HELP handeye_alarms_total Drift alarms raised.");
-        let _ = writeln!(s, "# TYPE handeye_alarms_total counter");
-        let _ = writeln!(s, "handeye_alarms_total {}", m.alarms);
-        for (name, up, reconnects) in [
-            ("robot", st.robot_connected, st.links.0),
-            ("camera", st.camera_connected, st.links.1),
-        ] {
-            let _ = writeln!(
-                s,
-                "# HELP handeye_{name}_connected 1 when the {name} answers."
-            );
-            let _ = writeln!(s, "# TYPE handeye_{name}_connected gauge");
-            let _ = writeln!(s, "handeye_{name}_connected {}", u8::from(up));
-            let _ = writeln!(
-                s,
-                "# HELP handeye_{name}_reconnects_total Times the {name}'s connection was re-established."
-            );
-            let _ = writeln!(s, "# TYPE handeye_{name}_reconnects_total counter");
-            let _ = writeln!(s, "handeye_{name}_reconnects_total {reconnects}");
-        }
-        let _ = writeln!(s, "# HELP handeye_busy 1 while a run is going.");
-        let _ = writeln!(s, "# TYPE handeye_busy gauge");
-        let _ = writeln!(s, "handeye_busy {}", u8::from(st.current.is_some()));
-        let _ = writeln!(
-            s,
-            "# HELP handeye_queued Runs waiting behind the running one."
-        );
-        let _ = writeln!(s, "# TYPE handeye_queued gauge");
-        let _ = writeln!(s, "handeye_queued {}", st.queued.len());
-        s
+        st.metrics.exposition(&metrics::Live {
+            drift_alarm: st.drift_alarm,
+            robot: (st.robot_connected, st.links.0),
+            camera: (st.camera_connected, st.links.1),
+            busy: !st.runs.is_empty(),
+            queued: st.runs.len().saturating_sub(1),
+        })
+    }
+
+    /// The current run (the first in the queue), to be run next by the worker.
+    fn next_job(&self) -> Option<Job> {
+        self.lock().runs.front().cloned()
     }
 
     fn set_connections(&self, robot: bool, camera: bool, links: (u64, u64)) {
@@ -490,76 +362,61 @@ impl DaemonHandle {
 
     fn set_stage(&self, stage: Stage, detail: &str) {
         let mut st = self.lock();
-        if let Some((c, _)) = &mut st.current {
-            c.stage = Some(stage);
-            c.detail = detail.to_string();
+        if let Some(job) = st.runs.front_mut() {
+            job.entry.stage = Some(stage);
+            job.entry.detail = detail.to_string();
         }
     }
 
+    /// Records how the current run ended; the next in the queue becomes the current one.
     fn finished(&self, job: &Job, record: &RunRecord) {
         let mut st = self.lock();
+        let (mode, trigger) = (job.entry.mode, job.entry.trigger);
         let drift = record
             .drift
             .as_ref()
             .map(|d| (d.translation_mm, d.rotation_deg, d.drifted));
         let f = Finished {
             run_id: record.run_id.clone(),
-            mode: job.mode,
-            trigger: job.trigger,
+            mode,
+            trigger,
             outcome: record.outcome,
             reasons: record.reasons.clone(),
             finished_unix_s: unix_now(),
             duration_ms: record.timings_ms.total,
             drift,
         };
-        let m = &mut st.metrics;
-        match m
-            .runs
-            .iter_mut()
-            .find(|((t, o), _)| *t == job.trigger && *o == record.outcome)
-        {
-            Some((_, n)) => *n += 1,
-            None => m.runs.push(((job.trigger, record.outcome), 1)),
+        st.metrics.record(trigger, record);
+        if record.outcome == Outcome::Accepted && mode == RunMode::Calibrate {
+            st.last_calibration = Some(f.clone());
+            // A fresh calibration is the new reference: no drift from it.
+            st.drift_alarm = false;
         }
-        let secs = record.timings_ms.total / 1e3;
-        if let Some(k) = DURATION_BUCKETS.iter().position(|le| secs <= *le) {
-            m.duration_buckets[k] += 1;
-        }
-        m.duration_sum_s += secs;
-        m.duration_count += 1;
-        if record.outcome == Outcome::Accepted {
-            match job.mode {
-                RunMode::Calibrate => {
-                    if let Some(r) = &record.result {
-                        m.last_uncertainty_mm = Some(r.uncertainty.translation_mm);
-                        m.last_uncertainty_deg = Some(r.uncertainty.rotation_deg);
-                    }
-                    st.last_calibration = Some(f.clone());
-                    // A fresh calibration is the new reference: no drift from it.
-                    st.drift_alarm = false;
+        if record.outcome == Outcome::Accepted && mode == RunMode::Check {
+            if let Some(drifted) = record.drift_found() {
+                if drifted {
+                    tracing::error!(
+                        run_id = %record.run_id,
+                        drift_mm = drift.map_or(f64::NAN, |d| d.0),
+                        drift_deg = drift.map_or(f64::NAN, |d| d.1),
+                        "ALARM: the camera has drifted from its calibration"
+                    );
                 }
-                RunMode::Check => {
-                    if let Some((mm, deg, drifted)) = drift {
-                        st.metrics.last_drift_mm = Some(mm);
-                        st.metrics.last_drift_deg = Some(deg);
-                        if drifted {
-                            st.metrics.alarms += 1;
-                            tracing::error!(
-                                run_id = %record.run_id,
-                                drift_mm = mm,
-                                drift_deg = deg,
-                                "ALARM: the camera has drifted from its calibration"
-                            );
-                        }
-                        st.drift_alarm = drifted;
-                    }
-                    st.last_check = Some(f.clone());
-                }
+                st.drift_alarm = drifted;
             }
+            st.last_check = Some(f.clone());
         }
         st.last = Some(f);
-        // The next queued run (the job channel delivers it next) becomes the current one.
-        st.current = st.queued.pop_front();
+        if st
+            .runs
+            .front()
+            .is_some_and(|j| j.entry.run_id == job.entry.run_id)
+        {
+            st.runs.pop_front();
+        }
+        if !st.runs.is_empty() {
+            self.shared.wake.notify_one();
+        }
     }
 }
 
@@ -576,16 +433,10 @@ impl Progress for StageReporter<'_> {
 }
 
 /// Creates the handle and the job queue (the worker side is [`run`]).
-fn handle(
-    store: Arc<Store>,
-    when_busy: WhenBusy,
-    shutdown: CancellationToken,
-) -> (DaemonHandle, mpsc::Receiver<Job>) {
-    let (tx, rx) = mpsc::channel(1 + QUEUE_LIMIT);
+fn handle(store: Arc<Store>, when_busy: WhenBusy, shutdown: CancellationToken) -> DaemonHandle {
     let shared = Arc::new(Shared {
         state: Mutex::new(State {
-            current: None,
-            queued: std::collections::VecDeque::new(),
+            runs: VecDeque::new(),
             last: None,
             last_calibration: None,
             last_check: None,
@@ -593,15 +444,15 @@ fn handle(
             robot_connected: true,
             camera_connected: true,
             links: (0, 0),
-            metrics: Metrics::default(),
+            metrics: metrics::Metrics::default(),
         }),
-        queue: tx,
+        wake: Notify::new(),
         when_busy,
         store,
         shutdown,
         started_unix_s: unix_now(),
     });
-    (DaemonHandle { shared }, rx)
+    DaemonHandle { shared }
 }
 
 /// What the daemon serves besides the runs (the binary's HTTP server); started with the handle
@@ -639,9 +490,8 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
     shutdown: CancellationToken,
     ready: impl FnOnce(&DaemonHandle),
 ) {
-    let (handle, mut jobs) = handle(store, cfg.daemon.when_busy, shutdown.clone());
+    let handle = handle(store, cfg.daemon.when_busy, shutdown.clone());
     let notifier = notify::Notifier::from_env();
-    let digest = crate::store::config_digest(&format!("{cfg:?}"));
     let frontend_task = tokio::spawn(frontend.serve(handle.clone(), shutdown.clone()));
     if let Some(n) = &notifier {
         if n.watchdog_interval().is_some() {
@@ -664,20 +514,20 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
     });
     let mut schedule = schedule;
     let next_calendar = || {
-        schedule::next_after(
+        crate::calendar::next_after(
             &cfg.daemon.check_at,
             unix_now().floor() as i64,
-            schedule::local_offset_s,
+            crate::calendar::local_offset_s,
         )
     };
     let mut calendar_due = next_calendar();
     if let Some(due) = calendar_due {
         tracing::info!(
             "next scheduled check at {} (daemon.check_at)",
-            crate::store::utc_text(due as f64)
+            utc_text(due as f64)
         );
     }
-    let mut pendant = tokio::time::interval(PENDANT_POLL);
+    let mut pendant = tokio::time::interval(pendant::POLL);
     pendant.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last_request = 0;
     let mut health = tokio::time::interval(HEALTH_EVERY);
@@ -705,22 +555,17 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
         tokio::select! {
             biased;
             _ = shutdown.cancelled() => break,
-            Some(job) = jobs.recv() => {
-                let record = execute(&cfg, &model, &robot, &camera, &handle, &digest, &job).await;
+            _ = handle.shared.wake.notified() => {
+                let Some(job) = handle.next_job() else { continue };
+                let record = execute(&cfg, &model, &robot, &camera, &handle, &job).await;
                 if let Some(n) = &notifier {
                     n.status(&format!("last run {}: {}", record.run_id, record.outcome));
                 }
-                if let (Trigger::Pendant, Some(p)) = (job.trigger, cfg.daemon.pendant) {
-                    let answer = if record.outcome == Outcome::Accepted {
-                        PENDANT_DONE
-                    } else {
-                        PENDANT_FAILED
-                    };
-                    answer_pendant(&robot, p.status_register, answer).await;
+                if let (Trigger::Pendant, Some(p)) = (job.entry.trigger, cfg.daemon.pendant) {
+                    pendant::finished(&robot, p, record.outcome).await;
                 }
-                let drifted = record.drift.as_ref().is_some_and(|d| d.drifted);
-                if job.trigger == Trigger::Schedule
-                    && drifted
+                if job.entry.trigger == Trigger::Schedule
+                    && record.drift_found() == Some(true)
                     && cfg.daemon.recalibrate_on_drift
                     && !shutdown.is_cancelled()
                 {
@@ -731,7 +576,7 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
             }
             _ = pendant.tick(), if cfg.daemon.pendant.is_some() => {
                 if let Some(p) = cfg.daemon.pendant {
-                    last_request = poll_pendant(&robot, &handle, p, last_request).await;
+                    last_request = pendant::poll(&robot, &handle, p, last_request).await;
                 }
             }
             _ = health.tick() => {
@@ -754,71 +599,11 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
         n.stopping();
     }
     // A job accepted just before the shutdown is recorded as never started.
-    while let Ok(job) = jobs.try_recv() {
-        let record = execute(&cfg, &model, &robot, &camera, &handle, &digest, &job).await;
+    while let Some(job) = handle.next_job() {
+        let record = execute(&cfg, &model, &robot, &camera, &handle, &job).await;
         tracing::info!(run_id = %record.run_id, "run accepted before the shutdown: {}", record.outcome);
     }
     let _ = frontend_task.await;
-}
-
-/// How often the pendant's request register is read.
-const PENDANT_POLL: Duration = Duration::from_millis(200);
-/// Answers in the pendant's status register.
-const PENDANT_IDLE: i32 = 0;
-const PENDANT_BUSY: i32 = 1;
-const PENDANT_DONE: i32 = 2;
-const PENDANT_FAILED: i32 = 3;
-const PENDANT_REFUSED: i32 = 4;
-
-/// Reads the pendant program's request register; a new request (1 calibrate, 2 check) starts
-/// a run and is answered busy (or refused, when another run is going); a request cleared to 0
-/// resets the answer. Returns the value seen.
-async fn poll_pendant<R: Robot>(
-    robot: &R,
-    handle: &DaemonHandle,
-    p: crate::config::PendantConfig,
-    last: i32,
-) -> i32 {
-    let v = match robot.read_output_int_register(p.request_register).await {
-        Ok(v) => v,
-        Err(e) => {
-            tracing::debug!("cannot read the pendant's request register: {e}");
-            return last;
-        }
-    };
-    if v == last {
-        return v;
-    }
-    let mode = match v {
-        1 => Some(RunMode::Calibrate),
-        2 => Some(RunMode::Check),
-        _ => None,
-    };
-    match mode {
-        Some(mode) => {
-            let answer = match handle.request_with_handover(mode, Trigger::Pendant) {
-                Ok(_) => PENDANT_BUSY,
-                Err(e) => {
-                    tracing::warn!("pendant request refused: {e}");
-                    PENDANT_REFUSED
-                }
-            };
-            answer_pendant(robot, p.status_register, answer).await;
-        }
-        None if v == 0 => answer_pendant(robot, p.status_register, PENDANT_IDLE).await,
-        None => tracing::warn!(
-            "pendant request register output_int_register_{} = {v}: expected 1 (calibrate), 2 (check) or 0",
-            p.request_register
-        ),
-    }
-    v
-}
-
-/// Writes the pendant's status register (`input_int_register_N`).
-async fn answer_pendant<R: Robot>(robot: &R, register: u32, value: i32) {
-    if let Err(e) = robot.write_int_register(register, value).await {
-        tracing::warn!("cannot answer the pendant in input_int_register_{register}: {e}");
-    }
 }
 
 /// A scheduled drift check: started when the robot is idle, else skipped (logged).
@@ -837,56 +622,31 @@ async fn robot_idle<R: Robot>(robot: &R) -> bool {
     matches!(robot.status().await, Ok(s) if !s.program_running)
 }
 
-/// One job: recorded as started, run, recorded as ended, captures pruned.
+/// One job, run by the recorder (history row, record, picture, pruning).
 async fn execute<R: Robot, C: DepthCamera>(
     cfg: &Config,
     model: &Arc<RobotModel>,
     robot: &R,
     camera: &C,
     handle: &DaemonHandle,
-    digest: &str,
     job: &Job,
 ) -> RunRecord {
     let t0 = Instant::now();
-    let start = RunStart {
-        run_id: job.run_id.clone(),
-        trigger: job.trigger.name().into(),
-        mode: job.mode,
-        config_origin: cfg.origin.clone(),
-        config_digest: digest.to_string(),
-        started_unix_s: unix_now(),
-    };
-    if let Err(e) = handle.store().begin(&start) {
-        tracing::error!("cannot record the start of run {}: {e}", job.run_id);
-    }
     let req = RunRequest {
-        mode: job.mode,
+        mode: job.entry.mode,
         dry_run: false,
-        run_id: Some(job.run_id.clone()),
+        run_id: Some(job.entry.run_id.clone()),
         program_handover: job.handover,
     };
-    let span = tracing::info_span!("run", trigger = job.trigger.name());
+    let trigger = job.entry.trigger;
+    let span = tracing::info_span!("run", trigger = trigger.name());
     let progress = StageReporter { handle };
+    let recorder = Recorder::new(Arc::clone(handle.store()), trigger);
     let record = tracing::Instrument::instrument(
-        crate::run::run(robot, camera, model, cfg, req, &job.cancel, &progress),
+        recorder.run(robot, camera, model, cfg, req, &job.cancel, &progress),
         span,
     )
     .await;
-    if let Err(e) = handle.store().finish(job.trigger.name(), &record) {
-        tracing::error!("cannot record the end of run {}: {e}", job.run_id);
-    }
-    let d = &cfg.daemon;
-    match handle.store().prune_captures(
-        &cfg.storage.dir,
-        d.keep_captures_runs,
-        d.keep_captures_days,
-    ) {
-        Ok(removed) if !removed.is_empty() => {
-            tracing::info!("removed {} old raw capture file(s)", removed.len());
-        }
-        Ok(_) => {}
-        Err(e) => tracing::warn!("cannot prune old captures: {e}"),
-    }
     tracing::info!(
         outcome = record.outcome.name(),
         duration_ms = t0.elapsed().as_secs_f64() * 1e3,
@@ -911,7 +671,7 @@ mod tests {
     #[test]
     fn a_busy_daemon_refuses_or_queues_as_configured() {
         let (s, dir) = store("refuse");
-        let (h, _jobs) = handle(s, WhenBusy::Refuse, CancellationToken::new());
+        let h = handle(s, WhenBusy::Refuse, CancellationToken::new());
         let first = h
             .request(RunMode::Check, Trigger::Api)
             .expect("idle: accepted");
@@ -926,7 +686,7 @@ mod tests {
         let _ = std::fs::remove_dir_all(dir);
 
         let (s, dir) = store("queue");
-        let (h, mut jobs) = handle(s, WhenBusy::Queue, CancellationToken::new());
+        let h = handle(s, WhenBusy::Queue, CancellationToken::new());
         let running = h
             .request(RunMode::Calibrate, Trigger::Api)
             .expect("accepted");
@@ -954,9 +714,10 @@ mod tests {
         let ids: Vec<&String> = st.queued.iter().map(|c| &c.run_id).collect();
         assert_eq!(ids, queued.iter().collect::<Vec<_>>());
 
-        // The channel delivers them in the same order; a finished run promotes the next.
-        let job = jobs.try_recv().expect("running job");
-        assert_eq!(job.run_id, running);
+        // The worker takes the first; once it is finished, the next is the current one.
+        let job = h.next_job().expect("running job");
+        assert_eq!(job.entry.run_id, running);
+        assert_eq!(h.next_job().map(|j| j.entry.run_id), Some(running.clone()));
         let mut record =
             RunRecord::starting(running.clone(), RunMode::Calibrate, false, "test".into());
         record.outcome = Outcome::Rejected;
@@ -965,8 +726,13 @@ mod tests {
         assert_eq!(st.current.as_ref().map(|c| &c.run_id), Some(&queued[0]));
         assert_eq!(st.queued.len(), QUEUE_LIMIT - 1);
 
+        assert_eq!(
+            h.next_job().map(|j| j.entry.run_id),
+            Some(queued[0].clone())
+        );
+
         // Cancel stops the running one and every queued one.
-        let waiting: Vec<Job> = std::iter::from_fn(|| jobs.try_recv().ok()).collect();
+        let waiting: Vec<Job> = h.lock().runs.iter().cloned().collect();
         assert_eq!(waiting.len(), QUEUE_LIMIT);
         assert!(waiting.iter().all(|j| !j.cancel.is_cancelled()));
         assert!(h.cancel());

@@ -23,7 +23,7 @@ use crate::calib::{
     Outcome, Registration, Uncertainty,
 };
 use crate::model::RobotModel;
-use crate::run::{RunMode, RunRecord};
+use crate::record::{RunMode, RunRecord};
 use canvas::{wrap, Canvas, Rgb, Size};
 
 pub use drift::{drift_chart, DriftLimits, DriftPoint};
@@ -116,11 +116,12 @@ pub struct Summary {
     pub notes: Vec<String>,
 }
 
-fn unknown_name(mount: Mount) -> &'static str {
-    match mount {
-        Mount::EyeInHand => "flange_from_camera (camera in tool0)",
-        Mount::EyeToHand => "base_from_camera (camera in base)",
-    }
+fn unknown_name(mount: Mount) -> String {
+    format!(
+        "{} (camera in {})",
+        mount.unknown_name(),
+        mount.parent_frame()
+    )
 }
 
 impl Summary {
@@ -139,10 +140,10 @@ impl Summary {
             },
             drifted: d.drifted,
         });
-        let headline = match (record.outcome, &drift) {
-            (Outcome::Accepted, Some(d)) if d.drifted => "DRIFTED".to_string(),
-            (Outcome::Accepted, Some(_)) => "WITHIN LIMITS".to_string(),
-            (o, _) => o.name().to_uppercase(),
+        let headline = match record.drift_found() {
+            Some(true) => "DRIFTED".to_string(),
+            Some(false) => "WITHIN LIMITS".to_string(),
+            None => record.outcome.name().to_uppercase(),
         };
         let mut notes = Vec::new();
         if let Some(stage) = record.failed_stage {
@@ -158,7 +159,7 @@ impl Summary {
             ));
         }
         if !record.written.is_empty() {
-            let targets: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+            let targets: Vec<&str> = record.written.iter().map(|w| w.target.name()).collect();
             notes.push(format!("written back: {}", targets.join(", ")));
         } else if record.mode == RunMode::Calibrate {
             notes.push("nothing written back".into());
@@ -167,14 +168,14 @@ impl Summary {
             title: format!("{mode} {}", record.run_id),
             subtitle: format!(
                 "{} UTC  |  {}",
-                crate::store::utc_text(record.started_unix_s),
+                crate::calendar::utc_text(record.started_unix_s),
                 record.config
             ),
             outcome: record.outcome,
             headline,
             reasons: record.reasons.clone(),
             result: record.result.as_ref().map(|r| ResultNumbers {
-                unknown: unknown_name(r.mount).to_string(),
+                unknown: unknown_name(r.mount),
                 ur_pose: r.ur_pose,
                 uncertainty: r.uncertainty,
                 quality: r.report.quality,
@@ -194,7 +195,7 @@ impl Summary {
             .map(|p| UrPose::from(&p).values())
             .unwrap_or([f64::NAN; 6]);
         let unknown = match report.mount {
-            Mount::EyeInHand => unknown_name(Mount::EyeInHand).to_string(),
+            Mount::EyeInHand => unknown_name(Mount::EyeInHand),
             Mount::EyeToHand => format!(
                 "{}_from_camera (camera in {})",
                 report.base_frame, report.base_frame

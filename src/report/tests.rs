@@ -237,7 +237,8 @@ async fn a_run_that_fails_still_writes_its_picture() {
     use handeye_hal::ur_dh::UrModel;
 
     use crate::config::{RobotPorts, ViewTargets};
-    use crate::run::{RunMode, RunRequest, Silent, REPORT_PICTURE, RUNS_DIR};
+    use crate::run::{RunMode, RunRequest, Silent};
+    use crate::storage::{REPORT_PICTURE, RUNS_DIR};
 
     let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
         return;

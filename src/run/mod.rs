@@ -9,24 +9,23 @@
 //!    configured obstacles before the first motion.
 //! 3. **Move** (`movej` within the configured caps), **settle**, **capture** (joints and the
 //!    controller's flange pose at that instant, N frames, kept on disk for replay).
-//! 4. **Register, solve, gate** ([`pipeline::calibrate_frames`]).
+//! 4. **Register, solve, gate** ([`crate::calib::pipeline::calibrate_frames`]).
 //! 5. **Write back** only when the gate passed, in calibrate mode (files, TCP, registers; each
 //!    read back), or **compare** with the current calibration in check mode.
 //! 6. **Return** to the start, unless a fault or a cancel stopped the arm (never auto-resume).
 //!
 //! [`run`] returns a [`RunRecord`] whatever happens; a run that did not pass its gate writes
-//! nothing but its own record.
+//! nothing but its own record. The [`Recorder`] keeps it: the history row, the record and the
+//! report picture in the run's folder (`crate::storage`), pruning.
 
-pub mod pipeline;
-mod record;
-mod storage;
+pub mod recorder;
 #[cfg(test)]
 mod tests;
 
 use std::future::Future;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use handeye_hal::{DepthCamera, HalError, Robot, RobotMode, SafetyMode, UrPose};
 use nalgebra::{Isometry3, Vector3};
@@ -39,16 +38,16 @@ use crate::model::RobotModel;
 use crate::plan::{CancelCheck, Obstacle, PlanError, ViewConstraints, ViewPlanner, ViewRejection};
 use crate::sim::Intrinsics;
 
-pub use crate::calib::Outcome;
-pub use pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
-pub use record::{
-    CaptureRecord, DriftRecord, FrameRecord, KinematicsUsed, PlannedView, PreflightRecord,
-    ResultRecord, RunMode, RunRecord, RunTimings, Stage, Written,
+use crate::calendar::unix_now;
+use crate::calib::pipeline;
+pub use crate::calib::pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
+pub use crate::record::{
+    CaptureRecord, DriftRecord, FrameRecord, KinematicsOrigin, KinematicsUsed, Outcome,
+    PlannedView, PreflightRecord, ResultRecord, RunMode, RunRecord, RunTimings, Stage, WriteTarget,
+    Written,
 };
-pub(crate) use storage::civil_from_days;
-pub use storage::{
-    load_capture, load_current, new_run_id, CaptureFile, CURRENT_DIR, REPORT_PICTURE, RUNS_DIR,
-};
+use crate::storage::{self, load_current, new_run_id, CaptureFile};
+pub use recorder::Recorder;
 
 /// Generated candidates tried per automatic view before the plan gives up.
 const AUTO_VIEW_TRIES: usize = 8;
@@ -171,12 +170,6 @@ fn ms(since: Instant) -> f64 {
     since.elapsed().as_secs_f64() * 1e3
 }
 
-fn unix_now() -> f64 {
-    SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
 /// Position and rotation difference of two poses of the same unknown: mm, degrees.
 pub fn pose_difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
     let d = a.inverse() * b;
@@ -202,13 +195,24 @@ struct Context<'a, R, C> {
     /// Whether a move was commanded (the arm may have moved even if the move failed).
     moved: bool,
     /// The scan the report picture shows, once registered.
-    picture: Option<storage::PictureScan>,
+    picture: Option<PictureScan>,
     /// The robot's and the camera's link generations when the run started.
     links: (u64, u64),
 }
 
-/// Runs one calibration or check on `robot` and `camera` for `model` as `cfg` says. Returns the
-/// complete record whatever happens; cancelling `cancel` stops the arm and aborts the run.
+/// The scan a run's report picture shows: its first frame, that frame's registration and the
+/// kinematics the model was posed with.
+#[derive(Debug)]
+struct PictureScan {
+    frame: Frame,
+    registration: crate::calib::Registration,
+    controller_dh: Option<handeye_hal::ur_dh::DhParams>,
+}
+
+/// Runs one calibration or check on `robot` and `camera` for `model` as `cfg` says and keeps
+/// its files (record, report picture) without a history row; the daemon and the commands run
+/// through a [`Recorder`] with the history. Returns the complete record whatever happens;
+/// cancelling `cancel` stops the arm and aborts the run.
 pub async fn run<R: Robot, C: DepthCamera>(
     robot: &R,
     camera: &C,
@@ -218,9 +222,28 @@ pub async fn run<R: Robot, C: DepthCamera>(
     cancel: &CancellationToken,
     progress: &dyn Progress,
 ) -> RunRecord {
+    Recorder::files_only()
+        .run(robot, camera, model, cfg, req, cancel, progress)
+        .await
+}
+
+/// The run's steps from preflight to the return move, filling `record` (as
+/// [`RunRecord::starting`] made it); files go into `run_dir`. Returns the record and the scan
+/// its report picture shows.
+#[allow(clippy::too_many_arguments)]
+async fn execute<R: Robot, C: DepthCamera>(
+    robot: &R,
+    camera: &C,
+    model: &Arc<RobotModel>,
+    cfg: &Config,
+    req: RunRequest,
+    record: RunRecord,
+    run_dir: PathBuf,
+    cancel: &CancellationToken,
+    progress: &dyn Progress,
+) -> (RunRecord, Option<PictureScan>) {
     let t0 = Instant::now();
-    let run_id = req.run_id.clone().unwrap_or_else(new_run_id);
-    let record = RunRecord::starting(run_id.clone(), req.mode, req.dry_run, cfg.origin.clone());
+    let run_id = record.run_id.clone();
     let model_from_base = match pipeline::fixed_frame(model, "base") {
         Ok(p) => p,
         // Not a UR URDF with a `base` link: the controller frame is the URDF root turned by π.
@@ -236,7 +259,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
         progress,
         model_from_base,
         record,
-        run_dir: cfg.storage.dir.join(RUNS_DIR).join(&run_id),
+        run_dir,
         moved: false,
         picture: None,
         links: (robot.link_generation(), camera.link_generation()),
@@ -253,26 +276,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
         }
     }
     cx.record.timings_ms.total = ms(t0);
-    if let Err(e) = storage::write_record(&cx.run_dir, &cx.record) {
-        tracing::error!(
-            "cannot write the run record into {}: {e}",
-            cx.run_dir.display()
-        );
-        cx.record
-            .reasons
-            .push(format!("the run record could not be written: {e}"));
-    }
-    // The picture comes last: whatever happens to it, the run and its write-back are done.
-    let (picture, record, dir) = (cx.picture.take(), cx.record.clone(), cx.run_dir.clone());
-    let model = Arc::clone(model);
-    if let Err(e) = tokio::task::spawn_blocking(move || {
-        storage::write_report_picture(&dir, &record, &model, picture.as_ref());
-    })
-    .await
-    {
-        tracing::error!("the report picture failed: {e}");
-    }
-    cx.record
+    (cx.record, cx.picture)
 }
 
 impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
@@ -336,7 +340,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         .await?;
         self.picture = first_frame
             .zip(calibration.registrations.first().cloned())
-            .map(|(frame, registration)| storage::PictureScan {
+            .map(|(frame, registration)| PictureScan {
                 frame,
                 registration,
                 controller_dh: picture_dh,
@@ -439,7 +443,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         // the nominal URDF.
         let fallback = |why: Option<String>| match &self.cfg.robot.calibration {
             Some(file) => KinematicsUsed {
-                source: "file",
+                source: KinematicsOrigin::File,
                 note: Some(format!(
                     "{}posed by the calibration file {}",
                     why.map_or_else(String::new, |w| format!("{w}; ")),
@@ -448,7 +452,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 dh: None,
             },
             None => KinematicsUsed {
-                source: "nominal",
+                source: KinematicsOrigin::Nominal,
                 note: why.map(|w| format!("{w}; posed by the nominal URDF")),
                 dh: None,
             },
@@ -460,7 +464,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     .await?
                 {
                     Ok(Some(k)) => KinematicsUsed {
-                        source: "controller",
+                        source: KinematicsOrigin::Controller,
                         note: (!k.calibrated).then(|| {
                             "the controller says its arm is not factory calibrated".to_string()
                         }),
@@ -477,7 +481,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         if let Some(note) = &kinematics.note {
             tracing::warn!("{note}");
         }
-        if let (Some(file), "file") = (&self.cfg.robot.calibration, kinematics.source) {
+        if let (Some(file), KinematicsOrigin::File) =
+            (&self.cfg.robot.calibration, kinematics.source)
+        {
             // The file's DH set poses the model as the controller's would.
             let dh = crate::model::UrCalibration::load(file)
                 .map_err(|e| e.to_string())
@@ -998,7 +1004,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             .await?;
             let p = UrPose::from(unknown).values();
             self.record.written.push(Written {
-                target: "tcp",
+                target: WriteTarget::Tcp,
                 detail: format!(
                     "set_tcp(p[{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}]), read back over RTDE",
                     p[0], p[1], p[2], p[3], p[4], p[5]
@@ -1028,7 +1034,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             })
             .await?;
             self.record.written.push(Written {
-                target: "registers",
+                target: WriteTarget::Registers,
                 detail: format!(
                     "input_double_register_{}..{} = x,y,z,rx,ry,rz (m, rad); input_int_register_{} = {seq}",
                     map.double_start,
@@ -1048,7 +1054,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 result.as_ref(),
             ) {
                 Ok(paths) => self.record.written.push(Written {
-                    target: "files",
+                    target: WriteTarget::Files,
                     detail: paths
                         .iter()
                         .map(|p| p.display().to_string())
@@ -1114,21 +1120,19 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     }
 }
 
-/// Whether the robot may move: powered with brakes released, safety normal or reduced, in
-/// remote control, no program running unless that program asked for the run (`handover`).
 /// Whether the arm's kinematics (`source`: the controller's or the calibration file's) can be
 /// a calibration of the configured `model`; else what to configure, naming both.
 fn check_model_matches(
     model: handeye_hal::ur_dh::UrModel,
     dh: &handeye_hal::ur_dh::DhParams,
-    source: &str,
+    source: KinematicsOrigin,
 ) -> Result<(), String> {
     let matching = handeye_hal::ur_dh::UrModel::matching(dh);
     if matching.iter().any(|(m, _)| *m == model) {
         return Ok(());
     }
     let off = model.dh().flange_distance(dh);
-    let whose = if source == "file" {
+    let whose = if source == KinematicsOrigin::File {
         "the calibration file's kinematics are"
     } else {
         "the controller's kinematics are"
@@ -1152,6 +1156,8 @@ fn check_model_matches(
     })
 }
 
+/// Whether the robot may move: powered with brakes released, safety normal or reduced, in
+/// remote control, no program running unless that program asked for the run (`handover`).
 fn preflight_status(st: &handeye_hal::RobotStatus, handover: bool) -> Result<(), Failure> {
     let stage = Stage::Preflight;
     let fail = |m: String| Err(Failure::error(stage, m));

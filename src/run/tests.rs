@@ -21,14 +21,14 @@ use tokio::sync::Notify;
 use tokio_util::sync::CancellationToken;
 
 use super::{
-    pose_difference, run, Outcome, RunMode, RunRecord, RunRequest, Silent, Stage, CURRENT_DIR,
-    RUNS_DIR,
+    pose_difference, run, KinematicsOrigin, Outcome, RunMode, RunRecord, RunRequest, Silent, Stage,
 };
 use crate::config::{self, Config, RobotPorts, ViewTargets};
 use crate::frames::from_row_major;
 use crate::model::RobotModel;
 use crate::plan::{ViewConstraints, ViewPlanner};
 use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
+use crate::storage::{CURRENT_DIR, RUNS_DIR};
 use crate::testutil::shared_robot;
 
 /// Where the fake arm starts: the UR home pose, upright, clear of everything.
@@ -261,7 +261,7 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
         robot.read_int_register(SEQUENCE_INT).await.expect("read"),
         1
     );
-    let targets: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+    let targets: Vec<&str> = record.written.iter().map(|w| w.target.name()).collect();
     assert_eq!(targets, ["tcp", "registers", "files"]);
 
     // To the view and back, nothing else.
@@ -271,7 +271,7 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
 
     // Posed by the controller's kinematics.
     let preflight = record.preflight.as_ref().expect("preflight recorded");
-    assert_eq!(preflight.kinematics.source, "controller");
+    assert_eq!(preflight.kinematics.source, KinematicsOrigin::Controller);
     assert_eq!(preflight.kinematics.dh, Some(f.dh));
     assert_eq!(preflight.start_joints, HOME.to_vec());
 
@@ -279,7 +279,17 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
     let dir = &storage.0;
     assert!(dir.join(CURRENT_DIR).join("result.json").is_file());
     let run_dir = dir.join(RUNS_DIR).join(&record.run_id);
-    assert!(run_dir.join("record.json").is_file());
+    // The record reads back as the typed record (`handeye history`, the page).
+    let text = std::fs::read_to_string(run_dir.join("record.json")).expect("record.json");
+    let back: RunRecord = serde_json::from_str(&text).expect("a record reads back");
+    assert_eq!(
+        (back.run_id.as_str(), back.outcome, back.written.len()),
+        (record.run_id.as_str(), record.outcome, record.written.len())
+    );
+    assert_eq!(
+        back.preflight.map(|p| p.kinematics.source),
+        Some(KinematicsOrigin::Controller)
+    );
     let capture = PathBuf::from(record.capture_file.as_ref().expect("capture file kept"));
     assert!(capture.is_file(), "{}", capture.display());
     assert!(capture.starts_with(&run_dir));
@@ -293,18 +303,7 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
     );
 
     let t = record.timings_ms;
-    for (name, ms) in [
-        ("preflight", t.preflight),
-        ("plan", t.plan),
-        ("moves", t.moves),
-        ("settle", t.settle),
-        ("capture", t.capture),
-        ("register", t.register),
-        ("solve", t.solve),
-        ("write_back", t.write_back),
-        ("return_move", t.return_move),
-        ("total", t.total),
-    ] {
+    for (name, ms) in t.stages().into_iter().chain([("total", t.total)]) {
         assert!(ms.is_finite() && ms >= 0.0, "timing {name} = {ms}");
     }
     assert!(t.total >= t.register && t.settle >= 10.0, "{t:?}");
@@ -809,7 +808,7 @@ fn build_eye_to_hand_cell(f: &Fixture) -> EyeToHandCell {
     );
     // The truth in the controller's `base` frame, both ways: the URDF's own `base` link and the
     // fixed UR convention (the model root is `base_link`).
-    let base_from_model = super::pipeline::fixed_frame(&f.model, "base")
+    let base_from_model = crate::calib::pipeline::fixed_frame(&f.model, "base")
         .expect("the UR5e URDF has a `base` link")
         .inverse();
     let base_from_camera = crate::frames::ur_base_from_base_link() * model_from_camera;
@@ -926,7 +925,7 @@ async fn an_eye_to_hand_run_finds_the_fixed_camera_in_the_base_frame_and_sets_no
     assert!(ur.approx_eq(&UrPose::from(&est), 1e-9, 1e-9), "{ur}");
 
     // Written: registers and files; never a TCP.
-    let targets: Vec<&str> = record.written.iter().map(|w| w.target).collect();
+    let targets: Vec<&str> = record.written.iter().map(|w| w.target.name()).collect();
     assert_eq!(targets, ["registers", "files"]);
     assert_eq!(robot.tcp(), Isometry3::identity(), "the TCP was changed");
     let p = UrPose::from(&est).values();
@@ -943,7 +942,7 @@ async fn an_eye_to_hand_run_finds_the_fixed_camera_in_the_base_frame_and_sets_no
     );
     assert!(storage.0.join(CURRENT_DIR).join("result.json").is_file());
     let (current, _) =
-        super::load_current(&storage.0, crate::calib::Mount::EyeToHand).expect("current");
+        crate::storage::load_current(&storage.0, crate::calib::Mount::EyeToHand).expect("current");
     assert!(close(&current, &est, 1e-9), "current {current:?}");
 
     // To the view and back.
@@ -1020,7 +1019,7 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
     )
     .await;
     let kin = &nominal.preflight.as_ref().expect("preflight").kinematics;
-    assert_eq!(kin.source, "nominal");
+    assert_eq!(kin.source, KinematicsOrigin::Nominal);
 
     let file = storage.0.join("calibration.yaml");
     std::fs::write(
@@ -1039,7 +1038,7 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
     )
     .await;
     let kin = &posed.preflight.as_ref().expect("preflight").kinematics;
-    assert_eq!(kin.source, "file", "{kin:?}");
+    assert_eq!(kin.source, KinematicsOrigin::File, "{kin:?}");
     assert!(
         kin.note
             .as_deref()

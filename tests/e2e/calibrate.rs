@@ -9,7 +9,7 @@ use handeye_hal::ur_dh::DhParams;
 use nalgebra::{Isometry3, Vector3};
 
 use crate::support::{
-    iso, joints, max_change, pose_arg, pose_error, python, rig_config, run, secs, shared,
+    history, iso, joints, max_change, pose_arg, pose_error, python, rig_config, run, secs, shared,
     start_rig, ur_pose, Output, TempDir,
 };
 
@@ -250,6 +250,34 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
         let (mm, _) = pose_error(&(dh.forward(&q) * result), &base_from_tcp);
         assert!(mm < 0.01, "the check changed the TCP by {mm} mm");
     }
+
+    // The commands' runs are in the history like the daemon's, asked for by `cli`: the
+    // calibration the controller holds, then the two checks, newest first.
+    let runs = history(&cfg);
+    let rows: Vec<(String, String, String)> = runs
+        .as_array()
+        .expect("runs")
+        .iter()
+        .map(|r| {
+            let text = |k: &str| r[k].as_str().unwrap_or("?").to_string();
+            (text("trigger"), text("mode"), text("outcome"))
+        })
+        .collect();
+    let row =
+        |mode: &str, outcome: &str| ("cli".to_string(), mode.to_string(), outcome.to_string());
+    assert_eq!(
+        rows,
+        [
+            row("check", "accepted"),
+            row("check", "accepted"),
+            row("calibrate", "accepted")
+        ],
+        "{runs}"
+    );
+    let latest = runs[0]["run_id"].as_str().expect("id").to_string();
+    assert!(dir
+        .join(&format!("data/runs/{latest}/report.png"))
+        .is_file());
 }
 
 #[test]

@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use nalgebra::{Isometry3, Vector3};
 
 use crate::support::{
-    iso, joints, pose_arg, pose_error, rig_config, run, secs, shared, start_rig, true_mount,
-    Daemon, TempDir,
+    history, iso, joints, pose_arg, pose_error, rig_config, run, secs, shared, start_rig,
+    true_mount, Daemon, TempDir,
 };
 
 const TOKEN: &str = "e2e-secret-token";
@@ -92,21 +92,6 @@ fn wait_status(
         }
         std::thread::sleep(Duration::from_millis(100));
     }
-}
-
-fn history(config: &Path) -> serde_json::Value {
-    let out = run(
-        &[
-            "history",
-            "--config",
-            config.to_str().expect("utf-8"),
-            "list",
-            "--json",
-        ],
-        secs(20),
-    )
-    .success();
-    out.json()
 }
 
 #[test]

@@ -121,6 +121,22 @@ fn cmdline(args: &[&str]) -> String {
 }
 
 /// Runs `handeye ARGS` to completion; kills it and panics after `limit`.
+/// `handeye history list --json` for the cell `config`: its runs, newest first.
+pub(crate) fn history(config: &Path) -> serde_json::Value {
+    let out = run(
+        &[
+            "history",
+            "--config",
+            config.to_str().expect("utf-8"),
+            "list",
+            "--json",
+        ],
+        secs(20),
+    )
+    .success();
+    out.json()
+}
+
 pub(crate) fn run(args: &[&str], limit: Duration) -> Output {
     let mut child = command(args)
         .stdout(Stdio::piped())

@@ -6,8 +6,10 @@
 //! no queue or log grows with run time (robot messages go through a fixed-size broadcast ring,
 //! per-connection buffers are capped).
 
+mod control;
 mod dashboard;
 mod motion;
+mod program;
 mod realtime;
 mod rtde_control;
 mod rtde_server;
@@ -222,7 +224,7 @@ impl Simulator {
             tokio::spawn(script::serve_primary(ls, shared.clone(), false)),
             tokio::spawn(realtime::serve(lr, shared.clone())),
             tokio::spawn(rtde_server::serve(lt, shared.clone())),
-            tokio::spawn(motion::run(shared.clone())),
+            tokio::spawn(control::run(shared.clone())),
         ];
         if let Some(every) = shared.config.drop_connections_every {
             let s = shared.clone();

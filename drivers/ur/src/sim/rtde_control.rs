@@ -24,7 +24,7 @@ use std::time::Duration;
 use nalgebra::Isometry3;
 
 use super::motion::{self, Motion};
-use super::script::{begin_move, SimHost, Target};
+use super::program::{begin_move, SimHost, Target};
 use super::state::{max_payload, State, JOINT_LIMIT};
 use super::urscript::{CompileError, RuntimeError};
 use crate::primary;

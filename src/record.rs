@@ -1,18 +1,23 @@
 //! The record of one run: everything that happened, what was measured and what was written,
-//! with every stage's timing. The run returns it whatever the outcome; the daemon stores it,
-//! `calibrate`/`check --json` print it. Poses are 4×4 row-major arrays in metres; mm and
+//! with every stage's timing. The run returns it whatever the outcome; the recorder keeps it
+//! (`runs/<id>/record.json` and the history), `calibrate`/`check --json` print it, `handeye
+//! history` and the web page read it back. Poses are 4×4 row-major arrays in metres; mm and
 //! degrees only where the field name says so.
+//!
+//! The data floor of the service: the record's types and the words every layer above uses
+//! for them (a run's mode, who asked for it, how it ended, what a check's drift means).
 
 use handeye_hal::ur_dh::DhParams;
 use handeye_hal::{CameraInfo, RobotStatus};
 use nalgebra::Isometry3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-use crate::calib::{CalibrationReport, Mount, Outcome, Uncertainty};
+pub use crate::calib::Outcome;
+use crate::calib::{CalibrationReport, Mount, Uncertainty};
 use crate::plan::PathCheck;
 
 /// What a run was asked to do.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RunMode {
     /// Measure and, when the gate passes, write the result back.
@@ -21,8 +26,84 @@ pub enum RunMode {
     Check,
 }
 
+impl RunMode {
+    /// Lower-case name as in JSON, the history and the configuration (`daemon.startup`).
+    pub fn name(self) -> &'static str {
+        match self {
+            RunMode::Calibrate => "calibrate",
+            RunMode::Check => "check",
+        }
+    }
+
+    /// The mode of a name ([`Self::name`]).
+    pub fn parse(name: &str) -> Option<RunMode> {
+        [RunMode::Calibrate, RunMode::Check]
+            .into_iter()
+            .find(|m| m.name() == name)
+    }
+}
+
+impl std::fmt::Display for RunMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.name())
+    }
+}
+
+/// Who asked for a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Trigger {
+    /// The daemon's start (`daemon.startup`).
+    Startup,
+    /// The drift-check schedule (`daemon.check_interval_s`, `daemon.check_at`).
+    Schedule,
+    /// A scheduled check found drift and `daemon.recalibrate_on_drift` is on.
+    Drift,
+    /// The HTTP API (or the web page).
+    Api,
+    /// The pendant program, through registers.
+    Pendant,
+    /// A command: `handeye calibrate` or `handeye check`.
+    Cli,
+}
+
+impl Trigger {
+    /// Every trigger.
+    pub const ALL: [Trigger; 6] = [
+        Trigger::Startup,
+        Trigger::Schedule,
+        Trigger::Drift,
+        Trigger::Api,
+        Trigger::Pendant,
+        Trigger::Cli,
+    ];
+
+    /// Lower-case name as stored in the history.
+    pub fn name(self) -> &'static str {
+        match self {
+            Trigger::Startup => "startup",
+            Trigger::Schedule => "schedule",
+            Trigger::Drift => "drift",
+            Trigger::Api => "api",
+            Trigger::Pendant => "pendant",
+            Trigger::Cli => "cli",
+        }
+    }
+
+    /// The trigger of a stored name ([`Self::name`]).
+    pub fn parse(name: &str) -> Option<Trigger> {
+        Self::ALL.into_iter().find(|t| t.name() == name)
+    }
+}
+
+impl std::fmt::Display for Trigger {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.name())
+    }
+}
+
 /// The stages of a run, in order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Stage {
     /// Robot and camera state checked; nothing moves before it passes.
@@ -46,6 +127,24 @@ pub enum Stage {
 }
 
 impl Stage {
+    /// Every stage, in order.
+    pub const ALL: [Stage; 9] = [
+        Stage::Preflight,
+        Stage::Plan,
+        Stage::Move,
+        Stage::Settle,
+        Stage::Capture,
+        Stage::Register,
+        Stage::Solve,
+        Stage::WriteBack,
+        Stage::Return,
+    ];
+
+    /// The stage of a name ([`Self::name`]).
+    pub fn parse(name: &str) -> Option<Stage> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+
     /// Lower-case name as in JSON.
     pub fn name(self) -> &'static str {
         match self {
@@ -63,7 +162,7 @@ impl Stage {
 }
 
 /// Wall-clock time per stage, summed over views, milliseconds.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct RunTimings {
     /// Preflight.
     pub preflight: f64,
@@ -88,6 +187,21 @@ pub struct RunTimings {
 }
 
 impl RunTimings {
+    /// Every stage's time with its JSON name, in run order (without the total).
+    pub fn stages(&self) -> [(&'static str, f64); 9] {
+        [
+            ("preflight", self.preflight),
+            ("plan", self.plan),
+            ("moves", self.moves),
+            ("settle", self.settle),
+            ("capture", self.capture),
+            ("register", self.register),
+            ("solve", self.solve),
+            ("write_back", self.write_back),
+            ("return_move", self.return_move),
+        ]
+    }
+
     /// Everything except arm motion, settling and the camera's own capture time: what the
     /// run itself costs.
     pub fn overhead(&self) -> f64 {
@@ -95,12 +209,41 @@ impl RunTimings {
     }
 }
 
+/// Where the kinematics that posed the model came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum KinematicsOrigin {
+    /// The controller's calibrated DH.
+    Controller,
+    /// The calibration file `robot.calibration`.
+    File,
+    /// The URDF's nominal joints.
+    Nominal,
+}
+
+impl KinematicsOrigin {
+    /// Lower-case name as in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            KinematicsOrigin::Controller => "controller",
+            KinematicsOrigin::File => "file",
+            KinematicsOrigin::Nominal => "nominal",
+        }
+    }
+}
+
+impl std::fmt::Display for KinematicsOrigin {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.name())
+    }
+}
+
 /// Which kinematics posed the model.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct KinematicsUsed {
     /// `controller` (the controller's calibrated DH), `file` (`robot.calibration`) or `nominal`
     /// (the URDF).
-    pub source: &'static str,
+    pub source: KinematicsOrigin,
     /// Why the controller's were not used when the configuration asked for them, and which
     /// file posed the model.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -111,7 +254,7 @@ pub struct KinematicsUsed {
 }
 
 /// What preflight found.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PreflightRecord {
     /// Robot state.
     pub status: RobotStatus,
@@ -126,7 +269,7 @@ pub struct PreflightRecord {
 }
 
 /// One view of the plan.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PlannedView {
     /// Joint target, rad, URDF order.
     pub joints: Vec<f64>,
@@ -138,7 +281,7 @@ pub struct PlannedView {
 }
 
 /// One captured frame.
-#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FrameRecord {
     /// Where the raw scan was kept (PLY), when kept.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -152,7 +295,7 @@ pub struct FrameRecord {
 }
 
 /// What was recorded at one view.
-#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CaptureRecord {
     /// View index.
     pub view: usize,
@@ -169,8 +312,28 @@ pub struct CaptureRecord {
     pub frames: Vec<FrameRecord>,
 }
 
+impl Mount {
+    /// The unknown a run of this mount solves for: `flange_from_camera` (eye-in-hand) or
+    /// `base_from_camera` (eye-to-hand).
+    pub fn unknown_name(self) -> &'static str {
+        match self {
+            Mount::EyeInHand => "flange_from_camera",
+            Mount::EyeToHand => "base_from_camera",
+        }
+    }
+
+    /// The frame the unknown is expressed in, as the exports name it: `tool0` (the flange,
+    /// eye-in-hand) or `base` (the controller's base, eye-to-hand).
+    pub fn parent_frame(self) -> &'static str {
+        match self {
+            Mount::EyeInHand => "tool0",
+            Mount::EyeToHand => "base",
+        }
+    }
+}
+
 /// The measured result.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ResultRecord {
     /// Eye-in-hand or eye-to-hand.
     pub mount: Mount,
@@ -189,18 +352,22 @@ pub struct ResultRecord {
 }
 
 impl ResultRecord {
-    /// The unknown the run solved for (`flange_from_camera` or `base_from_camera`).
+    /// The unknown the run solved for ([`Mount::unknown_name`]), 4×4, m.
+    pub fn unknown(&self) -> &[[f64; 4]; 4] {
+        match (self.mount, &self.flange_from_camera) {
+            (Mount::EyeInHand, Some(t)) => t,
+            _ => &self.base_from_camera,
+        }
+    }
+
+    /// The unknown the run solved for ([`Mount::unknown_name`]).
     pub fn estimate(&self) -> Option<Isometry3<f64>> {
-        crate::frames::from_row_major(
-            self.flange_from_camera
-                .as_ref()
-                .unwrap_or(&self.base_from_camera),
-        )
+        crate::frames::from_row_major(self.unknown())
     }
 }
 
 /// A check's comparison with the current calibration.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DriftRecord {
     /// Where the current calibration came from.
     pub reference: String,
@@ -218,17 +385,46 @@ pub struct DriftRecord {
     pub drifted: bool,
 }
 
+/// Where a result was written back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WriteTarget {
+    /// The controller's TCP (`set_tcp`).
+    Tcp,
+    /// RTDE registers for a pendant program.
+    Registers,
+    /// The exports in the run's folder and `current/`.
+    Files,
+}
+
+impl WriteTarget {
+    /// Lower-case name as in JSON and the history.
+    pub fn name(self) -> &'static str {
+        match self {
+            WriteTarget::Tcp => "tcp",
+            WriteTarget::Registers => "registers",
+            WriteTarget::Files => "files",
+        }
+    }
+}
+
+impl std::fmt::Display for WriteTarget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.name())
+    }
+}
+
 /// One thing written back.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Written {
     /// `tcp`, `registers` or `files`.
-    pub target: &'static str,
+    pub target: WriteTarget,
     /// What exactly (register numbers and sequence, file paths).
     pub detail: String,
 }
 
 /// The complete record of one run.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunRecord {
     /// Unique id (UTC start time and a random suffix), also the folder of its files.
     pub run_id: String,
@@ -280,7 +476,7 @@ impl RunRecord {
             mode,
             dry_run,
             config,
-            started_unix_s: super::unix_now(),
+            started_unix_s: crate::calendar::unix_now(),
             outcome: Outcome::Error,
             reasons: Vec::new(),
             failed_stage: None,
@@ -296,15 +492,25 @@ impl RunRecord {
         }
     }
 
+    /// What the run says about drift: `Some(true)` when an accepted check measured the
+    /// camera beyond a threshold, `Some(false)` within both, `None` when the run is no check
+    /// that compared (calibrate, not accepted, or nothing to compare with).
+    pub fn drift_found(&self) -> Option<bool> {
+        match (self.mode, self.outcome, &self.drift) {
+            (RunMode::Check, Outcome::Accepted, Some(d)) => Some(d.drifted),
+            _ => None,
+        }
+    }
+
     /// Process exit code: calibrate 0 accepted / 1 rejected / 2 error or aborted; check 0
     /// within thresholds / 1 drifted / 2 anything else; a dry run 0 when planned.
     pub fn exit_code(&self) -> u8 {
         match (self.outcome, self.mode) {
             (Outcome::Planned, _) => 0,
             (Outcome::Accepted, RunMode::Calibrate) => 0,
-            (Outcome::Accepted, RunMode::Check) => match &self.drift {
-                Some(d) if d.drifted => 1,
-                Some(_) => 0,
+            (_, RunMode::Check) => match self.drift_found() {
+                Some(true) => 1,
+                Some(false) => 0,
                 None => 2,
             },
             (Outcome::Rejected, RunMode::Calibrate) => 1,

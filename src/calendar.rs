@@ -1,10 +1,51 @@
-//! Calendar times for scheduled drift checks (`daemon.check_at = ["Mon-Fri 06:00", "22:30"]`):
-//! days of the week and a time of day in the cell PC's local time (the system time zone, or
-//! `TZ`). The next occurrence is found day by day, so daylight-saving changes and wall-clock
-//! jumps are handled by asking again, not by sleeping for a precomputed interval.
+//! Dates and times, one copy for the whole program: the wall clock ([`unix_now`]), civil
+//! dates of unix days ([`civil_from_days`]), the UTC text of a time ([`utc_text`]), and the
+//! calendar times of scheduled drift checks.
+//!
+//! Calendar times (`daemon.check_at = ["Mon-Fri 06:00", "22:30"]`): days of the week and a
+//! time of day in the cell PC's local time (the system time zone, or `TZ`). The next
+//! occurrence is found day by day, so daylight-saving changes and wall-clock jumps are handled
+//! by asking again, not by sleeping for a precomputed interval.
 
 use std::fmt;
 use std::str::FromStr;
+
+/// The wall clock as unix time, s (0 before 1970).
+pub fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::SystemTime::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Gregorian date of a day count since 1970-01-01 (H. Hinnant's algorithm).
+pub fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + i64::from(m <= 2), m, d)
+}
+
+/// UTC date and time of a unix time in whole seconds: `(year, month, day, hour, minute,
+/// second)`.
+pub fn utc_fields(unix_s: i64) -> (i64, u32, u32, i64, i64, i64) {
+    let (days, rem) = (unix_s.div_euclid(86_400), unix_s.rem_euclid(86_400));
+    let (y, m, d) = civil_from_days(days);
+    (y, m, d, rem / 3600, rem % 3600 / 60, rem % 60)
+}
+
+/// `YYYY-MM-DD HH:MM:SS` (UTC) of a unix time, s.
+pub fn utc_text(unix_s: f64) -> String {
+    if !unix_s.is_finite() {
+        return "?".into();
+    }
+    let (y, m, d, hh, mm, ss) = utc_fields(unix_s.floor() as i64);
+    format!("{y:04}-{m:02}-{d:02} {hh:02}:{mm:02}:{ss:02}")
+}
 
 /// Weekday names, Monday first (ISO 8601 order).
 const DAYS: [&str; 7] = ["Mon", "Tue", "Wed", "Thu", "Fri", "Sat", "Sun"];
@@ -159,6 +200,19 @@ mod tests {
 
     fn parse(s: &str) -> CalendarTime {
         s.parse().unwrap_or_else(|e| panic!("{s}: {e}"))
+    }
+
+    #[test]
+    fn civil_dates_and_utc_text() {
+        assert_eq!(civil_from_days(0), (1970, 1, 1));
+        assert_eq!(civil_from_days(20_416), (2025, 11, 24));
+        assert_eq!(civil_from_days(11_016), (2000, 2, 29));
+        assert_eq!(utc_text(0.0), "1970-01-01 00:00:00");
+        assert_eq!(
+            utc_text(20_416.0 * 86_400.0 + 14.0 * 3600.0 + 23.0 * 60.0 + 0.9),
+            "2025-11-24 14:23:00"
+        );
+        assert_eq!(utc_text(f64::NAN), "?");
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! The daemon's HTTP API (axum): the [`Frontend`] `handeye daemon` starts with its handle.
+//! The daemon's HTTP API (axum) and its web page: the [`Frontend`] `handeye daemon` starts
+//! with its handle.
 //!
 //! JSON everywhere; every error is `{"error": "..."}` saying what to do. Reading is open to
 //! whoever can reach `daemon.listen` (localhost by default); anything that moves the arm
@@ -8,7 +9,7 @@
 //!
 //! | route | what |
 //! |---|---|
-//! | `GET /api/status` | what the daemon is doing ([`handeye::daemon::Status`]) |
+//! | `GET /api/status` | what the daemon is doing ([`crate::daemon::Status`]) |
 //! | `POST /api/calibrate`, `POST /api/check` | token; 202 `{"run_id"}`, 409 when busy |
 //! | `POST /api/cancel` | token; `{"cancelled": bool}` |
 //! | `GET /api/runs?limit=N&before=UNIX_S` | the history, newest first |
@@ -24,6 +25,13 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use crate::calib::export::{ExportMeta, Exports};
+use crate::config::Config;
+use crate::daemon::{DaemonHandle, Frontend, Refusal};
+use crate::record::Trigger;
+use crate::report::{DriftLimits, DriftPoint};
+use crate::run::{Outcome, RunMode};
+use crate::store::{RunStatus, Store, StoredRun};
 use anyhow::{bail, Context};
 use axum::extract::{ConnectInfo, DefaultBodyLimit, Path as UrlPath, RawQuery, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode, Uri};
@@ -31,12 +39,6 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use handeye::calib::export::{ExportMeta, Exports};
-use handeye::config::Config;
-use handeye::daemon::{DaemonHandle, Frontend, Refusal, Trigger};
-use handeye::report::{DriftLimits, DriftPoint};
-use handeye::run::{Outcome, RunMode, REPORT_PICTURE, RUNS_DIR};
-use handeye::store::{RunStatus, Store};
 use serde_json::json;
 use tokio_util::sync::CancellationToken;
 
@@ -69,7 +71,7 @@ const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-
 /// What the page and the pictures read besides the daemon: the run folders and the drift
 /// thresholds.
 #[derive(Debug, Clone)]
-pub(crate) struct Site {
+pub struct Site {
     /// `storage.dir`: run folders hold the report pictures (`runs/<id>/report.png`).
     storage: Option<PathBuf>,
     /// `[check]`'s thresholds, drawn in the drift chart.
@@ -89,7 +91,7 @@ impl Default for Site {
 }
 
 /// The HTTP API: where it listens and the token that requests which move the arm must carry.
-pub(crate) struct Api {
+pub struct Api {
     listen: SocketAddr,
     token: Option<String>,
     site: Site,
@@ -107,7 +109,7 @@ impl std::fmt::Debug for Api {
 
 impl Api {
     /// The API on `listen`; `token: None` refuses everything that moves the arm.
-    pub(crate) fn new(listen: SocketAddr, token: Option<String>) -> Api {
+    pub fn new(listen: SocketAddr, token: Option<String>) -> Api {
         Api {
             listen,
             token,
@@ -117,7 +119,7 @@ impl Api {
 
     /// The same API serving the report pictures from `storage` (the configuration's
     /// `storage.dir`) and drawing `drift_limits` in the drift chart.
-    pub(crate) fn with_site(mut self, storage: PathBuf, drift_limits: DriftLimits) -> Api {
+    pub fn with_site(mut self, storage: PathBuf, drift_limits: DriftLimits) -> Api {
         self.site = Site {
             storage: Some(storage),
             drift_limits,
@@ -129,7 +131,7 @@ impl Api {
     /// when systemd passes one (`LoadCredential=token:/etc/handeye/token`), else from
     /// `daemon.token_file`. Refuses an empty token, or (Unix) a token file that group or others
     /// can access.
-    pub(crate) fn from_config(cfg: &Config) -> anyhow::Result<Api> {
+    pub fn from_config(cfg: &Config) -> anyhow::Result<Api> {
         let credentials = std::env::var_os("CREDENTIALS_DIRECTORY").map(PathBuf::from);
         Api::from_config_with(cfg, credentials.as_deref())
     }
@@ -251,7 +253,7 @@ struct AppState {
 }
 
 /// The API's routes over `handle`; `token: None` refuses everything that moves the arm.
-pub(crate) fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router {
+pub fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router {
     let state = AppState {
         handle,
         token: token.map(Arc::from),
@@ -279,6 +281,13 @@ pub(crate) fn router(handle: DaemonHandle, token: Option<String>, site: Site) ->
         .layer(DefaultBodyLimit::max(BODY_LIMIT))
         .layer(axum::middleware::from_fn(refuse_large_bodies))
         .with_state(state)
+}
+
+/// The body of every error answer: what went wrong and what to do.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ErrorBody {
+    /// One sentence for the operator.
+    pub error: String,
 }
 
 /// An error answer: `{"error": message}` with a status.
@@ -309,7 +318,10 @@ impl ApiError {
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let mut resp = (self.status, Json(json!({ "error": self.message }))).into_response();
+        let body = ErrorBody {
+            error: self.message,
+        };
+        let mut resp = (self.status, Json(body)).into_response();
         if let Some(c) = self.challenge {
             resp.headers_mut()
                 .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static(c));
@@ -441,15 +453,6 @@ fn png(bytes: Vec<u8>) -> Response {
         .into_response()
 }
 
-/// Whether `id` can be a run id (and so a folder name): letters, digits, `-` and `_`.
-fn is_run_id(id: &str) -> bool {
-    !id.is_empty()
-        && id.len() <= 64
-        && id
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
-}
-
 async fn report_picture(
     State(state): State<AppState>,
     UrlPath(id): UrlPath<String>,
@@ -463,13 +466,11 @@ async fn report_picture(
             ),
         )
     };
-    if !is_run_id(&id) {
-        return Err(missing());
-    }
-    let Some(storage) = &state.site.storage else {
+    let Some(path) = (state.site.storage.as_deref())
+        .and_then(|storage| crate::storage::report_picture_path(storage, &id))
+    else {
         return Err(missing());
     };
-    let path = storage.join(RUNS_DIR).join(&id).join(REPORT_PICTURE);
     match tokio::fs::read(&path).await {
         Ok(bytes) => Ok(png(bytes)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(missing()),
@@ -496,34 +497,29 @@ async fn exports(
             format!("no run `{id}` in the history; GET /api/runs lists them"),
         ));
     };
-    let result = &record["result"];
-    let eye_to_hand = result["mount"] == "eye_to_hand";
-    let (matrix, parent) = if eye_to_hand {
-        (&result["base_from_camera"], "base")
-    } else {
-        (&result["flange_from_camera"], "tool0")
+    let no_result = || {
+        ApiError::new(
+            StatusCode::NOT_FOUND,
+            format!("run `{id}` has no result to export (see its outcome and reasons)"),
+        )
     };
-    let pose = serde_json::from_value::<[[f64; 4]; 4]>(matrix.clone())
-        .ok()
-        .and_then(|m| handeye::frames::from_row_major(&m))
-        .ok_or_else(|| {
-            ApiError::new(
-                StatusCode::NOT_FOUND,
-                format!("run `{id}` has no result to export (see its outcome and reasons)"),
-            )
-        })?;
-    let number = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+    let StoredRun::Complete(record) = record else {
+        return Err(no_result());
+    };
+    let result = record.result.as_ref().ok_or_else(no_result)?;
+    let pose = result.estimate().ok_or_else(no_result)?;
+    let parent = result.mount.parent_frame();
     let meta = ExportMeta {
         run_id: id.clone(),
-        outcome: record["outcome"].as_str().unwrap_or("?").to_string(),
-        uncertainty_translation_mm: number(&result["uncertainty"]["translation_mm"]),
-        uncertainty_rotation_deg: number(&result["uncertainty"]["rotation_deg"]),
+        outcome: record.outcome.name().to_string(),
+        uncertainty_translation_mm: result.uncertainty.translation_mm,
+        uncertainty_rotation_deg: result.uncertainty.rotation_deg,
         timestamp: id.clone(),
     };
     let e = Exports::new(&pose, parent, "camera", meta);
     Ok(Json(json!({
         "run_id": id,
-        "outcome": record["outcome"],
+        "outcome": record.outcome,
         "transform": e.result().transform,
         "static_transform_publisher": e.static_transform_publisher(),
         "urdf_joint": e.urdf_joint(),
@@ -618,7 +614,7 @@ async fn drift_png(
     let limits = state.site.drift_limits;
     let points: Vec<DriftPoint> = checks.into_iter().map(|(_, p)| p).collect();
     let drawn = tokio::task::spawn_blocking(move || {
-        handeye::report::drift_chart(&points, &calibrations, limits, w, h)
+        crate::report::drift_chart(&points, &calibrations, limits, w, h)
     })
     .await;
     match drawn {
@@ -842,8 +838,8 @@ mod tests {
     use std::sync::OnceLock;
     use std::time::Duration;
 
-    use handeye::config::{self, RobotPorts, ViewTargets};
-    use handeye::model::RobotModel;
+    use crate::config::{self, RobotPorts, ViewTargets};
+    use crate::model::RobotModel;
     use handeye_hal::fake::{FakeCamera, FakeRobot};
     use handeye_hal::ur_dh::UrModel;
     use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
@@ -955,7 +951,7 @@ mod tests {
         let addr = free_port();
         let api = Api::new(addr, token.map(String::from));
         let shutdown = CancellationToken::new();
-        let daemon = handeye::daemon::run(
+        let daemon = crate::daemon::run(
             cfg,
             model,
             robot.clone(),
@@ -1264,7 +1260,7 @@ mod tests {
         let store = Arc::new(Store::open(&dir.join("history.sqlite")).expect("store"));
         let shutdown = CancellationToken::new();
         let (tx, rx) = tokio::sync::oneshot::channel();
-        let daemon = handeye::daemon::run(
+        let daemon = crate::daemon::run(
             test_config(&dir),
             model,
             FakeRobot::new(UrModel::Ur5e, HOME),
@@ -1280,7 +1276,7 @@ mod tests {
             let handle = rx.await.expect("ready");
             // The daemon runs on without its API.
             tokio::time::sleep(Duration::from_millis(300)).await;
-            assert_eq!(handle.status().state, "idle");
+            assert_eq!(handle.status().state, crate::daemon::DaemonState::Idle);
             assert!(handle.request(RunMode::Check, Trigger::Api).is_ok());
             shutdown.cancel();
         };
@@ -1303,10 +1299,6 @@ mod tests {
 
     #[test]
     fn report_paths_and_chart_sizes_are_checked() {
-        assert!(is_run_id("20261124T142300Z-3f9a"));
-        for bad in ["", "..", "../x", "a/b", "a b", "x%2F", &"a".repeat(65)] {
-            assert!(!is_run_id(bad), "{bad}");
-        }
         assert_eq!(chart_size(None), Ok((900, 340)));
         assert_eq!(
             chart_size(Some("width=1200&height=400&t=17")),

@@ -1,0 +1,218 @@
+//! [`ReconnectingCamera`]: any [`DepthCamera`] connected anew after it failed, and the
+//! [`Backoff`] between connection attempts (also the daemon's startup connections).
+
+use std::future::Future;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
+
+/// Pauses between connection attempts: 1 s, doubling to 30 s, back to 1 s once connected.
+#[derive(Debug)]
+pub struct Backoff(Duration);
+
+impl Default for Backoff {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Backoff {
+    const FIRST: Duration = Duration::from_secs(1);
+    const LONGEST: Duration = Duration::from_secs(30);
+
+    /// The first pause is the shortest.
+    pub fn new() -> Self {
+        Self(Self::FIRST)
+    }
+
+    /// The pause after a failed attempt (the next one is twice as long, up to the longest).
+    pub fn failed(&mut self) -> Duration {
+        let wait = self.0;
+        self.0 = (wait * 2).min(Self::LONGEST);
+        wait
+    }
+
+    /// A connection succeeded: the next failure waits the shortest pause again.
+    pub fn connected(&mut self) {
+        self.0 = Self::FIRST;
+    }
+}
+
+/// A camera connected anew after it failed: a failed request drops the connection and the
+/// next request connects again with `connect` (at most once per [`Backoff`] pause), so a
+/// camera that was restarted or re-cabled comes back without restarting the daemon. Each new
+/// connection raises the link generation, which makes a run in progress abort.
+pub struct ReconnectingCamera<C, F> {
+    connect: F,
+    link: tokio::sync::Mutex<Link<C>>,
+    generation: AtomicU64,
+}
+
+impl<C, F> std::fmt::Debug for ReconnectingCamera<C, F> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ReconnectingCamera")
+            .field("generation", &self.generation)
+            .finish_non_exhaustive()
+    }
+}
+
+#[derive(Debug)]
+struct Link<C> {
+    camera: Option<Arc<C>>,
+    next_attempt: Instant,
+    backoff: Backoff,
+}
+
+impl<C, F, Fut> ReconnectingCamera<C, F>
+where
+    C: DepthCamera,
+    F: Fn() -> Fut + Send + Sync + 'static,
+    Fut: Future<Output = anyhow::Result<C>> + Send,
+{
+    /// Wraps `camera`, connected already; `connect` makes a new one when it fails.
+    pub fn new(camera: C, connect: F) -> Self {
+        Self {
+            connect,
+            link: tokio::sync::Mutex::new(Link {
+                camera: Some(Arc::new(camera)),
+                next_attempt: Instant::now(),
+                backoff: Backoff::new(),
+            }),
+            generation: AtomicU64::new(0),
+        }
+    }
+
+    /// The connected camera, connecting it if it is not (and the backoff allows).
+    async fn connected(&self) -> Result<Arc<C>, HalError> {
+        let mut link = self.link.lock().await;
+        if let Some(c) = &link.camera {
+            return Ok(c.clone());
+        }
+        let now = Instant::now();
+        if now < link.next_attempt {
+            return Err(disconnected(format!(
+                "the camera is not connected; next attempt in {:.0} s",
+                (link.next_attempt - now).as_secs_f64()
+            )));
+        }
+        match (self.connect)().await {
+            Ok(c) => {
+                let c = Arc::new(c);
+                link.camera = Some(c.clone());
+                link.backoff.connected();
+                self.generation.fetch_add(1, Ordering::Relaxed);
+                tracing::info!("camera connected again");
+                Ok(c)
+            }
+            Err(e) => {
+                let wait = link.backoff.failed();
+                link.next_attempt = now + wait;
+                tracing::warn!("camera: {e:#}; retrying in {wait:?}");
+                Err(disconnected(format!("{e:#}")))
+            }
+        }
+    }
+
+    /// Forgets `failed` (unless it was replaced already): the next request connects again.
+    async fn drop_link(&self, failed: &Arc<C>, e: &HalError) {
+        let mut link = self.link.lock().await;
+        if link.camera.as_ref().is_some_and(|c| Arc::ptr_eq(c, failed)) {
+            tracing::warn!("camera request failed ({e}); reconnecting at the next request");
+            link.camera = None;
+        }
+    }
+}
+
+fn disconnected(detail: String) -> HalError {
+    HalError::Connection {
+        peer: "camera".into(),
+        source: std::io::Error::new(std::io::ErrorKind::NotConnected, detail),
+    }
+}
+
+impl<C, F, Fut> DepthCamera for ReconnectingCamera<C, F>
+where
+    C: DepthCamera,
+    F: Fn() -> Fut + Send + Sync + 'static,
+    Fut: Future<Output = anyhow::Result<C>> + Send,
+{
+    async fn info(&self) -> Result<CameraInfo, HalError> {
+        let camera = self.connected().await?;
+        let r = camera.info().await;
+        if let Err(e) = &r {
+            self.drop_link(&camera, e).await;
+        }
+        r
+    }
+
+    async fn capture(&self, settings: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
+        let camera = self.connected().await?;
+        let r = camera.capture(settings).await;
+        if let Err(e) = &r {
+            self.drop_link(&camera, e).await;
+        }
+        r
+    }
+
+    fn link_generation(&self) -> u64 {
+        self.generation.load(Ordering::Relaxed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicUsize;
+
+    use handeye_hal::fake::FakeCamera;
+    use nalgebra::Point3;
+
+    use super::*;
+
+    /// Any camera: a failed request drops it, the next connects a new one (raising the link
+    /// generation); a failed connection waits its backoff before the next attempt.
+    #[tokio::test]
+    async fn a_failed_camera_is_connected_anew_at_the_next_request() {
+        let cloud = PointCloud::from_points(vec![Point3::new(0.0, 0.0, 1.0)]);
+        let first = FakeCamera::new(vec![cloud.clone()]);
+        first.stop_answering_after(1);
+        let attempts = Arc::new(AtomicUsize::new(0));
+        let counted = Arc::clone(&attempts);
+        let camera = ReconnectingCamera::new(first, move || {
+            let n = counted.fetch_add(1, Ordering::Relaxed);
+            let cloud = cloud.clone();
+            async move {
+                anyhow::ensure!(n > 0, "the first attempt fails");
+                Ok(FakeCamera::new(vec![cloud]))
+            }
+        });
+        let settings = CaptureSettings::default();
+        assert!(camera.capture(&settings).await.is_ok());
+        assert!(camera.capture(&settings).await.is_err(), "stops answering");
+        assert_eq!(camera.link_generation(), 0);
+        // The first attempt fails; the next waits out its pause.
+        let e = camera.info().await.expect_err("cannot connect");
+        assert!(matches!(e, HalError::Connection { .. }), "{e}");
+        let e = camera.info().await.expect_err("backing off");
+        let why = std::error::Error::source(&e).map(ToString::to_string);
+        assert!(
+            why.as_deref().unwrap_or("").contains("next attempt"),
+            "{why:?}"
+        );
+        assert_eq!(attempts.load(Ordering::Relaxed), 1);
+        camera.link.lock().await.next_attempt = Instant::now();
+        assert!(camera.capture(&settings).await.is_ok(), "connected anew");
+        assert_eq!(camera.link_generation(), 1);
+        assert_eq!(attempts.load(Ordering::Relaxed), 2);
+    }
+
+    #[test]
+    fn reconnection_waits_double_to_half_a_minute_and_start_over_once_connected() {
+        let mut b = Backoff::new();
+        let waits: Vec<u64> = (0..7).map(|_| b.failed().as_secs()).collect();
+        assert_eq!(waits, [1, 2, 4, 8, 16, 30, 30]);
+        b.connected();
+        assert_eq!(b.failed(), Duration::from_secs(1));
+    }
+}

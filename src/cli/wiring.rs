@@ -1,0 +1,137 @@
+//! Driver wiring, in one place: the concrete robot and camera the configuration names (the
+//! binary is the only code that names `handeye-ur` and `handeye-gige`), the robot model, and
+//! the history file. `calibrate`, `check`, `demo` and `daemon` all connect through here.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context;
+use handeye::camera::{ExecCamera, FileCamera};
+use handeye::config::{CameraBackend, Config};
+use handeye::model::RobotModel;
+use handeye::store::HISTORY_FILE;
+use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
+use handeye_hal::DepthCamera;
+use handeye_ur::{Ports, UrConfig, UrRobot};
+
+use super::args::resolve_robot;
+
+/// The history database of a configuration (`<storage.dir>/history.sqlite`).
+pub(crate) fn history_path(cfg: &Config) -> PathBuf {
+    cfg.storage.dir.join(HISTORY_FILE)
+}
+
+/// The robot model the configuration names.
+pub(crate) fn load_model(cfg: &Config) -> anyhow::Result<Arc<RobotModel>> {
+    let path = match &cfg.robot.urdf {
+        Some(p) => p.clone(),
+        None => resolve_robot(cfg.robot.model.name()).map_err(anyhow::Error::msg)?,
+    };
+    let model = RobotModel::load(&path)
+        .with_context(|| format!("loading the robot model {}", path.display()))?;
+    anyhow::ensure!(
+        model.dof() == 6,
+        "{} has {} joints; a UR arm has 6",
+        path.display(),
+        model.dof()
+    );
+    // The run poses the model by the file when the controller tells no kinematics; a file that
+    // cannot serve is refused now, not at the first run.
+    if let Some(file) = &cfg.robot.calibration {
+        let calibration = handeye::model::UrCalibration::load(file)
+            .with_context(|| format!("robot.calibration in {}", cfg.origin))?;
+        calibration
+            .dh(&cfg.robot.model.dh())
+            .map_err(anyhow::Error::msg)?;
+    }
+    Ok(Arc::new(model))
+}
+
+/// The configured camera, whichever backend: one concrete type for the generic run.
+#[derive(Debug, Clone)]
+pub(crate) enum AnyCamera {
+    /// GigE Vision.
+    Gige(GigeCamera),
+    /// A vendor SDK through a command.
+    Exec(ExecCamera),
+    /// Recorded files.
+    File(FileCamera),
+}
+
+impl AnyCamera {
+    /// Connects the camera `cfg.camera` names.
+    pub(crate) async fn connect(cfg: &Config) -> anyhow::Result<AnyCamera> {
+        Ok(match &cfg.camera.backend {
+            CameraBackend::Gige { address } => {
+                let addr = GvcpClient::parse_address(address)?;
+                let camera = tokio::task::spawn_blocking(move || {
+                    GigeCamera::connect(addr, ControlConfig::default())
+                })
+                .await?
+                .with_context(|| format!("connecting to the GigE Vision camera at {addr}"))?;
+                AnyCamera::Gige(camera)
+            }
+            CameraBackend::Exec { command, timeout } => {
+                AnyCamera::Exec(ExecCamera::new(command.clone(), *timeout)?)
+            }
+            CameraBackend::File { paths } => AnyCamera::File(FileCamera::new(paths.clone())?),
+        })
+    }
+}
+
+impl DepthCamera for AnyCamera {
+    async fn info(&self) -> Result<handeye_hal::CameraInfo, handeye_hal::HalError> {
+        match self {
+            AnyCamera::Gige(c) => c.info().await,
+            AnyCamera::Exec(c) => c.info().await,
+            AnyCamera::File(c) => c.info().await,
+        }
+    }
+
+    async fn capture(
+        &self,
+        settings: &handeye_hal::CaptureSettings,
+    ) -> Result<Vec<handeye_hal::PointCloud>, handeye_hal::HalError> {
+        match self {
+            AnyCamera::Gige(c) => c.capture(settings).await,
+            AnyCamera::Exec(c) => c.capture(settings).await,
+            AnyCamera::File(c) => c.capture(settings).await,
+        }
+    }
+}
+
+/// Connects RTDE, dashboard and primary of the configured controller.
+pub(crate) async fn connect_robot(cfg: &Config) -> anyhow::Result<UrRobot> {
+    let p = cfg.robot.ports;
+    let mut ur = UrConfig::new(cfg.robot.host);
+    ur.ports = Ports {
+        dashboard: p.dashboard,
+        primary: p.primary,
+        secondary: p.secondary,
+        realtime: p.realtime,
+        rtde: p.rtde,
+    };
+    ur.max_joint_speed_rad_s = cfg.robot.limits.max_joint_speed_rad_s;
+    ur.max_joint_accel_rad_s2 = cfg.robot.limits.max_joint_accel_rad_s2;
+    // Claim exactly the RTDE input registers the configuration writes (and the pendant
+    // handshake's), no others: they stay free for the cell's own clients.
+    #[allow(clippy::reversed_empty_ranges)]
+    {
+        ur.registers = 1..=0;
+        ur.int_registers = 1..=0;
+    }
+    let mut ints: Vec<u32> = Vec::new();
+    if let Some(map) = cfg.write_back.registers {
+        ur.registers = map.double_start..=map.double_start + 5;
+        ints.push(map.sequence_int);
+    }
+    if let Some(p) = cfg.daemon.pendant {
+        ints.extend([p.request_register, p.status_register]);
+    }
+    if let (Some(lo), Some(hi)) = (ints.iter().min(), ints.iter().max()) {
+        ur.int_registers = *lo..=*hi;
+    }
+    UrRobot::connect(ur)
+        .await
+        .with_context(|| format!("connecting to the UR controller at {}", cfg.robot.host))
+}

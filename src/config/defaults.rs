@@ -1,0 +1,81 @@
+//! Every default of the configuration, in one place (the example files quote the same values).
+
+use super::{KinematicsSource, RobotPorts};
+use crate::calib::{GateThresholds, Mount};
+use handeye_hal::{CaptureSettings, MotionLimits};
+
+/// `[robot.ports]`: UR's standard ports.
+pub const ROBOT_PORTS: RobotPorts = RobotPorts::UR_STANDARD;
+/// `robot.max_joint_speed_rad_s`, `max_joint_accel_rad_s2`, `move_timeout_s`: the hal's
+/// conservative caps (0.5 rad/s, 1 rad/s², 60 s).
+pub fn motion_limits() -> MotionLimits {
+    MotionLimits::default()
+}
+/// `daemon.listen`: the API on localhost only.
+pub const DAEMON_LISTEN: &str = "127.0.0.1:8650";
+/// `daemon.keep_captures_runs`.
+pub const KEEP_CAPTURES_RUNS: usize = 50;
+/// `daemon.keep_captures_days`.
+pub const KEEP_CAPTURES_DAYS: f64 = 30.0;
+/// `[daemon]` with every key at its default: no startup run, API on localhost, no
+/// token (nothing that moves the arm is accepted), no schedule.
+pub fn daemon() -> super::DaemonConfig {
+    super::DaemonConfig {
+        startup: None,
+        listen: DAEMON_LISTEN
+            .parse()
+            .unwrap_or_else(|_| std::net::SocketAddr::from(([127, 0, 0, 1], 8650))),
+        token_file: None,
+        check_interval: None,
+        check_at: Vec::new(),
+        when_busy: super::WhenBusy::Refuse,
+        recalibrate_on_drift: false,
+        keep_captures_runs: KEEP_CAPTURES_RUNS,
+        keep_captures_days: KEEP_CAPTURES_DAYS,
+        pendant: None,
+    }
+}
+/// `robot.allow_power_on`: never power on or release brakes by ourselves.
+pub const ALLOW_POWER_ON: bool = false;
+/// `robot.kinematics`.
+pub const KINEMATICS: KinematicsSource = KinematicsSource::Controller;
+/// `camera.frames`, `frame_timeout_s`, `exposure_us`: 1 frame, 10 s, camera's own exposure.
+pub fn capture() -> CaptureSettings {
+    CaptureSettings::default()
+}
+/// `camera.settle_s`.
+pub const SETTLE_S: f64 = 0.5;
+/// `camera.timeout_s` (exec backend): vendor SDKs take seconds to connect.
+pub const EXEC_TIMEOUT_S: f64 = 30.0;
+/// `mount.type`.
+pub const MOUNT: Mount = Mount::EyeInHand;
+/// `mount.max_camera_flange_distance_m` (eye-in-hand).
+pub const MAX_CAMERA_FLANGE_DISTANCE_M: f64 = 0.3;
+/// `views.count` (auto).
+pub const VIEW_COUNT: usize = 1;
+/// `views.min_distance_m` (auto).
+pub const MIN_DISTANCE_M: f64 = 0.4;
+/// `views.max_distance_m` (auto).
+pub const MAX_DISTANCE_M: f64 = 0.8;
+/// `views.seed` (auto).
+pub const SEED: u64 = 1;
+/// `views.floor_clearance_m`.
+pub const FLOOR_CLEARANCE_M: f64 = 0.03;
+/// `views.return_to_start`.
+pub const RETURN_TO_START: bool = true;
+/// `[gate]`.
+pub fn gate() -> GateThresholds {
+    GateThresholds::default()
+}
+/// `check.max_drift_translation_mm`.
+pub const MAX_DRIFT_TRANSLATION_MM: f64 = 1.0;
+/// `check.max_drift_rotation_deg`.
+pub const MAX_DRIFT_ROTATION_DEG: f64 = 0.2;
+/// `write_back.tcp` for eye-in-hand (eye-to-hand: always false).
+pub const WRITE_BACK_TCP_EYE_IN_HAND: bool = true;
+/// `write_back.files`.
+pub const WRITE_BACK_FILES: bool = true;
+/// `storage.dir`, relative to the config file's directory.
+pub const STORAGE_DIR: &str = "handeye-data";
+/// `storage.keep_captures`.
+pub const KEEP_CAPTURES: bool = true;

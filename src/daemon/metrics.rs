@@ -1,0 +1,175 @@
+//! The daemon's counters and gauges for `GET /metrics`, in the Prometheus text exposition
+//! format: runs by trigger and outcome, run durations, the last calibration's uncertainty, the
+//! last drift, alarms, the connections and the queue.
+
+use std::fmt::Write as _;
+
+use crate::record::{Outcome, RunMode, RunRecord, Trigger};
+
+/// Upper bounds of the run-duration histogram, s.
+const DURATION_BUCKETS: [f64; 8] = [1.0, 2.5, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0];
+
+/// What the runs so far add up to.
+#[derive(Debug, Default, Clone)]
+pub(super) struct Metrics {
+    /// Runs by (trigger, outcome).
+    runs: Vec<((Trigger, Outcome), u64)>,
+    /// Durations of every finished run, s, bucketed.
+    duration_buckets: [u64; DURATION_BUCKETS.len()],
+    duration_sum_s: f64,
+    duration_count: u64,
+    last_uncertainty_mm: Option<f64>,
+    last_uncertainty_deg: Option<f64>,
+    last_drift_mm: Option<f64>,
+    last_drift_deg: Option<f64>,
+    alarms: u64,
+}
+
+/// The daemon's state as the gauges show it, at the time of the request.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Live {
+    /// Whether the last check found drift.
+    pub(super) drift_alarm: bool,
+    /// Whether the robot answers, and how often its connection was re-established.
+    pub(super) robot: (bool, u64),
+    /// The same for the camera.
+    pub(super) camera: (bool, u64),
+    /// Whether a run is going.
+    pub(super) busy: bool,
+    /// Runs waiting behind it.
+    pub(super) queued: usize,
+}
+
+impl Metrics {
+    /// Counts a run that ended (asked for by `trigger`).
+    pub(super) fn record(&mut self, trigger: Trigger, record: &RunRecord) {
+        match self
+            .runs
+            .iter_mut()
+            .find(|((t, o), _)| *t == trigger && *o == record.outcome)
+        {
+            Some((_, n)) => *n += 1,
+            None => self.runs.push(((trigger, record.outcome), 1)),
+        }
+        let secs = record.timings_ms.total / 1e3;
+        if let Some(k) = DURATION_BUCKETS.iter().position(|le| secs <= *le) {
+            self.duration_buckets[k] += 1;
+        }
+        self.duration_sum_s += secs;
+        self.duration_count += 1;
+        if let (RunMode::Calibrate, Outcome::Accepted, Some(r)) =
+            (record.mode, record.outcome, &record.result)
+        {
+            self.last_uncertainty_mm = Some(r.uncertainty.translation_mm);
+            self.last_uncertainty_deg = Some(r.uncertainty.rotation_deg);
+        }
+        if let (Some(drifted), Some(d)) = (record.drift_found(), &record.drift) {
+            self.last_drift_mm = Some(d.translation_mm);
+            self.last_drift_deg = Some(d.rotation_deg);
+            if drifted {
+                self.alarms += 1;
+            }
+        }
+    }
+
+    /// The text `GET /metrics` serves.
+    pub(super) fn exposition(&self, live: &Live) -> String {
+        let m = self;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "# HELP handeye_runs_total Calibration runs by trigger and outcome."
+        );
+        let _ = writeln!(s, "# TYPE handeye_runs_total counter");
+        for ((trigger, outcome), n) in &m.runs {
+            let _ = writeln!(
+                s,
+                "handeye_runs_total{{trigger=\"{}\",outcome=\"{}\"}} {n}",
+                trigger.name(),
+                outcome.name()
+            );
+        }
+        let _ = writeln!(
+            s,
+            "# HELP handeye_run_duration_seconds Duration of a run, start to end."
+        );
+        let _ = writeln!(s, "# TYPE handeye_run_duration_seconds histogram");
+        let mut cumulative = 0;
+        for (le, n) in DURATION_BUCKETS.iter().zip(m.duration_buckets) {
+            cumulative += n;
+            let _ = writeln!(
+                s,
+                "handeye_run_duration_seconds_bucket{{le=\"{le}\"}} {cumulative}"
+            );
+        }
+        let _ = writeln!(
+            s,
+            "handeye_run_duration_seconds_bucket{{le=\"+Inf\"}} {}",
+            m.duration_count
+        );
+        let _ = writeln!(s, "handeye_run_duration_seconds_sum {}", m.duration_sum_s);
+        let _ = writeln!(s, "handeye_run_duration_seconds_count {}", m.duration_count);
+        let gauge = |s: &mut String, name: &str, help: &str, v: Option<f64>| {
+            let _ = writeln!(s, "# HELP {name} {help}");
+            let _ = writeln!(s, "# TYPE {name} gauge");
+            let _ = writeln!(s, "{name} {}", v.unwrap_or(f64::NAN));
+        };
+        gauge(
+            &mut s,
+            "handeye_last_calibration_uncertainty_mm",
+            "Reported 1-sigma translation uncertainty of the last accepted calibration, mm.",
+            m.last_uncertainty_mm,
+        );
+        gauge(
+            &mut s,
+            "handeye_last_calibration_uncertainty_degrees",
+            "Reported 1-sigma rotation uncertainty of the last accepted calibration, degrees.",
+            m.last_uncertainty_deg,
+        );
+        gauge(
+            &mut s,
+            "handeye_last_drift_mm",
+            "Camera position drift found by the last check, mm.",
+            m.last_drift_mm,
+        );
+        gauge(
+            &mut s,
+            "handeye_last_drift_degrees",
+            "Camera rotation drift found by the last check, degrees.",
+            m.last_drift_deg,
+        );
+        gauge(
+            &mut s,
+            "handeye_drift_alarm",
+            "1 while the last check found drift beyond the thresholds.",
+            Some(f64::from(u8::from(live.drift_alarm))),
+        );
+        let _ = writeln!(s, "# HELP handeye_alarms_total Drift alarms raised.");
+        let _ = writeln!(s, "# TYPE handeye_alarms_total counter");
+        let _ = writeln!(s, "handeye_alarms_total {}", m.alarms);
+        for (name, (up, reconnects)) in [("robot", live.robot), ("camera", live.camera)] {
+            let _ = writeln!(
+                s,
+                "# HELP handeye_{name}_connected 1 when the {name} answers."
+            );
+            let _ = writeln!(s, "# TYPE handeye_{name}_connected gauge");
+            let _ = writeln!(s, "handeye_{name}_connected {}", u8::from(up));
+            let _ = writeln!(
+                s,
+                "# HELP handeye_{name}_reconnects_total Times the {name}'s connection was re-established."
+            );
+            let _ = writeln!(s, "# TYPE handeye_{name}_reconnects_total counter");
+            let _ = writeln!(s, "handeye_{name}_reconnects_total {reconnects}");
+        }
+        let _ = writeln!(s, "# HELP handeye_busy 1 while a run is going.");
+        let _ = writeln!(s, "# TYPE handeye_busy gauge");
+        let _ = writeln!(s, "handeye_busy {}", u8::from(live.busy));
+        let _ = writeln!(
+            s,
+            "# HELP handeye_queued Runs waiting behind the running one."
+        );
+        let _ = writeln!(s, "# TYPE handeye_queued gauge");
+        let _ = writeln!(s, "handeye_queued {}", live.queued);
+        s
+    }
+}

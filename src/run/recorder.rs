@@ -1,0 +1,213 @@
+//! The recorder: a run as the service keeps it. Around the run's steps it begins the history
+//! row, writes the record and the report picture into the run's folder, finishes the row and
+//! prunes old raw scans. The daemon (every trigger) and `handeye calibrate`/`check` (trigger
+//! `cli`) run through it, so every run that can change `current/` or the controller's TCP is
+//! in `handeye history` and on the page.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use handeye_hal::{DepthCamera, Robot};
+use tokio_util::sync::CancellationToken;
+
+use super::{execute, new_run_id, PictureScan, Progress, RunRequest};
+use crate::config::Config;
+use crate::model::RobotModel;
+use crate::record::{RunRecord, Trigger};
+use crate::storage;
+use crate::store::{config_digest, RunStart, Store, StoreError};
+
+/// Who keeps the runs: the history (when there is one) and the run folders.
+#[derive(Debug, Clone)]
+pub struct Recorder {
+    /// The history and who asks for the runs recorded in it; `None`: the run's files only.
+    history: Option<(Arc<Store>, Trigger)>,
+}
+
+impl Recorder {
+    /// Records runs asked for by `trigger` in `store` and the run folders.
+    pub fn new(store: Arc<Store>, trigger: Trigger) -> Self {
+        Self {
+            history: Some((store, trigger)),
+        }
+    }
+
+    /// Keeps only the runs' files (record, picture, results), no history row.
+    pub fn files_only() -> Self {
+        Self { history: None }
+    }
+
+    /// Runs once and keeps it: the history row begun (a crash leaves it to be recovered as
+    /// interrupted), the run, its record and report picture written, the row finished, the
+    /// raw scans beyond `daemon.keep_captures_*` pruned. Returns the complete record
+    /// whatever happens; history errors are logged, never fail the run.
+    #[allow(clippy::too_many_arguments)]
+    pub async fn run<R: Robot, C: DepthCamera>(
+        &self,
+        robot: &R,
+        camera: &C,
+        model: &Arc<RobotModel>,
+        cfg: &Config,
+        req: RunRequest,
+        cancel: &CancellationToken,
+        progress: &dyn Progress,
+    ) -> RunRecord {
+        let run_id = match req.run_id.clone() {
+            Some(id) if storage::is_run_id(&id) => id,
+            Some(id) => {
+                tracing::warn!("`{id}` cannot name a run's folder; the run gets a new id");
+                new_run_id()
+            }
+            None => new_run_id(),
+        };
+        // Start time, mode and configuration are decided here, once; the row copies them.
+        let record = RunRecord::starting(run_id, req.mode, req.dry_run, cfg.origin.clone());
+        if let Some((store, trigger)) = &self.history {
+            let start = RunStart::new(&record, *trigger, config_digest(&format!("{cfg:?}")));
+            if let Err(e) = store.begin(&start) {
+                tracing::error!("cannot record the start of run {}: {e}", record.run_id);
+            }
+        }
+        let run_dir = storage::run_folder(&cfg.storage.dir, &record.run_id);
+        let (mut record, picture) = execute(
+            robot,
+            camera,
+            model,
+            cfg,
+            req,
+            record,
+            run_dir.clone(),
+            cancel,
+            progress,
+        )
+        .await;
+        if let Err(e) = storage::write_record(&run_dir, &record) {
+            tracing::error!(
+                "cannot write the run record into {}: {e}",
+                run_dir.display()
+            );
+            record
+                .reasons
+                .push(format!("the run record could not be written: {e}"));
+        }
+        // The picture comes after the record: whatever happens to it, the run is kept.
+        write_picture(run_dir, &record, model, picture).await;
+        if let Some((store, trigger)) = &self.history {
+            if let Err(e) = store.finish(*trigger, &record) {
+                tracing::error!("cannot record the end of run {}: {e}", record.run_id);
+            }
+            let d = &cfg.daemon;
+            match prune_captures(
+                store,
+                &cfg.storage.dir,
+                d.keep_captures_runs,
+                d.keep_captures_days,
+            ) {
+                Ok(removed) if !removed.is_empty() => {
+                    tracing::info!("removed {} old raw capture file(s)", removed.len());
+                }
+                Ok(_) => {}
+                Err(e) => tracing::warn!("cannot prune old captures: {e}"),
+            }
+        }
+        record
+    }
+}
+
+/// Why old raw scans could not be pruned.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PruneError {
+    /// The history could not say which, or not note it.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// A run folder could not be read or a file removed.
+    #[error(transparent)]
+    Storage(#[from] storage::StorageError),
+}
+
+/// Deletes the raw scans (`runs/<id>/view*_frame*.ply`) of the runs that are both beyond the
+/// newest `keep_runs` and started more than `keep_days` ago, and notes it in their rows;
+/// records, `capture.json` and results stay. Runs still running are never touched; run
+/// folders that are not in the history are left alone. Returns the files removed.
+pub fn prune_captures(
+    store: &Store,
+    storage_dir: &std::path::Path,
+    keep_runs: usize,
+    keep_days: f64,
+) -> Result<Vec<PathBuf>, PruneError> {
+    let mut removed = Vec::new();
+    for run_id in store.captures_to_prune(keep_runs, keep_days)? {
+        removed.extend(storage::remove_raw_captures(storage_dir, &run_id)?);
+        store.mark_pruned(&run_id)?;
+    }
+    Ok(removed)
+}
+
+/// Renders the run's report picture (a few hundred ms with a scan, on a blocking thread) and
+/// writes it into `run_dir`. Never fails the run: what goes wrong is logged.
+async fn write_picture(
+    run_dir: PathBuf,
+    record: &RunRecord,
+    model: &Arc<RobotModel>,
+    scan: Option<PictureScan>,
+) {
+    let (record, model) = (record.clone(), Arc::clone(model));
+    let written = tokio::task::spawn_blocking(move || {
+        let t = std::time::Instant::now();
+        let png = render_picture(&record, &model, scan.as_ref())?;
+        storage::write_report_picture(&run_dir, &png).map_err(|e| {
+            format!(
+                "cannot write the report picture into {}: {e}",
+                run_dir.display()
+            )
+        })?;
+        tracing::debug!(
+            ms = t.elapsed().as_secs_f64() * 1e3,
+            "report picture written"
+        );
+        Ok::<_, String>(())
+    })
+    .await;
+    match written {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => tracing::error!("{e}"),
+        Err(e) => tracing::error!("the report picture failed: {e}"),
+    }
+}
+
+/// The report picture of `record`, with the scan when there is one.
+fn render_picture(
+    record: &RunRecord,
+    model: &RobotModel,
+    scan: Option<&PictureScan>,
+) -> Result<Vec<u8>, String> {
+    let view = scan.and_then(|s| {
+        let frames = record
+            .captures
+            .iter()
+            .map(|c| c.frames.len())
+            .sum::<usize>();
+        let caption = format!(
+            "view {}, frame 1 of {frames}: {}",
+            s.frame.view, s.frame.source
+        );
+        match crate::report::scan_view(
+            model,
+            &s.frame.joints,
+            s.controller_dh.as_ref(),
+            &s.frame.cloud,
+            &s.registration,
+            &caption,
+        ) {
+            Ok(v) => Some(v),
+            Err(e) => {
+                tracing::warn!("report picture without the scan: {e}");
+                None
+            }
+        }
+    });
+    let summary = crate::report::Summary::from_run(record);
+    crate::report::render(&summary, view.as_ref())
+        .map_err(|e| format!("cannot render the report picture: {e}"))
+}

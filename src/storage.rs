@@ -1,0 +1,477 @@
+//! The run folder, one owner: every file a run leaves under the configured storage directory,
+//! how it is written, and how old raw scans are removed.
+//!
+//! ```text
+//! <storage>/runs/<run_id>/record.json        the run record (every run)
+//! <storage>/runs/<run_id>/capture.json       joints and flange poses per view (replay)
+//! <storage>/runs/<run_id>/view<V>_frame<F>.ply  the raw scans (when kept; pruned later)
+//! <storage>/runs/<run_id>/result.*           the exports of an accepted calibration
+//! <storage>/runs/<run_id>/report.png         the report picture (every run)
+//! <storage>/current/                         the exports of the last accepted calibration
+//! ```
+//!
+//! Every file goes through [`write_atomically`] (a temporary file, flushed to disk, renamed over
+//! the name, the folder flushed too), so a crash or a power loss leaves the old file or the new
+//! one, never half of one; `current/` is replaced as a whole.
+
+use std::path::{Path, PathBuf};
+
+use handeye_hal::PointCloud;
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+use crate::calib::export::{ExportMeta, Exports};
+use crate::calib::Mount;
+use crate::record::{CaptureRecord, ResultRecord, RunRecord};
+
+/// Folder of the per-run folders.
+pub const RUNS_DIR: &str = "runs";
+/// Folder of the last accepted calibration.
+pub const CURRENT_DIR: &str = "current";
+/// The replay file in a run's folder.
+pub const CAPTURE_FILE: &str = "capture.json";
+/// The run record in a run's folder.
+pub const RECORD_FILE: &str = "record.json";
+/// The machine-readable result in a run's folder and in `current/`.
+pub const CALIBRATION_FILE: &str = "calibration.json";
+/// The report picture in a run's folder.
+pub const REPORT_PICTURE: &str = "report.png";
+
+/// What `capture.json` holds: enough to replay a run with `handeye solve --capture`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CaptureFile {
+    /// Robot model name.
+    pub model: String,
+    /// Eye-in-hand or eye-to-hand.
+    pub mount: Mount,
+    /// Frame of the flange poses (`base`: the UR controller's).
+    pub base_frame: String,
+    /// The guess the run registered with: eye-in-hand `flange_from_camera`, eye-to-hand
+    /// `base_from_camera` (in `base_frame`), 4×4.
+    #[serde(default)]
+    pub prior: Option<[[f64; 4]; 4]>,
+    /// The controller's calibrated kinematics the run posed the model by (`None`: nominal).
+    #[serde(default)]
+    pub controller_dh: Option<handeye_hal::ur_dh::DhParams>,
+    /// One entry per view, with its frames' file paths.
+    pub views: Vec<CaptureRecord>,
+}
+
+/// The machine-readable current calibration (`current/calibration.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct CurrentCalibration {
+    run_id: String,
+    mount: Mount,
+    /// `flange_from_camera` (eye-in-hand) or `base_from_camera` in `base` (eye-to-hand), 4×4.
+    pose: [[f64; 4]; 4],
+}
+
+/// A run id: UTC start time to the second and a random suffix (`20261124T142300Z-3f9a`).
+pub fn new_run_id() -> String {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap_or_default();
+    let (y, m, d, hh, mm, ss) = crate::calendar::utc_fields(now.as_secs() as i64);
+    let suffix = (now.subsec_nanos() ^ std::process::id().rotate_left(16)) & 0xffff;
+    format!("{y:04}{m:02}{d:02}T{hh:02}{mm:02}{ss:02}Z-{suffix:04x}")
+}
+
+/// Whether `id` can be a run id, and so one folder name under `runs/`: 1–64 letters, digits,
+/// `-` and `_` (what [`new_run_id`] makes; never `.`, `..` or a path).
+pub fn is_run_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= 64
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
+}
+
+/// The folder of run `run_id` in `storage`; `None` when `run_id` is not a run id (an id from
+/// outside: a URL, a history row).
+pub fn run_dir(storage: &Path, run_id: &str) -> Option<PathBuf> {
+    is_run_id(run_id).then(|| run_folder(storage, run_id))
+}
+
+/// The folder of a run this program names ([`new_run_id`], checked with [`is_run_id`]).
+pub(crate) fn run_folder(storage: &Path, run_id: &str) -> PathBuf {
+    storage.join(RUNS_DIR).join(run_id)
+}
+
+/// The report picture of run `run_id` in `storage`; `None` when `run_id` is not a run id.
+pub fn report_picture_path(storage: &Path, run_id: &str) -> Option<PathBuf> {
+    run_dir(storage, run_id).map(|d| d.join(REPORT_PICTURE))
+}
+
+/// Writes `bytes` to `path` durably and atomically: `path.tmp` beside it (the folder created
+/// if missing), flushed to disk, renamed over `path`, then the folder flushed so the rename
+/// survives a power loss. On failure the temporary file is removed and `path` is untouched.
+/// Blocking I/O.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write as _;
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+    if let Some(dir) = dir {
+        std::fs::create_dir_all(dir)?;
+    }
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        #[cfg(test)]
+        tests::stall_before_rename(path);
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result?;
+    // The rename is durable once the folder is (not every platform opens a folder: best effort).
+    if let Ok(d) = std::fs::File::open(dir.unwrap_or(Path::new("."))) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
+/// Writes every export file into `dir`, each with [`write_atomically`]; returns their paths.
+fn write_exports(dir: &Path, exports: &Exports) -> std::io::Result<Vec<PathBuf>> {
+    exports
+        .files()
+        .into_iter()
+        .map(|(name, contents)| {
+            let path = dir.join(name);
+            write_atomically(&path, contents.as_bytes()).map(|()| path)
+        })
+        .collect()
+}
+
+fn json<T: Serialize>(value: &T) -> std::io::Result<Vec<u8>> {
+    serde_json::to_vec_pretty(value).map_err(std::io::Error::other)
+}
+
+/// Writes the run record.
+pub(crate) fn write_record(run_dir: &Path, record: &RunRecord) -> std::io::Result<()> {
+    write_atomically(&run_dir.join(RECORD_FILE), &json(record)?)
+}
+
+/// Writes the run's report picture (PNG bytes) into its folder.
+pub(crate) fn write_report_picture(run_dir: &Path, png: &[u8]) -> std::io::Result<()> {
+    write_atomically(&run_dir.join(REPORT_PICTURE), png)
+}
+
+/// Keeps one raw frame as a binary PLY; returns its path.
+pub(crate) fn save_frame(
+    run_dir: &Path,
+    view: usize,
+    frame: usize,
+    cloud: &PointCloud,
+) -> Result<PathBuf, crate::cloud::CloudError> {
+    std::fs::create_dir_all(run_dir).map_err(|source| crate::cloud::CloudError::Io {
+        action: "create",
+        path: run_dir.to_path_buf(),
+        source,
+    })?;
+    let path = run_dir.join(format!("view{view}_frame{frame}.ply"));
+    crate::cloud::write_ply(&path, cloud, Default::default())?;
+    Ok(path)
+}
+
+/// Largest `capture.json` read (a run with many views is a few hundred kB).
+const MAX_CAPTURE_FILE_BYTES: u64 = 64 << 20;
+
+/// Writes `capture.json`; returns its path.
+pub(crate) fn write_capture_file(
+    run_dir: &Path,
+    capture: &CaptureFile,
+) -> std::io::Result<PathBuf> {
+    let path = run_dir.join(CAPTURE_FILE);
+    write_atomically(&path, &json(capture)?)?;
+    Ok(path)
+}
+
+/// Reads a `capture.json` written by a run (its frame paths are absolute or relative to it).
+pub fn load_capture(path: &Path) -> Result<CaptureFile, String> {
+    // A regular file of bounded size: a FIFO would block the read forever.
+    let text = handeye_hal::limits::read_text_file(path, MAX_CAPTURE_FILE_BYTES)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    serde_json::from_str(&text).map_err(|e| {
+        format!(
+            "{} is not a capture file written by a handeye run: {e}",
+            path.display()
+        )
+    })
+}
+
+/// The last accepted calibration in `storage` for `mount`, with where it came from.
+pub fn load_current(storage: &Path, mount: Mount) -> Option<(Isometry3<f64>, String)> {
+    let path = storage.join(CURRENT_DIR).join(CALIBRATION_FILE);
+    let text = std::fs::read_to_string(&path).ok()?;
+    let current: CurrentCalibration = match serde_json::from_str(&text) {
+        Ok(c) => c,
+        Err(e) => {
+            tracing::warn!("ignoring {}: {e}", path.display());
+            return None;
+        }
+    };
+    if current.mount != mount {
+        return None;
+    }
+    let pose = crate::frames::from_row_major(&current.pose)?;
+    Some((
+        pose,
+        format!("result of run {} ({})", current.run_id, path.display()),
+    ))
+}
+
+/// Writes the exports of an accepted result into the run's folder and replaces `current/`
+/// with them; returns the paths in `current/`.
+pub(crate) fn write_result(
+    storage: &Path,
+    run_dir: &Path,
+    unknown: &Isometry3<f64>,
+    mount: Mount,
+    record: &RunRecord,
+    result: Option<&ResultRecord>,
+) -> std::io::Result<Vec<PathBuf>> {
+    let (parent, child) = (mount.parent_frame(), "camera");
+    let meta = ExportMeta {
+        run_id: record.run_id.clone(),
+        outcome: record.outcome.name().to_string(),
+        uncertainty_translation_mm: result.map_or(f64::NAN, |r| r.uncertainty.translation_mm),
+        uncertainty_rotation_deg: result.map_or(f64::NAN, |r| r.uncertainty.rotation_deg),
+        timestamp: record.run_id.clone(),
+    };
+    let exports = Exports::new(unknown, parent, child, meta);
+    write_exports(run_dir, &exports)?;
+    let current = CurrentCalibration {
+        run_id: record.run_id.clone(),
+        mount,
+        pose: crate::frames::to_row_major(unknown),
+    };
+    write_atomically(&run_dir.join(CALIBRATION_FILE), &json(&current)?)?;
+    // Replace current/ as a whole: build it beside, then swap.
+    let staging = storage.join(format!(".{CURRENT_DIR}.{}", record.run_id));
+    let _ = std::fs::remove_dir_all(&staging);
+    let mut paths = write_exports(&staging, &exports)?;
+    write_atomically(&staging.join(CALIBRATION_FILE), &json(&current)?)?;
+    let target = storage.join(CURRENT_DIR);
+    let old = storage.join(format!(".{CURRENT_DIR}.old.{}", record.run_id));
+    if target.exists() {
+        std::fs::rename(&target, &old)?;
+    }
+    std::fs::rename(&staging, &target)?;
+    if let Ok(d) = std::fs::File::open(storage) {
+        let _ = d.sync_all();
+    }
+    let _ = std::fs::remove_dir_all(&old);
+    for p in &mut paths {
+        if let Some(name) = p.file_name() {
+            *p = target.join(name);
+        }
+    }
+    paths.push(target.join(CALIBRATION_FILE));
+    Ok(paths)
+}
+
+/// A raw scan a run kept: `view<V>_frame<F>.ply`.
+fn is_raw_capture(name: &str) -> bool {
+    name.starts_with("view") && name.contains("_frame") && name.ends_with(".ply")
+}
+
+/// Why the run folder could not be read or changed.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot {action} {}: {source}; check that the storage directory (`[storage] dir`) exists and is writable by this user", .path.display())]
+pub struct StorageError {
+    /// What was attempted.
+    pub action: &'static str,
+    /// The file or folder.
+    pub path: PathBuf,
+    /// The operating system's error.
+    #[source]
+    pub source: std::io::Error,
+}
+
+/// Deletes the raw scans (`view*_frame*.ply`) of run `run_id`; its record, `capture.json`
+/// and results stay. A missing folder is nothing to do; an id that is not a run id is left
+/// alone (logged). Returns the files removed.
+pub fn remove_raw_captures(storage: &Path, run_id: &str) -> Result<Vec<PathBuf>, StorageError> {
+    let Some(dir) = run_dir(storage, run_id) else {
+        tracing::warn!("not pruning run `{run_id}`: its id is not a plain folder name");
+        return Ok(Vec::new());
+    };
+    let io = |action, path: &Path| {
+        let path = path.to_path_buf();
+        move |source| StorageError {
+            action,
+            path,
+            source,
+        }
+    };
+    let entries = match std::fs::read_dir(&dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(io("read the folder", &dir)(e)),
+    };
+    let mut removed = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(io("read the folder", &dir))?;
+        if !is_raw_capture(&entry.file_name().to_string_lossy()) {
+            continue;
+        }
+        let path = entry.path();
+        match std::fs::remove_file(&path) {
+            Ok(()) => removed.push(path),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => return Err(io("remove", &path)(e)),
+        }
+    }
+    Ok(removed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::RunMode;
+    use std::time::{Duration, Instant};
+
+    /// Names the file whose write stops between the flushed temporary file and the rename.
+    const STALL_ENV: &str = "HANDEYE_TEST_STALL_BEFORE_RENAME";
+    /// Set in the child process of the crash test: the folder it writes into.
+    const CHILD_ENV: &str = "HANDEYE_TEST_STORAGE_CHILD";
+
+    /// Test hook of [`write_atomically`]: with [`STALL_ENV`] naming `path`'s file name, the
+    /// write leaves `<path>.stalled` as a sign and waits forever before the rename (to be
+    /// killed there).
+    pub(super) fn stall_before_rename(path: &Path) {
+        let Ok(name) = std::env::var(STALL_ENV) else {
+            return;
+        };
+        if path.file_name().is_some_and(|n| n == name.as_str()) {
+            let _ = std::fs::write(path.with_extension("stalled"), b"");
+            loop {
+                std::thread::sleep(Duration::from_secs(1));
+            }
+        }
+    }
+
+    fn temp_dir(tag: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("handeye-storage-{}-{tag}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("dir");
+        dir
+    }
+
+    /// The id of the record in `dir`, which must parse whole.
+    fn read_record(dir: &Path) -> String {
+        let text = std::fs::read_to_string(dir.join(RECORD_FILE)).expect("record.json");
+        let record: RunRecord =
+            serde_json::from_str(&text).unwrap_or_else(|e| panic!("a torn record ({e}): {text}"));
+        record.run_id
+    }
+
+    #[test]
+    fn run_ids_carry_the_utc_date_and_name_one_folder() {
+        let id = new_run_id();
+        assert_eq!(id.len(), "20261124T142300Z-3f9a".len(), "{id}");
+        assert!(id.as_bytes()[8] == b'T' && id.contains("Z-"), "{id}");
+        assert!(is_run_id(&id));
+        for bad in ["", ".", "..", "../x", "a/b", "a b", "x%2F", &"a".repeat(65)] {
+            assert!(!is_run_id(bad), "{bad}");
+            assert_eq!(run_dir(Path::new("/s"), bad), None, "{bad}");
+        }
+        assert_eq!(
+            report_picture_path(Path::new("/s"), &id),
+            Some(PathBuf::from(format!("/s/runs/{id}/report.png")))
+        );
+    }
+
+    /// A `kill -9` between the record's write and its rename leaves the old record whole (and
+    /// the next write replaces it), never a torn one.
+    #[test]
+    fn a_kill_between_write_and_rename_leaves_the_old_or_the_new_record() {
+        if let Ok(dir) = std::env::var(CHILD_ENV) {
+            let new = RunRecord::starting("new".into(), RunMode::Check, false, "child".into());
+            let _ = write_record(Path::new(&dir), &new);
+            return;
+        }
+        let dir = temp_dir("crash");
+        let old = RunRecord::starting("old".into(), RunMode::Calibrate, false, "parent".into());
+        write_record(&dir, &old).expect("old record");
+        let mut child = std::process::Command::new(std::env::current_exe().expect("test binary"))
+            .args([
+                "--exact",
+                "storage::tests::a_kill_between_write_and_rename_leaves_the_old_or_the_new_record",
+                "--test-threads=1",
+                "--nocapture",
+            ])
+            .env(CHILD_ENV, &dir)
+            .env(STALL_ENV, RECORD_FILE)
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .expect("child");
+        let sign = dir.join(RECORD_FILE).with_extension("stalled");
+        let t = Instant::now();
+        while !sign.exists() {
+            assert!(
+                t.elapsed() < Duration::from_secs(60),
+                "the child never reached the rename"
+            );
+            if let Some(status) = child.try_wait().expect("child") {
+                panic!("the child ended before the rename: {status}");
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        child.kill().expect("kill -9"); // SIGKILL on unix
+        child.wait().expect("reaped");
+        assert_eq!(read_record(&dir), old.run_id, "the old record, whole");
+        // The new one was complete on disk beside it, only not yet renamed.
+        let mut tmp = dir.join(RECORD_FILE).into_os_string();
+        tmp.push(".tmp");
+        let text = std::fs::read_to_string(&tmp).expect("temporary file");
+        let pending: RunRecord = serde_json::from_str(&text).expect("complete");
+        assert_eq!(pending.run_id, "new");
+        // The next write goes through and leaves no temporary file behind.
+        let newer = RunRecord::starting("newer".into(), RunMode::Check, false, "parent".into());
+        write_record(&dir, &newer).expect("newer record");
+        assert_eq!(read_record(&dir), newer.run_id);
+        assert!(!PathBuf::from(tmp).exists());
+        std::fs::remove_dir_all(&dir).expect("cleanup");
+    }
+
+    #[test]
+    fn exports_are_written_atomically() {
+        use crate::calib::export::RESULT_JSON;
+        let dir = temp_dir("exports");
+        let meta = || ExportMeta {
+            run_id: "r".into(),
+            outcome: "accepted".into(),
+            uncertainty_translation_mm: 0.1,
+            uncertainty_rotation_deg: 0.01,
+            timestamp: "r".into(),
+        };
+        let p = Isometry3::translation(0.0, -0.08, 0.04);
+        let e = Exports::new(&p, "tool0", "camera", meta());
+        let paths = write_exports(&dir.join("run"), &e).expect("written");
+        assert_eq!(paths.len(), 5);
+        for ((name, contents), path) in e.files().into_iter().zip(&paths) {
+            assert_eq!(path.file_name().and_then(|n| n.to_str()), Some(name));
+            assert_eq!(std::fs::read_to_string(path).expect("read"), contents);
+        }
+        // Overwriting replaces the files and leaves no temporary behind.
+        let e2 = Exports::new(&p.inverse(), "tool0", "camera", meta());
+        write_exports(&dir.join("run"), &e2).expect("rewritten");
+        let names: Vec<String> = std::fs::read_dir(dir.join("run"))
+            .expect("dir")
+            .map(|d| d.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names.len(), 5, "{names:?}");
+        assert!(names.iter().all(|n| !n.ends_with(".tmp")));
+        assert_eq!(
+            std::fs::read_to_string(dir.join("run").join(RESULT_JSON)).expect("read"),
+            e2.json()
+        );
+        std::fs::remove_dir_all(&dir).expect("cleanup");
+    }
+}
