@@ -103,7 +103,9 @@ impl DepthCamera for AnyCamera {
 /// Connects RTDE, dashboard and primary of the configured controller.
 pub(crate) async fn connect_robot(cfg: &Config) -> anyhow::Result<UrRobot> {
     let p = cfg.robot.ports;
-    let mut ur = UrConfig::new(cfg.robot.host);
+    // Claim exactly the RTDE input registers the configuration writes (and the pendant
+    // handshake's), no others: they stay free for the cell's own clients.
+    let mut ur = UrConfig::new(cfg.robot.host).without_registers();
     ur.ports = Ports {
         dashboard: p.dashboard,
         primary: p.primary,
@@ -113,13 +115,6 @@ pub(crate) async fn connect_robot(cfg: &Config) -> anyhow::Result<UrRobot> {
     };
     ur.max_joint_speed_rad_s = cfg.robot.limits.max_joint_speed_rad_s;
     ur.max_joint_accel_rad_s2 = cfg.robot.limits.max_joint_accel_rad_s2;
-    // Claim exactly the RTDE input registers the configuration writes (and the pendant
-    // handshake's), no others: they stay free for the cell's own clients.
-    #[allow(clippy::reversed_empty_ranges)]
-    {
-        ur.registers = 1..=0;
-        ur.int_registers = 1..=0;
-    }
     let mut ints: Vec<u32> = Vec::new();
     if let Some(map) = cfg.write_back.registers {
         ur.registers = map.double_start..=map.double_start + 5;
