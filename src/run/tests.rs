@@ -5,6 +5,7 @@
 //! on: what moved, what was written, what the record says and why.
 
 use std::f64::consts::FRAC_PI_2;
+use std::future::Future;
 use std::net::{IpAddr, Ipv4Addr};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
@@ -175,6 +176,27 @@ async fn start<R: Robot, C: DepthCamera>(
         &Silent,
     )
     .await
+}
+
+/// A calibration that `cancel` stops; its record, and how long after the cancel (the instant
+/// `cancelled_at` gives once the canceller has run) the run ended.
+async fn calibrate_cancelled<R: Robot, C: DepthCamera>(
+    robot: &R,
+    camera: &C,
+    f: &Fixture,
+    cfg: &Config,
+    cancel: &CancellationToken,
+    cancelled_at: impl Future<Output = Instant>,
+) -> (RunRecord, Duration) {
+    let req = RunRequest {
+        mode: RunMode::Calibrate,
+        dry_run: false,
+        run_id: None,
+        program_handover: false,
+    };
+    let record = run(robot, camera, &f.model, cfg, req, cancel, &Silent).await;
+    let ended = Instant::now();
+    (record, ended.saturating_duration_since(cancelled_at.await))
 }
 
 fn estimate(record: &RunRecord) -> Isometry3<f64> {
@@ -575,16 +597,10 @@ async fn a_cancel_during_a_hanging_capture_aborts_at_once_and_stays_put() {
             Instant::now()
         })
     };
-    let req = RunRequest {
-        mode: RunMode::Calibrate,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-    };
-    let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
-    let ended = Instant::now();
-    let cancelled_at = canceller.await.expect("the canceller ran");
-    let took = ended.saturating_duration_since(cancelled_at);
+    let (record, took) = calibrate_cancelled(&robot, &camera, f, &cfg, &cancel, async {
+        canceller.await.expect("the canceller ran")
+    })
+    .await;
     assert!(
         took < Duration::from_secs(2),
         "the run ended {took:?} after the cancel"
@@ -627,16 +643,10 @@ async fn a_cancel_during_a_long_plan_stops_it_at_once() {
             Instant::now()
         })
     };
-    let req = RunRequest {
-        mode: RunMode::Calibrate,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-    };
-    let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
-    let ended = Instant::now();
-    let cancelled_at = canceller.join().expect("the canceller ran");
-    let took = ended.saturating_duration_since(cancelled_at);
+    let (record, took) = calibrate_cancelled(&robot, &camera, f, &cfg, &cancel, async {
+        canceller.join().expect("the canceller ran")
+    })
+    .await;
     assert!(
         took < Duration::from_secs(2),
         "the run ended {took:?} after the cancel"
