@@ -23,14 +23,11 @@
 //! Parameters `z ~ N(0, I)`: the links of chain depth `d` are displaced (model frame, a point
 //! `x` moves by `t + ω × x`) by `(t, ω) = A_d · z`.
 
+use handeye_hal::ur_dh::PARALLEL_SINE;
 use nalgebra::{Matrix6xX, Point3, Vector3};
 
 use super::surface::PosedModel;
 use crate::model::KinematicError;
-
-/// Below this sine of the angle between consecutive axes they are parallel (UR joints 2–4),
-/// as [`DhParams::link_frames`](handeye_hal::ur_dh::DhParams::link_frames) takes them.
-const PARALLEL_SINE: f64 = 0.1;
 
 /// `A_d` for the chain depths `1..=fit_depth` (entry `d − 1`), one column per kinematic
 /// parameter of the links' displacements, scaled by its prior 1σ; columns of parameters with

@@ -124,7 +124,8 @@ impl KinematicError {
             .enumerate()
             .map(|(k, axis)| {
                 let a = axis.into_inner();
-                let (u1, u2) = (perpendicular(&a), a.cross(&perpendicular(&a)));
+                let u1 = perpendicular(&a);
+                let u2 = a.cross(&u1);
                 let zero = a * gauss(self.joint_offset_sigma_rad);
                 if k == 0 {
                     let t = a * gauss(self.link_length_sigma_m);

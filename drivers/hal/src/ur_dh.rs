@@ -210,18 +210,15 @@ impl DhParams {
         out
     }
 
-    /// The largest distance between this set's flange and `other`'s over a few joint
-    /// configurations spanning the workspace, metres.
+    /// The largest distance between this set's flange and `other`'s over
+    /// [`SPANNING_JOINTS`], metres.
     pub fn flange_distance(&self, other: &DhParams) -> f64 {
-        [
-            [0.0; 6],
-            [0.4, -1.2, 1.1, -1.3, -1.5, 0.2],
-            [-2.0, -0.3, -2.1, 0.7, 1.9, -3.0],
-            [3.0, -2.6, 0.4, -2.2, 0.3, 1.0],
-        ]
-        .iter()
-        .map(|q| (self.forward(q).translation.vector - other.forward(q).translation.vector).norm())
-        .fold(0.0, f64::max)
+        SPANNING_JOINTS
+            .iter()
+            .map(|q| {
+                (self.forward(q).translation.vector - other.forward(q).translation.vector).norm()
+            })
+            .fold(0.0, f64::max)
     }
 
     /// `base_from_flange` (UR `base` frame, zero TCP offset) at joint angles `q`.
@@ -393,7 +390,7 @@ impl Line {
 
 /// Below this sine of the angle between two joint axes they are taken as parallel (UR joints
 /// 2–4, a few mrad apart on a real arm) rather than crossing (the others, at right angles).
-const PARALLEL_SINE: f64 = 0.1;
+pub const PARALLEL_SINE: f64 = 0.1;
 
 /// A frame on `own` (z along it) whose x points to `next`: at the common normal's foot with
 /// x along it when the axes cross at an angle; when they are nearly parallel, at the point of
@@ -428,7 +425,7 @@ impl DhParams {
     /// along the common normal from joint `k`'s; where two axes are exactly parallel (a
     /// nominal arm), the normal is taken through the previous frame's origin. Of the two senses
     /// of each normal, the one closer to `nominal`'s x axis is taken, so an exact arm gives
-    /// back `nominal`. Nearly parallel axes give huge compensating `d` and `θ` (a real UR10:
+    /// back `nominal`. Nearly parallel axes give huge compensating `d` and `θ` (a real UR10e:
     /// d₂ = 439 m, d₃ = −446 m): the forward kinematics stay exact.
     pub fn from_axes(
         axes: &[Line; 6],
@@ -506,8 +503,9 @@ impl DhParams {
     /// along, and turned a little about, its own axis (a joint's displacement is the same axes
     /// as the next joint's), most of all along the common direction of nearly parallel joints.
     pub fn link_frames(&self, nominal: &DhParams, q: &[f64; 6]) -> [Isometry3<f64>; 7] {
-        let (calibrated, nominal_axes) = (self.axes(q), nominal.axes(q));
+        let poses = self.link_poses(q);
         let reference = nominal.link_poses(q);
+        let (calibrated, nominal_axes) = (axes_of(&poses), axes_of(&reference));
         let mut out = [Isometry3::identity(); 7];
         for k in 1..6 {
             let at = nominal_axes[k - 1].point;
@@ -515,7 +513,7 @@ impl DhParams {
             let frame = axis_frame(&calibrated[k - 1], &calibrated[k], &at);
             out[k] = frame * nominal_frame.inverse() * reference[k - 1];
         }
-        out[6] = self.forward(q);
+        out[6] = poses[5];
         out
     }
 
@@ -556,20 +554,33 @@ impl DhParams {
     /// The six joint axes at joints `q` (rad), base frame: joint `k + 1` turns about the z axis
     /// of DH frame `k`.
     pub fn axes(&self, q: &[f64; 6]) -> [Line; 6] {
-        let frames = self.link_poses(q);
-        std::array::from_fn(|k| {
-            let f = if k == 0 {
-                Isometry3::identity()
-            } else {
-                frames[k - 1]
-            };
-            Line {
-                point: f.translation.vector,
-                direction: f.rotation * Vector3::z(),
-            }
-        })
+        axes_of(&self.link_poses(q))
     }
 }
+
+/// The six joint axes of the DH frames `link_poses` (frames 1–6; joint 1 turns about the
+/// base's z axis).
+fn axes_of(link_poses: &[Isometry3<f64>; 6]) -> [Line; 6] {
+    std::array::from_fn(|k| {
+        let f = if k == 0 {
+            Isometry3::identity()
+        } else {
+            link_poses[k - 1]
+        };
+        Line {
+            point: f.translation.vector,
+            direction: f.rotation * Vector3::z(),
+        }
+    })
+}
+
+/// A few joint configurations spanning a UR's workspace (rad).
+pub const SPANNING_JOINTS: [[f64; 6]; 4] = [
+    [0.0; 6],
+    [0.4, -1.2, 1.1, -1.3, -1.5, 0.2],
+    [-2.0, -0.3, -2.1, 0.7, 1.9, -3.0],
+    [3.0, -2.6, 0.4, -2.2, 0.3, 1.0],
+];
 
 #[cfg(test)]
 mod tests {
@@ -637,16 +648,6 @@ mod tests {
         }
     }
 
-    /// A few joint configurations spanning the workspace (rad).
-    fn configurations() -> Vec<[f64; 6]> {
-        vec![
-            [0.0; 6],
-            [0.4, -1.2, 1.1, -1.3, -1.5, 0.2],
-            [-2.0, -0.3, -2.1, 0.7, 1.9, -3.0],
-            [3.0, -2.6, 0.4, -2.2, 0.3, 1.0],
-        ]
-    }
-
     #[test]
     fn an_exact_arm_has_its_nominal_dh() {
         for m in UrModel::ALL {
@@ -662,7 +663,7 @@ mod tests {
                     assert!((g - w).abs() < 1e-12, "{m}: {got:?} vs {want:?}");
                 }
             }
-            for q in configurations() {
+            for q in SPANNING_JOINTS {
                 for (f, n) in dh
                     .link_frames(&nominal, &q)
                     .iter()
@@ -686,7 +687,7 @@ mod tests {
                 if dh.d[1].abs() > 10.0 {
                     huge += 1;
                 }
-                for q in configurations() {
+                for q in SPANNING_JOINTS {
                     let (got, want) = (dh.forward(&q), arm.flange(&q));
                     let dt = (got.translation.vector - want.translation.vector).norm();
                     assert!(dt < 1e-9, "{m} seed {seed}: {dt} m, d = {:?}", dh.d);
@@ -702,7 +703,7 @@ mod tests {
     #[test]
     fn the_documented_ur10_links_sit_near_their_nominal_places() {
         let (real, nominal) = (documented_ur10(), UrModel::Ur10e.dh());
-        for q in configurations() {
+        for q in SPANNING_JOINTS {
             let frames = real.link_frames(&nominal, &q);
             assert!(
                 (frames[6].translation.vector - real.forward(&q).translation.vector).norm() < 1e-12
@@ -736,7 +737,7 @@ mod tests {
             for seed in 0..6 {
                 let arm = PhysicalArm::factory(m, 100 + seed);
                 let dh = arm.controller_dh();
-                for q in configurations() {
+                for q in SPANNING_JOINTS {
                     let physical = arm.frames(&q);
                     let posed = dh.link_frames(&m.dh(), &q);
                     let axes = dh.axes(&q);
