@@ -102,6 +102,13 @@ pub fn report_picture_path(storage: &Path, run_id: &str) -> Option<PathBuf> {
     run_dir(storage, run_id).map(|d| d.join(REPORT_PICTURE))
 }
 
+/// The temporary file `path` is written as before it is renamed over `path`: `<path>.tmp`.
+fn temporary(path: &Path) -> PathBuf {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    PathBuf::from(tmp)
+}
+
 /// Writes `bytes` to `path` durably and atomically: `path.tmp` beside it (the folder created
 /// if missing), flushed to disk, renamed over `path`, then the folder flushed so the rename
 /// survives a power loss. On failure the temporary file is removed and `path` is untouched.
@@ -112,9 +119,7 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     if let Some(dir) = dir {
         std::fs::create_dir_all(dir)?;
     }
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
+    let tmp = temporary(path);
     let result = (|| {
         let mut f = std::fs::File::create(&tmp)?;
         f.write_all(bytes)?;
@@ -173,7 +178,20 @@ pub(crate) fn save_frame(
         source,
     })?;
     let path = run_dir.join(format!("view{view}_frame{frame}.ply"));
-    crate::cloud::write_ply(&path, cloud, Default::default())?;
+    // Through a temporary file, removed when the write fails (a full disk keeps nothing).
+    let tmp = temporary(&path);
+    if let Err(e) = crate::cloud::write_ply(&tmp, cloud, Default::default()) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    std::fs::rename(&tmp, &path).map_err(|source| {
+        let _ = std::fs::remove_file(&tmp);
+        crate::cloud::CloudError::Io {
+            action: "rename",
+            path: path.clone(),
+            source,
+        }
+    })?;
     Ok(path)
 }
 
@@ -224,16 +242,31 @@ pub fn load_current(storage: &Path, mount: Mount) -> Option<(Isometry3<f64>, Str
     ))
 }
 
-/// Writes the exports of an accepted result into the run's folder and replaces `current/`
-/// with them; returns the paths in `current/`.
-pub(crate) fn write_result(
+/// An accepted result written into the run's folder and staged beside `current/`, not yet
+/// current: [`StagedResult::commit`] makes it current (renames only, no new data), dropping
+/// it uncommitted removes the staging folder.
+#[derive(Debug)]
+pub(crate) struct StagedResult {
+    storage: PathBuf,
+    run_id: String,
+    staging: PathBuf,
+    /// The staged files, by name.
+    names: Vec<std::ffi::OsString>,
+    committed: bool,
+}
+
+/// Writes the exports of an accepted result into the run's folder and stages them for
+/// `current/` (`<storage>/.current.<run_id>/`). Everything that needs room is written here,
+/// so a full disk fails before anything is written to the controller; on failure the
+/// staging folder is removed.
+pub(crate) fn stage_result(
     storage: &Path,
     run_dir: &Path,
     unknown: &Isometry3<f64>,
     mount: Mount,
     record: &RunRecord,
     result: Option<&ResultRecord>,
-) -> std::io::Result<Vec<PathBuf>> {
+) -> std::io::Result<StagedResult> {
     let (parent, child) = (mount.parent_frame(), "camera");
     let meta = ExportMeta {
         run_id: record.run_id.clone(),
@@ -250,28 +283,152 @@ pub(crate) fn write_result(
         pose: crate::frames::to_row_major(unknown),
     };
     write_atomically(&run_dir.join(CALIBRATION_FILE), &json(&current)?)?;
-    // Replace current/ as a whole: build it beside, then swap.
     let staging = storage.join(format!(".{CURRENT_DIR}.{}", record.run_id));
     let _ = std::fs::remove_dir_all(&staging);
-    let mut paths = write_exports(&staging, &exports)?;
+    let mut staged = StagedResult {
+        storage: storage.to_path_buf(),
+        run_id: record.run_id.clone(),
+        staging: staging.clone(),
+        names: Vec::new(),
+        committed: false,
+    };
+    // `staged` removes the staging folder when a write below fails.
+    let paths = write_exports(&staging, &exports)?;
     write_atomically(&staging.join(CALIBRATION_FILE), &json(&current)?)?;
-    let target = storage.join(CURRENT_DIR);
-    let old = storage.join(format!(".{CURRENT_DIR}.old.{}", record.run_id));
-    if target.exists() {
-        std::fs::rename(&target, &old)?;
+    staged.names = paths
+        .iter()
+        .filter_map(|p| p.file_name().map(ToOwned::to_owned))
+        .collect();
+    staged.names.push(CALIBRATION_FILE.into());
+    Ok(staged)
+}
+
+impl StagedResult {
+    /// Replaces `current/` as a whole with the staged result (two renames); returns the paths
+    /// in `current/`.
+    pub(crate) fn commit(mut self) -> std::io::Result<Vec<PathBuf>> {
+        let target = self.storage.join(CURRENT_DIR);
+        let old = self
+            .storage
+            .join(format!(".{CURRENT_DIR}.old.{}", self.run_id));
+        if target.exists() {
+            std::fs::rename(&target, &old)?;
+        }
+        if let Err(e) = std::fs::rename(&self.staging, &target) {
+            // Put the previous calibration back.
+            let _ = std::fs::rename(&old, &target);
+            return Err(e);
+        }
+        self.committed = true;
+        if let Ok(d) = std::fs::File::open(&self.storage) {
+            let _ = d.sync_all();
+        }
+        let _ = std::fs::remove_dir_all(&old);
+        Ok(self.names.iter().map(|n| target.join(n)).collect())
     }
-    std::fs::rename(&staging, &target)?;
-    if let Ok(d) = std::fs::File::open(storage) {
-        let _ = d.sync_all();
-    }
-    let _ = std::fs::remove_dir_all(&old);
-    for p in &mut paths {
-        if let Some(name) = p.file_name() {
-            *p = target.join(name);
+}
+
+impl Drop for StagedResult {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_dir_all(&self.staging);
         }
     }
-    paths.push(target.join(CALIBRATION_FILE));
-    Ok(paths)
+}
+
+/// Room a run needs besides its raw scans: record, capture file, exports, report picture and
+/// history row (together a few hundred kB), with margin for the temporary copies.
+pub const RUN_BASE_BYTES: u64 = 4 << 20;
+/// Bytes per point of a kept raw scan at most: binary PLY with x, y, z, intensity and
+/// confidence as 32-bit floats.
+const RAW_SCAN_BYTES_PER_POINT: u64 = 20;
+/// The probe file [`check_room`] writes and removes.
+const PROBE_FILE: &str = ".probe";
+
+/// What a run keeps in storage at most, bytes: [`RUN_BASE_BYTES`] plus, when raw scans are
+/// kept, `frames` scans of `width` × `height` points.
+pub fn run_bytes(width: u32, height: u32, frames: usize, keep_captures: bool) -> u64 {
+    let scans = if keep_captures {
+        u64::from(width)
+            .saturating_mul(u64::from(height))
+            .saturating_mul(RAW_SCAN_BYTES_PER_POINT)
+            .saturating_add(4096)
+            .saturating_mul(frames as u64)
+    } else {
+        0
+    };
+    RUN_BASE_BYTES.saturating_add(scans)
+}
+
+/// Why the storage directory cannot take a run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum StorageUnusable {
+    /// Not enough free space for what the run keeps.
+    #[error("the storage directory {} has {:.1} MB free and a run needs about {:.1} MB; free space there (old run folders under runs/) or set `[storage] dir` to a larger disk", .dir.display(), mb(*.available), mb(*.needed))]
+    Full {
+        /// The storage directory.
+        dir: PathBuf,
+        /// Free bytes for this user.
+        available: u64,
+        /// Bytes the run keeps at most ([`run_bytes`]).
+        needed: u64,
+    },
+    /// A file could not be written (read-only, no permission, disk full).
+    #[error(transparent)]
+    Unwritable(#[from] StorageError),
+}
+
+fn mb(bytes: u64) -> f64 {
+    bytes as f64 / 1e6
+}
+
+/// Checks that `dir` can take a run keeping `needed` bytes: the folder exists or is created,
+/// a small file can be written durably there (then removed), and the free space for this user
+/// is at least `needed`. Blocking I/O (one fsync).
+pub fn check_room(dir: &Path, needed: u64) -> Result<(), StorageUnusable> {
+    let io = |action: &'static str, path: &Path| {
+        let path = path.to_path_buf();
+        move |source| StorageError {
+            action,
+            path,
+            source,
+        }
+    };
+    std::fs::create_dir_all(dir).map_err(io("create", dir))?;
+    let available = available_bytes(dir).map_err(io("read the free space of", dir))?;
+    if available < needed {
+        return Err(StorageUnusable::Full {
+            dir: dir.to_path_buf(),
+            available,
+            needed,
+        });
+    }
+    let probe = dir.join(PROBE_FILE);
+    write_atomically(&probe, &[0; 512]).map_err(io("write", &probe))?;
+    std::fs::remove_file(&probe).map_err(io("remove", &probe))?;
+    Ok(())
+}
+
+/// Free bytes on the file system of `dir` for an unprivileged user (`statvfs`).
+#[cfg(unix)]
+fn available_bytes(dir: &Path) -> std::io::Result<u64> {
+    use std::os::unix::ffi::OsStrExt as _;
+    let path = std::ffi::CString::new(dir.as_os_str().as_bytes())
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+    // SAFETY: `path` is a NUL-terminated string and `st` a plain C struct statvfs fills.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    if unsafe { libc::statvfs(path.as_ptr(), &mut st) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    #[allow(clippy::unnecessary_cast)] // the field types differ between platforms
+    Ok((st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
+}
+
+/// Without `statvfs`, the probe write of [`check_room`] is the only check.
+#[cfg(not(unix))]
+fn available_bytes(_dir: &Path) -> std::io::Result<u64> {
+    Ok(u64::MAX)
 }
 
 /// A raw scan a run kept: `view<V>_frame<F>.ply`.

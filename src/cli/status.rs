@@ -274,6 +274,9 @@ fn render(addr: SocketAddr, st: &Status, now: f64) -> String {
     } else {
         out += "drift alarm: off\n";
     }
+    if let Some(problem) = &st.storage_problem {
+        out += &format!("storage: UNUSABLE, runs are refused: {problem}\n");
+    }
     out
 }
 

@@ -676,6 +676,10 @@ fn start(
         Err(e @ (Refusal::Busy { .. } | Refusal::QueueFull { .. })) => {
             Err(ApiError::new(StatusCode::CONFLICT, e.to_string()))
         }
+        Err(e @ Refusal::StorageUnusable(_)) => Err(ApiError::new(
+            StatusCode::INSUFFICIENT_STORAGE,
+            e.to_string(),
+        )),
         Err(e) => Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
             format!("{e}; try again once it runs again"),

@@ -38,6 +38,8 @@ pub(super) struct Live {
     pub(super) busy: bool,
     /// Runs waiting behind it.
     pub(super) queued: usize,
+    /// Whether the storage directory can take a run (runs are refused while not).
+    pub(super) storage_usable: bool,
 }
 
 impl Metrics {
@@ -170,6 +172,16 @@ impl Metrics {
         );
         let _ = writeln!(s, "# TYPE handeye_queued gauge");
         let _ = writeln!(s, "handeye_queued {}", live.queued);
+        let _ = writeln!(
+            s,
+            "# HELP handeye_storage_usable 1 while the storage directory can take a run; runs are refused at 0."
+        );
+        let _ = writeln!(s, "# TYPE handeye_storage_usable gauge");
+        let _ = writeln!(
+            s,
+            "handeye_storage_usable {}",
+            u8::from(live.storage_usable)
+        );
         s
     }
 }

@@ -117,6 +117,10 @@ pub struct Status {
     pub camera_reconnects: u64,
     /// Unix time the daemon started, s.
     pub started_unix_s: f64,
+    /// Why the storage directory cannot take a run (full, read-only); runs are refused
+    /// until it can. `None`: it can.
+    #[serde(default)]
+    pub storage_problem: Option<String>,
 }
 
 /// Why a trigger was refused.
@@ -138,6 +142,9 @@ pub enum Refusal {
     /// The daemon is shutting down.
     #[error("the daemon is shutting down")]
     ShuttingDown,
+    /// The storage directory cannot take a run (full, read-only): nothing would be recorded.
+    #[error("refused: {0}")]
+    StorageUnusable(String),
     /// `when_busy = "queue"` and the queue is full.
     #[error("busy: {running} running and {queued} queued behind it (the most the daemon queues); cancel or wait")]
     QueueFull {
@@ -164,6 +171,8 @@ struct State {
     robot_connected: bool,
     camera_connected: bool,
     links: (u64, u64),
+    /// Why the storage directory cannot take a run, as last checked.
+    storage_problem: Option<String>,
     metrics: metrics::Metrics,
 }
 
@@ -217,6 +226,9 @@ impl DaemonHandle {
             return Err(Refusal::ShuttingDown);
         }
         let mut st = self.lock();
+        if let Some(problem) = &st.storage_problem {
+            return Err(Refusal::StorageUnusable(problem.clone()));
+        }
         if let Some(Job { entry: c, .. }) = st.runs.front() {
             match self.shared.when_busy {
                 WhenBusy::Refuse => {
@@ -291,6 +303,7 @@ impl DaemonHandle {
             robot_reconnects: st.links.0,
             camera_reconnects: st.links.1,
             started_unix_s: self.shared.started_unix_s,
+            storage_problem: st.storage_problem.clone(),
         }
     }
 
@@ -313,6 +326,7 @@ impl DaemonHandle {
             camera: (st.camera_connected, st.links.1),
             busy: !st.runs.is_empty(),
             queued: st.runs.len().saturating_sub(1),
+            storage_usable: st.storage_problem.is_none(),
         })
     }
 
@@ -358,6 +372,17 @@ impl DaemonHandle {
         }
         st.robot_connected = robot;
         st.camera_connected = camera;
+    }
+
+    /// Notes whether the storage directory can take a run (logged when that changes).
+    fn set_storage(&self, problem: Option<String>) {
+        let mut st = self.lock();
+        match (&st.storage_problem, &problem) {
+            (None, Some(p)) => tracing::error!("storage unusable, runs are refused: {p}"),
+            (Some(_), None) => tracing::warn!("storage usable again; runs are accepted"),
+            _ => {}
+        }
+        st.storage_problem = problem;
     }
 
     fn set_stage(&self, stage: Stage, detail: &str) {
@@ -444,6 +469,7 @@ fn handle(store: Arc<Store>, when_busy: WhenBusy, shutdown: CancellationToken) -
             robot_connected: true,
             camera_connected: true,
             links: (0, 0),
+            storage_problem: None,
             metrics: metrics::Metrics::default(),
         }),
         wake: Notify::new(),
@@ -491,6 +517,7 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
     ready: impl FnOnce(&DaemonHandle),
 ) {
     let handle = handle(store, cfg.daemon.when_busy, shutdown.clone());
+    check_storage(&cfg, &handle).await;
     let notifier = notify::Notifier::from_env();
     let frontend_task = tokio::spawn(frontend.serve(handle.clone(), shutdown.clone()));
     if let Some(n) = &notifier {
@@ -580,6 +607,7 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
                 }
             }
             _ = health.tick() => {
+                check_storage(&cfg, &handle).await;
                 if handle.status().current.is_none() {
                     let robot_up = tokio::time::timeout(HEALTH_TIMEOUT, robot.status()).await.is_ok_and(|r| r.is_ok());
                     let camera_up = tokio::time::timeout(HEALTH_TIMEOUT, camera.info()).await.is_ok_and(|r| r.is_ok());
@@ -604,6 +632,23 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
         tracing::info!(run_id = %record.run_id, "run accepted before the shutdown: {}", record.outcome);
     }
     let _ = frontend_task.await;
+}
+
+/// Checks that the storage directory can take a run ([`crate::storage::check_room`] for
+/// [`crate::storage::RUN_BASE_BYTES`]) and notes it in the state: runs are refused while it
+/// cannot (each run checks again for its scans before it moves).
+async fn check_storage(cfg: &Config, handle: &DaemonHandle) {
+    let dir = cfg.storage.dir.clone();
+    let checked = tokio::task::spawn_blocking(move || {
+        crate::storage::check_room(&dir, crate::storage::RUN_BASE_BYTES)
+    })
+    .await;
+    let problem = match checked {
+        Ok(Ok(())) => None,
+        Ok(Err(e)) => Some(e.to_string()),
+        Err(e) => Some(format!("the storage check failed: {e}")),
+    };
+    handle.set_storage(problem);
 }
 
 /// A scheduled drift check: started when the robot is idle, else skipped (logged).

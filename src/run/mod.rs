@@ -179,6 +179,10 @@ pub fn pose_difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
     )
 }
 
+/// What the run's record says while the result is written to the controller: it stays so
+/// when the program stops before the final record is written.
+const WRITING_REASON: &str = "interrupted while writing the result above to the controller (the TCP and/or the registers, as configured); check the TCP on the pendant";
+
 /// Everything a run works with, resolved once.
 struct Context<'a, R, C> {
     robot: &'a R,
@@ -316,6 +320,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             return Ok(());
         }
 
+        self.check_room()?;
         let frames = self.move_and_capture().await?;
 
         let t = Instant::now();
@@ -714,6 +719,25 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         Ok(())
     }
 
+    /// Checks, before the first move, that the storage has room for everything the run keeps
+    /// (its raw scans at the camera's resolution × frames × views, when kept).
+    fn check_room(&self) -> Result<(), Failure> {
+        let (width, height) = self
+            .record
+            .preflight
+            .as_ref()
+            .map_or((0, 0), |p| (p.camera.width, p.camera.height));
+        let frames = self.record.views.len() * self.cfg.camera.capture.frames as usize;
+        let needed = storage::run_bytes(width, height, frames, self.cfg.storage.keep_captures);
+        // Blocking I/O of a few ms (one small file flushed), like the run's other small writes.
+        storage::check_room(&self.cfg.storage.dir, needed).map_err(|e| {
+            Failure::error(
+                Stage::Preflight,
+                format!("{e}; nothing moved and nothing was written to the controller"),
+            )
+        })
+    }
+
     /// Moves to every view, settles, records joints and flange pose and captures frames.
     async fn move_and_capture(&mut self) -> Result<Vec<Frame>, Failure> {
         let mut frames = Vec::new();
@@ -986,14 +1010,43 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         });
     }
 
-    /// Writes the accepted result: the TCP, then the registers (the sequence number last: a
-    /// pendant program applies nothing half-written), then the files, so `current/` only ever
-    /// holds a calibration the controller has confirmed.
+    /// Writes the accepted result. Write-ahead first: the result files (staged for
+    /// `current/`) and a record saying the result is being written to the controller are
+    /// durably on disk before the controller changes, so a full disk stops the run with nothing
+    /// written. Then the TCP, then the registers (the sequence number last: a pendant program
+    /// applies nothing half-written), then `current/` is replaced, so it only ever holds a
+    /// calibration the controller has confirmed.
     async fn write_back(&mut self, unknown: &Isometry3<f64>) -> Result<(), Failure> {
         let stage = Stage::WriteBack;
         let wb = self.cfg.write_back;
         let mount = self.cfg.mount.mount;
         let robot = self.robot;
+        let kept = |what: &str, e: std::io::Error| {
+            Failure::error(
+                stage,
+                format!("cannot keep {what} before writing it to the controller: {e}; nothing was written to the controller; free space in the storage directory (`[storage] dir`) and run again"),
+            )
+        };
+        let staged = if wb.files {
+            let result = self.record.result.clone();
+            let staged = storage::stage_result(
+                &self.cfg.storage.dir,
+                &self.run_dir,
+                unknown,
+                mount,
+                &self.record,
+                result.as_ref(),
+            )
+            .map_err(|e| kept("the result files", e))?;
+            Some(staged)
+        } else {
+            None
+        };
+        let mut pending = self.record.clone();
+        pending.outcome = Outcome::Aborted;
+        pending.failed_stage = Some(stage);
+        pending.reasons.push(WRITING_REASON.to_string());
+        storage::write_record(&self.run_dir, &pending).map_err(|e| kept("the run record", e))?;
         if wb.tcp && mount == Mount::EyeInHand {
             cancellable(self.cancel, stage, async {
                 robot
@@ -1043,16 +1096,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 ),
             });
         }
-        if wb.files {
-            let result = self.record.result.clone();
-            match storage::write_result(
-                &self.cfg.storage.dir,
-                &self.run_dir,
-                unknown,
-                mount,
-                &self.record,
-                result.as_ref(),
-            ) {
+        if let Some(staged) = staged {
+            match staged.commit() {
                 Ok(paths) => self.record.written.push(Written {
                     target: WriteTarget::Files,
                     detail: paths
@@ -1064,7 +1109,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 Err(e) => {
                     return Err(Failure::error(
                         stage,
-                        format!("cannot write the result files: {e}"),
+                        format!("the result was written to the controller but `current/` could not be replaced: {e}; the run's folder holds the result files"),
                     ))
                 }
             }

@@ -13,9 +13,9 @@ use tokio_util::sync::CancellationToken;
 use super::{execute, new_run_id, PictureScan, Progress, RunRequest};
 use crate::config::Config;
 use crate::model::RobotModel;
-use crate::record::{RunRecord, Trigger};
+use crate::record::{Outcome, RunRecord, Stage, Trigger};
 use crate::storage;
-use crate::store::{config_digest, RunStart, Store, StoreError};
+use crate::store::{config_digest, RunStart, Store, StoreError, INTERRUPTED_REASON};
 
 /// Who keeps the runs: the history (when there is one) and the run folders.
 #[derive(Debug, Clone)]
@@ -37,10 +37,11 @@ impl Recorder {
         Self { history: None }
     }
 
-    /// Runs once and keeps it: the history row begun (a crash leaves it to be recovered as
-    /// interrupted), the run, its record and report picture written, the row finished, the
-    /// raw scans beyond `daemon.keep_captures_*` pruned. Returns the complete record
-    /// whatever happens; history errors are logged, never fail the run.
+    /// Runs once and keeps it: room checked, the history row begun and a first record written
+    /// (a crash leaves them to be recovered as interrupted) — when any of these fails the run
+    /// does not start and its record says why —, the run, its record and report picture
+    /// written, the row finished, the raw scans beyond `daemon.keep_captures_*` pruned.
+    /// Returns the complete record whatever happens; history errors at the end are logged.
     #[allow(clippy::too_many_arguments)]
     pub async fn run<R: Robot, C: DepthCamera>(
         &self,
@@ -61,14 +62,23 @@ impl Recorder {
             None => new_run_id(),
         };
         // Start time, mode and configuration are decided here, once; the row copies them.
-        let record = RunRecord::starting(run_id, req.mode, req.dry_run, cfg.origin.clone());
-        if let Some((store, trigger)) = &self.history {
-            let start = RunStart::new(&record, *trigger, config_digest(&format!("{cfg:?}")));
-            if let Err(e) = store.begin(&start) {
-                tracing::error!("cannot record the start of run {}: {e}", record.run_id);
-            }
-        }
+        let mut record = RunRecord::starting(run_id, req.mode, req.dry_run, cfg.origin.clone());
         let run_dir = storage::run_folder(&cfg.storage.dir, &record.run_id);
+        if let Err(why) = self.write_ahead(&record, &run_dir, cfg) {
+            tracing::error!(run_id = %record.run_id, "run not started: {why}");
+            record.failed_stage = Some(Stage::Preflight);
+            record.reasons.push(format!(
+                "{why}; nothing moved and nothing was written to the controller"
+            ));
+            if let Some((store, trigger)) = &self.history {
+                if let Err(e) = store.finish(*trigger, &record) {
+                    tracing::error!("cannot record the end of run {}: {e}", record.run_id);
+                }
+            }
+            // The folder goes when it holds nothing (its first record could not be written).
+            let _ = std::fs::remove_dir(&run_dir);
+            return record;
+        }
         let (mut record, picture) = execute(
             robot,
             camera,
@@ -111,6 +121,35 @@ impl Recorder {
             }
         }
         record
+    }
+
+    /// Write-ahead, before anything moves: the storage has room for a run
+    /// ([`storage::RUN_BASE_BYTES`]; the run checks again for its scans once it knows their
+    /// number and size), the history row is begun, and the run's folder holds a first record
+    /// saying the run has not ended — each durably written. Returns why not.
+    fn write_ahead(
+        &self,
+        record: &RunRecord,
+        run_dir: &std::path::Path,
+        cfg: &Config,
+    ) -> Result<(), String> {
+        storage::check_room(&cfg.storage.dir, storage::RUN_BASE_BYTES)
+            .map_err(|e| e.to_string())?;
+        if let Some((store, trigger)) = &self.history {
+            let start = RunStart::new(record, *trigger, config_digest(&format!("{cfg:?}")));
+            store
+                .begin(&start)
+                .map_err(|e| format!("cannot record the start of the run in the history: {e}"))?;
+        }
+        let mut first = record.clone();
+        first.outcome = Outcome::Aborted;
+        first.reasons.push(INTERRUPTED_REASON.to_string());
+        storage::write_record(run_dir, &first).map_err(|e| {
+            format!(
+                "cannot write the run record into {}: {e}; free space there or set `[storage] dir` to a writable disk",
+                run_dir.display()
+            )
+        })
     }
 }
 

@@ -30,7 +30,7 @@ use crate::model::RobotModel;
 use crate::plan::{ViewConstraints, ViewPlanner};
 use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 use crate::storage::{CURRENT_DIR, RUNS_DIR};
-use crate::testutil::shared_robot;
+use crate::testutil::{shared_robot, SmallFs};
 
 /// Where the fake arm starts: the UR home pose, upright, clear of everything.
 const HOME: [f64; 6] = [0.0, -FRAC_PI_2, FRAC_PI_2, -FRAC_PI_2, -FRAC_PI_2, 0.0];
@@ -497,15 +497,25 @@ async fn a_configured_model_that_is_not_the_arm_is_refused_naming_both() {
     let robot = calibrated_robot(f);
     let camera = FakeCamera::new(vec![f.scan.clone()]);
     let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
-    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
-    assert_eq!(record.failed_stage, Some(Stage::Preflight));
-    let why = reasons(&record);
+    let why = assert_refused_before_moving(&record, &robot, &storage.0).await;
     assert!(
         why.contains("robot.model is ur5") && why.contains("ur5e") && why.contains("ur7e"),
         "{why}"
     );
+}
+
+/// The run failed its preflight: an error, nothing moved, nothing written. Returns its
+/// reasons (lower case).
+async fn assert_refused_before_moving(
+    record: &RunRecord,
+    robot: &FakeRobot,
+    storage: &Path,
+) -> String {
+    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::Preflight));
     assert!(robot.moves().is_empty(), "moved {:?}", robot.moves());
-    assert_nothing_written(&record, &robot, &storage.0).await;
+    assert_nothing_written(record, robot, storage).await;
+    reasons(record)
 }
 
 #[tokio::test]
@@ -1096,4 +1106,93 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
         bad.reasons
     );
     assert!(robot.moves().is_empty());
+}
+
+/// Issue 23: with the storage full before the run, nothing moves and nothing is written; the
+/// record says why and no temporary file is left.
+#[tokio::test]
+async fn issue_23_a_full_storage_moves_nothing_and_writes_nothing() {
+    let Some(f) = fixture() else { return };
+    let Some(fs) = SmallFs::mount("run-full", 16 << 20) else {
+        return;
+    };
+    fs.fill();
+    let cfg = test_config(fs.path(), f.view);
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    let why = assert_refused_before_moving(&record, &robot, fs.path()).await;
+    assert!(
+        why.contains("free") && why.contains("nothing moved"),
+        "{why}"
+    );
+    assert_eq!(camera.captures(), 0);
+    assert_eq!(fs.temporary_files(), Vec::<PathBuf>::new());
+}
+
+/// Reports each stage to a closure (to act at a given point of a run).
+struct OnStage<F: Fn(Stage) + Send + Sync>(F);
+
+impl<F: Fn(Stage) + Send + Sync> super::Progress for OnStage<F> {
+    fn stage(&self, stage: Stage, _: &str) {
+        (self.0)(stage)
+    }
+}
+
+/// Issue 23: the storage fills up after the room check, while the arm moves: the scans cannot
+/// be kept, the result files and the record cannot be written, so nothing is written to the
+/// controller; no temporary file is left. Once space is freed the next run goes through.
+#[tokio::test]
+async fn issue_23_storage_filling_during_the_run_writes_nothing_to_the_controller() {
+    let Some(f) = fixture() else { return };
+    let Some(fs) = SmallFs::mount("run-fills", 64 << 20) else {
+        return;
+    };
+    let mut cfg = test_config(fs.path(), f.view);
+    cfg.storage.keep_captures = true;
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let fill_at_move = OnStage(|stage| {
+        if stage == Stage::Move && !fs.path().join("filler").exists() {
+            fs.fill();
+        }
+    });
+    let req = RunRequest {
+        mode: RunMode::Calibrate,
+        dry_run: false,
+        run_id: None,
+        program_handover: false,
+    };
+    let cancel = CancellationToken::new();
+    let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &fill_at_move).await;
+    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
+    assert_eq!(
+        record.failed_stage,
+        Some(Stage::WriteBack),
+        "{:?}",
+        record.reasons
+    );
+    let why = reasons(&record);
+    assert!(
+        why.contains("nothing was written to the controller"),
+        "{why}"
+    );
+    assert!(record.result.is_some(), "the run got as far as a result");
+    assert_eq!(robot.moves(), vec![f.view.to_vec(), HOME.to_vec()]);
+    assert_nothing_written(&record, &robot, fs.path()).await;
+    assert_eq!(fs.temporary_files(), Vec::<PathBuf>::new());
+    // Hidden staging folders for `current/` are gone too.
+    let hidden: Vec<_> = std::fs::read_dir(fs.path())
+        .expect("storage")
+        .flatten()
+        .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
+        .map(|e| e.path())
+        .collect();
+    assert!(hidden.is_empty(), "{hidden:?}");
+
+    fs.free();
+    let again = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(again.outcome, Outcome::Accepted, "{:?}", again.reasons);
+    assert!(fs.path().join(CURRENT_DIR).join("result.json").is_file());
+    assert_eq!(fs.temporary_files(), Vec::<PathBuf>::new());
 }

@@ -15,11 +15,11 @@ use crate::support::{
     true_mount, Daemon, TempDir,
 };
 
-const TOKEN: &str = "e2e-secret-token";
+pub(crate) const TOKEN: &str = "e2e-secret-token";
 
 /// A daemon configuration for the rig; `daemon` is the `[daemon]` table's body (more tables
 /// may follow it).
-fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &str) -> PathBuf {
+pub(crate) fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &str) -> PathBuf {
     let token = dir.join("token");
     std::fs::write(&token, format!("{TOKEN}\n")).expect("token");
     #[cfg(unix)]
@@ -37,7 +37,7 @@ fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &str) -> PathB
 }
 
 /// One HTTP/1.0 request to `addr`; (status code, body).
-fn http(addr: &str, method: &str, path: &str, token: Option<&str>) -> (u16, String) {
+pub(crate) fn http(addr: &str, method: &str, path: &str, token: Option<&str>) -> (u16, String) {
     let mut s = TcpStream::connect(addr).unwrap_or_else(|e| panic!("connect {addr}: {e}"));
     s.set_read_timeout(Some(Duration::from_secs(10)))
         .expect("timeout");
@@ -63,7 +63,7 @@ fn json(body: &str) -> serde_json::Value {
     serde_json::from_str(body).unwrap_or_else(|e| panic!("not JSON ({e}): {body}"))
 }
 
-fn start_daemon(dir: &TempDir, name: &str, config: &Path) -> Daemon {
+pub(crate) fn start_daemon(dir: &TempDir, name: &str, config: &Path) -> Daemon {
     let mut d = Daemon::start(
         dir,
         name,
@@ -74,7 +74,7 @@ fn start_daemon(dir: &TempDir, name: &str, config: &Path) -> Daemon {
 }
 
 /// Polls `/api/status` until `done` holds for it.
-fn wait_status(
+pub(crate) fn wait_status(
     api: &str,
     limit: Duration,
     what: &str,
