@@ -434,6 +434,10 @@ pub struct RunRecord {
     pub dry_run: bool,
     /// The configuration's origin (file path).
     pub config: String,
+    /// Who asked for it, when it was recorded in the history (rebuilding a damaged history
+    /// from the run folders reads it back).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trigger: Option<Trigger>,
     /// Unix time of the start, s.
     pub started_unix_s: f64,
     /// How it ended.
@@ -476,6 +480,7 @@ impl RunRecord {
             mode,
             dry_run,
             config,
+            trigger: None,
             started_unix_s: crate::calendar::unix_now(),
             outcome: Outcome::Error,
             reasons: Vec::new(),

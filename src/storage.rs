@@ -221,6 +221,35 @@ pub fn load_capture(path: &Path) -> Result<CaptureFile, String> {
     })
 }
 
+/// Largest `record.json` read back (a record is tens of kB).
+const MAX_RECORD_FILE_BYTES: u64 = 16 << 20;
+
+/// The records of every run folder under `storage` (`runs/<id>/record.json`), oldest first;
+/// a folder whose record is missing or does not read back is skipped with a warning.
+pub fn run_records(storage: &Path) -> Vec<RunRecord> {
+    let runs = storage.join(RUNS_DIR);
+    let Ok(entries) = std::fs::read_dir(&runs) else {
+        return Vec::new();
+    };
+    let mut records = Vec::new();
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        if !is_run_id(&name.to_string_lossy()) {
+            continue;
+        }
+        let path = entry.path().join(RECORD_FILE);
+        let read = handeye_hal::limits::read_text_file(&path, MAX_RECORD_FILE_BYTES)
+            .map_err(|e| e.to_string())
+            .and_then(|text| serde_json::from_str::<RunRecord>(&text).map_err(|e| e.to_string()));
+        match read {
+            Ok(record) => records.push(record),
+            Err(e) => tracing::warn!("skipping {}: {e}", path.display()),
+        }
+    }
+    records.sort_by(|a, b| a.started_unix_s.total_cmp(&b.started_unix_s));
+    records
+}
+
 /// The last accepted calibration in `storage` for `mount`, with where it came from.
 pub fn load_current(storage: &Path, mount: Mount) -> Option<(Isometry3<f64>, String)> {
     let path = storage.join(CURRENT_DIR).join(CALIBRATION_FILE);

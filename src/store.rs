@@ -114,7 +114,7 @@ pub enum StoreError {
         source: rusqlite::Error,
     },
     /// The file is not a SQLite database, or is damaged.
-    #[error("{} is corrupted or not a handeye history database ({source}); move it aside (with its -wal and -shm files) and start again: a new history is created, and every run's record is still in runs/<run_id>/record.json", .path.display())]
+    #[error("{} is corrupted or not a handeye history database ({source}); the daemon or `handeye calibrate` sets it aside when it starts and rebuilds the history from runs/<run_id>/record.json", .path.display())]
     Corrupt {
         /// The database path.
         path: PathBuf,
@@ -380,6 +380,16 @@ pub struct RunSummary {
     pub captures_pruned_unix_s: Option<f64>,
 }
 
+/// A damaged history file that [`Store::open`] moved aside (kept, never deleted) before it
+/// started a new one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SetAside {
+    /// Where the damaged file is now (its -wal and -shm files beside it, same name + suffix).
+    pub path: PathBuf,
+    /// What was wrong (SQLite's `quick_check`, or an empty file).
+    pub why: String,
+}
+
 /// The history database. `Send + Sync`; share it with an `Arc`. Every call blocks for the
 /// duration of one SQLite statement (with one fsync per write), at most [`BUSY_TIMEOUT`]
 /// more while another process writes.
@@ -390,6 +400,10 @@ pub struct Store {
     read_only: bool,
     /// Writers hold a shared lock on `<path>-lock` while they live (see the module docs).
     _writer_lock: Option<File>,
+    /// The damaged file this open moved aside.
+    set_aside: Option<SetAside>,
+    /// Whether this open created the tables (a new or empty file).
+    created: bool,
 }
 
 impl Store {
@@ -405,14 +419,22 @@ impl Store {
             })?;
         }
         let lock = WriterLock::acquire(path)?;
+        // Only the sole writer may move the file: another one is using it.
+        let set_aside = match damage(path).filter(|_| lock.sole) {
+            Some(why) => Some(set_aside(path, why)?),
+            None => None,
+        };
         let mut conn = Connection::open(path).map_err(|e| sql_error(path, "open", e))?;
         configure(&conn, path, false)?;
+        let created = schema_version(&conn, path)?.is_none();
         migrate(&mut conn, path)?;
         let store = Store {
             conn: Mutex::new(conn),
             path: path.to_path_buf(),
             read_only: false,
             _writer_lock: None,
+            set_aside,
+            created,
         };
         let file = if lock.sole {
             let n = store.recover_interrupted()?;
@@ -467,6 +489,8 @@ impl Store {
                 path: path.to_path_buf(),
                 read_only: true,
                 _writer_lock: None,
+                set_aside: None,
+                created: false,
             }),
         }
     }
@@ -474,6 +498,32 @@ impl Store {
     /// The database file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The damaged file [`Store::open`] moved aside, if it did.
+    pub fn set_aside(&self) -> Option<&SetAside> {
+        self.set_aside.as_ref()
+    }
+
+    /// Whether [`Store::open`] started this history (no file, an empty one, or a damaged one
+    /// set aside): the runs in the storage folder are not in it yet ([`Self::rebuild`]).
+    pub fn is_new(&self) -> bool {
+        self.created
+    }
+
+    /// Adds the runs of `records` that are not in the history yet (a new history rebuilt
+    /// from the run folders' `record.json`); a record without its trigger is recorded as
+    /// `cli`. Returns how many were added.
+    pub fn rebuild(&self, records: &[RunRecord]) -> Result<usize, StoreError> {
+        let mut added = 0;
+        for record in records {
+            if self.summary(&record.run_id)?.is_some() {
+                continue;
+            }
+            self.finish(record.trigger.unwrap_or(Trigger::Cli), record)?;
+            added += 1;
+        }
+        Ok(added)
     }
 
     /// Records that a run started, as `running`.
@@ -586,7 +636,21 @@ impl Store {
         let run = || -> rusqlite::Result<Vec<RunSummary>> {
             let mut stmt = conn.prepare_cached(&sql)?;
             let rows = stmt.query_map(params![limit, before_unix_s], summary_from_row)?;
-            rows.collect()
+            let mut out = Vec::new();
+            for row in rows {
+                match row {
+                    Ok(summary) => out.push(summary),
+                    // SQLite itself failed (a damaged page): the list cannot go on.
+                    Err(e @ rusqlite::Error::SqliteFailure(..)) => return Err(e),
+                    // One row that does not read back (a value this program does not know):
+                    // skipped, the others listed.
+                    Err(e) => tracing::warn!(
+                        "skipping a run in {} that does not read back: {e}",
+                        self.path.display()
+                    ),
+                }
+            }
+            Ok(out)
         };
         run().map_err(|e| sql_error(&self.path, "list runs", e))
     }
@@ -750,6 +814,72 @@ impl Store {
         }
         Ok(self.lock())
     }
+}
+
+/// What is wrong with the history file at `path`, if anything: empty (0 bytes: SQLite would
+/// silently start a new history), not a database, or pages that SQLite's `quick_check` finds
+/// damaged. `None` also when the file is missing or cannot be opened for another reason (the
+/// open that follows says why).
+fn damage(path: &Path) -> Option<String> {
+    let meta = std::fs::metadata(path).ok()?;
+    if meta.len() == 0 {
+        return Some("the file is empty (0 bytes)".into());
+    }
+    let corrupt = |e: &rusqlite::Error| {
+        matches!(
+            e.sqlite_error_code(),
+            Some(ErrorCode::DatabaseCorrupt | ErrorCode::NotADatabase)
+        )
+    };
+    let flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+    let conn = match Connection::open_with_flags(path, flags) {
+        Ok(c) => c,
+        Err(e) if corrupt(&e) => return Some(e.to_string()),
+        Err(_) => return None,
+    };
+    let _ = conn.busy_timeout(BUSY_TIMEOUT);
+    let checked = (|| {
+        let mut stmt = conn.prepare("PRAGMA quick_check")?;
+        let rows = stmt.query_map([], |r| r.get::<_, String>(0))?;
+        rows.take(5).collect::<rusqlite::Result<Vec<String>>>()
+    })();
+    match checked {
+        Ok(lines) if lines.iter().all(|l| l == "ok") => None,
+        Ok(lines) => Some(format!("quick_check: {}", lines.join("; "))),
+        Err(e) if corrupt(&e) => Some(e.to_string()),
+        Err(_) => None,
+    }
+}
+
+/// Moves the damaged history at `path` (and its -wal and -shm files) to
+/// `<path>.damaged-<UTC time>`, logged, so a new one can start; nothing is deleted.
+fn set_aside(path: &Path, why: String) -> Result<SetAside, StoreError> {
+    let (y, m, d, hh, mm, ss) = crate::calendar::utc_fields(unix_now().floor() as i64);
+    let mut aside = path.as_os_str().to_owned();
+    aside.push(format!(
+        ".damaged-{y:04}{m:02}{d:02}T{hh:02}{mm:02}{ss:02}Z"
+    ));
+    let aside = PathBuf::from(aside);
+    let io = |source| StoreError::Io {
+        action: "move aside the damaged",
+        path: path.to_path_buf(),
+        source,
+    };
+    std::fs::rename(path, &aside).map_err(io)?;
+    for suffix in ["-wal", "-shm"] {
+        let (mut from, mut to) = (path.as_os_str().to_owned(), aside.as_os_str().to_owned());
+        from.push(suffix);
+        to.push(suffix);
+        if Path::new(&from).exists() {
+            std::fs::rename(&from, &to).map_err(io)?;
+        }
+    }
+    tracing::error!(
+        "the history {} is damaged ({why}); kept as {} and a new history started",
+        path.display(),
+        aside.display()
+    );
+    Ok(SetAside { path: aside, why })
 }
 
 /// A stable 64-bit FNV-1a hash of a configuration's text, as 16 hex digits: it tells which

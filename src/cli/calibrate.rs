@@ -11,7 +11,6 @@ use std::time::Instant;
 use handeye::config::Config;
 use handeye::record::Trigger;
 use handeye::run::{Outcome, Progress, Recorder, RunMode, RunRecord, RunRequest, Stage};
-use handeye::store::Store;
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
@@ -105,7 +104,7 @@ pub(crate) async fn execute(
 /// running daemon), or the run's files only when the history cannot be opened (said why).
 async fn recorder(cfg: &Config) -> Recorder {
     let path = history_path(cfg);
-    let opened = tokio::task::spawn_blocking(move || Store::open(&path))
+    let opened = tokio::task::spawn_blocking(move || handeye::run::open_history(&path))
         .await
         .map_err(anyhow::Error::from)
         .and_then(|r| r.map_err(anyhow::Error::from));

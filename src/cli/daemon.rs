@@ -11,7 +11,6 @@ use anyhow::Context;
 use handeye::camera::{Backoff, ReconnectingCamera};
 use handeye::config::Config;
 use handeye::daemon::api::Api;
-use handeye::store::Store;
 use tokio_util::sync::CancellationToken;
 
 use super::wiring::{connect_robot, history_path, load_model, AnyCamera};
@@ -52,7 +51,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     let cfg = Config::load(&args.config)?;
     let model = load_model(&cfg)?;
     let path = history_path(&cfg);
-    let store = tokio::task::spawn_blocking(move || Store::open(&path))
+    let store = tokio::task::spawn_blocking(move || handeye::run::open_history(&path))
         .await?
         .context("opening the history")?;
     let api = Api::from_config(&cfg)?;

@@ -384,6 +384,7 @@ mod tests {
             mode,
             dry_run: false,
             config: "/etc/handeye/cell.toml".into(),
+            trigger: None,
             started_unix_s: started,
             outcome,
             reasons: if accepted {

@@ -274,6 +274,13 @@ fn render(addr: SocketAddr, st: &Status, now: f64) -> String {
     } else {
         out += "drift alarm: off\n";
     }
+    if let Some(aside) = &st.history_set_aside {
+        out += &format!(
+            "history: the damaged file was set aside as {} ({}); rebuilt from the run folders\n",
+            aside.path.display(),
+            aside.why
+        );
+    }
     if let Some(problem) = &st.storage_problem {
         out += &format!("storage: UNUSABLE, runs are refused: {problem}\n");
     }

@@ -121,6 +121,10 @@ pub struct Status {
     /// until it can. `None`: it can.
     #[serde(default)]
     pub storage_problem: Option<String>,
+    /// The damaged history file set aside when the daemon started (a new history was
+    /// rebuilt from the run folders).
+    #[serde(default)]
+    pub history_set_aside: Option<crate::store::SetAside>,
 }
 
 /// Why a trigger was refused.
@@ -304,6 +308,7 @@ impl DaemonHandle {
             camera_reconnects: st.links.1,
             started_unix_s: self.shared.started_unix_s,
             storage_problem: st.storage_problem.clone(),
+            history_set_aside: self.shared.store.set_aside().cloned(),
         }
     }
 

@@ -47,7 +47,7 @@ pub use crate::record::{
     Written,
 };
 use crate::storage::{self, load_current, new_run_id, CaptureFile};
-pub use recorder::Recorder;
+pub use recorder::{open_history, Recorder};
 
 /// Generated candidates tried per automatic view before the plan gives up.
 const AUTO_VIEW_TRIES: usize = 8;

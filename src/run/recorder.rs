@@ -63,6 +63,7 @@ impl Recorder {
         };
         // Start time, mode and configuration are decided here, once; the row copies them.
         let mut record = RunRecord::starting(run_id, req.mode, req.dry_run, cfg.origin.clone());
+        record.trigger = self.history.as_ref().map(|(_, trigger)| *trigger);
         let run_dir = storage::run_folder(&cfg.storage.dir, &record.run_id);
         if let Err(why) = self.write_ahead(&record, &run_dir, cfg) {
             tracing::error!(run_id = %record.run_id, "run not started: {why}");
@@ -151,6 +152,27 @@ impl Recorder {
             )
         })
     }
+}
+
+/// Opens the history at `path` for writing ([`Store::open`]: a damaged file is set aside)
+/// and, when the history is new — no file, an empty one, or a damaged one set aside — adds
+/// the runs whose records are in the run folders beside it, so no run is lost from the list.
+/// Blocking I/O.
+pub fn open_history(path: &std::path::Path) -> Result<Store, StoreError> {
+    let store = Store::open(path)?;
+    if store.is_new() {
+        let storage_dir = path.parent().unwrap_or(std::path::Path::new("."));
+        let records = storage::run_records(storage_dir);
+        if !records.is_empty() {
+            let added = store.rebuild(&records)?;
+            tracing::warn!(
+                "the history {} was rebuilt from {added} run record(s) in {}",
+                path.display(),
+                storage_dir.join(storage::RUNS_DIR).display()
+            );
+        }
+    }
+    Ok(store)
 }
 
 /// Why old raw scans could not be pruned.

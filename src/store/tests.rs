@@ -62,6 +62,7 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
         mode,
         dry_run: false,
         config: "/etc/handeye/cell.toml".into(),
+        trigger: None,
         started_unix_s: started,
         outcome,
         reasons: if accepted {
@@ -553,7 +554,7 @@ fn pruning_removes_only_the_old_raw_captures() {
 }
 
 #[test]
-fn a_corrupted_file_gives_a_clear_error() {
+fn a_corrupted_file_is_set_aside_by_a_writer_and_refused_clearly_by_a_reader() {
     let dir = temp_dir("corrupt");
     for (name, bytes) in [
         ("short.sqlite", b"not a database".to_vec()),
@@ -566,18 +567,28 @@ fn a_corrupted_file_gives_a_clear_error() {
     ] {
         let path = dir.join(name);
         std::fs::write(&path, &bytes).expect("garbage");
-        for result in [Store::open(&path), Store::open_read_only(&path)] {
-            let err = result.expect_err("refused");
-            assert!(matches!(err, StoreError::Corrupt { .. }), "{name}: {err:?}");
-            let msg = err.to_string();
-            assert!(msg.contains(&path.display().to_string()), "{msg}");
-            assert!(
-                msg.contains("corrupted") && msg.contains("move it aside"),
-                "{msg}"
-            );
-        }
-        // The file is left as it was, for whoever looks at it.
-        assert_eq!(std::fs::read(&path).expect("read"), bytes);
+        let err = Store::open_read_only(&path).expect_err("refused");
+        assert!(matches!(err, StoreError::Corrupt { .. }), "{name}: {err:?}");
+        let msg = err.to_string();
+        assert!(msg.contains(&path.display().to_string()), "{msg}");
+        assert!(
+            msg.contains("corrupted") && msg.contains("sets it aside"),
+            "{msg}"
+        );
+        // A writer moves it aside, kept as it was, and starts a new history.
+        let store = Store::open(&path).expect("a new history");
+        let aside = store.set_aside().expect("set aside").clone();
+        assert!(store.is_new());
+        assert_eq!(
+            std::fs::read(&aside.path).expect("kept"),
+            bytes,
+            "{aside:?}"
+        );
+        assert!(
+            aside.path.to_string_lossy().contains(".damaged-"),
+            "{aside:?}"
+        );
+        assert!(store.list(10, None).expect("list").is_empty());
     }
     // A database of someone else's.
     let foreign = dir.join("foreign.sqlite");
@@ -669,4 +680,110 @@ fn digests_and_times_are_stable() {
     ] {
         assert_eq!(RunStatus::parse(s).map(RunStatus::name), Some(s));
     }
+}
+
+/// Runs `ids` recorded in `store` and each with its record in `storage`'s run folder, as the
+/// recorder leaves them.
+fn recorded_runs(store: &Store, storage: &std::path::Path, ids: &[&str]) {
+    for (k, id) in ids.iter().enumerate() {
+        let mut r = record(
+            id,
+            RunMode::Calibrate,
+            Outcome::Accepted,
+            1_000.0 + k as f64,
+        );
+        r.trigger = Some(Trigger::Api);
+        store.finish(Trigger::Api, &r).expect("finish");
+        crate::storage::write_record(&storage.join(RUNS_DIR).join(id), &r).expect("record");
+    }
+}
+
+/// Issue 23: a history with damaged pages is set aside (kept) when opened for writing and a
+/// new one is rebuilt from the run folders' records, with every run still listed.
+#[test]
+fn issue_23_a_damaged_history_is_set_aside_and_rebuilt_from_the_run_folders() {
+    let dir = temp_dir("damaged-pages");
+    let db = dir.join(HISTORY_FILE);
+    let ids = ["r1", "r2", "r3"];
+    {
+        let store = Store::open(&db).expect("open");
+        recorded_runs(&store, &dir, &ids);
+    }
+    // Damage every page after the first (the schema's root): `quick_check` sees it.
+    let mut bytes = std::fs::read(&db).expect("db");
+    assert!(bytes.len() >= 8192, "{} bytes", bytes.len());
+    for (i, b) in bytes.iter_mut().enumerate().skip(4096) {
+        *b = (i as u32).wrapping_mul(2_654_435_761).to_le_bytes()[1];
+    }
+    std::fs::write(&db, &bytes).expect("damage");
+    let store = crate::run::open_history(&db).expect("rebuilt");
+    let aside = store.set_aside().expect("set aside");
+    assert_eq!(std::fs::read(&aside.path).expect("kept"), bytes);
+    let listed: Vec<(String, Trigger)> = store
+        .list(10, None)
+        .expect("list")
+        .into_iter()
+        .map(|r| (r.run_id, r.trigger))
+        .collect();
+    assert_eq!(
+        listed,
+        [
+            ("r3", Trigger::Api),
+            ("r2", Trigger::Api),
+            ("r1", Trigger::Api)
+        ]
+        .map(|(i, t)| (i.to_string(), t))
+    );
+    // Opening again finds it healthy: nothing more set aside, nothing added twice.
+    drop(store);
+    let store = crate::run::open_history(&db).expect("open");
+    assert!(store.set_aside().is_none() && !store.is_new());
+    assert_eq!(store.list(10, None).expect("list").len(), 3);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 23: a 0-byte history beside run folders is not silently a new empty history: it is
+/// set aside and the runs are listed again.
+#[test]
+fn issue_23_an_empty_history_file_beside_run_folders_is_rebuilt() {
+    let dir = temp_dir("zero-bytes");
+    let db = dir.join(HISTORY_FILE);
+    {
+        let store = Store::open(&db).expect("open");
+        recorded_runs(&store, &dir, &["a", "b"]);
+    }
+    std::fs::write(&db, b"").expect("truncate");
+    for suffix in ["-wal", "-shm"] {
+        let _ = std::fs::remove_file(dir.join(format!("{HISTORY_FILE}{suffix}")));
+    }
+    let store = crate::run::open_history(&db).expect("rebuilt");
+    let aside = store.set_aside().expect("set aside");
+    assert!(aside.why.contains("empty"), "{aside:?}");
+    assert_eq!(store.list(10, None).expect("list").len(), 2);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 23: one row that does not read back is skipped with a warning; the others list.
+#[test]
+fn issue_23_one_bad_row_does_not_fail_the_list() {
+    let dir = temp_dir("bad-row");
+    let db = dir.join(HISTORY_FILE);
+    let store = Store::open(&db).expect("open");
+    recorded_runs(&store, &dir, &["good1", "good2"]);
+    store
+        .lock()
+        .execute(
+            "INSERT INTO runs (run_id, trigger, mode, outcome, started_unix_s, config_origin)
+             VALUES ('bad', 'teleport', 'calibrate', 'exploded', 1500.0, 'x')",
+            [],
+        )
+        .expect("bad row");
+    let listed: Vec<String> = store
+        .list(10, None)
+        .expect("list")
+        .into_iter()
+        .map(|r| r.run_id)
+        .collect();
+    assert_eq!(listed, ["good2", "good1"]);
+    let _ = std::fs::remove_dir_all(&dir);
 }

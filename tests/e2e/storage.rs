@@ -169,3 +169,57 @@ fn issue_23_the_daemon_refuses_runs_while_the_disk_is_full() {
     drop(daemon);
     drop(rig);
 }
+
+/// Issue 23: a history whose pages were damaged is set aside (kept, named in the log and the
+/// status) when the daemon starts, and rebuilt from the run folders with every run listed.
+#[test]
+fn issue_23_a_corrupted_history_is_set_aside_and_rebuilt() {
+    let Some(_) = shared("issue_23_a_corrupted_history_is_set_aside_and_rebuilt") else {
+        return;
+    };
+    let dir = TempDir::new("history-damaged");
+    let (robot_ip, camera_ip) = ("127.0.0.179", "127.0.0.180");
+    let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let cfg = daemon::config(&dir, robot_ip, camera_ip, "");
+    let mut ids = Vec::new();
+    for _ in 0..2 {
+        let out = calibrate(&cfg);
+        assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
+        ids.push(out.json()["run_id"].as_str().expect("run id").to_string());
+    }
+    let db = dir.join("data/history.sqlite");
+    let mut bytes = std::fs::read(&db).expect("history");
+    assert!(bytes.len() > 8192, "{} bytes", bytes.len());
+    for (i, b) in bytes.iter_mut().enumerate().skip(4096) {
+        *b = (i as u32).wrapping_mul(2_654_435_761).to_le_bytes()[1];
+    }
+    std::fs::write(&db, &bytes).expect("damage the history");
+
+    let daemon = start_daemon(&dir, "daemon", &cfg);
+    let api = format!("{robot_ip}:8650");
+    let (code, body) = http(&api, "GET", "/api/status", None);
+    assert_eq!(code, 200, "{body}");
+    let st: serde_json::Value = serde_json::from_str(&body).expect("status JSON");
+    let aside = st["history_set_aside"]["path"].as_str().unwrap_or_default();
+    assert!(aside.contains("history.sqlite.damaged-"), "{st}");
+    assert_eq!(
+        std::fs::read(aside).expect("kept"),
+        bytes,
+        "not kept as it was"
+    );
+    assert!(daemon.log().contains(aside), "{}", daemon.log());
+    let (code, body) = http(&api, "GET", "/api/runs", None);
+    assert_eq!(code, 200, "{body}");
+    let doc: serde_json::Value = serde_json::from_str(&body).expect("runs JSON");
+    let mut listed: Vec<String> = doc["runs"]
+        .as_array()
+        .expect("runs")
+        .iter()
+        .map(|r| r["run_id"].as_str().unwrap_or_default().to_string())
+        .collect();
+    listed.sort();
+    ids.sort();
+    assert_eq!(listed, ids, "{body}");
+    drop(daemon);
+    drop(rig);
+}
