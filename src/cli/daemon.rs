@@ -49,6 +49,7 @@ where
 
 pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
+    raise_fd_limit();
     let model = load_model(&cfg)?;
     let path = history_path(&cfg);
     let store = tokio::task::spawn_blocking(move || handeye::run::open_history(&path))
@@ -82,4 +83,32 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     .await;
     eprintln!("handeye daemon stopped");
     Ok(ExitCode::SUCCESS)
+}
+
+/// Raises the soft limit on open files to the hard one: the API's connections
+/// (`handeye::daemon::listener::MAX_CONNECTIONS` and those waiting) come on top of the
+/// robot's, the camera's and the history's. The systemd unit sets both with `LimitNOFILE=`
+/// (and forbids this call); a refusal is logged, never fatal.
+fn raise_fd_limit() {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit/setrlimit with a valid, initialised struct.
+    if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } != 0 {
+        return;
+    }
+    if limit.rlim_cur < limit.rlim_max {
+        let wanted = libc::rlimit {
+            rlim_cur: limit.rlim_max,
+            rlim_max: limit.rlim_max,
+        };
+        if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &wanted) } != 0 {
+            tracing::debug!(
+                "open-file limit stays {}: {}",
+                limit.rlim_cur,
+                std::io::Error::last_os_error()
+            );
+        }
+    }
 }

@@ -27,6 +27,7 @@ use std::sync::Arc;
 
 use crate::calib::export::{ExportMeta, Exports};
 use crate::config::Config;
+use crate::daemon::listener::RateLimit;
 use crate::daemon::{DaemonHandle, Frontend, Refusal};
 use crate::record::Trigger;
 use crate::report::{DriftLimits, DriftPoint};
@@ -57,6 +58,8 @@ const NO_TOKEN: &str =
 const DRIFT_RUNS: usize = 1000;
 /// Largest drift chart `GET /api/drift.png` draws, px.
 const MAX_CHART: usize = 2000;
+/// Drift charts drawn at once (the others wait).
+const CHARTS_AT_ONCE: usize = 2;
 
 /// The web page and its assets, compiled into the binary (cells are offline: nothing comes
 /// from elsewhere).
@@ -233,14 +236,8 @@ impl Frontend for Api {
             Ok(addr) => tracing::info!("HTTP API on http://{addr}/"),
             Err(e) => tracing::warn!("HTTP API listening, address unknown: {e}"),
         }
-        let app = router(handle, self.token, self.site)
-            .into_make_service_with_connect_info::<SocketAddr>();
-        if let Err(e) = axum::serve(listener, app)
-            .with_graceful_shutdown(shutdown.cancelled_owned())
-            .await
-        {
-            tracing::error!("the HTTP API stopped: {e}");
-        }
+        let app = router(handle, self.token, self.site);
+        super::listener::serve(listener, app, shutdown).await;
     }
 }
 
@@ -250,6 +247,10 @@ struct AppState {
     handle: DaemonHandle,
     token: Option<Arc<str>>,
     site: Arc<Site>,
+    /// Each client's allowance on the routes that read files or draw ([`rate_limited`]).
+    rate: Arc<RateLimit>,
+    /// Charts drawn at once (each holds its pixels: up to 16 MB at the largest size).
+    charts: Arc<tokio::sync::Semaphore>,
 }
 
 /// The API's routes over `handle`; `token: None` refuses everything that moves the arm.
@@ -258,16 +259,25 @@ pub fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router
         handle,
         token: token.map(Arc::from),
         site: Arc::new(site),
+        rate: Arc::new(RateLimit::default()),
+        charts: Arc::new(tokio::sync::Semaphore::new(CHARTS_AT_ONCE)),
     };
+    // The routes that read a run's files, the history or draw: limited per client.
+    let expensive = Router::new()
+        .route("/api/runs/{id}/report.png", get(report_picture))
+        .route("/api/runs/{id}/exports", get(exports))
+        .route("/api/drift", get(drift))
+        .route("/api/drift.png", get(drift_png))
+        .route_layer(axum::middleware::from_fn_with_state(
+            state.clone(),
+            rate_limited,
+        ));
     Router::new()
         .route("/", get(index))
         .route("/app.js", get(app_js))
         .route("/app.css", get(app_css))
         .route("/favicon.svg", get(favicon))
-        .route("/api/runs/{id}/report.png", get(report_picture))
-        .route("/api/runs/{id}/exports", get(exports))
-        .route("/api/drift", get(drift))
-        .route("/api/drift.png", get(drift_png))
+        .merge(expensive)
         .route("/api/status", get(status))
         .route("/api/calibrate", post(calibrate))
         .route("/api/check", post(check))
@@ -381,6 +391,32 @@ fn authorize(
         ));
     }
     Ok(())
+}
+
+/// Answers 429 (with `Retry-After`) when the client has used its allowance on the expensive
+/// routes ([`RateLimit`]: a burst of 8, then 2 a second).
+async fn rate_limited(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    req: Request,
+    next: Next,
+) -> Response {
+    if let Err(wait_s) = state.rate.take(peer.ip()) {
+        let mut answer = ApiError::new(
+            StatusCode::TOO_MANY_REQUESTS,
+            format!(
+                "too many requests for pictures, charts and exports from {}; wait {wait_s:.1} s",
+                peer.ip()
+            ),
+        )
+        .into_response();
+        let secs = wait_s.ceil().max(1.0) as u64;
+        if let Ok(v) = HeaderValue::from_str(&secs.to_string()) {
+            answer.headers_mut().insert(header::RETRY_AFTER, v);
+        }
+        return answer;
+    }
+    next.run(req).await
 }
 
 /// Refuses a request announcing a body larger than [`BODY_LIMIT`] before any handler runs.
@@ -613,6 +649,13 @@ async fn drift_png(
     let (checks, calibrations) = drift_data(&state).await?;
     let limits = state.site.drift_limits;
     let points: Vec<DriftPoint> = checks.into_iter().map(|(_, p)| p).collect();
+    // At most CHARTS_AT_ONCE charts in memory; the others wait their turn.
+    let Ok(_drawing) = state.charts.acquire().await else {
+        return Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "the daemon is stopping",
+        ));
+    };
     let drawn = tokio::task::spawn_blocking(move || {
         crate::report::drift_chart(&points, &calibrations, limits, w, h)
     })
@@ -1017,6 +1060,32 @@ mod tests {
             }
             panic!("the run never ended");
         }
+    }
+
+    /// Issue 23: charts, pictures and exports are limited per client: a burst, then 429 with
+    /// `Retry-After`; the other routes and the other clients are not affected.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn issue_23_expensive_routes_are_rate_limited_per_client() {
+        with_rig("rate-limit", None, |rig| async move {
+            let burst = crate::daemon::listener::RateLimit::BURST as usize;
+            for k in 0..burst {
+                // (JSON: this client reads answers as text.)
+                let a = rig.get("/api/drift").await;
+                assert_eq!(a.code, 200, "request {k}: {}", a.body);
+            }
+            let a = rig.get("/api/drift.png?width=2000&height=2000").await;
+            assert_eq!(a.code, 429, "{}", a.body);
+            assert!(a.header("retry-after").is_some(), "{}", a.head);
+            assert!(a.json()["error"].as_str().unwrap_or("").contains("wait"));
+            assert_eq!(rig.get("/api/drift").await.code, 429);
+            assert_eq!(rig.get("/api/status").await.code, 200);
+            tokio::time::sleep(Duration::from_secs_f64(
+                1.1 / crate::daemon::listener::RateLimit::PER_SECOND,
+            ))
+            .await;
+            assert_eq!(rig.get("/api/drift").await.code, 200, "refilled");
+        })
+        .await;
     }
 
     #[derive(Debug)]

@@ -8,6 +8,7 @@
 //! The binary builds the concrete robot and camera from the configuration and calls [`run`].
 
 pub mod api;
+pub mod listener;
 mod metrics;
 mod notify;
 mod pendant;

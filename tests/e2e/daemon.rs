@@ -452,3 +452,102 @@ fn the_daemon_queues_when_told_and_reconnects_after_the_rig_restarts() {
     assert_eq!(st["last"]["outcome"], "accepted", "{st}\n{}", daemon.log());
     assert_eq!(st["drift_alarm"], false, "{st}");
 }
+
+/// Issue 23: 2 000 idle connections — from 125 client addresses, against a daemon held to the
+/// common default of 1 024 file descriptors — leave the API answering: a calibration is
+/// started, `POST /api/cancel` stops it, and the status answers throughout.
+#[test]
+fn issue_23_two_thousand_idle_connections_leave_the_api_and_cancel_working() {
+    let Some(_) = shared("issue_23_two_thousand_idle_connections_leave_the_api_and_cancel_working")
+    else {
+        return;
+    };
+    let dir = TempDir::new("api-flood");
+    let (robot_ip, camera_ip) = ("127.0.0.181", "127.0.0.182");
+    // Slow moves: the calibration is still moving when it is cancelled.
+    let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let cfg = config(&dir, robot_ip, camera_ip, "");
+    let text = std::fs::read_to_string(&cfg).expect("config");
+    let slow = text.replace(
+        "max_joint_speed_rad_s = 1.0",
+        "max_joint_speed_rad_s = 0.05",
+    );
+    assert_ne!(slow, text, "{text}");
+    std::fs::write(&cfg, slow).expect("config");
+    let daemon = start_daemon(&dir, "daemon", &cfg);
+    let nofile = libc::rlimit {
+        rlim_cur: 1024,
+        rlim_max: 1024,
+    };
+    // SAFETY: prlimit(2) on our own child with a valid rlimit; no memory is shared.
+    let r = unsafe {
+        libc::prlimit(
+            daemon.pid(),
+            libc::RLIMIT_NOFILE,
+            &nofile,
+            std::ptr::null_mut(),
+        )
+    };
+    assert_eq!(r, 0, "prlimit: {}", std::io::Error::last_os_error());
+    let api = format!("{robot_ip}:8650");
+    let target: std::net::SocketAddr = api.parse().expect("address");
+
+    // 2 000 connections that send nothing, 16 from each of 125 addresses.
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    let t = Instant::now();
+    let idle: Vec<tokio::net::TcpStream> = rt.block_on(async {
+        let mut held = Vec::new();
+        for k in 0..2000u32 {
+            let from = std::net::SocketAddr::from(([127, 0, 1, 1 + (k % 125) as u8], 0));
+            let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+            socket.bind(from).expect("bind");
+            if let Ok(Ok(s)) =
+                tokio::time::timeout(Duration::from_secs(2), socket.connect(target)).await
+            {
+                held.push(s);
+            }
+        }
+        held
+    });
+    eprintln!(
+        "{} idle connections opened in {:.1} s",
+        idle.len(),
+        t.elapsed().as_secs_f64()
+    );
+    assert!(idle.len() > 1500, "only {} connections opened", idle.len());
+
+    let t = Instant::now();
+    let (code, body) = http(&api, "GET", "/api/status", None);
+    assert_eq!(code, 200, "{body}\n{}", daemon.log());
+    let status_s = t.elapsed().as_secs_f64();
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}\n{}", daemon.log());
+    wait_status(&api, secs(30), "the calibration moves", |s| {
+        s["current"]["stage"] == "move"
+    });
+    let t = Instant::now();
+    let (code, body) = http(&api, "POST", "/api/cancel", Some(TOKEN));
+    let cancel_s = t.elapsed().as_secs_f64();
+    assert_eq!(code, 200, "{body}\n{}", daemon.log());
+    assert_eq!(json(&body)["cancelled"], true, "{body}");
+    let st = wait_status(&api, secs(30), "the cancelled run ends", |s| {
+        s["state"] == "idle" && s["last"]["outcome"].is_string()
+    });
+    assert_eq!(st["last"]["outcome"], "aborted", "{st}");
+    eprintln!("under 2000 idle connections: status in {status_s:.3} s, cancel in {cancel_s:.3} s");
+    assert!(
+        status_s < 5.0 && cancel_s < 5.0,
+        "{status_s} s / {cancel_s} s"
+    );
+    assert!(
+        !daemon.log().contains("Too many open files"),
+        "{}",
+        daemon.log()
+    );
+    drop(idle);
+    drop(daemon);
+    drop(rig);
+}

@@ -265,9 +265,14 @@ impl Daemon {
         }
     }
 
+    /// Its process id.
+    pub(crate) fn pid(&self) -> i32 {
+        i32::try_from(self.child.id()).expect("pid fits in i32")
+    }
+
     /// Sends `signal` (e.g. `libc::SIGTERM`, `libc::SIGKILL`) to it.
     pub(crate) fn signal(&self, signal: i32) {
-        let pid = i32::try_from(self.child.id()).expect("pid fits in i32");
+        let pid = self.pid();
         // SAFETY: kill(2) on our own child's pid has no memory effects.
         let r = unsafe { libc::kill(pid, signal) };
         assert_eq!(r, 0, "kill({pid}, {signal}) failed");
