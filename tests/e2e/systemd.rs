@@ -115,6 +115,9 @@ fn unit_keeps_notify_watchdog_and_hardening() {
         "SystemCallArchitectures=native",
         "SystemCallFilter=@system-service",
         "CapabilityBoundingSet=",
+        "LimitNOFILE=4096",
+        "MemoryMax=2G",
+        "TasksMax=512",
         "WantedBy=multi-user.target",
     ] {
         assert!(
