@@ -39,6 +39,10 @@ pub use types::*;
 
 /// Largest configuration file read (the example, every key commented, is ~10 kB).
 pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+/// Most joint targets `views.joints` may list (each one is moved to, captured and registered).
+pub const MAX_VIEW_TARGETS: usize = 32;
+/// Most boxes `views.obstacles` may list (every target and path sample is checked against each).
+pub const MAX_OBSTACLES: usize = 256;
 
 /// A configuration that could not be used. Every variant but [`ConfigError::Read`] names the
 /// origin, the 1-based line and, where there is one, the dotted key (`robot.ports.rtde`,

@@ -565,3 +565,29 @@ fn issue_23_hostile_config_files_are_refused_quickly() {
     let _ = std::fs::remove_dir_all(&dir);
     assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", t0.elapsed());
 }
+
+/// Issue 23: a config cannot ask for unbounded work: at most [`super::MAX_VIEW_TARGETS`] joint
+/// targets and [`super::MAX_OBSTACLES`] obstacles, each refusal naming the key and the limit.
+#[test]
+fn issue_23_view_targets_and_obstacles_are_capped() {
+    let target = "[0, -1.57, 0, -1.57, 0, 0]";
+    let joints = |n: usize| {
+        format!(
+            "{MINIMAL}\n[views]\nmode = \"joints\"\njoints = [{}]\n",
+            vec![target; n].join(", ")
+        )
+    };
+    assert!(parse(&joints(super::MAX_VIEW_TARGETS)).is_ok());
+    let e = parse(&joints(100_000)).expect_err("too many targets");
+    assert_eq!(e.key(), Some("views.joints"), "{e}");
+    assert!(e.to_string().contains("at most 32"), "{e}");
+    let obstacles = |n: usize| {
+        let one =
+            "[[views.obstacles]]\nname = \"box\"\ncentre_m = [1, 1, 0]\nsize_m = [0.1, 0.1, 0.1]\n";
+        format!("{MINIMAL}\n{}", one.repeat(n))
+    };
+    assert!(parse(&obstacles(super::MAX_OBSTACLES)).is_ok());
+    let e = parse(&obstacles(super::MAX_OBSTACLES + 1)).expect_err("too many obstacles");
+    assert_eq!(e.key(), Some("views.obstacles"), "{e}");
+    assert!(e.to_string().contains("at most 256"), "{e}");
+}

@@ -643,6 +643,16 @@ impl Ctx<'_> {
                         "mode = \"joints\" needs at least one target: `joints = [[q1, q2, q3, q4, q5, q6]]` in rad, URDF order (base, shoulder, elbow, wrist 1, 2, 3)",
                     ));
                 }
+                if joints.len() > super::MAX_VIEW_TARGETS {
+                    return Err(self.invalid(
+                        "views.joints",
+                        format!(
+                            "{} joint targets; at most {} are allowed (each is moved to, captured and registered): keep the few views that see the base best",
+                            joints.len(),
+                            super::MAX_VIEW_TARGETS
+                        ),
+                    ));
+                }
                 for (i, q) in joints.iter().enumerate() {
                     for (j, x) in q.iter().enumerate() {
                         self.check(&format!("views.joints[{i}][{j}]"), *x, ranges::JOINT)?;
@@ -700,6 +710,16 @@ impl Ctx<'_> {
                 }
             }
         };
+        if v.obstacles.len() > super::MAX_OBSTACLES {
+            return Err(self.invalid(
+                "views.obstacles",
+                format!(
+                    "{} obstacles; at most {} are allowed (every target and path sample is checked against each): merge neighbouring boxes into one",
+                    v.obstacles.len(),
+                    super::MAX_OBSTACLES
+                ),
+            ));
+        }
         let mut obstacles = Vec::with_capacity(v.obstacles.len());
         for (i, o) in v.obstacles.into_iter().enumerate() {
             let key = format!("views.obstacles[{i}]");

@@ -58,6 +58,8 @@ const NO_TOKEN: &str =
 const DRIFT_RUNS: usize = 1000;
 /// Largest drift chart `GET /api/drift.png` draws, px.
 const MAX_CHART: usize = 2000;
+/// The shortest API token accepted (a short one is guessed by trying).
+pub const MIN_TOKEN_CHARS: usize = 16;
 /// Drift charts drawn at once (the others wait).
 const CHARTS_AT_ONCE: usize = 2;
 
@@ -195,13 +197,21 @@ fn read_token(path: &Path, check_mode: bool) -> anyhow::Result<String> {
     }
     #[cfg(not(unix))]
     let _ = check_mode;
-    let text = std::fs::read_to_string(path)
+    // A regular file of bounded size, read as the configuration is: a FIFO or a device would
+    // block or never end.
+    let text = handeye_hal::limits::read_text_file(path, crate::config::MAX_CONFIG_BYTES)
         .with_context(|| format!("reading the API token file {shown} (daemon.token_file)"))?;
     let token = text.trim();
     if token.is_empty() {
         bail!(
             "the API token file {shown} is empty; put a long random token in it, e.g. \
              `openssl rand -hex 32 > {shown}; chmod 600 {shown}`"
+        );
+    }
+    if token.len() < MIN_TOKEN_CHARS {
+        bail!(
+            "the API token in {shown} has {} characters; use at least {MIN_TOKEN_CHARS} random              ones, e.g. `openssl rand -hex 32 > {shown}; chmod 600 {shown}`",
+            token.len()
         );
     }
     if !token.bytes().all(|b| b.is_ascii_graphic()) {
@@ -1434,8 +1444,32 @@ mod tests {
             Api::from_config_with(&cfg, None).expect_err("empty")
         );
         assert!(e.contains("empty"), "{e}");
-        write("two words", 0o600);
+        write("two words, both long enough", 0o600);
         assert!(Api::from_config_with(&cfg, None).is_err());
+        // Issue 23: a 1-character token is refused, saying how long and how to make one.
+        write("x", 0o600);
+        let e = format!(
+            "{:#}",
+            Api::from_config_with(&cfg, None).expect_err("short")
+        );
+        assert!(
+            e.contains("at least 16") && e.contains("openssl rand"),
+            "{e}"
+        );
+        // Issue 23: a FIFO as token file is refused at once, not waited on.
+        let fifo = dir.join("token.fifo");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .expect("mkfifo runs");
+        assert!(made.success());
+        std::fs::set_permissions(&fifo, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+        cfg.daemon.token_file = Some(fifo.clone());
+        let t = std::time::Instant::now();
+        let e = format!("{:#}", Api::from_config_with(&cfg, None).expect_err("FIFO"));
+        assert!(e.contains("FIFO"), "{e}");
+        assert!(t.elapsed() < Duration::from_secs(1), "{:?}", t.elapsed());
+        cfg.daemon.token_file = Some(file.clone());
 
         cfg.daemon.token_file = Some(dir.join("missing"));
         assert!(Api::from_config_with(&cfg, None).is_err());
@@ -1445,10 +1479,10 @@ mod tests {
         let creds = dir.join("credentials");
         std::fs::create_dir_all(&creds).expect("dir");
         let cred = creds.join("token");
-        std::fs::write(&cred, "from-systemd\n").expect("write");
+        std::fs::write(&cred, "from-systemd-0123456789\n").expect("write");
         std::fs::set_permissions(&cred, std::fs::Permissions::from_mode(0o440)).expect("chmod");
         let api = Api::from_config_with(&cfg, Some(&creds)).expect("credential");
-        assert_eq!(api.token.as_deref(), Some("from-systemd"));
+        assert_eq!(api.token.as_deref(), Some("from-systemd-0123456789"));
         // A credentials directory without `token` falls back to the file.
         cfg.daemon.token_file = Some(file.clone());
         write(TOKEN, 0o600);
