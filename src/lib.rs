@@ -5,7 +5,7 @@
 //! higher one (no circles). `floors.rs` (a test) reads the sources and fails when one climbs.
 //!
 //! ```text
-//! daemon            (+ api, the web page, metrics, pendant, schedule, systemd notify)
+//! daemon            (+ api and its listener, the web page, metrics, pendant, schedule, systemd notify)
 //!   run             (+ the recorder: history row, record, picture, pruning)
 //!     storage, store        the run folder (one owner) | the history (SQLite only)
 //!       report              the report picture and the drift chart
