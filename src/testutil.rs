@@ -43,7 +43,3 @@ pub(crate) fn shared_robot(relative: &str) -> Option<Arc<RobotModel>> {
         .or_insert_with(|| Arc::new(RobotModel::load(&path).expect("shared robot loads")));
     Some(Arc::clone(model))
 }
-
-#[path = "../tests/e2e/small_fs.rs"]
-mod small_fs;
-pub(crate) use small_fs::SmallFs;

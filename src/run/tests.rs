@@ -30,7 +30,11 @@ use crate::model::RobotModel;
 use crate::plan::{ViewConstraints, ViewPlanner};
 use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 use crate::storage::{CURRENT_DIR, RUNS_DIR};
-use crate::testutil::{shared_robot, SmallFs};
+use crate::testutil::shared_robot;
+// The tmpfs of the end-to-end tests (a real full disk), shared with them.
+#[path = "../../tests/e2e/small_fs.rs"]
+mod small_fs;
+use small_fs::SmallFs;
 
 /// Where the fake arm starts: the UR home pose, upright, clear of everything.
 const HOME: [f64; 6] = [0.0, -FRAC_PI_2, FRAC_PI_2, -FRAC_PI_2, -FRAC_PI_2, 0.0];
