@@ -136,22 +136,15 @@ mod tests {
     use super::*;
     use crate::calib::posed_model_with_controller_kinematics;
     use crate::calib::testutil::toy_robot;
-    use crate::model::RobotModel;
+    use crate::testutil::shared_robot;
     use handeye_hal::ur_dh::PhysicalArm;
-
-    fn ur5e() -> Option<RobotModel> {
-        let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("../shared/robots/ur/ur5e/ur5e.urdf");
-        RobotModel::load(&path).ok()
-    }
 
     /// Posed by a controller's DH, what is left of each fitted link's error is a turn about
     /// and a slide along its calibrated axis; over many physical arms their spread is what the
     /// prior says (the registration's σ stands on it).
     #[test]
     fn the_axis_freedoms_prior_matches_what_physical_arms_leave() {
-        let Some(model) = ur5e() else {
-            crate::testutil::skip("no ../shared/robots/ur/ur5e");
+        let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
             return;
         };
         let ur = model.ur_model().expect("a UR");

@@ -5,11 +5,10 @@
 mod camera;
 pub mod cell;
 mod noise;
-pub mod raycast;
 mod scan;
 mod settings;
 
-pub use crate::camera::Intrinsics;
+pub use crate::geometry::Intrinsics;
 pub use crate::model::KinematicError;
 pub use camera::look_at;
 pub use cell::{CellOptions, CellPart};

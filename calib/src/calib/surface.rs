@@ -56,17 +56,17 @@ pub struct PosedJoint {
 
 /// A triangle of the posed model (model frame, metres).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Triangle {
-    pub(crate) a: Point3<f64>,
-    pub(crate) b: Point3<f64>,
-    pub(crate) c: Point3<f64>,
+pub struct Triangle {
+    pub a: Point3<f64>,
+    pub b: Point3<f64>,
+    pub c: Point3<f64>,
     /// Outward unit normal (counter-clockwise winding seen from outside).
-    pub(crate) n: Vector3<f64>,
+    pub n: Vector3<f64>,
 }
 
 impl Triangle {
     /// Closest point of the triangle to `p` (Ericson, Real-Time Collision Detection 5.1.5).
-    pub(crate) fn closest_point(&self, p: &Point3<f64>) -> Point3<f64> {
+    pub fn closest_point(&self, p: &Point3<f64>) -> Point3<f64> {
         let (a, b, c) = (self.a, self.b, self.c);
         let ab = b - a;
         let ac = c - a;
@@ -110,17 +110,17 @@ const MAX_COARSE_SAMPLES: usize = 3000;
 
 /// A surface sample: position and normal in the model frame.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Sample {
-    pub(crate) p: Point3<f64>,
-    pub(crate) n: Vector3<f64>,
-    pub(crate) tri: u32,
-    pub(crate) depth: u8,
+pub struct Sample {
+    pub p: Point3<f64>,
+    pub n: Vector3<f64>,
+    pub tri: u32,
+    pub depth: u8,
 }
 
 /// The sampled posed model.
 #[derive(Debug)]
-pub(crate) struct ModelSurface {
-    pub(crate) triangles: Vec<Triangle>,
+pub struct ModelSurface {
+    pub triangles: Vec<Triangle>,
     /// Dense samples of every part (the k-d tree's points, same order).
     pub(crate) samples: Vec<Sample>,
     pub(crate) tree: KdTree,
@@ -133,7 +133,7 @@ pub(crate) struct ModelSurface {
 impl ModelSurface {
     /// Samples the posed model: `spacing_m` between samples on fitted parts (twice that on the
     /// others, which only explain scan points), `coarse_spacing_m` for the scoring set.
-    pub(crate) fn new(
+    pub fn new(
         model: &PosedModel,
         fit_depth: usize,
         spacing_m: f64,
@@ -219,7 +219,7 @@ impl ModelSurface {
 
     /// Nearest surface sample to `p` (model frame) within `max_dist_m`.
     #[inline]
-    pub(crate) fn nearest(&self, p: &Point3<f64>, max_dist_m: f64) -> Option<&Sample> {
+    pub fn nearest(&self, p: &Point3<f64>, max_dist_m: f64) -> Option<&Sample> {
         self.tree
             .nearest([p.x as f32, p.y as f32, p.z as f32], max_dist_m as f32)
             .map(|(i, _)| &self.samples[i])

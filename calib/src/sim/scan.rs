@@ -10,9 +10,9 @@ use handeye_hal::ur_dh::{DhParams, PhysicalArm};
 use handeye_hal::PointCloud;
 
 use super::cell::{build_cell, CellOptions, CellPart};
-use super::raycast::{raycast, DepthImage, SceneMesh};
 use super::SimSettings;
 use super::{Intrinsics, ScanNoise};
+use crate::geometry::raycast::{raycast, DepthImage, SceneMesh};
 use crate::model::{GeometryKind, KinematicError, ModelError, RobotModel, TriMesh};
 
 /// Where the camera is.

@@ -1,4 +1,5 @@
-//! Helpers shared by the unit tests of the core.
+//! Helpers shared by the unit tests of the calibration core and (feature `testutil`) of the
+//! crates above it.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -7,8 +8,8 @@ use std::sync::{Arc, Mutex, OnceLock};
 use crate::model::RobotModel;
 
 /// `../shared/robots`, or `None` (with a message) when it is absent; panics under CI.
-pub(crate) fn shared_robots() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/robots");
+pub fn shared_robots() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/robots");
     if dir.is_dir() {
         return Some(dir);
     }
@@ -27,13 +28,13 @@ pub(crate) fn shared_robots() -> Option<PathBuf> {
 /// Prints a SKIP line where the person running the tests sees it: straight to the process's
 /// stderr, which the test harness does not capture (`eprintln!` output is shown only for
 /// failing tests, so a passing skip would be silent).
-pub(crate) fn skip(line: &str) {
+pub fn skip(line: &str) {
     use std::io::Write as _;
     let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// A robot from `../shared/robots` (e.g. `ur/ur5e/ur5e.urdf`), loaded once per test binary.
-pub(crate) fn shared_robot(relative: &str) -> Option<Arc<RobotModel>> {
+pub fn shared_robot(relative: &str) -> Option<Arc<RobotModel>> {
     static CACHE: OnceLock<Mutex<HashMap<String, Arc<RobotModel>>>> = OnceLock::new();
     let path = shared_robots()?.join(relative);
     let cache = CACHE.get_or_init(Default::default);

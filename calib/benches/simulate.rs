@@ -1,4 +1,4 @@
-//! Scan-simulator speed: `cargo bench --bench simulate`.
+//! Scan-simulator speed: `cargo bench -p handeye-calib --bench simulate`.
 //!
 //! A UR5e seen from a wrist camera (a generated view), at 2448×2048 and 1280×960: exact ray
 //! casting alone, and a whole simulated scan (ray casting + sensor model + cell). Needs
@@ -7,14 +7,14 @@ use std::hint::black_box;
 use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use handeye::model::{GeometryKind, RobotModel, TriMesh};
-use handeye::plan::{ViewConstraints, ViewPlanner};
-use handeye::sim::raycast::{raycast, SceneMesh};
-use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
+use handeye_calib::geometry::raycast::{raycast, SceneMesh};
+use handeye_calib::model::{GeometryKind, RobotModel, TriMesh};
+use handeye_calib::plan::{ViewConstraints, ViewPlanner};
+use handeye_calib::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 use handeye_hal::nalgebra::{Isometry3, Vector3};
 
 fn bench(c: &mut Criterion) {
-    let urdf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/robots/ur/ur5e/ur5e.urdf");
+    let urdf = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/robots/ur/ur5e/ur5e.urdf");
     let Ok(model) = RobotModel::load(&urdf) else {
         eprintln!("SKIP: {} not found", urdf.display());
         return;

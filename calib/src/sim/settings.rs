@@ -89,7 +89,10 @@ mod tests {
 
     #[test]
     fn the_example_file_loads_and_unknown_keys_are_refused() {
-        let example = concat!(env!("CARGO_MANIFEST_DIR"), "/config/simulator.example.toml");
+        let example = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../config/simulator.example.toml"
+        );
         let s = SimSettings::load(Path::new(example)).expect("example settings load");
         assert_eq!(
             s,
@@ -115,7 +118,7 @@ mod tests {
         use rand::{Rng, SeedableRng};
         let example = std::fs::read_to_string(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/config/simulator.example.toml"
+            "/../config/simulator.example.toml"
         ))
         .expect("example");
         let mut rng = rand::rngs::StdRng::seed_from_u64(16);

@@ -1271,7 +1271,8 @@ mod tests {
 #[cfg(test)]
 mod ur_tests {
     use super::*;
-    use crate::calib::testutil::{look_at, render, shared_robots, Scene};
+    use crate::calib::testutil::{look_at, render, Scene};
+    use crate::testutil::shared_robots;
 
     /// Real UR5e meshes, ray-cast with the test renderer (floor, light noise), no prior.
     #[test]
@@ -1329,12 +1330,12 @@ mod ur_tests {
 #[cfg(test)]
 mod sim_tests {
     use super::*;
-    use crate::calib::testutil::shared_robots;
     use crate::calib::{gate, solve, FrameInput, GateThresholds, Mount, SolveOptions};
     use crate::sim::{
         simulate_scan, Intrinsics, KinematicError, Placement, ScanRequest, SimSettings,
         SimulatedScan,
     };
+    use crate::testutil::shared_robots;
 
     /// The UR5e, a wrist camera 8 cm off the flange tilted 15°, and planned views of its base.
     pub(super) type Ur5eViews = (RobotModel, Isometry3<f64>, Vec<Vec<f64>>);
@@ -1545,9 +1546,9 @@ mod sim_tests {
 #[cfg(test)]
 mod controller_kinematics_tests {
     use super::*;
-    use crate::calib::testutil::shared_robots;
     use crate::calib::{solve, FrameInput, Mount, SolveOptions};
     use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
+    use crate::testutil::shared_robots;
 
     /// `flange_from_camera` from one registration and the reported flange pose: its errors
     /// against `mount` (mm, degrees), as `bench::run_trial` measures them.
@@ -1782,8 +1783,8 @@ mod controller_kinematics_tests {
 #[cfg(test)]
 mod issue_3_tests {
     use crate::bench::{run_trial, BenchConfig};
-    use crate::calib::testutil::shared_robots;
     use crate::model::RobotModel;
+    use crate::testutil::shared_robots;
     use nalgebra::{Isometry3, Vector3};
 
     fn robot(name: &str) -> Option<RobotModel> {

@@ -12,17 +12,17 @@ use handeye_hal::PointCloud;
 use nalgebra::{Point3, Vector3};
 
 use super::CalibError;
-use crate::camera::Intrinsics;
+use crate::geometry::Intrinsics;
 
 /// A range image of the scan (camera frame, metres; NaN = no measurement).
 #[derive(Debug)]
-pub(crate) struct RangeImage<'a> {
+pub struct RangeImage<'a> {
     /// The grid's pinhole model (`width`×`height` = `points.len()`).
-    pub(crate) cam: Intrinsics,
-    pub(crate) points: Cow<'a, [Point3<f32>]>,
+    pub cam: Intrinsics,
+    pub points: Cow<'a, [Point3<f32>]>,
     /// Whether the grid is the camera's own (true) or a synthetic splat of an unorganized cloud.
     #[cfg_attr(not(test), allow(dead_code))]
-    pub(crate) organized: bool,
+    pub organized: bool,
 }
 
 impl<'a> RangeImage<'a> {
@@ -31,11 +31,7 @@ impl<'a> RangeImage<'a> {
     /// from every `sample_step`-th pixel. Per cell, not per grid point: a scan whose invalid
     /// pixels repeat with the grid's period (every 7th pixel, a sensor's dead columns) would
     /// leave a grid of points nothing.
-    pub(crate) fn grid(
-        &self,
-        target: usize,
-        sample_step: usize,
-    ) -> impl Iterator<Item = usize> + '_ {
+    pub fn grid(&self, target: usize, sample_step: usize) -> impl Iterator<Item = usize> + '_ {
         let valid = self
             .points
             .iter()
@@ -56,7 +52,7 @@ impl<'a> RangeImage<'a> {
     }
 
     /// Wraps a scan; fails when it has too few valid points to be a scan of anything.
-    pub(crate) fn new(scan: &'a PointCloud) -> Result<Self, CalibError> {
+    pub fn new(scan: &'a PointCloud) -> Result<Self, CalibError> {
         let valid = scan.valid_count();
         if valid < 500 {
             return Err(CalibError::EmptyScan {
@@ -77,7 +73,7 @@ impl<'a> RangeImage<'a> {
 
     /// The measured point at pixel `i`, or `None` where the scan has no data.
     #[inline]
-    pub(crate) fn point(&self, i: usize) -> Option<Point3<f32>> {
+    pub fn point(&self, i: usize) -> Option<Point3<f32>> {
         let p = self.points[i];
         if p.z.is_finite() && p.x.is_finite() && p.y.is_finite() && p.z > 0.0 {
             Some(p)
@@ -88,7 +84,7 @@ impl<'a> RangeImage<'a> {
 
     /// The measured depth (z, metres) at pixel `i`, NaN where the scan has no data.
     #[inline]
-    pub(crate) fn depth(&self, i: usize) -> f32 {
+    pub fn depth(&self, i: usize) -> f32 {
         let p = self.points[i];
         if p.z > 0.0 {
             p.z
@@ -99,7 +95,7 @@ impl<'a> RangeImage<'a> {
 
     /// Unit normal at pixel `i` from the points about `radius_m` away along the grid (oriented
     /// towards the camera), or `None` where neighbours are missing or lie on another surface.
-    pub(crate) fn normal(&self, i: usize, radius_m: f64) -> Option<Vector3<f64>> {
+    pub fn normal(&self, i: usize, radius_m: f64) -> Option<Vector3<f64>> {
         let p = self.point(i)?;
         let w = self.cam.width as usize;
         let (u, v) = ((i % w) as isize, (i / w) as isize);

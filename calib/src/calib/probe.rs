@@ -1,6 +1,6 @@
 //! Diagnostics of single benchmark trials (ignored tests, run by hand):
 //! `PROBE_ROBOTS=ur3e,ur5e PROBE_VIEWS=10 PROBE_SPV=2 PROBE_ONLY=ur3e:5:0 PROBE_SEED=1 RUST_LOG=handeye=debug
-//! cargo test --release --lib calib::probe -- --ignored --nocapture` replays the trials of
+//! cargo test --release -p handeye-calib --lib calib::probe -- --ignored --nocapture` replays the trials of
 //! `handeye bench` (same seeds) and prints each contender against the truth.
 
 use std::path::PathBuf;
@@ -20,7 +20,9 @@ fn probe_bench_trials() {
         .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
         .with_test_writer()
         .try_init();
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/robots");
+    let Some(root) = crate::testutil::shared_robots() else {
+        return;
+    };
     let robots = env("PROBE_ROBOTS", "ur3e,ur5e,ur10e,ur16e,ur20,ur30");
     let views: usize = env("PROBE_VIEWS", "10").parse().expect("PROBE_VIEWS");
     let spv: usize = env("PROBE_SPV", "2").parse().expect("PROBE_SPV");

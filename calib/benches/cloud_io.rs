@@ -1,4 +1,4 @@
-//! Point-cloud file speed: `cargo bench --bench cloud_io`.
+//! Point-cloud file speed: `cargo bench -p handeye-calib --bench cloud_io`.
 //!
 //! Binary PLY read/write at full Zivid 2+ resolution (2448×2048, 5 M points) and at
 //! 1280×960, binary PCD read, ASCII PLY/PCD read at 640×480, and voxel downsampling.
@@ -7,7 +7,7 @@ use std::hint::black_box;
 use std::path::PathBuf;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use handeye::cloud::{read_cloud, voxel_downsample, write_pcd, write_ply, PlyEncoding};
+use handeye_calib::cloud::{read_cloud, voxel_downsample, write_pcd, write_ply, PlyEncoding};
 use handeye_hal::nalgebra::Point3;
 use handeye_hal::PointCloud;
 

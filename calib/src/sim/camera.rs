@@ -1,4 +1,4 @@
-//! Where the simulated camera looks from. Its pinhole model is [`crate::camera::Intrinsics`]
+//! Where the simulated camera looks from. Its pinhole model is [`crate::geometry::Intrinsics`]
 //! (re-exported as [`crate::sim::Intrinsics`]).
 
 use nalgebra::{Point3, Vector3};

@@ -52,7 +52,7 @@ pub struct BenchConfig {
 /// the physical arm. Other arms (no DH set) draw per-joint origin errors from the settings'
 /// `kinematic_error` and report the true flange the same way. Settings whose
 /// `kinematic_error` is zero make every arm exactly its URDF.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BenchKinematics {
     /// The solver poses the nominal URDF (no calibration file, a controller that publishes
@@ -61,6 +61,26 @@ pub enum BenchKinematics {
     /// The solver poses the model by the calibrated DH set (the controller's kinematics or a
     /// `ur_calibration` file); arms without a DH set are solved as with `unknown`.
     Known,
+}
+
+impl BenchKinematics {
+    /// Every value, as the command line and the JSON name them.
+    pub const NAMES: [&'static str; 2] = ["unknown", "known"];
+}
+
+impl std::str::FromStr for BenchKinematics {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "unknown" => Ok(Self::Unknown),
+            "known" => Ok(Self::Known),
+            _ => Err(format!(
+                "`{s}` is not a kinematics; use one of: {}",
+                Self::NAMES.join(", ")
+            )),
+        }
+    }
 }
 
 impl BenchConfig {

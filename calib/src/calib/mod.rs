@@ -19,11 +19,11 @@ pub mod gate;
 mod kdtree;
 mod links;
 pub mod pipeline;
-pub(crate) mod range;
+pub mod range;
 pub mod register;
 pub mod report;
 pub mod solve;
-pub(crate) mod surface;
+pub mod surface;
 mod verify;
 
 /// Whether `b` is within `metres` and `degrees` of `a`, measured in `a`'s frame (for

@@ -11,8 +11,8 @@ use nalgebra::{Isometry3, Point3};
 use parry3d_f64::shape::ConvexPolyhedron;
 use rand::{Rng, SeedableRng};
 
+use crate::geometry::raycast::{raycast, SceneMesh};
 use crate::model::{GeometryKind, ModelError, RobotModel};
-use crate::sim::raycast::{raycast, SceneMesh};
 use crate::sim::Intrinsics;
 
 /// What a good calibration view must satisfy.

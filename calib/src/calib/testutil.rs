@@ -256,18 +256,3 @@ pub(crate) fn render(
         confidence: None,
     }
 }
-
-/// The robot models of `../shared/robots`, or `None` (the test skips) where they are missing;
-/// under CI they must be there.
-pub(crate) fn shared_robots() -> Option<std::path::PathBuf> {
-    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/robots");
-    if root.is_dir() {
-        return Some(root);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "../shared/robots is missing"
-    );
-    eprintln!("skipping: ../shared/robots not found");
-    None
-}
