@@ -57,15 +57,19 @@ pub struct PipelineOptions {
 }
 
 impl PipelineOptions {
-    /// Defaults for `mount`: no prior, nominal kinematics, default tuning and gate; for UR
-    /// models the report speaks in the controller's `base` frame.
+    /// Defaults for `mount`: no prior, nominal kinematics, default tuning (eye-to-hand: every
+    /// link fitted, no flange reach) and gate; for UR models the report speaks in the
+    /// controller's `base` frame.
     pub fn new(mount: Mount) -> Self {
-        let register = RegisterOptions {
-            max_camera_flange_distance_m: match mount {
-                Mount::EyeInHand => RegisterOptions::default().max_camera_flange_distance_m,
-                Mount::EyeToHand => None,
+        let register = match mount {
+            Mount::EyeInHand => RegisterOptions::default(),
+            // A fixed camera sees the whole arm (often from a metre or more): every link is
+            // fitted, each posed at the measured joints with its kinematic error.
+            Mount::EyeToHand => RegisterOptions {
+                max_camera_flange_distance_m: None,
+                fit_chain_depth: usize::MAX,
+                ..RegisterOptions::default()
             },
-            ..RegisterOptions::default()
         };
         Self {
             mount,

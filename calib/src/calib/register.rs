@@ -47,7 +47,10 @@ use crate::model::{GeometryKind, KinematicError, RobotModel};
 #[derive(Debug, Clone, PartialEq)]
 pub struct RegisterOptions {
     /// Links up to this many movable joints from the root are fitted (0 base, 1 shoulder, 2
-    /// upper arm). Deeper links carry more kinematic error; they only explain scan points.
+    /// upper arm; `usize::MAX` every link). Deeper links carry more kinematic error; they only
+    /// explain scan points. A camera on the flange sees the base and the first links from
+    /// close by; a camera fixed in the cell sees the whole arm from afar, where every link's
+    /// surface counts (see [`crate::calib::PipelineOptions::new`]).
     pub fit_chain_depth: usize,
     /// Spacing of the model surface samples used for correspondences, metres.
     pub sample_spacing_m: f64,
@@ -390,6 +393,11 @@ pub fn register_posed(
         });
     }
     let range = RangeImage::new(scan)?;
+    // Every distance below was chosen for scans as precise as the simulator's structured-light
+    // camera; a noisier scan widens them in proportion to its own measured noise.
+    let noise_m = range.noise_m();
+    let k = noise_scale(noise_m);
+    let m = |metres: f64| metres * k;
     let surface = ModelSurface::new(
         model,
         opts.fit_chain_depth,
@@ -411,27 +419,27 @@ pub fn register_posed(
     let t1 = Instant::now();
     let quick_stages = [
         Stage {
-            gate_m: 0.03,
-            kernel_m: 0.01,
+            gate_m: m(0.03),
+            kernel_m: m(0.01),
             scale: false,
             iterations: 6,
         },
         Stage {
-            gate_m: 0.012,
-            kernel_m: 0.004,
+            gate_m: m(0.012),
+            kernel_m: m(0.004),
             scale: false,
             iterations: 5,
         },
         Stage {
-            gate_m: 0.006,
-            kernel_m: 0.002,
+            gate_m: m(0.006),
+            kernel_m: m(0.002),
             scale: false,
             iterations: 6,
         },
     ];
     let quick_tol = Tolerances {
-        matched_m: 0.004,
-        free_m: 0.008,
+        matched_m: m(0.004),
+        free_m: m(0.008),
     };
     // Eye-in-hand: the camera is near the flange (see `max_camera_flange_distance_m`).
     let reach = opts
@@ -448,7 +456,7 @@ pub fn register_posed(
         if !plausible_seed(camera_from_model) {
             return None;
         }
-        let pts = polish_pool.select(&range, &surface, camera_from_model, 500, 0.03);
+        let pts = polish_pool.select(&range, &surface, camera_from_model, 500, m(0.03));
         let r = icp(
             &pts,
             &surface,
@@ -487,7 +495,7 @@ pub fn register_posed(
     }
     let mut planes_found = 0;
     if !from_prior {
-        let pts = coarse::oriented_subsample(&range, 30_000, 0.008);
+        let pts = coarse::oriented_subsample(&range, 30_000, m(0.008));
         // Hough hypotheses on `planes`, each polished (the strongest also half-turned).
         let search = |planes: &[coarse::Plane], max_out: usize| {
             let hyps = coarse::hypotheses(&range, &surface, &pts, planes, max_out, &plausible_seed);
@@ -579,27 +587,27 @@ pub fn register_posed(
     let t2 = Instant::now();
     let fine_stages = [
         Stage {
-            gate_m: 0.01,
-            kernel_m: 0.003,
+            gate_m: m(0.01),
+            kernel_m: m(0.003),
             scale: false,
             iterations: 8,
         },
         Stage {
-            gate_m: 0.005,
-            kernel_m: 0.0015,
+            gate_m: m(0.005),
+            kernel_m: m(0.0015),
             scale: opts.estimate_depth_scale,
             iterations: 10,
         },
         Stage {
-            gate_m: 0.004,
-            kernel_m: 0.001,
+            gate_m: m(0.004),
+            kernel_m: m(0.001),
             scale: opts.estimate_depth_scale,
             iterations: 15,
         },
     ];
     let tol = Tolerances {
-        matched_m: opts.match_tolerance_m,
-        free_m: opts.free_space_tolerance_m,
+        matched_m: m(opts.match_tolerance_m),
+        free_m: m(opts.free_space_tolerance_m),
     };
     // Contenders: the best candidate and distinct runners-up that score almost as well. Each
     // is fitted exactly and judged on dense evidence times sharpness: a nearly symmetric wrong
@@ -632,7 +640,7 @@ pub fn register_posed(
     // Fits `c` exactly on up to `points` scan points through `stages`; `None` if the fit fails
     // or leaves too little of the model covered.
     let fit = |c: &Isometry3<f64>, points: usize, stages: &[Stage]| {
-        let pts = pool.select(&range, &surface, c, points, 0.01);
+        let pts = pool.select(&range, &surface, c, points, m(0.01));
         let fine = icp(&pts, &surface, &c.inverse(), 1.0, stages)?;
         let pose = fine.model_from_camera.inverse();
         // The verification looks at the scan as measured: apply the scale to the model.
@@ -696,8 +704,8 @@ pub fn register_posed(
     if tracing::enabled!(tracing::Level::DEBUG) {
         for f in &fitted {
             let loose = Tolerances {
-                matched_m: 0.01,
-                free_m: 0.02,
+                matched_m: m(0.01),
+                free_m: m(0.02),
             };
             let all = evidence(&range, &surface.samples, &f.1, 255, loose);
             let fitd = evidence(&range, &surface.samples, &f.1, surface.fit_depth, tol);
@@ -738,11 +746,11 @@ pub fn register_posed(
             &surface,
             &camera_from_model,
             opts.max_icp_points,
-            0.01,
+            m(0.01),
         );
         let stage = Stage {
-            gate_m: 0.004,
-            kernel_m: 0.001,
+            gate_m: m(0.004),
+            kernel_m: m(0.001),
             scale: fine.scale_estimated,
             iterations: 15,
         };
@@ -754,7 +762,14 @@ pub fn register_posed(
             &[stage],
             &link_prior,
         ) {
-            Some((r, z)) if near_pose(&r.model_from_camera.inverse(), &camera_from_model) => {
+            Some((r, z))
+                if super::within(
+                    &r.model_from_camera.inverse(),
+                    &camera_from_model,
+                    m(0.01),
+                    2.0 * k,
+                ) =>
+            {
                 tracing::debug!(z = ?z.as_slice(), "link parameters (prior 1σ units)");
                 (r.model_from_camera.inverse(), r)
             }
@@ -809,6 +824,19 @@ pub fn register_posed(
         depth_scale: estimate.scale_estimated.then_some(1.0 / estimate.kappa),
         timings_ms: timings,
     })
+}
+
+/// The noise of the scans every distance of [`register_posed`] was chosen for, metres: the
+/// simulator's structured-light camera measures 0.02–0.15 mm by [`RangeImage::noise_m`] (its
+/// documented 0.25 mm at 1 m is the upper end of its range).
+const TUNED_NOISE_M: f64 = 0.25e-3;
+
+/// How much wider than tuned every distance of the registration is for a scan of this
+/// measured noise: 1 for scans as precise as the tuning (or when the noise cannot be measured),
+/// the noise over [`TUNED_NOISE_M`] for noisier ones (a consumer RGB-D camera at 1.3 m measures
+/// about 0.7 mm: 2.9), at most 8.
+fn noise_scale(noise_m: Option<f64>) -> f64 {
+    noise_m.map_or(1.0, |n| (n / TUNED_NOISE_M).clamp(1.0, 8.0))
 }
 
 /// Turns of `best` about the model's z axis (10° steps) that explain the scan best, up to

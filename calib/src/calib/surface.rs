@@ -139,6 +139,8 @@ impl ModelSurface {
         spacing_m: f64,
         coarse_spacing_m: f64,
     ) -> Self {
+        // Deeper than the deepest part fits nothing more (`usize::MAX` = every link).
+        let fit_depth = fit_depth.min(model.parts.iter().map(|p| p.chain_depth).max().unwrap_or(0));
         let mut triangles = Vec::new();
         let mut samples = Vec::new();
         let mut coarse = Vec::new();
