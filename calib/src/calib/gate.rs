@@ -4,7 +4,7 @@
 use nalgebra::Isometry3;
 
 use super::register::Registration;
-use super::solve::{distance, HandEyeSolution};
+use super::solve::{distance, HandEyeSolution, Residual};
 use super::Outcome;
 
 /// Thresholds of [`gate`]; units are in the names. `Default` is conservative.
@@ -186,13 +186,24 @@ pub fn gate(
             ));
         }
     }
-    let dropped = solution.frames.iter().filter(|f| !f.used).count();
+    let dropped: Vec<&Residual> = solution.frames.iter().filter(|f| !f.used).collect();
     if !solution.frames.is_empty()
-        && dropped as f64 > th.max_dropped_fraction * solution.frames.len() as f64
+        && dropped.len() as f64 > th.max_dropped_fraction * solution.frames.len() as f64
     {
+        let named: Vec<String> = dropped
+            .iter()
+            .map(|f| {
+                format!(
+                    "frame {} ({:.1} mm / {:.2}° off)",
+                    f.index, f.translation_mm, f.rotation_deg
+                )
+            })
+            .collect();
         reasons.push(format!(
-            "{dropped} of {} frames disagree with the others and were dropped: the views are inconsistent",
-            solution.frames.len()
+            "{} of {} frames disagree with the others and were dropped: {}; the views are inconsistent",
+            dropped.len(),
+            solution.frames.len(),
+            named.join(", ")
         ));
     }
     if let Some(prev) = previous {
@@ -303,5 +314,14 @@ mod tests {
         let sol2 = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
         let v = gate(&[reg.clone(), reg.clone()], &sol2, None, &th);
         assert!(!v.passed(), "{v:?}");
+        // The dropped frame is named, with how far off it is.
+        let dropped = sol2.frames.iter().find(|f| !f.used).expect("one dropped");
+        assert!(
+            v.reasons.iter().any(|r| r.contains(&format!(
+                "dropped: frame {} (3.0 mm",
+                dropped.index
+            ))),
+            "{v:?}"
+        );
     }
 }
