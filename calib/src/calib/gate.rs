@@ -317,10 +317,9 @@ mod tests {
         // The dropped frame is named, with how far off it is.
         let dropped = sol2.frames.iter().find(|f| !f.used).expect("one dropped");
         assert!(
-            v.reasons.iter().any(|r| r.contains(&format!(
-                "dropped: frame {} (3.0 mm",
-                dropped.index
-            ))),
+            v.reasons
+                .iter()
+                .any(|r| r.contains(&format!("dropped: frame {} (3.0 mm", dropped.index))),
             "{v:?}"
         );
     }
