@@ -101,7 +101,9 @@ pub(super) fn judge(
     // Fits `c` exactly on up to `points` scan points through `stages`; `None` if the fit fails
     // or leaves too little of the model covered.
     let fit = |c: &Isometry3<f64>, points: usize, stages: &[Stage]| {
-        let pts = p.pool.select(&p.range, &p.surface, c, points, p.m(0.01));
+        let pts = p
+            .pool
+            .select(&p.range, &p.surface, c, points, p.m(0.01), p.m(0.003));
         let fine = icp(&pts, &p.surface, &c.inverse(), 1.0, stages)?;
         let pose = fine.model_from_camera.inverse();
         // The verification looks at the scan as measured: apply the scale to the model.

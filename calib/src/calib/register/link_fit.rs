@@ -39,6 +39,7 @@ pub(super) fn refine_with_links(
         &camera_from_model,
         opts.max_icp_points,
         p.m(0.01),
+        p.m(0.003),
     );
     let stage = Stage {
         gate_m: p.m(0.004),

@@ -146,6 +146,7 @@ impl Prepared<'_> {
             camera_from_model,
             500,
             self.m(0.03),
+            self.m(0.003),
         );
         let r = icp(
             &pts,
@@ -188,7 +189,8 @@ impl ScanPool {
         ScanPool { idx }
     }
 
-    /// Up to `n` scan points (with normals) near the fitted links posed by `camera_from_model`.
+    /// Up to `n` scan points (with normals, from neighbours `normal_radius_m` away) near the
+    /// fitted links posed by `camera_from_model`, `margin_m` around them.
     pub(super) fn select(
         &self,
         range: &RangeImage<'_>,
@@ -196,6 +198,7 @@ impl ScanPool {
         camera_from_model: &Isometry3<f64>,
         n: usize,
         margin_m: f64,
+        normal_radius_m: f64,
     ) -> Vec<Oriented> {
         let (lo, hi) = surface.fit_bounds(margin_m);
         let model_from_camera = camera_from_model.inverse();
@@ -218,7 +221,7 @@ impl ScanPool {
         let mut k = 0.0;
         while (k as usize) < near.len() {
             let i = near[k as usize];
-            if let (Some(p), Some(nn)) = (range.point(i), range.normal(i, 0.003)) {
+            if let (Some(p), Some(nn)) = (range.point(i), range.normal(i, normal_radius_m)) {
                 out.push(Oriented {
                     p: p.cast::<f64>(),
                     n: nn,
