@@ -3,10 +3,11 @@
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
 
-/// Imperfections of a structured-light 3D camera.
+/// Imperfections of a 3D camera.
 ///
-/// Defaults are those of a good industrial camera (Zivid 2+ class) at 0.4–0.8 m; `none()`
-/// gives a perfect sensor for geometry tests.
+/// Defaults are those of a good industrial structured-light camera (Zivid 2+ class) at
+/// 0.4–0.8 m; [`ScanNoise::active_stereo`] is a consumer active-stereo camera (RealSense D4xx
+/// class), fitted to real frames; `none()` gives a perfect sensor for geometry tests.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ScanNoise {
@@ -28,6 +29,14 @@ pub struct ScanNoise {
     pub depth_scale_error: f64,
     /// Nothing is measured beyond this range (metres).
     pub max_range_m: f64,
+    /// Depth resolution: reported depths are multiples of this (metres; 0 = continuous). A
+    /// RealSense reports whole millimetres.
+    pub depth_step_m: f64,
+    /// Standard deviation at 1 m of a smooth, spatially correlated depth error (metres; grows
+    /// with z²): the wavy surfaces of stereo matching. 0 = none.
+    pub ripple_sigma_at_1m_m: f64,
+    /// Wavelength of that ripple across the image, pixels.
+    pub ripple_period_px: f64,
 }
 
 /// Largest `noise.depth_sigma_at_1m_m`, metres.
@@ -50,6 +59,9 @@ impl Default for ScanNoise {
             random_dropout_probability: 0.01,
             depth_scale_error: 0.0015,
             max_range_m: 2.5,
+            depth_step_m: 0.0,
+            ripple_sigma_at_1m_m: 0.0,
+            ripple_period_px: 40.0,
         }
     }
 }
@@ -66,6 +78,32 @@ impl ScanNoise {
             random_dropout_probability: 0.0,
             depth_scale_error: 0.0,
             max_range_m: f64::INFINITY,
+            depth_step_m: 0.0,
+            ripple_sigma_at_1m_m: 0.0,
+            ripple_period_px: 40.0,
+        }
+    }
+
+    /// A consumer active-stereo camera (Intel RealSense D4xx class) at 0.3–2.5 m: noise growing
+    /// with z², whole-millimetre depths, wavy surfaces, grazing surfaces lost early, more
+    /// dropouts and flying pixels than structured light, and a depth-scale error of about
+    /// 1 %. The per-pixel noise is fitted to five real frames of a D4xx at 0.8–1.8 m
+    /// (`../shared/realdata/xarm7_realsense`): the registration's own noise estimate
+    /// ([`crate::calib::range::RangeImage::noise_m`]) gives the simulated scan at the real
+    /// camera pose what it gives the real frames (see `calib/tests/realdata.rs`).
+    pub fn active_stereo() -> Self {
+        Self {
+            depth_sigma_at_1m_m: 0.000_42,
+            flying_pixel_probability: 0.8,
+            flying_pixel_edge_m: 0.01,
+            dropout_start_deg: 60.0,
+            dropout_full_deg: 80.0,
+            random_dropout_probability: 0.03,
+            depth_scale_error: 0.01,
+            max_range_m: 2.5,
+            depth_step_m: 0.001,
+            ripple_sigma_at_1m_m: 0.000_5,
+            ripple_period_px: 40.0,
         }
     }
 
@@ -133,6 +171,30 @@ impl ScanNoise {
             "",
             "a relative error: 0.01 is 1 %",
         )?;
+        check_range(
+            "noise.depth_step_m",
+            self.depth_step_m,
+            0.0,
+            0.01,
+            "m",
+            "0 for continuous depths, 0.001 for whole millimetres",
+        )?;
+        check_range(
+            "noise.ripple_sigma_at_1m_m",
+            self.ripple_sigma_at_1m_m,
+            0.0,
+            MAX_DEPTH_SIGMA_AT_1M_M,
+            "m",
+            "a 3D camera with more ripple than that at 1 m sees no robot",
+        )?;
+        check_range(
+            "noise.ripple_period_px",
+            self.ripple_period_px,
+            2.0,
+            10_000.0,
+            "pixels",
+            "the ripple's wavelength across the image",
+        )?;
         if self.max_range_m != f64::INFINITY {
             check_range(
                 "noise.max_range_m",
@@ -169,6 +231,16 @@ impl ScanNoise {
         };
         (z + n) * (1.0 + self.depth_scale_error)
     }
+
+    /// `z` rounded to the sensor's depth resolution.
+    pub(crate) fn quantized(&self, z: f64) -> f64 {
+        if self.depth_step_m > 0.0 {
+            (z / self.depth_step_m).round() * self.depth_step_m
+        } else {
+            z
+        }
+    }
+
 }
 
 #[cfg(test)]

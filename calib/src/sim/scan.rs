@@ -264,6 +264,7 @@ pub(crate) fn base_radius(model: &RobotModel) -> f64 {
 fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) -> PointCloud {
     let (w, h) = (image.width, image.height);
     let depth = &image.depth;
+    let ripple = &Ripple::new(noise, seed);
     let points: Vec<Point3<f32>> = (0..h)
         .into_par_iter()
         .flat_map_iter(|v| {
@@ -301,7 +302,8 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
                         }
                     }
                 }
-                let z = noise.noisy_depth(z, incidence, &mut rng);
+                let z = z + ripple.at(u, v, z);
+                let z = noise.quantized(noise.noisy_depth(z, incidence, &mut rng));
                 if z > noise.max_range_m {
                     return nan;
                 }
@@ -316,6 +318,45 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
         points,
         intensity: None,
         confidence: None,
+    }
+}
+
+/// The smooth depth error of [`ScanNoise::ripple_sigma_at_1m_m`]: four plane waves across the
+/// image in directions and phases drawn from the scan's seed, summed to unit variance.
+#[derive(Debug)]
+struct Ripple {
+    /// (wave vector in radians per pixel along u, along v; phase) per wave.
+    waves: [(f64, f64, f64); 4],
+    sigma_at_1m_m: f64,
+}
+
+impl Ripple {
+    fn new(noise: &ScanNoise, seed: u64) -> Self {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0x5249_5050_4c45);
+        let k = std::f64::consts::TAU / noise.ripple_period_px;
+        let waves = std::array::from_fn(|_| {
+            let dir = rng.random_range(0.0..std::f64::consts::TAU);
+            let phase = rng.random_range(0.0..std::f64::consts::TAU);
+            (k * dir.cos(), k * dir.sin(), phase)
+        });
+        Self {
+            waves,
+            sigma_at_1m_m: noise.ripple_sigma_at_1m_m,
+        }
+    }
+
+    /// The ripple's depth error at pixel `(u, v)` for a true depth `z` (metres).
+    fn at(&self, u: usize, v: usize, z: f64) -> f64 {
+        if self.sigma_at_1m_m == 0.0 {
+            return 0.0;
+        }
+        let sum: f64 = self
+            .waves
+            .iter()
+            .map(|(ku, kv, phase)| (ku * u as f64 + kv * v as f64 + phase).sin())
+            .sum();
+        // Four unit sinusoids with independent phases: variance 4 · 1/2.
+        self.sigma_at_1m_m * z * z * sum / 2f64.sqrt()
     }
 }
 
