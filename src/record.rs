@@ -312,26 +312,6 @@ pub struct CaptureRecord {
     pub frames: Vec<FrameRecord>,
 }
 
-impl Mount {
-    /// The unknown a run of this mount solves for: `flange_from_camera` (eye-in-hand) or
-    /// `base_from_camera` (eye-to-hand).
-    pub fn unknown_name(self) -> &'static str {
-        match self {
-            Mount::EyeInHand => "flange_from_camera",
-            Mount::EyeToHand => "base_from_camera",
-        }
-    }
-
-    /// The frame the unknown is expressed in, as the exports name it: `tool0` (the flange,
-    /// eye-in-hand) or `base` (the controller's base, eye-to-hand).
-    pub fn parent_frame(self) -> &'static str {
-        match self {
-            Mount::EyeInHand => "tool0",
-            Mount::EyeToHand => "base",
-        }
-    }
-}
-
 /// The measured result.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ResultRecord {

@@ -1,6 +1,6 @@
-//! The pinhole camera model, [`Intrinsics`] (used by the simulator and by registration's range
-//! image), and the camera backends that need no network protocol, both implementing
-//! [`handeye_hal::DepthCamera`]:
+//! The camera backends that need no network protocol, both implementing
+//! [`handeye_hal::DepthCamera`] (the pinhole model itself is geometry,
+//! [`crate::geometry::Intrinsics`]):
 //!
 //! - [`FileCamera`] replays PLY/PCD files in order (offline runs, tests, recorded scans).
 //! - [`ExecCamera`] runs a configured command once per frame; the command captures and writes a
@@ -18,7 +18,6 @@
 
 mod exec;
 mod file;
-mod intrinsics;
 mod reconnect;
 
 use std::path::PathBuf;
@@ -30,7 +29,6 @@ use crate::cloud::CloudError;
 
 pub use exec::{ExecCamera, ENV_EXPOSURE_US, ENV_FRAME, ENV_OUTPUT};
 pub use file::{FileCamera, WhenExhausted};
-pub use intrinsics::Intrinsics;
 pub use reconnect::{Backoff, ReconnectingCamera};
 
 /// Everything that can go wrong in the file and exec camera backends.

@@ -40,11 +40,16 @@ pub(crate) struct Args {
     /// Every UR view is a different factory-calibrated arm whose controller reports its true
     /// flange pose; `unknown`: the solver poses the nominal URDF, `known`: it is given the
     /// arm's calibrated kinematics (as from the controller or a ur_calibration file).
-    #[arg(long, value_enum, default_value = "unknown")]
+    #[arg(long, default_value = "unknown", value_parser = kinematics_arg)]
     kinematics: BenchKinematics,
     /// Write every trial and the summaries as JSON here.
     #[arg(long)]
     out: Option<PathBuf>,
+}
+
+/// `--kinematics`: one of [`BenchKinematics::NAMES`].
+fn kinematics_arg(s: &str) -> Result<BenchKinematics, String> {
+    s.parse()
 }
 
 /// Most views per robot and scans per view a benchmark takes (the paper's protocol is 30 × 3).

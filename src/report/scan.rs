@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use crate::calib::range::RangeImage;
 use crate::calib::surface::ModelSurface;
 use crate::calib::PosedModel;
-use crate::sim::raycast::{raycast, DepthImage, SceneMesh};
+use crate::geometry::raycast::{raycast, DepthImage, SceneMesh};
 
 /// Distances beyond this are not looked up (the point is background, clutter or a misfit), m.
 const SEARCH_M: f64 = 0.02;

@@ -15,6 +15,7 @@ pub mod genicam;
 pub mod gvcp;
 pub mod gvsp;
 pub mod sim;
+mod udp_batch;
 
 pub use camera::{CaptureStats, GigeCamera, StreamOptions};
 pub use client::{discover, ControlConfig, ControlGuard, Discovered, GvcpClient};

@@ -14,6 +14,7 @@ use crate::decode::pfnc;
 use crate::error::{GigeError, Result};
 use crate::gvcp::{self, cap, code, reg, Ack, Command, CommandKind};
 use crate::gvsp::{self, Block, PartInfo};
+use crate::udp_batch::{send_all, SEND_BATCH};
 
 const XML_ADDRESS: u32 = 0x0010_0000;
 const TEMPLATE: &str = include_str!("camera.xml");
@@ -1073,70 +1074,6 @@ fn send_resends(
         }
         if let Err(e) = sock.send_to(&p, dest) {
             tracing::debug!("sim camera: resend failed: {e}");
-        }
-    }
-}
-
-/// Datagrams per `sendmmsg` call.
-const SEND_BATCH: usize = 32;
-
-/// Send the queued datagrams to `dest` (one `sendmmsg` per [`SEND_BATCH`] on Linux) and clear
-/// the queue. A full host queue (`ENOBUFS`) gets one short back-off; other errors drop the rest.
-#[cfg(target_os = "linux")]
-fn send_all(sock: &UdpSocket, dest: SocketAddr, out: &mut Vec<&[u8]>) {
-    use std::os::fd::AsRawFd;
-    let addr = socket2::SockAddr::from(dest);
-    let mut sent = 0;
-    let mut retried = false;
-    while sent < out.len() {
-        let rest = &out[sent..(sent + SEND_BATCH).min(out.len())];
-        // SAFETY: all-zero bytes are valid iovec/mmsghdr values (null pointers, zero lengths).
-        let mut iovs: [libc::iovec; SEND_BATCH] = unsafe { std::mem::zeroed() };
-        let mut msgs: [libc::mmsghdr; SEND_BATCH] = unsafe { std::mem::zeroed() };
-        for ((p, iov), m) in rest.iter().zip(iovs.iter_mut()).zip(msgs.iter_mut()) {
-            iov.iov_base = p.as_ptr().cast_mut().cast();
-            iov.iov_len = p.len();
-            m.msg_hdr.msg_name = addr.as_ptr().cast_mut().cast();
-            m.msg_hdr.msg_namelen = addr.len();
-            m.msg_hdr.msg_iov = iov;
-            m.msg_hdr.msg_iovlen = 1;
-        }
-        // SAFETY: the first `rest.len()` headers point at live iovecs over live packets and at
-        // `addr`; the kernel only reads them (and writes `msg_len`).
-        let n = unsafe {
-            libc::sendmmsg(
-                sock.as_raw_fd(),
-                msgs.as_mut_ptr(),
-                rest.len() as libc::c_uint,
-                0,
-            )
-        };
-        if n >= 0 {
-            sent += n as usize;
-            continue;
-        }
-        let e = std::io::Error::last_os_error();
-        if e.raw_os_error() == Some(libc::ENOBUFS) && !retried {
-            // The host is not keeping up; back off briefly.
-            retried = true;
-            std::thread::sleep(Duration::from_micros(200));
-        } else {
-            tracing::debug!(
-                "sim camera: send failed, {} packets lost: {e}",
-                out.len() - sent
-            );
-            break;
-        }
-    }
-    out.clear();
-}
-
-/// Portable fallback: one `send_to` per datagram.
-#[cfg(not(target_os = "linux"))]
-fn send_all(sock: &UdpSocket, dest: SocketAddr, out: &mut Vec<&[u8]>) {
-    for p in out.drain(..) {
-        if let Err(e) = sock.send_to(p, dest) {
-            tracing::debug!("sim camera: send failed: {e}");
         }
     }
 }

@@ -1,0 +1,326 @@
+//! Pass/fail gate of a calibration: a result that is not supported by the data comes back
+//! rejected with reasons, never reported as good.
+
+use nalgebra::Isometry3;
+
+use super::register::Registration;
+use super::solve::{distance, HandEyeSolution, Residual};
+use super::Outcome;
+
+/// Thresholds of [`gate`]; units are in the names. `Default` is conservative.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GateThresholds {
+    /// Minimum fraction of the expected visible model surface with scan points on it.
+    pub min_coverage: f64,
+    /// Minimum support of each fitted link on its own (base, shoulder, upper arm; see
+    /// [`super::Quality::link_support`]): a link the scan sees through where the model puts it,
+    /// while the fit follows the others, means kinematics that are not the arm's.
+    pub min_link_support: f64,
+    /// Maximum fraction of the expected visible surface where the scan sees through the model.
+    pub max_free_space_violations: f64,
+    /// Maximum RMS point-to-surface residual, mm.
+    pub max_rmse_mm: f64,
+    /// Minimum fraction of scan points near the model that fit it.
+    pub min_inlier_fraction: f64,
+    /// Maximum 1-σ uncertainty of the camera position, per registration, mm.
+    pub max_uncertainty_translation_mm: f64,
+    /// Maximum 1-σ uncertainty of the camera rotation, per registration, degrees.
+    pub max_uncertainty_rotation_deg: f64,
+    /// Maximum disagreement of a used frame or view with the fused result, mm.
+    pub max_residual_translation_mm: f64,
+    /// Maximum disagreement of a used frame or view with the fused result, degrees.
+    pub max_residual_rotation_deg: f64,
+    /// Maximum fraction of frames the fusion dropped as outliers.
+    pub max_dropped_fraction: f64,
+    /// Maximum [`super::Quality::ambiguity`]: how well a different pose may explain the scan
+    /// relative to the result (the visible geometry is nearly symmetric above this).
+    pub max_ambiguity: f64,
+    /// Maximum |depth scale − 1| the registration may have estimated.
+    pub max_depth_scale_error: f64,
+    /// Maximum change from the previous calibration, mm (checked when one is given).
+    pub max_change_translation_mm: f64,
+    /// Maximum change from the previous calibration, degrees (checked when one is given).
+    pub max_change_rotation_deg: f64,
+}
+
+impl Default for GateThresholds {
+    fn default() -> Self {
+        GateThresholds {
+            min_coverage: 0.6,
+            min_link_support: 0.5,
+            max_free_space_violations: 0.03,
+            max_rmse_mm: 1.5,
+            min_inlier_fraction: 0.5,
+            max_uncertainty_translation_mm: 1.0,
+            max_uncertainty_rotation_deg: 0.2,
+            max_residual_translation_mm: 1.0,
+            max_residual_rotation_deg: 0.2,
+            max_dropped_fraction: 0.34,
+            max_ambiguity: 0.8,
+            max_depth_scale_error: 0.03,
+            max_change_translation_mm: 5.0,
+            max_change_rotation_deg: 1.0,
+        }
+    }
+}
+
+/// Outcome of [`gate`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Verdict {
+    /// [`Outcome::Accepted`] when the result may be used (written back), else
+    /// [`Outcome::Rejected`].
+    pub outcome: Outcome,
+    /// Why it failed (empty when passed), one sentence each.
+    pub reasons: Vec<String>,
+}
+
+impl Verdict {
+    /// Whether the gate accepted the result.
+    pub fn passed(&self) -> bool {
+        self.outcome == Outcome::Accepted
+    }
+}
+
+/// Checks every registration (index = frame index) and the fused solution; `previous` is the
+/// last accepted result in the same frame as `solution.estimate`.
+pub fn gate(
+    registrations: &[Registration],
+    solution: &HandEyeSolution,
+    previous: Option<&Isometry3<f64>>,
+    th: &GateThresholds,
+) -> Verdict {
+    let mut reasons = Vec::new();
+    for (i, r) in registrations.iter().enumerate() {
+        let q = &r.quality;
+        if q.coverage < th.min_coverage {
+            reasons.push(format!(
+                "frame {i}: only {:.0}% of the visible model surface is in the scan (min {:.0}%)",
+                100.0 * q.coverage,
+                100.0 * th.min_coverage
+            ));
+        }
+        for (k, c) in q.link_support.iter().enumerate() {
+            if let Some(c) = c.filter(|c| *c < th.min_link_support) {
+                reasons.push(format!(
+                    "frame {i}: the fitted links disagree: the scan sees through the {} where the model puts it beside the others (only {:.0}% of what it measured there is its surface, min {:.0}%); the kinematics the model is posed by are not the arm's: check robot.model and the controller's or file's calibration",
+                    match k {
+                        0 => "base",
+                        1 => "shoulder",
+                        _ => "upper arm",
+                    },
+                    100.0 * c,
+                    100.0 * th.min_link_support
+                ));
+            }
+        }
+        if q.free_space_violations > th.max_free_space_violations {
+            reasons.push(format!(
+                "frame {i}: the scan sees through {:.1}% of the posed model (max {:.1}%): wrong pose or wrong joints",
+                100.0 * q.free_space_violations,
+                100.0 * th.max_free_space_violations
+            ));
+        }
+        if q.rmse_mm > th.max_rmse_mm {
+            reasons.push(format!(
+                "frame {i}: residual RMS {:.2} mm (max {:.2} mm)",
+                q.rmse_mm, th.max_rmse_mm
+            ));
+        }
+        if q.inlier_fraction < th.min_inlier_fraction {
+            reasons.push(format!(
+                "frame {i}: only {:.0}% of scan points near the model fit it (min {:.0}%)",
+                100.0 * q.inlier_fraction,
+                100.0 * th.min_inlier_fraction
+            ));
+        }
+        if r.uncertainty.translation_mm > th.max_uncertainty_translation_mm
+            || r.uncertainty.rotation_deg > th.max_uncertainty_rotation_deg
+        {
+            reasons.push(format!(
+                "frame {i}: uncertainty {:.2} mm / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links",
+                r.uncertainty.translation_mm,
+                r.uncertainty.rotation_deg,
+                th.max_uncertainty_translation_mm,
+                th.max_uncertainty_rotation_deg
+            ));
+        }
+        if !r.degenerate_directions.is_empty() {
+            reasons.push(format!(
+                "frame {i}: the visible geometry leaves {} direction(s) unconstrained (e.g. yaw of a round base): show the shoulder and upper arm",
+                r.degenerate_directions.len()
+            ));
+        }
+        if q.ambiguity > th.max_ambiguity {
+            reasons.push(format!(
+                "frame {i}: a different pose explains the scan almost as well ({:.0}% of the result's support, max {:.0}%): the visible base and shoulder look nearly symmetric; show more of the upper arm",
+                100.0 * q.ambiguity,
+                100.0 * th.max_ambiguity
+            ));
+        }
+        if let Some(s) = r.depth_scale {
+            if (s - 1.0).abs() > th.max_depth_scale_error {
+                reasons.push(format!(
+                    "frame {i}: estimated depth scale {s:.4} is implausible (max error {:.1}%)",
+                    100.0 * th.max_depth_scale_error
+                ));
+            }
+        }
+    }
+    for f in solution.frames.iter().filter(|f| f.used) {
+        if f.translation_mm > th.max_residual_translation_mm
+            || f.rotation_deg > th.max_residual_rotation_deg
+        {
+            reasons.push(format!(
+                "frame {}: disagrees with the fused result by {:.2} mm / {:.3}° (max {:.2} mm / {:.3}°)",
+                f.index, f.translation_mm, f.rotation_deg, th.max_residual_translation_mm, th.max_residual_rotation_deg
+            ));
+        }
+    }
+    for v in solution.views.iter().filter(|v| v.used) {
+        if v.translation_mm > th.max_residual_translation_mm
+            || v.rotation_deg > th.max_residual_rotation_deg
+        {
+            reasons.push(format!(
+                "view {}: disagrees with the fused result by {:.2} mm / {:.3}°",
+                v.index, v.translation_mm, v.rotation_deg
+            ));
+        }
+    }
+    let dropped: Vec<&Residual> = solution.frames.iter().filter(|f| !f.used).collect();
+    if !solution.frames.is_empty()
+        && dropped.len() as f64 > th.max_dropped_fraction * solution.frames.len() as f64
+    {
+        let named: Vec<String> = dropped
+            .iter()
+            .map(|f| {
+                format!(
+                    "frame {} ({:.1} mm / {:.2}° off)",
+                    f.index, f.translation_mm, f.rotation_deg
+                )
+            })
+            .collect();
+        reasons.push(format!(
+            "{} of {} frames disagree with the others and were dropped: {}; the views are inconsistent",
+            dropped.len(),
+            solution.frames.len(),
+            named.join(", ")
+        ));
+    }
+    if let Some(prev) = previous {
+        let (t, r) = distance(prev, &solution.estimate);
+        if t > th.max_change_translation_mm || r > th.max_change_rotation_deg {
+            reasons.push(format!(
+                "the result moved {t:.2} mm / {r:.3}° from the previous calibration (max {:.2} mm / {:.3}°): check the camera mount",
+                th.max_change_translation_mm, th.max_change_rotation_deg
+            ));
+        }
+    }
+    Verdict {
+        outcome: if reasons.is_empty() {
+            Outcome::Accepted
+        } else {
+            Outcome::Rejected
+        },
+        reasons,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::register::{Quality, StageTimings, Uncertainty};
+    use crate::calib::solve::{solve, FrameInput, Mount, SolveOptions};
+    use nalgebra::{Matrix6, Vector3};
+
+    fn good_registration() -> Registration {
+        Registration {
+            camera_from_model: Isometry3::new(
+                Vector3::new(0.0, 0.0, 0.6),
+                Vector3::new(3.0, 0.0, 0.0),
+            ),
+            covariance_6x6: Matrix6::identity() * 1e-8,
+            uncertainty: Uncertainty {
+                translation_mm: 0.2,
+                rotation_deg: 0.02,
+            },
+            quality: Quality {
+                coverage: 0.9,
+                free_space_violations: 0.01,
+                rmse_mm: 0.3,
+                inlier_fraction: 0.9,
+                points_used: 5000,
+                visible_samples: 20000,
+                hypotheses: 3,
+                from_prior: false,
+                ambiguity: 0.2,
+                link_support: [Some(0.95), Some(0.9), Some(0.85)],
+            },
+            degenerate_directions: vec![],
+            depth_scale: Some(1.001),
+            timings_ms: StageTimings::default(),
+        }
+    }
+
+    #[test]
+    fn gate_passes_good_and_rejects_each_bad_property() {
+        let reg = good_registration();
+        let frames = [FrameInput {
+            view: 0,
+            camera_from_model: reg.camera_from_model,
+            model_from_flange: None,
+        }];
+        let sol = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
+        let th = GateThresholds::default();
+        assert!(gate(std::slice::from_ref(&reg), &sol, None, &th).passed());
+        type Spoil = Box<dyn Fn(&mut Registration)>;
+        let bad: Vec<Spoil> = vec![
+            Box::new(|r| r.quality.coverage = 0.3),
+            Box::new(|r| r.quality.free_space_violations = 0.2),
+            Box::new(|r| r.quality.rmse_mm = 3.0),
+            Box::new(|r| r.quality.inlier_fraction = 0.2),
+            Box::new(|r| r.uncertainty.translation_mm = 2.0),
+            Box::new(|r| r.uncertainty.rotation_deg = 0.5),
+            Box::new(|r| r.degenerate_directions.push(nalgebra::Vector6::z())),
+            Box::new(|r| r.depth_scale = Some(1.2)),
+            Box::new(|r| r.quality.ambiguity = 0.95),
+            // The upper arm is not where the model puts it beside the others (the model's
+            // kinematics are not the arm's).
+            Box::new(|r| r.quality.link_support[2] = Some(0.05)),
+        ];
+        for (k, f) in bad.iter().enumerate() {
+            let mut r = reg.clone();
+            f(&mut r);
+            let v = gate(&[r], &sol, None, &th);
+            assert!(!v.passed() && v.reasons.len() == 1, "case {k}: {v:?}");
+        }
+        // Drift from the previous calibration.
+        let prev = sol.estimate * Isometry3::translation(0.01, 0.0, 0.0);
+        assert!(!gate(std::slice::from_ref(&reg), &sol, Some(&prev), &th).passed());
+        // Two views that disagree: both stay "used" only if within thresholds; here they are
+        // 3 mm apart, so one is dropped and half the frames are gone.
+        let other = Isometry3::translation(0.003, 0.0, 0.0) * reg.camera_from_model;
+        let frames = [
+            FrameInput {
+                view: 0,
+                camera_from_model: reg.camera_from_model,
+                model_from_flange: None,
+            },
+            FrameInput {
+                view: 1,
+                camera_from_model: other,
+                model_from_flange: None,
+            },
+        ];
+        let sol2 = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
+        let v = gate(&[reg.clone(), reg.clone()], &sol2, None, &th);
+        assert!(!v.passed(), "{v:?}");
+        // The dropped frame is named, with how far off it is.
+        let dropped = sol2.frames.iter().find(|f| !f.used).expect("one dropped");
+        assert!(
+            v.reasons
+                .iter()
+                .any(|r| r.contains(&format!("dropped: frame {} (3.0 mm", dropped.index))),
+            "{v:?}"
+        );
+    }
+}

@@ -1,0 +1,255 @@
+//! The fitted moving links' kinematic error as parameters of the fit.
+//!
+//! The shoulder and upper arm are posed by the model's kinematics, and a real arm differs from
+//! its URDF by small errors of every joint (tenths of a millimetre and milliradian). The
+//! reported flange pose is the controller's, of the true arm; the model's links are not. A fit
+//! that trusts the links follows their error (a round base cannot hold the yaw), so the
+//! links' small displacements are estimated alongside the camera pose, each with a prior of the
+//! size the arm's errors have: the base carries what it knows, the moving links what they
+//! know beyond their error, and the covariance of the result includes what neither can tell
+//! apart.
+//!
+//! Two cases:
+//! - posed by the nominal model: every joint up to the fitted depth may be off by a small
+//!   rigid error (as [`KinematicError::sample`] draws it: a zero offset, a displacement along
+//!   three axes, a misalignment about two; the first joint only about and along its axis),
+//!   which moves every link beyond it;
+//! - posed by a controller's DH (its kinematics or a calibration file): each link is on its
+//!   calibrated axis, but the axes cannot tell how far along and how far turned about its own
+//!   axis a link sits (a joint's displacement there is the same axes as the next joint's; see
+//!   [`DhParams::link_frames`](handeye_hal::ur_dh::DhParams::link_frames)): two parameters per
+//!   link, that link alone.
+//!
+//! Parameters `z ~ N(0, I)`: the links of chain depth `d` are displaced (model frame, a point
+//! `x` moves by `t + ω × x`) by `(t, ω) = A_d · z`.
+
+use handeye_hal::ur_dh::PARALLEL_SINE;
+use nalgebra::{Matrix6xX, Point3, Vector3};
+
+use super::surface::PosedModel;
+use crate::model::KinematicError;
+
+/// `A_d` for the chain depths `1..=fit_depth` (entry `d − 1`), one column per kinematic
+/// parameter of the links' displacements, scaled by its prior 1σ; columns of parameters with
+/// σ = 0 are left out, so an arm known exactly has none.
+pub(crate) fn link_error_model(
+    model: &PosedModel,
+    fit_depth: usize,
+    error: &KinematicError,
+) -> Vec<Matrix6xX<f64>> {
+    // (6-vector per depth, σ) per parameter.
+    let mut columns: Vec<(Vec<[f64; 6]>, f64)> = Vec::new();
+    let twist = |t: Vector3<f64>, w: Vector3<f64>| [t.x, t.y, t.z, w.x, w.y, w.z];
+    // A turn about the line through `p` along `u`: a point x moves by (p × u) + u × x.
+    let turn = |p: &Point3<f64>, u: Vector3<f64>| twist(p.coords.cross(&u), u);
+    let depths = match &model.link_axes {
+        Some(axes) => {
+            let depths = fit_depth.min(axes.len());
+            for k in 1..=depths {
+                let (p, u) = (Point3::from(axes[k - 1].point), axes[k - 1].direction);
+                // How far turned: the next axis' displacement over its lever when the axes
+                // are parallel (the turn is read from where the next axis is), else the
+                // next axis' misalignment.
+                let turn_sigma = match axes.get(k) {
+                    Some(next) if u.cross(&next.direction).norm() < PARALLEL_SINE => {
+                        let r = next.point - p.coords;
+                        let lever = (r - u * r.dot(&u)).norm();
+                        error.link_length_sigma_m / lever.max(error.link_length_sigma_m.max(1e-3))
+                    }
+                    _ => error.axis_misalignment_sigma_rad,
+                };
+                let only = |v: [f64; 6]| {
+                    (1..=depths)
+                        .map(|d| if d == k { v } else { [0.0; 6] })
+                        .collect::<Vec<_>>()
+                };
+                columns.push((only(turn(&p, u)), turn_sigma));
+                columns.push((only(twist(u, Vector3::zeros())), error.link_length_sigma_m));
+            }
+            depths
+        }
+        None => {
+            let depths = fit_depth.min(model.joints.len());
+            for (k, joint) in model.joints.iter().enumerate().take(depths) {
+                let rotation = joint.model_from_joint.rotation;
+                let origin = Point3::from(joint.model_from_joint.translation.vector);
+                let axis = joint.axis.into_inner();
+                let u1 = crate::model::kinematic::perpendicular(&axis);
+                let u2 = axis.cross(&u1);
+                let along = |v: Vector3<f64>| twist(rotation * v, Vector3::zeros());
+                let mut params = vec![
+                    (turn(&origin, rotation * axis), error.joint_offset_sigma_rad),
+                    (along(axis), error.link_length_sigma_m),
+                ];
+                if k > 0 {
+                    params.extend([
+                        (
+                            turn(&origin, rotation * u1),
+                            error.axis_misalignment_sigma_rad,
+                        ),
+                        (
+                            turn(&origin, rotation * u2),
+                            error.axis_misalignment_sigma_rad,
+                        ),
+                        (along(u1), error.link_length_sigma_m),
+                        (along(u2), error.link_length_sigma_m),
+                    ]);
+                }
+                for (v, s) in params {
+                    let per_depth = (1..=depths)
+                        .map(|d| if d > k { v } else { [0.0; 6] })
+                        .collect();
+                    columns.push((per_depth, s));
+                }
+            }
+            depths
+        }
+    };
+    columns.retain(|(_, s)| *s > 0.0);
+    (0..depths)
+        .map(|d| {
+            let mut a = Matrix6xX::zeros(columns.len());
+            for (c, (per_depth, s)) in columns.iter().enumerate() {
+                for r in 0..6 {
+                    a[(r, c)] = per_depth[d][r] * s;
+                }
+            }
+            a
+        })
+        .collect()
+}
+
+/// The prior covariance of the links' displacements, `A · Aᵀ` of every fitted depth stacked
+/// (6·depths square): what the fitted links may be off by before the scan is seen.
+#[cfg(test)]
+pub(crate) fn prior_covariance(a: &[Matrix6xX<f64>]) -> nalgebra::DMatrix<f64> {
+    let n = a.first().map_or(0, |m| m.ncols());
+    let mut stacked = nalgebra::DMatrix::zeros(6 * a.len(), n);
+    for (d, m) in a.iter().enumerate() {
+        stacked.view_mut((6 * d, 0), (6, n)).copy_from(m);
+    }
+    &stacked * stacked.transpose()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::posed_model_with_controller_kinematics;
+    use crate::calib::testutil::toy_robot;
+    use crate::testutil::shared_robot;
+    use handeye_hal::ur_dh::PhysicalArm;
+
+    /// Posed by a controller's DH, what is left of each fitted link's error is a turn about
+    /// and a slide along its calibrated axis; over many physical arms their spread is what the
+    /// prior says (the registration's σ stands on it).
+    #[test]
+    fn the_axis_freedoms_prior_matches_what_physical_arms_leave() {
+        let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+            return;
+        };
+        let ur = model.ur_model().expect("a UR");
+        let error = KinematicError::default();
+        let q = [0.4, -1.2, 1.1, -1.3, -1.5, 0.2];
+        let shoulder = model.link_index("shoulder_link").expect("shoulder");
+        let upper = model.link_index("upper_arm_link").expect("upper arm");
+        let (mut turns, mut slides) = ([Vec::new(), Vec::new()], [Vec::new(), Vec::new()]);
+        let mut priors = Vec::new();
+        for seed in 0..300 {
+            let arm = PhysicalArm::draw(ur.dh(), &error.joint_sizes(), seed);
+            let dh = arm.controller_dh();
+            let posed = posed_model_with_controller_kinematics(&model, &q, &dh).expect("posed");
+            if seed == 0 {
+                let a = link_error_model(&posed, 2, &error);
+                assert_eq!(a.len(), 2);
+                assert_eq!(a[0].ncols(), 4, "two per fitted link");
+                // Column σ: the turn and slide of each link (only its own depth moves).
+                priors = (0..4)
+                    .map(|c| {
+                        let depth = c / 2;
+                        let v = a[depth].column(c);
+                        assert!(a[1 - depth].column(c).norm() == 0.0);
+                        if c % 2 == 0 {
+                            v.fixed_rows::<3>(3).norm()
+                        } else {
+                            v.fixed_rows::<3>(0).norm()
+                        }
+                    })
+                    .collect::<Vec<_>>();
+            }
+            let physical = model.link_poses_of_arm(&q, &arm).expect("physical");
+            let by_dh = model.link_poses_with_controller_dh(&q, &dh).expect("posed");
+            let axes = model.dh_axes(&q, &dh).expect("axes");
+            for (i, (link, axis)) in [(shoulder, 0), (upper, 1)].into_iter().enumerate() {
+                let d = by_dh[link] * physical[link].inverse();
+                let (p, u) = (
+                    nalgebra::Point3::from(axes[axis].point),
+                    axes[axis].direction,
+                );
+                turns[i].push(d.rotation.scaled_axis().dot(&u));
+                slides[i].push(((d * p) - p).dot(&u));
+            }
+        }
+        let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+        for i in 0..2 {
+            let (turn, slide) = (rms(&turns[i]), rms(&slides[i]));
+            let (pt, ps) = (priors[2 * i], priors[2 * i + 1]);
+            eprintln!(
+                "link {}: turn rms {:.3} mrad (prior {:.3}), slide rms {:.3} mm (prior {:.3})",
+                i + 1,
+                turn * 1e3,
+                pt * 1e3,
+                slide * 1e3,
+                ps * 1e3
+            );
+            assert!(turn > 0.6 * pt && turn < 1.4 * pt, "link {}: turn", i + 1);
+            assert!(
+                slide > 0.6 * ps && slide < 1.4 * ps,
+                "link {}: slide",
+                i + 1
+            );
+        }
+    }
+
+    #[test]
+    fn an_arm_known_exactly_has_no_link_parameters() {
+        let posed = toy_robot(&[0.3, -0.8, 0.5]);
+        let a = link_error_model(&posed, 2, &KinematicError::none());
+        assert!(a.iter().all(|m| m.ncols() == 0));
+    }
+
+    #[test]
+    fn joint_errors_reproduce_the_simulators_covariance() {
+        // Per-joint origin errors: the prior of the shoulder's displacement is
+        // KinematicError::joint_covariance (joint frame) carried to the model frame.
+        let posed = toy_robot(&[0.4, 0.0, 0.0]);
+        let error = KinematicError::default();
+        let a = link_error_model(&posed, 2, &error);
+        let prior = prior_covariance(&a);
+        let j = &posed.joints[0];
+        let r = j
+            .model_from_joint
+            .rotation
+            .to_rotation_matrix()
+            .into_inner();
+        let o = j.model_from_joint.translation.vector;
+        let mut ad = nalgebra::Matrix6::zeros();
+        ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+        ad.fixed_view_mut::<3, 3>(0, 3)
+            .copy_from(&(o.cross_matrix() * r));
+        ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+        let expected = ad * error.joint_covariance(&j.axis, true) * ad.transpose();
+        let got = prior.view((0, 0), (6, 6));
+        for r in 0..6 {
+            for c in 0..6 {
+                assert!(
+                    (got[(r, c)] - expected[(r, c)]).abs() < 1e-15,
+                    "({r},{c}): {} vs {}",
+                    got[(r, c)],
+                    expected[(r, c)]
+                );
+            }
+        }
+        // The upper arm also carries the second joint's error: its prior is larger.
+        assert!(prior[(8, 8)] + prior[(6, 6)] > prior[(2, 2)] + prior[(0, 0)]);
+    }
+}

@@ -1,0 +1,80 @@
+//! Stage 3, `fine` (second part): the winner refitted with the fitted links' kinematic error
+//! as parameters of the fit, each with a prior of the arm's calibration size
+//! ([`crate::calib::links`]): the base holds what it can, the moving links add what they know
+//! beyond their kinematic error.
+
+use nalgebra::Isometry3;
+
+use super::contenders::Judged;
+use super::prepare::Prepared;
+use super::RegisterOptions;
+use crate::calib::fine::{icp_with_links, IcpResult, LinkPrior, Stage};
+use crate::calib::links::link_error_model;
+use crate::calib::surface::PosedModel;
+use crate::calib::CalibError;
+
+/// The judged winner refitted with the links' kinematic error: its `camera_from_model` and
+/// fit. The contenders were judged on the fit that trusts the posed links, and a refinement
+/// that wanders off is not trusted: an error rather than a covariance that leaves the links'
+/// error out.
+pub(super) fn refine_with_links(
+    p: &Prepared<'_>,
+    model: &PosedModel,
+    judged: &Judged,
+    opts: &RegisterOptions,
+) -> Result<(Isometry3<f64>, IcpResult), CalibError> {
+    let (fine, camera_from_model) = (&judged.fine, judged.pose);
+    // The scan's residual variance that weighs the links' prior is the even fit's effective
+    // one (its sandwich over its information).
+    let link_prior = LinkPrior {
+        a: link_error_model(model, p.surface.fit_depth, &opts.kinematic_error),
+        residual_var: (fine.cov6 * fine.info6).trace() / 6.0,
+    };
+    if link_prior.params() == 0 {
+        return Ok((camera_from_model, fine.clone()));
+    }
+    let pts = p.pool.select(
+        &p.range,
+        &p.surface,
+        &camera_from_model,
+        opts.max_icp_points,
+        p.m(0.01),
+        p.m(0.003),
+    );
+    let stage = Stage {
+        gate_m: p.m(0.004),
+        kernel_m: p.m(0.001),
+        scale: fine.scale_estimated,
+        iterations: 15,
+    };
+    match icp_with_links(
+        &pts,
+        &p.surface,
+        &fine.model_from_camera,
+        fine.kappa,
+        &[stage],
+        &link_prior,
+    ) {
+        Some((r, z))
+            if crate::calib::within(
+                &r.model_from_camera.inverse(),
+                &camera_from_model,
+                p.m(0.01),
+                2.0 * p.k,
+            ) =>
+        {
+            tracing::debug!(z = ?z.as_slice(), "link parameters (prior 1σ units)");
+            Ok((r.model_from_camera.inverse(), r))
+        }
+        other => Err(CalibError::RobotNotFound {
+            detail: format!(
+                "the fit with the arm's kinematic error {} the best pose",
+                if other.is_some() {
+                    "wandered away from"
+                } else {
+                    "did not converge near"
+                }
+            ),
+        }),
+    }
+}

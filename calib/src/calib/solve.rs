@@ -1,0 +1,370 @@
+//! Hand-eye solve: closes the kinematic chain for every registered frame and fuses frames and
+//! views robustly.
+//!
+//! - Eye-in-hand: `flange_from_camera = model_from_flange⁻¹ · camera_from_model⁻¹` per frame
+//!   (`model_from_flange` as the controller reports it at capture, converted to the model frame
+//!   by the caller).
+//! - Eye-to-hand: `model_from_camera = camera_from_model⁻¹` per frame.
+//!
+//! Fusion is two-level: the frames of one view (captured without moving), then the views.
+//! Each level starts from the medoid, drops members farther than the outlier thresholds and
+//! averages the rest (chordal L2 mean on SO(3), arithmetic mean of translations), three rounds.
+
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use serde::Serialize;
+
+use super::CalibError;
+
+/// Where the camera is mounted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mount {
+    /// On the flange; the unknown is `flange_from_camera`.
+    EyeInHand,
+    /// Fixed in the cell; the unknown is `model_from_camera`.
+    EyeToHand,
+}
+
+impl Mount {
+    /// The unknown a run of this mount solves for: `flange_from_camera` (eye-in-hand) or
+    /// `base_from_camera` (eye-to-hand).
+    pub fn unknown_name(self) -> &'static str {
+        match self {
+            Mount::EyeInHand => "flange_from_camera",
+            Mount::EyeToHand => "base_from_camera",
+        }
+    }
+
+    /// The frame the unknown is expressed in, as the exports name it: `tool0` (the flange,
+    /// eye-in-hand) or `base` (the controller's base, eye-to-hand).
+    pub fn parent_frame(self) -> &'static str {
+        match self {
+            Mount::EyeInHand => "tool0",
+            Mount::EyeToHand => "base",
+        }
+    }
+}
+
+/// One registered frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameInput {
+    /// Frames with the same `view` were captured without moving the robot.
+    pub view: usize,
+    /// Registration result: pose of the model (URDF root) in the camera frame, metres.
+    pub camera_from_model: Isometry3<f64>,
+    /// Flange pose in the model frame at capture (eye-in-hand: required; eye-to-hand: ignored).
+    pub model_from_flange: Option<Isometry3<f64>>,
+}
+
+/// Outlier thresholds of the fusion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolveOptions {
+    /// A frame/view farther than this from the robust mean is dropped, mm.
+    pub outlier_translation_mm: f64,
+    /// A frame/view rotated more than this from the robust mean is dropped, degrees.
+    pub outlier_rotation_deg: f64,
+}
+
+impl Default for SolveOptions {
+    fn default() -> Self {
+        SolveOptions {
+            outlier_translation_mm: 2.0,
+            outlier_rotation_deg: 0.3,
+        }
+    }
+}
+
+/// Difference of one frame's or view's estimate from the fused result.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
+pub struct Residual {
+    /// Frame index (input order) or view id.
+    pub index: usize,
+    /// View id.
+    pub view: usize,
+    /// Distance of the camera origins, mm.
+    pub translation_mm: f64,
+    /// Rotation angle between the estimates, degrees.
+    pub rotation_deg: f64,
+    /// Whether it contributed to the fused result.
+    pub used: bool,
+}
+
+/// The fused hand-eye result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HandEyeSolution {
+    /// Configuration solved for.
+    pub mount: Mount,
+    /// Eye-in-hand: `flange_from_camera`; eye-to-hand: `model_from_camera` (metres).
+    pub estimate: Isometry3<f64>,
+    /// Per-frame residuals against `estimate` (input order).
+    pub frames: Vec<Residual>,
+    /// Per-view residuals against `estimate` (ascending view id).
+    pub views: Vec<Residual>,
+}
+
+impl HandEyeSolution {
+    /// Eye-in-hand result, `flange_from_camera`.
+    pub fn flange_from_camera(&self) -> Option<Isometry3<f64>> {
+        (self.mount == Mount::EyeInHand).then_some(self.estimate)
+    }
+
+    /// `model_from_camera`: the eye-to-hand result, or for eye-in-hand the camera pose at
+    /// `model_from_flange` (e.g. at the first frame).
+    pub fn model_from_camera(
+        &self,
+        model_from_flange: Option<&Isometry3<f64>>,
+    ) -> Option<Isometry3<f64>> {
+        match self.mount {
+            Mount::EyeToHand => Some(self.estimate),
+            Mount::EyeInHand => model_from_flange.map(|f| f * self.estimate),
+        }
+    }
+}
+
+/// Closes the chain for every frame and fuses them; see the module docs.
+pub fn solve(
+    mount: Mount,
+    frames: &[FrameInput],
+    opts: &SolveOptions,
+) -> Result<HandEyeSolution, CalibError> {
+    if frames.is_empty() {
+        return Err(CalibError::NoFrames);
+    }
+    let per_frame: Vec<Isometry3<f64>> = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let model_from_camera = f.camera_from_model.inverse();
+            match mount {
+                Mount::EyeToHand => Ok(model_from_camera),
+                Mount::EyeInHand => f
+                    .model_from_flange
+                    .map(|m| m.inverse() * model_from_camera)
+                    .ok_or(CalibError::BadFrame {
+                        frame: i,
+                        detail: "eye-in-hand needs the flange pose".into(),
+                    }),
+            }
+        })
+        .collect::<Result<_, _>>()?;
+    let mut view_ids: Vec<usize> = frames.iter().map(|f| f.view).collect();
+    view_ids.sort_unstable();
+    view_ids.dedup();
+    let mut frame_used = vec![false; frames.len()];
+    let mut view_est = Vec::new();
+    for &v in &view_ids {
+        let members: Vec<usize> = (0..frames.len()).filter(|&i| frames[i].view == v).collect();
+        let items: Vec<Isometry3<f64>> = members.iter().map(|&i| per_frame[i]).collect();
+        let (mean, used) = robust_mean(&items, opts);
+        for (k, &i) in members.iter().enumerate() {
+            frame_used[i] = used[k];
+        }
+        view_est.push(mean);
+    }
+    let (estimate, view_used) = robust_mean(&view_est, opts);
+    let residual = |x: &Isometry3<f64>| distance(x, &estimate);
+    let views = view_ids
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| {
+            let (t, r) = residual(&view_est[k]);
+            Residual {
+                index: v,
+                view: v,
+                translation_mm: t,
+                rotation_deg: r,
+                used: view_used[k],
+            }
+        })
+        .collect::<Vec<_>>();
+    let frames_out = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let (t, r) = residual(&per_frame[i]);
+            let vk = view_ids.iter().position(|&v| v == f.view).unwrap_or(0);
+            Residual {
+                index: i,
+                view: f.view,
+                translation_mm: t,
+                rotation_deg: r,
+                used: frame_used[i] && view_used[vk],
+            }
+        })
+        .collect();
+    Ok(HandEyeSolution {
+        mount,
+        estimate,
+        frames: frames_out,
+        views,
+    })
+}
+
+/// `(translation mm, rotation deg)` between two poses of the camera (`*_from_camera`).
+pub(crate) fn distance(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
+    let t = (a.translation.vector - b.translation.vector).norm() * 1000.0;
+    let r = a.rotation.angle_to(&b.rotation).to_degrees();
+    (t, r)
+}
+
+/// Medoid start, outlier rejection, mean of the rest; returns the mean and the inlier mask.
+fn robust_mean(items: &[Isometry3<f64>], opts: &SolveOptions) -> (Isometry3<f64>, Vec<bool>) {
+    let norm = |a: &Isometry3<f64>, b: &Isometry3<f64>| {
+        let (t, r) = distance(a, b);
+        t / opts.outlier_translation_mm + r / opts.outlier_rotation_deg
+    };
+    let medoid = (0..items.len())
+        .min_by(|&i, &j| {
+            let si: f64 = items.iter().map(|x| norm(&items[i], x)).sum();
+            let sj: f64 = items.iter().map(|x| norm(&items[j], x)).sum();
+            si.total_cmp(&sj)
+        })
+        .unwrap_or(0);
+    let mut est = items[medoid];
+    let mut used = vec![true; items.len()];
+    for _ in 0..3 {
+        for (k, x) in items.iter().enumerate() {
+            let (t, r) = distance(x, &est);
+            used[k] = t <= opts.outlier_translation_mm && r <= opts.outlier_rotation_deg;
+        }
+        if !used.iter().any(|&u| u) {
+            used[medoid] = true;
+        }
+        est = mean(items.iter().zip(&used).filter(|(_, &u)| u).map(|(x, _)| x));
+    }
+    for (k, x) in items.iter().enumerate() {
+        let (t, r) = distance(x, &est);
+        used[k] = used[k] && t <= opts.outlier_translation_mm && r <= opts.outlier_rotation_deg;
+    }
+    (est, used)
+}
+
+/// Chordal L2 mean of the rotations (projection of the summed matrices onto SO(3)) and the
+/// arithmetic mean of the translations.
+fn mean<'a>(items: impl Iterator<Item = &'a Isometry3<f64>>) -> Isometry3<f64> {
+    let mut m = Matrix3::zeros();
+    let mut t = Vector3::zeros();
+    let mut n = 0.0f64;
+    for x in items {
+        m += x.rotation.to_rotation_matrix().into_inner();
+        t += x.translation.vector;
+        n += 1.0;
+    }
+    let svd = m.svd(true, true);
+    let rot = match (svd.u, svd.v_t) {
+        (Some(u), Some(v_t)) => {
+            let mut d = Matrix3::identity();
+            if (u * v_t).determinant() < 0.0 {
+                d[(2, 2)] = -1.0;
+            }
+            Rotation3::from_matrix_unchecked(u * d * v_t)
+        }
+        _ => Rotation3::identity(),
+    };
+    Isometry3::from_parts(
+        Translation3::from(t / n.max(1.0)),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pose(t: [f64; 3], r: [f64; 3]) -> Isometry3<f64> {
+        Isometry3::new(Vector3::from(t), Vector3::from(r))
+    }
+
+    #[test]
+    fn eye_in_hand_closure_is_exact() {
+        let flange_from_camera = pose([0.03, -0.08, 0.05], [0.1, -0.2, 1.4]);
+        let frames: Vec<FrameInput> = (0..4)
+            .map(|k| {
+                let model_from_flange = pose(
+                    [0.3 + 0.05 * k as f64, -0.2, 0.5],
+                    [2.5, 0.3 * k as f64, 0.2],
+                );
+                let camera_from_model = (model_from_flange * flange_from_camera).inverse();
+                FrameInput {
+                    view: k,
+                    camera_from_model,
+                    model_from_flange: Some(model_from_flange),
+                }
+            })
+            .collect();
+        let s = solve(Mount::EyeInHand, &frames, &SolveOptions::default()).expect("solved");
+        let (t, r) = distance(&s.estimate, &flange_from_camera);
+        assert!(t < 1e-9 && r < 1e-9, "{t} {r}");
+        assert!(s.frames.iter().all(|f| f.used && f.translation_mm < 1e-9));
+        assert_eq!(s.flange_from_camera(), Some(s.estimate));
+        // Missing flange pose is an input error.
+        let mut bad = frames.clone();
+        bad[1].model_from_flange = None;
+        assert!(matches!(
+            solve(Mount::EyeInHand, &bad, &SolveOptions::default()),
+            Err(CalibError::BadFrame { frame: 1, .. })
+        ));
+        assert!(matches!(
+            solve(Mount::EyeInHand, &[], &SolveOptions::default()),
+            Err(CalibError::NoFrames)
+        ));
+    }
+
+    #[test]
+    fn eye_to_hand_closure_is_exact() {
+        let model_from_camera = pose([1.2, 0.4, 0.9], [0.5, 2.0, -0.3]);
+        let frames = vec![
+            FrameInput {
+                view: 0,
+                camera_from_model: model_from_camera.inverse(),
+                model_from_flange: None
+            };
+            3
+        ];
+        let s = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
+        let (t, r) = distance(&s.estimate, &model_from_camera);
+        assert!(t < 1e-9 && r < 1e-9);
+        let (t, r) = distance(
+            &s.model_from_camera(None).expect("eye-to-hand"),
+            &model_from_camera,
+        );
+        assert!(t < 1e-9 && r < 1e-9);
+        assert_eq!(s.flange_from_camera(), None);
+    }
+
+    #[test]
+    fn outlier_view_is_rejected() {
+        let truth = pose([0.03, -0.08, 0.05], [0.1, -0.2, 1.4]);
+        let mut frames = Vec::new();
+        for v in 0..5 {
+            for f in 0..2 {
+                // Small noise per frame; view 3 is off by 1.5° (a wrong registration).
+                let noise = pose(
+                    [1e-4 * (v as f64 - 2.0), 5e-5 * f as f64, 0.0],
+                    [0.0, 2e-4 * f as f64, 1e-4 * v as f64],
+                );
+                let bad = if v == 3 {
+                    pose([0.004, 0.0, 0.0], [0.026, 0.0, 0.0])
+                } else {
+                    Isometry3::identity()
+                };
+                let model_from_flange =
+                    pose([0.4, 0.1 * v as f64, 0.5], [2.8, 0.2, 0.1 * v as f64]);
+                let x = truth * noise * bad;
+                let camera_from_model = (model_from_flange * x).inverse();
+                frames.push(FrameInput {
+                    view: v,
+                    camera_from_model,
+                    model_from_flange: Some(model_from_flange),
+                });
+            }
+        }
+        let s = solve(Mount::EyeInHand, &frames, &SolveOptions::default()).expect("solved");
+        let (t, r) = distance(&s.estimate, &truth);
+        assert!(t < 0.3 && r < 0.03, "{t} mm {r} deg");
+        assert!(!s.views[3].used);
+        assert!(s.views.iter().filter(|v| v.used).count() == 4);
+        assert!(s.views[3].rotation_deg > 1.0);
+        assert!(s.frames.iter().filter(|f| f.view == 3).all(|f| !f.used));
+    }
+}

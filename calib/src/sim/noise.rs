@@ -1,0 +1,284 @@
+//! What makes real scans hard, each with a knob and a realistic default.
+
+use rand::Rng;
+use rand_distr::{Distribution, Normal};
+
+/// Imperfections of a 3D camera.
+///
+/// Defaults are those of a good industrial structured-light camera (Zivid 2+ class) at
+/// 0.4–0.8 m; [`ScanNoise::active_stereo`] is a consumer active-stereo camera (RealSense D4xx
+/// class), fitted to real frames; `none()` gives a perfect sensor for geometry tests.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScanNoise {
+    /// Depth noise standard deviation at 1 m (metres); it grows with z² (triangulation) and
+    /// with 1/cos of the incidence angle.
+    pub depth_sigma_at_1m_m: f64,
+    /// Probability that a pixel on a depth edge becomes a flying pixel (a depth between the
+    /// foreground and the background surfaces).
+    pub flying_pixel_probability: f64,
+    /// A neighbour farther by more than this (metres) makes a pixel a depth edge.
+    pub flying_pixel_edge_m: f64,
+    /// Incidence angle (degrees from the surface normal) where grazing dropouts start.
+    pub dropout_start_deg: f64,
+    /// Incidence angle where every point is lost.
+    pub dropout_full_deg: f64,
+    /// Probability of losing any pixel (specular spots, dark surfaces).
+    pub random_dropout_probability: f64,
+    /// Relative depth-scale error: measured point = true point · (1 + this).
+    pub depth_scale_error: f64,
+    /// Nothing is measured beyond this range (metres).
+    pub max_range_m: f64,
+    /// Depth resolution: reported depths are multiples of this (metres; 0 = continuous). A
+    /// RealSense reports whole millimetres.
+    pub depth_step_m: f64,
+    /// Standard deviation at 1 m of a smooth, spatially correlated depth error (metres; grows
+    /// with z²): the wavy surfaces of stereo matching. 0 = none.
+    pub ripple_sigma_at_1m_m: f64,
+    /// Wavelength of that ripple across the image, pixels.
+    pub ripple_period_px: f64,
+}
+
+/// Largest `noise.depth_sigma_at_1m_m`, metres.
+pub(crate) const MAX_DEPTH_SIGMA_AT_1M_M: f64 = 0.05;
+/// Largest `noise.random_dropout_probability`.
+pub(crate) const MAX_RANDOM_DROPOUT: f64 = 0.9;
+/// Range of a finite `noise.max_range_m`, metres.
+pub(crate) const MIN_RANGE_M: f64 = 0.05;
+/// Longest finite `noise.max_range_m`, metres.
+pub(crate) const MAX_RANGE_M: f64 = 100.0;
+
+impl Default for ScanNoise {
+    fn default() -> Self {
+        Self {
+            depth_sigma_at_1m_m: 0.000_25,
+            flying_pixel_probability: 0.5,
+            flying_pixel_edge_m: 0.01,
+            dropout_start_deg: 70.0,
+            dropout_full_deg: 85.0,
+            random_dropout_probability: 0.01,
+            depth_scale_error: 0.0015,
+            max_range_m: 2.5,
+            depth_step_m: 0.0,
+            ripple_sigma_at_1m_m: 0.0,
+            ripple_period_px: 40.0,
+        }
+    }
+}
+
+impl ScanNoise {
+    /// A perfect sensor: exact depths, no dropouts, no flying pixels, no scale error.
+    pub fn none() -> Self {
+        Self {
+            depth_sigma_at_1m_m: 0.0,
+            flying_pixel_probability: 0.0,
+            flying_pixel_edge_m: 0.01,
+            dropout_start_deg: 90.0,
+            dropout_full_deg: 90.0,
+            random_dropout_probability: 0.0,
+            depth_scale_error: 0.0,
+            max_range_m: f64::INFINITY,
+            depth_step_m: 0.0,
+            ripple_sigma_at_1m_m: 0.0,
+            ripple_period_px: 40.0,
+        }
+    }
+
+    /// A consumer active-stereo camera (Intel RealSense D4xx class) at 0.3–2.5 m: noise growing
+    /// with z², whole-millimetre depths, wavy surfaces, grazing surfaces lost early, more
+    /// dropouts and flying pixels than structured light, and a depth-scale error of about
+    /// 1 %. The per-pixel noise is fitted to five real frames of a D4xx at 0.8–1.8 m
+    /// (`../shared/realdata/xarm7_realsense`): the registration's own noise estimate
+    /// ([`crate::calib::range::RangeImage::noise_m`]) gives the simulated scan at the real
+    /// camera pose what it gives the real frames (see `calib/tests/realdata.rs`).
+    pub fn active_stereo() -> Self {
+        Self {
+            depth_sigma_at_1m_m: 0.000_42,
+            flying_pixel_probability: 0.8,
+            flying_pixel_edge_m: 0.01,
+            dropout_start_deg: 60.0,
+            dropout_full_deg: 80.0,
+            random_dropout_probability: 0.03,
+            depth_scale_error: 0.01,
+            max_range_m: 2.5,
+            depth_step_m: 0.001,
+            ripple_sigma_at_1m_m: 0.000_5,
+            ripple_period_px: 40.0,
+        }
+    }
+
+    /// Whether the knobs make sense for a 3D camera; the message names the key, its unit and
+    /// the range it must lie in (NaN, infinities and absurd values are refused; `max_range_m`
+    /// may be infinite: no range limit).
+    pub fn validate(&self) -> Result<(), String> {
+        use handeye_hal::limits::check_range;
+        check_range(
+            "noise.depth_sigma_at_1m_m",
+            self.depth_sigma_at_1m_m,
+            0.0,
+            MAX_DEPTH_SIGMA_AT_1M_M,
+            "m",
+            "a 3D camera with more noise than that at 1 m sees no robot",
+        )?;
+        check_range(
+            "noise.flying_pixel_probability",
+            self.flying_pixel_probability,
+            0.0,
+            1.0,
+            "",
+            "a probability",
+        )?;
+        check_range(
+            "noise.flying_pixel_edge_m",
+            self.flying_pixel_edge_m,
+            1e-4,
+            1.0,
+            "m",
+            "the depth step that makes an edge",
+        )?;
+        for (key, v) in [
+            ("noise.dropout_start_deg", self.dropout_start_deg),
+            ("noise.dropout_full_deg", self.dropout_full_deg),
+        ] {
+            check_range(
+                key,
+                v,
+                0.0,
+                90.0,
+                "degrees",
+                "an incidence angle from the normal",
+            )?;
+        }
+        if self.dropout_start_deg > self.dropout_full_deg {
+            return Err(format!(
+                "noise.dropout_start_deg = {} is above noise.dropout_full_deg = {}: dropouts start before every point is lost",
+                self.dropout_start_deg, self.dropout_full_deg
+            ));
+        }
+        check_range(
+            "noise.random_dropout_probability",
+            self.random_dropout_probability,
+            0.0,
+            MAX_RANDOM_DROPOUT,
+            "",
+            "a probability; more would leave almost nothing to register",
+        )?;
+        check_range(
+            "noise.depth_scale_error",
+            self.depth_scale_error,
+            -0.2,
+            0.2,
+            "",
+            "a relative error: 0.01 is 1 %",
+        )?;
+        check_range(
+            "noise.depth_step_m",
+            self.depth_step_m,
+            0.0,
+            0.01,
+            "m",
+            "0 for continuous depths, 0.001 for whole millimetres",
+        )?;
+        check_range(
+            "noise.ripple_sigma_at_1m_m",
+            self.ripple_sigma_at_1m_m,
+            0.0,
+            MAX_DEPTH_SIGMA_AT_1M_M,
+            "m",
+            "a 3D camera with more ripple than that at 1 m sees no robot",
+        )?;
+        check_range(
+            "noise.ripple_period_px",
+            self.ripple_period_px,
+            2.0,
+            10_000.0,
+            "pixels",
+            "the ripple's wavelength across the image",
+        )?;
+        if self.max_range_m != f64::INFINITY {
+            check_range(
+                "noise.max_range_m",
+                self.max_range_m,
+                MIN_RANGE_M,
+                MAX_RANGE_M,
+                "m",
+                "inf for no limit",
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Probability that a point seen at `incidence_rad` (angle between the ray and the surface
+    /// normal) survives grazing dropout.
+    pub(crate) fn grazing_survival(&self, incidence_rad: f64) -> f64 {
+        let a = incidence_rad.to_degrees();
+        if a <= self.dropout_start_deg {
+            1.0
+        } else if a >= self.dropout_full_deg {
+            0.0
+        } else {
+            1.0 - (a - self.dropout_start_deg) / (self.dropout_full_deg - self.dropout_start_deg)
+        }
+    }
+
+    /// A noisy depth for a true depth `z` (metres) seen at `incidence_rad`.
+    pub(crate) fn noisy_depth(&self, z: f64, incidence_rad: f64, rng: &mut impl Rng) -> f64 {
+        let sigma = self.depth_sigma_at_1m_m * z * z / incidence_rad.cos().max(0.2);
+        let n = if sigma > 0.0 {
+            Normal::new(0.0, sigma).map_or(0.0, |d| d.sample(rng))
+        } else {
+            0.0
+        };
+        (z + n) * (1.0 + self.depth_scale_error)
+    }
+
+    /// `z` rounded to the sensor's depth resolution.
+    pub(crate) fn quantized(&self, z: f64) -> f64 {
+        if self.depth_step_m > 0.0 {
+            (z / self.depth_step_m).round() * self.depth_step_m
+        } else {
+            z
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn defaults_validate_and_bad_knobs_are_named() {
+        ScanNoise::default().validate().expect("defaults are valid");
+        ScanNoise::none().validate().expect("none is valid");
+        let bad = ScanNoise {
+            random_dropout_probability: 1.5,
+            ..ScanNoise::default()
+        };
+        let err = bad.validate().expect_err("invalid");
+        assert!(err.contains("random_dropout_probability"));
+    }
+
+    #[test]
+    fn depth_noise_grows_with_distance_and_scale_error_is_applied() {
+        let n = ScanNoise {
+            depth_scale_error: 0.01,
+            ..ScanNoise::default()
+        };
+        let mut rng = rand::rngs::StdRng::seed_from_u64(1);
+        let spread = |z: f64, rng: &mut rand::rngs::StdRng| {
+            let s: Vec<f64> = (0..4000).map(|_| n.noisy_depth(z, 0.0, rng)).collect();
+            let mean = s.iter().sum::<f64>() / s.len() as f64;
+            let var = s.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / s.len() as f64;
+            (mean, var.sqrt())
+        };
+        let (m1, s1) = spread(0.5, &mut rng);
+        let (m2, s2) = spread(1.0, &mut rng);
+        assert!((m2 - 1.01).abs() < 2e-5, "{m2}");
+        assert!((m1 - 0.505).abs() < 1e-5, "{m1}");
+        assert!(s2 > 3.0 * s1, "{s1} {s2}");
+        assert!((s2 - 0.000_25 * 1.01).abs() < 2e-5, "{s2}");
+        assert_eq!(n.grazing_survival(0.0), 1.0);
+        assert_eq!(n.grazing_survival(89f64.to_radians()), 0.0);
+    }
+}

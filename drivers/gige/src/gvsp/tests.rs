@@ -1,0 +1,202 @@
+use std::net::{Ipv4Addr, UdpSocket};
+use std::time::{Duration, Instant};
+
+use super::*;
+use rand::{Rng, SeedableRng};
+
+fn block(id: u64, multipart: bool) -> Block {
+    let w = 40;
+    let h = 30;
+    let pf = 0x026000C0;
+    let data: Vec<u8> = (0..w * h * 12).map(|i| (i % 251) as u8).collect();
+    let info = PartInfo {
+        data_type: PART_3D_IMAGE,
+        length: data.len() as u64,
+        pixel_format: pf,
+        purpose: 4,
+        width: w,
+        height: h,
+        padding_x: 0,
+    };
+    let mut parts = vec![(info, data)];
+    if multipart {
+        let c: Vec<u8> = (0..w * h * 2).map(|i| (i % 7) as u8).collect();
+        parts.push((
+            PartInfo {
+                data_type: PART_CONFIDENCE,
+                length: c.len() as u64,
+                pixel_format: 0x011000C7,
+                purpose: 6,
+                width: w,
+                height: h,
+                padding_x: 0,
+            },
+            c,
+        ));
+    }
+    Block {
+        block_id: id,
+        timestamp: 99,
+        parts,
+        multipart,
+    }
+}
+
+fn receiver(extended: bool, resend: bool) -> StreamReceiver {
+    let cfg = StreamConfig {
+        packet_size: 400,
+        extended,
+        resend,
+        max_frame_bytes: 1 << 20,
+        ..StreamConfig::default()
+    };
+    StreamReceiver::bind(
+        Ipv4Addr::LOCALHOST,
+        "127.0.0.1:9".parse().expect("addr"),
+        cfg,
+    )
+    .expect("bind")
+}
+
+#[test]
+fn frames_reassemble_standard_and_multipart_with_wraparound() {
+    for (ext, mp) in [(false, false), (true, false), (true, true)] {
+        let mut r = receiver(ext, true);
+        let now = Instant::now();
+        let ids: &[u64] = if ext {
+            &[1 << 40, (1 << 40) + 1]
+        } else {
+            &[65534, 65535, 1, 2]
+        };
+        for &id in ids {
+            let b = block(id, mp);
+            let mut pk = packetize(&b, 400, ext).expect("packetize");
+            pk.swap(2, 5); // reordering
+            for p in &pk {
+                r.handle(p, now);
+            }
+            let f = r.ready.pop_front().expect("frame");
+            assert!(f.complete, "{ext} {mp} {id}");
+            assert_eq!(f.block_id, id);
+            assert_eq!(f.parts.len(), b.parts.len());
+            for ((pi, pd), (bi, bd)) in f.parts.iter().zip(&b.parts) {
+                assert_eq!(pd, bd);
+                assert_eq!(pi.pixel_format, bi.pixel_format);
+                assert_eq!((pi.width, pi.height), (bi.width, bi.height));
+            }
+        }
+    }
+}
+
+#[test]
+fn packetize_into_recycled_buffers_matches_fresh_packets() {
+    // Recycled from a bigger multi-part frame with other contents and packet size.
+    let mut reused = packetize(&block(9, true), 300, true).expect("p");
+    let n_old = reused.len();
+    for (ext, mp) in [(false, false), (true, true)] {
+        let b = block(4, mp);
+        packetize_into(&b, 400, ext, &mut reused).expect("packetize_into");
+        assert_eq!(reused, packetize(&b, 400, ext).expect("packetize"));
+    }
+    assert!(reused.len() < n_old);
+}
+
+#[test]
+fn socket_path_reads_batches_and_ignores_oversized_datagrams() {
+    let mut r = receiver(false, true);
+    let to = r.local_addr().expect("addr");
+    let tx = UdpSocket::bind("127.0.0.1:0").expect("bind");
+    // Longer than a receive slot for 400-byte packets: truncated, so ignored.
+    tx.send_to(&[0x55; 5000], to).expect("send");
+    let pk = packetize(&block(7, false), 400, false).expect("packetize");
+    for p in &pk {
+        tx.send_to(p, to).expect("send");
+    }
+    let f = r.next_frame(Duration::from_secs(2)).expect("frame");
+    assert!(f.complete);
+    assert_eq!(f.block_id, 7);
+    assert_eq!(f.parts[0].1, block(7, false).parts[0].1);
+    assert_eq!(r.stats().ignored_packets, 1);
+    assert_eq!(r.stats().packets, pk.len() as u64);
+}
+
+#[test]
+fn lost_packets_are_detected_and_frame_closes_incomplete() {
+    let mut r = receiver(false, false);
+    let now = Instant::now();
+    let pk = packetize(&block(5, false), 400, false).expect("packetize");
+    for (i, p) in pk.iter().enumerate() {
+        if i != 3 {
+            r.handle(p, now);
+        }
+    }
+    assert!(r.ready.is_empty());
+    r.housekeeping(now + Duration::from_secs(1));
+    let f = r.ready.pop_front().expect("closed");
+    assert!(!f.complete);
+    assert_eq!(f.missing_packets, 1);
+}
+
+#[test]
+fn fuzz_gvsp_parsers_never_panic() {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0x65e5);
+    let mut seeds = packetize(&block(3, false), 400, false).expect("p");
+    seeds.extend(packetize(&block(4, true), 400, true).expect("p"));
+    let mut r = receiver(true, true);
+    let now = Instant::now();
+    for i in 0..30_000 {
+        let mut b = seeds[i % seeds.len()].clone();
+        match rng.random_range(0..3) {
+            0 => b.truncate(rng.random_range(0..=b.len())),
+            1 => {
+                for _ in 0..rng.random_range(1..8) {
+                    let j = rng.random_range(0..b.len().clamp(1, 80));
+                    if let Some(x) = b.get_mut(j) {
+                        *x = rng.random();
+                    }
+                }
+            }
+            _ => {}
+        }
+        if let Ok((h, body)) = Header::parse(&b) {
+            let _ = Leader::parse(&h, body);
+        }
+        r.handle(&b, now);
+    }
+    r.housekeeping(now + Duration::from_secs(5));
+    assert!(r.frames.is_empty());
+}
+
+/// Issue 16: structure-aware huge counts — every 16- and 32-bit field of a leader, data
+/// and trailer packet set in turn to the largest values (sizes, part counts, packet and
+/// block ids, offsets); the receiver stays within its frame budget and never panics.
+#[test]
+fn issue_16_huge_fields_in_every_packet_position() {
+    let t0 = Instant::now();
+    for (mp, ext) in [(false, false), (true, true)] {
+        let packets = packetize(&block(5, mp), 400, ext).expect("p");
+        let mut r = receiver(ext, true);
+        let now = Instant::now();
+        let picks = [0, 1, packets.len() - 1];
+        for &k in &picks {
+            let seed = &packets[k];
+            for off in 0..seed.len().min(96) {
+                for value in [u32::MAX, 0x7FFF_FFFF, 0x8000_0000, 0x0001_0000] {
+                    let mut b = seed.clone();
+                    for (i, byte) in value.to_be_bytes().iter().enumerate() {
+                        if let Some(x) = b.get_mut(off + i) {
+                            *x = *byte;
+                        }
+                    }
+                    if let Ok((h, body)) = Header::parse(&b) {
+                        let _ = Leader::parse(&h, body);
+                    }
+                    r.handle(&b, now);
+                    assert!(r.frames.len() <= r.cfg.max_frames_in_flight.max(1));
+                }
+            }
+        }
+        r.housekeeping(now + Duration::from_secs(5));
+    }
+    assert!(t0.elapsed() < Duration::from_secs(10), "{:?}", t0.elapsed());
+}
