@@ -127,17 +127,30 @@ async fn ctrl_c() {
     }
 }
 
-fn main() -> ExitCode {
+/// The log filter without `RUST_LOG`: the daemon's journal tells the story of its runs (one
+/// line per start and outcome, skipped checks, connection changes: `info`); the other
+/// commands print their own results and log only warnings.
+fn default_filter(command: &Command) -> &'static str {
+    match command {
+        Command::Daemon(_) => "warn,handeye=info",
+        _ => "warn",
+    }
+}
+
+fn init_tracing(default: &str) {
     use std::io::IsTerminal as _;
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default)),
         )
         .with_writer(std::io::stderr)
         // Colour codes only for a person at a terminal, never into a log file or journal.
         .with_ansi(std::io::stderr().is_terminal())
         .init();
+}
+
+fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
@@ -166,6 +179,7 @@ fn main() -> ExitCode {
             return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
         }
     };
+    init_tracing(default_filter(&cli.command));
     let result = match cli.command {
         // Synchronous: computation on the calling thread and rayon, no I/O to wait for. They
         // run without a runtime, so Ctrl-C ends them the default way, at once.

@@ -502,6 +502,13 @@ impl RunRecord {
         }
     }
 
+    /// The one word every view of the run uses (CLI, API, history, page, picture, log):
+    /// a check that measured the camera says `drifted` or `within limits`; any other run its
+    /// outcome (`accepted`, `rejected`, `aborted`, `error`, `planned`).
+    pub fn verdict(&self) -> &'static str {
+        verdict(self.outcome, self.drift_found())
+    }
+
     /// Process exit code: calibrate 0 accepted / 1 rejected / 2 error or aborted; check 0
     /// within thresholds / 1 drifted / 2 anything else; a dry run 0 when planned.
     pub fn exit_code(&self) -> u8 {
@@ -516,5 +523,15 @@ impl RunRecord {
             (Outcome::Rejected, RunMode::Calibrate) => 1,
             _ => 2,
         }
+    }
+}
+
+/// [`RunRecord::verdict`] from the outcome and [`RunRecord::drift_found`] (what the history's
+/// columns hold as well).
+pub fn verdict(outcome: Outcome, drift_found: Option<bool>) -> &'static str {
+    match drift_found {
+        Some(true) => "drifted",
+        Some(false) => "within limits",
+        None => outcome.name(),
     }
 }

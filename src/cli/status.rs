@@ -193,8 +193,9 @@ fn finished(f: &Finished, now: f64) -> String {
         f.duration_ms / 1e3,
         when(f.finished_unix_s, now)
     );
-    if let Some((mm, deg, drifted)) = f.drift {
-        let verdict = if drifted {
+    if let Some(d) = f.drift {
+        let (mm, deg) = (d.translation_mm, d.rotation_deg);
+        let verdict = if d.exceeded {
             "beyond the thresholds"
         } else {
             "within the thresholds"
@@ -214,6 +215,9 @@ fn render(addr: SocketAddr, st: &Status, now: f64) -> String {
         st.state.name(),
         span(now - st.started_unix_s)
     );
+    if let Some(w) = &st.waiting {
+        out += &format!("{w}\n");
+    }
     let up = |connected: bool| {
         if connected {
             "connected"
@@ -265,7 +269,7 @@ fn render(addr: SocketAddr, st: &Status, now: f64) -> String {
     ] {
         match f {
             Some(f) => out += &format!("{label}: {}\n", finished(f, now)),
-            None => out += &format!("{label}: none since the daemon started\n"),
+            None => out += &format!("{label}: none in the history\n"),
         }
     }
     if st.drift_alarm {
@@ -299,7 +303,7 @@ mod tests {
             "last_check": {
                 "run_id": "20261124T130000Z-0002", "mode": "check", "trigger": "schedule",
                 "outcome": "accepted", "reasons": [], "finished_unix_s": 800.0,
-                "duration_ms": 900.0, "drift": [1.5, 0.25, true]
+                "duration_ms": 900.0, "drift": {"translation_mm": 1.5, "rotation_deg": 0.25, "exceeded": true}
             },
             "queued": [{
                 "run_id": "20261124T150001Z-00ac", "mode": "calibrate", "trigger": "api",
@@ -326,7 +330,7 @@ mod tests {
             "current run: 20261124T150000Z-00ab check (asked by schedule) for 10 s, stage move: moving to view 1 of 1",
             "last run: 20261124T140000Z-0001 calibrate (asked by api): rejected in 1.2 s",
             "    residual 3.1 mm > 2.0 mm",
-            "last calibration: none since the daemon started",
+            "last calibration: none in the history",
             "drift 1.50 mm 0.250° (beyond the thresholds)",
             "drift alarm: ON",
         ] {

@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 
 use crate::record::{Outcome, RunMode, RunRecord, Trigger};
+use crate::store::RunSummary;
 
 /// Upper bounds of the run-duration histogram, s.
 const DURATION_BUCKETS: [f64; 8] = [1.0, 2.5, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0];
@@ -69,6 +70,31 @@ impl Metrics {
             if drifted {
                 self.alarms += 1;
             }
+        }
+    }
+
+    /// The gauges of a run the history holds (replayed oldest first at startup): the last
+    /// calibration's uncertainty and the last drift survive a restart; the counters count
+    /// since the start, as Prometheus expects of counters.
+    pub(super) fn restore(&mut self, run: &RunSummary) {
+        if let (RunMode::Calibrate, Some(Outcome::Accepted), Some(mm), Some(deg)) = (
+            run.mode,
+            run.outcome.outcome(),
+            run.uncertainty_translation_mm,
+            run.uncertainty_rotation_deg,
+        ) {
+            self.last_uncertainty_mm = Some(mm);
+            self.last_uncertainty_deg = Some(deg);
+        }
+        if let (RunMode::Check, Some(Outcome::Accepted), Some(mm), Some(deg), Some(_)) = (
+            run.mode,
+            run.outcome.outcome(),
+            run.drift_translation_mm,
+            run.drift_rotation_deg,
+            run.drifted,
+        ) {
+            self.last_drift_mm = Some(mm);
+            self.last_drift_deg = Some(deg);
         }
     }
 

@@ -176,12 +176,12 @@ function drawStatus(st) {
   if (st.last) {
     const l = st.last;
     const o = document.createElement("span");
-    const drifted = l.drift ? l.drift[2] : false;
+    const drifted = l.drift ? l.drift.exceeded : false;
     o.className = `outcome tone-${toneOf(l.outcome, drifted)}`;
     text(o, drifted ? "drifted" : l.outcome);
     const info = document.createElement("span");
     let d = "";
-    if (l.drift) d = `, drift ${fmt(l.drift[0], 3)} mm / ${fmt(l.drift[1], 4)}°`;
+    if (l.drift) d = `, drift ${fmt(l.drift.translation_mm, 3)} mm / ${fmt(l.drift.rotation_deg, 4)}°`;
     text(info, ` ${l.mode} ${l.run_id}, ${when(l.finished_unix_s)}, ${fmt(l.duration_ms / 1000, 1)} s${d}`);
     last.append(o, info);
     (l.reasons || []).slice(0, 3).forEach((r) => {
@@ -191,7 +191,7 @@ function drawStatus(st) {
       last.appendChild(div);
     });
   } else {
-    text(last, "No run since the daemon started.");
+    text(last, "No run recorded yet.");
   }
 }
 
