@@ -18,7 +18,7 @@ const FLOORS: &[&[&str]] = &[
     &["calib", "plan", "bench"],
     &["record", "calendar"],
     &["config"],
-    &["report"],
+    &["report", "guard"],
     &["storage", "store"],
     &["run"],
     &["daemon"],

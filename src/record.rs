@@ -266,6 +266,9 @@ pub struct PreflightRecord {
     pub tcp_offset: [[f64; 4]; 4],
     /// Kinematics the model is posed with.
     pub kinematics: KinematicsUsed,
+    /// Whether handeye powered the arm on and released its brakes (`robot.allow_power_on`).
+    #[serde(default)]
+    pub powered_on: bool,
 }
 
 /// One view of the plan.

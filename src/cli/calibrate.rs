@@ -90,7 +90,7 @@ pub(crate) async fn execute(
     quiet: bool,
 ) -> anyhow::Result<RunRecord> {
     let model = load_model(cfg)?;
-    let robot = connect_robot(cfg).await?;
+    let robot = connect_robot(cfg, &model).await?;
     let camera = AnyCamera::connect(cfg).await?;
     let recorder = recorder(cfg).await;
     let progress = Terminal::new(quiet);

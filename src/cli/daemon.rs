@@ -84,11 +84,15 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         cfg.robot.host
     );
     let connect_cfg = cfg.clone();
+    let connect_model = Arc::clone(&model);
     let stop = shutdown.clone();
     let connect = |handle: DaemonHandle| async move {
         let cfg = connect_cfg;
         let robot_at = format!("robot at {}", cfg.robot.host);
-        let robot = with_backoff(&robot_at, &handle, &stop, || connect_robot(&cfg)).await?;
+        let robot = with_backoff(&robot_at, &handle, &stop, || {
+            connect_robot(&cfg, &connect_model)
+        })
+        .await?;
         let camera = with_backoff("camera", &handle, &stop, || AnyCamera::connect(&cfg)).await?;
         // Connected anew whenever it failed (a restarted or re-cabled camera comes back).
         let again = Arc::new(cfg.clone());
@@ -98,15 +102,9 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         });
         Some((robot, camera))
     };
-    handeye::daemon::run_with(
-        cfg,
-        model,
-        connect,
-        Arc::new(store),
-        api,
-        shutdown,
-        |_| eprintln!("handeye daemon ready (API on http://{listen})"),
-    )
+    handeye::daemon::run_with(cfg, model, connect, Arc::new(store), api, shutdown, |_| {
+        eprintln!("handeye daemon ready (API on http://{listen})")
+    })
     .await;
     eprintln!("handeye daemon stopped");
     Ok(ExitCode::SUCCESS)

@@ -676,7 +676,10 @@ fn start(
         Err(e @ (Refusal::Busy { .. } | Refusal::QueueFull { .. })) => {
             Err(ApiError::new(StatusCode::CONFLICT, e.to_string()))
         }
-        Err(e) => Err(ApiError::new(StatusCode::SERVICE_UNAVAILABLE, e.to_string())),
+        Err(e) => Err(ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            e.to_string(),
+        )),
     }
 }
 

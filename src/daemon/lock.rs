@@ -108,7 +108,10 @@ mod tests {
             matches!(&e, LockError::Held { holder, .. } if *holder == me),
             "{e}"
         );
-        assert!(e.to_string().contains("another handeye daemon (pid "), "{e}");
+        assert!(
+            e.to_string().contains("another handeye daemon (pid "),
+            "{e}"
+        );
         drop(first);
         let again = DaemonLock::acquire(&dir).expect("free again once dropped");
         drop(again);

@@ -497,10 +497,12 @@ impl DaemonHandle {
             let done = page.len() < PAGE;
             before = page.last().map(|r| r.started_unix_s);
             newest_first.extend(page.into_iter().filter(|r| r.outcome.outcome().is_some()));
-            let calibration = newest_first
+            let calibration = newest_first.iter().any(|r| {
+                r.mode == RunMode::Calibrate && r.outcome.outcome() == Some(Outcome::Accepted)
+            });
+            let check = newest_first
                 .iter()
-                .any(|r| r.mode == RunMode::Calibrate && r.outcome.outcome() == Some(Outcome::Accepted));
-            let check = newest_first.iter().any(|r| restored_drift_found(r).is_some());
+                .any(|r| restored_drift_found(r).is_some());
             if done || (calibration && check) {
                 break;
             }

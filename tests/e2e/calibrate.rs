@@ -345,6 +345,33 @@ fn faults_and_failed_preflight_write_nothing() {
             "{flag}: moved"
         );
         assert!(!dir.join("data/current").exists(), "{flag}: result files");
+        if flag == "--powered-off" {
+            // Issue 24: the refusal names the key; with it, handeye powers the arm on and
+            // releases the brakes through the dashboard, and the record says so.
+            assert!(
+                doc["reasons"]
+                    .to_string()
+                    .contains("robot.allow_power_on = true"),
+                "{out}"
+            );
+            let status = run(&["robot", "--host", robot_ip, "status", "--json"], secs(15));
+            assert!(status.stdout.contains("PowerOff"), "{status}");
+            let allowed = dir.join("allow-power-on.toml");
+            let text = std::fs::read_to_string(&cfg).expect("config");
+            std::fs::write(
+                &allowed,
+                text.replacen("[robot]\n", "[robot]\nallow_power_on = true\n", 1),
+            )
+            .expect("write");
+            let out = handeye("calibrate", &allowed, &[]);
+            assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
+            let doc = out.json();
+            assert_eq!(doc["outcome"], "accepted", "{out}");
+            assert_eq!(doc["preflight"]["powered_on"], true, "{out}");
+            let status = run(&["robot", "--host", robot_ip, "status", "--json"], secs(15));
+            assert!(status.stdout.contains("Running"), "{status}");
+            std::fs::remove_dir_all(dir.join("data/current")).expect("result files");
+        }
     }
 
     // Issue 24: the configuration says ur5, the controller's kinematics are a UR5e's: refused

@@ -38,7 +38,10 @@ fn the_api_answers_while_the_robot_is_unreachable_and_a_second_daemon_refuses() 
         s["waiting"].as_str().is_some_and(|w| w.contains(&waiting))
     });
     assert_eq!(st["robot_connected"], false, "{st}");
-    let out = run(&["status", "--config", cfg.to_str().expect("utf-8")], secs(15));
+    let out = run(
+        &["status", "--config", cfg.to_str().expect("utf-8")],
+        secs(15),
+    );
     assert_eq!(out.code(), 0, "{out}");
     assert!(out.stdout.contains(&waiting), "{out}");
     assert!(out.stdout.contains(", next in "), "{out}");
@@ -232,7 +235,10 @@ fn daemon_calibrates_at_startup_and_serves_the_api() {
         .lines()
         .find(|l| l.contains(&ended))
         .unwrap_or_else(|| panic!("no `{ended}` in\n{log}"));
-    assert!(line.contains("; drift ") && line.contains(" mm / "), "{line}");
+    assert!(
+        line.contains("; drift ") && line.contains(" mm / "),
+        "{line}"
+    );
     // Stages are debug: not in the default journal.
     assert!(!log.contains("stage=move"), "{log}");
     let (code, metrics) = http(&api, "GET", "/metrics", None);
@@ -317,14 +323,22 @@ fn scheduled_checks_raise_the_alarm_when_the_camera_slips() {
     let (code, body) = http(&api, "GET", "/api/status", None);
     assert_eq!(code, 200, "{body}");
     let st = json(&body);
-    assert_eq!(st["drift_alarm"], true, "after the restart: {st}\n{}", daemon.log());
+    assert_eq!(
+        st["drift_alarm"],
+        true,
+        "after the restart: {st}\n{}",
+        daemon.log()
+    );
     assert_eq!(st["last_check"]["run_id"], check, "{st}");
     assert_eq!(st["last_check"]["drift"]["exceeded"], true, "{st}");
     assert_eq!(st["last_calibration"]["run_id"], calibration, "{st}");
     let (_, metrics) = http(&api, "GET", "/metrics", None);
     assert!(metrics.contains("handeye_drift_alarm 1"), "{metrics}");
     assert!(!metrics.contains("handeye_last_drift_mm NaN"), "{metrics}");
-    let text = run(&["status", "--config", cfg.to_str().expect("utf-8")], secs(15));
+    let text = run(
+        &["status", "--config", cfg.to_str().expect("utf-8")],
+        secs(15),
+    );
     assert!(text.stdout.contains("drift alarm: ON"), "{}", text.stdout);
 }
 
