@@ -47,6 +47,9 @@ enum Command {
     /// Ask the running daemon what it is doing: state, current run and stage, last run, last
     /// calibration, drift alarm, connections. Exit 2 when no daemon answers.
     Status(cli::status::Args),
+    /// Ask the running daemon to cancel the run in progress (the arm is stopped) and every
+    /// queued one; sends the API token. Exit 0 when one was cancelled or none was running.
+    Cancel(cli::cancel::Args),
     /// Run protocol simulators (a UR controller, a GigE Vision 3D camera).
     #[command(subcommand)]
     Sim(SimCommand),
@@ -188,6 +191,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => cli::bench::run(a),
         Command::History(a) => cli::history::run(a),
         Command::Status(a) => cli::status::run(a),
+        Command::Cancel(a) => cli::cancel::run(a),
         // Asynchronous: talk to devices or serve them; stop on the shutdown token.
         Command::Demo(a) => with_runtime(|shutdown| cli::demo::run(a, shutdown)),
         Command::Daemon(a) => with_runtime(|shutdown| cli::daemon::run(a, shutdown)),

@@ -353,9 +353,28 @@ fn sigterm_and_kill_mid_run_leave_an_honest_history() {
     let cfg = config(&dir, robot_ip, camera_ip, "");
     let api = format!("{robot_ip}:8650");
 
+    // issue 24: `handeye cancel` while the arm moves: the run ends aborted, the daemon runs on.
+    let mut daemon = start_daemon(&dir, "daemon-1", &cfg);
+    let config_arg = cfg.to_str().expect("utf-8");
+    let out = run(&["cancel", "--config", config_arg], secs(15));
+    assert_eq!(out.code(), 0, "{out}");
+    assert!(out.stdout.contains("nothing to cancel"), "{out}");
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let cancelled = json(&body)["run_id"].as_str().expect("run id").to_string();
+    wait_status(&api, secs(30), "the move starts", |s| {
+        s["current"]["stage"] == "move"
+    });
+    let out = run(&["cancel", "--config", config_arg], secs(15));
+    assert_eq!(out.code(), 0, "{out}");
+    assert!(out.stdout.starts_with("cancelled"), "{out}");
+    let st = wait_status(&api, secs(30), "the cancelled run ends", |s| {
+        s["state"] == "idle" && s["last"]["run_id"] == cancelled.as_str()
+    });
+    assert_eq!(st["last"]["outcome"], "aborted", "{st}");
+
     // SIGTERM while the arm moves: the arm stops, the run is recorded as aborted, the daemon
     // exits within a few seconds.
-    let mut daemon = start_daemon(&dir, "daemon-1", &cfg);
     let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
     assert_eq!(code, 202, "{body}");
     let first = json(&body)["run_id"].as_str().expect("run id").to_string();
