@@ -499,10 +499,11 @@ impl RunRecord {
     /// camera beyond a threshold, `Some(false)` within both, `None` when the run is no check
     /// that compared (calibrate, not accepted, or nothing to compare with).
     pub fn drift_found(&self) -> Option<bool> {
-        match (self.mode, self.outcome, &self.drift) {
-            (RunMode::Check, Outcome::Accepted, Some(d)) => Some(d.drifted),
-            _ => None,
-        }
+        drift_found(
+            self.mode,
+            Some(self.outcome),
+            self.drift.as_ref().map(|d| d.drifted),
+        )
     }
 
     /// The one word every view of the run uses (CLI, API, history, page, picture, log):
@@ -536,5 +537,14 @@ pub fn verdict(outcome: Outcome, drift_found: Option<bool>) -> &'static str {
         Some(true) => "drifted",
         Some(false) => "within limits",
         None => outcome.name(),
+    }
+}
+
+/// [`RunRecord::drift_found`] from the columns the history keeps: the mode, the outcome (`None`
+/// while running) and whether a drift threshold was exceeded (`None` when nothing was compared).
+pub fn drift_found(mode: RunMode, outcome: Option<Outcome>, drifted: Option<bool>) -> Option<bool> {
+    match (mode, outcome, drifted) {
+        (RunMode::Check, Some(Outcome::Accepted), Some(d)) => Some(d),
+        _ => None,
     }
 }

@@ -212,7 +212,8 @@ pub(crate) fn summary(r: &RunRecord) -> String {
     }
     for (i, v) in r.views.iter().enumerate() {
         s += &format!(
-            "  view {i}: joints {:.3?} rad; path checked at {} configurations (step ≤ {:.3} rad){}\n",
+            "  view {}: joints {:.3?} rad; path checked at {} configurations (step ≤ {:.3} rad){}\n",
+            i + 1,
             v.joints,
             v.path.samples,
             v.path.max_step_rad,

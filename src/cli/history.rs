@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use handeye::calendar::utc_text;
 use handeye::config::Config;
-use handeye::record::Stage;
+use handeye::record::{drift_found, verdict, Stage};
 use handeye::store::{RunSummary, Store, StoredRun, HISTORY_FILE};
 
 /// Arguments of `history`.
@@ -117,20 +117,20 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
     }
     writeln!(
         out,
-        "{:<19}  {:<21}  {:<8}  {:<9}  {:<8}  {:>7}  {:<26}  REASON",
-        "STARTED (UTC)", "RUN ID", "TRIGGER", "MODE", "OUTCOME", "TIME", "RESULT"
+        "{:<19}  {:<21}  {:<8}  {:<9}  {:<13}  {:>7}  {:<26}  REASON",
+        "STARTED (UTC)", "RUN ID", "TRIGGER", "MODE", "VERDICT", "TIME", "RESULT"
     )?;
     for r in runs {
         let time = r
             .duration_ms
             .map_or_else(|| "-".into(), |ms| format!("{:.1} s", ms / 1e3));
         let line = format!(
-            "{:<19}  {:<21}  {:<8}  {:<9}  {:<8}  {:>7}  {:<26}  {}",
+            "{:<19}  {:<21}  {:<8}  {:<9}  {:<13}  {:>7}  {:<26}  {}",
             utc_text(r.started_unix_s),
             r.run_id,
             r.trigger,
             r.mode.name(),
-            r.outcome.name(),
+            summary_verdict(r),
             time,
             result_cell(r),
             r.reason
@@ -143,6 +143,15 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
 }
 
 /// The drift of a check, else the uncertainty of a result.
+/// The run's verdict ([`handeye::record::verdict`]): `drifted` / `within limits` for a check
+/// that measured the camera, else its outcome (`running` while it runs).
+fn summary_verdict(r: &RunSummary) -> &'static str {
+    match r.outcome.outcome() {
+        Some(o) => verdict(o, drift_found(r.mode, Some(o), r.drifted)),
+        None => r.outcome.name(),
+    }
+}
+
 fn result_cell(r: &RunSummary) -> String {
     match (r.drift_translation_mm, r.drift_rotation_deg) {
         (Some(mm), Some(deg)) => {

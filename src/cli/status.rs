@@ -201,7 +201,11 @@ fn finished(f: &Finished, now: f64) -> String {
         f.run_id,
         f.mode,
         f.trigger,
-        f.outcome,
+        if f.verdict.is_empty() {
+            f.outcome.name()
+        } else {
+            &f.verdict
+        },
         f.duration_ms / 1e3,
         when(f.finished_unix_s, now)
     );

@@ -58,6 +58,10 @@ pub struct Finished {
     pub trigger: Trigger,
     /// How it ended.
     pub outcome: Outcome,
+    /// The word every view uses for it ([`RunRecord::verdict`]): a check that measured the
+    /// camera is `drifted` or `within limits`, any other run its outcome.
+    #[serde(default)]
+    pub verdict: String,
     /// Why (empty when accepted).
     pub reasons: Vec<String>,
     /// Unix time it ended, s.
@@ -450,6 +454,7 @@ impl DaemonHandle {
             mode,
             trigger,
             outcome: record.outcome,
+            verdict: record.verdict().to_string(),
             reasons: record.reasons.clone(),
             finished_unix_s: unix_now(),
             duration_ms: record.timings_ms.total,
@@ -526,6 +531,7 @@ impl DaemonHandle {
                 mode: r.mode,
                 trigger: r.trigger,
                 outcome,
+                verdict: crate::record::verdict(outcome, restored_drift_found(r)).to_string(),
                 reasons: r.reason.iter().cloned().collect(),
                 finished_unix_s: r
                     .finished_unix_s
@@ -549,10 +555,7 @@ impl DaemonHandle {
 
 /// [`RunRecord::drift_found`] of a run as the history lists it.
 fn restored_drift_found(r: &crate::store::RunSummary) -> Option<bool> {
-    match (r.mode, r.outcome.outcome(), r.drifted) {
-        (RunMode::Check, Some(Outcome::Accepted), Some(d)) => Some(d),
-        _ => None,
-    }
+    crate::record::drift_found(r.mode, r.outcome.outcome(), r.drifted)
 }
 
 impl State {

@@ -638,7 +638,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     stage,
                     format!(
                         "no generated view {} of {count} is reachable on a safe path ({}); move the arm to a free start pose or configure joint targets",
-                        views.len(),
+                        views.len() + 1,
                         last_refusal.unwrap_or_else(|| "views too alike".into())
                     ),
                 ));
@@ -680,7 +680,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     r => Failure::error(
                         stage,
                         format!(
-                            "the path to view {i} is not safe: {r}; change the view's joints or the obstacles"
+                            "the path to view {} is not safe: {r}; change the view's joints or the obstacles",
+                            i + 1
                         ),
                     ),
                 })?;
@@ -740,13 +741,13 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             let t = Instant::now();
             self.progress.stage(
                 Stage::Move,
-                &format!("moving to view {v} of {}", views.len()),
+                &format!("moving to view {} of {}", v + 1, views.len()),
             );
             // A view at the start joints (eye-to-hand without targets: measure where the arm
             // stands) needs no motion at all.
             if !(v == 0 && start.as_deref() == Some(q.as_slice())) {
                 self.moved = true;
-                self.move_to(q, Stage::Move, &format!("move to view {v}"))
+                self.move_to(q, Stage::Move, &format!("move to view {}", v + 1))
                     .await?;
                 self.links_intact(Stage::Move)?;
                 self.record.timings_ms.moves += ms(t);
@@ -766,7 +767,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             let n = self.cfg.camera.capture.frames;
             self.progress.stage(
                 Stage::Capture,
-                &format!("capturing {n} frame(s) at view {v}"),
+                &format!("capturing {n} frame(s) at view {}", v + 1),
             );
             let (capture, clouds) = self.capture(v).await?;
             self.links_intact(Stage::Capture)?;
@@ -870,7 +871,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     return Err(Failure::error(
                         stage,
                         format!(
-                            "the camera failed to capture at view {view}: {}; check the camera",
+                            "the camera failed to capture at view {}: {}; check the camera",
+                            view + 1,
                             error_chain(&e)
                         ),
                     ))
@@ -879,7 +881,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     return Err(Failure::error(
                         stage,
                         format!(
-                            "the camera delivered no frames within {ceiling:?} at view {view}; check the camera"
+                            "the camera delivered no frames within {ceiling:?} at view {}; check the camera",
+                            view + 1
                         ),
                     ))
                 }
@@ -908,7 +911,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     outcome: Outcome::Aborted,
                     stage,
                     message: format!(
-                        "the arm moved by {change:.4} rad while the camera captured view {view}; something else is moving the arm"
+                        "the arm moved by {change:.4} rad while the camera captured view {}; something else is moving the arm",
+                        view + 1
                     ),
                 });
             }
