@@ -9,6 +9,8 @@
 mod calibrate;
 #[path = "e2e/daemon.rs"]
 mod daemon;
+#[path = "e2e/monitoring.rs"]
+mod monitoring;
 #[path = "e2e/readme.rs"]
 mod readme;
 #[path = "e2e/rig.rs"]

@@ -45,7 +45,8 @@ enum HistoryCommand {
         /// Write here instead of to standard output.
         #[arg(long, value_name = "FILE")]
         out: Option<PathBuf>,
-        /// `json` (an array) or `csv` (with a header line).
+        /// `json` (an array), `jsonl` (one object per line, with `verdict` and `started_utc`
+        /// in ISO 8601, for log shippers) or `csv` (with a header line).
         #[arg(long, value_enum, default_value_t = Format::Json)]
         format: Format,
     },
@@ -54,6 +55,7 @@ enum HistoryCommand {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum Format {
     Json,
+    Jsonl,
     Csv,
 }
 
@@ -95,6 +97,7 @@ fn execute(store: &Store, command: &HistoryCommand, out: &mut dyn Write) -> anyh
             runs.reverse();
             let text = match format {
                 Format::Json => format!("{}\n", serde_json::to_string_pretty(&runs)?),
+                Format::Jsonl => jsonl(&runs)?,
                 Format::Csv => csv(&runs),
             };
             match file {
@@ -301,6 +304,19 @@ fn write_reasons(out: &mut dyn Write, reasons: &[String]) -> std::io::Result<()>
 }
 
 /// The summaries as CSV (RFC 4180: a header line, fields quoted when needed).
+/// One JSON object per run and line: the summary, its `verdict` and `started_utc` (ISO 8601).
+fn jsonl(runs: &[RunSummary]) -> anyhow::Result<String> {
+    let mut out = String::new();
+    for r in runs {
+        let mut v = serde_json::to_value(r)?;
+        v["verdict"] = summary_verdict(r).into();
+        v["started_utc"] = format!("{}Z", utc_text(r.started_unix_s).replace(' ', "T")).into();
+        out += &serde_json::to_string(&v)?;
+        out.push('\n');
+    }
+    Ok(out)
+}
+
 fn csv(runs: &[RunSummary]) -> String {
     const HEADER: &str = "run_id,trigger,mode,outcome,started_utc,started_unix_s,finished_unix_s,duration_ms,failed_stage,reason,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,uncertainty_translation_mm,uncertainty_rotation_deg,drift_translation_mm,drift_rotation_deg,drifted,written,capture_file,captures_pruned_unix_s,config_origin,config_digest";
     let num = |v: Option<f64>| v.map_or(String::new(), |x| x.to_string());
@@ -596,6 +612,18 @@ mod tests {
         );
         let err = history(&store, &cfg_path, &["show", "nope"]).expect_err("unknown id");
         assert!(err.to_string().contains("no run `nope`"), "{err}");
+
+        let jsonl = history(&store, &cfg_path, &["export", "--format", "jsonl"]).expect("jsonl");
+        let lines: Vec<serde_json::Value> = jsonl
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("one object per line"))
+            .collect();
+        assert_eq!(lines.len(), 3, "{jsonl}");
+        assert_eq!(lines[0]["run_id"], "run-a", "oldest first: {jsonl}");
+        assert_eq!(lines[0]["started_utc"], "2025-11-24T16:00:00Z", "{jsonl}");
+        assert_eq!(lines[0]["verdict"], "accepted", "{jsonl}");
+        assert_eq!(lines[1]["verdict"], "within limits", "{jsonl}");
+        assert_eq!(lines[2]["verdict"], "rejected", "{jsonl}");
 
         let csv = history(&store, &cfg_path, &["export", "--format", "csv"]).expect("csv");
         let rows: Vec<&str> = csv.lines().collect();

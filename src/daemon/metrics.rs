@@ -39,6 +39,10 @@ pub(super) struct Live {
     pub(super) busy: bool,
     /// Runs waiting behind it.
     pub(super) queued: usize,
+    /// When the last check that measured the camera ended (unix s), from the history too.
+    pub(super) last_check_unix_s: Option<f64>,
+    /// When the last accepted calibration ended (unix s), from the history too.
+    pub(super) last_calibration_unix_s: Option<f64>,
 }
 
 impl Metrics {
@@ -169,6 +173,18 @@ impl Metrics {
             "handeye_drift_alarm",
             "1 while the last check found drift beyond the thresholds.",
             Some(f64::from(u8::from(live.drift_alarm))),
+        );
+        gauge(
+            &mut s,
+            "handeye_last_check_timestamp_seconds",
+            "Unix time the last check that measured the camera ended, s (NaN: none recorded).",
+            live.last_check_unix_s,
+        );
+        gauge(
+            &mut s,
+            "handeye_last_calibration_timestamp_seconds",
+            "Unix time the last accepted calibration ended, s (NaN: none recorded).",
+            live.last_calibration_unix_s,
         );
         let _ = writeln!(s, "# HELP handeye_alarms_total Drift alarms raised.");
         let _ = writeln!(s, "# TYPE handeye_alarms_total counter");

@@ -390,6 +390,8 @@ impl DaemonHandle {
             camera: (st.camera_connected, st.links.1),
             busy: !st.runs.is_empty(),
             queued: st.runs.len().saturating_sub(1),
+            last_check_unix_s: st.last_check.as_ref().map(|f| f.finished_unix_s),
+            last_calibration_unix_s: st.last_calibration.as_ref().map(|f| f.finished_unix_s),
         })
     }
 

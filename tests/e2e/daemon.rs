@@ -248,6 +248,10 @@ fn daemon_calibrates_at_startup_and_serves_the_api() {
         "{metrics}"
     );
     assert!(metrics.contains("handeye_drift_alarm 0"), "{metrics}");
+    crate::monitoring::check_live_metrics(
+        "daemon_calibrates_at_startup_and_serves_the_api",
+        &metrics,
+    );
     let (code, body) = http(&api, "GET", "/api/runs", None);
     assert_eq!(code, 200, "{body}");
     assert_eq!(
