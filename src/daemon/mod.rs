@@ -5,7 +5,15 @@
 //! before it starts and when it ends, so a crash leaves it marked as interrupted. One shutdown token stops everything: a running move
 //! is stopped, the run recorded as aborted.
 //!
-//! The binary builds the concrete robot and camera from the configuration and calls [`run`].
+//! State that survives restarts: at startup the last run, the last calibration, the last check
+//! and the drift alarm are derived from the history (the same transition as a live run's end,
+//! `State::apply`), so a restart shows what was true before it. The frontend serves from the
+//! first second; while the robot or the camera is not reached yet (`waiting`) or known down
+//! (the idle health check), runs are refused ([`Refusal::Unavailable`]).
+//!
+//! The binary builds the concrete robot and camera from the configuration (every move through
+//! [`crate::guard::MotionGuard`]) and calls [`run_with`], whose `connect` reaches them; tests
+//! with devices at hand call [`run`].
 
 pub mod api;
 pub mod lock;
