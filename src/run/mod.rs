@@ -120,13 +120,15 @@ impl Failure {
     }
 
     fn cancelled(stage: Stage) -> Self {
+        // Before the first move nothing has moved; from then on the arm was stopped.
+        let arm = match stage {
+            Stage::Preflight | Stage::Plan => "nothing moved",
+            _ => "the arm was stopped where it is",
+        };
         Self {
             outcome: Outcome::Aborted,
             stage,
-            message: format!(
-                "cancelled during {}; the arm was stopped where it is",
-                stage.name()
-            ),
+            message: format!("cancelled during {}; {arm}", stage.name()),
         }
     }
 
@@ -747,10 +749,13 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             // stands) needs no motion at all.
             if !(v == 0 && start.as_deref() == Some(q.as_slice())) {
                 self.moved = true;
-                self.move_to(q, Stage::Move, &format!("move to view {}", v + 1))
-                    .await?;
-                self.links_intact(Stage::Move)?;
+                let moved = self
+                    .move_to(q, Stage::Move, &format!("move to view {}", v + 1))
+                    .await;
+                // Also an aborted move took its time.
                 self.record.timings_ms.moves += ms(t);
+                moved?;
+                self.links_intact(Stage::Move)?;
             }
 
             let t = Instant::now();

@@ -376,6 +376,16 @@ fn sigterm_and_kill_mid_run_leave_an_honest_history() {
         s["state"] == "idle" && s["last"]["run_id"] == cancelled.as_str()
     });
     assert_eq!(st["last"]["outcome"], "aborted", "{st}");
+    let (code, body) = http(&api, "GET", &format!("/api/runs/{cancelled}"), None);
+    assert_eq!(code, 200, "{body}");
+    let record = json(&body);
+    // The move it was in took its time, also when aborted.
+    assert!(
+        record["timings_ms"]["moves"]
+            .as_f64()
+            .is_some_and(|ms| ms > 0.0),
+        "{record}"
+    );
 
     // SIGTERM while the arm moves: the arm stops, the run is recorded as aborted, the daemon
     // exits within a few seconds.
