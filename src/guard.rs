@@ -195,7 +195,7 @@ impl<R: Robot> Robot for MotionGuard<R> {
             .await
             .map_err(|e| HalError::InvalidArgument(format!("the path check failed: {e}")))?;
         if let Err(reason) = checked {
-            tracing::warn!("move refused: {reason}");
+            tracing::info!("move refused: {reason}");
             return Err(HalError::Refused {
                 device: "the motion guard".into(),
                 request: "the move".into(),
