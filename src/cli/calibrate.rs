@@ -189,7 +189,7 @@ pub(crate) fn describe_pose(name: &str, t: &Isometry3<f64>) -> String {
 
 /// The text summary of a run record.
 pub(crate) fn summary(r: &RunRecord) -> String {
-    let mut s = format!("handeye {} — run {}: {}\n", r.mode, r.run_id, r.outcome);
+    let mut s = format!("handeye {} — run {}: {}\n", r.mode, r.run_id, r.verdict());
     for reason in &r.reasons {
         s += &format!("  - {reason}\n");
     }

@@ -243,6 +243,16 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     assert!((deg - true_deg).abs() < 0.05, "{deg}° vs {true_deg}\n{out}");
     assert_eq!(doc["drift"]["drifted"], true);
     assert_eq!(doc["written"].as_array().map(Vec::len), Some(0), "{out}");
+    // Issue 24: the text says `drifted`, as the daemon's status, the page and the picture do.
+    let out = run(
+        &["check", "--config", cfg.to_str().expect("utf-8")],
+        secs(120),
+    );
+    assert_eq!(out.code(), 1, "{out}");
+    assert!(
+        out.stdout.starts_with("handeye check — run ") && out.stdout.contains(": drifted\n"),
+        "{out}"
+    );
     // A check never writes: the controller's TCP is still the calibration.
     if let Some(py) = python() {
         let (q, base_from_tcp) = ur_rtde_tcp(&py, robot_ip);
@@ -252,7 +262,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     }
 
     // The commands' runs are in the history like the daemon's, asked for by `cli`: the
-    // calibration the controller holds, then the two checks, newest first.
+    // calibration the controller holds, then the three checks, newest first.
     let runs = history(&cfg);
     let rows: Vec<(String, String, String)> = runs
         .as_array()
@@ -268,6 +278,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     assert_eq!(
         rows,
         [
+            row("check", "accepted"),
             row("check", "accepted"),
             row("check", "accepted"),
             row("calibrate", "accepted")
