@@ -3,12 +3,14 @@
 //!
 //! Robot models come from `../shared/robots`; without it every scenario prints SKIP (and fails
 //! when env `CI` is set). Loopback addresses used here: 127.0.0.110–127.0.0.114, 127.0.0.120–127.0.0.133, 127.0.0.173–127.0.0.174 (issue 16)
-//! and 127.0.0.140–127.0.0.141 (the web page).
+//! 127.0.0.175–127.0.0.176 (issue 24, nothing listens) and 127.0.0.140–127.0.0.141 (the web page).
 
 #[path = "e2e/calibrate.rs"]
 mod calibrate;
 #[path = "e2e/daemon.rs"]
 mod daemon;
+#[path = "e2e/monitoring.rs"]
+mod monitoring;
 #[path = "e2e/readme.rs"]
 mod readme;
 #[path = "e2e/rig.rs"]

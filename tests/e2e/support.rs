@@ -197,9 +197,20 @@ pub(crate) struct Daemon {
 impl Daemon {
     /// Starts `handeye ARGS` with its stderr in `dir/<name>.log`.
     pub(crate) fn start(dir: &TempDir, name: &str, args: &[&str]) -> Self {
+        Self::spawn(dir, name, command(args))
+    }
+
+    /// Like [`Self::start`], without `RUST_LOG`: the log as a journal shows it by default.
+    pub(crate) fn start_with_default_log(dir: &TempDir, name: &str, args: &[&str]) -> Self {
+        let mut c = command(args);
+        c.env_remove("RUST_LOG");
+        Self::spawn(dir, name, c)
+    }
+
+    fn spawn(dir: &TempDir, name: &str, mut command: Command) -> Self {
         let log = dir.join(&format!("{name}.log"));
         let file = std::fs::File::create(&log).expect("log file");
-        let child = command(args)
+        let child = command
             .stdout(Stdio::null())
             .stderr(file)
             .spawn()
@@ -209,6 +220,11 @@ impl Daemon {
             log,
             name: name.to_string(),
         }
+    }
+
+    /// Its process id.
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
     }
 
     /// Its log so far.

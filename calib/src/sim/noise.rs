@@ -240,7 +240,6 @@ impl ScanNoise {
             z
         }
     }
-
 }
 
 #[cfg(test)]
