@@ -20,7 +20,7 @@ const FLOORS: &[&[&str]] = &[
     &["camera"],
     &["record", "calendar"],
     &["config"],
-    &["report"],
+    &["report", "guard"],
     &["storage", "store"],
     &["run"],
     &["daemon"],

@@ -9,7 +9,7 @@
 //!   daemon            (+ api and its listener, the web page, metrics, pendant, schedule, systemd notify)
 //!     run             (+ the recorder: history row, record, picture, pruning)
 //!       storage, store        the run folder (one owner) | the history (SQLite only)
-//!         report              the report picture and the drift chart
+//!         report, guard       the report picture and the drift chart | every move checked
 //!           config            the cell's TOML, validated
 //!             record, calendar        the run record, its words | dates, times, schedules
 //!               camera                the camera backends without a protocol
@@ -35,6 +35,8 @@
 //!   drift, what a mount solves for).
 //! - [`calendar`]: the wall clock, civil dates, UTC text and the calendar times of checks.
 //! - [`config`]: the TOML configuration of a cell, validated.
+//! - [`guard`]: [`guard::MotionGuard`], the decorator that checks every move of any robot
+//!   (joint limits, floor, self-collision, obstacles) and caps its speed.
 //! - [`report`]: the report picture of a run (scan, distances, outline, numbers) and the
 //!   drift chart, as PNG.
 //! - [`storage`]: the run folder: layout, run ids, the durable atomic write, pruning.
@@ -50,6 +52,7 @@ pub mod calendar;
 pub mod camera;
 pub mod config;
 pub mod daemon;
+pub mod guard;
 pub mod record;
 pub mod report;
 pub mod run;

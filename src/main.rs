@@ -47,6 +47,9 @@ enum Command {
     /// Ask the running daemon what it is doing: state, current run and stage, last run, last
     /// calibration, drift alarm, connections. Exit 2 when no daemon answers.
     Status(cli::status::Args),
+    /// Ask the running daemon to cancel the run in progress (the arm is stopped) and every
+    /// queued one; sends the API token. Exit 0 when one was cancelled or none was running.
+    Cancel(cli::cancel::Args),
     /// Run protocol simulators (a UR controller, a GigE Vision 3D camera).
     #[command(subcommand)]
     Sim(SimCommand),
@@ -127,17 +130,30 @@ async fn ctrl_c() {
     }
 }
 
-fn main() -> ExitCode {
+/// The log filter without `RUST_LOG`: the daemon's journal tells the story of its runs (one
+/// line per start and outcome, skipped checks, connection changes: `info`); the other
+/// commands print their own results and log only warnings.
+fn default_filter(command: &Command) -> &'static str {
+    match command {
+        Command::Daemon(_) => "warn,handeye=info",
+        _ => "warn",
+    }
+}
+
+fn init_tracing(default: &str) {
     use std::io::IsTerminal as _;
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default)),
         )
         .with_writer(std::io::stderr)
         // Colour codes only for a person at a terminal, never into a log file or journal.
         .with_ansi(std::io::stderr().is_terminal())
         .init();
+}
+
+fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
@@ -166,6 +182,7 @@ fn main() -> ExitCode {
             return ExitCode::from(u8::try_from(e.exit_code()).unwrap_or(2));
         }
     };
+    init_tracing(default_filter(&cli.command));
     let result = match cli.command {
         // Synchronous: computation on the calling thread and rayon, no I/O to wait for. They
         // run without a runtime, so Ctrl-C ends them the default way, at once.
@@ -174,6 +191,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => cli::bench::run(a),
         Command::History(a) => cli::history::run(a),
         Command::Status(a) => cli::status::run(a),
+        Command::Cancel(a) => cli::cancel::run(a),
         // Asynchronous: talk to devices or serve them; stop on the shutdown token.
         Command::Demo(a) => with_runtime(|shutdown| cli::demo::run(a, shutdown)),
         Command::Daemon(a) => with_runtime(|shutdown| cli::daemon::run(a, shutdown)),

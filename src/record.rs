@@ -266,6 +266,9 @@ pub struct PreflightRecord {
     pub tcp_offset: [[f64; 4]; 4],
     /// Kinematics the model is posed with.
     pub kinematics: KinematicsUsed,
+    /// Whether handeye powered the arm on and released its brakes (`robot.allow_power_on`).
+    #[serde(default)]
+    pub powered_on: bool,
 }
 
 /// One view of the plan.
@@ -481,10 +484,18 @@ impl RunRecord {
     /// camera beyond a threshold, `Some(false)` within both, `None` when the run is no check
     /// that compared (calibrate, not accepted, or nothing to compare with).
     pub fn drift_found(&self) -> Option<bool> {
-        match (self.mode, self.outcome, &self.drift) {
-            (RunMode::Check, Outcome::Accepted, Some(d)) => Some(d.drifted),
-            _ => None,
-        }
+        drift_found(
+            self.mode,
+            Some(self.outcome),
+            self.drift.as_ref().map(|d| d.drifted),
+        )
+    }
+
+    /// The one word every view of the run uses (CLI, API, history, page, picture, log):
+    /// a check that measured the camera says `drifted` or `within limits`; any other run its
+    /// outcome (`accepted`, `rejected`, `aborted`, `error`, `planned`).
+    pub fn verdict(&self) -> &'static str {
+        verdict(self.outcome, self.drift_found())
     }
 
     /// Process exit code: calibrate 0 accepted / 1 rejected / 2 error or aborted; check 0
@@ -501,5 +512,24 @@ impl RunRecord {
             (Outcome::Rejected, RunMode::Calibrate) => 1,
             _ => 2,
         }
+    }
+}
+
+/// [`RunRecord::verdict`] from the outcome and [`RunRecord::drift_found`] (what the history's
+/// columns hold as well).
+pub fn verdict(outcome: Outcome, drift_found: Option<bool>) -> &'static str {
+    match drift_found {
+        Some(true) => "drifted",
+        Some(false) => "within limits",
+        None => outcome.name(),
+    }
+}
+
+/// [`RunRecord::drift_found`] from the columns the history keeps: the mode, the outcome (`None`
+/// while running) and whether a drift threshold was exceeded (`None` when nothing was compared).
+pub fn drift_found(mode: RunMode, outcome: Option<Outcome>, drifted: Option<bool>) -> Option<bool> {
+    match (mode, outcome, drifted) {
+        (RunMode::Check, Some(Outcome::Accepted), Some(d)) => Some(d),
+        _ => None,
     }
 }

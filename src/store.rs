@@ -1114,7 +1114,7 @@ impl WriterLock {
     }
 }
 
-enum FlockMode {
+pub(crate) enum FlockMode {
     /// Exclusive without waiting; `Ok(false)` when another process holds the lock.
     ExclusiveNow,
     /// Shared, waiting for an exclusive holder.
@@ -1122,7 +1122,7 @@ enum FlockMode {
 }
 
 #[cfg(unix)]
-fn flock(file: &File, mode: FlockMode) -> std::io::Result<bool> {
+pub(crate) fn flock(file: &File, mode: FlockMode) -> std::io::Result<bool> {
     use std::os::fd::AsRawFd;
     let op = match mode {
         FlockMode::ExclusiveNow => libc::LOCK_EX | libc::LOCK_NB,
@@ -1144,7 +1144,7 @@ fn flock(file: &File, mode: FlockMode) -> std::io::Result<bool> {
 
 /// Without `flock`, every writer recovers: run one writer at a time.
 #[cfg(not(unix))]
-fn flock(_file: &File, _mode: FlockMode) -> std::io::Result<bool> {
+pub(crate) fn flock(_file: &File, _mode: FlockMode) -> std::io::Result<bool> {
     Ok(true)
 }
 

@@ -89,7 +89,7 @@ pub(crate) async fn execute(
     quiet: bool,
 ) -> anyhow::Result<RunRecord> {
     let model = load_model(cfg)?;
-    let robot = connect_robot(cfg).await?;
+    let robot = connect_robot(cfg, &model).await?;
     let camera = AnyCamera::connect(cfg).await?;
     let recorder = recorder(cfg).await;
     let progress = Terminal::new(quiet);
@@ -188,7 +188,7 @@ pub(crate) fn describe_pose(name: &str, t: &Isometry3<f64>) -> String {
 
 /// The text summary of a run record.
 pub(crate) fn summary(r: &RunRecord) -> String {
-    let mut s = format!("handeye {} — run {}: {}\n", r.mode, r.run_id, r.outcome);
+    let mut s = format!("handeye {} — run {}: {}\n", r.mode, r.run_id, r.verdict());
     for reason in &r.reasons {
         s += &format!("  - {reason}\n");
     }
@@ -211,7 +211,8 @@ pub(crate) fn summary(r: &RunRecord) -> String {
     }
     for (i, v) in r.views.iter().enumerate() {
         s += &format!(
-            "  view {i}: joints {:.3?} rad; path checked at {} configurations (step ≤ {:.3} rad){}\n",
+            "  view {}: joints {:.3?} rad; path checked at {} configurations (step ≤ {:.3} rad){}\n",
+            i + 1,
             v.joints,
             v.path.samples,
             v.path.max_step_rad,

@@ -1,7 +1,9 @@
 //! `handeye daemon --config FILE`: the service on a cell PC. Loads and checks the
-//! configuration (a bad one refuses to start, naming key and line), opens the history,
-//! connects the robot and the camera (retrying with backoff until they answer), and hands them
-//! to `handeye::daemon::run` with the HTTP API as its frontend, until SIGTERM/Ctrl-C.
+//! configuration (a bad one refuses to start, naming key and line), takes the storage's
+//! daemon lock (a second daemon on the same storage refuses to start, naming the first), opens
+//! the history, and runs `handeye::daemon::run_with` with the HTTP API as its frontend (up
+//! from the first second) and a `connect` that reaches the robot and the camera (retrying with
+//! backoff, shown in the status) until SIGTERM/Ctrl-C.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -11,6 +13,8 @@ use anyhow::Context;
 use handeye::camera::{Backoff, ReconnectingCamera};
 use handeye::config::Config;
 use handeye::daemon::api::Api;
+use handeye::daemon::lock::DaemonLock;
+use handeye::daemon::DaemonHandle;
 use tokio_util::sync::CancellationToken;
 
 use super::wiring::{connect_robot, history_path, load_model, AnyCamera};
@@ -23,20 +27,34 @@ pub(crate) struct Args {
     config: PathBuf,
 }
 
-/// Calls `connect` until it succeeds (backoff 1 s doubling to 30 s, each failure logged) or
+/// Calls `connect` until it succeeds (backoff 1 s doubling to 30 s, each failure logged and
+/// shown in the daemon's status as `waiting for WHAT (attempt N, next in S s)`) or
 /// `shutdown`; `None` on shutdown.
-async fn with_backoff<T, F, Fut>(what: &str, shutdown: &CancellationToken, connect: F) -> Option<T>
+async fn with_backoff<T, F, Fut>(
+    what: &str,
+    handle: &DaemonHandle,
+    shutdown: &CancellationToken,
+    connect: F,
+) -> Option<T>
 where
     F: Fn() -> Fut,
     Fut: std::future::Future<Output = anyhow::Result<T>>,
 {
     let mut backoff = Backoff::new();
+    let mut attempt = 0;
     loop {
+        attempt += 1;
         let wait = match connect().await {
-            Ok(v) => return Some(v),
+            Ok(v) => {
+                if attempt > 1 {
+                    tracing::warn!("{what}: connected at attempt {attempt}");
+                }
+                return Some(v);
+            }
             Err(e) => {
                 let wait = backoff.failed();
-                tracing::warn!("{what}: {e:#}; retrying in {wait:?}");
+                tracing::warn!("{what}: {e:#}; retrying in {wait:?} (attempt {attempt})");
+                handle.waiting_for(what, attempt, wait, &format!("{e:#}"));
                 wait
             }
         };
@@ -49,6 +67,8 @@ where
 
 pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
+    // Before anything else: a second daemon on the same cell stops here, naming the first.
+    let _lock = DaemonLock::acquire(&cfg.storage.dir)?;
     raise_fd_limit();
     let model = load_model(&cfg)?;
     let path = history_path(&cfg);
@@ -57,29 +77,34 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         .context("opening the history")?;
     let api = Api::from_config(&cfg)?;
     tracing::info!(config = %cfg.origin, "handeye daemon starting");
-    let Some(robot) = with_backoff("robot", &shutdown, || connect_robot(&cfg)).await else {
-        return Ok(ExitCode::SUCCESS);
-    };
-    let Some(camera) = with_backoff("camera", &shutdown, || AnyCamera::connect(&cfg)).await else {
-        return Ok(ExitCode::SUCCESS);
-    };
-    // Connected anew whenever it failed (a restarted or re-cabled camera comes back).
-    let again = Arc::new(cfg.clone());
-    let camera = ReconnectingCamera::new(camera, move || {
-        let cfg = Arc::clone(&again);
-        async move { AnyCamera::connect(&cfg).await }
-    });
     let listen = cfg.daemon.listen;
-    handeye::daemon::run(
-        cfg,
-        model,
-        robot,
-        camera,
-        Arc::new(store),
-        api,
-        shutdown,
-        |_| eprintln!("handeye daemon ready (API on http://{listen})"),
-    )
+    eprintln!(
+        "handeye daemon starting (API on http://{listen}); connecting to the robot at {} and \
+         the camera",
+        cfg.robot.host
+    );
+    let connect_cfg = cfg.clone();
+    let connect_model = Arc::clone(&model);
+    let stop = shutdown.clone();
+    let connect = |handle: DaemonHandle| async move {
+        let cfg = connect_cfg;
+        let robot_at = format!("robot at {}", cfg.robot.host);
+        let robot = with_backoff(&robot_at, &handle, &stop, || {
+            connect_robot(&cfg, &connect_model)
+        })
+        .await?;
+        let camera = with_backoff("camera", &handle, &stop, || AnyCamera::connect(&cfg)).await?;
+        // Connected anew whenever it failed (a restarted or re-cabled camera comes back).
+        let again = Arc::new(cfg.clone());
+        let camera = ReconnectingCamera::new(camera, move || {
+            let cfg = Arc::clone(&again);
+            async move { AnyCamera::connect(&cfg).await }
+        });
+        Some((robot, camera))
+    };
+    handeye::daemon::run_with(cfg, model, connect, Arc::new(store), api, shutdown, |_| {
+        eprintln!("handeye daemon ready (API on http://{listen})")
+    })
     .await;
     eprintln!("handeye daemon stopped");
     Ok(ExitCode::SUCCESS)

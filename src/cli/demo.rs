@@ -42,7 +42,8 @@ pub(crate) struct Args {
     #[arg(long)]
     seed: Option<u64>,
     /// Where the run keeps its record, captures and result files (default: a fresh folder
-    /// under the system's temporary directory, printed).
+    /// under the system's temporary directory, removed when the demo passes, kept and printed
+    /// when it fails).
     #[arg(long, value_name = "DIR")]
     storage: Option<PathBuf>,
     /// Print one JSON object instead of text.
@@ -267,13 +268,20 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
             "  TCP now active on the controller: {}",
             UrPose::from(&tcp_on_controller)
         );
-        println!("  files: {}", storage.display());
+        if args.storage.is_none() && passed {
+            println!("  files: removed (a passing demo keeps them with --storage DIR)");
+        } else {
+            println!("  files: {}", storage.display());
+        }
         println!("  demo {}", if passed { "PASSED" } else { "FAILED" });
     }
     drop(rig);
-    if args.runs.is_some() && args.storage.is_none() && passed {
-        // A passing benchmark run leaves nothing behind in the temporary directory.
-        let _ = std::fs::remove_dir_all(&storage);
+    if args.storage.is_none() && passed {
+        // A passing demo leaves nothing behind in the temporary directory (a failing one keeps
+        // its files to look at).
+        if let Err(e) = std::fs::remove_dir_all(&storage) {
+            tracing::warn!("cannot remove {}: {e}", storage.display());
+        }
     }
     let exit = if passed {
         ExitCode::SUCCESS

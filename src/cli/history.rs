@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use handeye::calendar::utc_text;
 use handeye::config::Config;
-use handeye::record::Stage;
+use handeye::record::{drift_found, verdict, Stage};
 use handeye::store::{RunSummary, Store, StoredRun, HISTORY_FILE};
 
 /// Arguments of `history`.
@@ -45,7 +45,8 @@ enum HistoryCommand {
         /// Write here instead of to standard output.
         #[arg(long, value_name = "FILE")]
         out: Option<PathBuf>,
-        /// `json` (an array) or `csv` (with a header line).
+        /// `json` (an array), `jsonl` (one object per line, with `verdict` and `started_utc`
+        /// in ISO 8601, for log shippers) or `csv` (with a header line).
         #[arg(long, value_enum, default_value_t = Format::Json)]
         format: Format,
     },
@@ -54,6 +55,7 @@ enum HistoryCommand {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum Format {
     Json,
+    Jsonl,
     Csv,
 }
 
@@ -95,6 +97,7 @@ fn execute(store: &Store, command: &HistoryCommand, out: &mut dyn Write) -> anyh
             runs.reverse();
             let text = match format {
                 Format::Json => format!("{}\n", serde_json::to_string_pretty(&runs)?),
+                Format::Jsonl => jsonl(&runs)?,
                 Format::Csv => csv(&runs),
             };
             match file {
@@ -117,20 +120,20 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
     }
     writeln!(
         out,
-        "{:<19}  {:<21}  {:<8}  {:<9}  {:<8}  {:>7}  {:<26}  REASON",
-        "STARTED (UTC)", "RUN ID", "TRIGGER", "MODE", "OUTCOME", "TIME", "RESULT"
+        "{:<19}  {:<21}  {:<8}  {:<9}  {:<13}  {:>7}  {:<26}  REASON",
+        "STARTED (UTC)", "RUN ID", "TRIGGER", "MODE", "VERDICT", "TIME", "RESULT"
     )?;
     for r in runs {
         let time = r
             .duration_ms
             .map_or_else(|| "-".into(), |ms| format!("{:.1} s", ms / 1e3));
         let line = format!(
-            "{:<19}  {:<21}  {:<8}  {:<9}  {:<8}  {:>7}  {:<26}  {}",
+            "{:<19}  {:<21}  {:<8}  {:<9}  {:<13}  {:>7}  {:<26}  {}",
             utc_text(r.started_unix_s),
             r.run_id,
             r.trigger,
             r.mode.name(),
-            r.outcome.name(),
+            summary_verdict(r),
             time,
             result_cell(r),
             r.reason
@@ -143,6 +146,15 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
 }
 
 /// The drift of a check, else the uncertainty of a result.
+/// The run's verdict ([`handeye::record::verdict`]): `drifted` / `within limits` for a check
+/// that measured the camera, else its outcome (`running` while it runs).
+fn summary_verdict(r: &RunSummary) -> &'static str {
+    match r.outcome.outcome() {
+        Some(o) => verdict(o, drift_found(r.mode, Some(o), r.drifted)),
+        None => r.outcome.name(),
+    }
+}
+
 fn result_cell(r: &RunSummary) -> String {
     match (r.drift_translation_mm, r.drift_rotation_deg) {
         (Some(mm), Some(deg)) => {
@@ -292,6 +304,19 @@ fn write_reasons(out: &mut dyn Write, reasons: &[String]) -> std::io::Result<()>
 }
 
 /// The summaries as CSV (RFC 4180: a header line, fields quoted when needed).
+/// One JSON object per run and line: the summary, its `verdict` and `started_utc` (ISO 8601).
+fn jsonl(runs: &[RunSummary]) -> anyhow::Result<String> {
+    let mut out = String::new();
+    for r in runs {
+        let mut v = serde_json::to_value(r)?;
+        v["verdict"] = summary_verdict(r).into();
+        v["started_utc"] = format!("{}Z", utc_text(r.started_unix_s).replace(' ', "T")).into();
+        out += &serde_json::to_string(&v)?;
+        out.push('\n');
+    }
+    Ok(out)
+}
+
 fn csv(runs: &[RunSummary]) -> String {
     const HEADER: &str = "run_id,trigger,mode,outcome,started_utc,started_unix_s,finished_unix_s,duration_ms,failed_stage,reason,x_m,y_m,z_m,rx_rad,ry_rad,rz_rad,uncertainty_translation_mm,uncertainty_rotation_deg,drift_translation_mm,drift_rotation_deg,drifted,written,capture_file,captures_pruned_unix_s,config_origin,config_digest";
     let num = |v: Option<f64>| v.map_or(String::new(), |x| x.to_string());
@@ -588,6 +613,18 @@ mod tests {
         );
         let err = history(&store, &cfg_path, &["show", "nope"]).expect_err("unknown id");
         assert!(err.to_string().contains("no run `nope`"), "{err}");
+
+        let jsonl = history(&store, &cfg_path, &["export", "--format", "jsonl"]).expect("jsonl");
+        let lines: Vec<serde_json::Value> = jsonl
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("one object per line"))
+            .collect();
+        assert_eq!(lines.len(), 3, "{jsonl}");
+        assert_eq!(lines[0]["run_id"], "run-a", "oldest first: {jsonl}");
+        assert_eq!(lines[0]["started_utc"], "2025-11-24T16:00:00Z", "{jsonl}");
+        assert_eq!(lines[0]["verdict"], "accepted", "{jsonl}");
+        assert_eq!(lines[1]["verdict"], "within limits", "{jsonl}");
+        assert_eq!(lines[2]["verdict"], "rejected", "{jsonl}");
 
         let csv = history(&store, &cfg_path, &["export", "--format", "csv"]).expect("csv");
         let rows: Vec<&str> = csv.lines().collect();

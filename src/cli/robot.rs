@@ -2,11 +2,20 @@
 //! registers). Moves need remote control and are capped in speed.
 
 use std::net::IpAddr;
+use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 use anyhow::Context;
+use handeye::config::Config;
+use handeye::guard::{Cell, MotionGuard};
+use handeye::model::RobotModel;
+use handeye_hal::ur_dh::UrModel;
 use handeye_hal::{limits, MotionLimits, Robot};
 use handeye_ur::{UrConfig, UrPose, UrRobot};
+
+use super::args::resolve_robot;
+use super::wiring::load_model;
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
@@ -55,6 +64,12 @@ enum Command {
         /// same as `--timeout-s`, the limit for each request to the controller.
         #[arg(long, default_value_t = 60.0)]
         move_timeout_s: f64,
+        /// The cell's configuration: the path is checked against its robot model, camera
+        /// mount, floor clearance and obstacles, and the speed capped at its limits. Without
+        /// it, the arm's model comes from the controller's kinematics and only the arm itself
+        /// and the floor are checked.
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
     },
     /// Set the runtime TCP (flange → TCP, UR pose `x,y,z,rx,ry,rz` in m and rad) and read it back.
     SetTcp {
@@ -91,7 +106,11 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             speed,
             accel,
             move_timeout_s,
-        } => Some(check_move(joints, *deg, *speed, *accel, *move_timeout_s)?),
+            config,
+        } => Some((
+            check_move(joints, *deg, *speed, *accel, *move_timeout_s)?,
+            config.as_deref().map(Config::load).transpose()?,
+        )),
         _ => None,
     };
     let mut cfg = UrConfig::new(args.host);
@@ -111,13 +130,17 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     };
     match args.command {
         Command::Move { .. } => {
-            let (q, lim) = checked_move.context("move arguments were checked")?;
-            // Not raced against `shutdown` from outside: the move watches it and stops the
-            // arm itself before returning `Cancelled`.
-            robot
-                .move_joints_until(&q, lim, shutdown.cancelled())
-                .await
-                .context("move")?;
+            let ((q, lim), config) = checked_move.context("move arguments were checked")?;
+            let cell = move_cell(&robot, config.as_ref(), lim).await?;
+            let robot = MotionGuard::new(robot, cell);
+            // Dropping the move (on `shutdown`) stops the arm; say so to the controller too.
+            tokio::select! {
+                r = robot.move_joints(&q, lim) => r.context("move")?,
+                () = shutdown.cancelled() => {
+                    robot.stop().await.context("stopping the arm after the interrupt")?;
+                    anyhow::bail!("interrupted: the move was cancelled and the arm stopped");
+                }
+            }
             emit("arrived\n")?;
             Ok(ExitCode::SUCCESS)
         }
@@ -127,6 +150,42 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             interruptible(&shutdown, registers(&robot, &set, json)).await
         }
     }
+}
+
+/// The cell a `move` is checked in: the configuration's, else the arm the controller's
+/// kinematics say it is (no camera, no obstacles, the default floor clearance) with the
+/// move's own caps.
+async fn move_cell(
+    robot: &UrRobot,
+    config: Option<&Config>,
+    lim: MotionLimits,
+) -> anyhow::Result<Cell> {
+    if let Some(cfg) = config {
+        return Ok(Cell::from_config(load_model(cfg)?, cfg));
+    }
+    let kinematics = robot
+        .kinematics()
+        .await
+        .context("reading the controller's kinematics")?
+        .context(
+            "the controller publishes no kinematics, so the move cannot be checked for \
+             collisions; give --config FILE (the cell's configuration names robot.model)",
+        )?;
+    let (model, _) = UrModel::matching(&kinematics.dh)
+        .into_iter()
+        .next()
+        .context(
+            "the controller's kinematics are no UR model's, so the move cannot be checked; \
+             give --config FILE naming robot.model",
+        )?;
+    let path = resolve_robot(model.name()).map_err(anyhow::Error::msg)?;
+    let urdf = RobotModel::load(&path)
+        .with_context(|| format!("loading the robot model {}", path.display()))?;
+    Ok(Cell::bare(
+        Arc::new(urdf),
+        lim.max_joint_speed_rad_s,
+        lim.max_joint_accel_rad_s2,
+    ))
 }
 
 /// Runs a request that does not move the arm (nothing to undo when it is abandoned) until it

@@ -69,7 +69,7 @@ fn status_at(listen: SocketAddr, config: &Path, json: bool) -> anyhow::Result<Ex
 
 /// Where to connect for a daemon listening on `listen`: a wildcard address is reached on
 /// loopback.
-fn reachable(listen: SocketAddr) -> SocketAddr {
+pub(crate) fn reachable(listen: SocketAddr) -> SocketAddr {
     match listen.ip() {
         IpAddr::V4(ip) if ip.is_unspecified() => {
             SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), listen.port())
@@ -83,12 +83,24 @@ fn reachable(listen: SocketAddr) -> SocketAddr {
 
 /// `GET path` at `addr` over HTTP/1.1: the status code and the body.
 fn http_get(addr: SocketAddr, path: &str) -> anyhow::Result<(u16, Vec<u8>)> {
+    http_request(addr, "GET", path, None)
+}
+
+/// `METHOD path` (no body) at `addr` over HTTP/1.1, with `Authorization: Bearer TOKEN` when
+/// given: the status code and the body.
+pub(crate) fn http_request(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    token: Option<&str>,
+) -> anyhow::Result<(u16, Vec<u8>)> {
     let mut stream = TcpStream::connect_timeout(&addr, TIMEOUT)?;
     stream.set_read_timeout(Some(TIMEOUT))?;
     stream.set_write_timeout(Some(TIMEOUT))?;
+    let auth = token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"));
     let request = format!(
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nAccept: application/json\r\n\
-         User-Agent: handeye-status\r\nConnection: close\r\n\r\n"
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nAccept: application/json\r\n\
+         User-Agent: handeye\r\n{auth}Content-Length: 0\r\nConnection: close\r\n\r\n"
     );
     stream.write_all(request.as_bytes())?;
     let mut raw = Vec::new();
@@ -189,12 +201,17 @@ fn finished(f: &Finished, now: f64) -> String {
         f.run_id,
         f.mode,
         f.trigger,
-        f.outcome,
+        if f.verdict.is_empty() {
+            f.outcome.name()
+        } else {
+            &f.verdict
+        },
         f.duration_ms / 1e3,
         when(f.finished_unix_s, now)
     );
-    if let Some((mm, deg, drifted)) = f.drift {
-        let verdict = if drifted {
+    if let Some(d) = f.drift {
+        let (mm, deg) = (d.translation_mm, d.rotation_deg);
+        let verdict = if d.exceeded {
             "beyond the thresholds"
         } else {
             "within the thresholds"
@@ -214,6 +231,9 @@ fn render(addr: SocketAddr, st: &Status, now: f64) -> String {
         st.state.name(),
         span(now - st.started_unix_s)
     );
+    if let Some(w) = &st.waiting {
+        out += &format!("{w}\n");
+    }
     let up = |connected: bool| {
         if connected {
             "connected"
@@ -265,7 +285,7 @@ fn render(addr: SocketAddr, st: &Status, now: f64) -> String {
     ] {
         match f {
             Some(f) => out += &format!("{label}: {}\n", finished(f, now)),
-            None => out += &format!("{label}: none since the daemon started\n"),
+            None => out += &format!("{label}: none in the history\n"),
         }
     }
     if st.drift_alarm {
@@ -309,7 +329,7 @@ mod tests {
             "last_check": {
                 "run_id": "20261124T130000Z-0002", "mode": "check", "trigger": "schedule",
                 "outcome": "accepted", "reasons": [], "finished_unix_s": 800.0,
-                "duration_ms": 900.0, "drift": [1.5, 0.25, true]
+                "duration_ms": 900.0, "drift": {"translation_mm": 1.5, "rotation_deg": 0.25, "exceeded": true}
             },
             "queued": [{
                 "run_id": "20261124T150001Z-00ac", "mode": "calibrate", "trigger": "api",
@@ -336,7 +356,7 @@ mod tests {
             "current run: 20261124T150000Z-00ab check (asked by schedule) for 10 s, stage move: moving to view 1 of 1",
             "last run: 20261124T140000Z-0001 calibrate (asked by api): rejected in 1.2 s",
             "    residual 3.1 mm > 2.0 mm",
-            "last calibration: none since the daemon started",
+            "last calibration: none in the history",
             "drift 1.50 mm 0.250° (beyond the thresholds)",
             "drift alarm: ON",
         ] {

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use handeye::camera::{ExecCamera, FileCamera};
 use handeye::config::{CameraBackend, Config};
+use handeye::guard::{Cell, MotionGuard};
 use handeye::model::RobotModel;
 use handeye::store::HISTORY_FILE;
 use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
@@ -100,8 +101,12 @@ impl DepthCamera for AnyCamera {
     }
 }
 
-/// Connects RTDE, dashboard and primary of the configured controller.
-pub(crate) async fn connect_robot(cfg: &Config) -> anyhow::Result<UrRobot> {
+/// Connects RTDE, dashboard and primary of the configured controller, every move guarded in
+/// the configured cell (joint limits, floor, self-collision, obstacles, speed caps).
+pub(crate) async fn connect_robot(
+    cfg: &Config,
+    model: &Arc<RobotModel>,
+) -> anyhow::Result<MotionGuard<UrRobot>> {
     let p = cfg.robot.ports;
     // Claim exactly the RTDE input registers the configuration writes (and the pendant
     // handshake's), no others: they stay free for the cell's own clients.
@@ -126,7 +131,11 @@ pub(crate) async fn connect_robot(cfg: &Config) -> anyhow::Result<UrRobot> {
     if let (Some(lo), Some(hi)) = (ints.iter().min(), ints.iter().max()) {
         ur.int_registers = *lo..=*hi;
     }
-    UrRobot::connect(ur)
+    let robot = UrRobot::connect(ur)
         .await
-        .with_context(|| format!("connecting to the UR controller at {}", cfg.robot.host))
+        .with_context(|| format!("connecting to the UR controller at {}", cfg.robot.host))?;
+    Ok(MotionGuard::new(
+        robot,
+        Cell::from_config(Arc::clone(model), cfg),
+    ))
 }

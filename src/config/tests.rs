@@ -78,6 +78,7 @@ fn every_example_file_loads() {
         "eye-to-hand.example.toml",
         "handeye.example.toml",
         "sim-rig.example.toml",
+        "sim-rig-daemon.example.toml",
         "ur-zivid-exec.example.toml",
     ] {
         assert!(loaded.iter().any(|l| l == expected), "{expected} loaded");

@@ -141,6 +141,12 @@ impl Api {
         Api::from_config_with(cfg, credentials.as_deref())
     }
 
+    /// The token that authorises requests that move or stop the arm (`handeye cancel` sends
+    /// it); `None` when none is configured.
+    pub fn token(&self) -> Option<&str> {
+        self.token.as_deref()
+    }
+
     /// [`Api::from_config`] with the credentials directory given (tests).
     fn from_config_with(cfg: &Config, credentials: Option<&Path>) -> anyhow::Result<Api> {
         let listen = cfg.daemon.listen;
@@ -735,7 +741,7 @@ fn start(
         )),
         Err(e) => Err(ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
-            format!("{e}; try again once it runs again"),
+            e.to_string(),
         )),
     }
 }

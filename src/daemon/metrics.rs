@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 
 use crate::record::{Outcome, RunMode, RunRecord, Trigger};
+use crate::store::RunSummary;
 
 /// Upper bounds of the run-duration histogram, s.
 const DURATION_BUCKETS: [f64; 8] = [1.0, 2.5, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0];
@@ -40,6 +41,10 @@ pub(super) struct Live {
     pub(super) queued: usize,
     /// Whether the storage directory can take a run (runs are refused while not).
     pub(super) storage_usable: bool,
+    /// When the last check that measured the camera ended (unix s), from the history too.
+    pub(super) last_check_unix_s: Option<f64>,
+    /// When the last accepted calibration ended (unix s), from the history too.
+    pub(super) last_calibration_unix_s: Option<f64>,
 }
 
 impl Metrics {
@@ -71,6 +76,31 @@ impl Metrics {
             if drifted {
                 self.alarms += 1;
             }
+        }
+    }
+
+    /// The gauges of a run the history holds (replayed oldest first at startup): the last
+    /// calibration's uncertainty and the last drift survive a restart; the counters count
+    /// since the start, as Prometheus expects of counters.
+    pub(super) fn restore(&mut self, run: &RunSummary) {
+        if let (RunMode::Calibrate, Some(Outcome::Accepted), Some(mm), Some(deg)) = (
+            run.mode,
+            run.outcome.outcome(),
+            run.uncertainty_translation_mm,
+            run.uncertainty_rotation_deg,
+        ) {
+            self.last_uncertainty_mm = Some(mm);
+            self.last_uncertainty_deg = Some(deg);
+        }
+        if let (RunMode::Check, Some(Outcome::Accepted), Some(mm), Some(deg), Some(_)) = (
+            run.mode,
+            run.outcome.outcome(),
+            run.drift_translation_mm,
+            run.drift_rotation_deg,
+            run.drifted,
+        ) {
+            self.last_drift_mm = Some(mm);
+            self.last_drift_deg = Some(deg);
         }
     }
 
@@ -145,6 +175,18 @@ impl Metrics {
             "handeye_drift_alarm",
             "1 while the last check found drift beyond the thresholds.",
             Some(f64::from(u8::from(live.drift_alarm))),
+        );
+        gauge(
+            &mut s,
+            "handeye_last_check_timestamp_seconds",
+            "Unix time the last check that measured the camera ended, s (NaN: none recorded).",
+            live.last_check_unix_s,
+        );
+        gauge(
+            &mut s,
+            "handeye_last_calibration_timestamp_seconds",
+            "Unix time the last accepted calibration ended, s (NaN: none recorded).",
+            live.last_calibration_unix_s,
         );
         let _ = writeln!(s, "# HELP handeye_alarms_total Drift alarms raised.");
         let _ = writeln!(s, "# TYPE handeye_alarms_total counter");

@@ -5,10 +5,19 @@
 //! before it starts and when it ends, so a crash leaves it marked as interrupted. One shutdown token stops everything: a running move
 //! is stopped, the run recorded as aborted.
 //!
-//! The binary builds the concrete robot and camera from the configuration and calls [`run`].
+//! State that survives restarts: at startup the last run, the last calibration, the last check
+//! and the drift alarm are derived from the history (the same transition as a live run's end,
+//! `State::apply`), so a restart shows what was true before it. The frontend serves from the
+//! first second; while the robot or the camera is not reached yet (`waiting`) or known down
+//! (the idle health check), runs are refused ([`Refusal::Unavailable`]).
+//!
+//! The binary builds the concrete robot and camera from the configuration (every move through
+//! [`crate::guard::MotionGuard`]) and calls [`run_with`], whose `connect` reaches them; tests
+//! with devices at hand call [`run`].
 
 pub mod api;
 pub mod listener;
+pub mod lock;
 mod metrics;
 mod notify;
 mod pendant;
@@ -58,14 +67,29 @@ pub struct Finished {
     pub trigger: Trigger,
     /// How it ended.
     pub outcome: Outcome,
+    /// The word every view uses for it ([`RunRecord::verdict`]): a check that measured the
+    /// camera is `drifted` or `within limits`, any other run its outcome.
+    #[serde(default)]
+    pub verdict: String,
     /// Why (empty when accepted).
     pub reasons: Vec<String>,
     /// Unix time it ended, s.
     pub finished_unix_s: f64,
     /// The whole run, ms.
     pub duration_ms: f64,
-    /// Check: the drift, mm and degrees, and whether it exceeds the thresholds.
-    pub drift: Option<(f64, f64, bool)>,
+    /// Check: the camera's change from the current calibration.
+    pub drift: Option<Drift>,
+}
+
+/// A check's measured change of the camera pose from the current calibration.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Drift {
+    /// Camera position change, mm.
+    pub translation_mm: f64,
+    /// Camera rotation change, degrees.
+    pub rotation_deg: f64,
+    /// Whether either of `[check]`'s thresholds is exceeded.
+    pub exceeded: bool,
 }
 
 /// Whether the daemon runs something.
@@ -126,6 +150,10 @@ pub struct Status {
     /// rebuilt from the run folders).
     #[serde(default)]
     pub history_set_aside: Option<crate::store::SetAside>,
+    /// While the daemon has not reached the robot or the camera yet: what it waits for
+    /// (`waiting for robot at 192.168.0.10 (attempt 4, next in 8 s): …`); runs are refused.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub waiting: Option<String>,
 }
 
 /// Why a trigger was refused.
@@ -133,7 +161,13 @@ pub struct Status {
 #[non_exhaustive]
 pub enum Refusal {
     /// A run is going.
-    #[error("busy: {mode:?} run {run_id} (asked by {trigger}) since {since_unix_s:.0}; cancel it or wait", trigger = trigger.name())]
+    #[error(
+        "busy: {mode} run {run_id} (asked by {trigger}) since {since} UTC; cancel it \
+         (`handeye cancel`) or wait",
+        mode = mode.name(),
+        trigger = trigger.name(),
+        since = utc_text(*since_unix_s)
+    )]
     Busy {
         /// The running run.
         run_id: String,
@@ -145,11 +179,17 @@ pub enum Refusal {
         since_unix_s: f64,
     },
     /// The daemon is shutting down.
-    #[error("the daemon is shutting down")]
+    #[error("the daemon is shutting down; try again once it runs again")]
     ShuttingDown,
     /// The storage directory cannot take a run (full, read-only): nothing would be recorded.
     #[error("refused: {0}")]
     StorageUnusable(String),
+    /// The robot or the camera is known to be down: the run would abort before moving.
+    #[error("{reason}; the run would abort before moving, so it is not started")]
+    Unavailable {
+        /// What is down (`waiting for robot at …`, `the camera does not answer`).
+        reason: String,
+    },
     /// `when_busy = "queue"` and the queue is full.
     #[error("busy: {running} running and {queued} queued behind it (the most the daemon queues); cancel or wait")]
     QueueFull {
@@ -178,7 +218,35 @@ struct State {
     links: (u64, u64),
     /// Why the storage directory cannot take a run, as last checked.
     storage_problem: Option<String>,
+    /// What the daemon waits for before it has the robot and the camera.
+    waiting: Option<Waiting>,
     metrics: metrics::Metrics,
+}
+
+/// A device the daemon has not reached yet, and its next attempt.
+#[derive(Debug, Clone)]
+struct Waiting {
+    /// `robot at 192.168.0.10`.
+    what: String,
+    /// Attempts so far.
+    attempt: u32,
+    /// When the next one starts.
+    next: Instant,
+    /// Why the last one failed.
+    error: String,
+}
+
+impl Waiting {
+    fn text(&self) -> String {
+        let next = self.next.saturating_duration_since(Instant::now());
+        format!(
+            "waiting for {} (attempt {}, next in {} s): {}",
+            self.what,
+            self.attempt,
+            next.as_secs_f64().ceil(),
+            self.error
+        )
+    }
 }
 
 #[derive(Debug)]
@@ -231,6 +299,9 @@ impl DaemonHandle {
             return Err(Refusal::ShuttingDown);
         }
         let mut st = self.lock();
+        if let Some(reason) = st.unavailable() {
+            return Err(Refusal::Unavailable { reason });
+        }
         if let Some(problem) = &st.storage_problem {
             return Err(Refusal::StorageUnusable(problem.clone()));
         }
@@ -310,7 +381,21 @@ impl DaemonHandle {
             started_unix_s: self.shared.started_unix_s,
             storage_problem: st.storage_problem.clone(),
             history_set_aside: self.shared.store.set_aside().cloned(),
+            waiting: st.waiting.as_ref().map(Waiting::text),
         }
+    }
+
+    /// Says that the daemon waits for `what` (`robot at 192.168.0.10`): attempt `attempt`
+    /// failed with `error`, the next starts in `retry_in`. The status shows it and runs are
+    /// refused until [`run_with`]'s `connect` has returned the devices.
+    pub fn waiting_for(&self, what: &str, attempt: u32, retry_in: Duration, error: &str) {
+        let mut st = self.lock();
+        st.waiting = Some(Waiting {
+            what: what.to_string(),
+            attempt,
+            next: Instant::now() + retry_in,
+            error: error.to_string(),
+        });
     }
 
     /// The history.
@@ -333,6 +418,8 @@ impl DaemonHandle {
             busy: !st.runs.is_empty(),
             queued: st.runs.len().saturating_sub(1),
             storage_usable: st.storage_problem.is_none(),
+            last_check_unix_s: st.last_check.as_ref().map(|f| f.finished_unix_s),
+            last_calibration_unix_s: st.last_calibration.as_ref().map(|f| f.finished_unix_s),
         })
     }
 
@@ -403,41 +490,32 @@ impl DaemonHandle {
     fn finished(&self, job: &Job, record: &RunRecord) {
         let mut st = self.lock();
         let (mode, trigger) = (job.entry.mode, job.entry.trigger);
-        let drift = record
-            .drift
-            .as_ref()
-            .map(|d| (d.translation_mm, d.rotation_deg, d.drifted));
         let f = Finished {
             run_id: record.run_id.clone(),
             mode,
             trigger,
             outcome: record.outcome,
+            verdict: record.verdict().to_string(),
             reasons: record.reasons.clone(),
             finished_unix_s: unix_now(),
             duration_ms: record.timings_ms.total,
-            drift,
+            drift: record.drift.as_ref().map(|d| Drift {
+                translation_mm: d.translation_mm,
+                rotation_deg: d.rotation_deg,
+                exceeded: d.drifted,
+            }),
         };
         st.metrics.record(trigger, record);
-        if record.outcome == Outcome::Accepted && mode == RunMode::Calibrate {
-            st.last_calibration = Some(f.clone());
-            // A fresh calibration is the new reference: no drift from it.
-            st.drift_alarm = false;
+        if record.drift_found() == Some(true) {
+            tracing::error!(
+                run_id = %record.run_id,
+                drift_mm = f.drift.map_or(f64::NAN, |d| d.translation_mm),
+                drift_deg = f.drift.map_or(f64::NAN, |d| d.rotation_deg),
+                "ALARM: the camera has drifted from its calibration; recalibrate \
+                 (POST /api/calibrate, `handeye calibrate` or the pendant)"
+            );
         }
-        if record.outcome == Outcome::Accepted && mode == RunMode::Check {
-            if let Some(drifted) = record.drift_found() {
-                if drifted {
-                    tracing::error!(
-                        run_id = %record.run_id,
-                        drift_mm = drift.map_or(f64::NAN, |d| d.0),
-                        drift_deg = drift.map_or(f64::NAN, |d| d.1),
-                        "ALARM: the camera has drifted from its calibration"
-                    );
-                }
-                st.drift_alarm = drifted;
-            }
-            st.last_check = Some(f.clone());
-        }
-        st.last = Some(f);
+        st.apply(f, record.drift_found());
         if st
             .runs
             .front()
@@ -449,6 +527,110 @@ impl DaemonHandle {
             self.shared.wake.notify_one();
         }
     }
+
+    /// Derives the last run, the last calibration, the last check and the drift alarm from
+    /// the history, as they stood when the daemon (or any process on this storage) recorded
+    /// its last run: a restart shows what was true before it. Reads the newest runs until
+    /// both the newest accepted calibration and the newest check that measured drift are
+    /// found (or the history ends).
+    fn restore_from_history(&self) -> Result<(), crate::store::StoreError> {
+        const PAGE: usize = 200;
+        let store = self.store();
+        let mut newest_first = Vec::new();
+        let mut before = None;
+        loop {
+            let page = store.list(PAGE, before)?;
+            let done = page.len() < PAGE;
+            before = page.last().map(|r| r.started_unix_s);
+            newest_first.extend(page.into_iter().filter(|r| r.outcome.outcome().is_some()));
+            let calibration = newest_first.iter().any(|r| {
+                r.mode == RunMode::Calibrate && r.outcome.outcome() == Some(Outcome::Accepted)
+            });
+            let check = newest_first
+                .iter()
+                .any(|r| restored_drift_found(r).is_some());
+            if done || (calibration && check) {
+                break;
+            }
+        }
+        let mut st = self.lock();
+        for r in newest_first.iter().rev() {
+            let Some(outcome) = r.outcome.outcome() else {
+                continue;
+            };
+            st.metrics.restore(r);
+            let drift = match (r.drift_translation_mm, r.drift_rotation_deg, r.drifted) {
+                (Some(translation_mm), Some(rotation_deg), Some(exceeded)) => Some(Drift {
+                    translation_mm,
+                    rotation_deg,
+                    exceeded,
+                }),
+                _ => None,
+            };
+            let f = Finished {
+                run_id: r.run_id.clone(),
+                mode: r.mode,
+                trigger: r.trigger,
+                outcome,
+                verdict: crate::record::verdict(outcome, restored_drift_found(r)).to_string(),
+                reasons: r.reason.iter().cloned().collect(),
+                finished_unix_s: r
+                    .finished_unix_s
+                    .unwrap_or(r.started_unix_s + r.duration_ms.unwrap_or(0.0) / 1e3),
+                duration_ms: r.duration_ms.unwrap_or(0.0),
+                drift,
+            };
+            st.apply(f, restored_drift_found(r));
+        }
+        if st.drift_alarm {
+            let check = st.last_check.as_ref().map_or("", |c| c.run_id.as_str());
+            tracing::error!(
+                run_id = check,
+                "ALARM (from the history): the last check found the camera drifted and no \
+                 calibration was accepted since; recalibrate"
+            );
+        }
+        Ok(())
+    }
+}
+
+/// [`RunRecord::drift_found`] of a run as the history lists it.
+fn restored_drift_found(r: &crate::store::RunSummary) -> Option<bool> {
+    crate::record::drift_found(r.mode, r.outcome.outcome(), r.drifted)
+}
+
+impl State {
+    /// Why a run cannot start now: the daemon still waits for a device, or the last health
+    /// check found one not answering.
+    fn unavailable(&self) -> Option<String> {
+        if let Some(w) = &self.waiting {
+            return Some(w.text());
+        }
+        match (self.robot_connected, self.camera_connected) {
+            (true, true) => None,
+            (false, true) => Some("the robot does not answer (see `handeye status`)".into()),
+            (true, false) => Some("the camera does not answer (see `handeye status`)".into()),
+            (false, false) => {
+                Some("neither the robot nor the camera answers (see `handeye status`)".into())
+            }
+        }
+    }
+
+    /// What an ended run changes in the state: the last run; an accepted calibration is the
+    /// new reference (no drift from it, the alarm goes off); a check that measured drift
+    /// sets the alarm on or off. `drift_found` is [`RunRecord::drift_found`]. Live runs and
+    /// the history replayed at startup both go through here.
+    fn apply(&mut self, f: Finished, drift_found: Option<bool>) {
+        if f.outcome == Outcome::Accepted && f.mode == RunMode::Calibrate {
+            self.last_calibration = Some(f.clone());
+            self.drift_alarm = false;
+        }
+        if let Some(drifted) = drift_found {
+            self.drift_alarm = drifted;
+            self.last_check = Some(f.clone());
+        }
+        self.last = Some(f);
+    }
 }
 
 /// Progress of the current run into the daemon's state (and the log).
@@ -458,7 +640,7 @@ struct StageReporter<'a> {
 
 impl Progress for StageReporter<'_> {
     fn stage(&self, stage: Stage, detail: &str) {
-        tracing::info!(stage = stage.name(), "{detail}");
+        tracing::debug!(stage = stage.name(), "{detail}");
         self.handle.set_stage(stage, detail);
     }
 }
@@ -476,6 +658,7 @@ fn handle(store: Arc<Store>, when_busy: WhenBusy, shutdown: CancellationToken) -
             camera_connected: true,
             links: (0, 0),
             storage_problem: None,
+            waiting: None,
             metrics: metrics::Metrics::default(),
         }),
         wake: Notify::new(),
@@ -508,9 +691,8 @@ impl Frontend for NoFrontend {
     }
 }
 
-/// Runs the daemon until `shutdown`: the startup run, the schedule, the frontend, and every
-/// accepted trigger, one run at a time, each recorded in `store`. Returns when the run in
-/// progress (if any) has ended and been recorded.
+/// Runs the daemon until `shutdown` on a robot and a camera already connected: [`run_with`]
+/// with a `connect` that hands them over at once.
 #[allow(clippy::too_many_arguments)]
 pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
     cfg: Config,
@@ -522,7 +704,37 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
     shutdown: CancellationToken,
     ready: impl FnOnce(&DaemonHandle),
 ) {
+    let devices = |_: DaemonHandle| async move { Some((robot, camera)) };
+    run_with(cfg, model, devices, store, frontend, shutdown, ready).await;
+}
+
+/// Runs the daemon until `shutdown`: the history's last state, the frontend (serving from
+/// the first second), then `connect` for the robot and the camera (it reports its attempts
+/// through [`DaemonHandle::waiting_for`] and returns `None` on shutdown), then the startup run,
+/// the schedule and every accepted trigger, one run at a time, each recorded in `store`.
+/// `ready` is called once the devices are there. Returns when the run in progress (if any)
+/// has ended and been recorded.
+pub async fn run_with<R, C, F, Fut>(
+    cfg: Config,
+    model: Arc<RobotModel>,
+    connect: impl FnOnce(DaemonHandle) -> Fut,
+    store: Arc<Store>,
+    frontend: F,
+    shutdown: CancellationToken,
+    ready: impl FnOnce(&DaemonHandle),
+) where
+    R: Robot,
+    C: DepthCamera,
+    F: Frontend,
+    Fut: std::future::Future<Output = Option<(R, C)>>,
+{
     let handle = handle(store, cfg.daemon.when_busy, shutdown.clone());
+    if let Err(e) = handle.restore_from_history() {
+        tracing::error!(
+            "cannot read the last runs from the history ({e}); the status starts empty and the \
+             drift alarm off until the next check"
+        );
+    }
     check_storage(&cfg, &handle).await;
     let notifier = notify::Notifier::from_env();
     let frontend_task = tokio::spawn(frontend.serve(handle.clone(), shutdown.clone()));
@@ -534,6 +746,25 @@ pub async fn run<R: Robot, C: DepthCamera, F: Frontend>(
         }
         n.ready();
     }
+    {
+        let mut st = handle.lock();
+        st.robot_connected = false;
+        st.camera_connected = false;
+    }
+    let Some((robot, camera)) = connect(handle.clone()).await else {
+        if let Some(n) = &notifier {
+            n.stopping();
+        }
+        let _ = frontend_task.await;
+        return;
+    };
+    {
+        let mut st = handle.lock();
+        st.waiting = None;
+        st.robot_connected = true;
+        st.camera_connected = true;
+    }
+    tracing::info!("robot and camera connected");
     ready(&handle);
     if let Some(mode) = cfg.daemon.startup {
         if let Err(e) = handle.request(mode, Trigger::Startup) {
@@ -657,6 +888,34 @@ async fn check_storage(cfg: &Config, handle: &DaemonHandle) {
     handle.set_storage(problem);
 }
 
+/// The journal's one line on how a run ended: verdict, duration, and the drift (a check),
+/// the uncertainty (an accepted calibration) or the first reason (anything not accepted).
+fn outcome_line(record: &RunRecord, took: Duration) -> String {
+    let mut line = format!(
+        "run {} ended: {} {} in {:.1} s",
+        record.run_id,
+        record.mode.name(),
+        record.verdict(),
+        took.as_secs_f64()
+    );
+    if let Some(d) = &record.drift {
+        line += &format!(
+            "; drift {:.3} mm / {:.4}° (limits {} mm / {}°)",
+            d.translation_mm, d.rotation_deg, d.max_translation_mm, d.max_rotation_deg
+        );
+    }
+    if let (Outcome::Accepted, Some(r)) = (record.outcome, &record.result) {
+        line += &format!(
+            "; uncertainty {:.3} mm / {:.4}°",
+            r.uncertainty.translation_mm, r.uncertainty.rotation_deg
+        );
+    }
+    if let Some(reason) = record.reasons.first() {
+        line += &format!("; {reason}");
+    }
+    line
+}
+
 /// A scheduled drift check: started when the robot is idle, else skipped (logged).
 async fn scheduled_check<R: Robot>(robot: &R, handle: &DaemonHandle) {
     if robot_idle(robot).await {
@@ -690,6 +949,12 @@ async fn execute<R: Robot, C: DepthCamera>(
         program_handover: job.handover,
     };
     let trigger = job.entry.trigger;
+    tracing::info!(
+        "run {} started: {} asked by {}",
+        job.entry.run_id,
+        job.entry.mode.name(),
+        trigger.name()
+    );
     let span = tracing::info_span!("run", trigger = trigger.name());
     let progress = StageReporter { handle };
     let recorder = Recorder::new(Arc::clone(handle.store()), trigger);
@@ -698,11 +963,11 @@ async fn execute<R: Robot, C: DepthCamera>(
         span,
     )
     .await;
-    tracing::info!(
-        outcome = record.outcome.name(),
-        duration_ms = t0.elapsed().as_secs_f64() * 1e3,
-        "run ended"
-    );
+    let line = outcome_line(&record, t0.elapsed());
+    match record.outcome {
+        Outcome::Accepted | Outcome::Planned => tracing::info!("{line}"),
+        _ => tracing::warn!("{line}"),
+    }
     handle.finished(job, &record);
     record
 }
@@ -733,7 +998,8 @@ mod tests {
             matches!(&e, Refusal::Busy { run_id, .. } if *run_id == first),
             "{e}"
         );
-        assert!(e.to_string().starts_with("busy: Check run "), "{e}");
+        assert!(e.to_string().starts_with("busy: check run "), "{e}");
+        assert!(e.to_string().contains(" UTC; cancel it"), "{e}");
         let _ = std::fs::remove_dir_all(dir);
 
         let (s, dir) = store("queue");

@@ -140,11 +140,7 @@ impl Summary {
             },
             drifted: d.drifted,
         });
-        let headline = match record.drift_found() {
-            Some(true) => "DRIFTED".to_string(),
-            Some(false) => "WITHIN LIMITS".to_string(),
-            None => record.outcome.name().to_uppercase(),
-        };
+        let headline = record.verdict().to_uppercase();
         let mut notes = Vec::new();
         if let Some(stage) = record.failed_stage {
             notes.push(format!("failed at stage: {}", stage.name()));
@@ -507,7 +503,11 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
     y = heading(&mut c, rx, y, rw, why);
     let max_chars = (rw / Size::Small.advance() as i64) as usize;
     if summary.reasons.is_empty() {
+        let drifted = summary.drift.as_ref().map(|d| d.drifted);
         let ok = match summary.outcome {
+            Outcome::Accepted if drifted == Some(true) => {
+                "the camera moved beyond the thresholds: recalibrate"
+            }
             Outcome::Accepted => "every check passed",
             Outcome::Planned => "dry run: planned, nothing moved",
             _ => "no reason recorded",

@@ -28,18 +28,18 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use handeye_hal::{DepthCamera, HalError, Robot, RobotMode, SafetyMode, UrPose};
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
 use crate::calib::Mount;
 use crate::config::{Config, KinematicsSource, ViewTargets};
 use crate::frames::to_row_major;
+use crate::guard::{self, PATH_STEP_RAD};
 use crate::model::RobotModel;
-use crate::plan::{CancelCheck, Obstacle, PlanError, ViewConstraints, ViewPlanner, ViewRejection};
+use crate::plan::{CancelCheck, PlanError, ViewConstraints, ViewPlanner, ViewRejection};
 use crate::sim::Intrinsics;
 
 use crate::calendar::unix_now;
-use crate::calib::pipeline;
 pub use crate::calib::pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
 pub use crate::record::{
     CaptureRecord, DriftRecord, FrameRecord, KinematicsOrigin, KinematicsUsed, Outcome,
@@ -51,8 +51,6 @@ pub use recorder::{open_history, Recorder};
 
 /// Generated candidates tried per automatic view before the plan gives up.
 const AUTO_VIEW_TRIES: usize = 8;
-/// Joint-space step between two collision checks along a path, rad.
-const PATH_STEP_RAD: f64 = 0.02;
 /// The arm must not move more than this while the camera exposes, rad.
 const MAX_JOINT_CHANGE_DURING_CAPTURE_RAD: f64 = 1e-3;
 
@@ -122,13 +120,15 @@ impl Failure {
     }
 
     fn cancelled(stage: Stage) -> Self {
+        // Before the first move nothing has moved; from then on the arm was stopped.
+        let arm = match stage {
+            Stage::Preflight | Stage::Plan => "nothing moved",
+            _ => "the arm was stopped where it is",
+        };
         Self {
             outcome: Outcome::Aborted,
             stage,
-            message: format!(
-                "cancelled during {}; the arm was stopped where it is",
-                stage.name()
-            ),
+            message: format!("cancelled during {}; {arm}", stage.name()),
         }
     }
 
@@ -248,11 +248,7 @@ async fn execute<R: Robot, C: DepthCamera>(
 ) -> (RunRecord, Option<PictureScan>) {
     let t0 = Instant::now();
     let run_id = record.run_id.clone();
-    let model_from_base = match pipeline::fixed_frame(model, "base") {
-        Ok(p) => p,
-        // Not a UR URDF with a `base` link: the controller frame is the URDF root turned by π.
-        Err(_) => crate::frames::ur_base_from_base_link().inverse(),
-    };
+    let model_from_base = guard::model_from_base(model);
     let mut cx = Context {
         robot,
         camera,
@@ -417,11 +413,34 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         let stage = Stage::Preflight;
         let robot = self.robot;
         let camera = self.camera;
-        let (status, start, tcp) = cancellable(self.cancel, stage, async {
-            let status = robot
+        let allow_power_on = self.cfg.robot.allow_power_on;
+        let (status, start, tcp, powered_on) = cancellable(self.cancel, stage, async {
+            let mut status = robot
                 .status()
                 .await
                 .map_err(|e| Failure::robot(stage, "reading the robot's state", e))?;
+            // Only when the configuration says so explicitly; never past a stop of any kind.
+            let powerable =
+                matches!(
+                    status.robot_mode,
+                    RobotMode::PowerOff | RobotMode::PowerOn | RobotMode::Idle
+                ) && matches!(status.safety_mode, SafetyMode::Normal | SafetyMode::Reduced)
+                    && status.remote_control;
+            let powered_on = powerable && allow_power_on;
+            if powered_on {
+                tracing::warn!(
+                    "the robot is {:?}: powering it on and releasing the brakes \
+                     (robot.allow_power_on = true)",
+                    status.robot_mode
+                );
+                robot.power_on().await.map_err(|e| {
+                    Failure::robot(stage, "powering the robot on (robot.allow_power_on)", e)
+                })?;
+                status = robot
+                    .status()
+                    .await
+                    .map_err(|e| Failure::robot(stage, "reading the robot's state", e))?;
+            }
             let start = robot
                 .joint_positions()
                 .await
@@ -430,7 +449,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 .tcp_offset()
                 .await
                 .map_err(|e| Failure::robot(stage, "reading the TCP", e))?;
-            Ok((status, start, tcp))
+            Ok((status, start, tcp, powered_on))
         })
         .await?;
         if start.len() != self.model.dof() {
@@ -525,8 +544,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             start_joints: start,
             tcp_offset: to_row_major(&tcp),
             kinematics,
+            powered_on,
         });
-        preflight_status(&status, self.req.program_handover)?;
+        preflight_status(&status, self.req.program_handover, allow_power_on)?;
         camera_info?;
         Ok((controller_dh, reference))
     }
@@ -561,22 +581,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 ViewTargets::Joints(_) => ViewConstraints::default(),
             }
         };
-        let flange_from_camera = match self.cfg.mount.mount {
-            Mount::EyeInHand => self.cfg.mount.prior.unwrap_or_else(Isometry3::identity),
-            Mount::EyeToHand => Isometry3::identity(),
-        };
-        let obstacles = self
-            .cfg
-            .views
-            .obstacles
-            .iter()
-            .map(|o| Obstacle {
-                name: o.name.clone(),
-                model_from_box: self.model_from_base
-                    * Isometry3::translation(o.centre_m[0], o.centre_m[1], o.centre_m[2]),
-                half_extents_m: Vector3::from(o.size_m) / 2.0,
-            })
-            .collect();
+        let flange_from_camera = guard::configured_flange_from_camera(self.cfg);
+        let obstacles = guard::configured_obstacles(self.cfg, &self.model_from_base);
         let cancel = self.cancel.clone();
         ViewPlanner::new(
             self.model,
@@ -639,7 +645,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     stage,
                     format!(
                         "no generated view {} of {count} is reachable on a safe path ({}); move the arm to a free start pose or configure joint targets",
-                        views.len(),
+                        views.len() + 1,
                         last_refusal.unwrap_or_else(|| "views too alike".into())
                     ),
                 ));
@@ -681,7 +687,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     r => Failure::error(
                         stage,
                         format!(
-                            "the path to view {i} is not safe: {r}; change the view's joints or the obstacles"
+                            "the path to view {} is not safe: {r}; change the view's joints or the obstacles",
+                            i + 1
                         ),
                     ),
                 })?;
@@ -760,16 +767,19 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             let t = Instant::now();
             self.progress.stage(
                 Stage::Move,
-                &format!("moving to view {v} of {}", views.len()),
+                &format!("moving to view {} of {}", v + 1, views.len()),
             );
             // A view at the start joints (eye-to-hand without targets: measure where the arm
             // stands) needs no motion at all.
             if !(v == 0 && start.as_deref() == Some(q.as_slice())) {
                 self.moved = true;
-                self.move_to(q, Stage::Move, &format!("move to view {v}"))
-                    .await?;
-                self.links_intact(Stage::Move)?;
+                let moved = self
+                    .move_to(q, Stage::Move, &format!("move to view {}", v + 1))
+                    .await;
+                // Also an aborted move took its time.
                 self.record.timings_ms.moves += ms(t);
+                moved?;
+                self.links_intact(Stage::Move)?;
             }
 
             let t = Instant::now();
@@ -786,7 +796,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             let n = self.cfg.camera.capture.frames;
             self.progress.stage(
                 Stage::Capture,
-                &format!("capturing {n} frame(s) at view {v}"),
+                &format!("capturing {n} frame(s) at view {}", v + 1),
             );
             let (capture, clouds) = self.capture(v).await?;
             self.links_intact(Stage::Capture)?;
@@ -890,7 +900,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     return Err(Failure::error(
                         stage,
                         format!(
-                            "the camera failed to capture at view {view}: {}; check the camera",
+                            "the camera failed to capture at view {}: {}; check the camera",
+                            view + 1,
                             error_chain(&e)
                         ),
                     ))
@@ -899,7 +910,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     return Err(Failure::error(
                         stage,
                         format!(
-                            "the camera delivered no frames within {ceiling:?} at view {view}; check the camera"
+                            "the camera delivered no frames within {ceiling:?} at view {}; check the camera",
+                            view + 1
                         ),
                     ))
                 }
@@ -928,7 +940,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     outcome: Outcome::Aborted,
                     stage,
                     message: format!(
-                        "the arm moved by {change:.4} rad while the camera captured view {view}; something else is moving the arm"
+                        "the arm moved by {change:.4} rad while the camera captured view {}; something else is moving the arm",
+                        view + 1
                     ),
                 });
             }
@@ -1203,7 +1216,13 @@ fn check_model_matches(
 
 /// Whether the robot may move: powered with brakes released, safety normal or reduced, in
 /// remote control, no program running unless that program asked for the run (`handover`).
-fn preflight_status(st: &handeye_hal::RobotStatus, handover: bool) -> Result<(), Failure> {
+/// `allow_power_on`: whether the configuration lets handeye power the arm on (then a robot
+/// still not running here could not be powered on).
+fn preflight_status(
+    st: &handeye_hal::RobotStatus,
+    handover: bool,
+    allow_power_on: bool,
+) -> Result<(), Failure> {
     let stage = Stage::Preflight;
     let fail = |m: String| Err(Failure::error(stage, m));
     match st.safety_mode {
@@ -1221,8 +1240,15 @@ fn preflight_status(st: &handeye_hal::RobotStatus, handover: bool) -> Result<(),
         }
     }
     if st.robot_mode != RobotMode::Running {
+        let or = if allow_power_on {
+            ""
+        } else {
+            " (or set robot.allow_power_on = true to let handeye power it on and release the \
+             brakes)"
+        };
         return fail(format!(
-            "the robot is not ready to move ({:?}); power it on and release the brakes on the pendant",
+            "the robot is not ready to move ({:?}); power it on and release the brakes on the \
+             pendant{or}",
             st.robot_mode
         ));
     }

@@ -490,6 +490,43 @@ async fn preflight_refusals_say_what_to_do_and_move_nothing() {
     }
 }
 
+/// Issue 24: a powered-off arm is powered on only when `robot.allow_power_on` says so, and the
+/// record says it was.
+#[tokio::test]
+async fn a_powered_off_arm_is_powered_on_only_when_allowed() {
+    let Some(f) = fixture() else { return };
+    for allow in [false, true] {
+        let storage = Storage::new(&format!("power-on-{allow}"));
+        let mut cfg = test_config(&storage.0, f.view);
+        cfg.robot.allow_power_on = allow;
+        let robot = calibrated_robot(f);
+        let mut status = robot.status().await.expect("status");
+        status.robot_mode = RobotMode::PowerOff;
+        robot.set_status(status);
+        let camera = FakeCamera::new(vec![f.scan.clone()]);
+        let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+        let preflight = record.preflight.as_ref().expect("preflight recorded");
+        if allow {
+            assert_eq!(record.outcome, Outcome::Accepted, "{:?}", record.reasons);
+            assert!(preflight.powered_on);
+            assert_eq!(preflight.status.robot_mode, RobotMode::Running);
+        } else {
+            assert_eq!(record.outcome, Outcome::Error);
+            assert!(!preflight.powered_on);
+            assert!(
+                reasons(&record).contains("robot.allow_power_on = true"),
+                "{:?}",
+                record.reasons
+            );
+            assert!(robot.moves().is_empty());
+            assert_eq!(
+                robot.status().await.expect("status").robot_mode,
+                RobotMode::PowerOff
+            );
+        }
+    }
+}
+
 /// Issue 24: a configured model that is not the arm (`model = "ur5"` on a UR5e controller) is
 /// refused in preflight, naming both, before anything moves.
 #[tokio::test]

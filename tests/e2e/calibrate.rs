@@ -243,6 +243,16 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     assert!((deg - true_deg).abs() < 0.05, "{deg}° vs {true_deg}\n{out}");
     assert_eq!(doc["drift"]["drifted"], true);
     assert_eq!(doc["written"].as_array().map(Vec::len), Some(0), "{out}");
+    // Issue 24: the text says `drifted`, as the daemon's status, the page and the picture do.
+    let out = run(
+        &["check", "--config", cfg.to_str().expect("utf-8")],
+        secs(120),
+    );
+    assert_eq!(out.code(), 1, "{out}");
+    assert!(
+        out.stdout.starts_with("handeye check — run ") && out.stdout.contains(": drifted\n"),
+        "{out}"
+    );
     // A check never writes: the controller's TCP is still the calibration.
     if let Some(py) = python() {
         let (q, base_from_tcp) = ur_rtde_tcp(&py, robot_ip);
@@ -252,7 +262,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     }
 
     // The commands' runs are in the history like the daemon's, asked for by `cli`: the
-    // calibration the controller holds, then the two checks, newest first.
+    // calibration the controller holds, then the three checks, newest first.
     let runs = history(&cfg);
     let rows: Vec<(String, String, String)> = runs
         .as_array()
@@ -268,6 +278,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     assert_eq!(
         rows,
         [
+            row("check", "accepted"),
             row("check", "accepted"),
             row("check", "accepted"),
             row("calibrate", "accepted")
@@ -345,6 +356,33 @@ fn faults_and_failed_preflight_write_nothing() {
             "{flag}: moved"
         );
         assert!(!dir.join("data/current").exists(), "{flag}: result files");
+        if flag == "--powered-off" {
+            // Issue 24: the refusal names the key; with it, handeye powers the arm on and
+            // releases the brakes through the dashboard, and the record says so.
+            assert!(
+                doc["reasons"]
+                    .to_string()
+                    .contains("robot.allow_power_on = true"),
+                "{out}"
+            );
+            let status = run(&["robot", "--host", robot_ip, "status", "--json"], secs(15));
+            assert!(status.stdout.contains("PowerOff"), "{status}");
+            let allowed = dir.join("allow-power-on.toml");
+            let text = std::fs::read_to_string(&cfg).expect("config");
+            std::fs::write(
+                &allowed,
+                text.replacen("[robot]\n", "[robot]\nallow_power_on = true\n", 1),
+            )
+            .expect("write");
+            let out = handeye("calibrate", &allowed, &[]);
+            assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
+            let doc = out.json();
+            assert_eq!(doc["outcome"], "accepted", "{out}");
+            assert_eq!(doc["preflight"]["powered_on"], true, "{out}");
+            let status = run(&["robot", "--host", robot_ip, "status", "--json"], secs(15));
+            assert!(status.stdout.contains("Running"), "{status}");
+            std::fs::remove_dir_all(dir.join("data/current")).expect("result files");
+        }
     }
 
     // Issue 24: the configuration says ur5, the controller's kinematics are a UR5e's: refused

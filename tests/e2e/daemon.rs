@@ -15,6 +15,61 @@ use crate::support::{
     true_mount, Daemon, TempDir,
 };
 
+#[test]
+fn the_api_answers_while_the_robot_is_unreachable_and_a_second_daemon_refuses() {
+    let Some(_) =
+        shared("the_api_answers_while_the_robot_is_unreachable_and_a_second_daemon_refuses")
+    else {
+        return;
+    };
+    // issue 24: no controller listens at this address.
+    let dir = TempDir::new("unreachable");
+    let (robot_ip, camera_ip) = ("127.0.0.175", "127.0.0.176");
+    let cfg = config(&dir, robot_ip, camera_ip, "startup = \"calibrate\"");
+    let api = format!("{robot_ip}:8650");
+    let mut first = Daemon::start(
+        &dir,
+        "daemon",
+        &["daemon", "--config", cfg.to_str().expect("utf-8")],
+    );
+    first.wait_for_log("handeye daemon starting", secs(30));
+    let waiting = format!("waiting for robot at {robot_ip} (attempt ");
+    let st = wait_status(&api, secs(30), "the status says what it waits for", |s| {
+        s["waiting"].as_str().is_some_and(|w| w.contains(&waiting))
+    });
+    assert_eq!(st["robot_connected"], false, "{st}");
+    let out = run(
+        &["status", "--config", cfg.to_str().expect("utf-8")],
+        secs(15),
+    );
+    assert_eq!(out.code(), 0, "{out}");
+    assert!(out.stdout.contains(&waiting), "{out}");
+    assert!(out.stdout.contains(", next in "), "{out}");
+    // A run is refused at once with the reason, not accepted and aborted later.
+    let (code, body) = http(&api, "POST", "/api/check", Some(TOKEN));
+    assert_eq!(code, 503, "{body}");
+    assert!(body.contains(&waiting), "{body}");
+
+    // A second daemon on the same storage refuses to start, naming the first.
+    let second = run(
+        &["daemon", "--config", cfg.to_str().expect("utf-8")],
+        secs(20),
+    );
+    assert_eq!(second.code(), 2, "{second}");
+    assert!(
+        second.stderr.contains(&format!(
+            "another handeye daemon (pid {}) already runs on the storage",
+            first.pid()
+        )),
+        "{second}"
+    );
+    // The first is unharmed.
+    let (code, _) = http(&api, "GET", "/api/status", None);
+    assert_eq!(code, 200);
+    first.signal(libc::SIGTERM);
+    assert!(first.wait_exit(secs(10)).success(), "{}", first.log());
+}
+
 pub(crate) const TOKEN: &str = "e2e-secret-token";
 
 /// A daemon configuration for the rig; `daemon` is the `[daemon]` table's body (more tables
@@ -103,7 +158,13 @@ fn daemon_calibrates_at_startup_and_serves_the_api() {
     let (robot_ip, camera_ip) = ("127.0.0.126", "127.0.0.127");
     let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let cfg = config(&dir, robot_ip, camera_ip, "startup = \"calibrate\"");
-    let daemon = start_daemon(&dir, "daemon", &cfg);
+    // issue 24: without RUST_LOG, as systemd starts it: the journal tells the story.
+    let mut daemon = Daemon::start_with_default_log(
+        &dir,
+        "daemon",
+        &["daemon", "--config", cfg.to_str().expect("utf-8")],
+    );
+    daemon.wait_for_log("handeye daemon ready", secs(60));
     let api = format!("{robot_ip}:8650");
 
     // The startup calibration: accepted, on the truth, the camera is the controller's TCP.
@@ -155,6 +216,31 @@ fn daemon_calibrates_at_startup_and_serves_the_api() {
     });
     assert_eq!(st["last"]["outcome"], "accepted", "{st}");
     assert_eq!(st["drift_alarm"], false, "{st}");
+    let log = daemon.log();
+    assert!(
+        log.contains(&format!("run {run_id} started: calibrate asked by startup")),
+        "{log}"
+    );
+    assert!(
+        log.contains(&format!("run {run_id} ended: calibrate accepted in ")),
+        "{log}"
+    );
+    let check = st["last"]["run_id"].as_str().expect("run id");
+    assert!(
+        log.contains(&format!("run {check} started: check asked by api")),
+        "{log}"
+    );
+    let ended = format!("run {check} ended: check within limits in ");
+    let line = log
+        .lines()
+        .find(|l| l.contains(&ended))
+        .unwrap_or_else(|| panic!("no `{ended}` in\n{log}"));
+    assert!(
+        line.contains("; drift ") && line.contains(" mm / "),
+        "{line}"
+    );
+    // Stages are debug: not in the default journal.
+    assert!(!log.contains("stage=move"), "{log}");
     let (code, metrics) = http(&api, "GET", "/metrics", None);
     assert_eq!(code, 200);
     assert!(
@@ -162,6 +248,10 @@ fn daemon_calibrates_at_startup_and_serves_the_api() {
         "{metrics}"
     );
     assert!(metrics.contains("handeye_drift_alarm 0"), "{metrics}");
+    crate::monitoring::check_live_metrics(
+        "daemon_calibrates_at_startup_and_serves_the_api",
+        &metrics,
+    );
     let (code, body) = http(&api, "GET", "/api/runs", None);
     assert_eq!(code, 200, "{body}");
     assert_eq!(
@@ -216,11 +306,44 @@ fn scheduled_checks_raise_the_alarm_when_the_camera_slips() {
     let st = wait_status(&api, secs(90), "the alarm", |s| s["drift_alarm"] == true);
     let drift = &st["last_check"]["drift"];
     eprintln!("scheduled check after a 2 mm / 0.5° slip: {drift}");
-    let mm = drift[0].as_f64().expect("drift mm");
+    let mm = drift["translation_mm"].as_f64().expect("drift mm");
     assert!((mm - 2.0).abs() < 0.4, "{st}");
+    assert_eq!(drift["exceeded"], true, "{st}");
     let (_, metrics) = http(&api, "GET", "/metrics", None);
     assert!(metrics.contains("handeye_drift_alarm 1"), "{metrics}");
     assert!(daemon.log().contains("ALARM"), "{}", daemon.log());
+
+    // issue 24: a restart (SIGTERM, as systemd stops it) keeps the alarm, the last check
+    // and the last calibration: they come from the history.
+    let mut daemon = daemon;
+    let st = wait_status(&api, secs(90), "an idle daemon", |s| s["state"] == "idle");
+    let (check, calibration) = (
+        st["last_check"]["run_id"].clone(),
+        st["last_calibration"]["run_id"].clone(),
+    );
+    daemon.signal(libc::SIGTERM);
+    assert!(daemon.wait_exit(secs(20)).success(), "{}", daemon.log());
+    let daemon = start_daemon(&dir, "daemon-restarted", &cfg);
+    let (code, body) = http(&api, "GET", "/api/status", None);
+    assert_eq!(code, 200, "{body}");
+    let st = json(&body);
+    assert_eq!(
+        st["drift_alarm"],
+        true,
+        "after the restart: {st}\n{}",
+        daemon.log()
+    );
+    assert_eq!(st["last_check"]["run_id"], check, "{st}");
+    assert_eq!(st["last_check"]["drift"]["exceeded"], true, "{st}");
+    assert_eq!(st["last_calibration"]["run_id"], calibration, "{st}");
+    let (_, metrics) = http(&api, "GET", "/metrics", None);
+    assert!(metrics.contains("handeye_drift_alarm 1"), "{metrics}");
+    assert!(!metrics.contains("handeye_last_drift_mm NaN"), "{metrics}");
+    let text = run(
+        &["status", "--config", cfg.to_str().expect("utf-8")],
+        secs(15),
+    );
+    assert!(text.stdout.contains("drift alarm: ON"), "{}", text.stdout);
 }
 
 #[test]
@@ -234,9 +357,38 @@ fn sigterm_and_kill_mid_run_leave_an_honest_history() {
     let cfg = config(&dir, robot_ip, camera_ip, "");
     let api = format!("{robot_ip}:8650");
 
+    // issue 24: `handeye cancel` while the arm moves: the run ends aborted, the daemon runs on.
+    let mut daemon = start_daemon(&dir, "daemon-1", &cfg);
+    let config_arg = cfg.to_str().expect("utf-8");
+    let out = run(&["cancel", "--config", config_arg], secs(15));
+    assert_eq!(out.code(), 0, "{out}");
+    assert!(out.stdout.contains("nothing to cancel"), "{out}");
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let cancelled = json(&body)["run_id"].as_str().expect("run id").to_string();
+    wait_status(&api, secs(30), "the move starts", |s| {
+        s["current"]["stage"] == "move"
+    });
+    let out = run(&["cancel", "--config", config_arg], secs(15));
+    assert_eq!(out.code(), 0, "{out}");
+    assert!(out.stdout.starts_with("cancelled"), "{out}");
+    let st = wait_status(&api, secs(30), "the cancelled run ends", |s| {
+        s["state"] == "idle" && s["last"]["run_id"] == cancelled.as_str()
+    });
+    assert_eq!(st["last"]["outcome"], "aborted", "{st}");
+    let (code, body) = http(&api, "GET", &format!("/api/runs/{cancelled}"), None);
+    assert_eq!(code, 200, "{body}");
+    let record = json(&body);
+    // The move it was in took its time, also when aborted.
+    assert!(
+        record["timings_ms"]["moves"]
+            .as_f64()
+            .is_some_and(|ms| ms > 0.0),
+        "{record}"
+    );
+
     // SIGTERM while the arm moves: the arm stops, the run is recorded as aborted, the daemon
     // exits within a few seconds.
-    let mut daemon = start_daemon(&dir, "daemon-1", &cfg);
     let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
     assert_eq!(code, 202, "{body}");
     let first = json(&body)["run_id"].as_str().expect("run id").to_string();
@@ -463,7 +615,7 @@ fn issue_23_two_thousand_idle_connections_leave_the_api_and_cancel_working() {
         return;
     };
     let dir = TempDir::new("api-flood");
-    let (robot_ip, camera_ip) = ("127.0.0.181", "127.0.0.182");
+    let (robot_ip, camera_ip) = ("127.0.0.207", "127.0.0.208");
     // Slow moves: the calibration is still moving when it is cancelled.
     let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let cfg = config(&dir, robot_ip, camera_ip, "");
@@ -482,7 +634,7 @@ fn issue_23_two_thousand_idle_connections_leave_the_api_and_cancel_working() {
     // SAFETY: prlimit(2) on our own child with a valid rlimit; no memory is shared.
     let r = unsafe {
         libc::prlimit(
-            daemon.pid(),
+            i32::try_from(daemon.pid()).expect("pid fits in i32"),
             libc::RLIMIT_NOFILE,
             &nofile,
             std::ptr::null_mut(),

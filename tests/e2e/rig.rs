@@ -117,6 +117,24 @@ fn full_rig_over_real_protocols() {
     let view = view_near_start(&model, mount, 3);
 
     let robot = sim_robot(&dir, "127.0.0.110", &["--powered"]);
+    // Issue 24: a move into the floor (the upper arm 57° below horizontal) is refused by the
+    // motion guard before anything moves; the arm model comes from the controller.
+    let before = status_joints("127.0.0.110");
+    let out = move_robot("127.0.0.110", &[0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+    assert_eq!(out.code(), 2, "{out}\n{}", robot.log());
+    assert!(
+        out.stderr.contains("the motion guard refused the move")
+            && out.stderr.contains("mounting plane")
+            && out.stderr.contains("nothing moved"),
+        "{out}"
+    );
+    let after = status_joints("127.0.0.110");
+    let moved = before
+        .iter()
+        .zip(&after)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(moved < 1e-9, "moved {moved} rad");
     let out = move_robot("127.0.0.110", &view);
     assert!(out.status.success(), "{out}\n{}", robot.log());
     let mut camera = sim_camera(

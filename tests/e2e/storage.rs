@@ -65,7 +65,7 @@ fn issue_23_calibrate_on_a_full_disk_moves_and_writes_nothing() {
         return;
     };
     let dir = TempDir::new("storage-full-cli");
-    let (robot_ip, camera_ip) = ("127.0.0.175", "127.0.0.176");
+    let (robot_ip, camera_ip) = ("127.0.0.201", "127.0.0.202");
     let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let cfg = store_in(
         &rig_config(&dir, robot_ip, camera_ip, "", REGISTERS),
@@ -118,7 +118,7 @@ fn issue_23_the_daemon_refuses_runs_while_the_disk_is_full() {
         return;
     };
     let dir = TempDir::new("storage-full-daemon");
-    let (robot_ip, camera_ip) = ("127.0.0.177", "127.0.0.178");
+    let (robot_ip, camera_ip) = ("127.0.0.203", "127.0.0.204");
     let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let cfg = store_in(&daemon::config(&dir, robot_ip, camera_ip, ""), fs.path());
     let daemon = start_daemon(&dir, "daemon", &cfg);
@@ -178,7 +178,7 @@ fn issue_23_a_corrupted_history_is_set_aside_and_rebuilt() {
         return;
     };
     let dir = TempDir::new("history-damaged");
-    let (robot_ip, camera_ip) = ("127.0.0.179", "127.0.0.180");
+    let (robot_ip, camera_ip) = ("127.0.0.205", "127.0.0.206");
     let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let cfg = daemon::config(&dir, robot_ip, camera_ip, "");
     let mut ids = Vec::new();

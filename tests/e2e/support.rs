@@ -197,9 +197,20 @@ pub(crate) struct Daemon {
 impl Daemon {
     /// Starts `handeye ARGS` with its stderr in `dir/<name>.log`.
     pub(crate) fn start(dir: &TempDir, name: &str, args: &[&str]) -> Self {
+        Self::spawn(dir, name, command(args))
+    }
+
+    /// Like [`Self::start`], without `RUST_LOG`: the log as a journal shows it by default.
+    pub(crate) fn start_with_default_log(dir: &TempDir, name: &str, args: &[&str]) -> Self {
+        let mut c = command(args);
+        c.env_remove("RUST_LOG");
+        Self::spawn(dir, name, c)
+    }
+
+    fn spawn(dir: &TempDir, name: &str, mut command: Command) -> Self {
         let log = dir.join(&format!("{name}.log"));
         let file = std::fs::File::create(&log).expect("log file");
-        let child = command(args)
+        let child = command
             .stdout(Stdio::null())
             .stderr(file)
             .spawn()
@@ -209,6 +220,11 @@ impl Daemon {
             log,
             name: name.to_string(),
         }
+    }
+
+    /// Its process id.
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
     }
 
     /// Its log so far.
@@ -265,14 +281,9 @@ impl Daemon {
         }
     }
 
-    /// Its process id.
-    pub(crate) fn pid(&self) -> i32 {
-        i32::try_from(self.child.id()).expect("pid fits in i32")
-    }
-
     /// Sends `signal` (e.g. `libc::SIGTERM`, `libc::SIGKILL`) to it.
     pub(crate) fn signal(&self, signal: i32) {
-        let pid = self.pid();
+        let pid = i32::try_from(self.child.id()).expect("pid fits in i32");
         // SAFETY: kill(2) on our own child's pid has no memory effects.
         let r = unsafe { libc::kill(pid, signal) };
         assert_eq!(r, 0, "kill({pid}, {signal}) failed");

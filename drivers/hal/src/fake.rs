@@ -172,6 +172,22 @@ impl Robot for FakeRobot {
         self.lock().link_generation
     }
 
+    async fn power_on(&self) -> Result<(), HalError> {
+        let mut st = self.lock();
+        if matches!(
+            st.status.safety_mode,
+            crate::SafetyMode::RobotEmergencyStop | crate::SafetyMode::SystemEmergencyStop
+        ) {
+            return Err(HalError::Refused {
+                device: "fake robot".into(),
+                request: "power on".into(),
+                reason: "an emergency stop is active".into(),
+            });
+        }
+        st.status.robot_mode = crate::RobotMode::Running;
+        Ok(())
+    }
+
     async fn stop(&self) -> Result<(), HalError> {
         Ok(())
     }

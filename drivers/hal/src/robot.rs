@@ -128,6 +128,13 @@ pub trait Robot: Send + Sync + 'static {
     /// Stop any motion now (decelerating within the controller's limits).
     fn stop(&self) -> impl Future<Output = Result<(), HalError>> + Send;
 
+    /// Powers the arm on and releases its brakes (UR: dashboard `power on`, then
+    /// `brake release`), returning once the controller reports [`RobotMode::Running`]; fails
+    /// with `Timeout` when it does not get there, `Refused` when the controller will not (an
+    /// emergency stop). Releasing the brakes may move the arm a little. Callers do this only
+    /// when the configuration says so explicitly (`robot.allow_power_on`).
+    fn power_on(&self) -> impl Future<Output = Result<(), HalError>> + Send;
+
     /// Set the runtime TCP (`flange_from_tcp`; volatile on UR) and confirm by read-back.
     fn set_tcp(
         &self,

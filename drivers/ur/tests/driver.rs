@@ -474,10 +474,20 @@ async fn dashboard_state_machine() {
     .expect("dash");
     assert_eq!(d.robot_mode().await.expect("m"), RobotMode::PowerOff);
     assert!(d.play().await.is_err(), "nothing loaded");
+    // As a real controller: through POWER_ON to IDLE, then RUNNING once the brakes are off.
     d.power_on().await.expect("on");
-    assert_eq!(d.robot_mode().await.expect("m"), RobotMode::Idle);
+    assert_eq!(d.robot_mode().await.expect("m"), RobotMode::PowerOn);
+    let started = std::time::Instant::now();
+    while d.robot_mode().await.expect("m") != RobotMode::Idle {
+        assert!(started.elapsed() < Duration::from_secs(5), "never IDLE");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
     d.brake_release().await.expect("release");
-    assert_eq!(d.robot_mode().await.expect("m"), RobotMode::Running);
+    assert_eq!(d.robot_mode().await.expect("m"), RobotMode::Idle);
+    while d.robot_mode().await.expect("m") != RobotMode::Running {
+        assert!(started.elapsed() < Duration::from_secs(10), "never RUNNING");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
     d.load("cal.urp").await.expect("load");
     assert_eq!(
         d.request("programState").await.expect("r"),

@@ -71,6 +71,13 @@ async fn ur_rtde_dashboard_power_brake_play_stop() {
         "{out}"
     );
     assert!(
+        out["mode_powering"]
+            .as_str()
+            .expect("s")
+            .contains("POWER_ON"),
+        "{out}"
+    );
+    assert!(
         out["mode_powered"].as_str().expect("s").contains("IDLE"),
         "{out}"
     );

@@ -16,11 +16,16 @@ let failures = 0;
 function text(el, s) { el.textContent = s; }
 function show(el, on) { el.hidden = !on; }
 function fmt(v, digits) { return (typeof v === "number" && isFinite(v)) ? v.toFixed(digits) : "-"; }
+// Times as everywhere else (CLI, API text, journal): 24-hour UTC.
+function clock(d) {
+  const pad = (n) => String(n).padStart(2, "0");
+  return `${pad(d.getUTCHours())}:${pad(d.getUTCMinutes())}:${pad(d.getUTCSeconds())}`;
+}
 function when(unixS) {
   if (typeof unixS !== "number") return "-";
   const d = new Date(unixS * 1000);
   const pad = (n) => String(n).padStart(2, "0");
-  return `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} ${pad(d.getHours())}:${pad(d.getMinutes())}:${pad(d.getSeconds())}`;
+  return `${d.getUTCFullYear()}-${pad(d.getUTCMonth() + 1)}-${pad(d.getUTCDate())} ${clock(d)} UTC`;
 }
 function toneOf(outcome, drifted) {
   if (outcome === "accepted") return drifted ? "bad" : "good";
@@ -176,12 +181,12 @@ function drawStatus(st) {
   if (st.last) {
     const l = st.last;
     const o = document.createElement("span");
-    const drifted = l.drift ? l.drift[2] : false;
+    const drifted = l.drift ? l.drift.exceeded : false;
     o.className = `outcome tone-${toneOf(l.outcome, drifted)}`;
-    text(o, drifted ? "drifted" : l.outcome);
+    text(o, l.verdict || (drifted ? "drifted" : l.outcome));
     const info = document.createElement("span");
     let d = "";
-    if (l.drift) d = `, drift ${fmt(l.drift[0], 3)} mm / ${fmt(l.drift[1], 4)}°`;
+    if (l.drift) d = `, drift ${fmt(l.drift.translation_mm, 3)} mm / ${fmt(l.drift.rotation_deg, 4)}°`;
     text(info, ` ${l.mode} ${l.run_id}, ${when(l.finished_unix_s)}, ${fmt(l.duration_ms / 1000, 1)} s${d}`);
     last.append(o, info);
     (l.reasons || []).slice(0, 3).forEach((r) => {
@@ -191,7 +196,7 @@ function drawStatus(st) {
       last.appendChild(div);
     });
   } else {
-    text(last, "No run since the daemon started.");
+    text(last, "No run recorded yet.");
   }
 }
 
@@ -208,6 +213,15 @@ function drawPicture(runId) {
 }
 
 // ---- history ----
+// The one word for a run, as the CLI, the API's status and the report picture say it: an
+// accepted check that compared is "drifted" or "within limits", any other run its outcome.
+function verdictOf(r) {
+  if (r.mode === "check" && r.outcome === "accepted" && r.drifted != null) {
+    return r.drifted ? "drifted" : "within limits";
+  }
+  return r.outcome;
+}
+
 function driftText(r) {
   if (r.drift_translation_mm != null) {
     return `drift ${fmt(r.drift_translation_mm, 3)} mm / ${fmt(r.drift_rotation_deg, 4)}°${r.drifted ? " (over the limit)" : ""}`;
@@ -231,7 +245,7 @@ async function drawHistory(fresh) {
       [when(r.started_unix_s), "when"],
       [r.mode, ""],
       [r.trigger, ""],
-      [r.drifted ? "drifted" : r.outcome, `outcome tone-${toneOf(r.outcome, r.drifted)}`],
+      [verdictOf(r), `outcome tone-${toneOf(r.outcome, r.drifted)}`],
       [driftText(r), "detail"],
       [r.duration_ms != null ? `${fmt(r.duration_ms / 1000, 1)} s` : "-", ""],
       [r.run_id, "run"],
@@ -337,7 +351,7 @@ async function poll() {
     st = await getJson("/api/status");
     failures = 0;
     const t = new Date();
-    chip("chip-link", `page: live ${t.toLocaleTimeString()}`, "good");
+    chip("chip-link", `page: live ${clock(t)} UTC`, "good");
   } catch (e) {
     failures += 1;
     chip("chip-link", `page: no answer from the daemon (${failures})`, "bad");

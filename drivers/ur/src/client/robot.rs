@@ -6,7 +6,9 @@ use std::ops::RangeInclusive;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use handeye_hal::{ControllerKinematics, HalError, MotionLimits, Robot, RobotStatus, SafetyMode};
+use handeye_hal::{
+    ControllerKinematics, HalError, MotionLimits, Robot, RobotMode, RobotStatus, SafetyMode,
+};
 use nalgebra::Isometry3;
 use tokio::sync::Mutex;
 
@@ -218,6 +220,27 @@ impl UrRobot {
             .rtde
             .next_sample(Instant::now() - STALE, STALE.max(self.inner.cfg.timeout))
             .await
+    }
+
+    /// Waits until RTDE reports `mode` (or RUNNING, which comes after every other mode on the
+    /// way up), at most [`POWER_TIMEOUT`].
+    async fn wait_for_mode(&self, mode: RobotMode, what: &str) -> Result<(), HalError> {
+        let started = Instant::now();
+        loop {
+            let s = self.sample().await?;
+            let code = s.f64("robot_mode").unwrap_or(-128.0) as i32;
+            let now = robot_mode_from_code(code);
+            if now == Some(mode) || now == Some(RobotMode::Running) {
+                return Ok(());
+            }
+            if started.elapsed() > POWER_TIMEOUT {
+                return Err(HalError::Timeout {
+                    what: format!("{what} (the robot mode is {now:?})"),
+                    timeout: POWER_TIMEOUT,
+                });
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
     }
 
     async fn remote_control(&self) -> Result<bool, UrError> {
@@ -575,6 +598,9 @@ impl Drop for StopGuard {
     }
 }
 
+/// Longest a power-on or a brake release may take (a real arm: a few seconds each).
+const POWER_TIMEOUT: Duration = Duration::from_secs(30);
+
 impl Robot for UrRobot {
     async fn status(&self) -> Result<RobotStatus, HalError> {
         let s = self.sample().await?;
@@ -626,6 +652,30 @@ impl Robot for UrRobot {
 
     async fn move_joints(&self, q: &[f64], limits: MotionLimits) -> Result<(), HalError> {
         self.move_joints_until(q, limits, std::future::pending())
+            .await
+    }
+
+    async fn power_on(&self) -> Result<(), HalError> {
+        let st = self.status().await?;
+        if matches!(
+            st.safety_mode,
+            SafetyMode::RobotEmergencyStop | SafetyMode::SystemEmergencyStop
+        ) {
+            return Err(HalError::Refused {
+                device: "UR controller".into(),
+                request: "power on".into(),
+                reason: "an emergency stop is active; release it on the pendant".into(),
+            });
+        }
+        if st.robot_mode == RobotMode::Running {
+            return Ok(());
+        }
+        if matches!(st.robot_mode, RobotMode::PowerOff) {
+            self.dashboard(|d| Box::pin(d.power_on())).await?;
+            self.wait_for_mode(RobotMode::Idle, "power on").await?;
+        }
+        self.dashboard(|d| Box::pin(d.brake_release())).await?;
+        self.wait_for_mode(RobotMode::Running, "brake release")
             .await
     }
 

@@ -14,6 +14,12 @@ use super::{Shared, State};
 /// Advance the state by `dt` seconds of wall time. Programmed motion runs at the speed
 /// slider's fraction (the controller scales trajectory time); stops are not scaled.
 pub(crate) fn step(s: &mut State, wall_dt: f64) {
+    if let Some((mode, at)) = s.mode_change {
+        if std::time::Instant::now() >= at {
+            s.mode_change = None;
+            s.robot_mode = mode;
+        }
+    }
     let Some(mut m) = s.motion.take() else {
         s.qd = [0.0; 6];
         return;

@@ -1,7 +1,7 @@
 //! Dashboard server (29999): the real banner, exact replies, and the state changes behind them.
 
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncBufReadExt, AsyncReadExt, AsyncWriteExt, BufReader};
 use tokio::net::{TcpListener, TcpStream};
@@ -11,6 +11,11 @@ use super::Shared;
 
 /// Longest command line accepted; longer lines close the connection.
 const MAX_LINE: usize = 4096;
+
+/// How long the simulated arm takes from `power on` to IDLE (a real one: a few seconds).
+const POWER_ON_TIME: Duration = Duration::from_millis(1500);
+/// How long its brakes take to release (a real arm: a second or two, audibly).
+const BRAKE_RELEASE_TIME: Duration = Duration::from_millis(1000);
 
 pub(crate) async fn serve(listener: TcpListener, shared: Arc<Shared>) {
     super::accept_loop(listener, shared, "dashboard", |sock, shared| async move {
@@ -107,20 +112,29 @@ pub(crate) fn handle(shared: &Shared, cmd: &str) -> (String, bool) {
             if s.robot_mode == RobotModeCode::PowerOff
                 && s.safety_mode != SafetyModeCode::RobotEmergencyStop
             {
-                s.robot_mode = RobotModeCode::Idle;
+                s.robot_mode = RobotModeCode::PowerOn;
+                s.mode_change = Some((RobotModeCode::Idle, Instant::now() + POWER_ON_TIME));
             }
             "Powering on".into()
         }
         "power off" => {
             s.stop_program(Some("power off"));
+            s.mode_change = None;
             s.motion = None;
             s.qd = [0.0; 6];
             s.robot_mode = RobotModeCode::PowerOff;
             "Powering off".into()
         }
         "brake release" => {
-            if matches!(s.robot_mode, RobotModeCode::Idle | RobotModeCode::PowerOn) {
-                s.robot_mode = RobotModeCode::Running;
+            // From POWER_ON the controller first finishes powering on; either way the arm
+            // runs once the brakes are off.
+            let ready = match s.mode_change {
+                Some((RobotModeCode::Idle, at)) => Some(at),
+                _ if s.robot_mode == RobotModeCode::Idle => Some(Instant::now()),
+                _ => None,
+            };
+            if let Some(at) = ready {
+                s.mode_change = Some((RobotModeCode::Running, at + BRAKE_RELEASE_TIME));
             }
             "Brake releasing".into()
         }

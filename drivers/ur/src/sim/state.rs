@@ -122,6 +122,9 @@ pub(crate) struct State {
     pub(crate) robot_mode: RobotModeCode,
     pub(crate) safety_mode: SafetyModeCode,
     pub(crate) pstop_since: Option<Instant>,
+    /// A mode change under way, as a real controller takes its time: `power on` passes through
+    /// POWER_ON to IDLE, `brake release` stays IDLE until the brakes are off, then RUNNING.
+    pub(crate) mode_change: Option<(RobotModeCode, Instant)>,
     pub(crate) remote_control: bool,
     pub(crate) q: [f64; 6],
     pub(crate) qd: [f64; 6],
@@ -183,6 +186,7 @@ impl State {
             },
             safety_mode: SafetyModeCode::Normal,
             pstop_since: None,
+            mode_change: None,
             remote_control: c.remote_control || c.model.is_cb3(),
             q: c.initial_q,
             qd: [0.0; 6],

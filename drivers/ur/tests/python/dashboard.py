@@ -1,6 +1,18 @@
 """ur-rtde DashboardClient: power on, brake release, load, play, stop, robotmode, safety status."""
-import json, sys
+import json, sys, time
 import dashboard_client
+
+
+def wait_for_mode(d, mode, limit_s=10.0):
+    """Polls robotmode as a client of a real controller must: power on and brake release take
+    their time. Returns the last reply."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        reply = str(d.robotmode())
+        if mode in reply or time.monotonic() > deadline:
+            return reply
+        time.sleep(0.05)
+
 
 host = sys.argv[1]
 d = dashboard_client.DashboardClient(host)
@@ -8,9 +20,10 @@ d.connect()
 out = {"connected": d.isConnected()}
 out["mode_before"] = str(d.robotmode())
 d.powerOn()
-out["mode_powered"] = str(d.robotmode())
+out["mode_powering"] = str(d.robotmode())
+out["mode_powered"] = wait_for_mode(d, "IDLE")
 d.brakeRelease()
-out["mode_released"] = str(d.robotmode())
+out["mode_released"] = wait_for_mode(d, "RUNNING")
 out["safety_status"] = str(d.safetystatus())
 d.loadURP("handeye.urp")
 d.play()
