@@ -166,6 +166,52 @@ fn a_real_sensor_measures_noisier_than_the_simulated_one() {
     }
 }
 
+/// The simulator's active-stereo class, fitted to these frames: a simulated scan of the xArm7
+/// at each frame's joints, seen from the reference camera pose with the real intrinsics, has
+/// the noise the registration measures on the real frame (within 25 %).
+#[test]
+fn the_simulated_active_stereo_camera_is_as_noisy_as_the_real_one() {
+    use handeye_calib::geometry::Intrinsics;
+    use handeye_calib::sim::{simulate_scan, Placement, ScanRequest, SimSettings};
+    let Some(set) = real_set() else { return };
+    let model_from_base = fixed_frame(&set.model, "link_base").expect("link_base is fixed");
+    let settings = SimSettings::for_camera("realsense-d435");
+    for (k, f) in set.frames.iter().enumerate() {
+        let real = RangeImage::new(&f.cloud)
+            .expect("scan")
+            .noise_m()
+            .expect("patches");
+        let req = ScanRequest::new(
+            &set.model,
+            f.joints.clone(),
+            Placement::EyeToHand {
+                model_from_camera: model_from_base * set.reference,
+            },
+            Intrinsics::preset("realsense-d435").expect("preset"),
+            &settings,
+            k as u64,
+        );
+        let sim = simulate_scan(&req).expect("simulated");
+        let simulated = RangeImage::new(&sim.cloud)
+            .expect("scan")
+            .noise_m()
+            .expect("patches");
+        eprintln!(
+            "{}: noise real {:.3} mm, simulated {:.3} mm",
+            f.source,
+            real * 1e3,
+            simulated * 1e3
+        );
+        assert!(
+            (0.75..1.25).contains(&(simulated / real)),
+            "{}: real {:.3} mm, simulated {:.3} mm",
+            f.source,
+            real * 1e3,
+            simulated * 1e3
+        );
+    }
+}
+
 /// With the reference as the guess, the arm is found in each frame near where the guess puts
 /// it (every link fitted at its measured joints), and an accepted result agrees with it.
 #[test]

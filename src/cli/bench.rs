@@ -28,7 +28,8 @@ pub(crate) struct Args {
     /// Scans per view.
     #[arg(long, default_value_t = 3)]
     scans_per_view: usize,
-    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048).
+    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048), structured light; or
+    /// `realsense-d435` (1280×720), active stereo (its noise unless `--settings` gives one).
     #[arg(long, default_value = "compact")]
     camera: String,
     /// Simulator settings TOML (default: realistic noise, cell and kinematic error).
@@ -67,15 +68,10 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         "--scans-per-view = {}: expected 1 to {MAX_SCANS_PER_VIEW}",
         args.scans_per_view
     );
-    let intrinsics = Intrinsics::preset(&args.camera).with_context(|| {
-        format!(
-            "unknown camera preset `{}`; use compact or zivid2-m60",
-            args.camera
-        )
-    })?;
+    let intrinsics = Intrinsics::preset_or_error(&args.camera).map_err(anyhow::Error::msg)?;
     let settings = match &args.settings {
         Some(p) => SimSettings::load(p)?,
-        None => SimSettings::default(),
+        None => SimSettings::for_camera(&args.camera),
     };
     let robots: Vec<PathBuf> = if args.robots == "all" {
         let dir = robots_dir().context("no robot directory; set HANDEYE_ROBOTS")?;

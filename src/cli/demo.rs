@@ -9,7 +9,6 @@ use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Context;
 use handeye::config::{self, RobotPorts, ViewTargets};
 use handeye::run::{pose_difference, Outcome, RunMode, RunRequest};
 use handeye::sim::{Intrinsics, SimSettings};
@@ -34,7 +33,8 @@ pub(crate) struct Args {
     /// Robot model.
     #[arg(long, default_value = "ur5e")]
     robot: UrModel,
-    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048).
+    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048), structured light; or
+    /// `realsense-d435` (1280×720), active stereo.
     #[arg(long, default_value = "compact")]
     camera: String,
     /// Seed of the mount, the arm's factory calibration, the view and the sensor noise
@@ -139,12 +139,7 @@ async fn benchmark(
 /// One demo: rig, calibrate, compare.
 async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::Result<DemoOutcome> {
     let started = std::time::Instant::now();
-    let intrinsics = Intrinsics::preset(&args.camera).with_context(|| {
-        format!(
-            "unknown camera preset `{}`; use compact or zivid2-m60",
-            args.camera
-        )
-    })?;
+    let intrinsics = Intrinsics::preset_or_error(&args.camera).map_err(anyhow::Error::msg)?;
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let mount = handeye::bench::random_mount(&mut rng);
     // What the bracket's drawing says: the truth off by a few millimetres and degrees.
@@ -169,7 +164,7 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
         },
         camera_bind: SocketAddr::new(loopback, 0),
         intrinsics,
-        settings: SimSettings::default(),
+        settings: SimSettings::for_camera(&args.camera),
         mount_file: None,
         robot: RobotFaults::default(),
     })

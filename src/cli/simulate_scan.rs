@@ -35,7 +35,8 @@ pub(crate) struct Args {
     /// Eye-to-hand: `model_from_camera` (camera pose in the URDF root link) as x,y,z,rx,ry,rz.
     #[arg(long, value_parser = parse_pose, allow_hyphen_values = true)]
     camera_pose: Option<Isometry3<f64>>,
-    /// Camera preset: `zivid2-m60` (2448×2048) or `compact` (1280×960).
+    /// Camera preset: `zivid2-m60` (2448×2048) or `compact` (1280×960), structured light; or
+    /// `realsense-d435` (1280×720), active stereo (its noise unless `--settings` gives one).
     #[arg(long, default_value = "zivid2-m60")]
     camera: String,
     /// TOML file with `[noise]`, `[cell]` and `[kinematic_error]` tables (see config/simulator.example.toml).
@@ -61,12 +62,7 @@ pub(crate) struct Args {
 pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let urdf = resolve_robot(&args.robot.to_string_lossy()).map_err(anyhow::Error::msg)?;
     let model = RobotModel::load(&urdf)?;
-    let intrinsics = Intrinsics::preset(&args.camera).with_context(|| {
-        format!(
-            "unknown camera preset `{}`; use zivid2-m60 or compact",
-            args.camera
-        )
-    })?;
+    let intrinsics = Intrinsics::preset_or_error(&args.camera).map_err(anyhow::Error::msg)?;
     if model.dof() == args.joints.0.len() {
         check_joint_limits("--joints", &model, &args.joints.0).map_err(anyhow::Error::msg)?;
     }
@@ -90,7 +86,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let settings = match (&args.settings, args.ideal) {
         (_, true) => SimSettings::ideal(),
         (Some(path), false) => SimSettings::load(path)?,
-        (None, false) => SimSettings::default(),
+        (None, false) => SimSettings::for_camera(&args.camera),
     };
     let mut req = ScanRequest::new(
         &model,

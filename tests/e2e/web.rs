@@ -484,6 +484,13 @@ fn the_web_page_runs_a_check_with_the_token_and_refuses_without() {
     // The cell PC's screen.
     b.set_viewport(1366, 768);
     b.goto(&url);
+    // Its first paint says nothing it will contradict: no "No run yet." while the status and
+    // the picture of the startup run are on their way.
+    assert!(
+        !b.visible("#picture-none"),
+        "first paint: {}",
+        b.text("#picture-none")
+    );
 
     // The page loads with the right state.
     b.wait("daemon idle, robot and camera connected", secs(20), |b| {

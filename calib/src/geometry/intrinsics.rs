@@ -47,13 +47,41 @@ impl Intrinsics {
         }
     }
 
-    /// Look up a preset by name: `zivid2-m60` (2448×2048) or `compact` (1280×960).
+    /// An Intel RealSense D435 at 1280×720 with depth aligned to its colour camera (~70° × 43°
+    /// field of view): the intrinsics of the real frames in `../shared/realdata/xarm7_realsense`.
+    pub fn realsense_d435_1280x720() -> Self {
+        Self {
+            width: 1280,
+            height: 720,
+            fx: 908.3,
+            fy: 908.3,
+            cx: 643.0,
+            cy: 372.7,
+        }
+    }
+
+    /// The preset names [`Intrinsics::preset`] knows, as the command line takes them.
+    pub const PRESETS: [&'static str; 3] = ["zivid2-m60", "compact", "realsense-d435"];
+
+    /// Look up a preset by name: `zivid2-m60` (2448×2048), `compact` (1280×960) or
+    /// `realsense-d435` (1280×720).
     pub fn preset(name: &str) -> Option<Self> {
         match name {
             "zivid2-m60" | "zivid2plus-m60" | "2448x2048" => Some(Self::zivid2_plus_m60()),
             "compact" | "1280x960" => Some(Self::compact_1280x960()),
+            "realsense-d435" => Some(Self::realsense_d435_1280x720()),
             _ => None,
         }
+    }
+
+    /// [`Intrinsics::preset`], or an error naming the presets there are.
+    pub fn preset_or_error(name: &str) -> Result<Self, String> {
+        Self::preset(name).ok_or_else(|| {
+            format!(
+                "unknown camera preset `{name}`; use one of {}",
+                Self::PRESETS.join(", ")
+            )
+        })
     }
 
     /// Same field of view at a lower resolution (used for fast visibility checks).

@@ -93,7 +93,7 @@ impl ScanNoise {
     /// camera pose what it gives the real frames (see `calib/tests/realdata.rs`).
     pub fn active_stereo() -> Self {
         Self {
-            depth_sigma_at_1m_m: 0.000_42,
+            depth_sigma_at_1m_m: 0.000_46,
             flying_pixel_probability: 0.8,
             flying_pixel_edge_m: 0.01,
             dropout_start_deg: 60.0,

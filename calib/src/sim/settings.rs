@@ -43,6 +43,20 @@ pub enum SettingsError {
 
 impl SimSettings {
     /// A perfect sensor, nothing around the robot, the arm exactly its model.
+    /// The realistic defaults with the sensor class of camera preset `camera` (see
+    /// [`crate::geometry::Intrinsics::preset`]): `realsense-d435` is active stereo
+    /// ([`ScanNoise::active_stereo`]); the others are structured light (the defaults).
+    pub fn for_camera(camera: &str) -> Self {
+        let noise = match camera {
+            "realsense-d435" => ScanNoise::active_stereo(),
+            _ => ScanNoise::default(),
+        };
+        Self {
+            noise,
+            ..Self::default()
+        }
+    }
+
     pub fn ideal() -> Self {
         Self {
             noise: ScanNoise::none(),

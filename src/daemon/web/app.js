@@ -201,7 +201,9 @@ function drawStatus(st) {
 }
 
 function drawPicture(runId) {
-  if (!runId) { show($("picture-link"), false); show($("picture-none"), true); return; }
+  if (!runId) { show($("picture-link"), false); text($("picture-none"), "No run yet."); show($("picture-none"), true); return; }
+  // Until the picture has loaded (or failed), say nothing rather than "No run yet." beside the run id.
+  show($("picture-none"), false);
   const src = `/api/runs/${encodeURIComponent(runId)}/report.png`;
   const img = $("picture");
   img.onerror = () => { show($("picture-link"), false); text($("picture-none"), `Run ${runId} has no report picture.`); show($("picture-none"), true); };
