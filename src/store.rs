@@ -380,6 +380,22 @@ pub struct RunSummary {
     pub captures_pruned_unix_s: Option<f64>,
 }
 
+impl RunSummary {
+    /// [`crate::record::RunRecord::drift_found`] of the run, from the columns the history
+    /// keeps.
+    pub fn drift_found(&self) -> Option<bool> {
+        crate::record::drift_found(self.mode, self.outcome.outcome(), self.drifted)
+    }
+
+    /// [`crate::record::RunRecord::verdict`] of the run (`running` while it runs).
+    pub fn verdict(&self) -> &'static str {
+        match self.outcome.outcome() {
+            Some(o) => crate::record::verdict(o, self.drift_found()),
+            None => self.outcome.name(),
+        }
+    }
+}
+
 /// A damaged history file that [`Store::open`] moved aside (kept, never deleted) before it
 /// started a new one.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

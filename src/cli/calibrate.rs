@@ -71,7 +71,10 @@ pub(crate) async fn check(
 
 fn finish(record: RunRecord, json: bool) -> anyhow::Result<ExitCode> {
     if json {
-        println!("{}", serde_json::to_string_pretty(&record)?);
+        // The record, with the word every view uses for it (`drifted`, `within limits`, …).
+        let mut doc = serde_json::to_value(&record)?;
+        doc["verdict"] = record.verdict().into();
+        println!("{}", serde_json::to_string_pretty(&doc)?);
     } else {
         print!("{}", summary(&record));
     }

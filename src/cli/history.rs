@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use handeye::calendar::utc_text;
 use handeye::config::Config;
-use handeye::record::{drift_found, verdict, Stage};
+use handeye::record::Stage;
 use handeye::store::{RunSummary, Store, StoredRun, HISTORY_FILE};
 
 /// Arguments of `history`.
@@ -133,7 +133,7 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
             r.run_id,
             r.trigger,
             r.mode.name(),
-            summary_verdict(r),
+            r.verdict(),
             time,
             result_cell(r),
             r.reason
@@ -146,15 +146,6 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
 }
 
 /// The drift of a check, else the uncertainty of a result.
-/// The run's verdict ([`handeye::record::verdict`]): `drifted` / `within limits` for a check
-/// that measured the camera, else its outcome (`running` while it runs).
-fn summary_verdict(r: &RunSummary) -> &'static str {
-    match r.outcome.outcome() {
-        Some(o) => verdict(o, drift_found(r.mode, Some(o), r.drifted)),
-        None => r.outcome.name(),
-    }
-}
-
 fn result_cell(r: &RunSummary) -> String {
     match (r.drift_translation_mm, r.drift_rotation_deg) {
         (Some(mm), Some(deg)) => {
@@ -309,7 +300,7 @@ fn jsonl(runs: &[RunSummary]) -> anyhow::Result<String> {
     let mut out = String::new();
     for r in runs {
         let mut v = serde_json::to_value(r)?;
-        v["verdict"] = summary_verdict(r).into();
+        v["verdict"] = r.verdict().into();
         v["started_utc"] = format!("{}Z", utc_text(r.started_unix_s).replace(' ', "T")).into();
         out += &serde_json::to_string(&v)?;
         out.push('\n');

@@ -831,6 +831,15 @@ async fn runs(
     let (limit, before) =
         runs_query(query.as_deref()).map_err(|m| ApiError::new(StatusCode::BAD_REQUEST, m))?;
     let runs = with_store(&state, move |s| Ok(s.list(limit, before)?)).await?;
+    // Each run with its verdict, the word every view uses (`drifted`, `within limits`, …).
+    let runs: Vec<serde_json::Value> = runs
+        .iter()
+        .map(|r| {
+            let mut v = json!(r);
+            v["verdict"] = json!(r.verdict());
+            v
+        })
+        .collect();
     Ok(Json(json!({ "runs": runs })).into_response())
 }
 
@@ -1231,6 +1240,10 @@ mod tests {
             assert_eq!(listed.len(), 1, "{runs}");
             assert_eq!(listed[0]["run_id"], run_id.as_str());
             assert_eq!(listed[0]["outcome"], "error");
+            assert_eq!(
+                listed[0]["verdict"], "error",
+                "the one word every view uses"
+            );
             let record = rig.get(&format!("/api/runs/{run_id}")).await;
             assert_eq!(record.code, 200, "{record:?}");
             assert_eq!(record.json()["run_id"], run_id.as_str());

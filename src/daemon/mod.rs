@@ -546,9 +546,7 @@ impl DaemonHandle {
             let calibration = newest_first.iter().any(|r| {
                 r.mode == RunMode::Calibrate && r.outcome.outcome() == Some(Outcome::Accepted)
             });
-            let check = newest_first
-                .iter()
-                .any(|r| restored_drift_found(r).is_some());
+            let check = newest_first.iter().any(|r| r.drift_found().is_some());
             if done || (calibration && check) {
                 break;
             }
@@ -572,7 +570,7 @@ impl DaemonHandle {
                 mode: r.mode,
                 trigger: r.trigger,
                 outcome,
-                verdict: crate::record::verdict(outcome, restored_drift_found(r)).to_string(),
+                verdict: r.verdict().to_string(),
                 reasons: r.reason.iter().cloned().collect(),
                 finished_unix_s: r
                     .finished_unix_s
@@ -580,7 +578,7 @@ impl DaemonHandle {
                 duration_ms: r.duration_ms.unwrap_or(0.0),
                 drift,
             };
-            st.apply(f, restored_drift_found(r));
+            st.apply(f, r.drift_found());
         }
         if st.drift_alarm {
             let check = st.last_check.as_ref().map_or("", |c| c.run_id.as_str());
@@ -592,11 +590,6 @@ impl DaemonHandle {
         }
         Ok(())
     }
-}
-
-/// [`RunRecord::drift_found`] of a run as the history lists it.
-fn restored_drift_found(r: &crate::store::RunSummary) -> Option<bool> {
-    crate::record::drift_found(r.mode, r.outcome.outcome(), r.drifted)
 }
 
 impl State {

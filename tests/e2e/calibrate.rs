@@ -214,6 +214,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     let out = handeye("check", &cfg, &[]);
     assert_eq!(out.code(), 0, "{out}");
     let doc = out.json();
+    assert_eq!(doc["verdict"], "within limits", "{out}");
     let drift = |d: &serde_json::Value| {
         (
             d["drift"]["translation_mm"].as_f64().expect("mm"),
@@ -237,6 +238,7 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     assert_eq!(out.code(), 1, "{out}");
     let doc = out.json();
     let (mm, deg) = drift(&doc);
+    assert_eq!(doc["verdict"], "drifted", "{out}");
     let (true_mm, true_deg) = pose_error(&mount, &moved);
     eprintln!("check after a {true_mm:.2} mm / {true_deg:.2}° slip: drift {mm:.3} mm / {deg:.4}°");
     assert!((mm - true_mm).abs() < 0.3, "{mm} mm vs {true_mm}\n{out}");

@@ -312,6 +312,16 @@ fn scheduled_checks_raise_the_alarm_when_the_camera_slips() {
     let (_, metrics) = http(&api, "GET", "/metrics", None);
     assert!(metrics.contains("handeye_drift_alarm 1"), "{metrics}");
     assert!(daemon.log().contains("ALARM"), "{}", daemon.log());
+    // The history lists the drifted check with the same word the status and the page use.
+    let (code, body) = http(&api, "GET", "/api/runs", None);
+    assert_eq!(code, 200, "{body}");
+    let runs = json(&body);
+    let listed = runs["runs"].as_array().expect("runs");
+    let drifted = listed
+        .iter()
+        .find(|r| r["run_id"] == st["last_check"]["run_id"])
+        .expect("the drifted check is listed");
+    assert_eq!(drifted["verdict"], "drifted", "{drifted}");
 
     // issue 24: a restart (SIGTERM, as systemd stops it) keeps the alarm, the last check
     // and the last calibration: they come from the history.
