@@ -7,9 +7,12 @@ use std::sync::{Arc, Mutex, OnceLock};
 
 use crate::model::RobotModel;
 
-/// `../shared/robots`, or `None` (with a message) when it is absent; panics under CI.
-pub fn shared_robots() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/robots");
+/// `../shared/<relative>` (beside the checkout), or `None` (with a SKIP line) when it is
+/// absent; panics under CI, where a missing peer must fail, never pass silently.
+pub fn shared(relative: &str) -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared")
+        .join(relative);
     if dir.is_dir() {
         return Some(dir);
     }
@@ -19,10 +22,15 @@ pub fn shared_robots() -> Option<PathBuf> {
         dir.display()
     );
     skip(&format!(
-        "SKIP: {} not found; this test needs ../shared/robots",
+        "SKIP: {} not found; this test needs ../shared/{relative}",
         dir.display()
     ));
     None
+}
+
+/// `../shared/robots` (see [`shared`]).
+pub fn shared_robots() -> Option<PathBuf> {
+    shared("robots")
 }
 
 /// Prints a SKIP line where the person running the tests sees it: straight to the process's

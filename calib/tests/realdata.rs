@@ -10,7 +10,8 @@
 //! - with or without a guess, no result far from the reference is accepted, per frame or
 //!   fused.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
+use std::sync::Arc;
 
 use handeye_calib::calib::pipeline::{calibrate_frames, fixed_frame, Frame, PipelineOptions};
 use handeye_calib::calib::range::RangeImage;
@@ -25,30 +26,19 @@ const AGREE_MM: f64 = 5.0;
 const AGREE_DEG: f64 = 0.5;
 
 struct RealSet {
-    model: RobotModel,
+    model: Arc<RobotModel>,
     frames: Vec<Frame>,
     /// `base_from_camera` (`link_base`) as the data's authors estimated it.
     reference: Isometry3<f64>,
 }
 
 /// The data set, or `None` (with a SKIP line) where `../shared` is absent; under CI it must
-/// be there.
+/// be there ([`handeye_calib::testutil::shared`]).
 fn real_set() -> Option<RealSet> {
-    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared");
-    let dir = shared.join("realdata/xarm7_realsense");
-    if !dir.is_dir() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "{} is missing and CI is set",
-            dir.display()
-        );
-        handeye_calib::testutil::skip(&format!("SKIP: {} not found", dir.display()));
-        return None;
-    }
+    let dir = handeye_calib::testutil::shared("realdata/xarm7_realsense")?;
     let text = std::fs::read_to_string(dir.join("manifest.json")).expect("manifest");
     let m: serde_json::Value = serde_json::from_str(&text).expect("manifest is JSON");
-    let model = RobotModel::load(&shared.join("robots/ufactory_xarm7/ufactory_xarm7.urdf"))
-        .expect("the xArm7 loads");
+    let model = handeye_calib::testutil::shared_robot("ufactory_xarm7/ufactory_xarm7.urdf")?;
     let frames = m["frames"]
         .as_array()
         .expect("frames")
