@@ -4,6 +4,9 @@
 
 use nalgebra::{Point3, Vector3};
 
+/// A camera preset: its names and its intrinsics.
+type Preset = (&'static [&'static str], fn() -> Intrinsics);
+
 /// Pinhole intrinsics of a 3D camera (OpenCV convention: pixel centres at integer coordinates,
 /// x right, y down, z forward; metres in camera frame).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -60,18 +63,24 @@ impl Intrinsics {
         }
     }
 
-    /// The preset names [`Intrinsics::preset`] knows, as the command line takes them.
-    pub const PRESETS: [&'static str; 3] = ["zivid2-m60", "compact", "realsense-d435"];
+    /// The presets: each one's names (the first is the one the command line shows) and its
+    /// intrinsics.
+    const PRESETS: [Preset; 3] = [
+        (
+            &["zivid2-m60", "zivid2plus-m60", "2448x2048"],
+            Self::zivid2_plus_m60,
+        ),
+        (&["compact", "1280x960"], Self::compact_1280x960),
+        (&["realsense-d435"], Self::realsense_d435_1280x720),
+    ];
 
     /// Look up a preset by name: `zivid2-m60` (2448×2048), `compact` (1280×960) or
     /// `realsense-d435` (1280×720).
     pub fn preset(name: &str) -> Option<Self> {
-        match name {
-            "zivid2-m60" | "zivid2plus-m60" | "2448x2048" => Some(Self::zivid2_plus_m60()),
-            "compact" | "1280x960" => Some(Self::compact_1280x960()),
-            "realsense-d435" => Some(Self::realsense_d435_1280x720()),
-            _ => None,
-        }
+        Self::PRESETS
+            .iter()
+            .find(|(names, _)| names.contains(&name))
+            .map(|(_, make)| make())
     }
 
     /// [`Intrinsics::preset`], or an error naming the presets there are.
@@ -79,7 +88,11 @@ impl Intrinsics {
         Self::preset(name).ok_or_else(|| {
             format!(
                 "unknown camera preset `{name}`; use one of {}",
-                Self::PRESETS.join(", ")
+                Self::PRESETS
+                    .iter()
+                    .map(|(names, _)| names[0])
+                    .collect::<Vec<_>>()
+                    .join(", ")
             )
         })
     }
@@ -146,6 +159,21 @@ mod tests {
         let (u, v) = k.project(&p).expect("in front");
         assert!((u - 100.0).abs() < 1e-9 && (v - 700.0).abs() < 1e-9);
         assert!(k.project(&Point3::new(0.0, 0.0, -1.0)).is_none());
+    }
+
+    #[test]
+    fn every_preset_name_resolves_and_an_unknown_one_lists_them() {
+        for (names, make) in Intrinsics::PRESETS {
+            for name in names {
+                assert_eq!(Intrinsics::preset(name), Some(make()), "{name}");
+            }
+        }
+        assert_eq!(Intrinsics::preset("2448x2048").map(|k| k.width), Some(2448));
+        let err = Intrinsics::preset_or_error("kinect").expect_err("unknown");
+        assert_eq!(
+            err,
+            "unknown camera preset `kinect`; use one of zivid2-m60, compact, realsense-d435"
+        );
     }
 
     #[test]
