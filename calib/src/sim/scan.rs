@@ -264,7 +264,7 @@ pub(crate) fn base_radius(model: &RobotModel) -> f64 {
 fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) -> PointCloud {
     let (w, h) = (image.width, image.height);
     let depth = &image.depth;
-    let ripple = &Ripple::new(noise, seed);
+    let ripple = &Ripple::new(noise, seed, w, h);
     let points: Vec<Point3<f32>> = (0..h)
         .into_par_iter()
         .flat_map_iter(|v| {
@@ -321,26 +321,53 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
     }
 }
 
-/// The smooth depth error of [`ScanNoise::ripple_sigma_at_1m_m`]: four plane waves across the
-/// image in directions and phases drawn from the scan's seed, summed to unit variance.
+/// The smooth depth error of [`ScanNoise::ripple_sigma_at_1m_m`]: a stationary Gaussian
+/// random field across the image with covariance `exp(-r² / 2ℓ²)` (`ℓ` =
+/// [`ScanNoise::ripple_correlation_px`]), drawn from the scan's seed as a sum of
+/// [`RIPPLE_WAVES`] plane waves whose wave vectors come from the matching Gaussian spectrum —
+/// the blobs of stereo matching on weakly textured surfaces, not one regular wave.
 #[derive(Debug)]
 struct Ripple {
-    /// (wave vector in radians per pixel along u, along v; phase) per wave.
-    waves: [(f64, f64, f64); 4],
+    /// cos and sin of `ku·u` per column (`[u][wave]`).
+    cols: Vec<[(f64, f64); RIPPLE_WAVES]>,
+    /// cos and sin of `kv·v + phase` per row (`[v][wave]`).
+    rows: Vec<[(f64, f64); RIPPLE_WAVES]>,
     sigma_at_1m_m: f64,
 }
 
+/// Plane waves summed into the ripple field: enough for its values to look Gaussian and its
+/// blobs irregular; each pixel costs two multiplications per wave.
+const RIPPLE_WAVES: usize = 32;
+
 impl Ripple {
-    fn new(noise: &ScanNoise, seed: u64) -> Self {
+    fn new(noise: &ScanNoise, seed: u64, width: usize, height: usize) -> Self {
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ 0x5249_5050_4c45);
-        let k = std::f64::consts::TAU / noise.ripple_period_px;
-        let waves = std::array::from_fn(|_| {
-            let dir = rng.random_range(0.0..std::f64::consts::TAU);
-            let phase = rng.random_range(0.0..std::f64::consts::TAU);
-            (k * dir.cos(), k * dir.sin(), phase)
+        let off = noise.ripple_sigma_at_1m_m == 0.0;
+        // Wave vectors ~ N(0, 1/ℓ²) per axis give the covariance exp(-r²/2ℓ²).
+        let per_axis = rand_distr::Normal::new(0.0, 1.0 / noise.ripple_correlation_px)
+            .expect("validated: a positive correlation length");
+        let waves: [(f64, f64, f64); RIPPLE_WAVES] = std::array::from_fn(|_| {
+            (
+                rng.sample(per_axis),
+                rng.sample(per_axis),
+                rng.random_range(0.0..std::f64::consts::TAU),
+            )
         });
+        // cos and sin of each wave's angle at every column (u) or row (v); none when off.
+        let table = |n: usize, angle: &dyn Fn(f64, &(f64, f64, f64)) -> f64| {
+            let n = if off { 0 } else { n };
+            (0..n)
+                .map(|i| {
+                    std::array::from_fn(|w| {
+                        let (sin, cos) = angle(i as f64, &waves[w]).sin_cos();
+                        (cos, sin)
+                    })
+                })
+                .collect()
+        };
         Self {
-            waves,
+            cols: table(width, &|u, (ku, _, _)| ku * u),
+            rows: table(height, &|v, (_, kv, phase)| kv * v + phase),
             sigma_at_1m_m: noise.ripple_sigma_at_1m_m,
         }
     }
@@ -350,13 +377,14 @@ impl Ripple {
         if self.sigma_at_1m_m == 0.0 {
             return 0.0;
         }
-        let sum: f64 = self
-            .waves
+        // cos(a + b) = cos a cos b − sin a sin b, from the column and row tables.
+        let sum: f64 = self.cols[u]
             .iter()
-            .map(|(ku, kv, phase)| (ku * u as f64 + kv * v as f64 + phase).sin())
+            .zip(&self.rows[v])
+            .map(|((ca, sa), (cb, sb))| ca * cb - sa * sb)
             .sum();
-        // Four unit sinusoids with independent phases: variance 4 · 1/2.
-        self.sigma_at_1m_m * z * z * sum / 2f64.sqrt()
+        // RIPPLE_WAVES unit cosines with independent phases: variance RIPPLE_WAVES / 2.
+        self.sigma_at_1m_m * z * z * sum * (2.0 / RIPPLE_WAVES as f64).sqrt()
     }
 }
 
