@@ -27,6 +27,9 @@ type Vec7 = SVector<f64, 7>;
 /// Edge of the model-frame cubes whose residuals [`patch_scores`] treats as one error,
 /// metres.
 const PATCH_M: f64 = 0.06;
+/// Correspondence gate of [`IcpResult::residual_spread_m`], in kernel scales: wide enough that
+/// a spread of a few kernel scales is measured, not cut off.
+const SPREAD_GATE_KERNELS: f64 = 12.0;
 /// Scan points on the moving links below which [`IcpResult::sharpness_moving`] says nothing.
 const MIN_MOVING_POINTS: usize = 30;
 /// Largest depth-scale error the 7-parameter fit may estimate (real cameras are within a few
@@ -72,6 +75,11 @@ pub(crate) struct IcpResult {
     pub(crate) rmse_m: f64,
     /// Fraction of scan points (inside the model's neighbourhood) within 3 kernel scales.
     pub(crate) inlier_fraction: f64,
+    /// Robust spread (1.4826 × the median absolute deviation) of the signed residuals of the
+    /// scan points within [`SPREAD_GATE_KERNELS`] kernel scales of the converged model, metres:
+    /// the scan's error against the model as the fit sees it, smooth depth errors included
+    /// (which the scan's per-pixel noise does not show).
+    pub(crate) residual_spread_m: f64,
     /// Mean over the scan points in the model's neighbourhood of `1 / (1 + (r / 0.5 mm)²)`
     /// (0 for points without a correspondence): how tightly the scan hugs the model, 0–1.
     /// Tells a right pose from a nearly symmetric wrong one whose fit is merely good.
@@ -299,6 +307,38 @@ fn patch_scores(
     patches.into_iter().map(|(k, psi)| (k.3, psi)).collect()
 }
 
+/// 1.4826 × the median absolute deviation of the signed residuals of `pts` (see
+/// [`IcpResult::residual_spread_m`]); 0 without correspondences.
+fn residual_spread(
+    pts: &[Oriented],
+    surface: &ModelSurface,
+    t: &Isometry3<f64>,
+    kappa: f64,
+    st: &Stage,
+    links: &[Isometry3<f64>],
+) -> f64 {
+    let wide = Stage {
+        gate_m: SPREAD_GATE_KERNELS * st.kernel_m,
+        ..*st
+    };
+    let mut r: Vec<f64> = pts
+        .par_iter()
+        .filter_map(|o| match correspond(o, surface, t, kappa, &wide, links) {
+            Some(Ok(c)) => Some(c.r),
+            _ => None,
+        })
+        .collect();
+    if r.is_empty() {
+        return 0.0;
+    }
+    let mid = r.len() / 2;
+    let median = *r.select_nth_unstable_by(mid, f64::total_cmp).1;
+    for x in &mut r {
+        *x = (*x - median).abs();
+    }
+    1.4826 * *r.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 /// Robust point-to-plane ICP from `init` (`model_from_camera`) through the `stages`.
 pub(crate) fn icp(
     pts: &[Oriented],
@@ -498,6 +538,7 @@ pub(crate) fn icp_with_links(
     };
     let used: Vec<usize> = (0..7 + p).filter(|&k| k != 6 || scaled).collect();
     let patches = patch_scores(pts, surface, &t, kappa, &st, &links);
+    let residual_spread_m = residual_spread(pts, surface, &t, kappa, &st, &links);
     let mut meat = DMatrix::zeros(7 + p, 7 + p);
     for (depth, psi) in &patches {
         let mut full = DVector::zeros(7 + p);
@@ -554,6 +595,7 @@ pub(crate) fn icp_with_links(
             } else {
                 0.0
             },
+            residual_spread_m,
             sharpness: if a.near > 0 {
                 a.sharp / a.near as f64
             } else {
