@@ -245,6 +245,10 @@ impl<R: Robot> Robot for MotionGuard<R> {
         self.inner.kinematics().await
     }
 
+    async fn identity(&self) -> Result<handeye_hal::ControllerIdentity, HalError> {
+        self.inner.identity().await
+    }
+
     fn link_generation(&self) -> u64 {
         self.inner.link_generation()
     }

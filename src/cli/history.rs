@@ -408,6 +408,8 @@ mod tests {
             } else {
                 vec!["coverage 0.31 < 0.6, \"too little\": aim the camera at the base".into()]
             },
+            warnings: vec![],
+            warnings: vec![],
             failed_stage: (!accepted).then_some(Stage::Solve),
             preflight: None,
             views: vec![],

@@ -11,7 +11,7 @@ use handeye::config::Config;
 use handeye::guard::{Cell, MotionGuard};
 use handeye::model::RobotModel;
 use handeye_hal::ur_dh::UrModel;
-use handeye_hal::{limits, MotionLimits, Robot};
+use handeye_hal::{limits, ControllerIdentity, MotionLimits, Robot};
 use handeye_ur::{UrConfig, UrPose, UrRobot};
 
 use super::args::resolve_robot;
@@ -35,11 +35,16 @@ pub(crate) struct Args {
 
 #[derive(Debug, clap::Subcommand)]
 enum Command {
-    /// Robot mode, safety mode, remote control, program state, joints, flange and TCP poses.
+    /// Who the controller is (model, serial, software, kinematics checksum), robot mode,
+    /// safety mode, remote control, program state, joints, flange and TCP poses.
     Status {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        /// The cell's configuration: also says whether its current calibration was made on
+        /// this arm (serial and kinematics checksum as recorded by the run that made it).
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
     },
     /// Joint move (`movej`); returns when the arm has arrived; Ctrl-C stops the arm.
     Move {
@@ -144,7 +149,10 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             emit("arrived\n")?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Status { json } => interruptible(&shutdown, status(&robot, json)).await,
+        Command::Status { json, config } => {
+            let cfg = config.as_deref().map(Config::load).transpose()?;
+            interruptible(&shutdown, status(&robot, json, cfg.as_ref())).await
+        }
         Command::SetTcp { pose } => interruptible(&shutdown, set_tcp(&robot, pose)).await,
         Command::Registers { set, json } => {
             interruptible(&shutdown, registers(&robot, &set, json)).await
@@ -352,16 +360,50 @@ async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Resul
     Ok(ExitCode::SUCCESS)
 }
 
-async fn status(robot: &UrRobot, json: bool) -> anyhow::Result<ExitCode> {
+/// Whether the current calibration in `cfg`'s storage was made on the controller `now`: a
+/// sentence, and the mismatch (`None` when it matches or cannot be told).
+fn calibration_arm(cfg: &Config, now: &ControllerIdentity) -> (String, Option<String>) {
+    match handeye::storage::load_current(&cfg.storage.dir, cfg.mount.mount) {
+        None => (
+            format!("no current calibration in {}", cfg.storage.dir.display()),
+            None,
+        ),
+        Some(current) => match &current.controller {
+            None => (
+                format!(
+                    "{}: made before controllers were recorded, not compared",
+                    current.source
+                ),
+                None,
+            ),
+            Some(then) => match now.calibration_mismatch(then) {
+                Some(m) => (format!("{}: {m}", current.source), Some(m)),
+                None => (format!("{}: made on this arm", current.source), None),
+            },
+        },
+    }
+}
+
+async fn status(robot: &UrRobot, json: bool, cfg: Option<&Config>) -> anyhow::Result<ExitCode> {
     let st = robot.status().await?;
     let q = robot.joint_positions().await?;
     let flange = UrPose::from(robot.flange_pose().await?);
     let tcp = UrPose::from(robot.tcp_pose().await?);
     let offset = UrPose::from(robot.tcp_offset().await?);
     let v = robot.rtde().version();
+    let identity = robot
+        .identity()
+        .await
+        .context("asking the controller who it is")?;
+    let calibration = cfg.map(|c| calibration_arm(c, &identity));
     if json {
         let out = serde_json::json!({
             "controller_version": v,
+            "controller": identity,
+            "calibration": calibration.as_ref().map(|(text, mismatch)| serde_json::json!({
+                "text": text,
+                "other_arm": mismatch,
+            })),
             "status": st,
             "can_move": st.can_move(),
             "joint_positions_rad": q,
@@ -374,6 +416,10 @@ async fn status(robot: &UrRobot, json: bool) -> anyhow::Result<ExitCode> {
         use std::fmt::Write as _;
         let mut t = String::new();
         writeln!(t, "controller      {}.{}.{}.{}", v[0], v[1], v[2], v[3])?;
+        writeln!(t, "arm             {identity}")?;
+        if let Some((text, _)) = &calibration {
+            writeln!(t, "calibration     {text}")?;
+        }
         writeln!(t, "robot mode      {:?}", st.robot_mode)?;
         writeln!(t, "safety mode     {:?}", st.safety_mode)?;
         writeln!(t, "remote control  {}", st.remote_control)?;

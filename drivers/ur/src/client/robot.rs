@@ -7,7 +7,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use handeye_hal::{
-    ControllerKinematics, HalError, MotionLimits, Robot, RobotMode, RobotStatus, SafetyMode,
+    ControllerIdentity, ControllerKinematics, HalError, MotionLimits, Robot, RobotMode,
+    RobotStatus, SafetyMode,
 };
 use nalgebra::Isometry3;
 use tokio::sync::Mutex;
@@ -767,6 +768,20 @@ impl Robot for UrRobot {
 
     async fn kinematics(&self) -> Result<Option<ControllerKinematics>, HalError> {
         Ok(self.inner.kinematics)
+    }
+
+    /// Dashboard `get serial number`, `get robot model` and `PolyScope version`; the
+    /// kinematics checksums from the KinematicsInfo read on connect.
+    async fn identity(&self) -> Result<ControllerIdentity, HalError> {
+        let serial = self.dashboard(|d| Box::pin(d.serial_number())).await?;
+        let model = self.dashboard(|d| Box::pin(d.robot_model())).await?;
+        let v = self.dashboard(|d| Box::pin(d.polyscope_version())).await?;
+        Ok(ControllerIdentity {
+            serial,
+            model,
+            software_version: Some(format!("{}.{}.{}.{}", v[0], v[1], v[2], v[3])),
+            kinematics_checksum: self.inner.kinematics.map(|k| k.checksum),
+        })
     }
 
     /// The RTDE reconnections: each is a new session (recipes set up again), possibly with a
