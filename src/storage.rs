@@ -239,6 +239,13 @@ pub fn load_capture(path: &Path) -> Result<CaptureFile, String> {
 /// Largest `record.json` read back (a record is tens of kB).
 const MAX_RECORD_FILE_BYTES: u64 = 16 << 20;
 
+/// A `record.json` read back: bounded in size, parsed.
+fn read_record_file(path: &Path) -> Result<RunRecord, String> {
+    handeye_hal::limits::read_text_file(path, MAX_RECORD_FILE_BYTES)
+        .map_err(|e| e.to_string())
+        .and_then(|text| serde_json::from_str::<RunRecord>(&text).map_err(|e| e.to_string()))
+}
+
 /// The records of every run folder under `storage` (`runs/<id>/record.json`), oldest first;
 /// a folder whose record is missing or does not read back is skipped with a warning.
 pub fn run_records(storage: &Path) -> Vec<RunRecord> {
@@ -253,16 +260,29 @@ pub fn run_records(storage: &Path) -> Vec<RunRecord> {
             continue;
         }
         let path = entry.path().join(RECORD_FILE);
-        let read = handeye_hal::limits::read_text_file(&path, MAX_RECORD_FILE_BYTES)
-            .map_err(|e| e.to_string())
-            .and_then(|text| serde_json::from_str::<RunRecord>(&text).map_err(|e| e.to_string()));
-        match read {
+        match read_record_file(&path) {
             Ok(record) => records.push(record),
             Err(e) => tracing::warn!("skipping {}: {e}", path.display()),
         }
     }
     records.sort_by(|a, b| a.started_unix_s.total_cmp(&b.started_unix_s));
     records
+}
+
+/// The record of run `run_id` in `storage` (`runs/<id>/record.json`); `None` (logged unless
+/// absent) when it cannot be read.
+pub fn read_run_record(storage: &Path, run_id: &str) -> Option<RunRecord> {
+    let path = run_dir(storage, run_id)?.join(RECORD_FILE);
+    if !path.exists() {
+        return None;
+    }
+    match read_record_file(&path) {
+        Ok(r) => Some(r),
+        Err(e) => {
+            tracing::warn!("cannot read {}: {e}", path.display());
+            None
+        }
+    }
 }
 
 /// The last accepted calibration in `storage` for `mount`, with where it came from and the

@@ -221,6 +221,9 @@ fn finished(f: &Finished, now: f64) -> String {
     for r in &f.reasons {
         s += &format!("\n    {r}");
     }
+    for w in &f.warnings {
+        s += &format!("\n    warning: {w}");
+    }
     s
 }
 
