@@ -166,7 +166,7 @@ pub struct Status {
 pub enum Refusal {
     /// A run is going.
     #[error(
-        "busy: {mode} run {run_id} (asked by {trigger}) since {since} UTC; cancel it \
+        "busy: {mode} run {run_id} (asked by {trigger}) since {since}; cancel it \
          (`handeye cancel`) or wait",
         mode = mode.name(),
         trigger = trigger.name(),
@@ -1012,7 +1012,15 @@ mod tests {
             "{e}"
         );
         assert!(e.to_string().starts_with("busy: check run "), "{e}");
-        assert!(e.to_string().contains(" UTC; cancel it"), "{e}");
+        // Since when, in ISO 8601 UTC: `since 2026-11-26T19:40:00Z; cancel it`.
+        let text = e.to_string();
+        let since = text.split("since ").nth(1).unwrap_or("");
+        assert!(
+            since.len() > 20
+                && since.as_bytes()[10] == b'T'
+                && since[19..].starts_with("Z; cancel it"),
+            "{e}"
+        );
         let _ = std::fs::remove_dir_all(dir);
 
         let (s, dir) = store("queue");
