@@ -11,6 +11,7 @@ use handeye::config::Config;
 use handeye::guard::{Cell, MotionGuard};
 use handeye::model::RobotModel;
 use handeye_hal::ur_dh::UrModel;
+use handeye_hal::ur_limits;
 use handeye_hal::{limits, ControllerIdentity, MotionLimits, Robot};
 use handeye_ur::{UrConfig, UrPose, UrRobot};
 
@@ -189,11 +190,7 @@ async fn move_cell(
     let path = resolve_robot(model.name()).map_err(anyhow::Error::msg)?;
     let urdf = RobotModel::load(&path)
         .with_context(|| format!("loading the robot model {}", path.display()))?;
-    Ok(Cell::bare(
-        Arc::new(urdf),
-        lim.max_joint_speed_rad_s,
-        lim.max_joint_accel_rad_s2,
-    ))
+    Ok(Cell::bare(Arc::new(urdf), model, lim))
 }
 
 /// Runs a request that does not move the arm (nothing to undo when it is abandoned) until it
@@ -231,12 +228,13 @@ const MAX_REQUEST_TIMEOUT_S: f64 = 600.0;
 /// Shortest and longest limit for one move (`move --move-timeout-s`), seconds.
 const MIN_MOVE_TIMEOUT_S: f64 = 1.0;
 const MAX_MOVE_TIMEOUT_S: f64 = 3600.0;
-/// Highest joint speed cap, rad/s (a UR's fastest joints turn at π rad/s).
-const MAX_JOINT_SPEED_RAD_S: f64 = 3.15;
-/// Highest joint acceleration, rad/s² (UR's own limit is 40).
-const MAX_JOINT_ACCEL_RAD_S2: f64 = 40.0;
+/// Highest joint speed cap, rad/s (the hal's UR limits table; the arm's own limits cap it
+/// further).
+const MAX_JOINT_SPEED_RAD_S: f64 = ur_limits::MAX_JOINT_SPEED_CAP_RAD_S;
+/// Highest joint acceleration, rad/s² (UR's own limit, from the same table).
+const MAX_JOINT_ACCEL_RAD_S2: f64 = ur_limits::MAX_JOINT_ACCEL_RAD_S2;
 /// A UR joint turns at most ±2π from zero (radians; a little slack for rounding).
-const MAX_JOINT_RAD: f64 = std::f64::consts::TAU + 1e-6;
+const MAX_JOINT_RAD: f64 = ur_limits::JOINT_POSITION_LIMIT_RAD + 1e-6;
 
 /// `move`'s joints (radians after `--deg`), speed, acceleration and timeout, each checked
 /// against its range; errors name the flag and say why.

@@ -17,6 +17,7 @@ pub mod limits;
 mod pose;
 mod robot;
 pub mod ur_dh;
+pub mod ur_limits;
 
 pub use camera::{CameraInfo, CaptureSettings, DepthCamera};
 pub use cloud::PointCloud;
