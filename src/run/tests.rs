@@ -182,6 +182,14 @@ async fn start<R: Robot, C: DepthCamera>(
     .await
 }
 
+/// A calibration of `robot` from the fixture's first scan, asserted accepted.
+async fn calibrate_accepted<R: Robot>(robot: &R, f: &Fixture, cfg: &Config) -> RunRecord {
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let record = start(robot, &camera, f, cfg, RunMode::Calibrate, false).await;
+    assert_eq!(record.outcome, Outcome::Accepted, "{:?}", record.reasons);
+    record
+}
+
 /// A calibration that `cancel` stops; its record, and how long after the cancel (the instant
 /// `cancelled_at` gives once the canceller has run) the run ended.
 async fn calibrate_cancelled<R: Robot, C: DepthCamera>(
@@ -590,22 +598,7 @@ async fn a_calibration_made_on_another_arm_is_reported() {
             })
             .with_serial(serial, "5.11.1.108318")
     };
-    let first = arm("20205500001", 7);
-    let calibrated = start(
-        &first,
-        &FakeCamera::new(vec![f.scan.clone()]),
-        f,
-        &cfg,
-        RunMode::Calibrate,
-        false,
-    )
-    .await;
-    assert_eq!(
-        calibrated.outcome,
-        Outcome::Accepted,
-        "{:?}",
-        calibrated.reasons
-    );
+    let calibrated = calibrate_accepted(&arm("20205500001", 7), f, &cfg).await;
     assert!(calibrated.warnings.is_empty(), "{:?}", calibrated.warnings);
     let controller = calibrated
         .preflight
@@ -656,21 +649,7 @@ async fn a_calibration_made_on_another_arm_is_reported() {
     );
 
     // Calibrating the other arm says so, and is accepted.
-    let recalibrated = start(
-        &arm("20205500002", 7),
-        &FakeCamera::new(vec![f.scan.clone()]),
-        f,
-        &cfg,
-        RunMode::Calibrate,
-        false,
-    )
-    .await;
-    assert_eq!(
-        recalibrated.outcome,
-        Outcome::Accepted,
-        "{:?}",
-        recalibrated.reasons
-    );
+    let recalibrated = calibrate_accepted(&arm("20205500002", 7), f, &cfg).await;
     assert!(
         recalibrated
             .warnings
@@ -859,21 +838,7 @@ async fn a_check_reports_drift_and_writes_nothing() {
     let storage = Storage::new("check");
     let mut cfg = test_config(&storage.0, f.view);
     let robot = calibrated_robot(f);
-    let calibrated = start(
-        &robot,
-        &FakeCamera::new(vec![f.scan.clone()]),
-        f,
-        &cfg,
-        RunMode::Calibrate,
-        false,
-    )
-    .await;
-    assert_eq!(
-        calibrated.outcome,
-        Outcome::Accepted,
-        "{:?}",
-        calibrated.reasons
-    );
+    let calibrated = calibrate_accepted(&robot, f, &cfg).await;
     let tcp = robot.tcp();
     let current = std::fs::read(storage.0.join(CURRENT_DIR).join("result.json")).expect("current");
 
