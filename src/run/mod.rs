@@ -594,7 +594,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             if let Some(m) = mismatch {
                 let w = match self.req.mode {
                     RunMode::Check => {
-                        format!("{m}; the drift below compares with that arm's calibration")
+                        format!("{m}; the drift is measured from that arm's calibration")
                     }
                     RunMode::Calibrate => format!(
                         "{m}; this run does, and its gate does not compare with that arm's \
@@ -1242,13 +1242,15 @@ fn check_model_matches(
     use handeye_hal::ur_dh::UrModel;
     if let Some(name) = reported {
         if !model.fits_reported_name(name) {
+            // The reported family's models, narrowed by the kinematics when there are any.
+            let by_kinematics = kinematics.map(|(dh, _)| UrModel::matching(dh));
             let fits: Vec<&str> = UrModel::ALL
                 .into_iter()
                 .filter(|m| m.fits_reported_name(name))
                 .filter(|m| {
-                    kinematics.is_none_or(|(dh, _)| {
-                        m.dh().flange_distance(dh) <= handeye_hal::ur_dh::MAX_CALIBRATION_FLANGE_M
-                    })
+                    by_kinematics
+                        .as_ref()
+                        .is_none_or(|list| list.iter().any(|(k, _)| k == m))
                 })
                 .map(|m| m.name())
                 .collect();
@@ -1260,7 +1262,7 @@ fn check_model_matches(
             return Err(format!(
                 "robot.model is {model} but the controller says the arm is a {} (dashboard \
                  `get robot model`); {set} (nothing moved)",
-                limits_quoted(name)
+                handeye_hal::limits::Quoted(name)
             ));
         }
     }
@@ -1294,11 +1296,6 @@ fn check_model_matches(
             off * 1e3
         ),
     })
-}
-
-/// A name a peer reported, as an error message repeats it.
-fn limits_quoted(s: &str) -> String {
-    handeye_hal::limits::Quoted(s).to_string()
 }
 
 /// Whether the robot may move: powered with brakes released, safety normal or reduced, in
