@@ -633,6 +633,9 @@ impl Drop for StopGuard {
     }
 }
 
+/// Longest a stop may take to bring the arm to a stand (from π rad/s at 2 rad/s²: 1.6 s).
+const STOP_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// Longest a power-on or a brake release may take (a real arm: a few seconds each).
 const POWER_TIMEOUT: Duration = Duration::from_secs(30);
 
@@ -714,11 +717,34 @@ impl Robot for UrRobot {
             .await
     }
 
+    /// Sends `stopj` and returns once the arm stands and the stop program has ended (within
+    /// [`STOP_TIMEOUT`]): whatever comes next (the next run's preflight) must not find our own
+    /// stop still playing.
     async fn stop(&self) -> Result<(), HalError> {
         let a = self.inner.cfg.max_joint_accel_rad_s2.max(2.0);
+        let sent = Instant::now();
         self.run_program("handeye_stop", &format!("  stopj({a:.3})\n"))
             .await?;
-        Ok(())
+        let deadline = sent + STOP_TIMEOUT;
+        // Samples from after the controller reported the stop program started.
+        let mut last = Instant::now();
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(HalError::Timeout {
+                    what: "stopping the arm (stopj)".into(),
+                    timeout: STOP_TIMEOUT,
+                });
+            }
+            let s = self.inner.rtde.next_sample(last, left.min(STALE)).await?;
+            last = s.received;
+            let standing = s
+                .vec6("actual_qd")
+                .is_some_and(|qd| qd.iter().all(|v| v.abs() < 1e-3));
+            if standing && s.f64("runtime_state") != Some(2.0) {
+                return Ok(());
+            }
+        }
     }
 
     async fn set_tcp(&self, flange_from_tcp: &Isometry3<f64>) -> Result<(), HalError> {
