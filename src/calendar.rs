@@ -38,13 +38,14 @@ pub fn utc_fields(unix_s: i64) -> (i64, u32, u32, i64, i64, i64) {
     (y, m, d, rem / 3600, rem % 3600 / 60, rem % 60)
 }
 
-/// `YYYY-MM-DD HH:MM:SS` (UTC) of a unix time, s.
+/// `YYYY-MM-DDTHH:MM:SSZ` (ISO 8601, UTC) of a unix time, s: the one form every time a
+/// person reads takes (CLI, journal, report pictures, history exports); `?` when not finite.
 pub fn utc_text(unix_s: f64) -> String {
     if !unix_s.is_finite() {
         return "?".into();
     }
     let (y, m, d, hh, mm, ss) = utc_fields(unix_s.floor() as i64);
-    format!("{y:04}-{m:02}-{d:02} {hh:02}:{mm:02}:{ss:02}")
+    format!("{y:04}-{m:02}-{d:02}T{hh:02}:{mm:02}:{ss:02}Z")
 }
 
 /// Weekday names, Monday first (ISO 8601 order).
@@ -207,11 +208,12 @@ mod tests {
         assert_eq!(civil_from_days(0), (1970, 1, 1));
         assert_eq!(civil_from_days(20_416), (2025, 11, 24));
         assert_eq!(civil_from_days(11_016), (2000, 2, 29));
-        assert_eq!(utc_text(0.0), "1970-01-01 00:00:00");
+        assert_eq!(utc_text(0.0), "1970-01-01T00:00:00Z");
         assert_eq!(
             utc_text(20_416.0 * 86_400.0 + 14.0 * 3600.0 + 23.0 * 60.0 + 0.9),
-            "2025-11-24 14:23:00"
+            "2025-11-24T14:23:00Z"
         );
+        assert_eq!(utc_text(-0.5), "1969-12-31T23:59:59Z");
         assert_eq!(utc_text(f64::NAN), "?");
     }
 

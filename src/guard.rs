@@ -8,6 +8,8 @@
 
 use std::sync::Arc;
 
+use handeye_hal::ur_dh::UrModel;
+use handeye_hal::ur_limits::UrLimits;
 use handeye_hal::{HalError, MotionLimits, Robot, RobotStatus};
 use nalgebra::{Isometry3, Vector3};
 
@@ -36,6 +38,8 @@ pub struct Cell {
     max_joint_speed_rad_s: f64,
     /// Highest joint acceleration any move may use, rad/s².
     max_joint_accel_rad_s2: f64,
+    /// What the arm's joints can do (the hal's UR limits table): the caps never exceed it.
+    arm: UrLimits,
 }
 
 /// `model_from_base`: the controller's `base` frame in the model root (URDF `base_link`).
@@ -82,19 +86,21 @@ impl Cell {
             obstacles,
             max_joint_speed_rad_s: cfg.robot.limits.max_joint_speed_rad_s,
             max_joint_accel_rad_s2: cfg.robot.limits.max_joint_accel_rad_s2,
+            arm: cfg.robot.model.limits(),
         }
     }
 
-    /// A cell known only by its arm (no configuration): no camera, no obstacles, the default
-    /// floor clearance, and the given caps.
-    pub fn bare(model: Arc<RobotModel>, max_joint_speed_rad_s: f64, max_accel_rad_s2: f64) -> Cell {
+    /// A cell known only by its arm (`model`, a UR `ur`; no configuration): no camera, no
+    /// obstacles, the default floor clearance, and the given caps.
+    pub fn bare(model: Arc<RobotModel>, ur: UrModel, caps: MotionLimits) -> Cell {
         Cell {
             model,
             flange_from_camera: Isometry3::identity(),
             floor_clearance_m: ViewConstraints::default().floor_clearance_m,
             obstacles: Vec::new(),
-            max_joint_speed_rad_s,
-            max_joint_accel_rad_s2: max_accel_rad_s2,
+            max_joint_speed_rad_s: caps.max_joint_speed_rad_s,
+            max_joint_accel_rad_s2: caps.max_joint_accel_rad_s2,
+            arm: ur.limits(),
         }
     }
 
@@ -134,15 +140,15 @@ impl Cell {
         }
     }
 
-    /// `limits` within the cell's caps.
+    /// `limits` within the cell's caps and what the arm can do.
     pub fn capped(&self, limits: MotionLimits) -> MotionLimits {
-        MotionLimits {
+        self.arm.cap(MotionLimits {
             max_joint_speed_rad_s: limits.max_joint_speed_rad_s.min(self.max_joint_speed_rad_s),
             max_joint_accel_rad_s2: limits
                 .max_joint_accel_rad_s2
                 .min(self.max_joint_accel_rad_s2),
             timeout: limits.timeout,
-        }
+        })
     }
 }
 
@@ -245,7 +251,49 @@ impl<R: Robot> Robot for MotionGuard<R> {
         self.inner.kinematics().await
     }
 
+    async fn identity(&self) -> Result<handeye_hal::ControllerIdentity, HalError> {
+        self.inner.identity().await
+    }
+
     fn link_generation(&self) -> u64 {
         self.inner.link_generation()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+    use crate::testutil::shared_robot;
+
+    /// The guard caps every move at the configured caps and at what the arm can do (the
+    /// hal's UR limits table): a UR10e's base turns at 2π/3 rad/s whatever is asked.
+    #[test]
+    fn moves_are_capped_at_the_caps_and_the_arm_s_limits() {
+        let Some(model) = shared_robot("ur/ur10e/ur10e.urdf") else {
+            return;
+        };
+        let generous = MotionLimits {
+            max_joint_speed_rad_s: 3.1,
+            max_joint_accel_rad_s2: 60.0,
+            timeout: Duration::from_secs(9),
+        };
+        let cell = Cell::bare(Arc::clone(&model), UrModel::Ur10e, generous);
+        let capped = cell.capped(generous);
+        assert_eq!(
+            capped.max_joint_speed_rad_s,
+            UrModel::Ur10e.limits().move_speed_rad_s()
+        );
+        assert_eq!(capped.max_joint_accel_rad_s2, 40.0);
+        assert_eq!(capped.timeout, Duration::from_secs(9));
+        // The configured caps, when lower, win.
+        let careful = MotionLimits {
+            max_joint_speed_rad_s: 0.25,
+            max_joint_accel_rad_s2: 0.5,
+            timeout: Duration::from_secs(9),
+        };
+        let cell = Cell::bare(model, UrModel::Ur10e, careful);
+        assert_eq!(cell.capped(generous), careful);
     }
 }

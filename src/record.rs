@@ -8,7 +8,7 @@
 //! for them (a run's mode, who asked for it, how it ended, what a check's drift means).
 
 use handeye_hal::ur_dh::DhParams;
-use handeye_hal::{CameraInfo, RobotStatus};
+use handeye_hal::{CameraInfo, ControllerIdentity, RobotStatus};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
@@ -269,6 +269,11 @@ pub struct PreflightRecord {
     /// Whether handeye powered the arm on and released its brakes (`robot.allow_power_on`).
     #[serde(default)]
     pub powered_on: bool,
+    /// Who the controller says it is (serial, model, software version, kinematics
+    /// checksum); `None` when it could not be asked (the warnings say why) and in records
+    /// written before it was asked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub controller: Option<ControllerIdentity>,
 }
 
 /// One view of the plan.
@@ -427,6 +432,10 @@ pub struct RunRecord {
     pub outcome: Outcome,
     /// Why it ended that way (empty when accepted), one sentence each, saying what to do.
     pub reasons: Vec<String>,
+    /// What the operator should know whatever the outcome, one sentence each saying what to
+    /// do: e.g. that the current calibration was made on another arm.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     /// The stage that failed, for aborted/error outcomes.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub failed_stage: Option<Stage>,
@@ -467,6 +476,7 @@ impl RunRecord {
             started_unix_s: crate::calendar::unix_now(),
             outcome: Outcome::Error,
             reasons: Vec::new(),
+            warnings: Vec::new(),
             failed_stage: None,
             preflight: None,
             views: Vec::new(),

@@ -64,6 +64,21 @@ struct CurrentCalibration {
     mount: Mount,
     /// `flange_from_camera` (eye-in-hand) or `base_from_camera` in `base` (eye-to-hand), 4×4.
     pose: [[f64; 4]; 4],
+    /// The controller the calibration was made on (absent in files written before it was
+    /// recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    controller: Option<handeye_hal::ControllerIdentity>,
+}
+
+/// The current calibration ([`load_current`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Current {
+    /// `flange_from_camera` (eye-in-hand) or `base_from_camera` in `base` (eye-to-hand).
+    pub pose: Isometry3<f64>,
+    /// Where it came from: `result of run <id> (<path>)`.
+    pub source: String,
+    /// Who the controller it was made on said it was, when recorded.
+    pub controller: Option<handeye_hal::ControllerIdentity>,
 }
 
 /// A run id: UTC start time to the second and a random suffix (`20261124T142300Z-3f9a`).
@@ -224,6 +239,13 @@ pub fn load_capture(path: &Path) -> Result<CaptureFile, String> {
 /// Largest `record.json` read back (a record is tens of kB).
 const MAX_RECORD_FILE_BYTES: u64 = 16 << 20;
 
+/// A `record.json` read back: bounded in size, parsed.
+fn read_record_file(path: &Path) -> Result<RunRecord, String> {
+    handeye_hal::limits::read_text_file(path, MAX_RECORD_FILE_BYTES)
+        .map_err(|e| e.to_string())
+        .and_then(|text| serde_json::from_str::<RunRecord>(&text).map_err(|e| e.to_string()))
+}
+
 /// The records of every run folder under `storage` (`runs/<id>/record.json`), oldest first;
 /// a folder whose record is missing or does not read back is skipped with a warning.
 pub fn run_records(storage: &Path) -> Vec<RunRecord> {
@@ -238,10 +260,7 @@ pub fn run_records(storage: &Path) -> Vec<RunRecord> {
             continue;
         }
         let path = entry.path().join(RECORD_FILE);
-        let read = handeye_hal::limits::read_text_file(&path, MAX_RECORD_FILE_BYTES)
-            .map_err(|e| e.to_string())
-            .and_then(|text| serde_json::from_str::<RunRecord>(&text).map_err(|e| e.to_string()));
-        match read {
+        match read_record_file(&path) {
             Ok(record) => records.push(record),
             Err(e) => tracing::warn!("skipping {}: {e}", path.display()),
         }
@@ -250,8 +269,25 @@ pub fn run_records(storage: &Path) -> Vec<RunRecord> {
     records
 }
 
-/// The last accepted calibration in `storage` for `mount`, with where it came from.
-pub fn load_current(storage: &Path, mount: Mount) -> Option<(Isometry3<f64>, String)> {
+/// The record of run `run_id` in `storage` (`runs/<id>/record.json`); `None` (logged unless
+/// absent) when it cannot be read.
+pub fn read_run_record(storage: &Path, run_id: &str) -> Option<RunRecord> {
+    let path = run_dir(storage, run_id)?.join(RECORD_FILE);
+    if !path.exists() {
+        return None;
+    }
+    match read_record_file(&path) {
+        Ok(r) => Some(r),
+        Err(e) => {
+            tracing::warn!("cannot read {}: {e}", path.display());
+            None
+        }
+    }
+}
+
+/// The last accepted calibration in `storage` for `mount`, with where it came from and the
+/// controller it was made on.
+pub fn load_current(storage: &Path, mount: Mount) -> Option<Current> {
     let path = storage.join(CURRENT_DIR).join(CALIBRATION_FILE);
     let text = std::fs::read_to_string(&path).ok()?;
     let current: CurrentCalibration = match serde_json::from_str(&text) {
@@ -265,10 +301,11 @@ pub fn load_current(storage: &Path, mount: Mount) -> Option<(Isometry3<f64>, Str
         return None;
     }
     let pose = crate::frames::from_row_major(&current.pose)?;
-    Some((
+    Some(Current {
         pose,
-        format!("result of run {} ({})", current.run_id, path.display()),
-    ))
+        source: format!("result of run {} ({})", current.run_id, path.display()),
+        controller: current.controller,
+    })
 }
 
 /// An accepted result written into the run's folder and staged beside `current/`, not yet
@@ -310,6 +347,7 @@ pub(crate) fn stage_result(
         run_id: record.run_id.clone(),
         mount,
         pose: crate::frames::to_row_major(unknown),
+        controller: record.preflight.as_ref().and_then(|p| p.controller.clone()),
     };
     write_atomically(&run_dir.join(CALIBRATION_FILE), &json(&current)?)?;
     let staging = storage.join(format!(".{CURRENT_DIR}.{}", record.run_id));

@@ -195,7 +195,13 @@ pub(crate) fn summary(r: &RunRecord) -> String {
     for reason in &r.reasons {
         s += &format!("  - {reason}\n");
     }
+    for w in &r.warnings {
+        s += &format!("  warning: {w}\n");
+    }
     if let Some(p) = &r.preflight {
+        if let Some(c) = &p.controller {
+            s += &format!("  controller: {c}\n");
+        }
         s += &format!(
             "  robot: {:?}, {:?}, speed slider {:.0}%, kinematics: {}{}\n",
             p.status.robot_mode,

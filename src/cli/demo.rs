@@ -153,6 +153,7 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
         model: args.robot,
         mount,
         factory_calibration: Some(seed),
+        serial: None,
         robot_bind: loopback,
         // Ephemeral ports: two demos at once never clash.
         robot_ports: Ports {

@@ -120,7 +120,7 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
     }
     writeln!(
         out,
-        "{:<19}  {:<21}  {:<8}  {:<9}  {:<13}  {:>7}  {:<26}  REASON",
+        "{:<20}  {:<21}  {:<8}  {:<9}  {:<13}  {:>7}  {:<26}  REASON",
         "STARTED (UTC)", "RUN ID", "TRIGGER", "MODE", "VERDICT", "TIME", "RESULT"
     )?;
     for r in runs {
@@ -128,7 +128,7 @@ fn write_table(out: &mut dyn Write, runs: &[RunSummary]) -> std::io::Result<()> 
             .duration_ms
             .map_or_else(|| "-".into(), |ms| format!("{:.1} s", ms / 1e3));
         let line = format!(
-            "{:<19}  {:<21}  {:<8}  {:<9}  {:<13}  {:>7}  {:<26}  {}",
+            "{:<20}  {:<21}  {:<8}  {:<9}  {:<13}  {:>7}  {:<26}  {}",
             utc_text(r.started_unix_s),
             r.run_id,
             r.trigger,
@@ -200,7 +200,7 @@ fn write_record(
         write!(out, " (trigger {})", sm.trigger)?;
     }
     writeln!(out)?;
-    let mut started = utc_text(started) + " UTC";
+    let mut started = utc_text(started);
     if let StoredRun::Complete(r) = run {
         started += &format!(", took {:.2} s", r.timings_ms.total / 1e3);
     }
@@ -301,7 +301,7 @@ fn jsonl(runs: &[RunSummary]) -> anyhow::Result<String> {
     for r in runs {
         let mut v = serde_json::to_value(r)?;
         v["verdict"] = r.verdict().into();
-        v["started_utc"] = format!("{}Z", utc_text(r.started_unix_s).replace(' ', "T")).into();
+        v["started_utc"] = utc_text(r.started_unix_s).into();
         out += &serde_json::to_string(&v)?;
         out.push('\n');
     }
@@ -408,6 +408,7 @@ mod tests {
             } else {
                 vec!["coverage 0.31 < 0.6, \"too little\": aim the camera at the base".into()]
             },
+            warnings: vec![],
             failed_stage: (!accepted).then_some(Stage::Solve),
             preflight: None,
             views: vec![],
@@ -506,7 +507,7 @@ mod tests {
         assert!(err.to_string().contains("history.sqlite"), "{err}");
 
         let writer = Store::open(&db).expect("writer");
-        let t = 1_764_000_000.0; // 2025-11-24 16:00:00 UTC
+        let t = 1_764_000_000.0; // 2025-11-24T16:00:00Z
         writer
             .begin(&RunStart {
                 run_id: "run-a".into(),
@@ -557,7 +558,7 @@ mod tests {
             "{list}"
         );
         assert!(
-            lines[3].starts_with("2025-11-24 16:00:00")
+            lines[3].starts_with("2025-11-24T16:00:00Z ")
                 && lines[3].contains("startup")
                 && lines[3].contains("±0.21 mm"),
             "{list}"
@@ -572,7 +573,7 @@ mod tests {
         let show = history(&store, &cfg_path, &["show", "run-a"]).expect("show");
         for expected in [
             "run run-a: calibrate, accepted (trigger startup)",
-            "started   2025-11-24 16:00:00 UTC, took 4.20 s",
+            "started   2025-11-24T16:00:00Z, took 4.20 s",
             "(digest ",
             "result    flange_from_camera: translation (0.000, -80.000, 40.000) mm, rotation vector (-0.260000, 0.000000, 0.000000) rad (14.897°)",
             "±0.210 mm",
@@ -626,7 +627,7 @@ mod tests {
         );
         let columns = rows[0].split(',').count();
         assert!(
-            rows[1].starts_with("run-a,startup,calibrate,accepted,2025-11-24 16:00:00,"),
+            rows[1].starts_with("run-a,startup,calibrate,accepted,2025-11-24T16:00:00Z,"),
             "oldest first: {csv}"
         );
         assert!(

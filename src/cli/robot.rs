@@ -11,7 +11,8 @@ use handeye::config::Config;
 use handeye::guard::{Cell, MotionGuard};
 use handeye::model::RobotModel;
 use handeye_hal::ur_dh::UrModel;
-use handeye_hal::{limits, MotionLimits, Robot};
+use handeye_hal::ur_limits;
+use handeye_hal::{limits, ControllerIdentity, MotionLimits, Robot};
 use handeye_ur::{UrConfig, UrPose, UrRobot};
 
 use super::args::resolve_robot;
@@ -35,11 +36,16 @@ pub(crate) struct Args {
 
 #[derive(Debug, clap::Subcommand)]
 enum Command {
-    /// Robot mode, safety mode, remote control, program state, joints, flange and TCP poses.
+    /// Who the controller is (model, serial, software, kinematics checksum), robot mode,
+    /// safety mode, remote control, program state, joints, flange and TCP poses.
     Status {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
+        /// The cell's configuration: also says whether its current calibration was made on
+        /// this arm (serial and kinematics checksum as recorded by the run that made it).
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
     },
     /// Joint move (`movej`); returns when the arm has arrived; Ctrl-C stops the arm.
     Move {
@@ -144,7 +150,10 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             emit("arrived\n")?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Status { json } => interruptible(&shutdown, status(&robot, json)).await,
+        Command::Status { json, config } => {
+            let cfg = config.as_deref().map(Config::load).transpose()?;
+            interruptible(&shutdown, status(&robot, json, cfg.as_ref())).await
+        }
         Command::SetTcp { pose } => interruptible(&shutdown, set_tcp(&robot, pose)).await,
         Command::Registers { set, json } => {
             interruptible(&shutdown, registers(&robot, &set, json)).await
@@ -181,11 +190,7 @@ async fn move_cell(
     let path = resolve_robot(model.name()).map_err(anyhow::Error::msg)?;
     let urdf = RobotModel::load(&path)
         .with_context(|| format!("loading the robot model {}", path.display()))?;
-    Ok(Cell::bare(
-        Arc::new(urdf),
-        lim.max_joint_speed_rad_s,
-        lim.max_joint_accel_rad_s2,
-    ))
+    Ok(Cell::bare(Arc::new(urdf), model, lim))
 }
 
 /// Runs a request that does not move the arm (nothing to undo when it is abandoned) until it
@@ -223,12 +228,13 @@ const MAX_REQUEST_TIMEOUT_S: f64 = 600.0;
 /// Shortest and longest limit for one move (`move --move-timeout-s`), seconds.
 const MIN_MOVE_TIMEOUT_S: f64 = 1.0;
 const MAX_MOVE_TIMEOUT_S: f64 = 3600.0;
-/// Highest joint speed cap, rad/s (a UR's fastest joints turn at π rad/s).
-const MAX_JOINT_SPEED_RAD_S: f64 = 3.15;
-/// Highest joint acceleration, rad/s² (UR's own limit is 40).
-const MAX_JOINT_ACCEL_RAD_S2: f64 = 40.0;
+/// Highest joint speed cap, rad/s (the hal's UR limits table; the arm's own limits cap it
+/// further).
+const MAX_JOINT_SPEED_RAD_S: f64 = ur_limits::MAX_JOINT_SPEED_CAP_RAD_S;
+/// Highest joint acceleration, rad/s² (UR's own limit, from the same table).
+const MAX_JOINT_ACCEL_RAD_S2: f64 = ur_limits::MAX_JOINT_ACCEL_RAD_S2;
 /// A UR joint turns at most ±2π from zero (radians; a little slack for rounding).
-const MAX_JOINT_RAD: f64 = std::f64::consts::TAU + 1e-6;
+const MAX_JOINT_RAD: f64 = ur_limits::JOINT_POSITION_LIMIT_RAD + 1e-6;
 
 /// `move`'s joints (radians after `--deg`), speed, acceleration and timeout, each checked
 /// against its range; errors name the flag and say why.
@@ -352,16 +358,50 @@ async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Resul
     Ok(ExitCode::SUCCESS)
 }
 
-async fn status(robot: &UrRobot, json: bool) -> anyhow::Result<ExitCode> {
+/// Whether the current calibration in `cfg`'s storage was made on the controller `now`: a
+/// sentence, and the mismatch (`None` when it matches or cannot be told).
+fn calibration_arm(cfg: &Config, now: &ControllerIdentity) -> (String, Option<String>) {
+    match handeye::storage::load_current(&cfg.storage.dir, cfg.mount.mount) {
+        None => (
+            format!("no current calibration in {}", cfg.storage.dir.display()),
+            None,
+        ),
+        Some(current) => match &current.controller {
+            None => (
+                format!(
+                    "{}: made before controllers were recorded, not compared",
+                    current.source
+                ),
+                None,
+            ),
+            Some(then) => match now.calibration_mismatch(then) {
+                Some(m) => (format!("{}: {m}", current.source), Some(m)),
+                None => (format!("{}: made on this arm", current.source), None),
+            },
+        },
+    }
+}
+
+async fn status(robot: &UrRobot, json: bool, cfg: Option<&Config>) -> anyhow::Result<ExitCode> {
     let st = robot.status().await?;
     let q = robot.joint_positions().await?;
     let flange = UrPose::from(robot.flange_pose().await?);
     let tcp = UrPose::from(robot.tcp_pose().await?);
     let offset = UrPose::from(robot.tcp_offset().await?);
     let v = robot.rtde().version();
+    let identity = robot
+        .identity()
+        .await
+        .context("asking the controller who it is")?;
+    let calibration = cfg.map(|c| calibration_arm(c, &identity));
     if json {
         let out = serde_json::json!({
             "controller_version": v,
+            "controller": identity,
+            "calibration": calibration.as_ref().map(|(text, mismatch)| serde_json::json!({
+                "text": text,
+                "other_arm": mismatch,
+            })),
             "status": st,
             "can_move": st.can_move(),
             "joint_positions_rad": q,
@@ -374,6 +414,10 @@ async fn status(robot: &UrRobot, json: bool) -> anyhow::Result<ExitCode> {
         use std::fmt::Write as _;
         let mut t = String::new();
         writeln!(t, "controller      {}.{}.{}.{}", v[0], v[1], v[2], v[3])?;
+        writeln!(t, "arm             {identity}")?;
+        if let Some((text, _)) = &calibration {
+            writeln!(t, "calibration     {text}")?;
+        }
         writeln!(t, "robot mode      {:?}", st.robot_mode)?;
         writeln!(t, "safety mode     {:?}", st.safety_mode)?;
         writeln!(t, "remote control  {}", st.remote_control)?;

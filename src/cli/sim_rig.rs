@@ -35,6 +35,8 @@ pub(crate) struct RigOptions {
     pub(crate) mount: Isometry3<f64>,
     /// Seed of the arm's factory calibration (`None`: nominal DH).
     pub(crate) factory_calibration: Option<u64>,
+    /// The arm's serial number (`None`: the simulator's for the seed).
+    pub(crate) serial: Option<String>,
     /// Address of the controller's ports.
     pub(crate) robot_bind: IpAddr,
     /// The controller's ports (standard, or 0s for ephemeral ones).
@@ -106,6 +108,9 @@ impl Rig {
         if let Some(seed) = opts.factory_calibration {
             c = c.factory_calibrated(seed);
         }
+        if let Some(serial) = &opts.serial {
+            c.serial = serial.clone();
+        }
         let robot = Simulator::start(c)
             .await
             .with_context(|| format!("starting the UR simulator on {}", opts.robot_bind))?;
@@ -149,7 +154,8 @@ impl Rig {
         })
     }
 
-    /// The ground truth as JSON: `flange_from_camera` (4×4 and UR pose) and the arm's DH.
+    /// The ground truth as JSON: `flange_from_camera` (4×4 and UR pose), the arm's DH and
+    /// serial number.
     pub(crate) fn truth(&self) -> serde_json::Value {
         serde_json::json!({
             "flange_from_camera": to_row_major(&self.options.mount),
@@ -157,6 +163,7 @@ impl Rig {
             "model": self.options.model.name(),
             "factory_calibration_seed": self.options.factory_calibration,
             "controller_dh": self.controller_dh,
+            "serial": self.robot.serial(),
             "robot": {
                 "host": self.robot.ip().to_string(),
                 "ports": ports_json(self.robot.ports()),
@@ -204,6 +211,10 @@ pub(crate) struct Args {
     /// An arm exactly at its nominal DH (no factory calibration).
     #[arg(long)]
     nominal_kinematics: bool,
+    /// The arm's serial number, as dashboard `get serial number` answers it (default: one in
+    /// a real controller's 11-digit shape, from the model and the factory-calibration seed).
+    #[arg(long, value_name = "SERIAL", value_parser = super::sim_robot::parse_serial)]
+    serial: Option<String>,
     /// Sensor width, pixels.
     #[arg(long, default_value_t = 1280)]
     width: u32,
@@ -254,6 +265,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         model: args.model,
         mount,
         factory_calibration: (!args.nominal_kinematics).then_some(args.factory_calibration),
+        serial: args.serial,
         robot_bind: args.robot_bind,
         robot_ports: Ports::STANDARD,
         camera_bind: GvcpClient::parse_address(&args.camera_bind)?,

@@ -54,6 +54,21 @@ pub(crate) struct Args {
     /// (default: an exactly nominal arm).
     #[arg(long, value_name = "SEED")]
     factory_calibration: Option<u64>,
+    /// The arm's serial number, as dashboard `get serial number` answers it (default: one in
+    /// a real controller's 11-digit shape, from the model and the factory-calibration seed).
+    #[arg(long, value_name = "SERIAL", value_parser = parse_serial)]
+    serial: Option<String>,
+}
+
+/// A `--serial` as a controller could answer it: 1–32 letters and digits.
+pub(crate) fn parse_serial(s: &str) -> Result<String, String> {
+    match handeye_ur::dashboard::parse_serial_number(s) {
+        Ok(Some(serial)) if serial == s => Ok(serial),
+        _ => Err(format!(
+            "`{}` is no serial number: expected 1–32 letters and digits, e.g. 20205500001",
+            limits::Quoted(s)
+        )),
+    }
 }
 
 /// Longest simulated reply delay (`--latency-ms`), milliseconds.
@@ -128,18 +143,22 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             );
         }
     }
+    if let Some(serial) = args.serial {
+        c.serial = serial;
+    }
     let arm = match args.factory_calibration {
         Some(seed) => format!(" (factory-calibrated arm, seed {seed})"),
         None => String::new(),
     };
     let model = c.model;
     let bind = c.bind;
+    let serial = c.serial.clone();
     let sim = Simulator::start(c)
         .await
         .with_context(|| format!("starting the simulator on {bind}"))?;
     let p = sim.ports();
     eprintln!(
-        "simulated {model}{arm} on {bind}: dashboard {}, primary {}, secondary {}, real-time {}, RTDE {} (Ctrl-C to stop)",
+        "simulated {model}{arm}, serial {serial}, on {bind}: dashboard {}, primary {}, secondary {}, real-time {}, RTDE {} (Ctrl-C to stop)",
         p.dashboard, p.primary, p.secondary, p.realtime, p.rtde
     );
     shutdown.cancelled().await;

@@ -188,9 +188,9 @@ fn span(seconds: f64) -> String {
     }
 }
 
-/// `2026-11-24 15:00:00 UTC (5 min ago)`.
+/// `2026-11-24T15:00:00Z (5 min ago)`.
 fn when(unix_s: f64, now: f64) -> String {
-    format!("{} UTC ({} ago)", utc_text(unix_s), span(now - unix_s))
+    format!("{} ({} ago)", utc_text(unix_s), span(now - unix_s))
 }
 
 /// One finished run: `ID calibrate (asked by api): accepted in 0.9 s, ended … (… ago)`, its
@@ -220,6 +220,9 @@ fn finished(f: &Finished, now: f64) -> String {
     }
     for r in &f.reasons {
         s += &format!("\n    {r}");
+    }
+    for w in &f.warnings {
+        s += &format!("\n    warning: {w}");
     }
     s
 }

@@ -81,8 +81,17 @@ mod ranges {
     use std::f64::consts::PI;
 
     pub(super) const PORT: Range = within(1.0, 65535.0, "");
-    pub(super) const JOINT_SPEED: Range = above(0.0, 3.15, "rad/s");
-    pub(super) const JOINT_ACCEL: Range = above(0.0, 40.0, "rad/s²");
+    // The hal's UR limits table: no cap above what a UR joint can do.
+    pub(super) const JOINT_SPEED: Range = above(
+        0.0,
+        handeye_hal::ur_limits::MAX_JOINT_SPEED_CAP_RAD_S,
+        "rad/s",
+    );
+    pub(super) const JOINT_ACCEL: Range = above(
+        0.0,
+        handeye_hal::ur_limits::MAX_JOINT_ACCEL_RAD_S2,
+        "rad/s²",
+    );
     pub(super) const MOVE_TIMEOUT: Range = above(0.0, 3600.0, "s");
     pub(super) const FRAMES: Range = within(1.0, 100.0, "");
     pub(super) const FRAME_TIMEOUT: Range = above(0.0, 600.0, "s");

@@ -73,6 +73,10 @@ pub struct Finished {
     pub verdict: String,
     /// Why (empty when accepted).
     pub reasons: Vec<String>,
+    /// What the operator should know whatever the outcome ([`RunRecord::warnings`]): e.g. the
+    /// current calibration was made on another arm.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
     /// Unix time it ended, s.
     pub finished_unix_s: f64,
     /// The whole run, ms.
@@ -162,7 +166,7 @@ pub struct Status {
 pub enum Refusal {
     /// A run is going.
     #[error(
-        "busy: {mode} run {run_id} (asked by {trigger}) since {since} UTC; cancel it \
+        "busy: {mode} run {run_id} (asked by {trigger}) since {since}; cancel it \
          (`handeye cancel`) or wait",
         mode = mode.name(),
         trigger = trigger.name(),
@@ -497,6 +501,7 @@ impl DaemonHandle {
             outcome: record.outcome,
             verdict: record.verdict().to_string(),
             reasons: record.reasons.clone(),
+            warnings: record.warnings.clone(),
             finished_unix_s: unix_now(),
             duration_ms: record.timings_ms.total,
             drift: record.drift.as_ref().map(|d| Drift {
@@ -533,7 +538,11 @@ impl DaemonHandle {
     /// its last run: a restart shows what was true before it. Reads the newest runs until
     /// both the newest accepted calibration and the newest check that measured drift are
     /// found (or the history ends).
-    fn restore_from_history(&self) -> Result<(), crate::store::StoreError> {
+    /// The shown runs' warnings come from their records in `storage` (the history keeps none).
+    fn restore_from_history(
+        &self,
+        storage: &std::path::Path,
+    ) -> Result<(), crate::store::StoreError> {
         const PAGE: usize = 200;
         let store = self.store();
         let mut newest_first = Vec::new();
@@ -572,6 +581,8 @@ impl DaemonHandle {
                 outcome,
                 verdict: r.verdict().to_string(),
                 reasons: r.reason.iter().cloned().collect(),
+                // The history keeps no warnings; the shown runs' records do (below).
+                warnings: Vec::new(),
                 finished_unix_s: r
                     .finished_unix_s
                     .unwrap_or(r.started_unix_s + r.duration_ms.unwrap_or(0.0) / 1e3),
@@ -579,6 +590,15 @@ impl DaemonHandle {
                 drift,
             };
             st.apply(f, r.drift_found());
+        }
+        let st = &mut *st;
+        for f in [&mut st.last, &mut st.last_calibration, &mut st.last_check]
+            .into_iter()
+            .flatten()
+        {
+            if let Some(record) = crate::storage::read_run_record(storage, &f.run_id) {
+                f.warnings = record.warnings;
+            }
         }
         if st.drift_alarm {
             let check = st.last_check.as_ref().map_or("", |c| c.run_id.as_str());
@@ -722,7 +742,7 @@ pub async fn run_with<R, C, F, Fut>(
     Fut: std::future::Future<Output = Option<(R, C)>>,
 {
     let handle = handle(store, cfg.daemon.when_busy, shutdown.clone());
-    if let Err(e) = handle.restore_from_history() {
+    if let Err(e) = handle.restore_from_history(&cfg.storage.dir) {
         tracing::error!(
             "cannot read the last runs from the history ({e}); the status starts empty and the \
              drift alarm off until the next check"
@@ -992,7 +1012,15 @@ mod tests {
             "{e}"
         );
         assert!(e.to_string().starts_with("busy: check run "), "{e}");
-        assert!(e.to_string().contains(" UTC; cancel it"), "{e}");
+        // Since when, in ISO 8601 UTC: `since 2026-11-26T19:40:00Z; cancel it`.
+        let text = e.to_string();
+        let since = text.split("since ").nth(1).unwrap_or("");
+        assert!(
+            since.len() > 20
+                && since.as_bytes()[10] == b'T'
+                && since[19..].starts_with("Z; cancel it"),
+            "{e}"
+        );
         let _ = std::fs::remove_dir_all(dir);
 
         let (s, dir) = store("queue");
@@ -1047,6 +1075,44 @@ mod tests {
         assert!(waiting.iter().all(|j| !j.cancel.is_cancelled()));
         assert!(h.cancel());
         assert!(waiting.iter().all(|j| j.cancel.is_cancelled()));
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    /// Issue 24: a check's warning (the calibration was made on another arm) is in the status,
+    /// and still there after a restart: the history keeps no warnings, the run's record does.
+    #[test]
+    fn a_check_s_warning_survives_a_restart() {
+        let (s, dir) = store("warnings");
+        let run_id = "20261124T142300Z-3f9a";
+        let mut record = RunRecord::starting(run_id.into(), RunMode::Check, false, "test".into());
+        record.outcome = Outcome::Accepted;
+        record.drift = Some(crate::record::DriftRecord {
+            reference: "result of run X".into(),
+            reference_pose: crate::frames::to_row_major(&nalgebra::Isometry3::identity()),
+            translation_mm: 0.1,
+            rotation_deg: 0.01,
+            max_translation_mm: 1.0,
+            max_rotation_deg: 0.2,
+            drifted: false,
+        });
+        let warning = "the current calibration was made on arm 20205500001; this controller is \
+                       20205500002: recalibrate";
+        record.warnings.push(warning.into());
+        s.rebuild(std::slice::from_ref(&record)).expect("history");
+        let run_dir = crate::storage::run_dir(&dir, run_id).expect("a run id");
+        std::fs::create_dir_all(&run_dir).expect("run folder");
+        crate::storage::write_record(&run_dir, &record).expect("record.json");
+
+        let restarted = handle(s, WhenBusy::Refuse, CancellationToken::new());
+        restarted.restore_from_history(&dir).expect("restored");
+        let st = restarted.status();
+        let check = st.last_check.as_ref().expect("the last check");
+        assert_eq!(check.run_id, run_id);
+        assert_eq!(check.warnings, [warning]);
+        assert_eq!(
+            st.last.as_ref().map(|f| f.warnings.clone()),
+            Some(vec![warning.to_string()])
+        );
         let _ = std::fs::remove_dir_all(dir);
     }
 }

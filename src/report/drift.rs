@@ -137,7 +137,7 @@ pub fn drift_chart(
         let x = x_of(t);
         c.line(x, axis_y - 4, x, axis_y, INK);
         let text = crate::calendar::utc_text(t);
-        // `YYYY-MM-DD HH:MM:SS`: the date when it changes, the time always.
+        // `YYYY-MM-DDTHH:MM:SSZ`: the date when it changes, the time always.
         let day = (t / 86_400.0).floor() as i64;
         let hhmm = if step < 60.0 {
             &text[11..19]

@@ -163,7 +163,7 @@ impl Summary {
         Summary {
             title: format!("{mode} {}", record.run_id),
             subtitle: format!(
-                "{} UTC  |  {}",
+                "{}  |  {}",
                 crate::calendar::utc_text(record.started_unix_s),
                 record.config
             ),

@@ -170,7 +170,7 @@ fn a_right_fit_looks_right_and_a_wrong_one_wrong() {
 fn a_run_without_a_scan_still_gets_a_picture() {
     let summary = Summary {
         title: "calibration 20261124T142300Z-3f9a".into(),
-        subtitle: "2026-11-24 14:23:00 UTC  |  /etc/handeye/handeye.toml".into(),
+        subtitle: "2026-11-24T14:23:00Z  |  /etc/handeye/handeye.toml".into(),
         outcome: Outcome::Error,
         headline: "ERROR".into(),
         reasons: vec![

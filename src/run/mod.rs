@@ -27,7 +27,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use handeye_hal::{DepthCamera, HalError, Robot, RobotMode, SafetyMode, UrPose};
+use handeye_hal::{
+    ControllerIdentity, DepthCamera, HalError, Robot, RobotMode, SafetyMode, UrPose,
+};
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
@@ -202,6 +204,10 @@ struct Context<'a, R, C> {
     picture: Option<PictureScan>,
     /// The robot's and the camera's link generations when the run started.
     links: (u64, u64),
+    /// The current calibration was made on another arm, or on other kinematics of this one
+    /// ([`ControllerIdentity::calibration_mismatch`]): a calibrate's gate does not compare
+    /// with it.
+    other_arm: bool,
 }
 
 /// The scan a run's report picture shows: its first frame, that frame's registration and the
@@ -263,6 +269,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         moved: false,
         picture: None,
         links: (robot.link_generation(), camera.link_generation()),
+        other_arm: false,
     };
     let span = tracing::info_span!("calibration", run_id = %run_id);
     let result = tracing::Instrument::instrument(cx.steps(), span).await;
@@ -452,6 +459,21 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             Ok((status, start, tcp, powered_on))
         })
         .await?;
+        let identity =
+            match cancellable(self.cancel, stage, async { Ok(robot.identity().await) }).await? {
+                Ok(id) => Some(id),
+                Err(e) => {
+                    let w = format!(
+                        "cannot ask the controller who it is ({}): the arm is not compared with \
+                     the one the current calibration was made on; check the dashboard \
+                     connection (port 29999)",
+                        error_chain(&e)
+                    );
+                    tracing::warn!("{w}");
+                    self.record.warnings.push(w);
+                    None
+                }
+            };
         if start.len() != self.model.dof() {
             return Err(Failure::error(
                 stage,
@@ -520,10 +542,12 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 })?;
             kinematics.dh = Some(dh);
         }
-        if let Some(dh) = &kinematics.dh {
-            check_model_matches(self.cfg.robot.model, dh, kinematics.source)
-                .map_err(|m| Failure::error(stage, m))?;
-        }
+        let reported_model = identity.as_ref().and_then(|i| i.model.as_deref());
+        let model_check = check_model_matches(
+            self.cfg.robot.model,
+            reported_model,
+            kinematics.dh.as_ref().map(|dh| (dh, kinematics.source)),
+        );
         let camera_info = cancellable(self.cancel, stage, async {
             camera.info().await.map_err(|e| {
                 Failure::error(
@@ -537,7 +561,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         })
         .await;
         let controller_dh = kinematics.dh;
-        let reference = self.reference(&tcp);
+        let reference = self.reference(&tcp, identity.as_ref());
         self.record.preflight = Some(PreflightRecord {
             status: status.clone(),
             camera: camera_info.as_ref().cloned().unwrap_or_default(),
@@ -545,7 +569,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             tcp_offset: to_row_major(&tcp),
             kinematics,
             powered_on,
+            controller: identity,
         });
+        model_check.map_err(|m| Failure::error(stage, m))?;
         preflight_status(&status, self.req.program_handover, allow_power_on)?;
         camera_info?;
         Ok((controller_dh, reference))
@@ -553,10 +579,33 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
 
     /// The calibration a check compares with, and a calibrate's previous result: the last
     /// accepted result in storage, else (check, eye-in-hand with TCP write-back) the
-    /// controller's TCP.
-    fn reference(&self, tcp: &Isometry3<f64>) -> Option<(Isometry3<f64>, String)> {
-        if let Some((pose, source)) = load_current(&self.cfg.storage.dir, self.cfg.mount.mount) {
-            return Some((pose, source));
+    /// controller's TCP. When the stored result was made on another arm, or on other
+    /// kinematics of this one (`identity` against the one it was made with), the record
+    /// warns: a check still compares, a calibrate's gate does not.
+    fn reference(
+        &mut self,
+        tcp: &Isometry3<f64>,
+        identity: Option<&ControllerIdentity>,
+    ) -> Option<(Isometry3<f64>, String)> {
+        if let Some(current) = load_current(&self.cfg.storage.dir, self.cfg.mount.mount) {
+            let mismatch = identity
+                .zip(current.controller.as_ref())
+                .and_then(|(now, then)| now.calibration_mismatch(then));
+            if let Some(m) = mismatch {
+                let w = match self.req.mode {
+                    RunMode::Check => {
+                        format!("{m}; the drift is measured from that arm's calibration")
+                    }
+                    RunMode::Calibrate => format!(
+                        "{m}; this run does, and its gate does not compare with that arm's \
+                         result"
+                    ),
+                };
+                tracing::warn!("{w}");
+                self.record.warnings.push(w);
+                self.other_arm = true;
+            }
+            return Some((current.pose, current.source));
         }
         let tcp_is_camera = self.cfg.mount.mount == Mount::EyeInHand
             && self.cfg.write_back.tcp
@@ -982,7 +1031,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         };
         opts.gate = self.cfg.gate;
         opts.previous = match (self.req.mode, reference) {
-            (RunMode::Calibrate, Some((p, source))) if source.starts_with("result") => {
+            (RunMode::Calibrate, Some((p, source)))
+                if source.starts_with("result") && !self.other_arm =>
+            {
                 Some(to_estimate_frame(*p))
             }
             _ => None,
@@ -1178,14 +1229,47 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     }
 }
 
-/// Whether the arm's kinematics (`source`: the controller's or the calibration file's) can be
-/// a calibration of the configured `model`; else what to configure, naming both.
+/// Whether the arm can be the configured `model`: the name the controller reports
+/// (`reported`, dashboard `get robot model`: the family, so it tells a UR10e from a UR5e but
+/// not a UR5 from a UR5e), then its kinematics (`kinematics`: the controller's or the
+/// calibration file's DH and which): they must be a calibration of the model's nominal ones.
+/// Else what to configure, naming both.
 fn check_model_matches(
     model: handeye_hal::ur_dh::UrModel,
-    dh: &handeye_hal::ur_dh::DhParams,
-    source: KinematicsOrigin,
+    reported: Option<&str>,
+    kinematics: Option<(&handeye_hal::ur_dh::DhParams, KinematicsOrigin)>,
 ) -> Result<(), String> {
-    let matching = handeye_hal::ur_dh::UrModel::matching(dh);
+    use handeye_hal::ur_dh::UrModel;
+    if let Some(name) = reported {
+        if !model.fits_reported_name(name) {
+            // The reported family's models, narrowed by the kinematics when there are any.
+            let by_kinematics = kinematics.map(|(dh, _)| UrModel::matching(dh));
+            let fits: Vec<&str> = UrModel::ALL
+                .into_iter()
+                .filter(|m| m.fits_reported_name(name))
+                .filter(|m| {
+                    by_kinematics
+                        .as_ref()
+                        .is_none_or(|list| list.iter().any(|(k, _)| k == m))
+                })
+                .map(|m| m.name())
+                .collect();
+            let set = if fits.is_empty() {
+                "set robot.model to the arm's model".to_string()
+            } else {
+                format!("set robot.model = \"{}\"", fits.join("\" or \""))
+            };
+            return Err(format!(
+                "robot.model is {model} but the controller says the arm is a {} (dashboard \
+                 `get robot model`); {set} (nothing moved)",
+                handeye_hal::limits::Quoted(name)
+            ));
+        }
+    }
+    let Some((dh, source)) = kinematics else {
+        return Ok(());
+    };
+    let matching = UrModel::matching(dh);
     if matching.iter().any(|(m, _)| *m == model) {
         return Ok(());
     }

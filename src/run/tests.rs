@@ -182,6 +182,14 @@ async fn start<R: Robot, C: DepthCamera>(
     .await
 }
 
+/// A calibration of `robot` from the fixture's first scan, asserted accepted.
+async fn calibrate_accepted<R: Robot>(robot: &R, f: &Fixture, cfg: &Config) -> RunRecord {
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let record = start(robot, &camera, f, cfg, RunMode::Calibrate, false).await;
+    assert_eq!(record.outcome, Outcome::Accepted, "{:?}", record.reasons);
+    record
+}
+
 /// A calibration that `cancel` stops; its record, and how long after the cancel (the instant
 /// `cancelled_at` gives once the canceller has run) the run ended.
 async fn calibrate_cancelled<R: Robot, C: DepthCamera>(
@@ -545,6 +553,113 @@ async fn a_configured_model_that_is_not_the_arm_is_refused_naming_both() {
     );
 }
 
+/// Issue 24: without kinematics from the controller, the model it reports (dashboard `get
+/// robot model`: the family) still refuses a configured model of another family, naming both.
+#[tokio::test]
+async fn a_model_the_controller_does_not_report_is_refused_naming_both() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("reported-model");
+    let mut cfg = test_config(&storage.0, f.view);
+    cfg.robot.model = UrModel::Ur10e;
+    // No kinematics published: only the reported name can tell.
+    let robot = FakeRobot::new(UrModel::Ur5e, HOME);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    let why = assert_refused_before_moving(&record, &robot, &storage.0).await;
+    assert!(
+        why.contains("robot.model is ur10e but the controller says the arm is a ur5")
+            && why.contains("set robot.model = \"ur5\" or \"ur5e\""),
+        "{why}"
+    );
+    // The refused run still records who the controller is.
+    let controller = record
+        .preflight
+        .as_ref()
+        .and_then(|p| p.controller.clone())
+        .expect("the controller's identity");
+    assert_eq!(controller.model.as_deref(), Some("UR5"));
+}
+
+/// Issue 24: the run records who the controller is, the current calibration keeps it, and a
+/// check on another arm (another serial) or on changed kinematics (another checksum) says
+/// the calibration belongs elsewhere; a calibrate on another arm says so and does not let the
+/// gate compare with the other arm's result.
+#[tokio::test]
+async fn a_calibration_made_on_another_arm_is_reported() {
+    let Some(f) = fixture() else { return };
+    let storage = Storage::new("other-arm");
+    let cfg = test_config(&storage.0, f.view);
+    let arm = |serial: &str, checksum: u32| {
+        FakeRobot::new(UrModel::Ur5e, HOME)
+            .with_kinematics(ControllerKinematics {
+                dh: f.dh,
+                checksum: [checksum; 6],
+                calibrated: true,
+            })
+            .with_serial(serial, "5.11.1.108318")
+    };
+    let calibrated = calibrate_accepted(&arm("20205500001", 7), f, &cfg).await;
+    assert!(calibrated.warnings.is_empty(), "{:?}", calibrated.warnings);
+    let controller = calibrated
+        .preflight
+        .as_ref()
+        .and_then(|p| p.controller.clone())
+        .expect("recorded");
+    assert_eq!(controller.serial.as_deref(), Some("20205500001"));
+    assert_eq!(
+        controller.software_version.as_deref(),
+        Some("5.11.1.108318")
+    );
+    assert_eq!(controller.kinematics_checksum, Some([7; 6]));
+    let current =
+        crate::storage::load_current(&storage.0, crate::calib::Mount::EyeInHand).expect("current");
+    assert_eq!(current.controller, Some(controller));
+
+    let check = |robot: FakeRobot| {
+        let cfg = cfg.clone();
+        async move {
+            let camera = FakeCamera::new(vec![f.rescan.clone()]);
+            start(&robot, &camera, f, &cfg, RunMode::Check, false).await
+        }
+    };
+    // The same arm: nothing to say.
+    let same = check(arm("20205500001", 7)).await;
+    assert_eq!(same.verdict(), "within limits", "{:?}", same.reasons);
+    assert!(same.warnings.is_empty(), "{:?}", same.warnings);
+    // Another arm: said, and still compared (the verdict is the drift's).
+    let other = check(arm("20205500002", 7)).await;
+    assert_eq!(other.outcome, Outcome::Accepted, "{:?}", other.reasons);
+    assert!(other.drift.is_some());
+    assert_eq!(other.warnings.len(), 1, "{:?}", other.warnings);
+    assert!(
+        other.warnings[0].starts_with(
+            "the current calibration was made on arm 20205500001; this controller is \
+             20205500002: recalibrate"
+        ),
+        "{:?}",
+        other.warnings
+    );
+    // The same arm with other kinematics.
+    let changed = check(arm("20205500001", 8)).await;
+    assert_eq!(changed.warnings.len(), 1, "{:?}", changed.warnings);
+    assert!(
+        changed.warnings[0].contains("kinematics changed"),
+        "{:?}",
+        changed.warnings
+    );
+
+    // Calibrating the other arm says so, and is accepted.
+    let recalibrated = calibrate_accepted(&arm("20205500002", 7), f, &cfg).await;
+    assert!(
+        recalibrated
+            .warnings
+            .iter()
+            .any(|w| w.contains("this run does")),
+        "{:?}",
+        recalibrated.warnings
+    );
+}
+
 /// The run failed its preflight: an error, nothing moved, nothing written. Returns its
 /// reasons (lower case).
 async fn assert_refused_before_moving(
@@ -723,21 +838,7 @@ async fn a_check_reports_drift_and_writes_nothing() {
     let storage = Storage::new("check");
     let mut cfg = test_config(&storage.0, f.view);
     let robot = calibrated_robot(f);
-    let calibrated = start(
-        &robot,
-        &FakeCamera::new(vec![f.scan.clone()]),
-        f,
-        &cfg,
-        RunMode::Calibrate,
-        false,
-    )
-    .await;
-    assert_eq!(
-        calibrated.outcome,
-        Outcome::Accepted,
-        "{:?}",
-        calibrated.reasons
-    );
+    let calibrated = calibrate_accepted(&robot, f, &cfg).await;
     let tcp = robot.tcp();
     let current = std::fs::read(storage.0.join(CURRENT_DIR).join("result.json")).expect("current");
 
@@ -1002,8 +1103,9 @@ async fn an_eye_to_hand_run_finds_the_fixed_camera_in_the_base_frame_and_sets_no
         1
     );
     assert!(storage.0.join(CURRENT_DIR).join("result.json").is_file());
-    let (current, _) =
-        crate::storage::load_current(&storage.0, crate::calib::Mount::EyeToHand).expect("current");
+    let current = crate::storage::load_current(&storage.0, crate::calib::Mount::EyeToHand)
+        .expect("current")
+        .pose;
     assert!(close(&current, &est, 1e-9), "current {current:?}");
 
     // To the view and back.

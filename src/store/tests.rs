@@ -73,6 +73,7 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
                 "second".into(),
             ]
         },
+        warnings: vec![],
         failed_stage: (!accepted).then_some(Stage::Solve),
         preflight: None,
         views: vec![],

@@ -293,6 +293,94 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
         .is_file());
 }
 
+/// Issue 24: the controller is asked who it is. A calibration on the arm with serial A
+/// records its serial, software version and kinematics checksum (the run's record.json and the
+/// current calibration); a check against a controller with serial B says the calibration is
+/// A's, in the JSON record, the text summary and `robot status --config`.
+#[test]
+fn a_check_on_another_arm_says_whose_calibration_it_is() {
+    let Some(_) = shared("a_check_on_another_arm_says_whose_calibration_it_is") else {
+        return;
+    };
+    let dir = TempDir::new("other-arm");
+    let (robot_ip, camera_ip) = ("127.0.0.136", "127.0.0.137");
+    let (first, second) = ("20205500001", "20205500002");
+    let rig = start_rig(&dir, robot_ip, camera_ip, &["--serial", first]);
+    let cfg = config(&dir, robot_ip, camera_ip);
+    let cfg_arg = cfg.to_str().expect("utf-8");
+
+    let out = handeye("calibrate", &cfg, &[]);
+    assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
+    let record = out.json();
+    assert_eq!(record["warnings"], serde_json::Value::Null, "{out}");
+    let run_id = record["run_id"].as_str().expect("run id");
+    let on_disk: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join(&format!("data/runs/{run_id}/record.json")))
+            .expect("record.json"),
+    )
+    .expect("JSON");
+    for doc in [&record, &on_disk] {
+        let c = &doc["preflight"]["controller"];
+        assert_eq!(c["serial"], first, "{doc}");
+        assert_eq!(c["model"], "UR5", "{doc}");
+        assert_eq!(c["software_version"], "5.11.1.108318", "{doc}");
+        let checksum = c["kinematics_checksum"].as_array().expect("checksum");
+        assert_eq!(checksum.len(), 6, "{doc}");
+        assert!(checksum.iter().any(|v| v.as_u64() != Some(0)), "{doc}");
+    }
+    let status = run(
+        &[
+            "robot", "--host", robot_ip, "status", "--config", cfg_arg, "--json",
+        ],
+        secs(15),
+    )
+    .success();
+    let doc = status.json();
+    assert_eq!(doc["controller"]["serial"], first, "{status}");
+    assert_eq!(
+        doc["calibration"]["other_arm"],
+        serde_json::Value::Null,
+        "{status}"
+    );
+    drop(rig);
+
+    // The camera and the configuration move to another arm of the same model.
+    let rig = start_rig(&dir, robot_ip, camera_ip, &["--serial", second]);
+    let expected = format!(
+        "the current calibration was made on arm {first}; this controller is {second}: recalibrate"
+    );
+    let out = handeye("check", &cfg, &[]);
+    assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
+    let doc = out.json();
+    assert_eq!(doc["preflight"]["controller"]["serial"], second, "{out}");
+    let warnings = doc["warnings"].as_array().expect("a warning");
+    assert_eq!(warnings.len(), 1, "{out}");
+    assert!(
+        warnings[0].as_str().unwrap_or("").starts_with(&expected),
+        "{out}"
+    );
+    let text = run(&["check", "--config", cfg_arg], secs(120));
+    assert!(
+        text.stdout.contains(&format!("  warning: {expected}")),
+        "{text}"
+    );
+    assert!(
+        text.stdout.contains(&format!(
+            "  controller: UR5 serial {second}, software 5.11.1.108318"
+        )),
+        "{text}"
+    );
+    let status = run(
+        &["robot", "--host", robot_ip, "status", "--config", cfg_arg],
+        secs(15),
+    )
+    .success();
+    assert!(
+        status.stdout.contains(&format!("serial {second}")) && status.stdout.contains(&expected),
+        "{status}"
+    );
+}
+
 #[test]
 fn faults_and_failed_preflight_write_nothing() {
     let Some(_) = shared("faults_and_failed_preflight_write_nothing") else {

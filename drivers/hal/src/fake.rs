@@ -9,8 +9,8 @@ use nalgebra::Isometry3;
 
 use crate::ur_dh::{DhParams, UrModel};
 use crate::{
-    CameraInfo, CaptureSettings, ControllerKinematics, DepthCamera, HalError, MotionLimits,
-    PointCloud, Robot, RobotMode, RobotStatus, SafetyMode,
+    CameraInfo, CaptureSettings, ControllerIdentity, ControllerKinematics, DepthCamera, HalError,
+    MotionLimits, PointCloud, Robot, RobotMode, RobotStatus, SafetyMode,
 };
 
 #[derive(Debug)]
@@ -38,6 +38,10 @@ struct RobotState {
 pub struct FakeRobot {
     model: UrModel,
     kinematics: Option<ControllerKinematics>,
+    /// Serial and software version [`Robot::identity`] reports (model and checksum come from
+    /// the model and the kinematics).
+    serial: Option<String>,
+    software_version: Option<String>,
     state: Arc<Mutex<RobotState>>,
 }
 
@@ -66,6 +70,8 @@ impl FakeRobot {
         Self {
             model,
             kinematics: None,
+            serial: None,
+            software_version: None,
             state: Arc::new(Mutex::new(state)),
         }
     }
@@ -75,6 +81,14 @@ impl FakeRobot {
     /// controller reports poses of its calibrated arm), not of the nominal model.
     pub fn with_kinematics(mut self, kinematics: ControllerKinematics) -> Self {
         self.kinematics = Some(kinematics);
+        self
+    }
+
+    /// This arm with a serial number and a software version, as a controller reports them
+    /// ([`Robot::identity`]; without: `None`, an old controller that does not tell).
+    pub fn with_serial(mut self, serial: &str, software_version: &str) -> Self {
+        self.serial = Some(serial.to_string());
+        self.software_version = Some(software_version.to_string());
         self
     }
 
@@ -230,6 +244,15 @@ impl Robot for FakeRobot {
 
     async fn kinematics(&self) -> Result<Option<ControllerKinematics>, HalError> {
         Ok(self.kinematics)
+    }
+
+    async fn identity(&self) -> Result<ControllerIdentity, HalError> {
+        Ok(ControllerIdentity {
+            serial: self.serial.clone(),
+            model: Some(self.model.controller_name()),
+            software_version: self.software_version.clone(),
+            kinematics_checksum: self.kinematics.map(|k| k.checksum),
+        })
     }
 }
 

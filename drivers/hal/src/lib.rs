@@ -17,12 +17,15 @@ pub mod limits;
 mod pose;
 mod robot;
 pub mod ur_dh;
+pub mod ur_limits;
 
 pub use camera::{CameraInfo, CaptureSettings, DepthCamera};
 pub use cloud::PointCloud;
 pub use error::HalError;
 pub use pose::{UrPose, UrPoseParseError};
-pub use robot::{JointPositions, MotionLimits, Robot, RobotMode, RobotStatus, SafetyMode};
+pub use robot::{
+    ControllerIdentity, JointPositions, MotionLimits, Robot, RobotMode, RobotStatus, SafetyMode,
+};
 pub use ur_dh::ControllerKinematics;
 
 /// Re-exported so users of the traits name the same math types.

@@ -97,6 +97,85 @@ impl RobotStatus {
     }
 }
 
+/// Who a controller says it is, asked at every preflight: recorded with the run, kept with the
+/// calibration it produced, and compared with the next run's (a calibration belongs to one
+/// arm). Each field is `None` when the controller does not tell (old firmware).
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ControllerIdentity {
+    /// The arm's serial number (UR: dashboard `get serial number`, e.g. `20205500001`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial: Option<String>,
+    /// The model as the controller names it (UR: dashboard `get robot model`, e.g. `UR5`; some
+    /// versions name the family only, so a UR5e may answer `UR5`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+    /// The controller's software version (UR: dashboard `PolyScope version`, e.g.
+    /// `5.11.1.108318`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub software_version: Option<String>,
+    /// The controller's per-joint checksums of its kinematics calibration (UR: primary
+    /// KinematicsInfo): they change when the arm is recalibrated or a joint replaced.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kinematics_checksum: Option<[u32; 6]>,
+}
+
+impl ControllerIdentity {
+    /// The kinematics checksums as one short text (`8 hex digits` per joint, `-`-separated).
+    pub fn checksum_text(&self) -> Option<String> {
+        self.kinematics_checksum.map(|c| {
+            c.iter()
+                .map(|v| format!("{v:08x}"))
+                .collect::<Vec<_>>()
+                .join("-")
+        })
+    }
+
+    /// Why a calibration made on the controller `then` may not hold on this one: another arm
+    /// (the serials differ) or the same arm with other kinematics (the checksums differ), as
+    /// a sentence that says to recalibrate; `None` when both match or either side does not
+    /// tell.
+    pub fn calibration_mismatch(&self, then: &ControllerIdentity) -> Option<String> {
+        if let (Some(a), Some(b)) = (&then.serial, &self.serial) {
+            if a != b {
+                return Some(format!(
+                    "the current calibration was made on arm {a}; this controller is {b}: \
+                     recalibrate"
+                ));
+            }
+        }
+        if let (Some(a), Some(b)) = (then.checksum_text(), self.checksum_text()) {
+            if a != b {
+                let arm = self
+                    .serial
+                    .as_deref()
+                    .map_or_else(String::new, |s| format!(" {s}"));
+                return Some(format!(
+                    "the arm{arm}'s kinematics changed since the current calibration \
+                     (kinematics checksum {a} then, {b} now: recalibrated or a joint \
+                     replaced): recalibrate"
+                ));
+            }
+        }
+        None
+    }
+}
+
+/// `UR5 serial 20205500001, software 5.11.1.108318, kinematics checksum 1a2b…`; what the
+/// controller did not tell is `?`.
+impl std::fmt::Display for ControllerIdentity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let or_unknown = |v: Option<&str>| v.unwrap_or("?").to_string();
+        write!(
+            f,
+            "{} serial {}, software {}, kinematics checksum {}",
+            or_unknown(self.model.as_deref()),
+            or_unknown(self.serial.as_deref()),
+            or_unknown(self.software_version.as_deref()),
+            self.checksum_text().unwrap_or_else(|| "?".into())
+        )
+    }
+}
+
 /// A UR-class arm. All lengths m, angles rad; joint order = URDF order.
 ///
 /// Implementations are cheap handles onto one connection; every method may be called from any
@@ -184,11 +263,77 @@ pub trait Robot: Send + Sync + 'static {
         &self,
     ) -> impl Future<Output = Result<Option<ControllerKinematics>, HalError>> + Send;
 
+    /// Who the controller says it is: serial, model, software version, kinematics checksum
+    /// (what it does not tell stays `None`). Asked anew each call (a few dashboard requests on
+    /// UR).
+    fn identity(&self) -> impl Future<Output = Result<ControllerIdentity, HalError>> + Send;
+
     /// How many times the connection had to be re-established since this handle was made.
     /// A calibration run compares it between its steps: joints, poses and captures taken on
     /// either side of a reconnection (a restarted controller, a new RTDE session) are not
     /// trusted together. Implementations that never reconnect keep the default 0.
     fn link_generation(&self) -> u64 {
         0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn arm(serial: &str, checksum: u32) -> ControllerIdentity {
+        ControllerIdentity {
+            serial: Some(serial.into()),
+            model: Some("UR5".into()),
+            software_version: Some("5.11.1.108318".into()),
+            kinematics_checksum: Some([checksum; 6]),
+        }
+    }
+
+    #[test]
+    fn another_arm_or_other_kinematics_say_recalibrate() {
+        let then = arm("20205500001", 7);
+        assert_eq!(arm("20205500001", 7).calibration_mismatch(&then), None);
+        let other = arm("20205500002", 7)
+            .calibration_mismatch(&then)
+            .expect("another arm");
+        assert_eq!(
+            other,
+            "the current calibration was made on arm 20205500001; this controller is \
+             20205500002: recalibrate"
+        );
+        let changed = arm("20205500001", 8)
+            .calibration_mismatch(&then)
+            .expect("other kinematics");
+        assert!(
+            changed.contains("00000007-") && changed.contains("00000008-"),
+            "{changed}"
+        );
+        assert!(changed.ends_with("recalibrate"), "{changed}");
+        assert_eq!(
+            then.to_string(),
+            "UR5 serial 20205500001, software 5.11.1.108318, kinematics checksum \
+             00000007-00000007-00000007-00000007-00000007-00000007"
+        );
+        assert_eq!(
+            ControllerIdentity::default().to_string(),
+            "? serial ?, software ?, kinematics checksum ?"
+        );
+        // What either side does not tell is not compared.
+        let unknown = ControllerIdentity::default();
+        assert_eq!(unknown.calibration_mismatch(&then), None);
+        assert_eq!(then.calibration_mismatch(&unknown), None);
+    }
+
+    #[test]
+    fn identity_round_trips_and_old_records_read() {
+        let id = arm("20205500001", 7);
+        let text = serde_json::to_string(&id).expect("json");
+        assert_eq!(
+            serde_json::from_str::<ControllerIdentity>(&text).ok(),
+            Some(id)
+        );
+        let empty: ControllerIdentity = serde_json::from_str("{}").expect("empty");
+        assert_eq!(empty, ControllerIdentity::default());
     }
 }

@@ -64,6 +64,20 @@ impl UrModel {
         }
     }
 
+    /// The name a controller answers to dashboard `get robot model` for this arm: the family
+    /// in upper case without the e-Series `e` (`UR5` for a UR5 and a UR5e).
+    pub fn controller_name(self) -> String {
+        self.name().trim_end_matches('e').to_ascii_uppercase()
+    }
+
+    /// Whether a controller that names its arm `reported` (dashboard `get robot model`) can be
+    /// this model: the same family, with or without the `e` (`UR5`, `UR5e` and `ur5e` all fit
+    /// a UR5e; only the kinematics tell a UR5 from a UR5e).
+    pub fn fits_reported_name(self, reported: &str) -> bool {
+        let family = reported.trim().trim_end_matches(['e', 'E']);
+        family.eq_ignore_ascii_case(&self.controller_name())
+    }
+
     /// Whether this is a CB3-generation arm (UR3, UR5, UR10) rather than e-Series or newer.
     pub fn is_cb3(self) -> bool {
         matches!(self, UrModel::Ur3 | UrModel::Ur5 | UrModel::Ur10)
@@ -92,6 +106,26 @@ impl UrModel {
             alpha: [FRAC_PI_2, 0.0, 0.0, FRAC_PI_2, -FRAC_PI_2, 0.0],
             theta: [0.0; 6],
         }
+    }
+}
+
+#[cfg(test)]
+mod name_tests {
+    use super::*;
+
+    #[test]
+    fn reported_names_fit_their_family_only() {
+        assert_eq!(UrModel::Ur5e.controller_name(), "UR5");
+        assert_eq!(UrModel::Ur16e.controller_name(), "UR16");
+        assert_eq!(UrModel::Ur30.controller_name(), "UR30");
+        for name in ["UR5", "UR5e", "ur5e", " UR5 "] {
+            assert!(UrModel::Ur5e.fits_reported_name(name), "{name}");
+            assert!(UrModel::Ur5.fits_reported_name(name), "{name}");
+        }
+        assert!(!UrModel::Ur10e.fits_reported_name("UR5"));
+        assert!(!UrModel::Ur5e.fits_reported_name("UR15"));
+        assert!(!UrModel::Ur3.fits_reported_name("UR30"));
+        assert!(!UrModel::Ur5e.fits_reported_name(""));
     }
 }
 

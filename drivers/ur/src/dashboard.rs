@@ -130,6 +130,51 @@ pub fn parse_polyscope_version(reply: &str) -> Result<[u32; 4], UrError> {
     <[u32; 4]>::try_from(parts).map_err(|_| bad())
 }
 
+/// A reply that says the controller does not know the command (older software).
+fn is_unknown_command(reply: &str) -> bool {
+    reply.starts_with("could not understand")
+}
+
+/// Parse the reply to `get serial number` (e.g. `20205500001`): `None` when the controller
+/// does not know the command (older software); an error for anything but one word of
+/// letters and digits.
+pub fn parse_serial_number(reply: &str) -> Result<Option<String>, UrError> {
+    if is_unknown_command(reply) {
+        return Ok(None);
+    }
+    let s = reply.trim();
+    if !s.is_empty() && s.len() <= 32 && s.bytes().all(|b| b.is_ascii_alphanumeric()) {
+        Ok(Some(s.to_string()))
+    } else {
+        Err(UrError::malformed(
+            "dashboard",
+            format!("expected a serial number, got `{reply}`"),
+        ))
+    }
+}
+
+/// Parse the reply to `get robot model` (e.g. `UR5`; some versions add the `e`): `None` when
+/// the controller does not know the command; an error unless it is `UR` and a number, with an
+/// optional `e`.
+pub fn parse_robot_model(reply: &str) -> Result<Option<String>, UrError> {
+    if is_unknown_command(reply) {
+        return Ok(None);
+    }
+    let s = reply.trim();
+    let family = s
+        .strip_prefix("UR")
+        .map(|rest| rest.trim_end_matches(['e', 'E']));
+    match family {
+        Some(n) if !n.is_empty() && n.len() <= 3 && n.bytes().all(|b| b.is_ascii_digit()) => {
+            Ok(Some(s.to_string()))
+        }
+        _ => Err(UrError::malformed(
+            "dashboard",
+            format!("expected a robot model such as `UR5`, got `{reply}`"),
+        )),
+    }
+}
+
 impl DashboardClient {
     /// Connect and check the banner (within `timeout`).
     pub async fn connect(addr: SocketAddr, timeout: Duration) -> Result<Self, UrError> {
@@ -279,6 +324,19 @@ impl DashboardClient {
         parse_polyscope_version(&r)
     }
 
+    /// `get serial number` (e-Series 5.6+, CB3 3.12+): `None` on older controllers.
+    pub async fn serial_number(&mut self) -> Result<Option<String>, UrError> {
+        let r = self.request("get serial number").await?;
+        parse_serial_number(&r)
+    }
+
+    /// `get robot model` (e.g. `UR5`, the family without the e-Series `e` on many
+    /// versions): `None` on controllers that do not know the command.
+    pub async fn robot_model(&mut self) -> Result<Option<String>, UrError> {
+        let r = self.request("get robot model").await?;
+        parse_robot_model(&r)
+    }
+
     /// `power on` (needs remote control).
     pub async fn power_on(&mut self) -> Result<(), UrError> {
         self.expect("power on", "Powering on").await
@@ -354,6 +412,31 @@ mod tests {
         );
         assert!(parse_polyscope_version("URSoftware 5.19 (Oct 23 2024)").is_err());
         assert!(parse_polyscope_version("").is_err());
+        assert_eq!(
+            parse_serial_number("20205500001").expect("ok").as_deref(),
+            Some("20205500001")
+        );
+        assert_eq!(
+            parse_serial_number("could not understand: 'get serial number'").expect("old"),
+            None
+        );
+        assert!(parse_serial_number("").is_err());
+        assert!(parse_serial_number("2020 5500001").is_err());
+        assert_eq!(
+            parse_robot_model("UR5").expect("ok").as_deref(),
+            Some("UR5")
+        );
+        assert_eq!(
+            parse_robot_model("UR16e").expect("ok").as_deref(),
+            Some("UR16e")
+        );
+        assert_eq!(
+            parse_robot_model("could not understand: 'get robot model'").expect("old"),
+            None
+        );
+        for bad in ["", "UR", "UR5x", "KUKA", "Robotmode: RUNNING"] {
+            assert!(parse_robot_model(bad).is_err(), "{bad}");
+        }
         let mut rng = crate::rtde::tests::Lcg(11);
         let seeds = [
             "Robotmode: RUNNING",
@@ -366,6 +449,8 @@ mod tests {
             let s = String::from_utf8_lossy(&b);
             let _ = parse_robot_mode(&s);
             let _ = parse_polyscope_version(&s);
+            let _ = parse_serial_number(&s);
+            let _ = parse_robot_model(&s);
         }
     }
 }

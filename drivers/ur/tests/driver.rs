@@ -309,6 +309,20 @@ async fn timeout_and_cancel_stop_the_arm() {
     assert!((q[0] - far[0]).abs() > 0.5, "the arm kept going: {q:?}");
     tokio::time::sleep(Duration::from_millis(200)).await;
     assert_eq!(sim.joint_positions(), q, "the arm is still moving");
+
+    // `stop` returns once the arm stands and the stop program has ended: whatever comes next
+    // (a run's preflight) never finds our own stop still playing.
+    let moving = robot.clone();
+    let mover = tokio::spawn(async move { moving.move_joints(&target, limits(1.0, 2)).await });
+    wait_until(|| sim.program_running()).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    robot.stop().await.expect("stop");
+    assert!(!sim.program_running(), "a program still plays after stop");
+    let q = sim.joint_positions();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert_eq!(sim.joint_positions(), q, "the arm still moves after stop");
+    assert!(robot.status().await.is_ok_and(|st| !st.program_running));
+    let _ = mover.await;
 }
 
 async fn wait_until(mut f: impl FnMut() -> bool) {

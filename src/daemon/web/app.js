@@ -189,12 +189,8 @@ function drawStatus(st) {
     if (l.drift) d = `, drift ${fmt(l.drift.translation_mm, 3)} mm / ${fmt(l.drift.rotation_deg, 4)}°`;
     text(info, ` ${l.mode} ${l.run_id}, ${when(l.finished_unix_s)}, ${fmt(l.duration_ms / 1000, 1)} s${d}`);
     last.append(o, info);
-    (l.reasons || []).slice(0, 3).forEach((r) => {
-      const div = document.createElement("div");
-      div.className = "reason";
-      text(div, r);
-      last.appendChild(div);
-    });
+    appendLines(last, (l.reasons || []).slice(0, 3), "", "reason");
+    appendLines(last, l.warnings, "warning: ", "reason");
   } else {
     text(last, "No run recorded yet.");
   }
@@ -272,6 +268,16 @@ async function drawHistory(fresh) {
   }
 }
 
+// One line per item (a reason, a warning) under `parent`, as text, never markup.
+function appendLines(parent, items, prefix, className) {
+  for (const t of items || []) {
+    const div = document.createElement("div");
+    if (className) div.className = className;
+    text(div, prefix + t);
+    parent.appendChild(div);
+  }
+}
+
 async function openRun(runId) {
   const dlg = $("run-dialog");
   text($("run-title"), `Run ${runId}`);
@@ -288,11 +294,8 @@ async function openRun(runId) {
   try {
     const rec = await getJson(`/api/runs/${encodeURIComponent(runId)}`);
     text($("run-title"), `${rec.mode || "run"} ${runId}: ${rec.outcome}`);
-    for (const r of rec.reasons || []) {
-      const div = document.createElement("div");
-      text(div, r);
-      $("run-reasons").appendChild(div);
-    }
+    appendLines($("run-reasons"), rec.reasons, "", "");
+    appendLines($("run-reasons"), rec.warnings, "warning: ", "");
     text($("run-record"), JSON.stringify(rec, null, 2));
   } catch (e) {
     text($("run-record"), `cannot read the record: ${e.message}`);

@@ -6,8 +6,11 @@ use std::ops::RangeInclusive;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use handeye_hal::ur_dh::UrModel;
+use handeye_hal::ur_limits::{self, UrLimits};
 use handeye_hal::{
-    ControllerKinematics, HalError, MotionLimits, Robot, RobotMode, RobotStatus, SafetyMode,
+    ControllerIdentity, ControllerKinematics, HalError, MotionLimits, Robot, RobotMode,
+    RobotStatus, SafetyMode,
 };
 use nalgebra::Isometry3;
 use tokio::sync::Mutex;
@@ -27,9 +30,11 @@ pub struct UrConfig {
     pub ports: Ports,
     /// RTDE output frequency; `None` = 125 Hz CB3 / 500 Hz e-Series.
     pub rtde_frequency: Option<f64>,
-    /// Hard cap on joint speed for every move, rad/s (the configured safety cap).
+    /// Hard cap on joint speed for every move, rad/s (the configured safety cap; default
+    /// [`ur_limits::DRIVER_SPEED_CAP_RAD_S`]). The arm model's own limits cap it further.
     pub max_joint_speed_rad_s: f64,
-    /// Hard cap on joint acceleration, rad/s².
+    /// Hard cap on joint acceleration, rad/s² (default
+    /// [`ur_limits::DRIVER_ACCEL_CAP_RAD_S2`]).
     pub max_joint_accel_rad_s2: f64,
     /// Double registers this client writes and reads (`input_double_register_N`, and
     /// `output_double_register_N` from a pendant program; upper range 24–47 by default: 0–23
@@ -54,8 +59,8 @@ impl UrConfig {
             host,
             ports: Ports::STANDARD,
             rtde_frequency: None,
-            max_joint_speed_rad_s: 1.0,
-            max_joint_accel_rad_s2: 2.0,
+            max_joint_speed_rad_s: ur_limits::DRIVER_SPEED_CAP_RAD_S,
+            max_joint_accel_rad_s2: ur_limits::DRIVER_ACCEL_CAP_RAD_S2,
             registers: 24..=47,
             int_registers: 24..=31,
             timeout: Duration::from_secs(3),
@@ -101,6 +106,29 @@ struct Inner {
     script: ScriptClient,
     /// Read once from the primary interface on connect.
     kinematics: Option<ControllerKinematics>,
+    /// The limits of the arm the kinematics are a calibration of (the hal's UR limits
+    /// table); without kinematics, the most conservative of every model's.
+    limits: UrLimits,
+}
+
+/// The limits of the arm whose kinematics are `k`: its model's from the hal's table (the
+/// nearest model whose nominal kinematics `k` calibrates), else, unknown, the slowest speed and
+/// the lowest acceleration of every model.
+fn arm_limits(k: Option<&ControllerKinematics>) -> UrLimits {
+    if let Some((model, _)) = k.and_then(|k| UrModel::matching(&k.dh).into_iter().next()) {
+        return model.limits();
+    }
+    UrModel::ALL
+        .into_iter()
+        .map(UrModel::limits)
+        .reduce(|a, b| UrLimits {
+            joint_speed_rad_s: std::array::from_fn(|i| {
+                a.joint_speed_rad_s[i].min(b.joint_speed_rad_s[i])
+            }),
+            joint_accel_rad_s2: a.joint_accel_rad_s2.min(b.joint_accel_rad_s2),
+            joint_position_rad: a.joint_position_rad.min(b.joint_position_rad),
+        })
+        .unwrap_or_else(|| UrModel::Ur5e.limits())
 }
 
 /// A Universal Robots controller (CB3 or e-Series). Cheap to clone; one RTDE connection.
@@ -167,6 +195,7 @@ impl UrRobot {
                 dashboard: Mutex::new(Some(dash)),
                 script,
                 kinematics,
+                limits: arm_limits(kinematics.as_ref()),
             }),
         };
         robot.sample().await?;
@@ -278,11 +307,11 @@ impl UrRobot {
         let q: [f64; 6] = q.try_into().map_err(|_| {
             HalError::InvalidArgument(format!("expected 6 joint angles, got {}", q.len()))
         })?;
-        if q.iter()
-            .any(|x| !x.is_finite() || x.abs() > 2.0 * std::f64::consts::PI)
-        {
+        let arm = self.inner.limits;
+        if !arm.within_reach(&q) {
             return Err(HalError::InvalidArgument(format!(
-                "joint target {q:?} is outside ±2π"
+                "joint target {q:?} is outside ±{:.4} rad",
+                arm.joint_position_rad
             )));
         }
         if !(limits.max_joint_speed_rad_s > 0.0 && limits.max_joint_accel_rad_s2 > 0.0) {
@@ -290,12 +319,18 @@ impl UrRobot {
                 "speed and acceleration must be positive".into(),
             ));
         }
-        let v = limits
-            .max_joint_speed_rad_s
-            .min(self.inner.cfg.max_joint_speed_rad_s);
-        let a = limits
-            .max_joint_accel_rad_s2
-            .min(self.inner.cfg.max_joint_accel_rad_s2);
+        // The second layer under the motion guard: the driver's own caps and the arm's limits,
+        // from the same table.
+        let capped = arm.cap(MotionLimits {
+            max_joint_speed_rad_s: limits
+                .max_joint_speed_rad_s
+                .min(self.inner.cfg.max_joint_speed_rad_s),
+            max_joint_accel_rad_s2: limits
+                .max_joint_accel_rad_s2
+                .min(self.inner.cfg.max_joint_accel_rad_s2),
+            timeout: limits.timeout,
+        });
+        let (v, a) = (capped.max_joint_speed_rad_s, capped.max_joint_accel_rad_s2);
         let during = "joint move";
         let st = self.status().await?;
         check_can_move(&st, during)?;
@@ -598,6 +633,9 @@ impl Drop for StopGuard {
     }
 }
 
+/// Longest a stop may take to bring the arm to a stand (from π rad/s at 2 rad/s²: 1.6 s).
+const STOP_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// Longest a power-on or a brake release may take (a real arm: a few seconds each).
 const POWER_TIMEOUT: Duration = Duration::from_secs(30);
 
@@ -679,11 +717,34 @@ impl Robot for UrRobot {
             .await
     }
 
+    /// Sends `stopj` and returns once the arm stands and the stop program has ended (within
+    /// [`STOP_TIMEOUT`]): whatever comes next (the next run's preflight) must not find our own
+    /// stop still playing.
     async fn stop(&self) -> Result<(), HalError> {
         let a = self.inner.cfg.max_joint_accel_rad_s2.max(2.0);
+        let sent = Instant::now();
         self.run_program("handeye_stop", &format!("  stopj({a:.3})\n"))
             .await?;
-        Ok(())
+        let deadline = sent + STOP_TIMEOUT;
+        // Samples from after the controller reported the stop program started.
+        let mut last = Instant::now();
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(HalError::Timeout {
+                    what: "stopping the arm (stopj)".into(),
+                    timeout: STOP_TIMEOUT,
+                });
+            }
+            let s = self.inner.rtde.next_sample(last, left.min(STALE)).await?;
+            last = s.received;
+            let standing = s
+                .vec6("actual_qd")
+                .is_some_and(|qd| qd.iter().all(|v| v.abs() < 1e-3));
+            if standing && s.f64("runtime_state") != Some(2.0) {
+                return Ok(());
+            }
+        }
     }
 
     async fn set_tcp(&self, flange_from_tcp: &Isometry3<f64>) -> Result<(), HalError> {
@@ -769,9 +830,54 @@ impl Robot for UrRobot {
         Ok(self.inner.kinematics)
     }
 
+    /// Dashboard `get serial number`, `get robot model` and `PolyScope version`; the
+    /// kinematics checksums from the KinematicsInfo read on connect.
+    async fn identity(&self) -> Result<ControllerIdentity, HalError> {
+        let serial = self.dashboard(|d| Box::pin(d.serial_number())).await?;
+        let model = self.dashboard(|d| Box::pin(d.robot_model())).await?;
+        let v = self.dashboard(|d| Box::pin(d.polyscope_version())).await?;
+        Ok(ControllerIdentity {
+            serial,
+            model,
+            software_version: Some(format!("{}.{}.{}.{}", v[0], v[1], v[2], v[3])),
+            kinematics_checksum: self.inner.kinematics.map(|k| k.checksum),
+        })
+    }
+
     /// The RTDE reconnections: each is a new session (recipes set up again), possibly with a
     /// restarted controller.
     fn link_generation(&self) -> u64 {
         self.inner.rtde.reconnects()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::f64::consts::{PI, TAU};
+
+    use super::*;
+
+    #[test]
+    fn the_driver_caps_at_the_limits_of_the_arm_its_kinematics_say() {
+        let k = |model: UrModel| ControllerKinematics {
+            dh: model.dh(),
+            checksum: [0; 6],
+            calibrated: true,
+        };
+        assert_eq!(
+            arm_limits(Some(&k(UrModel::Ur10e))),
+            UrModel::Ur10e.limits()
+        );
+        assert_eq!(arm_limits(Some(&k(UrModel::Ur3e))), UrModel::Ur3e.limits());
+        // Unknown: every joint as slow as the slowest model's.
+        let unknown = arm_limits(None);
+        assert_eq!(
+            unknown.joint_speed_rad_s,
+            [TAU / 3.0, TAU / 3.0, PI, PI, PI, PI]
+        );
+        assert_eq!(
+            unknown.joint_accel_rad_s2,
+            ur_limits::MAX_JOINT_ACCEL_RAD_S2
+        );
     }
 }

@@ -176,7 +176,10 @@ pub(crate) fn handle(shared: &Shared, cmd: &str) -> (String, bool) {
             Some(p) => format!("Loaded program: {p}"),
             None => "No program loaded".into(),
         },
-        "polyscopeversion" => format!("URSoftware {maj}.{min}.{bug}.{build} (Jan 01 2024)"),
+        "polyscopeversion" => format!(
+            "URSoftware {maj}.{min}.{bug}.{build} ({})",
+            shared.software().1
+        ),
         "version" if !cb3 => format!("{maj}.{min}.{bug}.{build}"),
         "quit" => return ("Disconnected".into(), true),
         "shutdown" => {
@@ -216,13 +219,8 @@ pub(crate) fn handle(shared: &Shared, cmd: &str) -> (String, bool) {
                 .to_string();
             format!("true {name}")
         }
-        "get serial number" => "20235500001".into(),
-        "get robot model" => shared
-            .config
-            .model
-            .name()
-            .trim_end_matches('e')
-            .to_ascii_uppercase(),
+        "get serial number" => shared.config.serial.clone(),
+        "get robot model" => shared.config.model.controller_name(),
         "get operational mode" if !cb3 => s.operational_mode.unwrap_or("NONE").into(),
         "clear operational mode" if !cb3 => {
             let prev = s.operational_mode.take().unwrap_or("NONE");

@@ -66,6 +66,32 @@ pub struct SimConfig {
     pub rtde_v2: bool,
     /// Initial joint angles, rad.
     pub initial_q: [f64; 6],
+    /// The arm's serial number (dashboard `get serial number`); [`SimConfig::new`] and
+    /// [`SimConfig::factory_calibrated`] give one of [`serial_number`]'s.
+    pub serial: String,
+}
+
+/// A serial number in a real controller's shape (11 digits: year of manufacture, a two-digit
+/// model code, a five-digit sequence number, e.g. `20205500001` for a UR5e) for the
+/// simulated arm `model` with sequence `seed % 99999 + 1`. The model codes are the
+/// simulator's own, not UR's.
+pub fn serial_number(model: UrModel, seed: u64) -> String {
+    let year = if model.is_cb3() { 2016 } else { 2020 };
+    let code = match model {
+        UrModel::Ur3 => 30,
+        UrModel::Ur5 => 50,
+        UrModel::Ur10 => 60,
+        UrModel::Ur3e => 35,
+        UrModel::Ur5e => 55,
+        UrModel::Ur7e => 75,
+        UrModel::Ur10e => 65,
+        UrModel::Ur12e => 12,
+        UrModel::Ur16e => 16,
+        UrModel::Ur15 => 15,
+        UrModel::Ur20 => 20,
+        UrModel::Ur30 => 31,
+    };
+    format!("{year}{code:02}{:05}", seed % 99_999 + 1)
 }
 
 impl SimConfig {
@@ -85,6 +111,7 @@ impl SimConfig {
             unlock_delay: Duration::from_secs(5),
             rtde_v2: true,
             initial_q: [0.0, -FRAC_PI_2, FRAC_PI_2, -FRAC_PI_2, -FRAC_PI_2, 0.0],
+            serial: serial_number(model, 0),
         }
     }
 
@@ -104,8 +131,10 @@ impl SimConfig {
     /// physical arm with joint errors of the size a UR factory calibration finds (1σ 0.3 mm and
     /// 0.3 mrad per joint and axis; [`PhysicalArm::factory`]); the same `seed` gives the same
     /// arm. The controller publishes its exact DH, with calibration status "linearised".
+    /// The serial number becomes [`serial_number`]`(model, seed)`: another seed is another arm.
     pub fn factory_calibrated(mut self, seed: u64) -> Self {
         self.arm = Some(PhysicalArm::factory(self.model, seed));
+        self.serial = serial_number(self.model, seed);
         self
     }
 
@@ -158,10 +187,15 @@ impl Shared {
     }
 
     pub(crate) fn version(&self) -> (u32, u32, u32, u32) {
+        self.software().0
+    }
+
+    /// The software version and its build date as `PolyScope version` shows it.
+    pub(crate) fn software(&self) -> ((u32, u32, u32, u32), &'static str) {
         if self.config.model.is_cb3() {
-            (3, 15, 7, 106331)
+            ((3, 15, 7, 106331), "Sep 06 2021")
         } else {
-            (5, 11, 1, 108318)
+            ((5, 11, 1, 108318), "Mar 22 2021")
         }
     }
 }
@@ -373,6 +407,11 @@ impl SimHandle {
     /// nominal set.
     pub fn dh(&self) -> DhParams {
         self.shared.lock().dh
+    }
+
+    /// The arm's serial number (dashboard `get serial number`).
+    pub fn serial(&self) -> &str {
+        &self.shared.config.serial
     }
 
     /// The physical arm this controller drives (`None`: exactly nominal), for a simulated

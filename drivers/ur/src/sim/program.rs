@@ -118,7 +118,7 @@ pub(crate) fn begin_move(
         if goal.iter().any(|g| g.abs() > JOINT_LIMIT + 1e-9) {
             return Err("movej: joint target outside ±2π".into());
         }
-        Motion::joint(s.q, goal, v.min(std::f64::consts::PI), a)
+        Motion::joint(s.q, goal, v.min(s.limits.move_speed_rad_s()), a)
     };
     s.motion = Some(m);
     Ok(())

@@ -16,20 +16,9 @@ pub(crate) const RUNTIME_PLAYING: u32 = 2;
 pub(crate) const RUNTIME_PAUSED: u32 = 4;
 const LOG_LINES: usize = 32;
 
-/// Joint position limit of every joint, rad (±2π, as the controller's default configuration).
-pub(crate) const JOINT_LIMIT: f64 = 2.0 * std::f64::consts::PI;
-
-/// Maximum speed of joint `i` (rad/s): the base joints of the large arms are slower, the wrists of
-/// the small ones faster (the datasheets' values).
-pub(crate) fn max_joint_speed(model: UrModel, i: usize) -> f64 {
-    use std::f64::consts::PI;
-    match model {
-        UrModel::Ur3 | UrModel::Ur3e if i >= 3 => 2.0 * PI,
-        UrModel::Ur10 | UrModel::Ur10e | UrModel::Ur12e | UrModel::Ur16e if i < 2 => 2.0 * PI / 3.0,
-        UrModel::Ur20 | UrModel::Ur30 if i < 2 => 2.0 * PI / 3.0,
-        _ => PI,
-    }
-}
+/// Joint position limit of every joint, rad (±2π, as the controller's default configuration;
+/// the hal's UR limits table).
+pub(crate) const JOINT_LIMIT: f64 = handeye_hal::ur_limits::JOINT_POSITION_LIMIT_RAD;
 
 /// Rated payload of the arm, kg (the datasheets').
 pub(crate) fn max_payload(model: UrModel) -> f64 {
@@ -119,6 +108,8 @@ impl SafetyModeCode {
 pub(crate) struct State {
     pub(crate) boot: Instant,
     pub(crate) dh: DhParams,
+    /// What the model's joints can do (the hal's UR limits table): no move is faster.
+    pub(crate) limits: handeye_hal::ur_limits::UrLimits,
     pub(crate) robot_mode: RobotModeCode,
     pub(crate) safety_mode: SafetyModeCode,
     pub(crate) pstop_since: Option<Instant>,
@@ -179,6 +170,7 @@ impl State {
                 .checked_sub(Duration::from_secs(60))
                 .unwrap_or_else(Instant::now),
             dh,
+            limits: c.model.limits(),
             robot_mode: if c.start_running {
                 RobotModeCode::Running
             } else {
@@ -258,7 +250,12 @@ impl State {
             kinematics: self.kinematics_info(),
             configuration: ConfigurationData {
                 joint_limits: [(-JOINT_LIMIT, JOINT_LIMIT); 6],
-                joint_motion_limits: std::array::from_fn(|i| (max_joint_speed(model, i), 40.0)),
+                joint_motion_limits: std::array::from_fn(|i| {
+                    (
+                        self.limits.joint_speed_rad_s[i],
+                        self.limits.joint_accel_rad_s2,
+                    )
+                }),
                 defaults: [1.05, 1.4, 0.25, 1.2, 0.045],
                 dh: self.dh,
                 masterboard_version: if model.is_cb3() { 3 } else { 4 },
@@ -366,7 +363,10 @@ impl State {
         self.pstop_since = Some(Instant::now());
         self.push_log("protective stop".into());
         self.stop_program(Some("protective stop"));
-        self.motion = Some(Motion::stop(self.qd, 40.0));
+        self.motion = Some(Motion::stop(
+            self.qd,
+            handeye_hal::ur_limits::MAX_JOINT_ACCEL_RAD_S2,
+        ));
     }
 
     pub(crate) fn emergency_stop(&mut self, pressed: bool) {
