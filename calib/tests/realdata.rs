@@ -118,6 +118,29 @@ fn calibrate_and_check(set: &RealSet, frames: &[Frame], guess: bool) -> Option<(
     }
 }
 
+/// The simulated active-stereo scan request of frame `f`, seen from the reference camera pose
+/// with the real intrinsics.
+fn reference_request<'a>(
+    set: &'a RealSet,
+    f: &Frame,
+    settings: &handeye_calib::sim::SimSettings,
+    seed: u64,
+) -> handeye_calib::sim::ScanRequest<'a> {
+    use handeye_calib::geometry::Intrinsics;
+    use handeye_calib::sim::{Placement, ScanRequest};
+    let model_from_base = fixed_frame(&set.model, "link_base").expect("link_base is fixed");
+    ScanRequest::new(
+        &set.model,
+        f.joints.clone(),
+        Placement::EyeToHand {
+            model_from_camera: model_from_base * set.reference,
+        },
+        Intrinsics::preset("realsense-d435").expect("preset"),
+        settings,
+        seed,
+    )
+}
+
 #[test]
 fn a_real_sensor_measures_noisier_than_the_simulated_one() {
     let Some(set) = real_set() else { return };
@@ -161,26 +184,15 @@ fn a_real_sensor_measures_noisier_than_the_simulated_one() {
 /// the noise the registration measures on the real frame (within 25 %).
 #[test]
 fn the_simulated_active_stereo_camera_is_as_noisy_as_the_real_one() {
-    use handeye_calib::geometry::Intrinsics;
-    use handeye_calib::sim::{simulate_scan, Placement, ScanRequest, SimSettings};
+    use handeye_calib::sim::{simulate_scan, SimSettings};
     let Some(set) = real_set() else { return };
-    let model_from_base = fixed_frame(&set.model, "link_base").expect("link_base is fixed");
     let settings = SimSettings::for_camera("realsense-d435");
     for (k, f) in set.frames.iter().enumerate() {
         let real = RangeImage::new(&f.cloud)
             .expect("scan")
             .noise_m()
             .expect("patches");
-        let req = ScanRequest::new(
-            &set.model,
-            f.joints.clone(),
-            Placement::EyeToHand {
-                model_from_camera: model_from_base * set.reference,
-            },
-            Intrinsics::preset("realsense-d435").expect("preset"),
-            &settings,
-            k as u64,
-        );
+        let req = reference_request(&set, f, &settings, k as u64);
         let sim = simulate_scan(&req).expect("simulated");
         let simulated = RangeImage::new(&sim.cloud)
             .expect("scan")
@@ -251,10 +263,8 @@ fn median_iqr(x: &mut [f64]) -> (f64, f64) {
 /// README's.
 #[test]
 fn the_simulated_active_stereo_depth_errors_on_the_arm_match_the_real_ones() {
-    use handeye_calib::geometry::Intrinsics;
-    use handeye_calib::sim::{simulate_scan, Placement, ScanNoise, ScanRequest, SimSettings};
+    use handeye_calib::sim::{simulate_scan, ScanNoise, SimSettings};
     let Some(set) = real_set() else { return };
-    let model_from_base = fixed_frame(&set.model, "link_base").expect("link_base is fixed");
     let settings = SimSettings::for_camera("realsense-d435");
     let exact_settings = SimSettings {
         noise: ScanNoise::none(),
@@ -262,18 +272,7 @@ fn the_simulated_active_stereo_depth_errors_on_the_arm_match_the_real_ones() {
     };
     let (mut real, mut simulated) = (Vec::new(), Vec::new());
     for (k, f) in set.frames.iter().enumerate() {
-        let request = |settings: &SimSettings| {
-            ScanRequest::new(
-                &set.model,
-                f.joints.clone(),
-                Placement::EyeToHand {
-                    model_from_camera: model_from_base * set.reference,
-                },
-                Intrinsics::preset("realsense-d435").expect("preset"),
-                settings,
-                k as u64,
-            )
-        };
+        let request = |settings: &SimSettings| reference_request(&set, f, settings, k as u64);
         let exact = simulate_scan(&request(&exact_settings)).expect("exact");
         let sim = simulate_scan(&request(&settings)).expect("simulated");
         let mut r = depth_errors_on_the_arm(&f.cloud, &exact);
@@ -328,26 +327,15 @@ fn the_simulated_active_stereo_depth_errors_on_the_arm_match_the_real_ones() {
 /// real ones, an accepted result is within the bar of the truth.
 #[test]
 fn on_simulated_active_stereo_scans_of_this_setting_nothing_wrong_is_accepted() {
-    use handeye_calib::geometry::Intrinsics;
-    use handeye_calib::sim::{simulate_scan, Placement, ScanRequest, SimSettings};
+    use handeye_calib::sim::{simulate_scan, SimSettings};
     let Some(set) = real_set() else { return };
-    let model_from_base = fixed_frame(&set.model, "link_base").expect("link_base is fixed");
     let settings = SimSettings::for_camera("realsense-d435");
     let frames: Vec<Frame> = set
         .frames
         .iter()
         .enumerate()
         .map(|(k, f)| {
-            let req = ScanRequest::new(
-                &set.model,
-                f.joints.clone(),
-                Placement::EyeToHand {
-                    model_from_camera: model_from_base * set.reference,
-                },
-                Intrinsics::preset("realsense-d435").expect("preset"),
-                &settings,
-                100 + k as u64,
-            );
+            let req = reference_request(&set, f, &settings, 100 + k as u64);
             Frame {
                 cloud: simulate_scan(&req).expect("simulated").cloud,
                 source: format!("simulated {}", f.source),

@@ -335,6 +335,9 @@ struct Ripple {
     sigma_at_1m_m: f64,
 }
 
+/// A plane wave of the ripple: wave vector along u and v (radians per pixel), phase.
+type Wave = (f64, f64, f64);
+
 /// Plane waves summed into the ripple field: enough for its values to look Gaussian and its
 /// blobs irregular; each pixel costs two multiplications per wave.
 const RIPPLE_WAVES: usize = 32;
@@ -346,7 +349,7 @@ impl Ripple {
         // Wave vectors ~ N(0, 1/ℓ²) per axis give the covariance exp(-r²/2ℓ²).
         let per_axis = rand_distr::Normal::new(0.0, 1.0 / noise.ripple_correlation_px)
             .expect("validated: a positive correlation length");
-        let waves: [(f64, f64, f64); RIPPLE_WAVES] = std::array::from_fn(|_| {
+        let waves: [Wave; RIPPLE_WAVES] = std::array::from_fn(|_| {
             (
                 rng.sample(per_axis),
                 rng.sample(per_axis),
@@ -354,7 +357,7 @@ impl Ripple {
             )
         });
         // cos and sin of each wave's angle at every column (u) or row (v); none when off.
-        let table = |n: usize, angle: &dyn Fn(f64, &(f64, f64, f64)) -> f64| {
+        let table = |n: usize, angle: &dyn Fn(f64, &Wave) -> f64| {
             let n = if off { 0 } else { n };
             (0..n)
                 .map(|i| {

@@ -32,20 +32,20 @@ fn smooth_depth_error(estimate: &IcpResult) -> Matrix6<f64> {
         .sqrt()
         * SMOOTH_ERROR_SHARE;
     let turn = excess / estimate.spread_m.max(0.01);
-    let about_centroid = Matrix6::from_diagonal(&Vector6::new(
-        excess.powi(2) / 3.0,
-        excess.powi(2) / 3.0,
-        excess.powi(2) / 3.0,
-        turn.powi(2) / 3.0,
-        turn.powi(2) / 3.0,
-        turn.powi(2) / 3.0,
-    ));
+    let about_centroid = isotropic(excess, turn);
     // A turn φ about the centroid c is the turn φ about the origin and a shift c × φ.
     let mut to_origin = Matrix6::identity();
     to_origin
         .fixed_view_mut::<3, 3>(0, 3)
         .copy_from(&estimate.centroid.coords.cross_matrix());
     to_origin * about_centroid * to_origin.transpose()
+}
+
+/// The covariance of a shift of `metres` and a turn of `radians` (each the 1σ length of the
+/// 3-vector), in any direction.
+fn isotropic(metres: f64, radians: f64) -> Matrix6<f64> {
+    let (t, r) = (metres.powi(2) / 3.0, radians.powi(2) / 3.0);
+    Matrix6::from_diagonal(&Vector6::new(t, t, t, r, r, r))
 }
 
 /// Covariance in the camera frame (inflated), its 1-σ summary and the degenerate directions.
@@ -67,14 +67,7 @@ pub(super) fn uncertainty(
         .copy_from(&(t.cross_matrix() * r));
     ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
     let (floor_m, floor_rad) = opts.model_accuracy;
-    let floor = Matrix6::from_diagonal(&Vector6::new(
-        floor_m.powi(2) / 3.0,
-        floor_m.powi(2) / 3.0,
-        floor_m.powi(2) / 3.0,
-        floor_rad.powi(2) / 3.0,
-        floor_rad.powi(2) / 3.0,
-        floor_rad.powi(2) / 3.0,
-    ));
+    let floor = isotropic(floor_m, floor_rad);
     let cov = ad * (estimate.cov6 + smooth_depth_error(estimate)) * ad.transpose() + floor;
     let tr = |k: usize| {
         (cov[(k, k)] + cov[(k + 1, k + 1)] + cov[(k + 2, k + 2)])

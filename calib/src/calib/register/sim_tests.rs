@@ -164,7 +164,7 @@ fn uncertainty_covers_an_active_stereo_cameras_smooth_depth_errors() {
             Placement::EyeInHand {
                 flange_from_camera: mount,
             },
-            intrinsics.clone(),
+            intrinsics,
             &settings,
             60 + k as u64,
         );
