@@ -83,6 +83,10 @@ const TOKENS: [&[u8]; 16] = [
 pub struct TrackingAlloc;
 
 thread_local! {
+    /// On while this thread parses a fuzz input: its panics are reported by the harness.
+    static QUIET: Cell<bool> = const { Cell::new(false) };
+    /// Where the last quiet panic happened.
+    static PANIC_AT: std::cell::RefCell<String> = const { std::cell::RefCell::new(String::new()) };
     static TRACK: Cell<bool> = const { Cell::new(false) };
     static LARGEST: Cell<usize> = const { Cell::new(0) };
 }
@@ -133,6 +137,36 @@ pub fn largest_allocation<T>(f: impl FnOnce() -> T) -> (T, Option<usize>) {
     TRACK.with(|t| t.set(false));
     let largest = LARGEST.with(Cell::get);
     (r, INSTALLED.load(Ordering::Relaxed).then_some(largest))
+}
+
+/// Installs (once per process) a panic hook that stays silent for a panic on a thread parsing
+/// a fuzz input — the harness reports it with the input; a parser that catches panics of a
+/// library it calls (the GenICam node-map builder does) then costs no backtrace — and passes
+/// every other panic to the hook it replaced.
+fn quiet_panics_while_parsing() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if QUIET.try_with(Cell::get).unwrap_or(false) {
+                let at = info
+                    .location()
+                    .map(|l| format!("{}:{}", l.file(), l.line()))
+                    .unwrap_or_default();
+                let _ = PANIC_AT.try_with(|p| *p.borrow_mut() = at);
+            } else {
+                previous(info);
+            }
+        }));
+    });
+}
+
+/// Runs `f` with this thread's panics left to the harness.
+fn quietly<T>(f: impl FnOnce() -> T) -> std::thread::Result<T> {
+    QUIET.with(|q| q.set(true));
+    let r = catch_unwind(AssertUnwindSafe(f));
+    QUIET.with(|q| q.set(false));
+    r
 }
 
 // ---------------------------------------------------------------- random numbers
@@ -319,6 +353,7 @@ impl Target {
         let max_inputs = env_f64("HANDEYE_FUZZ_ITERS").map_or(usize::MAX, |n| n as usize);
         let seed = env_f64("HANDEYE_FUZZ_SEED").map_or(DEFAULT_SEED, |s| s as u64);
         let mut rng = Rng::new(seed ^ fnv(self.name.as_bytes()));
+        quiet_panics_while_parsing();
         let watchdog = Watchdog::start(&self.name);
         let started = Instant::now();
         let (mut inputs, mut parsed) = (0usize, 0usize);
@@ -326,12 +361,15 @@ impl Target {
             let input = mutate(&mut rng, &self.seeds, self.max_len);
             inputs += 1;
             watchdog.begin(&input);
-            let outcome = catch_unwind(AssertUnwindSafe(|| {
-                largest_allocation(|| parse(&input).map_err(|e| e.to_string()))
-            }));
+            let outcome =
+                quietly(|| largest_allocation(|| parse(&input).map_err(|e| e.to_string())));
             watchdog.end();
             let problem = match outcome {
-                Err(panic) => Some(format!("panicked: {}", panic_text(&panic))),
+                Err(panic) => Some(format!(
+                    "panicked at {}: {}",
+                    PANIC_AT.with(|p| p.borrow().clone()),
+                    panic_text(&panic)
+                )),
                 Ok((result, largest)) => {
                     let cap = self.alloc_per_byte * input.len() + self.alloc_base;
                     match (result, largest) {
