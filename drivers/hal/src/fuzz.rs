@@ -429,9 +429,9 @@ impl Target {
         input: &[u8],
         parse: &mut impl FnMut(&[u8]) -> Result<(), E>,
     ) -> String {
-        let fails = |parse: &mut dyn FnMut(&[u8]) -> Result<(), E>, b: &[u8]| match catch_unwind(
-            AssertUnwindSafe(|| parse(b).map_err(|e| e.to_string())),
-        ) {
+        let fails = |parse: &mut dyn FnMut(&[u8]) -> Result<(), E>, b: &[u8]| match quietly(|| {
+            parse(b).map_err(|e| e.to_string())
+        }) {
             Err(_) => true,
             Ok(Err(msg)) => bad_message(&msg).is_some(),
             Ok(Ok(())) => false,
