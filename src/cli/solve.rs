@@ -714,10 +714,12 @@ mod tests {
         let model = RobotModel::load(&dir.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
         let tmp = std::env::temp_dir().join(format!("handeye-fuzz-capture-{}", std::process::id()));
         std::fs::create_dir_all(&tmp).expect("temp dir");
-        let mut cloud = handeye_hal::PointCloud::default();
-        cloud.width = 2;
-        cloud.height = 2;
-        cloud.points = vec![nalgebra::Point3::new(0.1f32, 0.2, 0.9); 4];
+        let cloud = handeye_hal::PointCloud {
+            width: 2,
+            height: 2,
+            points: vec![nalgebra::Point3::new(0.1f32, 0.2, 0.9); 4],
+            ..Default::default()
+        };
         for name in ["scan-0.ply", "scan-1.ply"] {
             handeye::cloud::write_ply(&tmp.join(name), &cloud, Default::default()).expect("ply");
         }

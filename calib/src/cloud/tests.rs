@@ -884,16 +884,15 @@ fn check_cloud(c: &PointCloud) -> Result<(), String> {
     Ok(())
 }
 
-/// Fuzz target `ply` (hal::fuzz): mutated PLY files of every encoding and layout are parsed or
-/// refused with a message, allocating at most 64 bytes per input byte (+64 KiB) at once; a
-/// parsed cloud is consistent.
-#[test]
-fn fuzz_ply() {
+/// Fuzz targets `ply` and `pcd` (hal::fuzz): mutated files of the format whose seeds `ply`
+/// selects are parsed or refused with a message, allocating at most 64 bytes per input byte
+/// (+64 KiB) at once; a parsed cloud is consistent.
+fn fuzz_cloud(name: &str, ply: bool) {
     let seeds = fuzz_seeds()
         .into_iter()
-        .filter(|s| s.starts_with(b"ply"))
+        .filter(|s| s.starts_with(b"ply") == ply)
         .collect();
-    handeye_hal::fuzz::Target::new("ply", seeds)
+    handeye_hal::fuzz::Target::new(name, seeds)
         .allocation_cap(64, 1 << 16)
         .run(|b| {
             read_cloud_bytes(b)
@@ -902,20 +901,16 @@ fn fuzz_ply() {
         });
 }
 
-/// Fuzz target `pcd`: the same for PCD files (ASCII, binary, binary_compressed).
+/// Fuzz target `ply`: every encoding, property type and layout (grid, vertex lists, faces).
+#[test]
+fn fuzz_ply() {
+    fuzz_cloud("ply", true);
+}
+
+/// Fuzz target `pcd`: ASCII, binary and binary_compressed.
 #[test]
 fn fuzz_pcd() {
-    let seeds = fuzz_seeds()
-        .into_iter()
-        .filter(|s| !s.starts_with(b"ply"))
-        .collect();
-    handeye_hal::fuzz::Target::new("pcd", seeds)
-        .allocation_cap(64, 1 << 16)
-        .run(|b| {
-            read_cloud_bytes(b)
-                .map_err(|e| e.to_string())
-                .and_then(|c| check_cloud(&c))
-        });
+    fuzz_cloud("pcd", false);
 }
 
 /// An error message fit for a terminal: bounded, and no control characters from the input.

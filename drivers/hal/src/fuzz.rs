@@ -24,12 +24,15 @@
 //! Bounds: [`Target::run`] mutates for `HANDEYE_FUZZ_SECS` seconds (default 2 s; a fractional
 //! value is allowed) or `HANDEYE_FUZZ_ITERS` inputs, whichever comes first, from the seed
 //! `HANDEYE_FUZZ_SEED` (default fixed, so CI explores the same inputs first). It is a seeded
-//! random mutator, not coverage-guided: no stable Rust toolchain can build the
-//! SanitizerCoverage instrumentation a coverage-guided engine (libFuzzer, AFL) needs without
-//! extra tooling, and the `bolero` front-end that wraps them pins old `toml` crates (see the
-//! README). A failing input is written to `target/fuzz-failures/<target>-<n>.bin`, shrunk
-//! (chunks removed while it still fails) to `…-min.bin`, and named in the panic message so it
-//! can become a regression test.
+//! random mutator, not coverage-guided: it does not see which branches an input reached. The
+//! coverage-guided engines need instrumented builds and extra tooling (libFuzzer through
+//! `cargo fuzz`, whose default sanitizer build needs a nightly compiler, or `cargo bolero`,
+//! whose `bolero` crate pins old `toml` crates into the lock file; see the README). A target's
+//! body is a function of the input bytes, so it can be moved under such an engine.
+//!
+//! A failing input is written to `target/fuzz-failures/<target>-<n>.bin`, shrunk (chunks
+//! removed while it still fails) to `…-min.bin`, and named in the panic message so it can
+//! become a regression test.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;

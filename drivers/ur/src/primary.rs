@@ -647,8 +647,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn round_trips() {
+    /// One package of every kind (robot states with the calibrated kinematics `.1` and the
+    /// nominal ones, both in mode `.2`): the round trips' cases and the fuzz target's seeds.
+    fn packages() -> (Vec<Vec<u8>>, KinematicsInfo, RobotModeData) {
         let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
         let kin = KinematicsInfo::for_arm(
             handeye_hal::ur_dh::PhysicalArm::factory(handeye_hal::ur_dh::UrModel::Ur5e, 7)
@@ -662,7 +663,7 @@ mod tests {
             robot_mode: 7,
             ..Default::default()
         };
-        let seeds = [
+        let seeds = vec![
             encode_version(1, 5, 11, 1, 108318),
             encode_text(1, "hello"),
             encode_key(1, 0, "PROGRAM_XXX_STARTED", "prog"),
@@ -671,6 +672,13 @@ mod tests {
             encode_robot_state(&state(m, [0.1; 6], kin)),
             encode_robot_state(&state(m, [-0.2; 6], KinematicsInfo::for_arm(nominal, 0))),
         ];
+        (seeds, kin, m)
+    }
+
+    #[test]
+    fn round_trips() {
+        let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
+        let (seeds, kin, m) = packages();
         assert!(
             seeds[5].len() < 2000,
             "python-urx drops packages of 2000 bytes or more"
@@ -751,28 +759,7 @@ mod tests {
     /// robot state that decodes carries whole sub-packages.
     #[test]
     fn fuzz_primary() {
-        let kin = KinematicsInfo::for_arm(
-            handeye_hal::ur_dh::PhysicalArm::factory(handeye_hal::ur_dh::UrModel::Ur5e, 7)
-                .controller_dh(),
-            CALIBRATION_LINEARISED,
-        );
-        let m = RobotModeData {
-            timestamp_us: 5,
-            power_on: true,
-            program_running: true,
-            robot_mode: 7,
-            ..Default::default()
-        };
-        let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
-        let seeds = vec![
-            encode_version(1, 5, 11, 1, 108318),
-            encode_text(1, "hello"),
-            encode_key(1, 0, "PROGRAM_XXX_STARTED", "prog"),
-            encode_error_code(1, 210, 3, "read-only"),
-            encode_runtime_exception(1, 3, 1, "unknown function: foo"),
-            encode_robot_state(&state(m, [0.1; 6], kin)),
-            encode_robot_state(&state(m, [-0.2; 6], KinematicsInfo::for_arm(nominal, 0))),
-        ];
+        let (seeds, _, _) = packages();
         handeye_hal::fuzz::Target::new("primary", seeds)
             .allocation_cap(16, 1 << 16)
             .run(|b| {
