@@ -354,7 +354,13 @@ impl Target {
         let secs = env_f64("HANDEYE_FUZZ_SECS").unwrap_or(DEFAULT_SECS);
         let budget = Duration::from_secs_f64(secs.max(0.0));
         let max_inputs = env_f64("HANDEYE_FUZZ_ITERS").map_or(usize::MAX, |n| n as usize);
-        let seed = env_f64("HANDEYE_FUZZ_SEED").map_or(DEFAULT_SEED, |s| s as u64);
+        let seed = match std::env::var("HANDEYE_FUZZ_SEED") {
+            Ok(v) => v
+                .trim()
+                .parse::<u64>()
+                .unwrap_or_else(|_| panic!("HANDEYE_FUZZ_SEED={v:?}: expected a whole number")),
+            Err(_) => DEFAULT_SEED,
+        };
         let mut rng = Rng::new(seed ^ fnv(self.name.as_bytes()));
         quiet_panics_while_parsing();
         let watchdog = Watchdog::start(&self.name);
