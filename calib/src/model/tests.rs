@@ -547,9 +547,9 @@ fn shared_files(relative: &[&str]) -> Vec<Vec<u8>> {
 
 /// One mesh fuzz target (hal::fuzz): mutated files of extension `ext` parse to a valid mesh
 /// or are refused with an error naming the file and the link.
-fn fuzz_mesh(ext: &str, seeds: Vec<Vec<u8>>) {
+fn fuzz_mesh(name: &str, ext: &str, seeds: Vec<Vec<u8>>) {
     let path = PathBuf::from(format!("fuzz/part.{ext}"));
-    handeye_hal::fuzz::Target::new(ext, seeds).run(|b| {
+    handeye_hal::fuzz::Target::new(name, seeds).run(|b| {
         match parse_mesh(b, ext, &path, "fuzz_link") {
             Ok(mesh) => {
                 if let Err(e) = mesh.validate() {
@@ -574,7 +574,7 @@ fn fuzz_stl() {
         "ur/ur5e/meshes/ur5e/collision/wrist3.stl",
         "franka_fr3/meshes/fr3/collision/link4.stl",
     ]));
-    fuzz_mesh("stl", seeds);
+    fuzz_mesh("stl", "stl", seeds);
 }
 
 /// Fuzz target `obj`: Wavefront OBJ (quads, a material library that is never read).
@@ -582,6 +582,7 @@ fn fuzz_stl() {
 fn fuzz_obj() {
     let tri = "o t\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nvt 0 0\nvt 1 0\nvt 0 1\ng g\nusemtl m\nf 1/1/1 2/2/1 3/3/1\n";
     fuzz_mesh(
+        "obj",
         "obj",
         vec![OBJ.as_bytes().to_vec(), tri.as_bytes().to_vec()],
     );
@@ -596,7 +597,7 @@ fn fuzz_collada() {
         "ur/ur3/meshes/ur3/visual/wrist3.dae",
         "ur/ur20/meshes/ur20/visual/wrist2.dae",
     ]));
-    fuzz_mesh("dae", seeds);
+    fuzz_mesh("collada", "dae", seeds);
 }
 
 /// Issue 23 (found by the `dae` fuzz target): a control character where the XML parser
