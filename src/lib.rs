@@ -48,6 +48,11 @@
 
 pub use handeye_calib::{bench, calib, cloud, frames, geometry, model, plan, sim};
 
+/// Tests measure the largest allocation a parser makes (the fuzz targets' memory bound).
+#[cfg(test)]
+#[global_allocator]
+static ALLOC: handeye_hal::fuzz::TrackingAlloc = handeye_hal::fuzz::TrackingAlloc;
+
 pub mod calendar;
 pub mod camera;
 pub mod config;

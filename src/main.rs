@@ -10,6 +10,11 @@ use tokio_util::sync::CancellationToken;
 
 mod cli;
 
+/// Tests measure the largest allocation a parser makes (the fuzz targets' memory bound).
+#[cfg(test)]
+#[global_allocator]
+static ALLOC: handeye_hal::fuzz::TrackingAlloc = handeye_hal::fuzz::TrackingAlloc;
+
 /// Target-free hand-eye calibration for Universal Robots arms with a 3D camera.
 #[derive(Debug, Parser)]
 #[command(name = "handeye", version, about, long_about = None)]

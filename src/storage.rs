@@ -228,10 +228,17 @@ pub fn load_capture(path: &Path) -> Result<CaptureFile, String> {
     // A regular file of bounded size: a FIFO would block the read forever.
     let text = handeye_hal::limits::read_text_file(path, MAX_CAPTURE_FILE_BYTES)
         .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    serde_json::from_str(&text).map_err(|e| {
+    parse_capture(&text, path)
+}
+
+/// Parses the text of a capture file (`path` names it in messages). Its content is checked
+/// against a robot model by `solve --capture`.
+pub fn parse_capture(text: &str, path: &Path) -> Result<CaptureFile, String> {
+    serde_json::from_str(text).map_err(|e| {
         format!(
-            "{} is not a capture file written by a handeye run: {e}",
-            path.display()
+            "{} is not a capture file written by a handeye run: {}",
+            path.display(),
+            handeye_hal::limits::sanitize_message(&e.to_string())
         )
     })
 }

@@ -28,6 +28,11 @@
 //!   pass/fail gate, the report and the pipeline from frames to a gated result.
 //! - [`bench`]: the accuracy benchmark (the paper's protocol) on simulated scans.
 
+/// Tests measure the largest allocation a parser makes (the fuzz targets' memory bound).
+#[cfg(test)]
+#[global_allocator]
+static ALLOC: handeye_hal::fuzz::TrackingAlloc = handeye_hal::fuzz::TrackingAlloc;
+
 pub mod bench;
 pub mod calib;
 pub mod cloud;

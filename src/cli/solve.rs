@@ -129,7 +129,38 @@ fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
     .map_err(anyhow::Error::msg)?;
     let model =
         RobotModel::load(&urdf).with_context(|| format!("loading robot {}", urdf.display()))?;
-    let model_from_base = fixed_frame(&model, &capture.base_frame)
+    let (frames, prior) = capture_frames(&capture, path, &model)?;
+    Ok(Inputs {
+        model,
+        prior,
+        frames,
+        mount: capture.mount,
+        base_frame: args.base_frame.clone().unwrap_or(capture.base_frame),
+        controller_dh: if args.nominal_kinematics {
+            None
+        } else {
+            capture.controller_dh
+        },
+    })
+}
+
+/// A capture's frames, read and checked against `model` (scan count, joints, flange poses,
+/// scan paths), and its prior. `path` is the capture file's (its scans are beside it).
+fn capture_frames(
+    capture: &handeye::storage::CaptureFile,
+    path: &Path,
+    model: &RobotModel,
+) -> anyhow::Result<(Vec<Frame>, Option<Isometry3<f64>>)> {
+    check_capture(capture, path, model).with_context(|| format!("capture {}", path.display()))
+}
+
+/// [`capture_frames`] without the file's name on its errors.
+fn check_capture(
+    capture: &handeye::storage::CaptureFile,
+    path: &Path,
+    model: &RobotModel,
+) -> anyhow::Result<(Vec<Frame>, Option<Isometry3<f64>>)> {
+    let model_from_base = fixed_frame(model, &capture.base_frame)
         .with_context(|| format!("the capture's base frame `{}`", capture.base_frame))?;
     let dir = path.parent().unwrap_or(Path::new("."));
     // A capture is input like any other: as many scans as `--scan` takes, joints this model
@@ -153,10 +184,10 @@ fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
             })
             .with_context(|| what.clone());
         }
-        check_joint_limits(&format!("{what}: joints"), &model, &view.joints)
+        check_joint_limits(&format!("{what}: joints"), model, &view.joints)
             .map_err(anyhow::Error::msg)?;
         check_flange_pose(
-            &model,
+            model,
             &view.joints,
             &(model_from_base * base_from_flange),
             &capture.base_frame,
@@ -166,13 +197,16 @@ fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
             let Some(p) = &f.path else {
                 bail!("{what}: a frame was not kept (storage.keep_captures = false)");
             };
+            // A run names its scans `view-…-frame-….ply`: no control character (it would
+            // reach the operator's terminal in every message naming the file).
             if !Path::new(p)
                 .components()
                 .all(|c| matches!(c, std::path::Component::Normal(_)))
+                || p.chars().any(char::is_control)
             {
                 bail!(
                     "{what}: scan `{}` is not a file in the capture's folder",
-                    handeye_hal::limits::sanitize_message(p)
+                    handeye_hal::limits::Quoted(p)
                 );
             }
             let p = dir.join(p);
@@ -195,18 +229,7 @@ fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
                 .context("the capture's prior is not a rigid transform")
         })
         .transpose()?;
-    Ok(Inputs {
-        model,
-        prior,
-        frames,
-        mount: capture.mount,
-        base_frame: args.base_frame.clone().unwrap_or(capture.base_frame),
-        controller_dh: if args.nominal_kinematics {
-            None
-        } else {
-            capture.controller_dh
-        },
-    })
+    Ok((frames, prior))
 }
 
 /// Most scans one solve takes.
@@ -638,6 +661,136 @@ mod tests {
             format!("{e:#}").contains("--guess-flange-from-camera"),
             "{e:#}"
         );
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+
+    /// Issue 23 (found by the `capture` fuzz target): a scan path with a control character
+    /// was echoed raw in the error (the file does not exist); now refused by name, escaped.
+    #[test]
+    fn issue_23_capture_scan_path_with_control_character_is_refused() {
+        let capture: handeye::storage::CaptureFile = serde_json::from_str(
+            r#"{"model":"ur5e","mount":"eye_in_hand","base_frame":"base","views":[{"view":0,
+            "joints":[0,0,0,0,0,0],"base_from_flange":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]],
+            "unix_time_s":0,"joint_change_during_capture_rad":0,
+            "frames":[{"path":"scan-1\u007f","width":2,"height":2,"valid_points":4}]}]}"#,
+        )
+        .expect("parses");
+        let Some(dir) = super::super::args::robots_dir_or_skip(
+            "issue_23_capture_scan_path_with_control_character_is_refused",
+        ) else {
+            return;
+        };
+        let model = RobotModel::load(&dir.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
+        // Joints at zero and a flange pose that is their forward kinematics.
+        let mut capture = capture;
+        let fk = fixed_frame(&model, "base").expect("base").inverse()
+            * model
+                .frame_pose(model.flange_link(), &[0.0; 6])
+                .expect("fk");
+        capture.views[0].base_from_flange = handeye::frames::to_row_major(&fk);
+        let e = capture_frames(&capture, Path::new("/nowhere/capture.json"), &model)
+            .expect_err("refused");
+        let msg = format!("{e:#}");
+        assert!(
+            msg.contains("is not a file in the capture's folder"),
+            "{msg}"
+        );
+        assert!(!msg.chars().any(char::is_control), "{msg:?}");
+    }
+
+    /// Fuzz target `capture` (hal::fuzz): mutations of capture files a run writes (eye-in-hand
+    /// with a prior and the controller's calibrated kinematics; two views) — numbers replaced
+    /// by extreme ones, poses, joints and paths spliced, structure broken — are parsed and
+    /// checked against the UR5e (scan count, joints within limits, flange pose against the
+    /// joints' forward kinematics, scans in the capture's folder) and give frames or an error
+    /// naming the capture file.
+    #[test]
+    fn fuzz_capture() {
+        use handeye::record::{CaptureRecord, FrameRecord};
+        use handeye::storage::{parse_capture, CaptureFile};
+        let Some(dir) = super::super::args::robots_dir_or_skip("fuzz_capture") else {
+            return;
+        };
+        let model = RobotModel::load(&dir.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
+        let tmp = std::env::temp_dir().join(format!("handeye-fuzz-capture-{}", std::process::id()));
+        std::fs::create_dir_all(&tmp).expect("temp dir");
+        let cloud = handeye_hal::PointCloud {
+            width: 2,
+            height: 2,
+            points: vec![nalgebra::Point3::new(0.1f32, 0.2, 0.9); 4],
+            ..Default::default()
+        };
+        for name in ["scan-0.ply", "scan-1.ply"] {
+            handeye::cloud::write_ply(&tmp.join(name), &cloud, Default::default()).expect("ply");
+        }
+        let base_from_model = fixed_frame(&model, "base").expect("base").inverse();
+        let view = |view: usize, q: Vec<f64>, scans: &[&str]| CaptureRecord {
+            view,
+            base_from_flange: handeye::frames::to_row_major(
+                &(base_from_model
+                    * model
+                        .frame_pose(model.flange_link(), &q)
+                        .expect("forward kinematics")),
+            ),
+            joints: q,
+            unix_time_s: 1.8e9,
+            joint_change_during_capture_rad: 1e-5,
+            frames: scans
+                .iter()
+                .map(|s| FrameRecord {
+                    path: Some((*s).to_string()),
+                    width: 2,
+                    height: 2,
+                    valid_points: 4,
+                })
+                .collect(),
+        };
+        let one = CaptureFile {
+            model: "ur5e".into(),
+            mount: Mount::EyeInHand,
+            base_frame: "base".into(),
+            prior: Some(handeye::frames::to_row_major(&Isometry3::new(
+                nalgebra::Vector3::new(0.0, -0.08, 0.03),
+                nalgebra::Vector3::new(-0.26, 0.0, 0.0),
+            ))),
+            controller_dh: Some(handeye_hal::ur_dh::UrModel::Ur5e.dh()),
+            views: vec![view(
+                0,
+                vec![0.1, -1.2, 1.0, -1.4, -1.5, 0.2],
+                &["scan-0.ply"],
+            )],
+        };
+        let two = CaptureFile {
+            prior: None,
+            controller_dh: None,
+            views: vec![
+                view(
+                    0,
+                    vec![-0.3, -1.6, 1.4, -1.2, -1.6, 0.0],
+                    &["scan-0.ply", "scan-1.ply"],
+                ),
+                view(1, vec![0.4, -1.0, 0.9, -1.9, -1.4, 0.5], &["scan-1.ply"]),
+            ],
+            ..one.clone()
+        };
+        let seeds = [one, two]
+            .iter()
+            .map(|c| serde_json::to_vec_pretty(c).expect("json"))
+            .collect();
+        let path = tmp.join("capture.json");
+        handeye_hal::fuzz::Target::new("capture", seeds).run(|b| {
+            let capture = parse_capture(&String::from_utf8_lossy(b), &path)?;
+            let (frames, _) = capture_frames(&capture, &path, &model).map_err(|e| {
+                let msg = format!("{e:#}");
+                assert!(
+                    msg.contains("capture.json") || msg.contains("scan"),
+                    "{msg}"
+                );
+                msg
+            })?;
+            assert!(frames.len() <= MAX_SCANS);
+            Ok::<(), String>(())
+        });
         let _ = std::fs::remove_dir_all(&tmp);
     }
 }

@@ -85,6 +85,41 @@ fn every_example_file_loads() {
     }
 }
 
+/// Fuzz target `config` (hal::fuzz): mutations of every example configuration (and of the
+/// eye-to-hand one) — values replaced by extreme numbers, nesting tokens, lines dropped and
+/// doubled, keys spliced from another file — validate or are refused with a message naming
+/// the file; an error's line, when it has one, is a line of the file.
+#[test]
+fn fuzz_config() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config");
+    let seeds = [
+        "handeye.example.toml",
+        "eye-to-hand.example.toml",
+        "sim-rig-daemon.example.toml",
+        "ur-zivid-exec.example.toml",
+    ]
+    .iter()
+    .map(|n| std::fs::read(dir.join(n)).expect("example"))
+    .collect();
+    handeye_hal::fuzz::Target::new("config", seeds).run(|b| {
+        let text = String::from_utf8_lossy(b);
+        match Config::from_toml(&text, "fuzz.toml", &dir) {
+            Ok(_) => Ok(()),
+            Err(e) => {
+                let msg = e.to_string();
+                assert!(msg.contains("fuzz.toml"), "{msg}");
+                if let Some(line) = e.line() {
+                    assert!(
+                        line >= 1 && line <= text.lines().count() + 1,
+                        "line {line}: {msg}"
+                    );
+                }
+                Err(msg)
+            }
+        }
+    });
+}
+
 #[test]
 fn the_sim_rig_example_is_sim_rig() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/sim-rig.example.toml");

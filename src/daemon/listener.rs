@@ -8,6 +8,10 @@
 //! - A connection must send a request's headers within [`HEADER_TIMEOUT`] of being accepted or
 //!   of its previous answer (idle keep-alive), else it is closed.
 //! - When `accept` fails (out of file descriptors), the loop waits a little and goes on.
+//! - A connection whose client went away while it waited (for room here, or in the kernel's
+//!   backlog) is closed without reading it: a request it left behind (`POST /api/calibrate`)
+//!   is not started. "Went away" is the client's close (FIN) or reset; a client that
+//!   half-closes after its request is treated as gone.
 
 use std::collections::HashMap;
 use std::net::{IpAddr, SocketAddr};
@@ -118,7 +122,17 @@ impl Slots {
 
 /// Serves `app` on `listener` until `shutdown`, within the limits of the module docs.
 pub(crate) async fn serve(listener: TcpListener, app: Router, shutdown: CancellationToken) {
-    let permits = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    serve_at_most(MAX_CONNECTIONS, listener, app, shutdown).await;
+}
+
+/// [`serve`] with `max_connections` places (tests use a few).
+async fn serve_at_most(
+    max_connections: usize,
+    listener: TcpListener,
+    app: Router,
+    shutdown: CancellationToken,
+) {
+    let permits = Arc::new(Semaphore::new(max_connections));
     let slots = Arc::new(Slots::default());
     let tasks = tokio_util::task::TaskTracker::new();
     let waiting = Arc::new(std::sync::atomic::AtomicUsize::new(0));
@@ -153,7 +167,7 @@ pub(crate) async fn serve(listener: TcpListener, app: Router, shutdown: Cancella
             Err(_) => {
                 slots.remove(id);
                 if refused_logged.elapsed() > Duration::from_secs(10) {
-                    tracing::warn!("HTTP API: {MAX_CONNECTIONS} connections and {MAX_WAITING} waiting; closing new ones");
+                    tracing::warn!("HTTP API: {max_connections} connections and {MAX_WAITING} waiting; closing new ones");
                     refused_logged = Instant::now();
                 }
                 drop(stream);
@@ -184,6 +198,11 @@ pub(crate) async fn serve(listener: TcpListener, app: Router, shutdown: Cancella
                     }
                 }
             };
+            if client_gone(&stream) {
+                tracing::debug!(%peer, "HTTP API: the client went away while waiting; its request is not started");
+                slots.remove(id);
+                return;
+            }
             slot.serving.store(true, Ordering::Release);
             serve_connection(stream, peer, app, &slot, shutdown).await;
             slots.remove(id);
@@ -209,6 +228,20 @@ async fn make_room(
         }
     }
     None
+}
+
+/// Whether the client closed its side of the connection (FIN) or reset it: Linux reports
+/// `POLLRDHUP` even while the request it sent before leaving is still unread.
+fn client_gone(stream: &tokio::net::TcpStream) -> bool {
+    use std::os::fd::AsRawFd as _;
+    let mut p = libc::pollfd {
+        fd: stream.as_raw_fd(),
+        events: libc::POLLRDHUP,
+        revents: 0,
+    };
+    // SAFETY: one valid, initialised pollfd for an open socket; a zero timeout never blocks.
+    let n = unsafe { libc::poll(&mut p, 1, 0) };
+    n > 0 && p.revents & (libc::POLLRDHUP | libc::POLLHUP | libc::POLLERR) != 0
 }
 
 /// One connection: HTTP/1 with the header timeout; each request gets the peer's address
@@ -315,5 +348,106 @@ mod tests {
         assert!(limit.take(b).is_ok());
         std::thread::sleep(Duration::from_secs_f64(1.1 / RateLimit::PER_SECOND));
         assert!(limit.take(a).is_ok(), "refilled");
+    }
+
+    /// `client_gone` tells a client that closed after sending its request (the request still
+    /// unread in the buffer) from one that is still there.
+    #[tokio::test]
+    async fn a_client_that_closed_is_gone_with_its_request_unread() {
+        use tokio::io::AsyncWriteExt as _;
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let mut stays = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        let (stays_here, _) = listener.accept().await.expect("accept");
+        stays
+            .write_all(b"POST /x HTTP/1.1\r\n\r\n")
+            .await
+            .expect("send");
+        let mut leaves = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        let (leaves_here, _) = listener.accept().await.expect("accept");
+        leaves
+            .write_all(b"POST /x HTTP/1.1\r\n\r\n")
+            .await
+            .expect("send");
+        drop(leaves);
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        assert!(!client_gone(&stays_here));
+        assert!(client_gone(&leaves_here));
+    }
+
+    /// Issue 23: a `POST` whose client went away while its connection waited for room is not
+    /// started; one whose client stays is. (hyper itself drops a request whose connection
+    /// reads as closed before the request is dispatched; `client_gone` closes such a
+    /// connection before hyper reads it at all.) Two places: both held by requests in progress, a
+    /// third connection sends its `POST` and closes; when the places free up, the request it
+    /// left in the buffer must not run.
+    #[tokio::test]
+    async fn issue_23_a_request_whose_client_went_away_is_not_started() {
+        use std::sync::atomic::AtomicUsize;
+        use tokio::io::{AsyncReadExt as _, AsyncWriteExt as _};
+
+        let started = Arc::new(AtomicUsize::new(0));
+        let release = Arc::new(Notify::new());
+        let (s, r) = (Arc::clone(&started), Arc::clone(&release));
+        let app = Router::new()
+            .route(
+                "/hold",
+                axum::routing::get(move || {
+                    let r = Arc::clone(&r);
+                    async move { r.notified().await }
+                }),
+            )
+            .route(
+                "/start",
+                axum::routing::post(move |body: String| {
+                    assert_eq!(body, "{}");
+                    s.fetch_add(1, Ordering::SeqCst);
+                    async {}
+                }),
+            );
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let shutdown = CancellationToken::new();
+        let server = tokio::spawn(serve_at_most(2, listener, app, shutdown.clone()));
+        let request = |method: &str, path: &str| {
+            format!("{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 2\r\n\r\n{{}}")
+        };
+        let mut holders = Vec::new();
+        for _ in 0..2 {
+            let mut c = tokio::net::TcpStream::connect(addr).await.expect("connect");
+            c.write_all(request("GET", "/hold").as_bytes())
+                .await
+                .expect("send");
+            holders.push(c);
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        // Waits for room, sends its request, gives up.
+        let mut gone = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        gone.write_all(request("POST", "/start").as_bytes())
+            .await
+            .expect("send");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        drop(gone);
+        // Waits for room and stays.
+        let mut stays = tokio::net::TcpStream::connect(addr).await.expect("connect");
+        stays
+            .write_all(request("POST", "/start").as_bytes())
+            .await
+            .expect("send");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        release.notify_waiters();
+        let mut answer = vec![0u8; 256];
+        let n = tokio::time::timeout(Duration::from_secs(5), stays.read(&mut answer))
+            .await
+            .expect("answered in time")
+            .expect("read");
+        let answer = String::from_utf8_lossy(&answer[..n]).into_owned();
+        assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+        // The client that stayed was served; the one that left was not.
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        assert_eq!(started.load(Ordering::SeqCst), 1);
+        shutdown.cancel();
+        drop(holders);
+        let _ = server.await;
     }
 }

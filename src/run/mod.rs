@@ -185,6 +185,86 @@ pub fn pose_difference(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
 /// when the program stops before the final record is written.
 const WRITING_REASON: &str = "interrupted while writing the result above to the controller (the TCP and/or the registers, as configured); check the TCP on the pendant";
 
+/// What the controller held before a run wrote its result: put back when the result cannot be
+/// recorded (the record and `current/` must describe what the controller holds).
+#[derive(Debug, Clone)]
+struct Previous {
+    /// The TCP read at preflight, when the run set the TCP.
+    tcp: Option<Isometry3<f64>>,
+    /// The result registers read just before they were written, when the run wrote them.
+    registers: Option<(crate::config::RegisterMap, [f64; 6])>,
+}
+
+/// Writes `previous` back to the controller: the TCP, then the registers with a new sequence
+/// number (so a pendant program that applied the unrecorded result applies the previous values
+/// again). Returns what was done, for the run's reasons, or why it could not be done.
+async fn put_back<R: Robot>(robot: &R, previous: &Previous) -> Result<String, String> {
+    let mut done = Vec::new();
+    if let Some(tcp) = &previous.tcp {
+        robot
+            .set_tcp(tcp)
+            .await
+            .map_err(|e| format!("setting the previous TCP back failed: {}", error_chain(&e)))?;
+        done.push(format!(
+            "the previous TCP ({}) was set back",
+            UrPose::from(tcp)
+        ));
+    }
+    if let Some((map, values)) = &previous.registers {
+        let failed = |e: HalError| {
+            format!(
+                "writing the previous result registers back failed: {}",
+                error_chain(&e)
+            )
+        };
+        for (k, v) in values.iter().enumerate() {
+            robot
+                .write_double_register(map.double_start + k as u32, *v)
+                .await
+                .map_err(failed)?;
+        }
+        let seq = robot
+            .read_int_register(map.sequence_int)
+            .await
+            .map_err(failed)?
+            .wrapping_add(1)
+            .max(1);
+        robot
+            .write_int_register(map.sequence_int, seq)
+            .await
+            .map_err(failed)?;
+        done.push(format!(
+            "the previous values of input_double_register_{}..{} were written back (input_int_register_{} = {seq})",
+            map.double_start,
+            map.double_start + 5,
+            map.sequence_int
+        ));
+    }
+    Ok(done.join("; "))
+}
+
+/// Puts `previous` back on the controller and says so: on success `record.written` loses its
+/// TCP and register entries (the controller holds what it held before the run).
+async fn restore_sentence<R: Robot>(
+    robot: &R,
+    previous: &Previous,
+    record: &mut RunRecord,
+) -> String {
+    match put_back(robot, previous).await {
+        Ok(done) => {
+            record
+                .written
+                .retain(|w| !matches!(w.target, WriteTarget::Tcp | WriteTarget::Registers));
+            tracing::warn!("result not recorded, controller restored: {done}");
+            format!("so it was undone: {done}")
+        }
+        Err(why) => {
+            tracing::error!("result not recorded and the controller not restored: {why}");
+            format!("{why}; the controller keeps the unrecorded result: check the TCP and the registers on the pendant")
+        }
+    }
+}
+
 /// Everything a run works with, resolved once.
 struct Context<'a, R, C> {
     robot: &'a R,
@@ -208,6 +288,8 @@ struct Context<'a, R, C> {
     /// ([`ControllerIdentity::calibration_mismatch`]): a calibrate's gate does not compare
     /// with it.
     other_arm: bool,
+    /// What the controller held before the write-back, once the run changed it.
+    previous: Option<Previous>,
 }
 
 /// The scan a run's report picture shows: its first frame, that frame's registration and the
@@ -270,6 +352,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         picture: None,
         links: (robot.link_generation(), camera.link_generation()),
         other_arm: false,
+        previous: None,
     };
     let span = tracing::info_span!("calibration", run_id = %run_id);
     let result = tracing::Instrument::instrument(cx.steps(), span).await;
@@ -1078,8 +1161,11 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     /// `current/`) and a record saying the result is being written to the controller are
     /// durably on disk before the controller changes, so a full disk stops the run with nothing
     /// written. Then the TCP, then the registers (the sequence number last: a pendant program
-    /// applies nothing half-written), then `current/` is replaced, so it only ever holds a
-    /// calibration the controller has confirmed.
+    /// applies nothing half-written), then the record saying they were written, then
+    /// `current/` is replaced, so it only ever holds a calibration the controller has
+    /// confirmed. When that record or `current/` cannot be written, the controller gets back
+    /// the TCP read at preflight and the registers read before writing them ([`put_back`]), and
+    /// the error says so.
     async fn write_back(&mut self, unknown: &Isometry3<f64>) -> Result<(), Failure> {
         let stage = Stage::WriteBack;
         let wb = self.cfg.write_back;
@@ -1111,6 +1197,39 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         pending.failed_stage = Some(stage);
         pending.reasons.push(WRITING_REASON.to_string());
         storage::write_record(&self.run_dir, &pending).map_err(|e| kept("the run record", e))?;
+        // What to put back if the result cannot be recorded: the TCP read at preflight and
+        // the registers as they are now.
+        let previous_tcp = (wb.tcp && mount == Mount::EyeInHand)
+            .then(|| {
+                self.record
+                    .preflight
+                    .as_ref()
+                    .and_then(|p| crate::frames::from_row_major(&p.tcp_offset))
+            })
+            .flatten();
+        let previous_registers = match wb.registers {
+            Some(map) => {
+                let values = cancellable(self.cancel, stage, async {
+                    let mut values = [0.0; 6];
+                    for (k, v) in values.iter_mut().enumerate() {
+                        *v = robot
+                            .read_double_register(map.double_start + k as u32)
+                            .await
+                            .map_err(|e| {
+                                Failure::robot(stage, "reading the result registers", e)
+                            })?;
+                    }
+                    Ok(values)
+                })
+                .await?;
+                Some((map, values))
+            }
+            None => None,
+        };
+        self.previous = Some(Previous {
+            tcp: previous_tcp,
+            registers: previous_registers,
+        });
         if wb.tcp && mount == Mount::EyeInHand {
             cancellable(self.cancel, stage, async {
                 robot
@@ -1160,6 +1279,15 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 ),
             });
         }
+        // The record that describes what the controller now holds, before `current/` says so;
+        // when it cannot be kept, the controller gets back what it held.
+        if let Err(e) = storage::write_record(&self.run_dir, &self.record) {
+            let undone = self.put_back().await;
+            return Err(Failure::error(
+                stage,
+                format!("the result was written to the controller but the run record could not be written: {e}; {undone}; free space in the storage directory (`[storage] dir`) and run again"),
+            ));
+        }
         if let Some(staged) = staged {
             match staged.commit() {
                 Ok(paths) => self.record.written.push(Written {
@@ -1171,14 +1299,23 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                         .join(", "),
                 }),
                 Err(e) => {
-                    return Err(Failure::error(
-                        stage,
-                        format!("the result was written to the controller but `current/` could not be replaced: {e}; the run's folder holds the result files"),
-                    ))
+                    let what = format!("`current/` could not be replaced after the result was written to the controller: {e}");
+                    let put_back = self.put_back().await;
+                    return Err(Failure::error(stage, format!("{what}; {put_back}")));
                 }
             }
         }
         Ok(())
+    }
+
+    /// Puts back what the controller held before the write-back (see [`put_back`]); on
+    /// success the record no longer lists the TCP and registers as written. Returns the
+    /// sentence for the run's reasons.
+    async fn put_back(&mut self) -> String {
+        let Some(previous) = self.previous.take() else {
+            return "nothing had been written to the controller".into();
+        };
+        restore_sentence(self.robot, &previous, &mut self.record).await
     }
 
     /// Moves back to the start when configured and the arm was commanded to move: from

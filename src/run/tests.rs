@@ -1273,6 +1273,83 @@ async fn issue_23_a_full_storage_moves_nothing_and_writes_nothing() {
     assert_eq!(fs.temporary_files(), Vec::<PathBuf>::new());
 }
 
+/// Issue 23: the controller took the TCP and the registers, then the disk filled before the
+/// record describing them could be written: the TCP read at preflight and the registers read
+/// before writing are written back, the error says so, `current/` stays as it was and no
+/// temporary file is left. Once space is freed the next run goes through.
+#[tokio::test]
+async fn issue_23_a_result_that_cannot_be_recorded_is_undone_on_the_controller() {
+    let Some(f) = fixture() else { return };
+    let Some(fs) = SmallFs::mount("run-undo", 64 << 20) else {
+        return;
+    };
+    let fs = Arc::new(fs);
+    let cfg = test_config(fs.path(), f.view);
+    let robot = calibrated_robot(f);
+    // What the controller held before: a tool's TCP and a pendant program's last result.
+    let before_tcp = Isometry3::new(Vector3::new(0.01, -0.02, 0.15), Vector3::new(0.0, 0.1, 0.0));
+    robot.set_tcp(&before_tcp).await.expect("tcp");
+    let before: [f64; 6] = [0.1, -0.2, 0.3, 0.04, -0.05, 0.06];
+    for (k, v) in before.iter().enumerate() {
+        robot
+            .write_double_register(DOUBLE_START + k as u32, *v)
+            .await
+            .expect("register");
+    }
+    robot
+        .write_int_register(SEQUENCE_INT, 7)
+        .await
+        .expect("seq");
+    // The disk fills the moment the controller has taken the new TCP.
+    let filler = Arc::clone(&fs);
+    robot.after_set_tcp(move || {
+        if !filler.path().join("filler").exists() {
+            filler.fill();
+        }
+    });
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let record = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+
+    assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
+    assert_eq!(record.failed_stage, Some(Stage::WriteBack));
+    let why = reasons(&record);
+    assert!(
+        why.contains("the run record could not be written")
+            && why.contains("undone")
+            && why.contains("the previous tcp")
+            && why.contains("were written back"),
+        "{why}"
+    );
+    assert!(record.written.is_empty(), "{:?}", record.written);
+    // The new TCP was taken, then the previous one put back: the controller is as before.
+    let history = robot.tcp_history();
+    assert_eq!(history.len(), 3, "{history:?}");
+    assert!(close(&history[1], &estimate(&record), 1e-9));
+    assert!(!close(&history[1], &before_tcp, 1e-3));
+    assert!(close(&robot.tcp(), &before_tcp, 1e-12), "{}", robot.tcp());
+    for (k, v) in before.iter().enumerate() {
+        let now = robot
+            .read_double_register(DOUBLE_START + k as u32)
+            .await
+            .expect("read");
+        assert_eq!(now, *v, "register {}", DOUBLE_START + k as u32);
+    }
+    // A new sequence number after the result's: a pendant program applies the old values.
+    assert_eq!(robot.read_int_register(SEQUENCE_INT).await.expect("seq"), 9);
+    assert!(
+        !fs.path().join(CURRENT_DIR).exists(),
+        "current/ was written"
+    );
+    assert_eq!(fs.temporary_files(), Vec::<PathBuf>::new());
+
+    fs.free();
+    robot.after_set_tcp(|| {});
+    let again = start(&robot, &camera, f, &cfg, RunMode::Calibrate, false).await;
+    assert_eq!(again.outcome, Outcome::Accepted, "{:?}", again.reasons);
+    assert!(close(&robot.tcp(), &estimate(&again), 1e-9));
+    assert!(fs.path().join(CURRENT_DIR).join("result.json").is_file());
+}
+
 /// Reports each stage to a closure (to act at a given point of a run).
 struct OnStage<F: Fn(Stage) + Send + Sync>(F);
 

@@ -1,7 +1,5 @@
 //! Tests for the cloud readers and writers: round trips over every encoding and type,
-//! one test per malformed-file error, and a seeded mutation fuzz loop with an allocation cap.
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
+//! one test per malformed-file error, and the `ply` and `pcd` fuzz targets (hal::fuzz).
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -12,53 +10,14 @@ use rand::{Rng, SeedableRng};
 
 use super::*;
 
-// ---------------------------------------------------------------- allocation tracking
-
-/// Passes every allocation to `System`, recording the largest single request made on a
-/// thread while that thread's tracking is on (only the fuzz test turns it on).
-struct TrackingAlloc;
-
-thread_local! {
-    static TRACK: Cell<bool> = const { Cell::new(false) };
-    static LARGEST: Cell<usize> = const { Cell::new(0) };
-}
-
-fn note(size: usize) {
-    if TRACK.try_with(Cell::get).unwrap_or(false) {
-        let _ = LARGEST.try_with(|l| l.set(l.get().max(size)));
-    }
-}
-
-// SAFETY: forwards to `System` unchanged; the bookkeeping only touches const-initialised
-// thread-locals (no allocation, no destructor).
-unsafe impl GlobalAlloc for TrackingAlloc {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        note(layout.size());
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        note(layout.size());
-        unsafe { System.alloc_zeroed(layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        note(new_size);
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static ALLOC: TrackingAlloc = TrackingAlloc;
-
-/// Runs `f` and returns its result with the largest single allocation it made.
+/// Largest single allocation `f` made on this thread (the test binary's allocator is
+/// `handeye_hal::fuzz::TrackingAlloc`, see `lib.rs`).
 fn largest_allocation<T>(f: impl FnOnce() -> T) -> (T, usize) {
-    LARGEST.with(|l| l.set(0));
-    TRACK.with(|t| t.set(true));
-    let r = f();
-    TRACK.with(|t| t.set(false));
-    (r, LARGEST.with(Cell::get))
+    let (r, largest) = handeye_hal::fuzz::largest_allocation(f);
+    (
+        r,
+        largest.expect("TrackingAlloc is the test binary's allocator"),
+    )
 }
 
 // ---------------------------------------------------------------- helpers
@@ -908,104 +867,50 @@ fn fuzz_seeds() -> Vec<Vec<u8>> {
     seeds
 }
 
-fn mutate(rng: &mut StdRng, seed: &[u8]) -> Vec<u8> {
-    let mut b = seed.to_vec();
-    for _ in 0..rng.random_range(1..=3) {
-        if b.is_empty() {
-            break;
-        }
-        let at = rng.random_range(0..b.len());
-        match rng.random_range(0..7) {
-            0 => b.truncate(at),
-            1 => b[at] ^= 1 << rng.random_range(0..8),
-            2 => b[at] = rng.random(),
-            3 => {
-                // Replace a decimal number (likely a header count) with an extreme one.
-                if let Some(d) = b[at..].iter().position(u8::is_ascii_digit) {
-                    let s = at + d;
-                    let e = s + b[s..].iter().take_while(|c| c.is_ascii_digit()).count();
-                    let big: &[u8] = [
-                        &b"4294967295"[..],
-                        b"18446744073709551615",
-                        b"0",
-                        b"99999999999999999999999",
-                        b"-1",
-                        b"65536",
-                    ][rng.random_range(0..6)];
-                    b.splice(s..e, big.iter().copied());
-                }
-            }
-            4 => {
-                let extra: Vec<u8> = (0..rng.random_range(1..16)).map(|_| rng.random()).collect();
-                b.splice(at..at, extra);
-            }
-            5 => {
-                // Duplicate or drop a line.
-                let e = at
-                    + b[at..]
-                        .iter()
-                        .position(|&c| c == b'\n')
-                        .unwrap_or(b.len() - at);
-                let line = b[at..e].to_vec();
-                if rng.random() {
-                    b.splice(at..at, line.into_iter().chain([b'\n']));
-                } else {
-                    b.drain(at..(e + 1).min(b.len()));
-                }
-            }
-            _ => {
-                let end = (at + rng.random_range(1..64)).min(b.len());
-                b.drain(at..end);
-            }
-        }
+/// Checks a parsed cloud's invariants: as many points as width × height, and every
+/// attribute one value per point.
+fn check_cloud(c: &PointCloud) -> Result<(), String> {
+    if c.points.len() as u64 != u64::from(c.width) * u64::from(c.height) {
+        return Err(format!(
+            "BUG: {} points for {} × {}",
+            c.points.len(),
+            c.width,
+            c.height
+        ));
     }
-    b
+    for a in [&c.intensity, &c.confidence].into_iter().flatten() {
+        assert_eq!(a.len(), c.points.len(), "attribute length");
+    }
+    Ok(())
 }
 
+/// Fuzz targets `ply` and `pcd` (hal::fuzz): mutated files of the format whose seeds `ply`
+/// selects are parsed or refused with a message, allocating at most 64 bytes per input byte
+/// (+64 KiB) at once; a parsed cloud is consistent.
+fn fuzz_cloud(name: &str, ply: bool) {
+    let seeds = fuzz_seeds()
+        .into_iter()
+        .filter(|s| s.starts_with(b"ply") == ply)
+        .collect();
+    handeye_hal::fuzz::Target::new(name, seeds)
+        .allocation_cap(64, 1 << 16)
+        .run(|b| {
+            read_cloud_bytes(b)
+                .map_err(|e| e.to_string())
+                .and_then(|c| check_cloud(&c))
+        });
+}
+
+/// Fuzz target `ply`: every encoding, property type and layout (grid, vertex lists, faces).
 #[test]
-fn fuzz_mutated_files_never_panic_or_over_allocate() {
-    let seeds = fuzz_seeds();
-    for s in &seeds {
-        read_cloud_bytes(s).unwrap_or_else(|e| panic!("seed must parse: {e}"));
-    }
-    let mut rng = StdRng::seed_from_u64(0x5eed_c10d);
-    let mut failures = 0usize;
-    let iterations = 6000;
-    for it in 0..iterations {
-        let seed = &seeds[it % seeds.len()];
-        let bytes = mutate(&mut rng, seed);
-        let (r, largest) = largest_allocation(|| read_cloud_bytes(&bytes));
-        // Outputs are at most ~20 bytes per input byte (ASCII "0 0 0\n" → 12-byte point);
-        // header bookkeeping is small.
-        let cap = 64 * bytes.len() + (1 << 16);
-        assert!(
-            largest <= cap,
-            "iteration {it}: allocated {largest} bytes for a {}-byte file",
-            bytes.len()
-        );
-        match r {
-            Ok(c) => {
-                assert_eq!(
-                    c.points.len() as u64,
-                    u64::from(c.width) * u64::from(c.height)
-                );
-                for a in [&c.intensity, &c.confidence].into_iter().flatten() {
-                    assert_eq!(a.len(), c.points.len());
-                }
-            }
-            Err(e) => {
-                failures += 1;
-                let msg = e.to_string();
-                assert!(!msg.is_empty());
-                assert_safe_message(&msg);
-            }
-        }
-    }
-    // The mutations must actually reach the error paths.
-    assert!(
-        failures > iterations / 4,
-        "only {failures} of {iterations} mutated files failed"
-    );
+fn fuzz_ply() {
+    fuzz_cloud("ply", true);
+}
+
+/// Fuzz target `pcd`: ASCII, binary and binary_compressed.
+#[test]
+fn fuzz_pcd() {
+    fuzz_cloud("pcd", false);
 }
 
 /// An error message fit for a terminal: bounded, and no control characters from the input.

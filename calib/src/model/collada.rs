@@ -38,8 +38,12 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         nodes_limit: MAX_XML_NODES,
         ..ParsingOptions::default()
     };
-    let doc = Document::parse_with_options(text, options)
-        .map_err(|e| format!("not well-formed XML: {e}"))?;
+    let doc = Document::parse_with_options(text, options).map_err(|e| {
+        format!(
+            "not well-formed XML: {}",
+            limits::sanitize_message(&e.to_string())
+        )
+    })?;
     let root = doc.root_element();
     if root.tag_name().name() != "COLLADA" {
         return Err(format!(

@@ -1202,20 +1202,26 @@ fn read_mesh(path: &Path, link: &str) -> Result<TriMesh, ModelError> {
     };
     limits::check_regular_file(path, MAX_MESH_FILE_BYTES).map_err(unreadable)?;
     let bytes = std::fs::read(path).map_err(unreadable)?;
+    parse_mesh(&bytes, &ext, path, link)
+}
+
+/// Parses the bytes of a mesh file of extension `ext` (`stl`, `obj` or `dae`, lower case);
+/// `path` and `link` name it in errors.
+fn parse_mesh(bytes: &[u8], ext: &str, path: &Path, link: &str) -> Result<TriMesh, ModelError> {
     let malformed = |reason: String| ModelError::MalformedMesh {
         link: link.to_string(),
         path: path.to_path_buf(),
         reason,
     };
-    let mesh = match ext.as_str() {
-        "dae" => collada::parse(&bytes).map_err(malformed)?,
+    let mesh = match ext {
+        "dae" => collada::parse(bytes).map_err(malformed)?,
         _ => {
             let loader = mesh_loader::Loader::default();
             let scene = if ext == "stl" {
-                loader.load_stl_from_slice(&bytes, path)
+                loader.load_stl_from_slice(bytes, path)
             } else {
                 // Materials are not needed: never read the .mtl files.
-                loader.load_obj_from_slice_with_reader(&bytes, path, |_| Ok(Vec::new()))
+                loader.load_obj_from_slice_with_reader(bytes, path, |_| Ok(Vec::new()))
             }
             .map_err(|e| malformed(limits::sanitize_message(&e.to_string())))?;
             from_scene(&scene).map_err(malformed)?

@@ -101,9 +101,10 @@ pub enum GigeError {
 
 impl GigeError {
     pub(crate) fn malformed(what: &'static str, detail: impl Into<String>) -> Self {
+        // A detail often quotes what the device sent: never pass its control characters on.
         Self::Malformed {
             what,
-            detail: detail.into(),
+            detail: handeye_hal::limits::sanitize_message(&detail.into()),
         }
     }
 

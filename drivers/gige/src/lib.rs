@@ -7,6 +7,11 @@
 //! (a simulated 3D camera that speaks the same protocols).
 #![deny(missing_docs)]
 
+/// Tests measure the largest allocation a parser makes (the fuzz targets' memory bound).
+#[cfg(test)]
+#[global_allocator]
+static ALLOC: handeye_hal::fuzz::TrackingAlloc = handeye_hal::fuzz::TrackingAlloc;
+
 pub mod camera;
 pub mod client;
 pub mod decode;

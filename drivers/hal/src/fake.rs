@@ -25,6 +25,19 @@ struct RobotState {
     registers: HashMap<u32, f64>,
     int_registers: HashMap<u32, i32>,
     output_int_registers: HashMap<u32, i32>,
+    /// Every TCP set, in order.
+    tcp_history: Vec<Isometry3<f64>>,
+    after_set_tcp: Option<Hook>,
+}
+
+/// A test's action run after a call (e.g. fill the disk once the controller took the TCP).
+#[derive(Clone)]
+struct Hook(Arc<dyn Fn() + Send + Sync>);
+
+impl std::fmt::Debug for Hook {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Hook")
+    }
 }
 
 /// A UR arm that moves instantly, records every commanded move and can be told to
@@ -66,6 +79,8 @@ impl FakeRobot {
             registers: HashMap::new(),
             int_registers: HashMap::new(),
             output_int_registers: HashMap::new(),
+            tcp_history: Vec::new(),
+            after_set_tcp: None,
         };
         Self {
             model,
@@ -131,6 +146,17 @@ impl FakeRobot {
     /// The TCP last set (`flange_from_tcp`).
     pub fn tcp(&self) -> Isometry3<f64> {
         self.lock().tcp
+    }
+
+    /// Every TCP set so far, in order.
+    pub fn tcp_history(&self) -> Vec<Isometry3<f64>> {
+        self.lock().tcp_history.clone()
+    }
+
+    /// Run `action` after every [`Robot::set_tcp`] (once the TCP is taken), e.g. to fill the
+    /// disk at that point of a run.
+    pub fn after_set_tcp(&self, action: impl Fn() + Send + Sync + 'static) {
+        self.lock().after_set_tcp = Some(Hook(Arc::new(action)));
     }
 }
 
@@ -207,7 +233,15 @@ impl Robot for FakeRobot {
     }
 
     async fn set_tcp(&self, flange_from_tcp: &Isometry3<f64>) -> Result<(), HalError> {
-        self.lock().tcp = *flange_from_tcp;
+        let hook = {
+            let mut s = self.lock();
+            s.tcp = *flange_from_tcp;
+            s.tcp_history.push(*flange_from_tcp);
+            s.after_set_tcp.clone()
+        };
+        if let Some(Hook(action)) = hook {
+            action();
+        }
         Ok(())
     }
 

@@ -13,6 +13,8 @@ mod cloud;
 mod error;
 #[cfg(feature = "fake")]
 pub mod fake;
+#[cfg(feature = "fuzz")]
+pub mod fuzz;
 pub mod limits;
 mod pose;
 mod robot;

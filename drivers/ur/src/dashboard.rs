@@ -437,20 +437,44 @@ mod tests {
         for bad in ["", "UR", "UR5x", "KUKA", "Robotmode: RUNNING"] {
             assert!(parse_robot_model(bad).is_err(), "{bad}");
         }
-        let mut rng = crate::rtde::tests::Lcg(11);
-        let seeds = [
-            "Robotmode: RUNNING",
-            "URSoftware 5.19.0.1210631 (Oct 23 2024)",
+    }
+
+    /// Issue 23 (found by the `dashboard` fuzz target): a control character in a reply was
+    /// echoed raw in the error.
+    #[test]
+    fn issue_23_reply_with_control_character_is_escaped() {
+        let msg = parse_robot_mode("\u{11}")
+            .expect_err("not a mode")
+            .to_string();
+        assert!(msg.contains("Robotmode"), "{msg}");
+        assert!(!msg.chars().any(char::is_control), "{msg:?}");
+    }
+
+    /// Fuzz target `dashboard` (hal::fuzz): mutated replies to `robotmode` and
+    /// `PolyscopeVersion` parse or are refused with a message.
+    #[test]
+    fn fuzz_dashboard_replies() {
+        let seeds = vec![
+            b"Robotmode: RUNNING".to_vec(),
+            b"URSoftware 5.19.0.1210631 (Oct 23 2024)".to_vec(),
+            b"20205500001".to_vec(),
+            b"UR16e".to_vec(),
         ];
-        for _ in 0..5000 {
-            let mut b = seeds[rng.below(2)].as_bytes().to_vec();
-            let i = rng.below(b.len());
-            b[i] = rng.next() as u8;
-            let s = String::from_utf8_lossy(&b);
-            let _ = parse_robot_mode(&s);
-            let _ = parse_polyscope_version(&s);
-            let _ = parse_serial_number(&s);
-            let _ = parse_robot_model(&s);
-        }
+        handeye_hal::fuzz::Target::new("dashboard", seeds).run(|b| {
+            let s = String::from_utf8_lossy(b);
+            if s.starts_with("URSoftware") {
+                parse_polyscope_version(&s)
+                    .map(|_| ())
+                    .map_err(|e| e.to_string())
+            } else if s.starts_with("Robotmode") {
+                parse_robot_mode(&s).map(|_| ()).map_err(|e| e.to_string())
+            } else if s.starts_with("UR") {
+                parse_robot_model(&s).map(|_| ()).map_err(|e| e.to_string())
+            } else {
+                parse_serial_number(&s)
+                    .map(|_| ())
+                    .map_err(|e| e.to_string())
+            }
+        });
     }
 }

@@ -66,9 +66,10 @@ pub enum UrError {
 impl UrError {
     #[allow(dead_code)]
     pub(crate) fn malformed(protocol: &'static str, detail: impl Into<String>) -> Self {
+        // A detail often quotes what the peer sent: never pass its control characters on.
         UrError::Malformed {
             protocol,
-            detail: detail.into(),
+            detail: handeye_hal::limits::sanitize_message(&detail.into()),
         }
     }
 

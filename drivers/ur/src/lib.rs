@@ -11,6 +11,11 @@
 //!   converts it; the core uses it too).
 #![deny(missing_docs)]
 
+/// Tests measure the largest allocation a parser makes (the fuzz targets' memory bound).
+#[cfg(test)]
+#[global_allocator]
+static ALLOC: handeye_hal::fuzz::TrackingAlloc = handeye_hal::fuzz::TrackingAlloc;
+
 pub mod client;
 pub mod dashboard;
 mod error;

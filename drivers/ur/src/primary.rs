@@ -647,8 +647,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn round_trips_and_fuzz() {
+    /// One package of every kind (robot states with the calibrated kinematics `.1` and the
+    /// nominal ones, both in mode `.2`): the round trips' cases and the fuzz target's seeds.
+    fn packages() -> (Vec<Vec<u8>>, KinematicsInfo, RobotModeData) {
         let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
         let kin = KinematicsInfo::for_arm(
             handeye_hal::ur_dh::PhysicalArm::factory(handeye_hal::ur_dh::UrModel::Ur5e, 7)
@@ -662,7 +663,7 @@ mod tests {
             robot_mode: 7,
             ..Default::default()
         };
-        let seeds = [
+        let seeds = vec![
             encode_version(1, 5, 11, 1, 108318),
             encode_text(1, "hello"),
             encode_key(1, 0, "PROGRAM_XXX_STARTED", "prog"),
@@ -671,6 +672,13 @@ mod tests {
             encode_robot_state(&state(m, [0.1; 6], kin)),
             encode_robot_state(&state(m, [-0.2; 6], KinematicsInfo::for_arm(nominal, 0))),
         ];
+        (seeds, kin, m)
+    }
+
+    #[test]
+    fn round_trips() {
+        let nominal = handeye_hal::ur_dh::UrModel::Ur5e.dh();
+        let (seeds, kin, m) = packages();
         assert!(
             seeds[5].len() < 2000,
             "python-urx drops packages of 2000 bytes or more"
@@ -743,27 +751,29 @@ mod tests {
         );
         assert!(split(&kinematics_only(-1)).is_err());
         assert!(split(&kinematics_only(-(KinematicsInfo::SIZE as isize))).is_err());
-        let mut rng = crate::rtde::tests::Lcg(7);
-        for _ in 0..20_000 {
-            let mut b = seeds[rng.below(seeds.len())].clone();
-            for _ in 0..=rng.below(3) {
-                let i = rng.below(b.len());
-                match rng.below(3) {
-                    0 => b[i] = rng.next() as u8,
-                    1 => b.truncate(i),
-                    _ => b.insert(i, rng.next() as u8),
+    }
+
+    /// Fuzz target `primary` (hal::fuzz): mutated primary-interface packages (version, text,
+    /// key, error code, runtime exception, robot states with and without calibrated
+    /// kinematics) split into a package, wait for more bytes, or are refused with a message; a
+    /// robot state that decodes carries whole sub-packages.
+    #[test]
+    fn fuzz_primary() {
+        let (seeds, _, _) = packages();
+        handeye_hal::fuzz::Target::new("primary", seeds)
+            .allocation_cap(16, 1 << 16)
+            .run(|b| {
+                match split(b).map_err(|e| e.to_string())? {
+                    Some((PrimaryPackage::RobotState { kinematics, .. }, n)) => {
+                        assert!(n <= b.len());
+                        if let Some(k) = kinematics {
+                            let _ = k.to_controller_kinematics().is_finite();
+                        }
+                    }
+                    Some((_, n)) => assert!(n <= b.len()),
+                    None => {}
                 }
-                if b.is_empty() {
-                    break;
-                }
-            }
-            // Never a panic; a robot state that still decodes carries whole sub-packages.
-            if let Ok(Some((PrimaryPackage::RobotState { kinematics, .. }, n))) = split(&b) {
-                assert!(n <= b.len());
-                if let Some(k) = kinematics {
-                    let _ = k.to_controller_kinematics().is_finite();
-                }
-            }
-        }
+                Ok::<(), String>(())
+            });
     }
 }

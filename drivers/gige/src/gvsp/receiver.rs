@@ -31,7 +31,8 @@ pub struct StreamConfig {
     pub recv_buffer: usize,
     /// Largest block accepted (bytes); bounds memory against hostile packets.
     pub max_frame_bytes: usize,
-    /// Frames assembled at once; the oldest is closed when a new one would exceed this.
+    /// Frames assembled at once; the oldest is closed when a new one would exceed this. Also
+    /// how many finished frames wait to be read (the oldest is dropped beyond it).
     pub max_frames_in_flight: usize,
 }
 
@@ -86,6 +87,9 @@ pub struct StreamStats {
     pub resend_requested: u64,
     /// Packets ignored (malformed, duplicate, late).
     pub ignored_packets: u64,
+    /// Finished frames dropped unread, oldest first, because more than `max_frames_in_flight`
+    /// were waiting to be read (a device sending faster than frames are taken).
+    pub dropped_frames: u64,
 }
 
 #[derive(Debug)]
@@ -103,6 +107,21 @@ pub(super) struct Asm {
     resent: u32,
     last_packet: Instant,
     seq: u64,
+}
+
+/// Zero-extends `buf` to `len` bytes, `len` within the frame budget `max`. Capacity grows by
+/// doubling, as `Vec` does, but never past `max`: a frame assembled from out-of-order packets
+/// holds at most its budget, where `Vec`'s own doubling could reserve up to twice it (found by
+/// the `gvsp` fuzz target).
+fn grow_to(buf: &mut Vec<u8>, len: usize, max: usize) {
+    if buf.len() >= len {
+        return;
+    }
+    if buf.capacity() < len {
+        let target = buf.capacity().saturating_mul(2).clamp(len, max.max(len));
+        buf.reserve_exact(target - buf.len());
+    }
+    buf.resize(len, 0);
 }
 
 impl Asm {
@@ -127,21 +146,19 @@ impl Asm {
     /// Size the buffers from the leader once, so payload packets are copied straight to their
     /// offset without growing vectors (fresh zeroed allocations are mapped lazily, so memory
     /// is only committed as packets arrive).
-    fn preallocate(&mut self, data_per: usize) {
+    fn preallocate(&mut self, data_per: usize, max: usize) {
         let Some(l) = &self.leader else { return };
-        let grow = |buf: &mut Vec<u8>, len: usize| {
-            if buf.is_empty() {
-                *buf = vec![0; len];
-            } else if buf.len() < len {
-                buf.resize(len, 0);
-            }
-        };
+        // The leader's lengths were checked against the frame budget.
         if l.payload_type == PAYLOAD_MULTIPART {
             for (i, p) in l.parts.iter().enumerate() {
-                grow(self.parts.entry(i as u8).or_default(), p.length as usize);
+                grow_to(
+                    self.parts.entry(i as u8).or_default(),
+                    p.length as usize,
+                    max,
+                );
             }
         } else if let Some(p) = l.parts.first() {
-            grow(&mut self.generic, p.length as usize);
+            grow_to(&mut self.generic, p.length as usize, max);
         }
         if let Some(n) = self.expected(data_per) {
             if self.received.len() < n as usize {
@@ -377,7 +394,7 @@ impl StreamReceiver {
             FORMAT_LEADER => match Leader::parse(&h, body) {
                 Ok(l) if l.parts.iter().map(|p| p.length).sum::<u64>() <= max_bytes as u64 => {
                     f.leader = Some(l);
-                    f.preallocate(data_per);
+                    f.preallocate(data_per, max_bytes);
                     true
                 }
                 Ok(_) => false,
@@ -395,9 +412,7 @@ impl StreamReceiver {
                 if off + body.len() > max_bytes {
                     false
                 } else {
-                    if f.generic.len() < off + body.len() {
-                        f.generic.resize(off + body.len(), 0);
-                    }
+                    grow_to(&mut f.generic, off + body.len(), max_bytes);
                     f.generic[off..off + body.len()].copy_from_slice(body);
                     true
                 }
@@ -411,9 +426,7 @@ impl StreamReceiver {
                 } else {
                     let off = off as usize;
                     let buf = f.parts.entry(part).or_default();
-                    if buf.len() < off + d.len() {
-                        buf.resize(off + d.len(), 0);
-                    }
+                    grow_to(buf, off + d.len(), max_bytes);
                     buf[off..off + d.len()].copy_from_slice(d);
                     true
                 }
@@ -590,6 +603,12 @@ impl StreamReceiver {
             missing_packets: missing,
             received: Instant::now(),
         });
+        // Finished frames wait for `next_frame`; one call handles a whole batch of packets,
+        // so a device sending many small frames could otherwise queue them without end.
+        while self.ready.len() > self.cfg.max_frames_in_flight.max(1) {
+            self.ready.pop_front();
+            self.stats.dropped_frames += 1;
+        }
     }
 }
 

@@ -2,7 +2,6 @@ use std::net::{Ipv4Addr, UdpSocket};
 use std::time::{Duration, Instant};
 
 use super::*;
-use rand::{Rng, SeedableRng};
 
 fn block(id: u64, multipart: bool) -> Block {
     let w = 40;
@@ -137,34 +136,76 @@ fn lost_packets_are_detected_and_frame_closes_incomplete() {
     assert_eq!(f.missing_packets, 1);
 }
 
+/// Fuzz target `gvsp` (hal::fuzz): mutated leader, payload and trailer packets (single- and
+/// multi-part, standard and extended ids) fed to one receiver: a header and leader parse or
+/// are refused with a message; the receiver never holds more frames than its budget and lets
+/// every one go.
 #[test]
-fn fuzz_gvsp_parsers_never_panic() {
-    let mut rng = rand::rngs::StdRng::seed_from_u64(0x65e5);
+fn fuzz_gvsp() {
     let mut seeds = packetize(&block(3, false), 400, false).expect("p");
     seeds.extend(packetize(&block(4, true), 400, true).expect("p"));
     let mut r = receiver(true, true);
     let now = Instant::now();
-    for i in 0..30_000 {
-        let mut b = seeds[i % seeds.len()].clone();
-        match rng.random_range(0..3) {
-            0 => b.truncate(rng.random_range(0..=b.len())),
-            1 => {
-                for _ in 0..rng.random_range(1..8) {
-                    let j = rng.random_range(0..b.len().clamp(1, 80));
-                    if let Some(x) = b.get_mut(j) {
-                        *x = rng.random();
-                    }
-                }
+    // A frame's buffers stay within the receiver's budget (1 MiB here), whatever the packets.
+    handeye_hal::fuzz::Target::new("gvsp", seeds)
+        .allocation_cap(0, r.cfg.max_frame_bytes)
+        .run(|b| {
+            r.handle(b, now);
+            assert!(r.frames.len() <= r.cfg.max_frames_in_flight.max(1));
+            assert!(r.ready.len() <= r.cfg.max_frames_in_flight.max(1));
+            let (h, body) = Header::parse(b).map_err(|e| e.to_string())?;
+            if h.format == FORMAT_LEADER {
+                Leader::parse(&h, body).map_err(|e| e.to_string())?;
             }
-            _ => {}
-        }
-        if let Ok((h, body)) = Header::parse(&b) {
-            let _ = Leader::parse(&h, body);
-        }
-        r.handle(&b, now);
-    }
+            Ok::<(), String>(())
+        });
     r.housekeeping(now + Duration::from_secs(5));
     assert!(r.frames.is_empty());
+}
+
+/// Issue 23 (found by the `gvsp` fuzz target): payload packets of a frame whose leader was
+/// refused (or lost) grew its buffer by `Vec`'s doubling, reserving up to twice the frame
+/// budget; now never more than the budget.
+#[test]
+fn issue_23_frame_buffer_never_reserves_past_the_budget() {
+    let budget = 10_000;
+    let mut r = receiver(false, false);
+    r.cfg.max_frame_bytes = budget;
+    let packets = packetize(&block(3, false), 400, false).expect("p");
+    let now = Instant::now();
+    let (_, largest) = handeye_hal::fuzz::largest_allocation(|| {
+        for p in &packets {
+            let (h, _) = Header::parse(p).expect("header");
+            // The 14 400-byte frame's leader is over budget: only its payload packets.
+            if h.format == FORMAT_PAYLOAD {
+                r.handle(p, now);
+            }
+        }
+    });
+    let largest = largest.expect("TrackingAlloc is the test binary's allocator");
+    assert!(
+        largest <= budget,
+        "reserved {largest} bytes for a {budget}-byte budget"
+    );
+}
+
+/// Issue 23 (found by the `gvsp` fuzz target): finished frames nobody read yet queued without
+/// end; now at most `max_frames_in_flight` wait, the oldest dropped and counted.
+#[test]
+fn issue_23_unread_frames_are_bounded() {
+    let mut r = receiver(false, false);
+    let now = Instant::now();
+    for id in 1..=40 {
+        for p in packetize(&block(id, false), 400, false).expect("p") {
+            r.handle(&p, now);
+        }
+    }
+    let cap = r.cfg.max_frames_in_flight;
+    assert_eq!(r.ready.len(), cap);
+    assert_eq!(r.stats().complete_frames, 40);
+    assert_eq!(r.stats().dropped_frames, 40 - cap as u64);
+    // The newest are kept.
+    assert_eq!(r.ready.back().map(|f| f.block_id), Some(40));
 }
 
 /// Issue 16: structure-aware huge counts — every 16- and 32-bit field of a leader, data
