@@ -128,7 +128,8 @@ pub(crate) fn start_daemon(dir: &TempDir, name: &str, config: &Path) -> Daemon {
     d
 }
 
-/// Polls `/api/status` until `done` holds for it.
+/// Polls `/api/status` until `done` holds for it (a daemon that has logged its start may not
+/// listen yet: a refused connection is tried again until `limit`).
 pub(crate) fn wait_status(
     api: &str,
     limit: Duration,
@@ -137,6 +138,14 @@ pub(crate) fn wait_status(
 ) -> serde_json::Value {
     let deadline = Instant::now() + limit;
     loop {
+        if TcpStream::connect(api).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "{what}: no API at {api} within {limit:?}"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+            continue;
+        }
         let (code, body) = http(api, "GET", "/api/status", None);
         if code == 200 {
             let st = json(&body);
