@@ -12,6 +12,7 @@ use serde::Serialize;
 use handeye_hal::ur_dh::PhysicalArm;
 
 use crate::calib::pipeline::{calibrate_frames, Frame, PipelineOptions};
+use crate::calib::register::elapsed_ms;
 use crate::calib::{GateThresholds, Mount, Outcome, Quality, RegisterOptions};
 use crate::model::{KinematicError, RobotModel};
 use crate::plan::{PlanError, ViewConstraints, ViewPlanner};
@@ -425,7 +426,7 @@ pub fn run_trial(
             return trial;
         }
     };
-    trial.simulate_ms = ms(t0);
+    trial.simulate_ms = elapsed_ms(t0);
     let frame = Frame {
         view: 0,
         cloud: scan.cloud,
@@ -470,10 +471,6 @@ pub fn run_trial(
     trial.outcome = calibration.verdict.outcome;
     trial.reasons = calibration.verdict.reasons;
     trial
-}
-
-fn ms(since: Instant) -> f64 {
-    since.elapsed().as_secs_f64() * 1e3
 }
 
 #[cfg(test)]

@@ -33,6 +33,7 @@ use handeye_hal::{
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
+use crate::calib::register::elapsed_ms;
 use crate::calib::Mount;
 use crate::config::{Config, KinematicsSource, ViewTargets};
 use crate::frames::to_row_major;
@@ -166,10 +167,6 @@ async fn cancellable<T>(
         _ = cancel.cancelled() => Err(Failure::cancelled(stage)),
         r = fut => r,
     }
-}
-
-fn ms(since: Instant) -> f64 {
-    since.elapsed().as_secs_f64() * 1e3
 }
 
 /// Position and rotation difference of two poses of the same unknown: mm, degrees.
@@ -365,7 +362,7 @@ async fn execute<R: Robot, C: DepthCamera>(
             cx.return_to_start().await;
         }
     }
-    cx.record.timings_ms.total = ms(t0);
+    cx.record.timings_ms.total = elapsed_ms(t0);
     (cx.record, cx.picture)
 }
 
@@ -394,13 +391,13 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         self.progress
             .stage(Stage::Preflight, "checking robot and camera");
         let (controller_dh, reference) = self.preflight().await?;
-        self.record.timings_ms.preflight = ms(t);
+        self.record.timings_ms.preflight = elapsed_ms(t);
 
         let t = Instant::now();
         self.progress
             .stage(Stage::Plan, "choosing views and checking paths");
         self.plan()?;
-        self.record.timings_ms.plan = ms(t);
+        self.record.timings_ms.plan = elapsed_ms(t);
         if self.req.dry_run {
             self.record.outcome = Outcome::Planned;
             return Ok(());
@@ -442,7 +439,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             .map(|r| r.timings_ms.total)
             .sum();
         self.record.timings_ms.register = reg_ms;
-        self.record.timings_ms.solve = (ms(t) - reg_ms).max(0.0);
+        self.record.timings_ms.solve = (elapsed_ms(t) - reg_ms).max(0.0);
         self.progress.stage(
             Stage::Solve,
             if calibration.verdict.passed() {
@@ -481,7 +478,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 let t = Instant::now();
                 self.progress.stage(Stage::WriteBack, "writing the result");
                 let written = self.write_back(&unknown).await;
-                self.record.timings_ms.write_back = ms(t);
+                self.record.timings_ms.write_back = elapsed_ms(t);
                 written?;
             }
         }
@@ -909,7 +906,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     .move_to(q, Stage::Move, &format!("move to view {}", v + 1))
                     .await;
                 // Also an aborted move took its time.
-                self.record.timings_ms.moves += ms(t);
+                self.record.timings_ms.moves += elapsed_ms(t);
                 moved?;
                 self.links_intact(Stage::Move)?;
             }
@@ -922,7 +919,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 Ok(())
             })
             .await?;
-            self.record.timings_ms.settle += ms(t);
+            self.record.timings_ms.settle += elapsed_ms(t);
 
             let t = Instant::now();
             let n = self.cfg.camera.capture.frames;
@@ -932,7 +929,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             );
             let (capture, clouds) = self.capture(v).await?;
             self.links_intact(Stage::Capture)?;
-            self.record.timings_ms.capture += ms(t);
+            self.record.timings_ms.capture += elapsed_ms(t);
             let base_from_flange = crate::frames::from_row_major(&capture.base_from_flange)
                 .unwrap_or_else(Isometry3::identity);
             let mut record = capture;
@@ -1362,7 +1359,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             Ok(()) => self.record.returned_to_start = true,
             Err(f) => self.record.reasons.push(f.message),
         }
-        self.record.timings_ms.return_move = ms(t);
+        self.record.timings_ms.return_move = elapsed_ms(t);
     }
 }
 
