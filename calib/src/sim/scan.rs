@@ -265,6 +265,7 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
     let (w, h) = (image.width, image.height);
     let depth = &image.depth;
     let ripple = &Ripple::new(noise, seed, w, h);
+    let multipath = &multipath_shares(image, intr, noise.multipath_window_px, noise.multipath_m);
     let points: Vec<Point3<f32>> = (0..h)
         .into_par_iter()
         .flat_map_iter(|v| {
@@ -292,7 +293,7 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
                 {
                     return nan;
                 }
-                let mut z = z;
+                let mut z = z + multipath.get(i).map_or(0.0, |share| share * noise.multipath_m);
                 if noise.flying_pixel_probability > 0.0 {
                     if let Some(other) =
                         edge_neighbour(depth, w, h, u, v, noise.flying_pixel_edge_m)
@@ -386,6 +387,75 @@ impl Ripple {
         // RIPPLE_WAVES unit cosines with independent phases: variance RIPPLE_WAVES / 2.
         self.sigma_at_1m_m * z * z * sum * (2.0 / RIPPLE_WAVES as f64).sqrt()
     }
+}
+
+/// Smallest cosine between a surface's normal and the direction to another surface for the two
+/// to face each other (10° above the surface's plane): points of one plane never face each
+/// other.
+const MULTIPATH_FACING_COS: f64 = 0.17;
+
+/// Per pixel, the share of its neighbours within `window_px` (a sparse grid of at most 9 × 9
+/// samples) whose surfaces face its surface and that its surface faces: the light those
+/// surfaces bounce onto it is the multipath of [`ScanNoise::multipath_m`]. Empty when
+/// `multipath_m` is 0 (nothing to compute).
+fn multipath_shares(
+    image: &DepthImage,
+    intr: &Intrinsics,
+    window_px: f64,
+    multipath_m: f64,
+) -> Vec<f64> {
+    if multipath_m == 0.0 {
+        return Vec::new();
+    }
+    let (w, h) = (image.width, image.height);
+    let reach = window_px.round().max(1.0) as i64;
+    let stride = (reach / 4).max(1);
+    let point = |i: usize| {
+        let z = image.depth[i];
+        z.is_finite()
+            .then(|| intr.ray((i % w) as f64, (i / w) as f64) * z)
+    };
+    let normal = |i: usize| image.normal[i].cast::<f64>();
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|v| {
+            (0..w).map(move |u| {
+                let i = v * w + u;
+                let Some(p) = point(i) else {
+                    return 0.0;
+                };
+                let n = normal(i);
+                let (mut facing, mut seen) = (0usize, 0usize);
+                for dv in (-reach..=reach).step_by(stride as usize) {
+                    for du in (-reach..=reach).step_by(stride as usize) {
+                        let (x, y) = (u as i64 + du, v as i64 + dv);
+                        if (du, dv) == (0, 0) || x < 0 || y < 0 || x >= w as i64 || y >= h as i64
+                        {
+                            continue;
+                        }
+                        let j = y as usize * w + x as usize;
+                        let Some(q) = point(j) else {
+                            continue;
+                        };
+                        seen += 1;
+                        let Some(d) = (q - p).try_normalize(1e-9) else {
+                            continue;
+                        };
+                        if n.dot(&d) > MULTIPATH_FACING_COS
+                            && -normal(j).dot(&d) > MULTIPATH_FACING_COS
+                        {
+                            facing += 1;
+                        }
+                    }
+                }
+                if seen == 0 {
+                    0.0
+                } else {
+                    facing as f64 / seen as f64
+                }
+            })
+        })
+        .collect()
 }
 
 /// The depth of a 4-neighbour across a depth edge (finite, differing by more than `edge_m`).
