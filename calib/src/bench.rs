@@ -653,7 +653,10 @@ mod tests {
         let plan = plan_trials(&model, &cfg).expect("views");
         let (near, far) = FIXED_CAMERA_DISTANCE_M;
         let d = plan.mount.translation.vector.norm();
-        assert!(d > near - 0.1 && d < far + 0.5, "camera {d} m from the base");
+        assert!(
+            d > near - 0.1 && d < far + 0.5,
+            "camera {d} m from the base"
+        );
         let summary = run_robot(&model, &cfg, |t| {
             eprintln!(
                 "view {}: {:?} {:.3} mm {:.4}° {:?}",

@@ -347,7 +347,8 @@ impl ScanNoise {
 
     /// A noisy depth for a true depth `z` (metres) seen at `incidence_rad`.
     pub(crate) fn noisy_depth(&self, z: f64, incidence_rad: f64, rng: &mut impl Rng) -> f64 {
-        let sigma = self.depth_sigma_at_1m_m * self.distance_factor(z) / incidence_rad.cos().max(0.2);
+        let sigma =
+            self.depth_sigma_at_1m_m * self.distance_factor(z) / incidence_rad.cos().max(0.2);
         let n = if sigma > 0.0 {
             Normal::new(0.0, sigma).map_or(0.0, |d| d.sample(rng))
         } else {

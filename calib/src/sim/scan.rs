@@ -293,7 +293,9 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
                 {
                     return nan;
                 }
-                let mut z = z + multipath.get(i).map_or(0.0, |share| share * noise.multipath_m);
+                let mut z = z + multipath
+                    .get(i)
+                    .map_or(0.0, |share| share * noise.multipath_m);
                 if noise.flying_pixel_probability > 0.0 {
                     if let Some(other) =
                         edge_neighbour(depth, w, h, u, v, noise.flying_pixel_edge_m)
@@ -429,8 +431,7 @@ fn multipath_shares(
                 for dv in (-reach..=reach).step_by(stride as usize) {
                     for du in (-reach..=reach).step_by(stride as usize) {
                         let (x, y) = (u as i64 + du, v as i64 + dv);
-                        if (du, dv) == (0, 0) || x < 0 || y < 0 || x >= w as i64 || y >= h as i64
-                        {
+                        if (du, dv) == (0, 0) || x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
                             continue;
                         }
                         let j = y as usize * w + x as usize;
@@ -671,7 +672,10 @@ mod tests {
     /// A 2 m square quad through `corners` (counter-clockwise).
     fn quad(corners: [[f64; 3]; 4]) -> TriMesh {
         TriMesh {
-            vertices: corners.iter().map(|c| Point3::new(c[0], c[1], c[2])).collect(),
+            vertices: corners
+                .iter()
+                .map(|c| Point3::new(c[0], c[1], c[2]))
+                .collect(),
             triangles: vec![[0, 1, 2], [0, 2, 3]],
         }
     }
@@ -699,10 +703,7 @@ mod tests {
             .filter(|(a, _)| a.x.is_finite())
             .map(|(a, b)| {
                 let world = model_from_camera * a.cast::<f64>();
-                (
-                    world.x.hypot(world.z),
-                    f64::from(b.z) - f64::from(a.z),
-                )
+                (world.x.hypot(world.z), f64::from(b.z) - f64::from(a.z))
             })
             .collect()
     }

@@ -46,8 +46,8 @@ impl SimSettings {
     /// [`Intrinsics::preset_class`] and [`ScanNoise::of_class`]); an unknown name gets the
     /// structured-light defaults.
     pub fn for_camera(camera: &str) -> Self {
-        let noise = Intrinsics::preset_class(camera)
-            .map_or_else(ScanNoise::default, ScanNoise::of_class);
+        let noise =
+            Intrinsics::preset_class(camera).map_or_else(ScanNoise::default, ScanNoise::of_class);
         Self {
             noise,
             ..Self::default()
@@ -110,7 +110,10 @@ mod tests {
             ScanNoise::time_of_flight()
         );
         assert_eq!(SimSettings::for_camera("compact"), SimSettings::default());
-        assert_eq!(SimSettings::for_camera("zivid2-m60"), SimSettings::default());
+        assert_eq!(
+            SimSettings::for_camera("zivid2-m60"),
+            SimSettings::default()
+        );
     }
 
     #[test]
