@@ -5,7 +5,6 @@
 //! arm's poses) or eye-to-hand (a camera fixed in the cell 0.8–2.0 m from the base, the views
 //! are random arm configurations in its field of view).
 
-use std::f64::consts::PI;
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -17,7 +16,7 @@ use handeye_hal::ur_dh::PhysicalArm;
 use crate::calib::pipeline::{calibrate_frames, Frame, PipelineOptions};
 use crate::calib::{GateThresholds, Mount, Outcome, Quality, RegisterOptions};
 use crate::model::{KinematicError, RobotModel};
-use crate::plan::{PlanError, ViewConstraints, ViewPlanner};
+use crate::plan::{differs_from_all, random_joints, PlanError, ViewConstraints, ViewPlanner};
 use crate::sim::{look_at, simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 
 /// A result off by more than this is wrong (and must have been rejected), mm.
@@ -491,17 +490,10 @@ pub fn arm_configurations_in_view(
     let mut tries = 0;
     while views.len() < cfg.views && tries < max_tries {
         tries += 1;
-        let q: Vec<f64> = model
-            .joint_limits()
-            .iter()
-            .map(|l| rng.random_range(l.lower.max(-PI)..=l.upper.min(PI)))
-            .collect();
-        let far_enough = views.iter().all(|v| {
-            v.iter()
-                .zip(&q)
-                .any(|(a, b)| (a - b).abs() >= constraints.min_joint_change_rad)
-        });
-        if !far_enough || planner.check_motion(&q)?.is_err() {
+        let q = random_joints(model, &mut rng);
+        if !differs_from_all(&views, &q, constraints.min_joint_change_rad)
+            || planner.check_motion(&q)?.is_err()
+        {
             continue;
         }
         let origins: Vec<Point3<f64>> = model
