@@ -89,6 +89,16 @@ impl std::str::FromStr for BenchKinematics {
 }
 
 impl BenchConfig {
+    /// The defaults for a camera mounted as `mount`, with the registration tuning the pipeline
+    /// uses for it ([`PipelineOptions::new`]: eye-to-hand fits every link in view).
+    pub fn new(mount: Mount) -> Self {
+        Self {
+            mount,
+            register: PipelineOptions::new(mount).register,
+            ..Self::default()
+        }
+    }
+
     /// The simulated scan of one trial: `model` at `joints`, the camera at `mount`
     /// (eye-in-hand: `flange_from_camera`; eye-to-hand: `model_from_camera`, see
     /// [`TrialPlan::mount`]), this configuration's camera and simulator settings.
@@ -130,18 +140,6 @@ impl BenchConfig {
             &e.joint_sizes(),
             view_seed ^ ARM_SEED,
         ))
-    }
-}
-
-impl BenchConfig {
-    /// The defaults for a camera mounted as `mount`, with the registration tuning the pipeline
-    /// uses for it ([`PipelineOptions::new`]: eye-to-hand fits every link in view).
-    pub fn new(mount: Mount) -> Self {
-        Self {
-            mount,
-            register: PipelineOptions::new(mount).register,
-            ..Self::default()
-        }
     }
 }
 
