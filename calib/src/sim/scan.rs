@@ -338,6 +338,9 @@ struct Ripple {
     sigma_at_1m_m: f64,
 }
 
+/// The angle of a wave `(ku, kv, phase)` at a column or row coordinate.
+type WaveAngle = dyn Fn(f64, &(f64, f64, f64)) -> f64;
+
 /// Plane waves summed into the ripple field: enough for its values to look Gaussian and its
 /// blobs irregular; each pixel costs two multiplications per wave.
 const RIPPLE_WAVES: usize = 32;
@@ -357,7 +360,7 @@ impl Ripple {
             )
         });
         // cos and sin of each wave's angle at every column (u) or row (v); none when off.
-        let table = |n: usize, angle: &dyn Fn(f64, &(f64, f64, f64)) -> f64| {
+        let table = |n: usize, angle: &WaveAngle| {
             let n = if off { 0 } else { n };
             (0..n)
                 .map(|i| {
