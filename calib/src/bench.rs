@@ -2,7 +2,7 @@
 //! that look at the base (joint changes ≥ 20° between them), several scans per view with
 //! realistic imperfections, registration without any prior, the hand-eye solve and the gate;
 //! errors against the simulator's ground truth. Eye-in-hand (a wrist camera, the views are the
-//! arm's poses) or eye-to-hand (a camera fixed in the cell 0.8–2.0 m from the base, the views
+//! arm's poses) or eye-to-hand (a camera fixed in the cell 0.8–2.0 m from the arm, the views
 //! are random arm configurations in its field of view).
 
 use std::time::Instant;
@@ -413,8 +413,9 @@ pub fn plan_trials(model: &RobotModel, cfg: &BenchConfig) -> Result<TrialPlan, P
     })
 }
 
-/// Nearest and farthest distance of the fixed camera of an eye-to-hand benchmark from the base,
-/// metres (a camera on a stand or the cell's frame, seeing the whole arm).
+/// Nearest and farthest distance of the fixed camera of an eye-to-hand benchmark from the point
+/// it looks at (a third of the arm's reach above the base), metres: a camera on a stand or the
+/// cell's frame, seeing the whole arm.
 pub const FIXED_CAMERA_DISTANCE_M: (f64, f64) = (0.8, 2.0);
 
 /// How far the arm reaches from its base (metres): the farthest link origin at all-zero
