@@ -1,11 +1,13 @@
 //! The accuracy benchmark of the paper's protocol on simulated scans: per robot, random views
 //! that look at the base (joint changes ≥ 20° between them), several scans per view with
 //! realistic imperfections, registration without any prior, the hand-eye solve and the gate;
-//! errors against the simulator's ground truth.
+//! errors against the simulator's ground truth. Eye-in-hand (a wrist camera, the views are the
+//! arm's poses) or eye-to-hand (a camera fixed in the cell 0.8–2.0 m from the arm, the views
+//! are random arm configurations in its field of view).
 
 use std::time::Instant;
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
@@ -15,8 +17,8 @@ use crate::calib::pipeline::{calibrate_frames, Frame, PipelineOptions};
 use crate::calib::register::elapsed_ms;
 use crate::calib::{GateThresholds, Mount, Outcome, Quality, RegisterOptions};
 use crate::model::{KinematicError, RobotModel};
-use crate::plan::{PlanError, ViewConstraints, ViewPlanner};
-use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
+use crate::plan::{differs_from_all, random_joints, PlanError, ViewConstraints, ViewPlanner};
+use crate::sim::{look_at, simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 
 /// A result off by more than this is wrong (and must have been rejected), mm.
 pub const WRONG_TRANSLATION_MM: f64 = 2.0;
@@ -42,6 +44,9 @@ pub struct BenchConfig {
     pub seed: u64,
     /// Whether the solver is given the arm's calibrated kinematics (UR arms).
     pub kinematics: BenchKinematics,
+    /// Wrist camera (the unknown is `flange_from_camera`) or a camera fixed in the cell (the
+    /// unknown is `base_from_camera`).
+    pub mount: Mount,
 }
 
 /// What the solver knows of the simulated arm's kinematics.
@@ -85,8 +90,19 @@ impl std::str::FromStr for BenchKinematics {
 }
 
 impl BenchConfig {
-    /// The simulated eye-in-hand scan of one trial: `model` at `joints`, the camera at `mount`
-    /// (`flange_from_camera`), this configuration's camera and simulator settings.
+    /// The defaults for a camera mounted as `mount`, with the registration tuning the pipeline
+    /// uses for it ([`PipelineOptions::new`]: eye-to-hand fits every link in view).
+    pub fn new(mount: Mount) -> Self {
+        Self {
+            mount,
+            register: PipelineOptions::new(mount).register,
+            ..Self::default()
+        }
+    }
+
+    /// The simulated scan of one trial: `model` at `joints`, the camera at `mount`
+    /// (eye-in-hand: `flange_from_camera`; eye-to-hand: `model_from_camera`, see
+    /// [`TrialPlan::mount`]), this configuration's camera and simulator settings.
     pub fn scan_request<'a>(
         &self,
         model: &'a RobotModel,
@@ -97,8 +113,13 @@ impl BenchConfig {
         ScanRequest::new(
             model,
             joints.to_vec(),
-            Placement::EyeInHand {
-                flange_from_camera: mount,
+            match self.mount {
+                Mount::EyeInHand => Placement::EyeInHand {
+                    flange_from_camera: mount,
+                },
+                Mount::EyeToHand => Placement::EyeToHand {
+                    model_from_camera: mount,
+                },
             },
             self.intrinsics,
             &self.settings,
@@ -134,6 +155,7 @@ impl Default for BenchConfig {
             gate: GateThresholds::default(),
             seed: 1,
             kinematics: BenchKinematics::Unknown,
+            mount: Mount::EyeInHand,
         }
     }
 }
@@ -153,9 +175,10 @@ pub struct Trial {
     pub outcome: Outcome,
     /// Why it was rejected or failed.
     pub reasons: Vec<String>,
-    /// Camera position error of `flange_from_camera`, mm (NaN on error).
+    /// Camera position error of the unknown (`flange_from_camera` eye-in-hand,
+    /// `base_from_camera` eye-to-hand), mm (NaN on error).
     pub translation_error_mm: f64,
-    /// Camera rotation error of `flange_from_camera`, degrees (NaN on error).
+    /// Camera rotation error of the unknown, degrees (NaN on error).
     pub rotation_error_deg: f64,
     /// Reported 1-σ translation uncertainty, mm.
     pub uncertainty_translation_mm: f64,
@@ -354,7 +377,8 @@ pub fn run_robot(
 /// One robot's trials as [`run_robot`] draws them from `cfg.seed`.
 #[derive(Debug, Clone)]
 pub struct TrialPlan {
-    /// The wrist-camera mount (`flange_from_camera`).
+    /// Where the camera is: eye-in-hand the wrist-camera mount (`flange_from_camera`),
+    /// eye-to-hand the fixed camera (`model_from_camera`, model = URDF root link).
     pub mount: Isometry3<f64>,
     /// The views' joint angles.
     pub views: Vec<Vec<f64>>,
@@ -366,9 +390,19 @@ pub struct TrialPlan {
 /// [`run_robot`] runs; a diagnostic replays single trials from it).
 pub fn plan_trials(model: &RobotModel, cfg: &BenchConfig) -> Result<TrialPlan, PlanError> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(cfg.seed);
-    let mount = random_mount(&mut rng);
-    let planner = ViewPlanner::new(model, mount, cfg.intrinsics, ViewConstraints::default());
-    let views = planner.generate(cfg.views, rng.random())?;
+    let (mount, views) = match cfg.mount {
+        Mount::EyeInHand => {
+            let mount = random_mount(&mut rng);
+            let planner =
+                ViewPlanner::new(model, mount, cfg.intrinsics, ViewConstraints::default());
+            (mount, planner.generate(cfg.views, rng.random())?)
+        }
+        Mount::EyeToHand => {
+            let camera = random_fixed_camera(model, &cfg.intrinsics, &mut rng);
+            let views = arm_configurations_in_view(model, camera, cfg, rng.random())?;
+            (camera, views)
+        }
+    };
     let scan_seeds = views
         .iter()
         .map(|_| (0..cfg.scans_per_view).map(|_| rng.random()).collect())
@@ -380,10 +414,114 @@ pub fn plan_trials(model: &RobotModel, cfg: &BenchConfig) -> Result<TrialPlan, P
     })
 }
 
-/// Simulates one eye-in-hand scan of the arm `arm` (a physical UR arm, see
+/// Nearest and farthest distance of the fixed camera of an eye-to-hand benchmark from the point
+/// it looks at (a third of the arm's reach above the base), metres: a camera on a stand or the
+/// cell's frame, seeing the whole arm.
+pub const FIXED_CAMERA_DISTANCE_M: (f64, f64) = (0.8, 2.0);
+
+/// How far the arm reaches from its base (metres): the farthest link origin at all-zero
+/// joints (a UR arm lies stretched out there), at least 0.3 m.
+fn reach(model: &RobotModel) -> f64 {
+    model
+        .link_poses(&vec![0.0; model.dof()])
+        .map(|poses| {
+            poses
+                .iter()
+                .map(|p| p.translation.vector.norm())
+                .fold(0.0, f64::max)
+        })
+        .unwrap_or(0.0)
+        .max(0.3)
+}
+
+/// A camera fixed in the cell (`model_from_camera`) for an eye-to-hand benchmark: at a random
+/// azimuth, 15–45° above the base plane, [`FIXED_CAMERA_DISTANCE_M`] from the point a third of
+/// the arm's reach above the base, looking at it; no nearer than where the image's half-height
+/// holds 0.4 of the reach (a UR5e: 0.9 m, a UR30: 1.3 m with the `compact` camera).
+pub fn random_fixed_camera(
+    model: &RobotModel,
+    intrinsics: &Intrinsics,
+    rng: &mut impl Rng,
+) -> Isometry3<f64> {
+    let reach = reach(model);
+    let (near, far) = FIXED_CAMERA_DISTANCE_M;
+    // The image's half-height seen at distance d is d·tan(half vertical FOV).
+    let half_fov = (0.5 * f64::from(intrinsics.height) / intrinsics.fy).atan();
+    let needed = (0.4 * reach / half_fov.tan()).clamp(near, far);
+    let distance = rng.random_range(needed..=far);
+    let azimuth = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
+    let elevation = rng.random_range(15f64..45.0).to_radians();
+    let target = Point3::new(0.0, 0.0, reach / 3.0);
+    let eye = target
+        + distance
+            * Vector3::new(
+                elevation.cos() * azimuth.cos(),
+                elevation.cos() * azimuth.sin(),
+                elevation.sin(),
+            );
+    look_at(&eye, &target, &-Vector3::z())
+}
+
+/// `cfg.views` random arm configurations (seeded) for the fixed camera `model_from_camera`:
+/// within joint limits, clear of the floor and of itself (as the view planner checks motion),
+/// the base and every link origin in the image (5 % from its border: the whole arm in view), no
+/// link origin within 0.25 m of the camera, and each at least the planner's minimum joint change
+/// from the others.
+pub fn arm_configurations_in_view(
+    model: &RobotModel,
+    model_from_camera: Isometry3<f64>,
+    cfg: &BenchConfig,
+    seed: u64,
+) -> Result<Vec<Vec<f64>>, PlanError> {
+    let constraints = ViewConstraints::default();
+    // The motion checks need no camera on the arm: the flange stands in for it.
+    let planner = ViewPlanner::new(model, Isometry3::identity(), cfg.intrinsics, constraints);
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let camera_from_model = model_from_camera.inverse();
+    let k = &cfg.intrinsics;
+    let margin = 0.05 * f64::from(k.width.min(k.height));
+    let in_image = |p: &Point3<f64>| {
+        k.project(&(camera_from_model * p))
+            .is_some_and(|(u, v)| k.contains(u, v, margin))
+    };
+    let eye = Point3::from(model_from_camera.translation.vector);
+    let mut views: Vec<Vec<f64>> = Vec::new();
+    let max_tries = 20_000 + 2_000 * cfg.views;
+    let mut tries = 0;
+    while views.len() < cfg.views && tries < max_tries {
+        tries += 1;
+        let q = random_joints(model, &mut rng);
+        if !differs_from_all(&views, &q, constraints.min_joint_change_rad)
+            || planner.check_motion(&q)?.is_err()
+        {
+            continue;
+        }
+        let origins: Vec<Point3<f64>> = model
+            .link_poses(&q)?
+            .iter()
+            .map(|p| Point3::from(p.translation.vector))
+            .collect();
+        let clear_of_camera = origins.iter().all(|o| (o - eye).norm() > 0.25);
+        if clear_of_camera && in_image(&Point3::origin()) && origins.iter().all(in_image) {
+            views.push(q);
+        }
+    }
+    if views.len() < cfg.views {
+        return Err(PlanError::NotEnoughViews {
+            found: views.len(),
+            wanted: cfg.views,
+            tries,
+        });
+    }
+    Ok(views)
+}
+
+/// Simulates one scan of the arm `arm` (a physical UR arm, see
 /// [`BenchConfig::true_arm`]; `None`: the settings' `kinematic_error`) and calibrates from it
 /// without a prior, the model posed as `cfg.kinematics` says (known: by the DH the arm's
-/// controller publishes).
+/// controller publishes). `mount` is where [`TrialPlan::mount`] says the camera is; errors are
+/// measured on `flange_from_camera` (eye-in-hand) or `base_from_camera` in the model frame
+/// (eye-to-hand).
 #[allow(clippy::too_many_arguments)]
 pub fn run_trial(
     model: &RobotModel,
@@ -441,7 +579,7 @@ pub fn run_trial(
             .truth
             .controller_dh
             .filter(|_| trial.calibrated_kinematics),
-        ..PipelineOptions::new(Mount::EyeInHand)
+        ..PipelineOptions::new(cfg.mount)
     };
     let calibration = match calibrate_frames(model, std::slice::from_ref(&frame), &opts) {
         Ok(c) => c,
@@ -461,7 +599,12 @@ pub fn run_trial(
         trial.register_ms,
     ) = (tm.preprocess, tm.coarse, tm.fine, tm.verify, tm.total);
     trial.solve_ms = calibration.report.timings_ms.solve;
-    let estimate = calibration.solution.estimate;
+    let estimate = match cfg.mount {
+        Mount::EyeInHand => calibration.solution.estimate,
+        // The pipeline's base frame is the model root: `base_from_camera` is
+        // `model_from_camera`.
+        Mount::EyeToHand => calibration.base_from_camera,
+    };
     let err = mount.inverse() * estimate;
     trial.translation_error_mm =
         (estimate.translation.vector - mount.translation.vector).norm() * 1e3;
@@ -476,6 +619,64 @@ pub fn run_trial(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::testutil::shared_robot;
+
+    /// Eye-to-hand: a fixed camera 0.8–2 m from the base sees the whole arm in random
+    /// configurations; on structured-light scans each trial is accepted and within 2 mm /
+    /// 0.5° of the true `base_from_camera`.
+    #[test]
+    fn an_eye_to_hand_bench_on_structured_light_scans_is_correct() {
+        let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+            return;
+        };
+        let cfg = BenchConfig {
+            views: 2,
+            scans_per_view: 1,
+            seed: 3,
+            ..BenchConfig::new(Mount::EyeToHand)
+        };
+        let plan = plan_trials(&model, &cfg).expect("views");
+        let (near, far) = FIXED_CAMERA_DISTANCE_M;
+        let d = plan.mount.translation.vector.norm();
+        assert!(
+            d > near - 0.1 && d < far + 0.5,
+            "camera {d} m from the base"
+        );
+        eprintln!(
+            "camera {:.3} m from the base",
+            plan.mount.translation.vector.norm()
+        );
+        let summary = run_robot(&model, &cfg, |t| {
+            eprintln!(
+                "view {}: {:?} {:.3} mm {:.4}° (σ {:.3} mm) {:?}",
+                t.view,
+                t.outcome,
+                t.translation_error_mm,
+                t.rotation_error_deg,
+                t.uncertainty_translation_mm,
+                t.reasons
+            )
+        })
+        .expect("plans");
+        assert_eq!(summary.trials, 2);
+        assert_eq!(summary.correct, 2, "{:?}", summary.details);
+        // The same seed draws the same camera and arm configurations.
+        let again = plan_trials(&model, &cfg).expect("views");
+        assert_eq!(again.mount, plan.mount);
+        assert_eq!(again.views, plan.views);
+        // Eye-in-hand draws stay as they were: the mount is the wrist mount of the seed.
+        let eih = plan_trials(
+            &model,
+            &BenchConfig {
+                views: 1,
+                seed: 3,
+                ..BenchConfig::default()
+            },
+        )
+        .expect("views");
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        assert_eq!(eih.mount, random_mount(&mut rng));
+    }
 
     #[test]
     fn stats_are_the_textbook_ones_and_ignore_nan() {

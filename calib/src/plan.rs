@@ -550,7 +550,6 @@ impl<'a> ViewPlanner<'a> {
     /// in some joint.
     pub fn generate(&self, count: usize, seed: u64) -> Result<Vec<Vec<f64>>, PlanError> {
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        let limits = self.model.joint_limits();
         let mut views: Vec<Vec<f64>> = Vec::new();
         let max_tries = 200_000 + 20_000 * count;
         let mut tries = 0;
@@ -559,15 +558,8 @@ impl<'a> ViewPlanner<'a> {
                 return Err(PlanError::Cancelled);
             }
             tries += 1;
-            let q: Vec<f64> = limits
-                .iter()
-                .map(|l| rng.random_range(l.lower.max(-PI)..=l.upper.min(PI)))
-                .collect();
-            let far_enough = views.iter().all(|v| {
-                v.iter()
-                    .zip(&q)
-                    .any(|(a, b)| (a - b).abs() >= self.constraints.min_joint_change_rad)
-            });
+            let q = random_joints(self.model, &mut rng);
+            let far_enough = differs_from_all(&views, &q, self.constraints.min_joint_change_rad);
             if far_enough && self.base_in_view(&q)?.is_ok() && self.check(&q)?.is_ok() {
                 views.push(q);
             }
@@ -581,6 +573,25 @@ impl<'a> ViewPlanner<'a> {
         }
         Ok(views)
     }
+}
+
+/// A random joint configuration within `model`'s limits (each joint within ±π), one uniform
+/// draw per joint in chain order.
+pub fn random_joints(model: &RobotModel, rng: &mut impl Rng) -> Vec<f64> {
+    model
+        .joint_limits()
+        .iter()
+        .map(|l| rng.random_range(l.lower.max(-PI)..=l.upper.min(PI)))
+        .collect()
+}
+
+/// Whether `q` differs from each of `views` by at least `min_change_rad` in some joint.
+pub fn differs_from_all(views: &[Vec<f64>], q: &[f64], min_change_rad: f64) -> bool {
+    views.iter().all(|v| {
+        v.iter()
+            .zip(q)
+            .any(|(a, b)| (a - b).abs() >= min_change_rad)
+    })
 }
 
 /// The lowest point (model z) of `hull` posed at `pose`.

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 
 use handeye::bench::{run_robot, BenchConfig, BenchKinematics, RobotSummary, Stats, Trial};
-use handeye::calib::Outcome;
+use handeye::calib::{Mount, Outcome};
 use handeye::model::RobotModel;
 use handeye::sim::{Intrinsics, SimSettings};
 
@@ -28,10 +28,16 @@ pub(crate) struct Args {
     /// Scans per view.
     #[arg(long, default_value_t = 3)]
     scans_per_view: usize,
-    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048), structured light; or
-    /// `realsense-d435` (1280×720), active stereo (its noise unless `--settings` gives one).
+    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048), structured light;
+    /// `realsense-d435` (1280×720), active stereo; `helios2` (640×480), time of flight (the
+    /// preset's sensor noise unless `--settings` gives one).
     #[arg(long, default_value = "compact")]
     camera: String,
+    /// `eye-in-hand`: a wrist camera, views that look at the base, errors on
+    /// `flange_from_camera`; `eye-to-hand`: a camera fixed 0.8–2.0 m from the base seeing the
+    /// whole arm, random arm configurations as views, errors on `base_from_camera`.
+    #[arg(long, default_value = "eye-in-hand", value_parser = mount_arg)]
+    mount: Mount,
     /// Simulator settings TOML (default: realistic noise, cell and kinematic error).
     #[arg(long)]
     settings: Option<PathBuf>,
@@ -46,6 +52,17 @@ pub(crate) struct Args {
     /// Write every trial and the summaries as JSON here.
     #[arg(long)]
     out: Option<PathBuf>,
+}
+
+/// `--mount`: `eye-in-hand` or `eye-to-hand`.
+fn mount_arg(s: &str) -> Result<Mount, String> {
+    match s {
+        "eye-in-hand" => Ok(Mount::EyeInHand),
+        "eye-to-hand" => Ok(Mount::EyeToHand),
+        _ => Err(format!(
+            "`{s}` is not a mount; use eye-in-hand or eye-to-hand"
+        )),
+    }
 }
 
 /// `--kinematics`: one of [`BenchKinematics::NAMES`].
@@ -92,7 +109,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             settings,
             seed: args.seed.wrapping_add(i as u64 * 7919),
             kinematics: args.kinematics,
-            ..BenchConfig::default()
+            ..BenchConfig::new(args.mount)
         };
         eprint!("{:<16}", model.name());
         let summary = match run_robot(&model, &cfg, |t| eprint!("{}", progress_mark(t))) {
@@ -113,6 +130,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             "scans_per_view": args.scans_per_view,
             "seed": args.seed,
             "kinematics": args.kinematics,
+            "mount": args.mount,
             "settings": settings,
             "robots": summaries,
         });
@@ -134,8 +152,11 @@ fn progress_mark(t: &Trial) -> char {
 
 fn print_table(summaries: &[RobotSummary], args: &Args) {
     println!(
-        "\nhandeye bench: {} views × {} scans per robot, camera {}, no prior, realistic noise + CAD mismatch, factory-calibrated arms, kinematics {}",
-        args.views, args.scans_per_view, args.camera, match args.kinematics {
+        "\nhandeye bench: {} views × {} scans per robot, {}, camera {}, no prior, realistic noise + CAD mismatch, factory-calibrated arms, kinematics {}",
+        args.views, args.scans_per_view, match args.mount {
+            Mount::EyeInHand => "eye-in-hand (flange_from_camera)",
+            Mount::EyeToHand => "eye-to-hand (base_from_camera)",
+        }, args.camera, match args.kinematics {
             BenchKinematics::Unknown => "unknown to the solver (nominal URDF)",
             BenchKinematics::Known => "given to the solver",
         }
@@ -191,4 +212,32 @@ fn print_table(summaries: &[RobotSummary], args: &Args) {
     println!(
         "  checkerboard AX=XB, 15 poses                         ~0.8 mm / 0.09°, minutes of motion"
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        bench: Args,
+    }
+
+    #[test]
+    fn mount_defaults_to_eye_in_hand_and_takes_eye_to_hand() {
+        let a = Cli::try_parse_from(["bench"]).expect("defaults").bench;
+        assert_eq!(a.mount, Mount::EyeInHand);
+        let a = Cli::try_parse_from(["bench", "--mount", "eye-to-hand", "--camera", "helios2"])
+            .expect("eye-to-hand")
+            .bench;
+        assert_eq!(a.mount, Mount::EyeToHand);
+        assert_eq!(a.camera, "helios2");
+        let err = Cli::try_parse_from(["bench", "--mount", "wrist"]).expect_err("unknown");
+        assert!(
+            err.to_string().contains("use eye-in-hand or eye-to-hand"),
+            "{err}"
+        );
+    }
 }

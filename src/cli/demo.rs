@@ -33,8 +33,8 @@ pub(crate) struct Args {
     /// Robot model.
     #[arg(long, default_value = "ur5e")]
     robot: UrModel,
-    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048), structured light; or
-    /// `realsense-d435` (1280×720), active stereo.
+    /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048), structured light;
+    /// `realsense-d435` (1280×720), active stereo; `helios2` (640×480), time of flight.
     #[arg(long, default_value = "compact")]
     camera: String,
     /// Seed of the mount, the arm's factory calibration, the view and the sensor noise

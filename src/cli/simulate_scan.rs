@@ -35,8 +35,9 @@ pub(crate) struct Args {
     /// Eye-to-hand: `model_from_camera` (camera pose in the URDF root link) as x,y,z,rx,ry,rz.
     #[arg(long, value_parser = parse_pose, allow_hyphen_values = true)]
     camera_pose: Option<Isometry3<f64>>,
-    /// Camera preset: `zivid2-m60` (2448×2048) or `compact` (1280×960), structured light; or
-    /// `realsense-d435` (1280×720), active stereo (its noise unless `--settings` gives one).
+    /// Camera preset: `zivid2-m60` (2448×2048) or `compact` (1280×960), structured light;
+    /// `realsense-d435` (1280×720), active stereo; `helios2` (640×480), time of flight (the
+    /// preset's noise unless `--settings` gives one).
     #[arg(long, default_value = "zivid2-m60")]
     camera: String,
     /// TOML file with `[noise]`, `[cell]` and `[kinematic_error]` tables (see config/simulator.example.toml).

@@ -4,8 +4,23 @@
 
 use nalgebra::{Point3, Vector3};
 
-/// A camera preset: its names and its intrinsics.
-type Preset = (&'static [&'static str], fn() -> Intrinsics);
+/// A camera preset: its names, its intrinsics and its sensor class.
+type Preset = (&'static [&'static str], fn() -> Intrinsics, SensorClass);
+
+/// How a 3D camera measures depth: what its errors look like (the simulator's noise class for
+/// a preset, `crate::sim::ScanNoise::of_class`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SensorClass {
+    /// Projected patterns and triangulation (Zivid class): sub-millimetre noise growing with z².
+    StructuredLight,
+    /// Stereo matching of a projected dot pattern (RealSense D4xx class): millimetre noise
+    /// growing with z², wavy surfaces, holes at depth edges.
+    ActiveStereo,
+    /// Phase of modulated light (Helios2, Azure Kinect class): noise growing with z,
+    /// multipath at concave corners, flying pixels at depth edges.
+    TimeOfFlight,
+}
 
 /// Pinhole intrinsics of a 3D camera (OpenCV convention: pixel centres at integer coordinates,
 /// x right, y down, z forward; metres in camera frame).
@@ -63,24 +78,53 @@ impl Intrinsics {
         }
     }
 
-    /// The presets: each one's names (the first is the one the command line shows) and its
-    /// intrinsics.
-    const PRESETS: [Preset; 3] = [
+    /// A LUCID Helios2 time-of-flight camera (Sony IMX556 DepthSense): 640×480 with a ~69° ×
+    /// 51° field of view (square pixels, centred principal point; its lens distortion is
+    /// not modelled).
+    pub fn helios2_640x480() -> Self {
+        Self::from_fov(640, 480, 69.0_f64.to_radians())
+    }
+
+    /// The presets: each one's names (the first is the one the command line shows), its
+    /// intrinsics and its sensor class — the one place that says which class a preset is.
+    const PRESETS: [Preset; 4] = [
         (
             &["zivid2-m60", "zivid2plus-m60", "2448x2048"],
             Self::zivid2_plus_m60,
+            SensorClass::StructuredLight,
         ),
-        (&["compact", "1280x960"], Self::compact_1280x960),
-        (&["realsense-d435"], Self::realsense_d435_1280x720),
+        (
+            &["compact", "1280x960"],
+            Self::compact_1280x960,
+            SensorClass::StructuredLight,
+        ),
+        (
+            &["realsense-d435"],
+            Self::realsense_d435_1280x720,
+            SensorClass::ActiveStereo,
+        ),
+        (
+            &["helios2", "640x480"],
+            Self::helios2_640x480,
+            SensorClass::TimeOfFlight,
+        ),
     ];
 
-    /// Look up a preset by name: `zivid2-m60` (2448×2048), `compact` (1280×960) or
-    /// `realsense-d435` (1280×720).
+    /// Look up a preset by name: `zivid2-m60` (2448×2048), `compact` (1280×960),
+    /// `realsense-d435` (1280×720) or `helios2` (640×480).
     pub fn preset(name: &str) -> Option<Self> {
+        Self::find_preset(name).map(|(_, make, _)| make())
+    }
+
+    /// The sensor class of preset `name` (`None` for an unknown name).
+    pub fn preset_class(name: &str) -> Option<SensorClass> {
+        Self::find_preset(name).map(|(_, _, class)| *class)
+    }
+
+    fn find_preset(name: &str) -> Option<&'static Preset> {
         Self::PRESETS
             .iter()
-            .find(|(names, _)| names.contains(&name))
-            .map(|(_, make)| make())
+            .find(|(names, _, _)| names.contains(&name))
     }
 
     /// [`Intrinsics::preset`], or an error naming the presets there are.
@@ -90,7 +134,7 @@ impl Intrinsics {
                 "unknown camera preset `{name}`; use one of {}",
                 Self::PRESETS
                     .iter()
-                    .map(|(names, _)| names[0])
+                    .map(|(names, _, _)| names[0])
                     .collect::<Vec<_>>()
                     .join(", ")
             )
@@ -163,16 +207,28 @@ mod tests {
 
     #[test]
     fn every_preset_name_resolves_and_an_unknown_one_lists_them() {
-        for (names, make) in Intrinsics::PRESETS {
+        for (names, make, class) in Intrinsics::PRESETS {
             for name in names {
                 assert_eq!(Intrinsics::preset(name), Some(make()), "{name}");
+                assert_eq!(Intrinsics::preset_class(name), Some(class), "{name}");
             }
         }
+        assert_eq!(
+            Intrinsics::preset_class("realsense-d435"),
+            Some(SensorClass::ActiveStereo)
+        );
+        assert_eq!(
+            Intrinsics::preset_class("helios2"),
+            Some(SensorClass::TimeOfFlight)
+        );
+        assert_eq!(Intrinsics::preset_class("kinect"), None);
+        let h = Intrinsics::preset("helios2").expect("helios2");
+        assert_eq!((h.width, h.height), (640, 480));
         assert_eq!(Intrinsics::preset("2448x2048").map(|k| k.width), Some(2448));
         let err = Intrinsics::preset_or_error("kinect").expect_err("unknown");
         assert_eq!(
             err,
-            "unknown camera preset `kinect`; use one of zivid2-m60, compact, realsense-d435"
+            "unknown camera preset `kinect`; use one of zivid2-m60, compact, realsense-d435, helios2"
         );
     }
 

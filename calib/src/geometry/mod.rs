@@ -5,4 +5,4 @@
 mod intrinsics;
 pub mod raycast;
 
-pub use intrinsics::Intrinsics;
+pub use intrinsics::{Intrinsics, SensorClass};

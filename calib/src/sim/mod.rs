@@ -8,7 +8,7 @@ mod noise;
 mod scan;
 mod settings;
 
-pub use crate::geometry::Intrinsics;
+pub use crate::geometry::{Intrinsics, SensorClass};
 pub use crate::model::KinematicError;
 pub use camera::look_at;
 pub use cell::{CellOptions, CellPart};

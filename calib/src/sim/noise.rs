@@ -3,17 +3,24 @@
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
 
+use crate::geometry::SensorClass;
+
 /// Imperfections of a 3D camera.
 ///
 /// Defaults are those of a good industrial structured-light camera (Zivid 2+ class) at
 /// 0.4–0.8 m; [`ScanNoise::active_stereo`] is a consumer active-stereo camera (RealSense D4xx
-/// class), fitted to real frames; `none()` gives a perfect sensor for geometry tests.
+/// class), fitted to real frames; [`ScanNoise::time_of_flight`] is a time-of-flight camera
+/// (Helios2 / Azure Kinect class); `none()` gives a perfect sensor for geometry tests.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ScanNoise {
-    /// Depth noise standard deviation at 1 m (metres); it grows with z² (triangulation) and
-    /// with 1/cos of the incidence angle.
+    /// Depth noise standard deviation at 1 m (metres); it grows with z^`depth_sigma_exponent`
+    /// and with 1/cos of the incidence angle.
     pub depth_sigma_at_1m_m: f64,
+    /// How depth noise grows with distance: σ(z) = `depth_sigma_at_1m_m` · z^this (z in
+    /// metres). 2 for triangulation (structured light, stereo), 1 for time of flight (the
+    /// returned light falls with z² and the phase noise with its square root).
+    pub depth_sigma_exponent: f64,
     /// Probability that a pixel on a depth edge becomes a flying pixel (a depth between the
     /// foreground and the background surfaces).
     pub flying_pixel_probability: f64,
@@ -27,6 +34,9 @@ pub struct ScanNoise {
     pub random_dropout_probability: f64,
     /// Relative depth-scale error: measured point = true point · (1 + this).
     pub depth_scale_error: f64,
+    /// Constant depth offset added to every measured depth (metres): a time-of-flight camera's
+    /// residual phase offset (its depth error hardly scales with distance).
+    pub depth_offset_m: f64,
     /// Nothing is measured beyond this range (metres).
     pub max_range_m: f64,
     /// Depth resolution: reported depths are multiples of this (metres; 0 = continuous). A
@@ -38,10 +48,24 @@ pub struct ScanNoise {
     /// Correlation length of that ripple across the image, pixels: its covariance is
     /// `exp(-r² / 2ℓ²)` at a distance of `r` pixels (0.5 at 1.18 ℓ).
     pub ripple_correlation_px: f64,
+    /// Multipath of time-of-flight cameras: light bounced off nearby surfaces that face a pixel's
+    /// surface (concave corners: base and floor, plate, links) arrives late and pushes the
+    /// measured depth farther by this much (metres) times the share of the pixel's neighbours
+    /// (within `multipath_window_px`) whose surfaces face it. 0 = none; flat open surfaces get
+    /// none.
+    pub multipath_m: f64,
+    /// Half-width of the image window (pixels) searched for surfaces facing a pixel's surface.
+    pub multipath_window_px: f64,
 }
 
 /// Largest `noise.depth_sigma_at_1m_m`, metres.
 pub(crate) const MAX_DEPTH_SIGMA_AT_1M_M: f64 = 0.05;
+/// Largest |`noise.depth_offset_m`|, metres.
+pub(crate) const MAX_DEPTH_OFFSET_M: f64 = 0.05;
+/// Largest `noise.multipath_m`, metres.
+pub(crate) const MAX_MULTIPATH_M: f64 = 0.1;
+/// Largest `noise.multipath_window_px` (the window costs its area per pixel).
+pub(crate) const MAX_MULTIPATH_WINDOW_PX: f64 = 64.0;
 /// Largest `noise.random_dropout_probability`.
 pub(crate) const MAX_RANDOM_DROPOUT: f64 = 0.9;
 /// Range of a finite `noise.max_range_m`, metres.
@@ -53,16 +77,20 @@ impl Default for ScanNoise {
     fn default() -> Self {
         Self {
             depth_sigma_at_1m_m: 0.000_25,
+            depth_sigma_exponent: 2.0,
             flying_pixel_probability: 0.5,
             flying_pixel_edge_m: 0.01,
             dropout_start_deg: 70.0,
             dropout_full_deg: 85.0,
             random_dropout_probability: 0.01,
             depth_scale_error: 0.0015,
+            depth_offset_m: 0.0,
             max_range_m: 2.5,
             depth_step_m: 0.0,
             ripple_sigma_at_1m_m: 0.0,
             ripple_correlation_px: 14.0,
+            multipath_m: 0.0,
+            multipath_window_px: 12.0,
         }
     }
 }
@@ -72,16 +100,20 @@ impl ScanNoise {
     pub fn none() -> Self {
         Self {
             depth_sigma_at_1m_m: 0.0,
+            depth_sigma_exponent: 2.0,
             flying_pixel_probability: 0.0,
             flying_pixel_edge_m: 0.01,
             dropout_start_deg: 90.0,
             dropout_full_deg: 90.0,
             random_dropout_probability: 0.0,
             depth_scale_error: 0.0,
+            depth_offset_m: 0.0,
             max_range_m: f64::INFINITY,
             depth_step_m: 0.0,
             ripple_sigma_at_1m_m: 0.0,
             ripple_correlation_px: 14.0,
+            multipath_m: 0.0,
+            multipath_window_px: 12.0,
         }
     }
 
@@ -99,16 +131,71 @@ impl ScanNoise {
     pub fn active_stereo() -> Self {
         Self {
             depth_sigma_at_1m_m: 0.000_46,
+            depth_sigma_exponent: 2.0,
             flying_pixel_probability: 0.8,
             flying_pixel_edge_m: 0.01,
             dropout_start_deg: 60.0,
             dropout_full_deg: 80.0,
             random_dropout_probability: 0.03,
             depth_scale_error: 0.01,
+            depth_offset_m: 0.0,
             max_range_m: 2.5,
             depth_step_m: 0.001,
             ripple_sigma_at_1m_m: 0.009,
             ripple_correlation_px: 14.0,
+            multipath_m: 0.0,
+            multipath_window_px: 12.0,
+        }
+    }
+
+    /// A time-of-flight camera (LUCID Helios2 / Azure Kinect class, continuous-wave phase
+    /// measurement) at 0.3–2.5 m. What it does that the others do not:
+    /// - **noise growing linearly with distance** (σ = 1 mm at 1 m, not z²): the order of
+    ///   the Helios2's documented sub-millimetre-to-millimetre precision at 1 m on a white
+    ///   target, worse on dark surfaces (the simulator has no per-surface reflectivity; this
+    ///   is the value for the robot's light-grey and white links);
+    /// - **multipath** at concave corners (base on the floor or plate, between links): up to
+    ///   [`ScanNoise::multipath_m`] = 8 mm farther where most of the window faces the pixel
+    ///   (a corner pixel sees about half: ~4 mm), none on open flat surfaces;
+    /// - **flying pixels** at depth edges (the sensor integrates both surfaces in one pixel):
+    ///   probability 0.9 where the depth jumps by more than 10 mm (the Helios2's own flying
+    ///   pixel filter uses a 20 mm threshold; unfiltered output is simulated);
+    /// - almost no depth-scale error but a small constant offset: Microsoft documents the Azure
+    ///   Kinect's systematic error as < 11 mm + 0.1 % of distance (we take 0.1 % and a 1 mm
+    ///   offset, a camera whose offset was calibrated); depths reported in 0.25 mm steps (the
+    ///   Helios `Coord3D_C16` scale).
+    ///
+    /// Sources: Azure Kinect DK depth-camera page (learn.microsoft.com/azure/kinect-dk/
+    /// depth-camera: AMCW ToF, systematic and random error), LUCID Helios2 technical
+    /// reference (operating modes 1.25–8.3 m, flying pixel filter at 20 mm) and Helios
+    /// manual (0.25 mm depth scale). Not fitted to real frames: there are none of this class
+    /// in `../shared/realdata`.
+    pub fn time_of_flight() -> Self {
+        Self {
+            depth_sigma_at_1m_m: 0.001,
+            depth_sigma_exponent: 1.0,
+            flying_pixel_probability: 0.9,
+            flying_pixel_edge_m: 0.01,
+            dropout_start_deg: 70.0,
+            dropout_full_deg: 85.0,
+            random_dropout_probability: 0.02,
+            depth_scale_error: 0.001,
+            depth_offset_m: 0.001,
+            max_range_m: 2.5,
+            depth_step_m: 0.000_25,
+            ripple_sigma_at_1m_m: 0.0,
+            ripple_correlation_px: 14.0,
+            multipath_m: 0.008,
+            multipath_window_px: 12.0,
+        }
+    }
+
+    /// The noise of a sensor class: structured light is the defaults.
+    pub fn of_class(class: SensorClass) -> Self {
+        match class {
+            SensorClass::StructuredLight => Self::default(),
+            SensorClass::ActiveStereo => Self::active_stereo(),
+            SensorClass::TimeOfFlight => Self::time_of_flight(),
         }
     }
 
@@ -124,6 +211,14 @@ impl ScanNoise {
             MAX_DEPTH_SIGMA_AT_1M_M,
             "m",
             "a 3D camera with more noise than that at 1 m sees no robot",
+        )?;
+        check_range(
+            "noise.depth_sigma_exponent",
+            self.depth_sigma_exponent,
+            0.0,
+            3.0,
+            "",
+            "how noise grows with distance: 2 for triangulation, 1 for time of flight",
         )?;
         check_range(
             "noise.flying_pixel_probability",
@@ -177,6 +272,30 @@ impl ScanNoise {
             "a relative error: 0.01 is 1 %",
         )?;
         check_range(
+            "noise.depth_offset_m",
+            self.depth_offset_m,
+            -MAX_DEPTH_OFFSET_M,
+            MAX_DEPTH_OFFSET_M,
+            "m",
+            "a constant depth offset; a camera off by more than that needs its own calibration",
+        )?;
+        check_range(
+            "noise.multipath_m",
+            self.multipath_m,
+            0.0,
+            MAX_MULTIPATH_M,
+            "m",
+            "the extra depth where every neighbour faces the pixel",
+        )?;
+        check_range(
+            "noise.multipath_window_px",
+            self.multipath_window_px,
+            1.0,
+            MAX_MULTIPATH_WINDOW_PX,
+            "pixels",
+            "half-width of the window searched for facing surfaces",
+        )?;
+        check_range(
             "noise.depth_step_m",
             self.depth_step_m,
             0.0,
@@ -228,13 +347,23 @@ impl ScanNoise {
 
     /// A noisy depth for a true depth `z` (metres) seen at `incidence_rad`.
     pub(crate) fn noisy_depth(&self, z: f64, incidence_rad: f64, rng: &mut impl Rng) -> f64 {
-        let sigma = self.depth_sigma_at_1m_m * z * z / incidence_rad.cos().max(0.2);
+        let sigma =
+            self.depth_sigma_at_1m_m * self.distance_factor(z) / incidence_rad.cos().max(0.2);
         let n = if sigma > 0.0 {
             Normal::new(0.0, sigma).map_or(0.0, |d| d.sample(rng))
         } else {
             0.0
         };
-        (z + n) * (1.0 + self.depth_scale_error)
+        (z + n) * (1.0 + self.depth_scale_error) + self.depth_offset_m
+    }
+
+    /// z^`depth_sigma_exponent` (z² computed as z·z, as it always was).
+    fn distance_factor(&self, z: f64) -> f64 {
+        if self.depth_sigma_exponent == 2.0 {
+            z * z
+        } else {
+            z.powf(self.depth_sigma_exponent)
+        }
     }
 
     /// `z` rounded to the sensor's depth resolution.
@@ -262,6 +391,78 @@ mod tests {
         };
         let err = bad.validate().expect_err("invalid");
         assert!(err.contains("random_dropout_probability"));
+    }
+
+    /// σ of `noisy_depth` at `z` head-on, and its mean.
+    fn spread(n: &ScanNoise, z: f64, seed: u64) -> (f64, f64) {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let s: Vec<f64> = (0..8000).map(|_| n.noisy_depth(z, 0.0, &mut rng)).collect();
+        let mean = s.iter().sum::<f64>() / s.len() as f64;
+        let var = s.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / s.len() as f64;
+        (mean, var.sqrt())
+    }
+
+    #[test]
+    fn time_of_flight_noise_grows_linearly_with_distance_and_is_offset() {
+        let tof = ScanNoise::time_of_flight();
+        tof.validate().expect("valid");
+        let (m05, s05) = spread(&tof, 0.5, 1);
+        let (m1, s1) = spread(&tof, 1.0, 2);
+        let (m2, s2) = spread(&tof, 2.0, 3);
+        // 1 mm at 1 m, linear in z: twice at 2 m, half at 0.5 m (z² would give 4× and ¼).
+        assert!((s1 - 0.001).abs() < 5e-5, "{s1}");
+        assert!((s2 / s1 - 2.0).abs() < 0.1, "{s1} {s2}");
+        assert!((s1 / s05 - 2.0).abs() < 0.1, "{s05} {s1}");
+        // a 1 mm offset and 0.1 % scale, the same offset at every distance
+        assert!((m1 - (1.001 + 0.001)).abs() < 5e-5, "{m1}");
+        assert!((m05 - (0.5005 + 0.001)).abs() < 5e-5, "{m05}");
+        assert!((m2 - (2.002 + 0.001)).abs() < 1e-4, "{m2}");
+        // structured light keeps z²
+        let sl = ScanNoise::default();
+        let (_, a) = spread(&sl, 1.0, 4);
+        let (_, b) = spread(&sl, 2.0, 5);
+        assert!((b / a - 4.0).abs() < 0.2, "{a} {b}");
+    }
+
+    #[test]
+    fn new_knobs_are_range_checked_by_name() {
+        for (n, key) in [
+            (
+                ScanNoise {
+                    depth_sigma_exponent: 5.0,
+                    ..ScanNoise::default()
+                },
+                "noise.depth_sigma_exponent",
+            ),
+            (
+                ScanNoise {
+                    depth_offset_m: f64::NAN,
+                    ..ScanNoise::default()
+                },
+                "noise.depth_offset_m",
+            ),
+            (
+                ScanNoise {
+                    multipath_m: -0.01,
+                    ..ScanNoise::default()
+                },
+                "noise.multipath_m",
+            ),
+            (
+                ScanNoise {
+                    multipath_window_px: 1000.0,
+                    ..ScanNoise::default()
+                },
+                "noise.multipath_window_px",
+            ),
+        ] {
+            let err = n.validate().expect_err(key);
+            assert!(err.contains(key), "{err}");
+        }
+        assert_eq!(
+            ScanNoise::of_class(SensorClass::TimeOfFlight),
+            ScanNoise::time_of_flight()
+        );
     }
 
     #[test]

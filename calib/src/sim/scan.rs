@@ -265,6 +265,7 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
     let (w, h) = (image.width, image.height);
     let depth = &image.depth;
     let ripple = &Ripple::new(noise, seed, w, h);
+    let multipath = &multipath_shares(image, intr, noise.multipath_window_px, noise.multipath_m);
     let points: Vec<Point3<f32>> = (0..h)
         .into_par_iter()
         .flat_map_iter(|v| {
@@ -292,7 +293,9 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
                 {
                     return nan;
                 }
-                let mut z = z;
+                let mut z = z + multipath
+                    .get(i)
+                    .map_or(0.0, |share| share * noise.multipath_m);
                 if noise.flying_pixel_probability > 0.0 {
                     if let Some(other) =
                         edge_neighbour(depth, w, h, u, v, noise.flying_pixel_edge_m)
@@ -389,6 +392,74 @@ impl Ripple {
         // RIPPLE_WAVES unit cosines with independent phases: variance RIPPLE_WAVES / 2.
         self.sigma_at_1m_m * z * z * sum * (2.0 / RIPPLE_WAVES as f64).sqrt()
     }
+}
+
+/// Smallest cosine between a surface's normal and the direction to another surface for the two
+/// to face each other (10° above the surface's plane): points of one plane never face each
+/// other.
+const MULTIPATH_FACING_COS: f64 = 0.17;
+
+/// Per pixel, the share of its neighbours within `window_px` (a sparse grid of at most 9 × 9
+/// samples) whose surfaces face its surface and that its surface faces: the light those
+/// surfaces bounce onto it is the multipath of [`ScanNoise::multipath_m`]. Empty when
+/// `multipath_m` is 0 (nothing to compute).
+fn multipath_shares(
+    image: &DepthImage,
+    intr: &Intrinsics,
+    window_px: f64,
+    multipath_m: f64,
+) -> Vec<f64> {
+    if multipath_m == 0.0 {
+        return Vec::new();
+    }
+    let (w, h) = (image.width, image.height);
+    let reach = window_px.round().max(1.0) as i64;
+    let stride = (reach / 4).max(1);
+    let point = |i: usize| {
+        let z = image.depth[i];
+        z.is_finite()
+            .then(|| intr.ray((i % w) as f64, (i / w) as f64) * z)
+    };
+    let normal = |i: usize| image.normal[i].cast::<f64>();
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|v| {
+            (0..w).map(move |u| {
+                let i = v * w + u;
+                let Some(p) = point(i) else {
+                    return 0.0;
+                };
+                let n = normal(i);
+                let (mut facing, mut seen) = (0usize, 0usize);
+                for dv in (-reach..=reach).step_by(stride as usize) {
+                    for du in (-reach..=reach).step_by(stride as usize) {
+                        let (x, y) = (u as i64 + du, v as i64 + dv);
+                        if (du, dv) == (0, 0) || x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+                            continue;
+                        }
+                        let j = y as usize * w + x as usize;
+                        let Some(q) = point(j) else {
+                            continue;
+                        };
+                        seen += 1;
+                        let Some(d) = (q - p).try_normalize(1e-9) else {
+                            continue;
+                        };
+                        if n.dot(&d) > MULTIPATH_FACING_COS
+                            && -normal(j).dot(&d) > MULTIPATH_FACING_COS
+                        {
+                            facing += 1;
+                        }
+                    }
+                }
+                if seen == 0 {
+                    0.0
+                } else {
+                    facing as f64 / seen as f64
+                }
+            })
+        })
+        .collect()
 }
 
 /// The depth of a 4-neighbour across a depth edge (finite, differing by more than `edge_m`).
@@ -599,6 +670,91 @@ mod tests {
                 < 1e-9
         );
         assert_eq!(e.truth.controller_dh, Some(calibrated));
+    }
+
+    /// A 2 m square quad through `corners` (counter-clockwise).
+    fn quad(corners: [[f64; 3]; 4]) -> TriMesh {
+        TriMesh {
+            vertices: corners
+                .iter()
+                .map(|c| Point3::new(c[0], c[1], c[2]))
+                .collect(),
+            triangles: vec![[0, 1, 2], [0, 2, 3]],
+        }
+    }
+
+    /// Per pixel: (distance of the ideal point from the line x = z = 0, metres; how much
+    /// farther `noise` measures it, metres) for a camera looking at the origin from above -x.
+    fn depth_push(scene: &[TriMesh], noise: &ScanNoise) -> Vec<(f64, f64)> {
+        let intr = Intrinsics::compact_1280x960().scaled(0.25);
+        let model_from_camera = look_at(
+            &Point3::new(-0.8, 0.1, 0.8),
+            &Point3::new(0.0, 0.0, 0.0),
+            &-Vector3::z(),
+        );
+        let image = raycast(
+            &SceneMesh::indexed(scene),
+            &model_from_camera.inverse(),
+            &intr,
+        );
+        let ideal = measure(&image, &intr, &ScanNoise::none(), 1);
+        let measured = measure(&image, &intr, noise, 1);
+        ideal
+            .points
+            .iter()
+            .zip(&measured.points)
+            .filter(|(a, _)| a.x.is_finite())
+            .map(|(a, b)| {
+                let world = model_from_camera * a.cast::<f64>();
+                (world.x.hypot(world.z), f64::from(b.z) - f64::from(a.z))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn multipath_pushes_depths_farther_at_a_concave_corner_and_not_on_a_flat_surface() {
+        let floor = quad([
+            [-1.0, -1.0, 0.0],
+            [1.0, -1.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [-1.0, 1.0, 0.0],
+        ]);
+        let wall = quad([
+            [0.0, -1.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 1.0, 1.0],
+            [0.0, -1.0, 1.0],
+        ]);
+        let noise = ScanNoise {
+            multipath_m: 0.01,
+            ..ScanNoise::none()
+        };
+        noise.validate().expect("valid");
+        // The floor alone: open and flat, no multipath anywhere.
+        let flat = depth_push(std::slice::from_ref(&floor), &noise);
+        assert!(flat.len() > 10_000, "{}", flat.len());
+        assert!(flat.iter().all(|(_, push)| *push == 0.0));
+        // Floor meeting a wall: pushed farther near the corner, by a share of 1 cm; untouched
+        // far from it; never nearer.
+        let corner = depth_push(&[floor, wall], &noise);
+        let mean = |near: &dyn Fn(f64) -> bool| {
+            let v: Vec<f64> = corner
+                .iter()
+                .filter(|(d, _)| near(*d))
+                .map(|(_, p)| *p)
+                .collect();
+            assert!(v.len() > 100, "{} pixels", v.len());
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        let at_corner = mean(&|d| d < 0.02);
+        let far = mean(&|d| d > 0.15);
+        assert!(
+            (0.002..0.01).contains(&at_corner),
+            "pushed {at_corner} m at the corner"
+        );
+        assert!(far.abs() < 1e-9, "pushed {far} m far from the corner");
+        assert!(corner.iter().all(|(_, push)| *push >= 0.0));
+        assert!(corner.iter().all(|(_, push)| *push <= 0.01 + 1e-6));
     }
 
     #[test]

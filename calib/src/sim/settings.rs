@@ -1,6 +1,6 @@
 use std::path::Path;
 
-use super::{CellOptions, KinematicError, ScanNoise};
+use super::{CellOptions, Intrinsics, KinematicError, ScanNoise};
 
 /// Largest simulator settings file read (the commented example is ~3 kB).
 const MAX_SETTINGS_BYTES: u64 = 1 << 20;
@@ -42,21 +42,19 @@ pub enum SettingsError {
 }
 
 impl SimSettings {
-    /// A perfect sensor, nothing around the robot, the arm exactly its model.
-    /// The realistic defaults with the sensor class of camera preset `camera` (see
-    /// [`crate::geometry::Intrinsics::preset`]): `realsense-d435` is active stereo
-    /// ([`ScanNoise::active_stereo`]); the others are structured light (the defaults).
+    /// The realistic defaults with the noise of camera preset `camera`'s sensor class (see
+    /// [`Intrinsics::preset_class`] and [`ScanNoise::of_class`]); an unknown name gets the
+    /// structured-light defaults.
     pub fn for_camera(camera: &str) -> Self {
-        let noise = match camera {
-            "realsense-d435" => ScanNoise::active_stereo(),
-            _ => ScanNoise::default(),
-        };
+        let noise =
+            Intrinsics::preset_class(camera).map_or_else(ScanNoise::default, ScanNoise::of_class);
         Self {
             noise,
             ..Self::default()
         }
     }
 
+    /// A perfect sensor, nothing around the robot, the arm exactly its model.
     pub fn ideal() -> Self {
         Self {
             noise: ScanNoise::none(),
@@ -101,6 +99,23 @@ impl SimSettings {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn each_preset_simulates_its_sensor_class() {
+        assert_eq!(
+            SimSettings::for_camera("realsense-d435").noise,
+            ScanNoise::active_stereo()
+        );
+        assert_eq!(
+            SimSettings::for_camera("helios2").noise,
+            ScanNoise::time_of_flight()
+        );
+        assert_eq!(SimSettings::for_camera("compact"), SimSettings::default());
+        assert_eq!(
+            SimSettings::for_camera("zivid2-m60"),
+            SimSettings::default()
+        );
+    }
 
     #[test]
     fn the_example_file_loads_and_unknown_keys_are_refused() {
