@@ -41,14 +41,33 @@ fn wrist_scan(
         kinematic_error,
         ..SimSettings::default()
     };
+    camera_scan(
+        model,
+        mount,
+        q,
+        &settings,
+        Intrinsics::compact_1280x960(),
+        seed,
+    )
+}
+
+/// A scan from the wrist camera at `q` with the given sensor and cell.
+fn camera_scan(
+    model: &RobotModel,
+    mount: Isometry3<f64>,
+    q: &[f64],
+    settings: &SimSettings,
+    intrinsics: Intrinsics,
+    seed: u64,
+) -> SimulatedScan {
     let req = ScanRequest::new(
         model,
         q.to_vec(),
         Placement::EyeInHand {
             flange_from_camera: mount,
         },
-        Intrinsics::compact_1280x960(),
-        &settings,
+        intrinsics,
+        settings,
         seed,
     );
     simulate_scan(&req).expect("simulated")
@@ -158,17 +177,7 @@ fn uncertainty_covers_an_active_stereo_cameras_smooth_depth_errors() {
     let intrinsics = Intrinsics::preset("realsense-d435").expect("preset");
     let mut ratios = Vec::new();
     for (k, q) in views.iter().enumerate() {
-        let req = ScanRequest::new(
-            &model,
-            q.clone(),
-            Placement::EyeInHand {
-                flange_from_camera: mount,
-            },
-            intrinsics,
-            &settings,
-            60 + k as u64,
-        );
-        let scan = simulate_scan(&req).expect("simulated");
+        let scan = camera_scan(&model, mount, q, &settings, intrinsics, 60 + k as u64);
         let posed = posed_model(&model, q).expect("posed");
         let Ok(reg) = register_posed(&scan.cloud, &posed, None, &RegisterOptions::default()) else {
             continue;
