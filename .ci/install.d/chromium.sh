@@ -4,16 +4,10 @@
 # machine (Debian's `chromium` and `chromium-driver` packages; nothing is downloaded outside
 # the package manager).
 set -euo pipefail
+. "$(dirname "$0")/../apt.sh"
 
 if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null 2>&1; then
-  if command -v apt-get >/dev/null 2>&1; then
-    export DEBIAN_FRONTEND=noninteractive
-    apt-get update
-    apt-get install -y --no-install-recommends chromium chromium-driver fonts-dejavu-core
-  else
-    echo "chromium.sh: chromium/chromedriver are missing and apt-get is unavailable" >&2
-    exit 1
-  fi
+  apt_install "chromium/chromedriver are missing" chromium chromium-driver fonts-dejavu-core
 fi
 chromium --version
 chromedriver --version

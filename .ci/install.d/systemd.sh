@@ -6,15 +6,9 @@
 # scripts call systemctl only when systemd is the running init (/run/systemd/system exists),
 # and `systemd-analyze verify` works offline, without a running manager.
 set -euo pipefail
+. "$(dirname "$0")/../apt.sh"
 
 if ! command -v systemd-analyze >/dev/null 2>&1; then
-  if command -v apt-get >/dev/null 2>&1; then
-    export DEBIAN_FRONTEND=noninteractive
-    apt-get update
-    apt-get install -y --no-install-recommends systemd
-  else
-    echo "systemd.sh: systemd-analyze is missing and apt-get is unavailable" >&2
-    exit 1
-  fi
+  apt_install "systemd-analyze is missing" systemd
 fi
 systemd-analyze --version | head -n 1

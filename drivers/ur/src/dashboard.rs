@@ -450,8 +450,9 @@ mod tests {
         assert!(!msg.chars().any(char::is_control), "{msg:?}");
     }
 
-    /// Fuzz target `dashboard` (hal::fuzz): mutated replies to `robotmode` and
-    /// `PolyscopeVersion` parse or are refused with a message.
+    /// Fuzz target `dashboard` (hal::fuzz): mutated replies to `robotmode`,
+    /// `PolyscopeVersion`, `get serial number` and `get robot model` parse or are refused with
+    /// a message.
     #[test]
     fn fuzz_dashboard_replies() {
         let seeds = vec![
