@@ -375,12 +375,26 @@ fn the_guess_is_honoured_on_every_real_frame() {
     calibrate_and_check(&set, &set.frames, true);
 }
 
-/// Without a guess the global search may fail on these scans, but what it returns is never
-/// accepted far from the reference.
+/// Without a guess the global search finds the arm among the second arm, the monitor, cables
+/// and boxes, as an object standing on the table: on at least 4 of the 5 frames it ends where
+/// the reference as a guess ends (16–61 mm / 0.8–2.8° from it: the frames' depth errors, not
+/// the search, keep it there), and nothing it returns is accepted far from the reference.
 #[test]
-fn without_a_guess_nothing_wrong_is_accepted() {
+fn without_a_guess_the_arm_is_found_among_the_clutter() {
     let Some(set) = real_set() else { return };
-    for f in &set.frames {
-        calibrate_and_check(&set, std::slice::from_ref(f), false);
-    }
+    let found = set
+        .frames
+        .iter()
+        .filter_map(|f| calibrate_and_check(&set, std::slice::from_ref(f), false))
+        .filter(|(mm, deg, _)| *mm <= FOUND_MM && *deg <= FOUND_DEG)
+        .count();
+    assert!(
+        found >= 4,
+        "the arm was found on only {found} of {} frames",
+        set.frames.len()
+    );
 }
+
+/// A pose this close to the reference is the arm found (the guess's own results are within).
+const FOUND_MM: f64 = 65.0;
+const FOUND_DEG: f64 = 3.0;

@@ -92,7 +92,7 @@ pub(super) fn candidates(
             let polished: Vec<Candidate> = seeds.par_iter().filter_map(&polish).collect();
             (polished, seeds.len())
         };
-        let ranked = coarse::support_planes(&pts, opts.seed);
+        let ranked = coarse::support_planes(&pts, opts.seed, p.m(coarse::PLANE_TOLERANCE_M));
         planes_found = ranked.len();
         // A floor, table or wall the robot is mounted on has (almost) nothing behind it.
         let plausible = ranked
@@ -102,6 +102,32 @@ pub(super) fn candidates(
         let (polished, n) = search(&planes, opts.max_hypotheses);
         n_hyp += n;
         cands.extend(polished);
+        // A camera fixed in the cell sees the whole arm as an object of its own on the plane;
+        // its normals, 1–2 m away, may be too poor for the Hough vote (see `coarse::objects`).
+        if p.reach.is_none() {
+            let tol = Tolerances {
+                matched_m: p.m(0.015),
+                free_m: p.m(0.03),
+            };
+            let seeds: Vec<Isometry3<f64>> = planes
+                .iter()
+                .flat_map(|pl| {
+                    coarse::objects::hypotheses(
+                        &p.range,
+                        &p.surface,
+                        &pts,
+                        pl,
+                        tol,
+                        p.m(0.01),
+                        opts.max_hypotheses,
+                    )
+                })
+                .map(|h| h.0)
+                .collect();
+            tracing::debug!(seeds = seeds.len(), "object hypotheses");
+            n_hyp += seeds.len();
+            cands.extend(seeds.par_iter().filter_map(&polish).collect::<Vec<_>>());
+        }
         // No plane the robot could stand on (the floor beyond the camera's range or seen
         // edge-on by a camera level with the base), or none on which it was found: derive
         // mounting planes from the robot's own cylinders.

@@ -1,0 +1,273 @@
+//! Hypotheses from the objects standing on a plane: for a camera fixed in the cell, which sees
+//! the whole arm from afar.
+//!
+//! The Hough vote of [`super::hypotheses`] pairs scan and model points by their normals. A
+//! consumer RGB-D camera 1–2 m away measures normals that are tens of degrees off (its depth is
+//! bent in blobs of ±10–20 mm a few centimetres wide), so the right pair's yaw is lost and
+//! clutter outvotes the arm. The arm is still an object of its own: the scan points above the
+//! plane fall into separate clumps (the arm, another robot, a monitor, boxes), and the arm's
+//! clump has the arm's visible side's shape. For each clump and each turn of the arm about its
+//! axis, the posed model's camera-facing surface is placed so that its centroid falls on the
+//! clump's (in the plane), and the pose is scored on the range image: positions and the plane
+//! alone, no normals but the model's.
+
+use std::collections::VecDeque;
+use std::f64::consts::PI;
+
+use nalgebra::{Isometry3, Point3, Vector2, Vector3};
+use rayon::prelude::*;
+
+use super::{camera_from_plane, distinct_hypotheses, plane_pose, Oriented, Plane};
+use crate::calib::kdtree::KdTree;
+use crate::calib::range::RangeImage;
+use crate::calib::surface::{ModelSurface, Sample};
+use crate::calib::verify::{evidence, score, Tolerances};
+
+/// Cell of the occupancy grid the clumps are separated on, metres: objects this far apart on
+/// the plane are told apart.
+const CELL_M: f64 = 0.03;
+/// Largest grid side, cells (12 m at [`CELL_M`]); points beyond are left out.
+const MAX_CELLS: usize = 400;
+/// Turns of the arm about its axis tried per clump (5° apart).
+const TURNS: usize = 72;
+/// Distinct turns kept per clump.
+const PER_CLUMP: usize = 2;
+/// Clumps tried, most points first.
+const MAX_CLUMPS: usize = 8;
+/// A clump with fewer scan points than this is too small to be the arm.
+const MIN_CLUMP_POINTS: usize = 30;
+/// How far above the plane a scan point must be to belong to an object, metres (its own
+/// noise keeps the plane's points below).
+const ABOVE_M: f64 = 0.02;
+
+/// Candidate `camera_from_model` poses of the robot standing on `plane`, best first (at most
+/// `max_out`, distinct): the posed model's camera-facing surface centred on each clump of scan
+/// points above the plane, at every turn about its axis, scored on the range image with `tol`.
+/// `height_m` lifts the scan's points that count as above the plane (the plane's noise).
+pub(crate) fn hypotheses(
+    range: &RangeImage<'_>,
+    surface: &ModelSurface,
+    pts: &[Oriented],
+    plane: &Plane,
+    tol: Tolerances,
+    height_m: f64,
+    max_out: usize,
+) -> Vec<(Isometry3<f64>, f64)> {
+    let fit_depth = surface.fit_depth;
+    let model: Vec<&Sample> = surface
+        .coarse
+        .iter()
+        .filter(|s| s.depth as usize <= fit_depth)
+        .collect();
+    let zmax = model.iter().map(|s| s.p.z).fold(0.0, f64::max);
+    if model.is_empty() || zmax <= 0.0 {
+        return Vec::new();
+    }
+    let cam_from_plane = camera_from_plane(plane);
+    let plane_from_cam = cam_from_plane.inverse();
+    let camera = plane_from_cam * Point3::origin();
+    let above: Vec<Point3<f64>> = pts
+        .iter()
+        .map(|o| plane_from_cam * o.p)
+        .filter(|q| q.z > height_m.max(ABOVE_M) && q.z < zmax + 0.05)
+        .collect();
+    let clumps = clumps(&above);
+    // Scoring ranks only (polishing judges again): a third of the samples will do.
+    let scoring: Vec<Sample> = surface.coarse.iter().step_by(3).copied().collect();
+    let jobs: Vec<(usize, usize)> = (0..clumps.len())
+        .flat_map(|c| (0..TURNS).map(move |t| (c, t)))
+        .collect();
+    let scored: Vec<(usize, Isometry3<f64>, f64)> = jobs
+        .par_iter()
+        .map(|&(c, t)| {
+            let yaw = t as f64 * 2.0 * PI / TURNS as f64;
+            let at = place(&model, &clumps[c], yaw, &camera);
+            let pose = cam_from_plane * plane_pose(at.x, at.y, 0.0, yaw);
+            let e = evidence(range, &scoring, &pose, fit_depth, tol);
+            (c, pose, score(&e))
+        })
+        .collect();
+    // Per clump its best distinct turns; the clumps take turns, so that the arm's clump is
+    // not crowded out by a bigger object on which the model happens to score well.
+    let mut per_clump: Vec<Vec<(Isometry3<f64>, f64)>> = vec![Vec::new(); clumps.len()];
+    for (c, pose, s) in scored {
+        per_clump[c].push((pose, s));
+    }
+    for v in &mut per_clump {
+        v.sort_by(|a, b| b.1.total_cmp(&a.1));
+        let mut kept: Vec<(Isometry3<f64>, f64)> = Vec::new();
+        for (pose, s) in v.drain(..) {
+            if kept.len() < PER_CLUMP && kept.iter().all(|(o, _)| distinct_hypotheses(o, &pose)) {
+                kept.push((pose, s));
+            }
+        }
+        *v = kept;
+    }
+    let mut out: Vec<(Isometry3<f64>, f64)> = Vec::new();
+    for rank in 0..PER_CLUMP {
+        for v in &per_clump {
+            if let Some(h) = v.get(rank) {
+                if out.len() < max_out {
+                    out.push(*h);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Model samples [`place`] aligns per turn (evenly thinned beyond).
+const PLACE_SAMPLES: usize = 400;
+/// Rounds of [`place`]'s planar alignment and the distance a pair may span in each, metres.
+const PLACE_GATES_M: [f64; 4] = [0.15, 0.1, 0.06, 0.04];
+
+/// Where the robot's origin stands (plane x, y) turned by `yaw` on `clump`: first so that the
+/// centroid of its surface facing `camera` falls on the clump's centroid, then moved in the
+/// plane by the median offset of each facing sample to its nearest clump point, in rounds of
+/// tighter gates. The centroid alone is centimetres off (the clump has cables and parts the
+/// arm hides, the model surface the arm hides from itself); a turn 5° off the right one is
+/// still found within about a centimetre.
+fn place(model: &[&Sample], clump: &Clump, yaw: f64, camera: &Point3<f64>) -> Vector2<f64> {
+    let (s, c) = yaw.sin_cos();
+    let turn = |v: &Vector3<f64>| Vector3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z);
+    let turned: Vec<(Vector3<f64>, Vector3<f64>)> = model
+        .iter()
+        .map(|m| (turn(&m.p.coords), turn(&m.n)))
+        .collect();
+    let facing = |at: Vector2<f64>| {
+        turned.iter().filter(move |(p, n)| {
+            n.dot(&(camera.coords - (p + Vector3::new(at.x, at.y, 0.0)))) > 0.0
+        })
+    };
+    let mut at = clump.centroid;
+    for _ in 0..2 {
+        let (mut sum, mut n) = (Vector2::zeros(), 0usize);
+        for (p, _) in facing(at) {
+            sum += p.xy();
+            n += 1;
+        }
+        if n == 0 {
+            return at;
+        }
+        at = clump.centroid - sum / n as f64;
+    }
+    for gate in PLACE_GATES_M {
+        let front: Vec<&(Vector3<f64>, Vector3<f64>)> = facing(at).collect();
+        let step = (front.len() / PLACE_SAMPLES).max(1);
+        let (mut dx, mut dy): (Vec<f64>, Vec<f64>) = front
+            .iter()
+            .step_by(step)
+            .filter_map(|(p, _)| {
+                let q = p + Vector3::new(at.x, at.y, 0.0);
+                let (k, _) = clump.tree.nearest(q.cast::<f32>().into(), gate as f32)?;
+                let d = clump.points[k].coords.cast::<f64>() - q;
+                Some((d.x, d.y))
+            })
+            .unzip();
+        if dx.len() < 10 {
+            break;
+        }
+        at += Vector2::new(median(&mut dx), median(&mut dy));
+    }
+    at
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// One clump of scan points above the plane (plane frame).
+struct Clump {
+    centroid: Vector2<f64>,
+    points: Vec<Point3<f32>>,
+    tree: KdTree,
+}
+
+/// The centroids (plane x, y) of the clumps of `above` (points in the plane frame): the
+/// connected occupied cells of a [`CELL_M`] grid, the [`MAX_CLUMPS`] with most points, each
+/// with at least [`MIN_CLUMP_POINTS`].
+fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
+    if above.is_empty() {
+        return Vec::new();
+    }
+    let (mut lo, mut hi) = (
+        Vector2::repeat(f64::INFINITY),
+        Vector2::repeat(f64::NEG_INFINITY),
+    );
+    for q in above {
+        lo = lo.inf(&q.xy().coords);
+        hi = hi.sup(&q.xy().coords);
+    }
+    let side = |a: f64, b: f64| (((b - a) / CELL_M) as usize + 1).min(MAX_CELLS);
+    let (nx, ny) = (side(lo.x, hi.x), side(lo.y, hi.y));
+    let cell = |q: &Point3<f64>| {
+        let ix = ((q.x - lo.x) / CELL_M) as usize;
+        let iy = ((q.y - lo.y) / CELL_M) as usize;
+        (ix < nx && iy < ny).then_some(iy * nx + ix)
+    };
+    let mut count = vec![0usize; nx * ny];
+    let mut sum = vec![Vector2::<f64>::zeros(); nx * ny];
+    for q in above {
+        if let Some(i) = cell(q) {
+            count[i] += 1;
+            sum[i] += q.xy().coords;
+        }
+    }
+    // Connected components of the occupied cells (8-neighbourhood).
+    let mut label = vec![usize::MAX; nx * ny];
+    let mut found: Vec<(usize, Vector2<f64>, usize)> = Vec::new();
+    for start in 0..nx * ny {
+        if count[start] == 0 || label[start] != usize::MAX {
+            continue;
+        }
+        let id = start;
+        let (mut n, mut s) = (0usize, Vector2::zeros());
+        let mut queue = VecDeque::from([start]);
+        label[start] = id;
+        while let Some(i) = queue.pop_front() {
+            n += count[i];
+            s += sum[i];
+            let (x, y) = ((i % nx) as isize, (i / nx) as isize);
+            for (dx, dy) in [
+                (-1, -1),
+                (0, -1),
+                (1, -1),
+                (-1, 0),
+                (1, 0),
+                (-1, 1),
+                (0, 1),
+                (1, 1),
+            ] {
+                let (xx, yy) = (x + dx, y + dy);
+                if xx < 0 || yy < 0 || xx as usize >= nx || yy as usize >= ny {
+                    continue;
+                }
+                let j = yy as usize * nx + xx as usize;
+                if count[j] > 0 && label[j] == usize::MAX {
+                    label[j] = id;
+                    queue.push_back(j);
+                }
+            }
+        }
+        found.push((n, s / n as f64, id));
+    }
+    found.sort_by(|a, b| b.0.cmp(&a.0));
+    found.retain(|(n, _, _)| *n >= MIN_CLUMP_POINTS);
+    found.truncate(MAX_CLUMPS);
+    let mut members: Vec<Vec<Point3<f32>>> = vec![Vec::new(); found.len()];
+    for q in above {
+        if let Some(k) = cell(q).and_then(|i| found.iter().position(|f| f.2 == label[i])) {
+            members[k].push(q.cast::<f32>());
+        }
+    }
+    found
+        .into_iter()
+        .zip(members)
+        .map(|((_, centroid, _), points)| Clump {
+            centroid,
+            tree: KdTree::new(&points),
+            points,
+        })
+        .collect()
+}
