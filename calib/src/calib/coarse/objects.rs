@@ -252,7 +252,7 @@ fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
         }
         found.push((n, s / n as f64, id));
     }
-    found.sort_by(|a, b| b.0.cmp(&a.0));
+    found.sort_by_key(|f| std::cmp::Reverse(f.0));
     found.retain(|(n, _, _)| *n >= MIN_CLUMP_POINTS);
     found.truncate(MAX_CLUMPS);
     let mut members: Vec<Vec<Point3<f32>>> = vec![Vec::new(); found.len()];
