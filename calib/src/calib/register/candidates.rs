@@ -68,6 +68,7 @@ pub(super) fn candidates(
         }
     }
     let mut planes_found = 0;
+    let covered = |cands: &[Candidate]| cands.iter().map(|c| c.e.coverage()).fold(0.0, f64::max);
     if !from_prior {
         let pts = coarse::oriented_subsample(&p.range, 30_000, p.m(0.008));
         // Hough hypotheses on `planes`, each polished (the strongest also half-turned).
@@ -99,11 +100,10 @@ pub(super) fn candidates(
             .first()
             .is_some_and(|r| r.0 as f64 <= MAX_BEHIND_SUPPORT * pts.len() as f64);
         let planes: Vec<coarse::Plane> = ranked.iter().take(SUPPORT_PLANES).map(|r| r.1).collect();
-        let (polished, n) = search(&planes, opts.max_hypotheses);
-        n_hyp += n;
-        cands.extend(polished);
         // A camera fixed in the cell sees the whole arm as an object of its own on the plane;
-        // its normals, 1–2 m away, may be too poor for the Hough vote (see `coarse::objects`).
+        // its normals, 1–2 m away, may be too poor for the Hough vote (see `coarse::objects`),
+        // which is left out when the objects show the arm.
+        let mut found_object = false;
         if p.reach.is_none() {
             let tol = Tolerances {
                 matched_m: p.m(0.015),
@@ -126,13 +126,21 @@ pub(super) fn candidates(
                 .collect();
             tracing::debug!(seeds = seeds.len(), "object hypotheses");
             n_hyp += seeds.len();
-            cands.extend(seeds.par_iter().filter_map(&polish).collect::<Vec<_>>());
+            let polished: Vec<Candidate> = seeds.par_iter().filter_map(&polish).collect();
+            found_object = covered(&polished) >= FALLBACK_COVERAGE;
+            cands.extend(polished);
+        }
+        if !found_object {
+            let (polished, n) = search(&planes, opts.max_hypotheses);
+            n_hyp += n;
+            cands.extend(polished);
         }
         // No plane the robot could stand on (the floor beyond the camera's range or seen
         // edge-on by a camera level with the base), or none on which it was found: derive
         // mounting planes from the robot's own cylinders.
-        let best_coverage = cands.iter().map(|c| c.e.coverage()).fold(0.0, f64::max);
-        if !plausible || best_coverage < FALLBACK_COVERAGE {
+        // An arm found as an object on a plane needs no derived planes, whether or not the
+        // plane looks like its support (a table's edge shows the floor behind it).
+        if (!plausible && !found_object) || covered(&cands) < FALLBACK_COVERAGE {
             let flat: Vec<coarse::Plane> = ranked.iter().map(|r| r.1).collect();
             let derived = coarse::derived_planes(&pts, &flat, &p.surface, opts.seed);
             planes_found += derived.len();
