@@ -6,7 +6,7 @@ use nalgebra::Isometry3;
 use serde::Serialize;
 
 use super::gate::Verdict;
-use super::register::{Quality, Registration, StageTimings, Uncertainty};
+use super::register::{Quality, Registration, StageTimings, Uncertainty, WorkspaceSigma};
 use super::solve::{HandEyeSolution, Mount, Residual};
 use super::Outcome;
 use crate::frames::to_row_major;
@@ -189,9 +189,28 @@ impl CalibrationReport {
             .map(|v| v.rotation_deg.powi(2))
             .sum::<f64>()
             / n;
+        // Eye-to-hand, the same at the robot base (where the views are compared): every used
+        // frame's σ there, and the views' spread there.
+        let workspace = solution.workspace_point.and_then(|p| {
+            let var_w = used_regs
+                .iter()
+                .map(|r| r.uncertainty.workspace.map(|w| w.translation_mm.powi(2)))
+                .sum::<Option<f64>>()?
+                / m;
+            let spread_w = views_used
+                .iter()
+                .map(|v| v.position_mm().powi(2))
+                .sum::<f64>()
+                / n;
+            Some(WorkspaceSigma {
+                translation_mm: ((var_w + spread_w) / n).sqrt(),
+                distance_m: p.coords.norm(),
+            })
+        });
         let uncertainty = Uncertainty {
             translation_mm: ((var_t + spread_t) / n).sqrt(),
             rotation_deg: ((var_r + spread_r) / n).sqrt(),
+            workspace,
         };
         let mut timings = ReportTimings {
             solve: solve_ms,
@@ -248,8 +267,10 @@ impl CalibrationReport {
         );
         let _ = writeln!(
             s,
-            "uncertainty (1σ): {:.3} mm, {:.4}°",
-            self.uncertainty.translation_mm, self.uncertainty.rotation_deg
+            "uncertainty (1σ): {:.3} mm, {:.4}°{}",
+            self.uncertainty.translation_mm,
+            self.uncertainty.rotation_deg,
+            self.uncertainty.workspace_note()
         );
         let q = &self.quality;
         let _ = writeln!(
@@ -267,11 +288,16 @@ impl CalibrationReport {
         for f in &self.frames {
             let _ = writeln!(
                 s,
-                "  frame {} (view {}, {}): residual {:.3} mm / {:.4}°{}, coverage {:.1}%, {:.0} ms",
+                "  frame {} (view {}, {}): residual {:.3} mm{} / {:.4}°{}, coverage {:.1}%, {:.0} ms",
                 f.residual.index,
                 f.view,
                 f.source,
-                f.residual.translation_mm,
+                f.residual.position_mm(),
+                if f.residual.workspace_mm.is_some() {
+                    " at the robot base"
+                } else {
+                    ""
+                },
                 f.residual.rotation_deg,
                 if f.residual.used { "" } else { " (dropped)" },
                 100.0 * f.quality.coverage,
