@@ -642,6 +642,9 @@ pub fn run_trial(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calib::pipeline::{calibrate_frames, Frame};
+    use crate::calib::solve::distance_at;
+    use crate::sim::simulate_scan;
     use crate::testutil::shared_robot;
 
     /// Eye-to-hand: a fixed camera 0.8–2 m from the base sees the whole arm in random
@@ -699,6 +702,57 @@ mod tests {
         .expect("views");
         let mut rng = rand::rngs::StdRng::seed_from_u64(3);
         assert_eq!(eih.mount, random_mount(&mut rng));
+    }
+
+    /// A fixed camera 1.5–2 m from a UR10e: a turn of the camera by its rotation σ moves its
+    /// origin by more than the gate's 1 mm, the robot base it looks at by well under. The gate
+    /// judges the base (accepted), and the result is right there.
+    #[test]
+    fn a_fixed_camera_far_from_the_arm_is_judged_at_the_robot_base() {
+        let Some(model) = shared_robot("ur/ur10e/ur10e.urdf") else {
+            return;
+        };
+        let cfg = BenchConfig {
+            views: 1,
+            scans_per_view: 1,
+            // The camera 1.62 m from the base.
+            seed: 2,
+            ..BenchConfig::new(Mount::EyeToHand)
+        };
+        let plan = plan_trials(&model, &cfg).expect("views");
+        let req = cfg.scan_request(&model, &plan.views[0], plan.mount, plan.scan_seeds[0][0]);
+        let req = match cfg.true_arm(&model, plan.scan_seeds[0][0]) {
+            Some(arm) => req.with_arm(arm),
+            None => req,
+        };
+        let scan = simulate_scan(&req).expect("simulated");
+        let frame = Frame {
+            view: 0,
+            cloud: scan.cloud,
+            joints: plan.views[0].clone(),
+            model_from_flange: Some(scan.truth.model_from_flange_reported),
+            source: "far".into(),
+        };
+        let c = calibrate_frames(&model, &[frame], &PipelineOptions::new(Mount::EyeToHand))
+            .expect("registered");
+        let u = c.registrations[0].uncertainty;
+        let w = u.workspace.expect("a registration reports the base's σ");
+        eprintln!("{u:?} {:?}", c.verdict);
+        assert!(w.distance_m > 1.5 && w.distance_m < 2.0, "{w:?}");
+        assert!(u.translation_mm > 1.0, "{u:?}");
+        assert!(w.translation_mm < 0.7, "{u:?}");
+        assert!(c.verdict.passed(), "{:?}", c.verdict);
+        assert_eq!(
+            c.report.uncertainty.workspace.map(|f| f.distance_m),
+            Some(w.distance_m)
+        );
+        // Right where the camera looks: the true base, in the camera frame, lands within 2 mm.
+        let base = Point3::from(plan.mount.inverse().translation.vector);
+        let (off_mm, turn_deg) = distance_at(&c.base_from_camera, &plan.mount, &base);
+        assert!(
+            off_mm < WRONG_TRANSLATION_MM && turn_deg < WRONG_ROTATION_DEG,
+            "{off_mm} mm {turn_deg}°"
+        );
     }
 
     #[test]
