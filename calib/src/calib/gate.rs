@@ -247,39 +247,10 @@ pub fn gate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::register::{Quality, StageTimings, Uncertainty, WorkspaceSigma};
+    use crate::calib::register::{Uncertainty, WorkspaceSigma};
     use crate::calib::solve::{solve, FrameInput, Mount, SolveOptions};
-    use nalgebra::{Matrix6, Vector3};
-
-    fn good_registration() -> Registration {
-        Registration {
-            camera_from_model: Isometry3::new(
-                Vector3::new(0.0, 0.0, 0.6),
-                Vector3::new(3.0, 0.0, 0.0),
-            ),
-            covariance_6x6: Matrix6::identity() * 1e-8,
-            uncertainty: Uncertainty {
-                translation_mm: 0.2,
-                rotation_deg: 0.02,
-                workspace: None,
-            },
-            quality: Quality {
-                coverage: 0.9,
-                free_space_violations: 0.01,
-                rmse_mm: 0.3,
-                inlier_fraction: 0.9,
-                points_used: 5000,
-                visible_samples: 20000,
-                hypotheses: 3,
-                from_prior: false,
-                ambiguity: 0.2,
-                link_support: [Some(0.95), Some(0.9), Some(0.85)],
-            },
-            degenerate_directions: vec![],
-            depth_scale: Some(1.001),
-            timings_ms: StageTimings::default(),
-        }
-    }
+    use crate::calib::testutil::good_registration;
+    use nalgebra::Vector3;
 
     #[test]
     fn gate_passes_good_and_rejects_each_bad_property() {
