@@ -15,12 +15,15 @@ use handeye_hal::ur_dh::PhysicalArm;
 
 use crate::calib::pipeline::{calibrate_frames, Frame, PipelineOptions};
 use crate::calib::register::elapsed_ms;
+use crate::calib::solve::{distance, distance_at};
 use crate::calib::{GateThresholds, Mount, Outcome, Quality, RegisterOptions};
 use crate::model::{KinematicError, RobotModel};
 use crate::plan::{differs_from_all, random_joints, PlanError, ViewConstraints, ViewPlanner};
 use crate::sim::{look_at, simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 
-/// A result off by more than this is wrong (and must have been rejected), mm.
+/// A result off by more than this is wrong (and must have been rejected), mm: at the camera
+/// origin for a wrist camera, at the robot base for a fixed camera (where it looks, see
+/// [`Trial::workspace_distance_m`]).
 pub const WRONG_TRANSLATION_MM: f64 = 2.0;
 /// A result off by more than this is wrong (and must have been rejected), degrees.
 pub const WRONG_ROTATION_DEG: f64 = 0.5;
@@ -175,12 +178,21 @@ pub struct Trial {
     pub outcome: Outcome,
     /// Why it was rejected or failed.
     pub reasons: Vec<String>,
-    /// Camera position error of the unknown (`flange_from_camera` eye-in-hand,
-    /// `base_from_camera` eye-to-hand), mm (NaN on error).
+    /// Position error of the unknown (`flange_from_camera` eye-in-hand, `base_from_camera`
+    /// eye-to-hand), mm (NaN on error): eye-in-hand at the camera origin, eye-to-hand at the
+    /// robot base (how far from where it is the result puts the base the fixed camera sees).
     pub translation_error_mm: f64,
+    /// Eye-to-hand: the distance of the robot base, where `translation_error_mm` and
+    /// `uncertainty_translation_mm` are measured, from the camera, metres. `None`: both at the
+    /// camera origin (eye-in-hand).
+    pub workspace_distance_m: Option<f64>,
+    /// Eye-to-hand: the camera origin's position error, mm (1–2 m from the arm, mostly the
+    /// rotation error times that lever). `None` eye-in-hand (`translation_error_mm` is it).
+    pub camera_origin_error_mm: Option<f64>,
     /// Camera rotation error of the unknown, degrees (NaN on error).
     pub rotation_error_deg: f64,
-    /// Reported 1-σ translation uncertainty, mm.
+    /// Reported 1-σ position uncertainty where `translation_error_mm` is measured, mm (what
+    /// the gate judges, [`crate::calib::Uncertainty::position_mm`]).
     pub uncertainty_translation_mm: f64,
     /// Reported 1-σ rotation uncertainty, degrees.
     pub uncertainty_rotation_deg: f64,
@@ -539,6 +551,8 @@ pub fn run_trial(
         outcome: Outcome::Error,
         reasons: Vec::new(),
         translation_error_mm: f64::NAN,
+        workspace_distance_m: None,
+        camera_origin_error_mm: None,
         rotation_error_deg: f64::NAN,
         uncertainty_translation_mm: f64::NAN,
         uncertainty_rotation_deg: f64::NAN,
@@ -606,10 +620,19 @@ pub fn run_trial(
         Mount::EyeToHand => calibration.base_from_camera,
     };
     let err = mount.inverse() * estimate;
-    trial.translation_error_mm =
-        (estimate.translation.vector - mount.translation.vector).norm() * 1e3;
+    let (sigma_mm, base_m) = reg.uncertainty.position_mm(cfg.mount);
+    // Eye-to-hand: the true robot base in the camera frame, where the σ is measured.
+    let at = match base_m {
+        Some(_) => Point3::from(mount.inverse().translation.vector),
+        None => Point3::origin(),
+    };
+    trial.translation_error_mm = distance_at(&estimate, &mount, &at).0;
+    if base_m.is_some() {
+        trial.camera_origin_error_mm = Some(distance(&estimate, &mount).0);
+    }
+    trial.workspace_distance_m = base_m;
     trial.rotation_error_deg = err.rotation.angle().to_degrees();
-    trial.uncertainty_translation_mm = reg.uncertainty.translation_mm;
+    trial.uncertainty_translation_mm = sigma_mm;
     trial.uncertainty_rotation_deg = reg.uncertainty.rotation_deg;
     trial.outcome = calibration.verdict.outcome;
     trial.reasons = calibration.verdict.reasons;
@@ -619,6 +642,9 @@ pub fn run_trial(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calib::pipeline::{calibrate_frames, Frame};
+    use crate::calib::solve::distance_at;
+    use crate::sim::simulate_scan;
     use crate::testutil::shared_robot;
 
     /// Eye-to-hand: a fixed camera 0.8–2 m from the base sees the whole arm in random
@@ -678,6 +704,57 @@ mod tests {
         assert_eq!(eih.mount, random_mount(&mut rng));
     }
 
+    /// A fixed camera 1.5–2 m from a UR10e: a turn of the camera by its rotation σ moves its
+    /// origin by more than the gate's 1 mm, the robot base it looks at by well under. The gate
+    /// judges the base (accepted), and the result is right there.
+    #[test]
+    fn a_fixed_camera_far_from_the_arm_is_judged_at_the_robot_base() {
+        let Some(model) = shared_robot("ur/ur10e/ur10e.urdf") else {
+            return;
+        };
+        let cfg = BenchConfig {
+            views: 1,
+            scans_per_view: 1,
+            // The camera 1.62 m from the base.
+            seed: 2,
+            ..BenchConfig::new(Mount::EyeToHand)
+        };
+        let plan = plan_trials(&model, &cfg).expect("views");
+        let req = cfg.scan_request(&model, &plan.views[0], plan.mount, plan.scan_seeds[0][0]);
+        let req = match cfg.true_arm(&model, plan.scan_seeds[0][0]) {
+            Some(arm) => req.with_arm(arm),
+            None => req,
+        };
+        let scan = simulate_scan(&req).expect("simulated");
+        let frame = Frame {
+            view: 0,
+            cloud: scan.cloud,
+            joints: plan.views[0].clone(),
+            model_from_flange: Some(scan.truth.model_from_flange_reported),
+            source: "far".into(),
+        };
+        let c = calibrate_frames(&model, &[frame], &PipelineOptions::new(Mount::EyeToHand))
+            .expect("registered");
+        let u = c.registrations[0].uncertainty;
+        let w = u.workspace.expect("a registration reports the base's σ");
+        eprintln!("{u:?} {:?}", c.verdict);
+        assert!(w.distance_m > 1.5 && w.distance_m < 2.0, "{w:?}");
+        assert!(u.translation_mm > 1.0, "{u:?}");
+        assert!(w.translation_mm < 0.7, "{u:?}");
+        assert!(c.verdict.passed(), "{:?}", c.verdict);
+        assert_eq!(
+            c.report.uncertainty.workspace.map(|f| f.distance_m),
+            Some(w.distance_m)
+        );
+        // Right where the camera looks: the true base, in the camera frame, lands within 2 mm.
+        let base = Point3::from(plan.mount.inverse().translation.vector);
+        let (off_mm, turn_deg) = distance_at(&c.base_from_camera, &plan.mount, &base);
+        assert!(
+            off_mm < WRONG_TRANSLATION_MM && turn_deg < WRONG_ROTATION_DEG,
+            "{off_mm} mm {turn_deg}°"
+        );
+    }
+
     #[test]
     fn stats_are_the_textbook_ones_and_ignore_nan() {
         let s = Stats::of([1.0, 2.0, 3.0, 4.0, f64::NAN, 100.0]);
@@ -695,6 +772,8 @@ mod tests {
             outcome,
             reasons: vec![],
             translation_error_mm: e,
+            workspace_distance_m: None,
+            camera_origin_error_mm: None,
             rotation_error_deg: 0.01,
             uncertainty_translation_mm: 0.1,
             uncertainty_rotation_deg: 0.01,

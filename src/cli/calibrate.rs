@@ -242,8 +242,10 @@ pub(crate) fn summary(r: &RunRecord) -> String {
             s += &describe_pose("camera_from_base", &t.inverse());
         }
         s += &format!(
-            "  uncertainty (1σ): {:.3} mm, {:.4}°\n",
-            res.uncertainty.translation_mm, res.uncertainty.rotation_deg
+            "  uncertainty (1σ): {:.3} mm, {:.4}°{}\n",
+            res.uncertainty.translation_mm,
+            res.uncertainty.rotation_deg,
+            res.uncertainty.workspace_note()
         );
     }
     if let Some(d) = &r.drift {

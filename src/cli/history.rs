@@ -243,8 +243,10 @@ fn write_record(
         let u = result.uncertainty;
         writeln!(
             out,
-            "          1σ uncertainty ±{:.3} mm, ±{:.4}°",
-            u.translation_mm, u.rotation_deg
+            "          1σ uncertainty ±{:.3} mm, ±{:.4}°{}",
+            u.translation_mm,
+            u.rotation_deg,
+            u.workspace_note()
         )?;
     }
     if let Some(d) = &rec.drift {
@@ -393,6 +395,7 @@ mod tests {
         let uncertainty = Uncertainty {
             translation_mm: 0.21,
             rotation_deg: 0.03,
+            workspace: None,
         };
         let accepted = outcome == Outcome::Accepted;
         RunRecord {

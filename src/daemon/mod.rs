@@ -919,8 +919,10 @@ fn outcome_line(record: &RunRecord, took: Duration) -> String {
     }
     if let (Outcome::Accepted, Some(r)) = (record.outcome, &record.result) {
         line += &format!(
-            "; uncertainty {:.3} mm / {:.4}°",
-            r.uncertainty.translation_mm, r.uncertainty.rotation_deg
+            "; uncertainty {:.3} mm / {:.4}°{}",
+            r.uncertainty.translation_mm,
+            r.uncertainty.rotation_deg,
+            r.uncertainty.workspace_note()
         );
     }
     if let Some(reason) = record.reasons.first() {

@@ -440,6 +440,20 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
             true,
             INK,
         );
+        if let Some(w) = r.uncertainty.workspace {
+            y += 18;
+            c.text(
+                rx,
+                y,
+                &format!(
+                    "at the robot base ({:.2} m away)  {:.3} mm",
+                    w.distance_m, w.translation_mm
+                ),
+                Size::Small,
+                true,
+                INK,
+            );
+        }
         y += 26;
         y = heading(&mut c, rx, y, rw, "QUALITY");
         let q = &r.quality;

@@ -31,6 +31,7 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
     let uncertainty = Uncertainty {
         translation_mm: 0.21,
         rotation_deg: 0.03,
+        workspace: None,
     };
     let report = CalibrationReport {
         outcome,

@@ -22,11 +22,15 @@ pub struct GateThresholds {
     pub max_rmse_mm: f64,
     /// Minimum fraction of scan points near the model that fit it.
     pub min_inlier_fraction: f64,
-    /// Maximum 1-σ uncertainty of the camera position, per registration, mm.
+    /// Maximum 1-σ uncertainty of the camera position, per registration, mm: eye-in-hand at
+    /// the camera origin, eye-to-hand at the robot base ([`super::Uncertainty::workspace`]),
+    /// where the fixed camera looks (its origin, 1–2 m away, moves by the rotation σ times
+    /// that lever, which the rotation limit already bounds).
     pub max_uncertainty_translation_mm: f64,
     /// Maximum 1-σ uncertainty of the camera rotation, per registration, degrees.
     pub max_uncertainty_rotation_deg: f64,
-    /// Maximum disagreement of a used frame or view with the fused result, mm.
+    /// Maximum disagreement of a used frame or view with the fused result, mm
+    /// ([`super::Residual::position_mm`]: eye-to-hand at the robot base).
     pub max_residual_translation_mm: f64,
     /// Maximum disagreement of a used frame or view with the fused result, degrees.
     pub max_residual_rotation_deg: f64,
@@ -81,6 +85,12 @@ impl Verdict {
     }
 }
 
+/// Where an eye-to-hand position is measured (the robot base, `distance_m` from the camera),
+/// for the reasons; eye-in-hand positions are at the camera origin and say nothing.
+fn at_the_robot_base(distance_m: f64) -> String {
+    format!(" at the robot base ({distance_m:.2} m from the camera)")
+}
+
 /// Checks every registration (index = frame index) and the fused solution; `previous` is the
 /// last accepted result in the same frame as `solution.estimate`.
 pub fn gate(
@@ -133,12 +143,13 @@ pub fn gate(
                 100.0 * th.min_inlier_fraction
             ));
         }
-        if r.uncertainty.translation_mm > th.max_uncertainty_translation_mm
+        let (position_mm, base_m) = r.uncertainty.position_mm(solution.mount);
+        let at = base_m.map(at_the_robot_base).unwrap_or_default();
+        if position_mm > th.max_uncertainty_translation_mm
             || r.uncertainty.rotation_deg > th.max_uncertainty_rotation_deg
         {
             reasons.push(format!(
-                "frame {i}: uncertainty {:.2} mm / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links",
-                r.uncertainty.translation_mm,
+                "frame {i}: uncertainty {position_mm:.2} mm{at} / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links",
                 r.uncertainty.rotation_deg,
                 th.max_uncertainty_translation_mm,
                 th.max_uncertainty_rotation_deg
@@ -166,23 +177,29 @@ pub fn gate(
             }
         }
     }
+    let at = solution
+        .workspace_point
+        .map(|p| at_the_robot_base(p.coords.norm()))
+        .unwrap_or_default();
     for f in solution.frames.iter().filter(|f| f.used) {
-        if f.translation_mm > th.max_residual_translation_mm
+        if f.position_mm() > th.max_residual_translation_mm
             || f.rotation_deg > th.max_residual_rotation_deg
         {
             reasons.push(format!(
-                "frame {}: disagrees with the fused result by {:.2} mm / {:.3}° (max {:.2} mm / {:.3}°)",
-                f.index, f.translation_mm, f.rotation_deg, th.max_residual_translation_mm, th.max_residual_rotation_deg
+                "frame {}: disagrees with the fused result by {:.2} mm{at} / {:.3}° (max {:.2} mm / {:.3}°)",
+                f.index, f.position_mm(), f.rotation_deg, th.max_residual_translation_mm, th.max_residual_rotation_deg
             ));
         }
     }
     for v in solution.views.iter().filter(|v| v.used) {
-        if v.translation_mm > th.max_residual_translation_mm
+        if v.position_mm() > th.max_residual_translation_mm
             || v.rotation_deg > th.max_residual_rotation_deg
         {
             reasons.push(format!(
-                "view {}: disagrees with the fused result by {:.2} mm / {:.3}°",
-                v.index, v.translation_mm, v.rotation_deg
+                "view {}: disagrees with the fused result by {:.2} mm{at} / {:.3}°",
+                v.index,
+                v.position_mm(),
+                v.rotation_deg
             ));
         }
     }
@@ -194,8 +211,10 @@ pub fn gate(
             .iter()
             .map(|f| {
                 format!(
-                    "frame {} ({:.1} mm / {:.2}° off)",
-                    f.index, f.translation_mm, f.rotation_deg
+                    "frame {} ({:.1} mm{at} / {:.2}° off)",
+                    f.index,
+                    f.position_mm(),
+                    f.rotation_deg
                 )
             })
             .collect();
@@ -228,38 +247,10 @@ pub fn gate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::register::{Quality, StageTimings, Uncertainty};
+    use crate::calib::register::{Uncertainty, WorkspaceSigma};
     use crate::calib::solve::{solve, FrameInput, Mount, SolveOptions};
-    use nalgebra::{Matrix6, Vector3};
-
-    fn good_registration() -> Registration {
-        Registration {
-            camera_from_model: Isometry3::new(
-                Vector3::new(0.0, 0.0, 0.6),
-                Vector3::new(3.0, 0.0, 0.0),
-            ),
-            covariance_6x6: Matrix6::identity() * 1e-8,
-            uncertainty: Uncertainty {
-                translation_mm: 0.2,
-                rotation_deg: 0.02,
-            },
-            quality: Quality {
-                coverage: 0.9,
-                free_space_violations: 0.01,
-                rmse_mm: 0.3,
-                inlier_fraction: 0.9,
-                points_used: 5000,
-                visible_samples: 20000,
-                hypotheses: 3,
-                from_prior: false,
-                ambiguity: 0.2,
-                link_support: [Some(0.95), Some(0.9), Some(0.85)],
-            },
-            degenerate_directions: vec![],
-            depth_scale: Some(1.001),
-            timings_ms: StageTimings::default(),
-        }
-    }
+    use crate::calib::testutil::good_registration;
+    use nalgebra::Vector3;
 
     #[test]
     fn gate_passes_good_and_rejects_each_bad_property() {
@@ -279,6 +270,14 @@ mod tests {
             Box::new(|r| r.quality.rmse_mm = 3.0),
             Box::new(|r| r.quality.inlier_fraction = 0.2),
             Box::new(|r| r.uncertainty.translation_mm = 2.0),
+            Box::new(|r| {
+                r.uncertainty.workspace = Some(WorkspaceSigma {
+                    translation_mm: 0.1,
+                    distance_m: 0.6,
+                });
+                r.uncertainty.translation_mm = 2.0;
+                r.uncertainty.rotation_deg = 0.5;
+            }),
             Box::new(|r| r.uncertainty.rotation_deg = 0.5),
             Box::new(|r| r.degenerate_directions.push(nalgebra::Vector6::z())),
             Box::new(|r| r.depth_scale = Some(1.2)),
@@ -322,5 +321,95 @@ mod tests {
                 .any(|r| r.contains(&format!("dropped: frame {} (3.0 mm", dropped.index))),
             "{v:?}"
         );
+    }
+
+    /// A camera fixed 1.6 m from the arm: its origin's σ (1.6 mm) is the rotation σ (0.05°)
+    /// times the lever, the robot base's is 0.3 mm. Eye-to-hand gates the base's σ (accepted);
+    /// the same numbers on a wrist camera are judged at its origin (rejected); a base σ above
+    /// the limit is rejected naming the point.
+    #[test]
+    fn eye_to_hand_gates_the_position_sigma_at_the_robot_base() {
+        let mut reg = good_registration();
+        reg.camera_from_model =
+            Isometry3::new(Vector3::new(0.1, 0.2, 1.6), Vector3::new(2.2, 0.0, 0.0));
+        reg.uncertainty = Uncertainty {
+            translation_mm: 1.6,
+            rotation_deg: 0.05,
+            workspace: Some(WorkspaceSigma {
+                translation_mm: 0.3,
+                distance_m: reg.camera_from_model.translation.vector.norm(),
+            }),
+        };
+        let th = GateThresholds::default();
+        let fixed = [FrameInput {
+            view: 0,
+            camera_from_model: reg.camera_from_model,
+            model_from_flange: None,
+        }];
+        let sol = solve(Mount::EyeToHand, &fixed, &SolveOptions::default()).expect("solved");
+        let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
+        assert!(v.passed(), "{v:?}");
+        let wrist = [FrameInput {
+            model_from_flange: Some(Isometry3::translation(0.4, 0.0, 0.6)),
+            ..fixed[0].clone()
+        }];
+        let sol_wrist = solve(Mount::EyeInHand, &wrist, &SolveOptions::default()).expect("solved");
+        let v = gate(std::slice::from_ref(&reg), &sol_wrist, None, &th);
+        assert_eq!(
+            v.reasons,
+            ["frame 0: uncertainty 1.60 mm / 0.050° (max 1.00 mm / 0.200°): show more of the base and first links"]
+        );
+        if let Some(w) = reg.uncertainty.workspace.as_mut() {
+            w.translation_mm = 1.3;
+        }
+        let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
+        assert_eq!(
+            v.reasons,
+            ["frame 0: uncertainty 1.30 mm at the robot base (1.62 m from the camera) / 0.050° (max 1.00 mm / 0.200°): show more of the base and first links"]
+        );
+    }
+
+    /// Two frames of a fixed camera 1.6 m away that differ by a turn of 0.1° about the robot
+    /// base: 2.8 mm apart at the camera origin, in the same place at the base. Neither is an
+    /// outlier, and the residuals say so; a wrist camera's frames are compared at its origin.
+    #[test]
+    fn eye_to_hand_frames_are_compared_at_the_robot_base() {
+        let camera_from_model =
+            Isometry3::new(Vector3::new(0.1, -0.2, 1.6), Vector3::new(2.2, 0.1, 0.0));
+        let base = nalgebra::Point3::from(camera_from_model.translation.vector);
+        // A turn about the base, in the camera frame.
+        let turn = Isometry3::translation(base.x, base.y, base.z)
+            * Isometry3::rotation(Vector3::new(0.0, 0.1f64.to_radians(), 0.0))
+            * Isometry3::translation(-base.x, -base.y, -base.z);
+        let frames: Vec<FrameInput> = [camera_from_model, turn * camera_from_model]
+            .into_iter()
+            .enumerate()
+            .map(|(view, camera_from_model)| FrameInput {
+                view,
+                camera_from_model,
+                model_from_flange: Some(Isometry3::translation(0.4, 0.0, 0.6)),
+            })
+            .collect();
+        let opts = SolveOptions::default();
+        let fixed = solve(Mount::EyeToHand, &frames, &opts).expect("solved");
+        assert!(fixed.views.iter().all(|v| v.used), "{fixed:?}");
+        for v in &fixed.views {
+            assert!(v.translation_mm > 1.0, "{v:?}");
+            assert!(v.workspace_mm.is_some_and(|w| w < 0.01), "{v:?}");
+            assert_eq!(v.position_mm(), v.workspace_mm.unwrap_or(f64::NAN));
+        }
+        let (d, _) = crate::calib::solve::distance(
+            &frames[0].camera_from_model.inverse(),
+            &frames[1].camera_from_model.inverse(),
+        );
+        assert!(d > 2.5, "{d} mm apart at the camera origin");
+        let wrist = solve(Mount::EyeInHand, &frames, &opts).expect("solved");
+        assert_eq!(wrist.workspace_point, None);
+        assert_eq!(
+            wrist.views.iter().filter(|v| v.used).count(),
+            1,
+            "{wrist:?}"
+        );
+        assert!(wrist.views.iter().all(|v| v.workspace_mm.is_none()));
     }
 }

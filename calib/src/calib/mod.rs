@@ -47,6 +47,7 @@ pub use gate::{gate, GateThresholds, Verdict};
 pub use register::{
     posed_model, posed_model_with_controller_kinematics, posed_model_with_kinematics, register,
     register_posed, Quality, RegisterOptions, Registration, StageTimings, Uncertainty,
+    WorkspaceSigma,
 };
 pub use report::CalibrationReport;
 pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};

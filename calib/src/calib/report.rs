@@ -6,7 +6,7 @@ use nalgebra::Isometry3;
 use serde::Serialize;
 
 use super::gate::Verdict;
-use super::register::{Quality, Registration, StageTimings, Uncertainty};
+use super::register::{Quality, Registration, StageTimings, Uncertainty, WorkspaceSigma};
 use super::solve::{HandEyeSolution, Mount, Residual};
 use super::Outcome;
 use crate::frames::to_row_major;
@@ -189,9 +189,28 @@ impl CalibrationReport {
             .map(|v| v.rotation_deg.powi(2))
             .sum::<f64>()
             / n;
+        // Eye-to-hand, the same at the robot base (where the views are compared): every used
+        // frame's σ there, and the views' spread there.
+        let workspace = solution.workspace_point.and_then(|p| {
+            let var_w = used_regs
+                .iter()
+                .map(|r| r.uncertainty.workspace.map(|w| w.translation_mm.powi(2)))
+                .sum::<Option<f64>>()?
+                / m;
+            let spread_w = views_used
+                .iter()
+                .map(|v| v.position_mm().powi(2))
+                .sum::<f64>()
+                / n;
+            Some(WorkspaceSigma {
+                translation_mm: ((var_w + spread_w) / n).sqrt(),
+                distance_m: p.coords.norm(),
+            })
+        });
         let uncertainty = Uncertainty {
             translation_mm: ((var_t + spread_t) / n).sqrt(),
             rotation_deg: ((var_r + spread_r) / n).sqrt(),
+            workspace,
         };
         let mut timings = ReportTimings {
             solve: solve_ms,
@@ -248,8 +267,10 @@ impl CalibrationReport {
         );
         let _ = writeln!(
             s,
-            "uncertainty (1σ): {:.3} mm, {:.4}°",
-            self.uncertainty.translation_mm, self.uncertainty.rotation_deg
+            "uncertainty (1σ): {:.3} mm, {:.4}°{}",
+            self.uncertainty.translation_mm,
+            self.uncertainty.rotation_deg,
+            self.uncertainty.workspace_note()
         );
         let q = &self.quality;
         let _ = writeln!(
@@ -267,11 +288,16 @@ impl CalibrationReport {
         for f in &self.frames {
             let _ = writeln!(
                 s,
-                "  frame {} (view {}, {}): residual {:.3} mm / {:.4}°{}, coverage {:.1}%, {:.0} ms",
+                "  frame {} (view {}, {}): residual {:.3} mm{} / {:.4}°{}, coverage {:.1}%, {:.0} ms",
                 f.residual.index,
                 f.view,
                 f.source,
-                f.residual.translation_mm,
+                f.residual.position_mm(),
+                if f.residual.workspace_mm.is_some() {
+                    " at the robot base"
+                } else {
+                    ""
+                },
                 f.residual.rotation_deg,
                 if f.residual.used { "" } else { " (dropped)" },
                 100.0 * f.quality.coverage,
@@ -285,5 +311,70 @@ impl CalibrationReport {
             t.preprocess, t.coarse, t.fine, t.verify, t.total
         );
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::solve::{solve, FrameInput, SolveOptions};
+    use crate::calib::testutil::good_registration;
+    use nalgebra::Vector3;
+
+    /// Two views of a fixed camera: the fused σ at the robot base is the frames' σ there and
+    /// the views' spread there, over the views; the summary names the point. A wrist camera's
+    /// report has no such σ.
+    #[test]
+    fn an_eye_to_hand_report_fuses_the_sigma_at_the_robot_base() {
+        let mut reg = good_registration();
+        reg.camera_from_model =
+            Isometry3::new(Vector3::new(0.2, -0.1, 1.5), Vector3::new(2.4, 0.0, 0.0));
+        reg.uncertainty.translation_mm = 1.4;
+        reg.uncertainty.workspace = Some(WorkspaceSigma {
+            translation_mm: 0.3,
+            distance_m: reg.camera_from_model.translation.vector.norm(),
+        });
+        let mut other = reg.clone();
+        other.camera_from_model = Isometry3::translation(0.0004, 0.0, 0.0) * reg.camera_from_model;
+        let regs = [reg, other];
+        let frames: Vec<FrameInput> = regs
+            .iter()
+            .enumerate()
+            .map(|(view, r)| FrameInput {
+                view,
+                camera_from_model: r.camera_from_model,
+                model_from_flange: Some(Isometry3::translation(0.4, 0.0, 0.6)),
+            })
+            .collect();
+        let verdict = Verdict {
+            outcome: Outcome::Accepted,
+            reasons: vec![],
+        };
+        let report = |mount| {
+            let s = solve(mount, &frames, &SolveOptions::default()).expect("solved");
+            let names = ["a".to_string(), "b".to_string()];
+            CalibrationReport::new(&s, &regs, &names, &verdict, "base", &s.estimate, 0.0, 0.0)
+        };
+        let fixed = report(Mount::EyeToHand);
+        let w = fixed.uncertainty.workspace.expect("eye-to-hand");
+        // Each view 0.2 mm from the mean: ((0.3² + 0.2²) / 2)^½.
+        let expected = ((0.3f64.powi(2) + 0.2f64.powi(2)) / 2.0).sqrt();
+        assert!((w.translation_mm - expected).abs() < 1e-9, "{w:?}");
+        assert!((w.distance_m - 1.5166).abs() < 1e-3, "{w:?}");
+        assert!(
+            fixed
+                .summary()
+                .contains("; at the robot base, 1.52 m from the camera: 0.255 mm"),
+            "{}",
+            fixed.summary()
+        );
+        let wrist = report(Mount::EyeInHand);
+        assert_eq!(wrist.uncertainty.workspace, None);
+        assert!((wrist.uncertainty.translation_mm - fixed.uncertainty.translation_mm).abs() < 1e-9);
+        assert!(
+            !wrist.summary().contains("robot base"),
+            "{}",
+            wrist.summary()
+        );
     }
 }

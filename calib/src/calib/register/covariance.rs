@@ -1,9 +1,9 @@
 //! Stage 4, `verify` (its covariance): the result's covariance in the camera frame, its 1-σ
 //! summary and the directions the visible geometry leaves unconstrained.
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix3x6, Matrix6, Vector3, Vector6};
 
-use super::{RegisterOptions, Uncertainty};
+use super::{RegisterOptions, Uncertainty, WorkspaceSigma};
 use crate::calib::fine::IcpResult;
 
 /// The residual spread ([`IcpResult::residual_spread_m`]) of the scans the registration was
@@ -48,6 +48,23 @@ fn isotropic(metres: f64, radians: f64) -> Matrix6<f64> {
     Matrix6::from_diagonal(&Vector6::new(t, t, t, r, r, r))
 }
 
+/// Root-sum-square 1-σ (metres) of the position of the point `p` (camera frame, metres) under
+/// the pose covariance `cov` (a left perturbation `(ρ, φ)` in the camera frame, as
+/// [`super::Registration::covariance_6x6`]): the point moves by `ρ + φ × p = J·(ρ, φ)` with
+/// `J = [I, −[p]×]`, so its covariance is `J·cov·Jᵀ`. At `p = 0` the camera origin's σ.
+pub(crate) fn position_sigma_m(cov: &Matrix6<f64>, p: &Vector3<f64>) -> f64 {
+    let mut j = Matrix3x6::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&Matrix3::identity());
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&-p.cross_matrix());
+    rss(&(j * cov * j.transpose())).sqrt()
+}
+
+/// Trace of a 3×3 covariance (the root-sum-square variance), clamped at 0.
+fn rss(cov: &Matrix3<f64>) -> f64 {
+    cov.trace().max(0.0)
+}
+
 /// Covariance in the camera frame (inflated), its 1-σ summary and the degenerate directions.
 ///
 /// `estimate` is the fit whose pose is returned (its covariance is the result's, plus the
@@ -69,14 +86,16 @@ pub(super) fn uncertainty(
     let (floor_m, floor_rad) = opts.model_accuracy;
     let floor = isotropic(floor_m, floor_rad);
     let cov = ad * (estimate.cov6 + smooth_depth_error(estimate)) * ad.transpose() + floor;
-    let tr = |k: usize| {
-        (cov[(k, k)] + cov[(k + 1, k + 1)] + cov[(k + 2, k + 2)])
-            .max(0.0)
-            .sqrt()
-    };
+    let base = camera_from_model.translation.vector;
     let unc = Uncertainty {
-        translation_mm: tr(0) * 1000.0,
-        rotation_deg: tr(3).to_degrees(),
+        translation_mm: position_sigma_m(&cov, &Vector3::zeros()) * 1000.0,
+        rotation_deg: rss(&cov.fixed_view::<3, 3>(3, 3).into_owned())
+            .sqrt()
+            .to_degrees(),
+        workspace: Some(WorkspaceSigma {
+            translation_mm: position_sigma_m(&cov, &base) * 1000.0,
+            distance_m: base.norm(),
+        }),
     };
     // Degeneracy: eigen-decomposition of the information about the correspondences' centroid
     // c (so rotations and translations decouple), rotations scaled by their spread L.
@@ -104,4 +123,78 @@ pub(super) fn uncertainty(
         }
     }
     (cov, unc, degenerate)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix6x3;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// A fixed camera that only turns about the robot base 1.5 m away (σ 0.03° per axis):
+    /// the base stays where it is, the camera origin moves by the turn times the lever.
+    #[test]
+    fn a_turn_about_a_point_leaves_it_in_place_and_moves_the_camera_origin() {
+        let p = Vector3::new(0.3, -0.2, 1.5);
+        let s = 0.03f64.to_radians();
+        // δ = (ρ, φ) with ρ = −φ × p = [p]× φ: a turn φ about p.
+        let mut a = Matrix6x3::zeros();
+        a.fixed_view_mut::<3, 3>(0, 0).copy_from(&p.cross_matrix());
+        a.fixed_view_mut::<3, 3>(3, 0)
+            .copy_from(&Matrix3::identity());
+        let cov = a * Matrix3::identity() * s.powi(2) * a.transpose();
+        assert!(
+            position_sigma_m(&cov, &p) < 1e-9,
+            "{}",
+            position_sigma_m(&cov, &p)
+        );
+        // [p]× has the singular values |p|, |p|, 0.
+        let at_origin = position_sigma_m(&cov, &Vector3::zeros());
+        assert!(
+            (at_origin - s * p.norm() * 2f64.sqrt()).abs() < 1e-12,
+            "{at_origin}"
+        );
+        // A pure shift is the same everywhere.
+        let shift = isotropic(0.2e-3, 0.0);
+        assert!((position_sigma_m(&shift, &p) - 0.2e-3).abs() < 1e-15);
+        assert!((position_sigma_m(&shift, &Vector3::zeros()) - 0.2e-3).abs() < 1e-15);
+    }
+
+    /// The point-moved σ matches the spread of the point under poses drawn from a correlated
+    /// covariance (Monte Carlo, 20 000 draws).
+    #[test]
+    fn the_point_sigma_matches_a_monte_carlo_of_the_pose() {
+        // A correlated covariance: L·Lᵀ of a fixed lower-triangular L (metres, radians).
+        let l = Matrix6::from_fn(|i, j| {
+            let scale = |k: usize| if k < 3 { 0.3e-3 } else { 0.4e-3 };
+            match i.cmp(&j) {
+                std::cmp::Ordering::Less => 0.0,
+                std::cmp::Ordering::Equal => scale(i),
+                std::cmp::Ordering::Greater => 0.5 * scale(i) * ((i * 7 + j * 3) % 5) as f64 / 4.0,
+            }
+        });
+        let cov = l * l.transpose();
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let p = nalgebra::Point3::new(-0.4, 0.25, 1.8);
+        for point in [nalgebra::Point3::origin(), p] {
+            let n = 20_000;
+            let mut sum_sq = 0.0;
+            for _ in 0..n {
+                let z = Vector6::from_fn(|_, _| StandardNormal.sample(&mut rng));
+                let d = l * z;
+                let pose = Isometry3::new(
+                    d.fixed_rows::<3>(0).into_owned(),
+                    d.fixed_rows::<3>(3).into_owned(),
+                );
+                sum_sq += (pose * point - point).norm_squared();
+            }
+            let mc = (sum_sq / n as f64).sqrt();
+            let analytic = position_sigma_m(&cov, &point.coords);
+            assert!(
+                (mc / analytic - 1.0).abs() < 0.03,
+                "at {point}: Monte Carlo {mc}, analytic {analytic}"
+            );
+        }
+    }
 }

@@ -38,6 +38,7 @@ use handeye_hal::PointCloud;
 use nalgebra::{Isometry3, Matrix6, Vector6};
 use serde::Serialize;
 
+use super::solve::Mount;
 use super::surface::{PosedJoint, PosedModel};
 use super::verify::{evidence_per_depth, Evidence};
 use super::CalibError;
@@ -134,6 +135,51 @@ pub struct Uncertainty {
     pub translation_mm: f64,
     /// Root-sum-square 1-σ of the rotation vector, degrees.
     pub rotation_deg: f64,
+    /// The position σ where the camera looks, at the robot base. For a camera fixed in the
+    /// cell the camera origin is 1–2 m from the arm, and its σ is mostly the rotation σ times
+    /// that lever; what the result is used for is where `base_from_camera` puts the points the
+    /// camera sees, whose error is this one. A registration always reports it; a fused result
+    /// only for eye-to-hand (a wrist camera sees the base from another place in every view).
+    /// `None` in records written before it was reported.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub workspace: Option<WorkspaceSigma>,
+}
+
+/// Root-sum-square 1-σ of the position of one point the camera sees: the robot base (the
+/// model root's origin), as `camera_from_model` (or `base_from_camera`) places it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
+pub struct WorkspaceSigma {
+    /// 1-σ of the point's position, mm: for a left perturbation `(ρ, φ)` of the pose in the
+    /// camera frame, the σ of `ρ + φ × p` at the point `p` (camera frame).
+    pub translation_mm: f64,
+    /// Distance of the point from the camera origin, metres: the lever between the two
+    /// position σ (a 0.03° rotation σ moves the camera origin 2 m away by 1 mm, not the base).
+    pub distance_m: f64,
+}
+
+impl Uncertainty {
+    /// The position σ the gate judges for a camera mounted as `mount`, mm, with the distance
+    /// of the point it is measured at from the camera (metres) when that is the robot base:
+    /// eye-to-hand at the robot base (when reported), else at the camera origin (`None`).
+    pub fn position_mm(&self, mount: Mount) -> (f64, Option<f64>) {
+        match (mount, self.workspace) {
+            (Mount::EyeToHand, Some(w)) => (w.translation_mm, Some(w.distance_m)),
+            _ => (self.translation_mm, None),
+        }
+    }
+
+    /// The workspace σ for the reports' text (empty when not reported), e.g. `"; at the robot
+    /// base, 1.42 m from the camera: 0.210 mm"`.
+    pub fn workspace_note(&self) -> String {
+        self.workspace
+            .map(|w| {
+                format!(
+                    "; at the robot base, {:.2} m from the camera: {:.3} mm",
+                    w.distance_m, w.translation_mm
+                )
+            })
+            .unwrap_or_default()
+    }
 }
 
 /// How well the result is supported by the scan (independent of ICP fitness).
