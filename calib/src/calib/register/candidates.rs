@@ -37,15 +37,21 @@ pub(super) struct Candidates {
     pub(super) ranked: Vec<Candidate>,
     /// Whether they came from the prior (no global search).
     pub(super) from_prior: bool,
+    /// Whether the search stopped at the objects on the planes (see [`candidates`]'s `thorough`).
+    pub(super) shortcut: bool,
     /// Hypotheses polished.
     pub(super) hypotheses: usize,
 }
 
-/// Stage 2. Errors when no candidate covers enough of the model to be the robot.
+/// Stage 2. Errors when no candidate covers enough of the model to be the robot. Not
+/// `thorough`, a camera fixed in the cell whose objects on the planes show the arm skips the
+/// Hough vote and the derived planes; thorough, every search runs (when the shortcut's
+/// candidates all fail the fine alignment).
 pub(super) fn candidates(
     p: &Prepared<'_>,
     prior: Option<Isometry3<f64>>,
     opts: &RegisterOptions,
+    thorough: bool,
 ) -> Result<Candidates, CalibError> {
     let polish = |c: &Isometry3<f64>| p.polish(c);
     let plausible_seed = |c: &Isometry3<f64>| p.plausible_seed(c);
@@ -68,6 +74,7 @@ pub(super) fn candidates(
         }
     }
     let mut planes_found = 0;
+    let mut found_object = false;
     let covered = |cands: &[Candidate]| cands.iter().map(|c| c.e.coverage()).fold(0.0, f64::max);
     if !from_prior {
         let pts = coarse::oriented_subsample(&p.range, 30_000, p.m(0.008));
@@ -103,7 +110,6 @@ pub(super) fn candidates(
         // A camera fixed in the cell sees the whole arm as an object of its own on the plane;
         // its normals, 1–2 m away, may be too poor for the Hough vote (see `coarse::objects`),
         // which is left out when the objects show the arm.
-        let mut found_object = false;
         if p.reach.is_none() {
             let tol = Tolerances {
                 matched_m: p.m(0.015),
@@ -127,7 +133,7 @@ pub(super) fn candidates(
             tracing::debug!(seeds = seeds.len(), "object hypotheses");
             n_hyp += seeds.len();
             let polished: Vec<Candidate> = seeds.par_iter().filter_map(&polish).collect();
-            found_object = covered(&polished) >= FALLBACK_COVERAGE;
+            found_object = !thorough && covered(&polished) >= FALLBACK_COVERAGE;
             cands.extend(polished);
         }
         if !found_object {
@@ -189,6 +195,7 @@ pub(super) fn candidates(
     Ok(Candidates {
         ranked: cands,
         from_prior,
+        shortcut: found_object,
         hypotheses: n_hyp,
     })
 }

@@ -453,10 +453,16 @@ pub fn register_posed(
         ..Default::default()
     };
     let t1 = Instant::now();
-    let cands = candidates::candidates(&p, prior, opts)?;
+    let mut cands = candidates::candidates(&p, prior, opts, false)?;
     timings.coarse = elapsed_ms(t1);
     let t2 = Instant::now();
-    let judged = contenders::judge(&p, &cands.ranked, opts)?;
+    let judged = match contenders::judge(&p, &cands.ranked, opts) {
+        Err(CalibError::RobotNotFound { .. }) if cands.shortcut => {
+            cands = candidates::candidates(&p, prior, opts, true)?;
+            contenders::judge(&p, &cands.ranked, opts)?
+        }
+        judged => judged?,
+    };
     let (camera_from_model, estimate) = link_fit::refine_with_links(&p, model, &judged, opts)?;
     timings.fine = elapsed_ms(t2);
     let t3 = Instant::now();
