@@ -116,10 +116,12 @@ pub(crate) fn hypotheses(
     out
 }
 
-/// Model samples [`place`] aligns per turn (evenly thinned beyond).
-const PLACE_SAMPLES: usize = 400;
+/// Model samples [`place`] centres per turn, and of those it pairs with the clump's points
+/// (evenly thinned beyond).
+const PLACE_SAMPLES: usize = 1000;
+const PAIRED_SAMPLES: usize = 150;
 /// Rounds of [`place`]'s planar alignment and the distance a pair may span in each, metres.
-const PLACE_GATES_M: [f64; 4] = [0.15, 0.1, 0.06, 0.04];
+const PLACE_GATES_M: [f64; 3] = [0.12, 0.06, 0.03];
 
 /// Where the robot's origin stands (plane x, y) turned by `yaw` on `clump`: first so that the
 /// centroid of its surface facing `camera` falls on the clump's centroid, then moved in the
@@ -132,6 +134,7 @@ fn place(model: &[&Sample], clump: &Clump, yaw: f64, camera: &Point3<f64>) -> Ve
     let turn = |v: &Vector3<f64>| Vector3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z);
     let turned: Vec<(Vector3<f64>, Vector3<f64>)> = model
         .iter()
+        .step_by((model.len() / PLACE_SAMPLES).max(1))
         .map(|m| (turn(&m.p.coords), turn(&m.n)))
         .collect();
     let facing = |at: Vector2<f64>| {
@@ -153,7 +156,7 @@ fn place(model: &[&Sample], clump: &Clump, yaw: f64, camera: &Point3<f64>) -> Ve
     }
     for gate in PLACE_GATES_M {
         let front: Vec<&(Vector3<f64>, Vector3<f64>)> = facing(at).collect();
-        let step = (front.len() / PLACE_SAMPLES).max(1);
+        let step = (front.len() / PAIRED_SAMPLES).max(1);
         let (mut dx, mut dy): (Vec<f64>, Vec<f64>) = front
             .iter()
             .step_by(step)
