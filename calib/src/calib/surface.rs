@@ -4,6 +4,7 @@
 use std::sync::Arc;
 
 use nalgebra::{Isometry3, Point3, Unit, Vector3};
+use rayon::prelude::*;
 
 use super::kdtree::KdTree;
 use crate::model::TriMesh;
@@ -115,7 +116,18 @@ pub struct Sample {
     pub n: Vector3<f64>,
     pub tri: u32,
     pub depth: u8,
+    /// In a concave corner where a time-of-flight camera's range is biased by multipath (see
+    /// [`ModelSurface::mark_multipath`]): the fit does not use scan points there.
+    pub biased: bool,
 }
+
+/// Smallest cosine between a surface's normal and the direction to another surface for the
+/// two to face each other (10° above its plane): points of one plane never face each other.
+const FACING_COS: f64 = 0.17;
+
+/// Spacing of the surface probes [`ModelSurface::mark_multipath`] looks for facing surface
+/// among, metres: fine against a clearance of centimetres.
+const PROBE_SPACING_M: f64 = 0.008;
 
 /// The sampled posed model.
 #[derive(Debug)]
@@ -192,7 +204,13 @@ impl ModelSurface {
                             r2 = 1.0 - r2;
                         }
                         let p = a + (b - a) * r1 + (c - a) * r2;
-                        out.push(Sample { p, n, tri, depth });
+                        out.push(Sample {
+                            p,
+                            n,
+                            tri,
+                            depth,
+                            biased: false,
+                        });
                     }
                 };
                 emit(&mut acc, area_per_sample, &mut samples);
@@ -216,6 +234,86 @@ impl ModelSurface {
             tree,
             coarse,
             fit_depth,
+        }
+    }
+
+    /// Marks the fitted samples where a time-of-flight camera's range is biased long by
+    /// multipath: within `clearance_m` of other model surface that faces them and that they
+    /// face (a concave corner: between links), or of the plane the robot stands on (horizontal,
+    /// through the base's lowest point: the base's foot). Light bounced off that surface comes
+    /// back late; on open and convex surface nothing faces the sample.
+    pub(crate) fn mark_multipath(&mut self, clearance_m: f64) {
+        let cell = |p: &Point3<f64>, size: f64| {
+            [
+                (p.x / size).floor() as i64,
+                (p.y / size).floor() as i64,
+                (p.z / size).floor() as i64,
+            ]
+        };
+        // Probes: one sample per small cell and normal octant, hashed by clearance cells.
+        let mut taken = std::collections::HashSet::new();
+        let mut probes: std::collections::HashMap<[i64; 3], Vec<(Point3<f64>, Vector3<f64>)>> =
+            std::collections::HashMap::new();
+        for s in &self.samples {
+            let octant = [s.n.x > 0.0, s.n.y > 0.0, s.n.z > 0.0];
+            if taken.insert((cell(&s.p, PROBE_SPACING_M), octant)) {
+                probes
+                    .entry(cell(&s.p, clearance_m))
+                    .or_default()
+                    .push((s.p, s.n));
+            }
+        }
+        let floor = self
+            .samples
+            .iter()
+            .filter(|s| s.depth == 0)
+            .map(|s| s.p.z)
+            .fold(f64::INFINITY, f64::min);
+        let facing = |p: &Point3<f64>, n: &Vector3<f64>, q: &Point3<f64>, m: &Vector3<f64>| {
+            let d = q - p;
+            let dist = d.norm();
+            dist > 1e-4
+                && dist <= clearance_m
+                && n.dot(&d) > FACING_COS * dist
+                && -m.dot(&d) > FACING_COS * dist
+        };
+        let up = Vector3::z();
+        let fit_depth = self.fit_depth;
+        let flags: Vec<bool> = self
+            .samples
+            .par_iter()
+            .map(|s| {
+                if s.depth as usize > fit_depth {
+                    return false;
+                }
+                // The floor: its nearest facing points lie below the sample, out along its
+                // normal's horizontal part.
+                let h = s.p.z - floor;
+                if h > 1e-4 && h <= clearance_m {
+                    let out = Vector3::new(s.n.x, s.n.y, 0.0)
+                        .try_normalize(1e-9)
+                        .unwrap_or_else(Vector3::x);
+                    let foot = Point3::new(s.p.x, s.p.y, floor);
+                    if (0..=8).any(|k| {
+                        facing(&s.p, &s.n, &(foot + out * (clearance_m * k as f64 / 8.0)), &up)
+                    }) {
+                        return true;
+                    }
+                }
+                let c = cell(&s.p, clearance_m);
+                (-1..=1).any(|i| {
+                    (-1..=1).any(|j| {
+                        (-1..=1).any(|k| {
+                            probes
+                                .get(&[c[0] + i, c[1] + j, c[2] + k])
+                                .is_some_and(|v| v.iter().any(|(q, m)| facing(&s.p, &s.n, q, m)))
+                        })
+                    })
+                })
+            })
+            .collect();
+        for (s, f) in self.samples.iter_mut().zip(flags) {
+            s.biased = f;
         }
     }
 

@@ -41,6 +41,16 @@ fn smooth_depth_error(estimate: &IcpResult) -> Matrix6<f64> {
     to_origin * about_centroid * to_origin.transpose()
 }
 
+/// The covariance the depth parameters the fit did not estimate add, in the fit's parameters:
+/// each one's 1σ ([`RegisterOptions::fixed_depth_error`]) times how far it moves the pose
+/// ([`IcpResult::pose_per_fixed_depth`]).
+fn fixed_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6<f64> {
+    let (scale, offset_m) = opts.fixed_depth_error;
+    let [by_scale, by_offset] = estimate.pose_per_fixed_depth;
+    by_scale * by_scale.transpose() * scale.powi(2)
+        + by_offset * by_offset.transpose() * offset_m.powi(2)
+}
+
 /// The covariance of a shift of `metres` and a turn of `radians` (each the 1σ length of the
 /// 3-vector), in any direction.
 fn isotropic(metres: f64, radians: f64) -> Matrix6<f64> {
@@ -68,7 +78,10 @@ pub(super) fn uncertainty(
     ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
     let (floor_m, floor_rad) = opts.model_accuracy;
     let floor = isotropic(floor_m, floor_rad);
-    let cov = ad * (estimate.cov6 + smooth_depth_error(estimate)) * ad.transpose() + floor;
+    let cov = ad
+        * (estimate.cov6 + smooth_depth_error(estimate) + fixed_depth_error(estimate, opts))
+        * ad.transpose()
+        + floor;
     let tr = |k: usize| {
         (cov[(k, k)] + cov[(k + 1, k + 1)] + cov[(k + 2, k + 2)])
             .max(0.0)
