@@ -146,6 +146,9 @@ pub(crate) struct IcpResult {
     /// the scan's error against the model as the fit sees it, smooth depth errors included
     /// (which the scan's per-pixel noise does not show).
     pub(crate) residual_spread_m: f64,
+    /// The scan's per-pixel noise, metres (the registration sets it from the range image; 0
+    /// when unknown): the part of [`Self::residual_spread_m`] that each point has on its own.
+    pub(crate) pixel_noise_m: f64,
     /// Mean over the scan points in the model's neighbourhood of `1 / (1 + (r / 0.5 mm)²)`
     /// (0 for points without a correspondence): how tightly the scan hugs the model, 0–1.
     /// Tells a right pose from a nearly symmetric wrong one whose fit is merely good.
@@ -717,6 +720,7 @@ pub(crate) fn icp_with_links(
                 0.0
             },
             residual_spread_m,
+            pixel_noise_m: 0.0,
             sharpness: if a.near > 0 {
                 a.sharp / a.near as f64
             } else {

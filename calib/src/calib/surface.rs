@@ -250,18 +250,26 @@ impl ModelSurface {
                 (p.z / size).floor() as i64,
             ]
         };
-        // Probes: one sample per small cell and normal octant, hashed by clearance cells.
-        let mut taken = std::collections::HashSet::new();
-        let mut probes: std::collections::HashMap<[i64; 3], Vec<(Point3<f64>, Vector3<f64>)>> =
+        // Probes: one sample per small cell and normal octant (the samples there share its
+        // verdict), hashed by clearance cells.
+        let probe_key = |s: &Sample| {
+            (
+                cell(&s.p, PROBE_SPACING_M),
+                [s.n.x > 0.0, s.n.y > 0.0, s.n.z > 0.0],
+            )
+        };
+        let mut probe_of = std::collections::HashMap::new();
+        let mut probes: Vec<(Point3<f64>, Vector3<f64>)> = Vec::new();
+        let mut near: std::collections::HashMap<[i64; 3], Vec<usize>> =
             std::collections::HashMap::new();
         for s in &self.samples {
-            let octant = [s.n.x > 0.0, s.n.y > 0.0, s.n.z > 0.0];
-            if taken.insert((cell(&s.p, PROBE_SPACING_M), octant)) {
-                probes
-                    .entry(cell(&s.p, clearance_m))
+            probe_of.entry(probe_key(s)).or_insert_with(|| {
+                near.entry(cell(&s.p, clearance_m))
                     .or_default()
-                    .push((s.p, s.n));
-            }
+                    .push(probes.len());
+                probes.push((s.p, s.n));
+                probes.len() - 1
+            });
         }
         let floor = self
             .samples
@@ -278,42 +286,40 @@ impl ModelSurface {
                 && -m.dot(&d) > FACING_COS * dist
         };
         let up = Vector3::z();
-        let fit_depth = self.fit_depth;
-        let flags: Vec<bool> = self
-            .samples
+        let biased: Vec<bool> = probes
             .par_iter()
-            .map(|s| {
-                if s.depth as usize > fit_depth {
-                    return false;
-                }
-                // The floor: its nearest facing points lie below the sample, out along its
+            .map(|(p, n)| {
+                // The floor: its nearest facing points lie below the probe, out along its
                 // normal's horizontal part.
-                let h = s.p.z - floor;
+                let h = p.z - floor;
                 if h > 1e-4 && h <= clearance_m {
-                    let out = Vector3::new(s.n.x, s.n.y, 0.0)
+                    let out = Vector3::new(n.x, n.y, 0.0)
                         .try_normalize(1e-9)
                         .unwrap_or_else(Vector3::x);
-                    let foot = Point3::new(s.p.x, s.p.y, floor);
+                    let foot = Point3::new(p.x, p.y, floor);
                     if (0..=8).any(|k| {
-                        facing(&s.p, &s.n, &(foot + out * (clearance_m * k as f64 / 8.0)), &up)
+                        facing(p, n, &(foot + out * (clearance_m * k as f64 / 8.0)), &up)
                     }) {
                         return true;
                     }
                 }
-                let c = cell(&s.p, clearance_m);
+                let c = cell(p, clearance_m);
                 (-1..=1).any(|i| {
                     (-1..=1).any(|j| {
                         (-1..=1).any(|k| {
-                            probes
-                                .get(&[c[0] + i, c[1] + j, c[2] + k])
-                                .is_some_and(|v| v.iter().any(|(q, m)| facing(&s.p, &s.n, q, m)))
+                            near.get(&[c[0] + i, c[1] + j, c[2] + k])
+                                .is_some_and(|v| {
+                                    v.iter().any(|&o| facing(p, n, &probes[o].0, &probes[o].1))
+                                })
                         })
                     })
                 })
             })
             .collect();
-        for (s, f) in self.samples.iter_mut().zip(flags) {
-            s.biased = f;
+        let fit_depth = self.fit_depth;
+        for s in &mut self.samples {
+            s.biased = s.depth as usize <= fit_depth
+                && probe_of.get(&probe_key(s)).is_some_and(|&o| biased[o]);
         }
     }
 

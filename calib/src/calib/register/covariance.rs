@@ -27,7 +27,10 @@ const SMOOTH_ERROR_SHARE: f64 = 0.6;
 /// correspondences' extent, about their centroid, in any direction. Zero for scans as clean as
 /// the structured-light camera's.
 fn smooth_depth_error(estimate: &IcpResult) -> Matrix6<f64> {
-    let excess = (estimate.residual_spread_m.powi(2) - TUNED_RESIDUAL_SPREAD_M.powi(2))
+    // The per-pixel noise is in the spread too, but not shared: the residuals' patch sums
+    // already count it.
+    let own = TUNED_RESIDUAL_SPREAD_M.max(estimate.pixel_noise_m);
+    let excess = (estimate.residual_spread_m.powi(2) - own.powi(2))
         .max(0.0)
         .sqrt()
         * SMOOTH_ERROR_SHARE;

@@ -464,7 +464,9 @@ pub fn register_posed(
     timings.coarse = elapsed_ms(t1);
     let t2 = Instant::now();
     let judged = contenders::judge(&p, &cands.ranked, opts)?;
-    let (camera_from_model, estimate) = link_fit::refine_with_links(&p, model, &judged, opts)?;
+    let (camera_from_model, mut estimate) =
+        link_fit::refine_with_links(&p, model, &judged, opts)?;
+    estimate.pixel_noise_m = p.range.noise_m().unwrap_or(0.0);
     timings.fine = elapsed_ms(t2);
     let t3 = Instant::now();
     let (covariance_6x6, uncertainty, degenerate_directions) =
