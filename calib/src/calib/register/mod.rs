@@ -467,6 +467,12 @@ pub fn register_posed(
     let (camera_from_model, mut estimate) =
         link_fit::refine_with_links(&p, model, &judged, opts)?;
     estimate.pixel_noise_m = p.range.noise_m().unwrap_or(0.0);
+    tracing::debug!(
+        depth = ?estimate.depth,
+        spread_mm = estimate.residual_spread_m * 1e3,
+        noise_mm = estimate.pixel_noise_m * 1e3,
+        "depth correction"
+    );
     timings.fine = elapsed_ms(t2);
     let t3 = Instant::now();
     let (covariance_6x6, uncertainty, degenerate_directions) =
