@@ -88,6 +88,29 @@ impl DepthCorrection {
     }
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_correction_moves_points_along_their_rays_and_back() {
+        let c = DepthCorrection {
+            kappa: 0.999,
+            range_m: -0.003,
+        };
+        let measured = Vector3::new(0.2, -0.1, 0.6);
+        let truth = c.apply(&measured);
+        // Along the ray: the same direction, 3 mm shorter after the scale.
+        assert!(truth.normalize().cross(&measured.normalize()).norm() < 1e-12);
+        assert!((truth.norm() - (0.999 * measured.norm() - 0.003)).abs() < 1e-12);
+        assert!((c.measured(&truth) - measured).norm() < 1e-12);
+        // The camera's ranges are long: a positive offset, in mm after the scale.
+        assert!((c.range_offset_m() - 0.003 / 0.999).abs() < 1e-12);
+        assert!((c.depth_scale() - 1.0 / 0.999).abs() < 1e-12);
+        assert_eq!(DepthCorrection::NONE.apply(&measured), measured);
+    }
+}
+
 /// `p / |p|` (zero at the origin).
 fn unit_ray(p: &Vector3<f64>) -> Vector3<f64> {
     p.try_normalize(1e-12).unwrap_or_else(Vector3::zeros)
@@ -558,7 +581,8 @@ pub(crate) fn icp_with_links(
             let mut delta = -hd.clone().cholesky()?.solve(&g);
             // An ill-conditioned depth parameter (too little depth relief in the
             // correspondences) falls back to none for the rest of the run.
-            let scale_wild = free.scale && (depth.kappa + delta[SCALE] - 1.0).abs() > MAX_SCALE_ERROR;
+            let scale_wild =
+                free.scale && (depth.kappa + delta[SCALE] - 1.0).abs() > MAX_SCALE_ERROR;
             let offset_wild =
                 free.offset && (depth.range_m + delta[OFFSET]).abs() > MAX_RANGE_OFFSET_M;
             if scale_wild || offset_wild {

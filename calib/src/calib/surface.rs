@@ -297,9 +297,9 @@ impl ModelSurface {
                         .try_normalize(1e-9)
                         .unwrap_or_else(Vector3::x);
                     let foot = Point3::new(p.x, p.y, floor);
-                    if (0..=8).any(|k| {
-                        facing(p, n, &(foot + out * (clearance_m * k as f64 / 8.0)), &up)
-                    }) {
+                    if (0..=8)
+                        .any(|k| facing(p, n, &(foot + out * (clearance_m * k as f64 / 8.0)), &up))
+                    {
                         return true;
                     }
                 }
@@ -307,10 +307,9 @@ impl ModelSurface {
                 (-1..=1).any(|i| {
                     (-1..=1).any(|j| {
                         (-1..=1).any(|k| {
-                            near.get(&[c[0] + i, c[1] + j, c[2] + k])
-                                .is_some_and(|v| {
-                                    v.iter().any(|&o| facing(p, n, &probes[o].0, &probes[o].1))
-                                })
+                            near.get(&[c[0] + i, c[1] + j, c[2] + k]).is_some_and(|v| {
+                                v.iter().any(|&o| facing(p, n, &probes[o].0, &probes[o].1))
+                            })
                         })
                     })
                 })
@@ -335,6 +334,46 @@ impl ModelSurface {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The toy arm's base (a cylinder on the floor) under its shoulder: the base's wall is
+    /// biased within the clearance of the floor and not above it, the rim of its top where the
+    /// shoulder stands on it and the shoulder's wall just above that are biased, open surface
+    /// is not.
+    #[test]
+    fn multipath_marks_the_concave_corners_only() {
+        let mut s = ModelSurface::new(
+            &crate::calib::testutil::toy_robot(&[0.0; 3]),
+            2,
+            0.002,
+            0.012,
+        );
+        assert!(s.samples.iter().all(|x| !x.biased));
+        s.mark_multipath(0.03);
+        let share = |f: &dyn Fn(&Sample) -> bool| {
+            let v: Vec<&Sample> = s.samples.iter().filter(|x| f(x)).collect();
+            assert!(v.len() > 20, "{} samples", v.len());
+            v.iter().filter(|x| x.biased).count() as f64 / v.len() as f64
+        };
+        let wall = |x: &Sample| x.depth == 0 && x.n.z.abs() < 0.1;
+        let foot = share(&|x| wall(x) && x.p.z < 0.015);
+        let open_wall = share(&|x| wall(x) && (0.04..0.06).contains(&x.p.z));
+        let rim = share(&|x| {
+            x.depth == 0 && x.n.z > 0.9 && x.p.z > 0.09 && x.p.coords.xy().norm() > 0.064
+        });
+        let shoulder_foot = share(&|x| {
+            x.depth == 1
+                && x.n.z.abs() < 0.1
+                && (0.1..0.115).contains(&x.p.z)
+                && x.p.coords.xy().norm() < 0.061
+        });
+        eprintln!(
+            "foot {foot:.2} open wall {open_wall:.2} rim {rim:.2} shoulder foot {shoulder_foot:.2}"
+        );
+        assert!(foot > 0.9 && rim > 0.9 && shoulder_foot > 0.9);
+        assert!(open_wall < 0.05);
+        // Deeper than the fitted links nothing is marked (they give no correspondences).
+        assert!(s.samples.iter().filter(|x| x.depth > 2).all(|x| !x.biased));
+    }
 
     #[test]
     fn closest_point_on_triangle_regions() {

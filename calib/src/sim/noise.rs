@@ -405,7 +405,9 @@ mod tests {
     /// σ of `noisy_depth` at `z` head-on, and its mean.
     fn spread(n: &ScanNoise, z: f64, seed: u64) -> (f64, f64) {
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        let s: Vec<f64> = (0..8000).map(|_| n.noisy_depth(z, 0.0, 1.0, &mut rng)).collect();
+        let s: Vec<f64> = (0..8000)
+            .map(|_| n.noisy_depth(z, 0.0, 1.0, &mut rng))
+            .collect();
         let mean = s.iter().sum::<f64>() / s.len() as f64;
         let var = s.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / s.len() as f64;
         (mean, var.sqrt())
@@ -426,6 +428,17 @@ mod tests {
         assert!((m1 - (1.001 + 0.001)).abs() < 5e-5, "{m1}");
         assert!((m05 - (0.5005 + 0.001)).abs() < 5e-5, "{m05}");
         assert!((m2 - (2.002 + 0.001)).abs() < 1e-4, "{m2}");
+        // the offset is on the range: an off-axis pixel's ray is 1.25 × its depth long
+        let mut rng = rand::rngs::StdRng::seed_from_u64(6);
+        let n = ScanNoise {
+            depth_sigma_at_1m_m: 0.0,
+            ..tof
+        };
+        let off_axis = n.noisy_depth(1.0, 0.0, 1.25, &mut rng);
+        assert!(
+            (off_axis - (1.001 + 0.001 / 1.25)).abs() < 1e-12,
+            "{off_axis}"
+        );
         // structured light keeps z²
         let sl = ScanNoise::default();
         let (_, a) = spread(&sl, 1.0, 4);

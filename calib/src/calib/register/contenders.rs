@@ -107,7 +107,13 @@ pub(super) fn judge(
         let pts = p
             .pool
             .select(&p.range, &p.surface, c, points, p.m(0.01), p.m(0.003));
-        let fine = icp(&pts, &p.surface, &c.inverse(), DepthCorrection::NONE, stages)?;
+        let fine = icp(
+            &pts,
+            &p.surface,
+            &c.inverse(),
+            DepthCorrection::NONE,
+            stages,
+        )?;
         let pose = fine.model_from_camera.inverse();
         // The verification looks at the scan as measured: the model is seen through the
         // depth correction's inverse.

@@ -464,8 +464,7 @@ pub fn register_posed(
     timings.coarse = elapsed_ms(t1);
     let t2 = Instant::now();
     let judged = contenders::judge(&p, &cands.ranked, opts)?;
-    let (camera_from_model, mut estimate) =
-        link_fit::refine_with_links(&p, model, &judged, opts)?;
+    let (camera_from_model, mut estimate) = link_fit::refine_with_links(&p, model, &judged, opts)?;
     estimate.pixel_noise_m = p.range.noise_m().unwrap_or(0.0);
     tracing::debug!(
         depth = ?estimate.depth,
