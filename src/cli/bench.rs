@@ -99,6 +99,12 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             .map(|r| resolve_robot(r.trim()).map_err(anyhow::Error::msg))
             .collect::<Result<_, _>>()?
     };
+    // The registration tuned for the preset's sensor class (time of flight: its range offset
+    // and multipath).
+    let register = match Intrinsics::preset_class(&args.camera) {
+        Some(class) => BenchConfig::new(args.mount).register.for_sensor(class),
+        None => BenchConfig::new(args.mount).register,
+    };
     let mut summaries = Vec::new();
     for (i, path) in robots.iter().enumerate() {
         let model = RobotModel::load(path)?;
@@ -109,6 +115,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             settings,
             seed: args.seed.wrapping_add(i as u64 * 7919),
             kinematics: args.kinematics,
+            register: register.clone(),
             ..BenchConfig::new(args.mount)
         };
         eprint!("{:<16}", model.name());

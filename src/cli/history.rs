@@ -438,6 +438,7 @@ mod tests {
                         rmse_mm: 0.4,
                         inlier_fraction: 0.9,
                         depth_scale: None,
+                        depth_offset_mm: None,
                         frames_used: 1,
                         frames: 1,
                         views_used: 1,

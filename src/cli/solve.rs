@@ -14,6 +14,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context};
 use handeye::calib::pipeline::{calibrate_frames, fixed_frame, Frame, PipelineOptions};
 use handeye::calib::{CalibError, Mount};
+use handeye::geometry::SensorClass;
 use handeye::model::{KinematicError, RobotModel, UrCalibration};
 use handeye::storage::load_capture;
 use handeye_hal::ur_dh::DhParams;
@@ -82,6 +83,11 @@ pub(crate) struct Args {
     /// The camera is fixed in the cell (solve `base_from_camera`), not on the flange.
     #[arg(long)]
     eye_to_hand: bool,
+    /// How the camera measures depth: `structured-light` (default) or `active-stereo` (the
+    /// depth scale is estimated), `time-of-flight` (the range offset is estimated and scan
+    /// points in the model's concave corners, where multipath biases the range, are left out).
+    #[arg(long, value_parser = parse_sensor)]
+    sensor: Option<SensorClass>,
     /// Print one JSON object instead of a summary.
     #[arg(long)]
     json: bool,
@@ -89,6 +95,18 @@ pub(crate) struct Args {
     /// distance to the posed model, with the model's outline, the residuals and the numbers.
     #[arg(long, value_name = "FILE")]
     report: Option<PathBuf>,
+}
+
+/// `--sensor`: a [`SensorClass`] by its kebab-case name.
+fn parse_sensor(s: &str) -> Result<SensorClass, String> {
+    match s {
+        "structured-light" => Ok(SensorClass::StructuredLight),
+        "active-stereo" => Ok(SensorClass::ActiveStereo),
+        "time-of-flight" => Ok(SensorClass::TimeOfFlight),
+        _ => Err(format!(
+            "`{s}` is not a sensor class; use structured-light, active-stereo or time-of-flight"
+        )),
+    }
 }
 
 /// Picks the value for frame `i` from a list given once or once per frame.
@@ -428,6 +446,9 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(k) = args.kinematic_error {
         opts.register.kinematic_error = k;
     }
+    if let Some(class) = args.sensor {
+        opts.register = opts.register.for_sensor(class);
+    }
     if inputs.mount == Mount::EyeInHand {
         if let Some(d) = args.max_camera_flange_distance {
             opts.register.max_camera_flange_distance_m = Some(d);
@@ -562,6 +583,7 @@ mod tests {
             kinematic_error: None,
             max_camera_flange_distance: None,
             eye_to_hand: false,
+            sensor: None,
             json: true,
             report: None,
         }

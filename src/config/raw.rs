@@ -159,6 +159,7 @@ pub(super) struct RawGate {
     pub(super) max_dropped_fraction: Option<f64>,
     pub(super) max_ambiguity: Option<f64>,
     pub(super) max_depth_scale_error: Option<f64>,
+    pub(super) max_depth_offset_mm: Option<f64>,
     pub(super) max_change_translation_mm: Option<f64>,
     pub(super) max_change_rotation_deg: Option<f64>,
 }

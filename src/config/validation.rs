@@ -778,6 +778,7 @@ impl Ctx<'_> {
             max_dropped_fraction,
             max_ambiguity,
             max_depth_scale_error,
+            max_depth_offset_mm,
             max_change_translation_mm,
             max_change_rotation_deg,
         } = defaults::gate();
@@ -844,6 +845,12 @@ impl Ctx<'_> {
                 g.max_depth_scale_error,
                 max_depth_scale_error,
                 DEPTH_SCALE_ERROR,
+            )?,
+            max_depth_offset_mm: self.num(
+                "gate.max_depth_offset_mm",
+                g.max_depth_offset_mm,
+                max_depth_offset_mm,
+                GATE_MM,
             )?,
             max_change_translation_mm: self.num(
                 "gate.max_change_translation_mm",

@@ -475,12 +475,14 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
                 100.0 * q.inlier_fraction
             ),
             format!(
-                "frames {}/{}    views {}/{}    depth scale {}",
+                "frames {}/{}    views {}/{}    depth scale {}    range offset {}",
                 q.frames_used,
                 q.frames,
                 q.views_used,
                 q.views,
-                q.depth_scale.map_or("-".to_string(), |s| format!("{s:.4}"))
+                q.depth_scale.map_or("-".to_string(), |s| format!("{s:.4}")),
+                q.depth_offset_mm
+                    .map_or("-".to_string(), |m| format!("{m:+.2} mm"))
             ),
         ];
         for l in lines {

@@ -48,6 +48,7 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
             rmse_mm: 0.4,
             inlier_fraction: 0.9,
             depth_scale: None,
+            depth_offset_mm: None,
             frames_used: 3,
             frames: 3,
             views_used: 1,

@@ -1,6 +1,6 @@
 //! Fine alignment: robust point-to-plane ICP of scan points against the exact model triangles,
-//! optionally with the camera's depth scale as a 7th parameter, and the information matrix of
-//! the result.
+//! optionally with the camera's depth scale and range offset as parameters, and the information
+//! matrix of the result.
 //!
 //! Correspondences go scan → model: the nearest surface sample of *any* link gives the triangle;
 //! a point whose nearest link is beyond the fitted chain depth is explained by the rest of the
@@ -9,7 +9,8 @@
 //! point; a Cauchy kernel down-weights CAD mismatch, cables, bolts and flying pixels.
 //!
 //! Parameters: `model_from_camera` is updated by a left perturbation `exp(δ)` in the model frame,
-//! `δ = (ρ, φ)` (metres, radians); scan points are multiplied by `κ` (true = κ · measured).
+//! `δ = (ρ, φ)` (metres, radians); scan points are corrected by [`DepthCorrection`] (true =
+//! κ · measured + ε · the pixel's unit ray). Parameter order: ρ, φ, κ, ε, then the links'.
 
 use nalgebra::{
     DMatrix, DVector, Isometry3, Matrix6, Matrix6xX, Point3, SMatrix, SVector, Translation3,
@@ -20,10 +21,16 @@ use rayon::prelude::*;
 use super::coarse::Oriented;
 use super::surface::ModelSurface;
 
-type Mat7 = SMatrix<f64, 7, 7>;
+/// Parameters of the fit before the links': the pose (ρ, φ), the depth scale κ and the range
+/// correction ε.
+const NP: usize = 8;
+/// Index of κ and ε among the parameters.
+const SCALE: usize = 6;
+const OFFSET: usize = 7;
+type MatP = SMatrix<f64, NP, NP>;
 /// Residual scale of [`IcpResult::sharpness`], metres.
 const SHARP_M: f64 = 0.0005;
-type Vec7 = SVector<f64, 7>;
+type VecP = SVector<f64, NP>;
 /// Edge of the model-frame cubes whose residuals [`patch_scores`] treats as one error,
 /// metres.
 const PATCH_M: f64 = 0.06;
@@ -36,6 +43,78 @@ const MIN_MOVING_POINTS: usize = 30;
 /// percent); beyond it the fit is ill-conditioned (too little depth relief in the
 /// correspondences) and the scale is pinned to 1 for the rest of the run.
 pub(crate) const MAX_SCALE_ERROR: f64 = 0.05;
+/// Largest range offset the fit may estimate, metres (a time-of-flight camera's uncalibrated
+/// systematic error is up to about a centimetre); beyond it the offset is pinned to 0, as the
+/// scale is beyond [`MAX_SCALE_ERROR`].
+pub(crate) const MAX_RANGE_OFFSET_M: f64 = 0.02;
+
+/// How the camera's depths are corrected before they meet the model: true point =
+/// `kappa` × measured point + `range_m` × the pixel's unit ray (camera frame). A depth-scale
+/// error (triangulation) is `kappa`; a constant range offset (time of flight: every pixel's
+/// distance off by the same length along its ray) is `range_m`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct DepthCorrection {
+    /// True depth = `kappa` × measured depth (before `range_m`).
+    pub(crate) kappa: f64,
+    /// Added along each pixel's ray, metres: the measured range is `range_m` short.
+    pub(crate) range_m: f64,
+}
+
+impl DepthCorrection {
+    /// No correction.
+    pub(crate) const NONE: DepthCorrection = DepthCorrection {
+        kappa: 1.0,
+        range_m: 0.0,
+    };
+
+    /// The corrected camera-frame point of the measured `p`.
+    pub(crate) fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        p * self.kappa + unit_ray(p) * self.range_m
+    }
+
+    /// The measured camera-frame point of the true `p` (the inverse of [`Self::apply`]).
+    pub(crate) fn measured(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        (p - unit_ray(p) * self.range_m) / self.kappa
+    }
+
+    /// The camera's depth scale (measured / true distance).
+    pub(crate) fn depth_scale(&self) -> f64 {
+        1.0 / self.kappa
+    }
+
+    /// The camera's range offset (measured − true distance), metres.
+    pub(crate) fn range_offset_m(&self) -> f64 {
+        -self.range_m / self.kappa
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn depth_correction_moves_points_along_their_rays_and_back() {
+        let c = DepthCorrection {
+            kappa: 0.999,
+            range_m: -0.003,
+        };
+        let measured = Vector3::new(0.2, -0.1, 0.6);
+        let truth = c.apply(&measured);
+        // Along the ray: the same direction, 3 mm shorter after the scale.
+        assert!(truth.normalize().cross(&measured.normalize()).norm() < 1e-12);
+        assert!((truth.norm() - (0.999 * measured.norm() - 0.003)).abs() < 1e-12);
+        assert!((c.measured(&truth) - measured).norm() < 1e-12);
+        // The camera's ranges are long: a positive offset, in mm after the scale.
+        assert!((c.range_offset_m() - 0.003 / 0.999).abs() < 1e-12);
+        assert!((c.depth_scale() - 1.0 / 0.999).abs() < 1e-12);
+        assert_eq!(DepthCorrection::NONE.apply(&measured), measured);
+    }
+}
+
+/// `p / |p|` (zero at the origin).
+fn unit_ray(p: &Vector3<f64>) -> Vector3<f64> {
+    p.try_normalize(1e-12).unwrap_or_else(Vector3::zeros)
+}
 
 /// One stage of the ICP schedule.
 #[derive(Debug, Clone, Copy)]
@@ -46,6 +125,8 @@ pub(crate) struct Stage {
     pub(crate) kernel_m: f64,
     /// Whether the depth scale is a free parameter in this stage.
     pub(crate) scale: bool,
+    /// Whether the range offset is a free parameter in this stage.
+    pub(crate) offset: bool,
     /// Iteration cap.
     pub(crate) iterations: usize,
 }
@@ -54,13 +135,21 @@ pub(crate) struct Stage {
 #[derive(Debug, Clone)]
 pub(crate) struct IcpResult {
     pub(crate) model_from_camera: Isometry3<f64>,
-    /// True depth = `kappa` × measured depth.
-    pub(crate) kappa: f64,
-    /// Whether `kappa` was estimated (false when no stage freed it or the fit fell back to
-    /// a fixed scale because it left `1 ± MAX_SCALE_ERROR`).
+    /// The depths' correction.
+    pub(crate) depth: DepthCorrection,
+    /// Whether `depth.kappa` was estimated (false when no stage freed it or the fit fell back
+    /// to a fixed scale because it left `1 ± MAX_SCALE_ERROR`).
     pub(crate) scale_estimated: bool,
-    /// Information matrix of the 6 pose parameters (scale marginalised out when estimated),
-    /// weighted, not yet scaled by the residual variance.
+    /// Whether `depth.range_m` was estimated (false when no stage freed it or the fit fell
+    /// back to none because it left `± MAX_RANGE_OFFSET_M`).
+    pub(crate) offset_estimated: bool,
+    /// How the pose moves per unit error of each depth parameter the fit did *not* estimate
+    /// (entry 0 the scale κ, 1 the range correction ε, metres): `δ = −H⁻¹ ∂g` over the
+    /// parameters in use, model-frame left perturbation; zero for an estimated one. An error
+    /// of that parameter the fit left out moves the pose by this much, unseen by the residuals.
+    pub(crate) pose_per_fixed_depth: [nalgebra::Vector6<f64>; 2],
+    /// Information matrix of the 6 pose parameters (estimated depth parameters marginalised
+    /// out), weighted, not yet scaled by the residual variance.
     pub(crate) info6: Matrix6<f64>,
     /// Cluster-robust covariance of the 6 pose parameters (model-frame left perturbation),
     /// m² / rad².
@@ -80,6 +169,9 @@ pub(crate) struct IcpResult {
     /// the scan's error against the model as the fit sees it, smooth depth errors included
     /// (which the scan's per-pixel noise does not show).
     pub(crate) residual_spread_m: f64,
+    /// The scan's per-pixel noise, metres (the registration sets it from the range image; 0
+    /// when unknown): the part of [`Self::residual_spread_m`] that each point has on its own.
+    pub(crate) pixel_noise_m: f64,
     /// Mean over the scan points in the model's neighbourhood of `1 / (1 + (r / 0.5 mm)²)`
     /// (0 for points without a correspondence): how tightly the scan hugs the model, 0–1.
     /// Tells a right pose from a nearly symmetric wrong one whose fit is merely good.
@@ -92,11 +184,11 @@ pub(crate) struct IcpResult {
 
 #[derive(Debug, Clone, Default)]
 struct Acc {
-    h: Mat7,
-    g: Vec7,
+    h: MatP,
+    g: VecP,
     /// `(Σ w J Jᵀ, Σ w r J)` per chain depth of the fitted link (0..=fit depth), when asked for:
     /// the links' displacements enter the normal equations through them.
-    by_depth: Vec<(Mat7, Vec7)>,
+    by_depth: Vec<(MatP, VecP)>,
     wsum: f64,
     n: usize,
     close: usize,
@@ -113,7 +205,7 @@ struct Acc {
 impl Acc {
     fn new(depths: usize) -> Acc {
         Acc {
-            by_depth: vec![(Mat7::zeros(), Vec7::zeros()); depths],
+            by_depth: vec![(MatP::zeros(), VecP::zeros()); depths],
             ..Acc::default()
         }
     }
@@ -180,8 +272,8 @@ impl Acc {
 struct Correspondence {
     /// Model-frame point.
     x: Point3<f64>,
-    /// Jacobian of the residual in (ρ, φ, κ).
-    j: Vec7,
+    /// Jacobian of the residual in (ρ, φ, κ, ε).
+    j: VecP,
     /// Signed point-to-plane residual, metres.
     r: f64,
     /// Robust weight.
@@ -200,15 +292,17 @@ fn correspond(
     o: &Oriented,
     surface: &ModelSurface,
     t: &Isometry3<f64>,
-    kappa: f64,
+    depth: &DepthCorrection,
     st: &Stage,
     links: &[Isometry3<f64>],
 ) -> Option<Result<Correspondence, u8>> {
     let cos_min = 0.5;
     let rp = t.rotation * o.p.coords;
-    let x = Point3::from(rp * kappa + t.translation.vector);
+    let x = Point3::from(t.rotation * depth.apply(&o.p.coords) + t.translation.vector);
     let s = surface.nearest(&x, st.gate_m.max(0.01))?;
-    if s.depth as usize > surface.fit_depth {
+    // Multipath: where the model faces other surface the scan's depths are biased; those
+    // points are not used, as if they were not near the fitted links.
+    if s.depth as usize > surface.fit_depth || s.biased {
         return None;
     }
     // The point against the link as posed: undo the link's displacement, and look again from
@@ -232,10 +326,11 @@ fn correspond(
     let r = n.dot(&(on_posed - c));
     let u = r / st.kernel_m;
     let w = 1.0 / (1.0 + u * u);
-    let mut j = Vec7::zeros();
+    let mut j = VecP::zeros();
     j.fixed_rows_mut::<3>(0).copy_from(&n);
     j.fixed_rows_mut::<3>(3).copy_from(&x.coords.cross(&n));
-    j[6] = n.dot(&rp);
+    j[SCALE] = n.dot(&rp);
+    j[OFFSET] = n.dot(&unit_ray(&rp));
     Some(Ok(Correspondence {
         x,
         j,
@@ -246,14 +341,14 @@ fn correspond(
     }))
 }
 
-/// The normal equations and fit statistics of `pts` at `t`, `kappa`, the links displaced by
+/// The normal equations and fit statistics of `pts` at `t`, `depth`, the links displaced by
 /// `links` (see [`correspond`]); when `links` is not empty, also per chain depth `0..=links.len()`
 /// (deeper links with the base: they are not displaced).
 fn accumulate(
     pts: &[Oriented],
     surface: &ModelSurface,
     t: &Isometry3<f64>,
-    kappa: f64,
+    depth: &DepthCorrection,
     st: &Stage,
     links: &[Isometry3<f64>],
 ) -> Acc {
@@ -261,7 +356,7 @@ fn accumulate(
     let chunk = |c: &[Oriented]| {
         let mut a = Acc::new(depths);
         for o in c {
-            if let Some(found) = correspond(o, surface, t, kappa, st, links) {
+            if let Some(found) = correspond(o, surface, t, depth, st, links) {
                 a.add(found, st.kernel_m);
             }
         }
@@ -286,14 +381,14 @@ fn patch_scores(
     pts: &[Oriented],
     surface: &ModelSurface,
     t: &Isometry3<f64>,
-    kappa: f64,
+    depth: &DepthCorrection,
     st: &Stage,
     links: &[Isometry3<f64>],
-) -> Vec<(u8, Vec7)> {
-    let mut patches: std::collections::HashMap<(i32, i32, i32, u8), Vec7> =
+) -> Vec<(u8, VecP)> {
+    let mut patches: std::collections::HashMap<(i32, i32, i32, u8), VecP> =
         std::collections::HashMap::new();
     for o in pts {
-        let Some(Ok(c)) = correspond(o, surface, t, kappa, st, links) else {
+        let Some(Ok(c)) = correspond(o, surface, t, depth, st, links) else {
             continue;
         };
         let key = (
@@ -302,7 +397,7 @@ fn patch_scores(
             (c.x.z / PATCH_M).floor() as i32,
             c.depth,
         );
-        *patches.entry(key).or_insert_with(Vec7::zeros) += c.j * (c.w * c.r);
+        *patches.entry(key).or_insert_with(VecP::zeros) += c.j * (c.w * c.r);
     }
     patches.into_iter().map(|(k, psi)| (k.3, psi)).collect()
 }
@@ -313,7 +408,7 @@ fn residual_spread(
     pts: &[Oriented],
     surface: &ModelSurface,
     t: &Isometry3<f64>,
-    kappa: f64,
+    depth: &DepthCorrection,
     st: &Stage,
     links: &[Isometry3<f64>],
 ) -> f64 {
@@ -323,7 +418,7 @@ fn residual_spread(
     };
     let mut r: Vec<f64> = pts
         .par_iter()
-        .filter_map(|o| match correspond(o, surface, t, kappa, &wide, links) {
+        .filter_map(|o| match correspond(o, surface, t, depth, &wide, links) {
             Some(Ok(c)) => Some(c.r),
             _ => None,
         })
@@ -344,10 +439,10 @@ pub(crate) fn icp(
     pts: &[Oriented],
     surface: &ModelSurface,
     init: &Isometry3<f64>,
-    kappa0: f64,
+    depth0: DepthCorrection,
     stages: &[Stage],
 ) -> Option<IcpResult> {
-    icp_with_links(pts, surface, init, kappa0, stages, &LinkPrior::none()).map(|(r, _)| r)
+    icp_with_links(pts, surface, init, depth0, stages, &LinkPrior::none()).map(|(r, _)| r)
 }
 
 /// The fitted links' displacements as parameters of the fit (see [`super::links`]): the
@@ -388,41 +483,41 @@ impl LinkPrior {
             .collect()
     }
 
-    /// The normal equations of pose, scale and link parameters from the per-depth sums (the
+    /// The normal equations of pose, depth and link parameters from the per-depth sums (the
     /// residual's derivative by `z` at depth `d` is `−J₆ᵀ a[d − 1]`) and the prior at `z`.
     fn normal_equations(
         &self,
-        by_depth: &[(Mat7, Vec7)],
+        by_depth: &[(MatP, VecP)],
         z: &DVector<f64>,
     ) -> (DMatrix<f64>, DVector<f64>) {
         let p = self.params();
-        let n = 7 + p;
+        let n = NP + p;
         let mut h = DMatrix::zeros(n, n);
         let mut g = DVector::zeros(n);
         for (d, (hd, gd)) in by_depth.iter().enumerate() {
-            let mut hv = h.view_mut((0, 0), (7, 7));
+            let mut hv = h.view_mut((0, 0), (NP, NP));
             hv += hd;
-            let mut gv = g.rows_mut(0, 7);
+            let mut gv = g.rows_mut(0, NP);
             gv += gd;
             let Some(a) = d.checked_sub(1).and_then(|k| self.a.get(k)) else {
                 continue;
             };
-            // ∂r/∂z = −a ᵀ J₆: cross terms −H₇₆ a, link block aᵀ H₆₆ a, gradient −aᵀ g₆.
-            let h76 = hd.fixed_view::<7, 6>(0, 0);
-            let cross = -(h76 * a);
-            let mut hv = h.view_mut((0, 7), (7, p));
+            // ∂r/∂z = −a ᵀ J₆: cross terms −H₈₆ a, link block aᵀ H₆₆ a, gradient −aᵀ g₆.
+            let hp6 = hd.fixed_view::<NP, 6>(0, 0);
+            let cross = -(hp6 * a);
+            let mut hv = h.view_mut((0, NP), (NP, p));
             hv += &cross;
-            let mut hv = h.view_mut((7, 0), (p, 7));
+            let mut hv = h.view_mut((NP, 0), (p, NP));
             hv += cross.transpose();
             let h66 = hd.fixed_view::<6, 6>(0, 0);
-            let mut hv = h.view_mut((7, 7), (p, p));
+            let mut hv = h.view_mut((NP, NP), (p, p));
             hv += a.transpose() * h66 * a;
-            let mut gv = g.rows_mut(7, p);
+            let mut gv = g.rows_mut(NP, p);
             gv -= a.transpose() * gd.fixed_rows::<6>(0);
         }
         for k in 0..p {
-            h[(7 + k, 7 + k)] += self.residual_var;
-            g[7 + k] += self.residual_var * z[k];
+            h[(NP + k, NP + k)] += self.residual_var;
+            g[NP + k] += self.residual_var * z[k];
         }
         (h, g)
     }
@@ -435,29 +530,33 @@ pub(crate) fn icp_with_links(
     pts: &[Oriented],
     surface: &ModelSurface,
     init: &Isometry3<f64>,
-    kappa0: f64,
+    depth0: DepthCorrection,
     stages: &[Stage],
     prior: &LinkPrior,
 ) -> Option<(IcpResult, DVector<f64>)> {
     let p = prior.params();
     let with_links = p > 0;
     let mut t = *init;
-    let mut kappa = kappa0;
+    let mut depth = depth0;
     let mut z = DVector::zeros(p);
-    let mut last: Option<(bool, f64)> = None;
-    let mut scale_ok = true;
-    // Pins the scale (row and column zeroed, unit diagonal) in a system of any size.
-    let pin_scale = |h: &mut DMatrix<f64>, g: &mut DVector<f64>| {
-        h.row_mut(6).fill(0.0);
-        h.column_mut(6).fill(0.0);
-        h[(6, 6)] = 1.0;
-        g[6] = 0.0;
+    let mut last: Option<(Stage, f64)> = None;
+    let (mut scale_ok, mut offset_ok) = (true, true);
+    // Pins parameter `k` (row and column zeroed, unit diagonal) in a system of any size.
+    let pin = |k: usize, h: &mut DMatrix<f64>, g: &mut DVector<f64>| {
+        h.row_mut(k).fill(0.0);
+        h.column_mut(k).fill(0.0);
+        h[(k, k)] = 1.0;
+        g[k] = 0.0;
     };
     for st in stages {
         for it in 0..st.iterations {
-            let free_scale = st.scale && scale_ok;
+            let free = Stage {
+                scale: st.scale && scale_ok,
+                offset: st.offset && offset_ok,
+                ..*st
+            };
             let links = prior.displacements(&z);
-            let a = accumulate(pts, surface, &t, kappa, st, &links);
+            let a = accumulate(pts, surface, &t, &depth, st, &links);
             if a.n < 12 {
                 return None;
             }
@@ -465,12 +564,14 @@ pub(crate) fn icp_with_links(
                 prior.normal_equations(&a.by_depth, &z)
             } else {
                 (
-                    DMatrix::from_column_slice(7, 7, a.h.as_slice()),
+                    DMatrix::from_column_slice(NP, NP, a.h.as_slice()),
                     DVector::from_column_slice(a.g.as_slice()),
                 )
             };
-            if !free_scale {
-                pin_scale(&mut h, &mut g);
+            for (k, is_free) in [(SCALE, free.scale), (OFFSET, free.offset)] {
+                if !is_free {
+                    pin(k, &mut h, &mut g);
+                }
             }
             // Light Levenberg damping for robustness far from the optimum.
             let mut hd = h.clone();
@@ -478,11 +579,23 @@ pub(crate) fn icp_with_links(
                 hd[(k, k)] += 1e-9 + 1e-6 * h[(k, k)];
             }
             let mut delta = -hd.clone().cholesky()?.solve(&g);
-            if free_scale && (kappa + delta[6] - 1.0).abs() > MAX_SCALE_ERROR {
-                // Ill-conditioned scale: fall back to the fixed nominal scale.
-                scale_ok = false;
-                kappa = 1.0;
-                pin_scale(&mut hd, &mut g);
+            // An ill-conditioned depth parameter (too little depth relief in the
+            // correspondences) falls back to none for the rest of the run.
+            let scale_wild =
+                free.scale && (depth.kappa + delta[SCALE] - 1.0).abs() > MAX_SCALE_ERROR;
+            let offset_wild =
+                free.offset && (depth.range_m + delta[OFFSET]).abs() > MAX_RANGE_OFFSET_M;
+            if scale_wild || offset_wild {
+                if scale_wild {
+                    scale_ok = false;
+                    depth.kappa = 1.0;
+                    pin(SCALE, &mut hd, &mut g);
+                }
+                if offset_wild {
+                    offset_ok = false;
+                    depth.range_m = 0.0;
+                    pin(OFFSET, &mut hd, &mut g);
+                }
                 delta = -hd.cholesky()?.solve(&g);
             }
             let rho = Vector3::new(delta[0], delta[1], delta[2]);
@@ -492,92 +605,127 @@ pub(crate) fn icp_with_links(
                 UnitQuaternion::from_scaled_axis(phi),
             );
             t = step * t;
-            kappa += delta[6];
-            z += delta.rows(7, p);
-            last = Some((free_scale && scale_ok, st.kernel_m));
-            let links_small = delta.rows(7, p).amax() < 1e-3;
-            let small = rho.norm() < 2e-7 && phi.norm() < 2e-7 && delta[6].abs() < 1e-7;
+            depth.kappa += delta[SCALE];
+            depth.range_m += delta[OFFSET];
+            z += delta.rows(NP, p);
+            last = Some((
+                Stage {
+                    scale: free.scale && scale_ok,
+                    offset: free.offset && offset_ok,
+                    ..*st
+                },
+                st.kernel_m,
+            ));
+            let links_small = delta.rows(NP, p).amax() < 1e-3;
+            let small = rho.norm() < 2e-7
+                && phi.norm() < 2e-7
+                && delta[SCALE].abs() < 1e-7
+                && delta[OFFSET].abs() < 1e-7;
             if small && links_small && it > 0 {
                 break;
             }
         }
     }
-    let (scaled, kernel) = last?;
+    let (fin, kernel) = last?;
     // Final information at the converged pose.
     let st = Stage {
         gate_m: 3.0 * kernel.max(0.001),
         kernel_m: kernel,
-        scale: scaled,
         iterations: 1,
+        ..fin
     };
     let links = prior.displacements(&z);
-    let a = accumulate(pts, surface, &t, kappa, &st, &links);
+    let a = accumulate(pts, surface, &t, &depth, &st, &links);
     if a.n < 12 {
         return None;
     }
-
+    // The estimated depth parameters, and the pinned ones.
+    let free_depth: Vec<usize> = [(SCALE, st.scale), (OFFSET, st.offset)]
+        .iter()
+        .filter_map(|&(k, f)| f.then_some(k))
+        .collect();
     let h66: Matrix6<f64> = a.h.fixed_view::<6, 6>(0, 0).into_owned();
-    let h6: nalgebra::Vector6<f64> = a.h.fixed_view::<6, 1>(0, 6).into_owned();
-    let h77 = a.h[(6, 6)];
-    let info6 = if scaled && h77 > 0.0 {
-        h66 - h6 * h6.transpose() / h77
-    } else {
+    let info6 = if free_depth.is_empty() {
         h66
+    } else {
+        // Schur complement: the estimated depth parameters marginalised out.
+        let hpp = DMatrix::from_column_slice(NP, NP, a.h.as_slice());
+        let hdd = hpp.select_rows(&free_depth).select_columns(&free_depth);
+        let hpd = hpp.view((0, 0), (6, NP)).select_columns(&free_depth);
+        match hdd.try_inverse() {
+            Some(inv) => {
+                let m = &hpd * inv * hpd.transpose();
+                h66 - Matrix6::from_iterator(m.iter().copied())
+            }
+            None => h66,
+        }
     };
     // Cluster-robust ("sandwich") covariance H⁻¹ M H⁻¹ over the parameters in use (pose, the
-    // scale when estimated, the link parameters), the rest marginalised by taking the pose
-    // block of the full inverse. The links' prior adds its own information to H and, as the
-    // variance of its score, to M.
+    // estimated depth parameters, the link parameters), the rest marginalised by taking the
+    // pose block of the full inverse. The links' prior adds its own information to H and, as
+    // the variance of its score, to M.
     let (h, _) = if with_links {
         prior.normal_equations(&a.by_depth, &z)
     } else {
         (
-            DMatrix::from_column_slice(7, 7, a.h.as_slice()),
-            DVector::zeros(7),
+            DMatrix::from_column_slice(NP, NP, a.h.as_slice()),
+            DVector::zeros(NP),
         )
     };
-    let used: Vec<usize> = (0..7 + p).filter(|&k| k != 6 || scaled).collect();
-    let patches = patch_scores(pts, surface, &t, kappa, &st, &links);
-    let residual_spread_m = residual_spread(pts, surface, &t, kappa, &st, &links);
-    let mut meat = DMatrix::zeros(7 + p, 7 + p);
-    for (depth, psi) in &patches {
-        let mut full = DVector::zeros(7 + p);
-        full.rows_mut(0, 7).copy_from(psi);
-        if let Some(a) = (*depth as usize)
-            .checked_sub(1)
-            .and_then(|k| prior.a.get(k))
-        {
+    let used: Vec<usize> = (0..NP + p)
+        .filter(|&k| (k != SCALE || st.scale) && (k != OFFSET || st.offset))
+        .collect();
+    let patches = patch_scores(pts, surface, &t, &depth, &st, &links);
+    let residual_spread_m = residual_spread(pts, surface, &t, &depth, &st, &links);
+    let mut meat = DMatrix::zeros(NP + p, NP + p);
+    for (d, psi) in &patches {
+        let mut full = DVector::zeros(NP + p);
+        full.rows_mut(0, NP).copy_from(psi);
+        if let Some(a) = (*d as usize).checked_sub(1).and_then(|k| prior.a.get(k)) {
             let psi6 = psi.fixed_rows::<6>(0);
-            full.rows_mut(7, p).copy_from(&(-(a.transpose() * psi6)));
+            full.rows_mut(NP, p).copy_from(&(-(a.transpose() * psi6)));
         }
         meat += &full * full.transpose();
     }
     for k in 0..p {
-        meat[(7 + k, 7 + k)] += prior.residual_var.powi(2);
+        meat[(NP + k, NP + k)] += prior.residual_var.powi(2);
     }
-    // Degrees of freedom the fit spends on the scan: the pose, the scale, and of the link
-    // parameters only what the scan determines beyond their prior, tr(H_data (H_data + s²I)⁻¹).
+    // Degrees of freedom the fit spends on the scan: the pose, the depth parameters, and of the
+    // link parameters only what the scan determines beyond their prior,
+    // tr(H_data (H_data + s²I)⁻¹).
     let link_dof = if with_links {
         let prior_info = DMatrix::identity(p, p) * prior.residual_var;
-        let data = h.view((7, 7), (p, p)) - &prior_info;
+        let data = h.view((NP, NP), (p, p)) - &prior_info;
         (data.clone() + prior_info)
             .try_inverse()
             .map_or(p as f64, |inv| (data * inv).trace())
     } else {
         0.0
     };
-    let dof = if scaled { 7.0 } else { 6.0 } + link_dof;
+    let dof = 6.0 + free_depth.len() as f64 + link_dof;
     let h_used = h.select_rows(&used).select_columns(&used);
     let meat_used = meat.select_rows(&used).select_columns(&used);
     let h_inv = h_used.try_inverse()?;
     let small_sample = patches.len() as f64 / (patches.len() as f64 - dof).max(1.0);
     let cov = &h_inv * meat_used * &h_inv * small_sample;
     let cov6: Matrix6<f64> = cov.fixed_view::<6, 6>(0, 0).into_owned();
+    // A pinned depth parameter's error shifts the gradient by its column of H: the pose follows
+    // by −H⁻¹ of that column over the parameters in use.
+    let pose_per_fixed_depth = [SCALE, OFFSET].map(|k| {
+        if used.contains(&k) {
+            return nalgebra::Vector6::zeros();
+        }
+        let col = h.column(k).select_rows(&used);
+        let shift = -(&h_inv * col);
+        nalgebra::Vector6::from_iterator(shift.rows(0, 6).iter().copied())
+    });
     Some((
         IcpResult {
             model_from_camera: t,
-            kappa,
-            scale_estimated: scaled,
+            depth,
+            scale_estimated: st.scale,
+            offset_estimated: st.offset,
+            pose_per_fixed_depth,
             info6,
             cov6,
             centroid: Point3::from(a.wx / a.wsum),
@@ -596,6 +744,7 @@ pub(crate) fn icp_with_links(
                 0.0
             },
             residual_spread_m,
+            pixel_noise_m: 0.0,
             sharpness: if a.near > 0 {
                 a.sharp / a.near as f64
             } else {

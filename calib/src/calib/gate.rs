@@ -41,6 +41,10 @@ pub struct GateThresholds {
     pub max_ambiguity: f64,
     /// Maximum |depth scale − 1| the registration may have estimated.
     pub max_depth_scale_error: f64,
+    /// Maximum |range offset| the registration may have estimated, mm (a time-of-flight
+    /// camera's systematic error is up to about a centimetre; more is a wrong pose or a camera
+    /// that needs its own calibration).
+    pub max_depth_offset_mm: f64,
     /// Maximum change from the previous calibration, mm (checked when one is given).
     pub max_change_translation_mm: f64,
     /// Maximum change from the previous calibration, degrees (checked when one is given).
@@ -62,6 +66,7 @@ impl Default for GateThresholds {
             max_dropped_fraction: 0.34,
             max_ambiguity: 0.8,
             max_depth_scale_error: 0.03,
+            max_depth_offset_mm: 10.0,
             max_change_translation_mm: 5.0,
             max_change_rotation_deg: 1.0,
         }
@@ -176,6 +181,14 @@ pub fn gate(
                 ));
             }
         }
+        if let Some(off_mm) = r.depth_offset_m.map(|m| m * 1e3) {
+            if off_mm.abs() > th.max_depth_offset_mm {
+                reasons.push(format!(
+                    "frame {i}: estimated range offset {off_mm:+.1} mm is implausible (max {:.1} mm): a wrong pose, or a camera whose distances need their own calibration",
+                    th.max_depth_offset_mm
+                ));
+            }
+        }
     }
     let at = solution
         .workspace_point
@@ -281,6 +294,7 @@ mod tests {
             Box::new(|r| r.uncertainty.rotation_deg = 0.5),
             Box::new(|r| r.degenerate_directions.push(nalgebra::Vector6::z())),
             Box::new(|r| r.depth_scale = Some(1.2)),
+            Box::new(|r| r.depth_offset_m = Some(-0.015)),
             Box::new(|r| r.quality.ambiguity = 0.95),
             // The upper arm is not where the model puts it beside the others (the model's
             // kinematics are not the arm's).

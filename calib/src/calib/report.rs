@@ -28,6 +28,9 @@ pub struct QualitySummary {
     pub inlier_fraction: f64,
     /// Mean estimated depth scale (measured / true), when estimated.
     pub depth_scale: Option<f64>,
+    /// Mean estimated range offset (measured − true distance), mm, when estimated.
+    #[serde(default)]
+    pub depth_offset_mm: Option<f64>,
     /// Frames used / given.
     pub frames_used: usize,
     /// Frames given.
@@ -53,6 +56,9 @@ pub struct FrameReport {
     pub uncertainty: Uncertainty,
     /// Estimated depth scale (measured / true).
     pub depth_scale: Option<f64>,
+    /// Estimated range offset (measured − true distance along each pixel's ray), mm.
+    #[serde(default)]
+    pub depth_offset_mm: Option<f64>,
     /// Number of degenerate directions of the registration.
     pub degenerate_directions: usize,
     /// `camera_from_model` of this frame, 4×4 row-major, metres.
@@ -131,6 +137,7 @@ impl CalibrationReport {
                 quality: r.quality,
                 uncertainty: r.uncertainty,
                 depth_scale: r.depth_scale,
+                depth_offset_mm: r.depth_offset_m.map(|m| m * 1e3),
                 degenerate_directions: r.degenerate_directions.len(),
                 camera_from_model: to_row_major(&r.camera_from_model),
                 timings_ms: r.timings_ms,
@@ -139,7 +146,12 @@ impl CalibrationReport {
         let fold = |f: &dyn Fn(&Registration) -> f64, worst: fn(f64, f64) -> f64, init: f64| {
             registrations.iter().map(f).fold(init, worst)
         };
+        let mean = |v: Vec<f64>| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
         let scales: Vec<f64> = registrations.iter().filter_map(|r| r.depth_scale).collect();
+        let offsets_mm: Vec<f64> = registrations
+            .iter()
+            .filter_map(|r| r.depth_offset_m.map(|m| m * 1e3))
+            .collect();
         let views_used: Vec<&Residual> = solution.views.iter().filter(|v| v.used).collect();
         let quality = QualitySummary {
             coverage: fold(&|r| r.quality.coverage, f64::min, 1.0),
@@ -152,8 +164,8 @@ impl CalibrationReport {
             free_space_violations: fold(&|r| r.quality.free_space_violations, f64::max, 0.0),
             rmse_mm: fold(&|r| r.quality.rmse_mm, f64::max, 0.0),
             inlier_fraction: fold(&|r| r.quality.inlier_fraction, f64::min, 1.0),
-            depth_scale: (!scales.is_empty())
-                .then(|| scales.iter().sum::<f64>() / scales.len() as f64),
+            depth_scale: mean(scales),
+            depth_offset_mm: mean(offsets_mm),
             frames_used: solution.frames.iter().filter(|f| f.used).count(),
             frames: solution.frames.len(),
             views_used: views_used.len(),

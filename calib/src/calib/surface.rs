@@ -4,6 +4,7 @@
 use std::sync::Arc;
 
 use nalgebra::{Isometry3, Point3, Unit, Vector3};
+use rayon::prelude::*;
 
 use super::kdtree::KdTree;
 use crate::model::TriMesh;
@@ -115,7 +116,18 @@ pub struct Sample {
     pub n: Vector3<f64>,
     pub tri: u32,
     pub depth: u8,
+    /// In a concave corner where a time-of-flight camera's range is biased by multipath (see
+    /// [`ModelSurface::mark_multipath`]): the fit does not use scan points there.
+    pub biased: bool,
 }
+
+/// Smallest cosine between a surface's normal and the direction to another surface for the
+/// two to face each other (10° above its plane): points of one plane never face each other.
+const FACING_COS: f64 = 0.17;
+
+/// Spacing of the surface probes [`ModelSurface::mark_multipath`] looks for facing surface
+/// among, metres: fine against a clearance of centimetres.
+const PROBE_SPACING_M: f64 = 0.008;
 
 /// The sampled posed model.
 #[derive(Debug)]
@@ -192,7 +204,13 @@ impl ModelSurface {
                             r2 = 1.0 - r2;
                         }
                         let p = a + (b - a) * r1 + (c - a) * r2;
-                        out.push(Sample { p, n, tri, depth });
+                        out.push(Sample {
+                            p,
+                            n,
+                            tri,
+                            depth,
+                            biased: false,
+                        });
                     }
                 };
                 emit(&mut acc, area_per_sample, &mut samples);
@@ -219,6 +237,91 @@ impl ModelSurface {
         }
     }
 
+    /// Marks the fitted samples where a time-of-flight camera's range is biased long by
+    /// multipath: within `clearance_m` of other model surface that faces them and that they
+    /// face (a concave corner: between links), or of the plane the robot stands on (horizontal,
+    /// through the base's lowest point: the base's foot). Light bounced off that surface comes
+    /// back late; on open and convex surface nothing faces the sample.
+    pub(crate) fn mark_multipath(&mut self, clearance_m: f64) {
+        let cell = |p: &Point3<f64>, size: f64| {
+            [
+                (p.x / size).floor() as i64,
+                (p.y / size).floor() as i64,
+                (p.z / size).floor() as i64,
+            ]
+        };
+        // Probes: one sample per small cell and normal octant (the samples there share its
+        // verdict), hashed by clearance cells.
+        let probe_key = |s: &Sample| {
+            (
+                cell(&s.p, PROBE_SPACING_M),
+                [s.n.x > 0.0, s.n.y > 0.0, s.n.z > 0.0],
+            )
+        };
+        let mut probe_of = std::collections::HashMap::new();
+        let mut probes: Vec<(Point3<f64>, Vector3<f64>)> = Vec::new();
+        let mut near: std::collections::HashMap<[i64; 3], Vec<usize>> =
+            std::collections::HashMap::new();
+        for s in &self.samples {
+            probe_of.entry(probe_key(s)).or_insert_with(|| {
+                near.entry(cell(&s.p, clearance_m))
+                    .or_default()
+                    .push(probes.len());
+                probes.push((s.p, s.n));
+                probes.len() - 1
+            });
+        }
+        let floor = self
+            .samples
+            .iter()
+            .filter(|s| s.depth == 0)
+            .map(|s| s.p.z)
+            .fold(f64::INFINITY, f64::min);
+        let facing = |p: &Point3<f64>, n: &Vector3<f64>, q: &Point3<f64>, m: &Vector3<f64>| {
+            let d = q - p;
+            let dist = d.norm();
+            dist > 1e-4
+                && dist <= clearance_m
+                && n.dot(&d) > FACING_COS * dist
+                && -m.dot(&d) > FACING_COS * dist
+        };
+        let up = Vector3::z();
+        let biased: Vec<bool> = probes
+            .par_iter()
+            .map(|(p, n)| {
+                // The floor: its nearest facing points lie below the probe, out along its
+                // normal's horizontal part.
+                let h = p.z - floor;
+                if h > 1e-4 && h <= clearance_m {
+                    let out = Vector3::new(n.x, n.y, 0.0)
+                        .try_normalize(1e-9)
+                        .unwrap_or_else(Vector3::x);
+                    let foot = Point3::new(p.x, p.y, floor);
+                    if (0..=8)
+                        .any(|k| facing(p, n, &(foot + out * (clearance_m * k as f64 / 8.0)), &up))
+                    {
+                        return true;
+                    }
+                }
+                let c = cell(p, clearance_m);
+                (-1..=1).any(|i| {
+                    (-1..=1).any(|j| {
+                        (-1..=1).any(|k| {
+                            near.get(&[c[0] + i, c[1] + j, c[2] + k]).is_some_and(|v| {
+                                v.iter().any(|&o| facing(p, n, &probes[o].0, &probes[o].1))
+                            })
+                        })
+                    })
+                })
+            })
+            .collect();
+        let fit_depth = self.fit_depth;
+        for s in &mut self.samples {
+            s.biased = s.depth as usize <= fit_depth
+                && probe_of.get(&probe_key(s)).is_some_and(|&o| biased[o]);
+        }
+    }
+
     /// Nearest surface sample to `p` (model frame) within `max_dist_m`.
     #[inline]
     pub fn nearest(&self, p: &Point3<f64>, max_dist_m: f64) -> Option<&Sample> {
@@ -231,6 +334,46 @@ impl ModelSurface {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The toy arm's base (a cylinder on the floor) under its shoulder: the base's wall is
+    /// biased within the clearance of the floor and not above it, the rim of its top where the
+    /// shoulder stands on it and the shoulder's wall just above that are biased, open surface
+    /// is not.
+    #[test]
+    fn multipath_marks_the_concave_corners_only() {
+        let mut s = ModelSurface::new(
+            &crate::calib::testutil::toy_robot(&[0.0; 3]),
+            2,
+            0.002,
+            0.012,
+        );
+        assert!(s.samples.iter().all(|x| !x.biased));
+        s.mark_multipath(0.03);
+        let share = |f: &dyn Fn(&Sample) -> bool| {
+            let v: Vec<&Sample> = s.samples.iter().filter(|x| f(x)).collect();
+            assert!(v.len() > 20, "{} samples", v.len());
+            v.iter().filter(|x| x.biased).count() as f64 / v.len() as f64
+        };
+        let wall = |x: &Sample| x.depth == 0 && x.n.z.abs() < 0.1;
+        let foot = share(&|x| wall(x) && x.p.z < 0.015);
+        let open_wall = share(&|x| wall(x) && (0.04..0.06).contains(&x.p.z));
+        let rim = share(&|x| {
+            x.depth == 0 && x.n.z > 0.9 && x.p.z > 0.09 && x.p.coords.xy().norm() > 0.064
+        });
+        let shoulder_foot = share(&|x| {
+            x.depth == 1
+                && x.n.z.abs() < 0.1
+                && (0.1..0.115).contains(&x.p.z)
+                && x.p.coords.xy().norm() < 0.061
+        });
+        eprintln!(
+            "foot {foot:.2} open wall {open_wall:.2} rim {rim:.2} shoulder foot {shoulder_foot:.2}"
+        );
+        assert!(foot > 0.9 && rim > 0.9 && shoulder_foot > 0.9);
+        assert!(open_wall < 0.05);
+        // Deeper than the fitted links nothing is marked (they give no correspondences).
+        assert!(s.samples.iter().filter(|x| x.depth > 2).all(|x| !x.biased));
+    }
 
     #[test]
     fn closest_point_on_triangle_regions() {

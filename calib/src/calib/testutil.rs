@@ -282,6 +282,7 @@ pub(crate) fn good_registration() -> Registration {
         },
         degenerate_directions: vec![],
         depth_scale: Some(1.001),
+        depth_offset_m: Some(0.001),
         timings_ms: StageTimings::default(),
     }
 }

@@ -34,8 +34,9 @@ pub struct ScanNoise {
     pub random_dropout_probability: f64,
     /// Relative depth-scale error: measured point = true point · (1 + this).
     pub depth_scale_error: f64,
-    /// Constant depth offset added to every measured depth (metres): a time-of-flight camera's
-    /// residual phase offset (its depth error hardly scales with distance).
+    /// Constant range offset added to every measured distance along the pixel's ray (metres):
+    /// a time-of-flight camera's residual phase offset (its error hardly scales with distance,
+    /// and it measures the light's path, not the depth).
     pub depth_offset_m: f64,
     /// Nothing is measured beyond this range (metres).
     pub max_range_m: f64,
@@ -345,8 +346,16 @@ impl ScanNoise {
         }
     }
 
-    /// A noisy depth for a true depth `z` (metres) seen at `incidence_rad`.
-    pub(crate) fn noisy_depth(&self, z: f64, incidence_rad: f64, rng: &mut impl Rng) -> f64 {
+    /// A noisy depth for a true depth `z` (metres) seen at `incidence_rad` by a pixel whose ray
+    /// is `range_per_depth` long per unit of depth (1 on the optical axis): the range offset
+    /// moves the depth by `depth_offset_m / range_per_depth`.
+    pub(crate) fn noisy_depth(
+        &self,
+        z: f64,
+        incidence_rad: f64,
+        range_per_depth: f64,
+        rng: &mut impl Rng,
+    ) -> f64 {
         let sigma =
             self.depth_sigma_at_1m_m * self.distance_factor(z) / incidence_rad.cos().max(0.2);
         let n = if sigma > 0.0 {
@@ -354,7 +363,7 @@ impl ScanNoise {
         } else {
             0.0
         };
-        (z + n) * (1.0 + self.depth_scale_error) + self.depth_offset_m
+        (z + n) * (1.0 + self.depth_scale_error) + self.depth_offset_m / range_per_depth
     }
 
     /// z^`depth_sigma_exponent` (z² computed as z·z, as it always was).
@@ -396,7 +405,9 @@ mod tests {
     /// σ of `noisy_depth` at `z` head-on, and its mean.
     fn spread(n: &ScanNoise, z: f64, seed: u64) -> (f64, f64) {
         let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
-        let s: Vec<f64> = (0..8000).map(|_| n.noisy_depth(z, 0.0, &mut rng)).collect();
+        let s: Vec<f64> = (0..8000)
+            .map(|_| n.noisy_depth(z, 0.0, 1.0, &mut rng))
+            .collect();
         let mean = s.iter().sum::<f64>() / s.len() as f64;
         let var = s.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / s.len() as f64;
         (mean, var.sqrt())
@@ -417,6 +428,17 @@ mod tests {
         assert!((m1 - (1.001 + 0.001)).abs() < 5e-5, "{m1}");
         assert!((m05 - (0.5005 + 0.001)).abs() < 5e-5, "{m05}");
         assert!((m2 - (2.002 + 0.001)).abs() < 1e-4, "{m2}");
+        // the offset is on the range: an off-axis pixel's ray is 1.25 × its depth long
+        let mut rng = rand::rngs::StdRng::seed_from_u64(6);
+        let n = ScanNoise {
+            depth_sigma_at_1m_m: 0.0,
+            ..tof
+        };
+        let off_axis = n.noisy_depth(1.0, 0.0, 1.25, &mut rng);
+        assert!(
+            (off_axis - (1.001 + 0.001 / 1.25)).abs() < 1e-12,
+            "{off_axis}"
+        );
         // structured light keeps z²
         let sl = ScanNoise::default();
         let (_, a) = spread(&sl, 1.0, 4);
@@ -473,7 +495,7 @@ mod tests {
         };
         let mut rng = rand::rngs::StdRng::seed_from_u64(1);
         let spread = |z: f64, rng: &mut rand::rngs::StdRng| {
-            let s: Vec<f64> = (0..4000).map(|_| n.noisy_depth(z, 0.0, rng)).collect();
+            let s: Vec<f64> = (0..4000).map(|_| n.noisy_depth(z, 0.0, 1.0, rng)).collect();
             let mean = s.iter().sum::<f64>() / s.len() as f64;
             let var = s.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / s.len() as f64;
             (mean, var.sqrt())

@@ -7,7 +7,7 @@ use nalgebra::{Isometry3, Point3};
 
 use super::prepare::Prepared;
 use super::{probe_err, Candidate, RegisterOptions};
-use crate::calib::fine::{icp, IcpResult, Stage};
+use crate::calib::fine::{icp, DepthCorrection, IcpResult, Stage};
 use crate::calib::range::RangeImage;
 use crate::calib::surface::{ModelSurface, Sample};
 use crate::calib::verify::{evidence, score, Evidence, Tolerances};
@@ -49,18 +49,21 @@ pub(super) fn judge(
             gate_m: p.m(0.01),
             kernel_m: p.m(0.003),
             scale: false,
+            offset: false,
             iterations: 8,
         },
         Stage {
             gate_m: p.m(0.005),
             kernel_m: p.m(0.0015),
             scale: opts.estimate_depth_scale,
+            offset: opts.estimate_depth_offset,
             iterations: 10,
         },
         Stage {
             gate_m: p.m(0.004),
             kernel_m: p.m(0.001),
             scale: opts.estimate_depth_scale,
+            offset: opts.estimate_depth_offset,
             iterations: 15,
         },
     ];
@@ -104,10 +107,17 @@ pub(super) fn judge(
         let pts = p
             .pool
             .select(&p.range, &p.surface, c, points, p.m(0.01), p.m(0.003));
-        let fine = icp(&pts, &p.surface, &c.inverse(), 1.0, stages)?;
+        let fine = icp(
+            &pts,
+            &p.surface,
+            &c.inverse(),
+            DepthCorrection::NONE,
+            stages,
+        )?;
         let pose = fine.model_from_camera.inverse();
-        // The verification looks at the scan as measured: apply the scale to the model.
-        let e = evidence_scaled(&p.range, &p.surface, &pose, 1.0 / fine.kappa, tol);
+        // The verification looks at the scan as measured: the model is seen through the
+        // depth correction's inverse.
+        let e = evidence_measured(&p.range, &p.surface, &pose, &fine.depth, tol);
         if e.coverage() < opts.min_coverage_found
             || e.violation_fraction() > opts.max_violation_found
         {
@@ -216,17 +226,17 @@ fn same_basin(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     crate::calib::within(a, b, 0.02, 10.0)
 }
 
-/// Evidence on the dense samples of the fitted links, for a camera whose depths are `s` times
-/// the true ones: the model is placed with `camera_from_model` and scaled by `s` about the
-/// camera origin before projection.
-fn evidence_scaled(
+/// Evidence on the dense samples of the fitted links, for a camera whose depths need `depth`
+/// to be true: the model is placed with `camera_from_model` and its camera-frame samples moved
+/// to where the camera measures them ([`DepthCorrection::measured`]) before projection.
+fn evidence_measured(
     range: &RangeImage<'_>,
     surface: &ModelSurface,
     camera_from_model: &Isometry3<f64>,
-    s: f64,
+    depth: &DepthCorrection,
     tol: Tolerances,
 ) -> Evidence {
-    if (s - 1.0).abs() < 1e-12 {
+    if *depth == DepthCorrection::NONE {
         return evidence(
             range,
             &surface.samples,
@@ -235,22 +245,20 @@ fn evidence_scaled(
             tol,
         );
     }
-    // Scaling about the camera origin keeps rays: project the true pose, compare the measured
-    // depth divided by s. Equivalent: scale the samples' camera-frame positions by s.
-    let scaled_samples: Vec<Sample> = surface
+    let measured_samples: Vec<Sample> = surface
         .samples
         .iter()
         .filter(|x| x.depth as usize <= surface.fit_depth)
         .map(|x| {
             let mut y = *x;
             let pc = camera_from_model * x.p;
-            y.p = camera_from_model.inverse() * Point3::from(pc.coords * s);
+            y.p = camera_from_model.inverse() * Point3::from(depth.measured(&pc.coords));
             y
         })
         .collect();
     evidence(
         range,
-        &scaled_samples,
+        &measured_samples,
         camera_from_model,
         surface.fit_depth,
         tol,

@@ -27,7 +27,10 @@ const SMOOTH_ERROR_SHARE: f64 = 0.6;
 /// correspondences' extent, about their centroid, in any direction. Zero for scans as clean as
 /// the structured-light camera's.
 fn smooth_depth_error(estimate: &IcpResult) -> Matrix6<f64> {
-    let excess = (estimate.residual_spread_m.powi(2) - TUNED_RESIDUAL_SPREAD_M.powi(2))
+    // The per-pixel noise is in the spread too, but not shared: the residuals' patch sums
+    // already count it.
+    let own = TUNED_RESIDUAL_SPREAD_M.max(estimate.pixel_noise_m);
+    let excess = (estimate.residual_spread_m.powi(2) - own.powi(2))
         .max(0.0)
         .sqrt()
         * SMOOTH_ERROR_SHARE;
@@ -39,6 +42,16 @@ fn smooth_depth_error(estimate: &IcpResult) -> Matrix6<f64> {
         .fixed_view_mut::<3, 3>(0, 3)
         .copy_from(&estimate.centroid.coords.cross_matrix());
     to_origin * about_centroid * to_origin.transpose()
+}
+
+/// The covariance the depth parameters the fit did not estimate add, in the fit's parameters:
+/// each one's 1σ ([`RegisterOptions::fixed_depth_error`]) times how far it moves the pose
+/// ([`IcpResult::pose_per_fixed_depth`]).
+fn fixed_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6<f64> {
+    let (scale, offset_m) = opts.fixed_depth_error;
+    let [by_scale, by_offset] = estimate.pose_per_fixed_depth;
+    by_scale * by_scale.transpose() * scale.powi(2)
+        + by_offset * by_offset.transpose() * offset_m.powi(2)
 }
 
 /// The covariance of a shift of `metres` and a turn of `radians` (each the 1σ length of the
@@ -85,7 +98,10 @@ pub(super) fn uncertainty(
     ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
     let (floor_m, floor_rad) = opts.model_accuracy;
     let floor = isotropic(floor_m, floor_rad);
-    let cov = ad * (estimate.cov6 + smooth_depth_error(estimate)) * ad.transpose() + floor;
+    let cov = ad
+        * (estimate.cov6 + smooth_depth_error(estimate) + fixed_depth_error(estimate, opts))
+        * ad.transpose()
+        + floor;
     let base = camera_from_model.translation.vector;
     let unc = Uncertainty {
         translation_mm: position_sigma_m(&cov, &Vector3::zeros()) * 1000.0,

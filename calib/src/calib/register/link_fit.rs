@@ -45,13 +45,14 @@ pub(super) fn refine_with_links(
         gate_m: p.m(0.004),
         kernel_m: p.m(0.001),
         scale: fine.scale_estimated,
+        offset: fine.offset_estimated,
         iterations: 15,
     };
     match icp_with_links(
         &pts,
         &p.surface,
         &fine.model_from_camera,
-        fine.kappa,
+        fine.depth,
         &[stage],
         &link_prior,
     ) {

@@ -42,6 +42,7 @@ use super::solve::Mount;
 use super::surface::{PosedJoint, PosedModel};
 use super::verify::{evidence_per_depth, Evidence};
 use super::CalibError;
+use crate::geometry::SensorClass;
 use crate::model::{GeometryKind, KinematicError, RobotModel};
 
 /// Tuning of [`register`]. `Default` is what the benchmark measures.
@@ -59,8 +60,25 @@ pub struct RegisterOptions {
     pub coarse_spacing_m: f64,
     /// Scan points used by the final ICP (uniformly thinned); more costs time, not accuracy.
     pub max_icp_points: usize,
-    /// Estimate the camera's depth-scale error as a 7th parameter (the model's size fixes it).
+    /// Estimate the camera's depth-scale error as a parameter of the fit (the model's size
+    /// fixes it).
     pub estimate_depth_scale: bool,
+    /// Estimate the camera's range offset (every pixel's distance off by the same length along
+    /// its ray, a time-of-flight camera's systematic error) as a parameter of the fit. Over the
+    /// narrow depth range of one view an offset and a scale error look nearly alike (an offset
+    /// δ at distance r is a scale error δ / r), so [`Self::for_sensor`] estimates the one the
+    /// sensor class has and puts the other's effect in the covariance
+    /// ([`Self::fixed_depth_error`]).
+    pub estimate_depth_offset: bool,
+    /// 1σ of the depth-scale error (relative) and of the range offset (metres) the fit does
+    /// *not* estimate: how much each moves the pose enters the covariance. An estimated one
+    /// brings its own uncertainty instead.
+    pub fixed_depth_error: (f64, f64),
+    /// Time-of-flight multipath: scan points on model surface within this distance of other
+    /// surface facing it (a concave corner: the base's foot on the floor, between links) are
+    /// not used, their range being biased long by light bounced off that surface (metres;
+    /// `None`: every point is used, for sensors without multipath).
+    pub multipath_clearance_m: Option<f64>,
     /// Coarse hypotheses polished and compared.
     pub max_hypotheses: usize,
     /// Below this coverage (or above `max_violation_found` free-space violations) the robot is
@@ -113,6 +131,9 @@ impl Default for RegisterOptions {
             coarse_spacing_m: 0.012,
             max_icp_points: 8000,
             estimate_depth_scale: true,
+            estimate_depth_offset: false,
+            fixed_depth_error: (0.0, 0.0),
+            multipath_clearance_m: None,
             max_hypotheses: 8,
             min_coverage_found: 0.3,
             max_violation_found: 0.25,
@@ -127,6 +148,35 @@ impl Default for RegisterOptions {
         }
     }
 }
+
+impl RegisterOptions {
+    /// These options tuned for a sensor class's depth errors. Structured light and active
+    /// stereo: the depth scale estimated, as by default. Time of flight: the range offset
+    /// estimated instead of the scale (a phase measurement's scale is set by its modulation
+    /// frequency; its systematic error is an offset), the scale's error of
+    /// [`TOF_SCALE_ERROR`] in the covariance, and scan points in concave corners of the
+    /// model (within [`TOF_MULTIPATH_CLEARANCE_M`] of facing surface) left out.
+    pub fn for_sensor(self, class: SensorClass) -> Self {
+        match class {
+            SensorClass::StructuredLight | SensorClass::ActiveStereo => self,
+            SensorClass::TimeOfFlight => Self {
+                estimate_depth_scale: false,
+                estimate_depth_offset: true,
+                fixed_depth_error: (TOF_SCALE_ERROR, 0.0),
+                multipath_clearance_m: Some(TOF_MULTIPATH_CLEARANCE_M),
+                ..self
+            },
+        }
+    }
+}
+
+/// 1σ of a time-of-flight camera's depth-scale error: Microsoft documents the Azure Kinect's
+/// systematic error as < 11 mm + 0.1 % of the distance.
+pub const TOF_SCALE_ERROR: f64 = 0.001;
+
+/// How far from facing surface a time-of-flight camera's range is taken as biased by
+/// multipath, metres: a few centimetres.
+pub const TOF_MULTIPATH_CLEARANCE_M: f64 = 0.03;
 
 /// 1-σ uncertainty of a pose.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, serde::Deserialize)]
@@ -273,6 +323,9 @@ pub struct Registration {
     pub degenerate_directions: Vec<Vector6<f64>>,
     /// Estimated depth scale of the camera (measured / true distance) when estimated.
     pub depth_scale: Option<f64>,
+    /// Estimated range offset of the camera (measured − true distance along each pixel's ray,
+    /// metres) when estimated.
+    pub depth_offset_m: Option<f64>,
     /// Time per stage.
     pub timings_ms: StageTimings,
 }
@@ -463,7 +516,14 @@ pub fn register_posed(
         }
         judged => judged?,
     };
-    let (camera_from_model, estimate) = link_fit::refine_with_links(&p, model, &judged, opts)?;
+    let (camera_from_model, mut estimate) = link_fit::refine_with_links(&p, model, &judged, opts)?;
+    estimate.pixel_noise_m = p.range.noise_m().unwrap_or(0.0);
+    tracing::debug!(
+        depth = ?estimate.depth,
+        spread_mm = estimate.residual_spread_m * 1e3,
+        noise_mm = estimate.pixel_noise_m * 1e3,
+        "depth correction"
+    );
     timings.fine = elapsed_ms(t2);
     let t3 = Instant::now();
     let (covariance_6x6, uncertainty, degenerate_directions) =
@@ -494,7 +554,12 @@ pub fn register_posed(
             )),
         },
         degenerate_directions,
-        depth_scale: estimate.scale_estimated.then_some(1.0 / estimate.kappa),
+        depth_scale: estimate
+            .scale_estimated
+            .then(|| estimate.depth.depth_scale()),
+        depth_offset_m: estimate
+            .offset_estimated
+            .then(|| estimate.depth.range_offset_m()),
         timings_ms: timings,
     })
 }

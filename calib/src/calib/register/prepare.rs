@@ -7,7 +7,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 use super::{Candidate, RegisterOptions};
 use crate::calib::coarse::Oriented;
-use crate::calib::fine::{icp, Stage};
+use crate::calib::fine::{icp, DepthCorrection, Stage};
 use crate::calib::range::RangeImage;
 use crate::calib::surface::{ModelSurface, PosedModel};
 use crate::calib::verify::{evidence, Tolerances};
@@ -64,12 +64,15 @@ pub(super) fn preprocess<'a>(
     // Every distance of the registration was chosen for scans as precise as the simulator's
     // structured-light camera; a noisier scan widens them in proportion to its own noise.
     let k = noise_scale(range.noise_m());
-    let surface = ModelSurface::new(
+    let mut surface = ModelSurface::new(
         model,
         opts.fit_chain_depth,
         opts.sample_spacing_m,
         opts.coarse_spacing_m,
     );
+    if let Some(clearance_m) = opts.multipath_clearance_m {
+        surface.mark_multipath(clearance_m);
+    }
     if surface.coarse.is_empty() {
         return Err(CalibError::NoModelGeometry);
     }
@@ -125,18 +128,21 @@ impl Prepared<'_> {
                 gate_m: self.m(0.03),
                 kernel_m: self.m(0.01),
                 scale: false,
+                offset: false,
                 iterations: 6,
             },
             Stage {
                 gate_m: self.m(0.012),
                 kernel_m: self.m(0.004),
                 scale: false,
+                offset: false,
                 iterations: 5,
             },
             Stage {
                 gate_m: self.m(0.006),
                 kernel_m: self.m(0.002),
                 scale: false,
+                offset: false,
                 iterations: 6,
             },
         ];
@@ -152,7 +158,7 @@ impl Prepared<'_> {
             &pts,
             &self.surface,
             &camera_from_model.inverse(),
-            1.0,
+            DepthCorrection::NONE,
             &stages,
         )?;
         let pose = r.model_from_camera.inverse();
