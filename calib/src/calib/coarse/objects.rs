@@ -36,14 +36,16 @@ const PER_CLUMP: usize = 2;
 const MAX_CLUMPS: usize = 8;
 /// A clump with fewer scan points than this is too small to be the arm.
 const MIN_CLUMP_POINTS: usize = 30;
-/// How far above the plane a scan point must be to belong to an object, metres (its own
-/// noise keeps the plane's points below).
+/// How far above the plane a scan point must at least be to belong to an object, metres.
 const ABOVE_M: f64 = 0.02;
 
-/// Candidate `camera_from_model` poses of the robot standing on `plane`, best first (at most
-/// `max_out`, distinct): the posed model's camera-facing surface centred on each clump of scan
-/// points above the plane, at every turn about its axis, scored on the range image with `tol`.
-/// `height_m` lifts the scan's points that count as above the plane (the plane's noise).
+/// Candidate `camera_from_model` poses of the robot standing on `plane` with their scores (at
+/// most `max_out`): the posed model's camera-facing surface placed on each clump of scan points
+/// above the plane at every turn about its axis, scored on the range image with `tol`; each
+/// clump's [`PER_CLUMP`] best distinct turns, the best turn of every clump first. A score may
+/// be negative: the turns are 5° apart and the plane a few degrees off the robot's axis, so the
+/// right pose can be centimetres off before polishing, which judges again. `height_m`: how far
+/// above the plane a scan point must be to count (the plane's noise; at least [`ABOVE_M`]).
 pub(crate) fn hypotheses(
     range: &RangeImage<'_>,
     surface: &ModelSurface,
@@ -97,7 +99,10 @@ pub(crate) fn hypotheses(
         v.sort_by(|a, b| b.1.total_cmp(&a.1));
         let mut kept: Vec<(Isometry3<f64>, f64)> = Vec::new();
         for (pose, s) in v.drain(..) {
-            if kept.len() < PER_CLUMP && kept.iter().all(|(o, _)| distinct_hypotheses(o, &pose)) {
+            if kept.len() >= PER_CLUMP {
+                break;
+            }
+            if kept.iter().all(|(o, _)| distinct_hypotheses(o, &pose)) {
                 kept.push((pose, s));
             }
         }
