@@ -704,7 +704,7 @@ mod tests {
         assert_eq!(eih.mount, random_mount(&mut rng));
     }
 
-    /// A fixed camera 2.2 m from a UR10e: a turn of the camera by its rotation σ moves its
+    /// A fixed camera 1.6 m from a UR10e: a turn of the camera by its rotation σ moves its
     /// origin by more than the gate's 1 mm, the robot base it looks at by well under. The gate
     /// judges the base (accepted), and the result is right there.
     #[test]
@@ -715,8 +715,8 @@ mod tests {
         let cfg = BenchConfig {
             views: 1,
             scans_per_view: 1,
-            // The camera 2.20 m from the base.
-            seed: 1,
+            // The camera 1.62 m from the base.
+            seed: 2,
             ..BenchConfig::new(Mount::EyeToHand)
         };
         let plan = plan_trials(&model, &cfg).expect("views");
@@ -738,7 +738,7 @@ mod tests {
         let u = c.registrations[0].uncertainty;
         let w = u.workspace.expect("a registration reports the base's σ");
         eprintln!("{u:?} {:?}", c.verdict);
-        assert!(w.distance_m > 2.0 && w.distance_m < 2.5, "{w:?}");
+        assert!(w.distance_m > 1.5 && w.distance_m < 2.0, "{w:?}");
         assert!(u.translation_mm > 1.0, "{u:?}");
         assert!(w.translation_mm < 0.7, "{u:?}");
         assert!(c.verdict.passed(), "{:?}", c.verdict);

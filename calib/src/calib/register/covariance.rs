@@ -25,11 +25,16 @@ const SMOOTH_ERROR_SHARE: f64 = 0.6;
 /// covariance cannot see it, the residual spread can. Its excess over the tuned spread, times
 /// [`SMOOTH_ERROR_SHARE`], is taken as a shift of that size and a turn of that size over the
 /// correspondences' extent, about their centroid, in any direction. Zero for scans as clean as
-/// the structured-light camera's.
-fn smooth_depth_error(estimate: &IcpResult) -> Matrix6<f64> {
-    // The per-pixel noise is in the spread too, but not shared: the residuals' patch sums
-    // already count it.
-    let own = TUNED_RESIDUAL_SPREAD_M.max(estimate.pixel_noise_m);
+/// the structured-light camera's. With [`RegisterOptions::smooth_error_beyond_pixel_noise`] the
+/// excess is over the scan's per-pixel noise when that is larger.
+fn smooth_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6<f64> {
+    // The per-pixel noise is in the spread too; where it is not shared, the residuals' patch
+    // sums already count it.
+    let own = if opts.smooth_error_beyond_pixel_noise {
+        TUNED_RESIDUAL_SPREAD_M.max(estimate.pixel_noise_m)
+    } else {
+        TUNED_RESIDUAL_SPREAD_M
+    };
     let excess = (estimate.residual_spread_m.powi(2) - own.powi(2))
         .max(0.0)
         .sqrt()
@@ -99,7 +104,7 @@ pub(super) fn uncertainty(
     let (floor_m, floor_rad) = opts.model_accuracy;
     let floor = isotropic(floor_m, floor_rad);
     let cov = ad
-        * (estimate.cov6 + smooth_depth_error(estimate) + fixed_depth_error(estimate, opts))
+        * (estimate.cov6 + smooth_depth_error(estimate, opts) + fixed_depth_error(estimate, opts))
         * ad.transpose()
         + floor;
     let base = camera_from_model.translation.vector;
