@@ -131,9 +131,8 @@ const PLACE_GATES_M: [f64; 3] = [0.12, 0.06, 0.03];
 /// Where the robot's origin stands (plane x, y) turned by `yaw` on `clump`: first so that the
 /// centroid of its surface facing `camera` falls on the clump's centroid, then moved in the
 /// plane by the median offset of each facing sample to its nearest clump point, in rounds of
-/// tighter gates. The centroid alone is centimetres off (the clump has cables and parts the
-/// arm hides, the model surface the arm hides from itself); a turn 5° off the right one is
-/// still found within about a centimetre.
+/// tighter gates: the centroid alone is centimetres off (the clump has cables and parts the
+/// arm hides, the model surface the arm hides from itself).
 fn place(model: &[&Sample], clump: &Clump, yaw: f64, camera: &Point3<f64>) -> Vector2<f64> {
     let (s, c) = yaw.sin_cos();
     let turn = |v: &Vector3<f64>| Vector3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z);
@@ -192,7 +191,7 @@ struct Clump {
     tree: KdTree,
 }
 
-/// The centroids (plane x, y) of the clumps of `above` (points in the plane frame): the
+/// The clumps of `above` (points in the plane frame): the
 /// connected occupied cells of a [`CELL_M`] grid, the [`MAX_CLUMPS`] with most points, each
 /// with at least [`MIN_CLUMP_POINTS`].
 fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
