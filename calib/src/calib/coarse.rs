@@ -495,8 +495,7 @@ pub(crate) fn hypotheses(
         matched_m: 0.015,
         free_m: 0.03,
     };
-    // Peaks are only ranked here (polishing judges them again): a third of the samples will do.
-    let scoring: Vec<Sample> = surface.coarse.iter().step_by(3).copied().collect();
+    let scoring = ranking_samples(surface);
     let mut per_plane: Vec<Vec<(Isometry3<f64>, f64)>> = Vec::new();
     for pl in planes {
         let cam_from_plane = camera_from_plane(pl);
@@ -663,6 +662,12 @@ pub(crate) fn hypotheses(
     }
     out.sort_by(|a, b| b.1.total_cmp(&a.1));
     out
+}
+
+/// The samples coarse hypotheses are ranked on: polishing judges them again, so a third of the
+/// model's coarse samples will do.
+fn ranking_samples(surface: &ModelSurface) -> Vec<Sample> {
+    surface.coarse.iter().step_by(3).copied().collect()
 }
 
 /// The robot standing at `(x, y, h)` turned by `yaw` in a plane's frame (`plane_from_model`).

@@ -74,8 +74,7 @@ pub(crate) fn hypotheses(
         .filter(|q| q.z > height_m.max(ABOVE_M) && q.z < zmax + 0.05)
         .collect();
     let clumps = clumps(&above);
-    // Scoring ranks only (polishing judges again): a third of the samples will do.
-    let scoring: Vec<Sample> = surface.coarse.iter().step_by(3).copied().collect();
+    let scoring = super::ranking_samples(surface);
     let jobs: Vec<(usize, usize)> = (0..clumps.len())
         .flat_map(|c| (0..TURNS).map(move |t| (c, t)))
         .collect();
@@ -213,28 +212,24 @@ fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
         let iy = ((q.y - lo.y) / CELL_M) as usize;
         (ix < nx && iy < ny).then_some(iy * nx + ix)
     };
+    let cells: Vec<Option<usize>> = above.iter().map(cell).collect();
     let mut count = vec![0usize; nx * ny];
-    let mut sum = vec![Vector2::<f64>::zeros(); nx * ny];
-    for q in above {
-        if let Some(i) = cell(q) {
-            count[i] += 1;
-            sum[i] += q.xy().coords;
-        }
+    for &i in cells.iter().flatten() {
+        count[i] += 1;
     }
-    // Connected components of the occupied cells (8-neighbourhood).
+    // Connected components of the occupied cells (8-neighbourhood), each labelled by its first
+    // cell: (points, label).
     let mut label = vec![usize::MAX; nx * ny];
-    let mut found: Vec<(usize, Vector2<f64>, usize)> = Vec::new();
+    let mut found: Vec<(usize, usize)> = Vec::new();
     for start in 0..nx * ny {
         if count[start] == 0 || label[start] != usize::MAX {
             continue;
         }
-        let id = start;
-        let (mut n, mut s) = (0usize, Vector2::zeros());
+        let mut n = 0usize;
         let mut queue = VecDeque::from([start]);
-        label[start] = id;
+        label[start] = start;
         while let Some(i) = queue.pop_front() {
             n += count[i];
-            s += sum[i];
             let (x, y) = ((i % nx) as isize, (i / nx) as isize);
             for (dx, dy) in [
                 (-1, -1),
@@ -252,29 +247,32 @@ fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
                 }
                 let j = yy as usize * nx + xx as usize;
                 if count[j] > 0 && label[j] == usize::MAX {
-                    label[j] = id;
+                    label[j] = start;
                     queue.push_back(j);
                 }
             }
         }
-        found.push((n, s / n as f64, id));
+        found.push((n, start));
     }
     found.sort_by_key(|f| std::cmp::Reverse(f.0));
-    found.retain(|(n, _, _)| *n >= MIN_CLUMP_POINTS);
+    found.retain(|(n, _)| *n >= MIN_CLUMP_POINTS);
     found.truncate(MAX_CLUMPS);
-    let mut members: Vec<Vec<Point3<f32>>> = vec![Vec::new(); found.len()];
-    for q in above {
-        if let Some(k) = cell(q).and_then(|i| found.iter().position(|f| f.2 == label[i])) {
-            members[k].push(q.cast::<f32>());
+    let mut members: Vec<Vec<&Point3<f64>>> = vec![Vec::new(); found.len()];
+    for (q, c) in above.iter().zip(&cells) {
+        if let Some(k) = c.and_then(|i| found.iter().position(|f| f.1 == label[i])) {
+            members[k].push(q);
         }
     }
-    found
+    members
         .into_iter()
-        .zip(members)
-        .map(|((_, centroid, _), points)| Clump {
-            centroid,
-            tree: KdTree::new(&points),
-            points,
+        .map(|m| {
+            let centroid = m.iter().map(|q| q.xy().coords).sum::<Vector2<f64>>() / m.len() as f64;
+            let points: Vec<Point3<f32>> = m.iter().map(|q| q.cast::<f32>()).collect();
+            Clump {
+                centroid,
+                tree: KdTree::new(&points),
+                points,
+            }
         })
         .collect()
 }
