@@ -17,6 +17,7 @@ use handeye_calib::calib::pipeline::{calibrate_frames, fixed_frame, Frame, Pipel
 use handeye_calib::calib::range::RangeImage;
 use handeye_calib::calib::Mount;
 use handeye_calib::cloud::read_cloud;
+use handeye_calib::geometry::SensorClass;
 use handeye_calib::model::RobotModel;
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion};
 
@@ -87,6 +88,7 @@ fn apart(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
 
 fn options(set: &RealSet, guess: bool) -> PipelineOptions {
     let mut opts = PipelineOptions::new(Mount::EyeToHand);
+    opts.register = opts.register.for_sensor(SensorClass::ActiveStereo);
     opts.base_frame = Some("link_base".into());
     let model_from_base = fixed_frame(&set.model, "link_base").expect("link_base is fixed");
     opts.prior = guess.then(|| model_from_base * set.reference);

@@ -148,6 +148,14 @@ pub(crate) struct IcpResult {
     /// parameters in use, model-frame left perturbation; zero for an estimated one. An error
     /// of that parameter the fit left out moves the pose by this much, unseen by the residuals.
     pub(crate) pose_per_fixed_depth: [nalgebra::Vector6<f64>; 2],
+    /// How the pose moves per unit (1/m) of a depth error that grows across the image, which
+    /// no fit estimates: measured depth = true × (1 + z · g · x/z) (entry 0) or
+    /// (1 + z · g · y/z) (entry 1), x/z and y/z the pixel's normalized image coordinates. A
+    /// stereo camera whose imagers are turned slightly against their calibration measures so
+    /// (a disparity bias that varies across the image); over the arm it looks like a turn of
+    /// the pose, so the residuals cannot tell it. Same convention as
+    /// [`Self::pose_per_fixed_depth`].
+    pub(crate) pose_per_depth_gradient: [nalgebra::Vector6<f64>; 2],
     /// Information matrix of the 6 pose parameters (estimated depth parameters marginalised
     /// out), weighted, not yet scaled by the residual variance.
     pub(crate) info6: Matrix6<f64>,
@@ -432,6 +440,46 @@ fn residual_spread(
         *x = (*x - median).abs();
     }
     1.4826 * *r.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// The columns of the normal equations (pose, depth and `prior`'s link parameters) of the two
+/// depth gradients of [`IcpResult::pose_per_depth_gradient`] at the converged fit: Σ w J ∂r/∂g,
+/// where a relative depth error z · g · x/z (or y/z) moves the point along its ray as the
+/// scale does, by that fraction.
+fn gradient_columns(
+    pts: &[Oriented],
+    surface: &ModelSurface,
+    t: &Isometry3<f64>,
+    depth: &DepthCorrection,
+    st: &Stage,
+    links: &[Isometry3<f64>],
+    prior: &LinkPrior,
+) -> DMatrix<f64> {
+    let depths = prior.a.len() + 1;
+    let mut by_depth = vec![SMatrix::<f64, NP, 2>::zeros(); depths];
+    for o in pts {
+        let Some(Ok(c)) = correspond(o, surface, t, depth, st, links) else {
+            continue;
+        };
+        if o.p.z <= 0.0 {
+            continue;
+        }
+        let along = nalgebra::RowVector2::new(o.p.x, o.p.y) * c.j[SCALE];
+        // Links deeper than the displaced ones stay where they are posed, like the base.
+        let d = Some(c.depth as usize).filter(|&d| d < depths).unwrap_or(0);
+        by_depth[d] += c.j * (c.w * along);
+    }
+    let p = prior.params();
+    let mut cols = DMatrix::zeros(NP + p, 2);
+    for (d, m) in by_depth.iter().enumerate() {
+        let mut top = cols.view_mut((0, 0), (NP, 2));
+        top += m;
+        if let Some(a) = d.checked_sub(1).and_then(|k| prior.a.get(k)) {
+            let mut rest = cols.view_mut((NP, 0), (p, 2));
+            rest -= a.transpose() * m.fixed_view::<6, 2>(0, 0);
+        }
+    }
+    cols
 }
 
 /// Robust point-to-plane ICP from `init` (`model_from_camera`) through the `stages`.
@@ -719,9 +767,16 @@ pub(crate) fn icp_with_links(
         let shift = -(&h_inv * col);
         nalgebra::Vector6::from_iterator(shift.rows(0, 6).iter().copied())
     });
+    let gradient_columns = gradient_columns(pts, surface, &t, &depth, &st, &links, prior);
+    let pose_per_depth_gradient = [0, 1].map(|k| {
+        let col = gradient_columns.column(k).select_rows(&used);
+        let shift = -(&h_inv * col);
+        nalgebra::Vector6::from_iterator(shift.rows(0, 6).iter().copied())
+    });
     Some((
         IcpResult {
             model_from_camera: t,
+            pose_per_depth_gradient,
             depth,
             scale_estimated: st.scale,
             offset_estimated: st.offset,

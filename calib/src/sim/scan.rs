@@ -306,7 +306,10 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
                     }
                 }
                 let z = z + ripple.at(u, v, z);
-                let z = noise.quantized(noise.noisy_depth(z, incidence, ray.norm(), &mut rng));
+                let z = noise.quantized(
+                    noise.noisy_depth(z, incidence, ray.norm(), &mut rng)
+                        * noise.gradient_factor(z, &ray),
+                );
                 if z > noise.max_range_m {
                     return nan;
                 }

@@ -50,13 +50,16 @@ fn smooth_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6<f
 }
 
 /// The covariance the depth parameters the fit did not estimate add, in the fit's parameters:
-/// each one's 1σ ([`RegisterOptions::fixed_depth_error`]) times how far it moves the pose
-/// ([`IcpResult::pose_per_fixed_depth`]).
+/// each one's 1σ ([`RegisterOptions::fixed_depth_error`],
+/// [`RegisterOptions::depth_gradient_error`]) times how far it moves the pose
+/// ([`IcpResult::pose_per_fixed_depth`], [`IcpResult::pose_per_depth_gradient`]).
 fn fixed_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6<f64> {
     let (scale, offset_m) = opts.fixed_depth_error;
     let [by_scale, by_offset] = estimate.pose_per_fixed_depth;
+    let [by_x, by_y] = estimate.pose_per_depth_gradient;
     by_scale * by_scale.transpose() * scale.powi(2)
         + by_offset * by_offset.transpose() * offset_m.powi(2)
+        + (by_x * by_x.transpose() + by_y * by_y.transpose()) * opts.depth_gradient_error.powi(2)
 }
 
 /// The covariance of a shift of `metres` and a turn of `radians` (each the 1σ length of the

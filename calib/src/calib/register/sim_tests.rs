@@ -274,6 +274,52 @@ fn camera_error_mm(reg: &Registration, scan: &SimulatedScan) -> f64 {
         * 1e3
 }
 
+/// A stereo camera whose depth error grows across the image (here 0.03 /m per unit of y/z,
+/// twice the active-stereo class's) turns the registered pose by what the residuals cannot
+/// see. With the gradient's 1σ among the options the reported σ covers the turn; without it
+/// the turn is many σ.
+#[test]
+fn a_depth_error_across_the_image_is_in_the_uncertainty() {
+    let Some((model, mount, views)) = ur5e_views(3, 5) else {
+        return;
+    };
+    let mut settings = SimSettings::default();
+    settings.noise.depth_gradient = [0.0, 0.03];
+    let plain = RegisterOptions::default();
+    let covered = RegisterOptions {
+        depth_gradient_error: 0.03,
+        ..plain.clone()
+    };
+    for (k, q) in views.iter().enumerate() {
+        let scan = camera_scan(
+            &model,
+            mount,
+            q,
+            &settings,
+            Intrinsics::compact_1280x960(),
+            40 + k as u64,
+        );
+        let posed = posed_model(&model, q).expect("posed");
+        let turn = |r: &Registration| {
+            r.camera_from_model
+                .inverse()
+                .rotation
+                .angle_to(&scan.truth.model_from_camera.rotation)
+                .to_degrees()
+        };
+        let a = register_posed(&scan.cloud, &posed, None, &plain).expect("registered");
+        let b = register_posed(&scan.cloud, &posed, None, &covered).expect("registered");
+        let (ea, eb) = (turn(&a), turn(&b));
+        eprintln!(
+            "view {k}: turned {ea:.3}° (σ {:.3}°); with the gradient's σ {eb:.3}° (σ {:.3}°)",
+            a.uncertainty.rotation_deg, b.uncertainty.rotation_deg
+        );
+        assert!(ea > 0.1, "the gradient turns the pose: {ea}°");
+        assert!(ea > 3.0 * a.uncertainty.rotation_deg, "{ea}° {a:?}");
+        assert!(eb < 2.0 * b.uncertainty.rotation_deg, "{eb}° {b:?}");
+    }
+}
+
 /// Helios2-class wrist scans of the UR5e (`views` planned views, seeded) with `offset_m` of
 /// range offset and up to `multipath_m` of multipath, registered with the time-of-flight
 /// tuning and with `other` options: the scans and both registrations per view (`None` where
