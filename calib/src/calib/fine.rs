@@ -39,9 +39,9 @@ const PATCH_M: f64 = 0.06;
 const SPREAD_GATE_KERNELS: f64 = 12.0;
 /// Scan points on the moving links below which [`IcpResult::sharpness_moving`] says nothing.
 const MIN_MOVING_POINTS: usize = 30;
-/// Largest depth-scale error the 7-parameter fit may estimate (real cameras are within a few
-/// percent); beyond it the fit is ill-conditioned (too little depth relief in the
-/// correspondences) and the scale is pinned to 1 for the rest of the run.
+/// Largest depth-scale error a fit may estimate unless the camera's class says less (real
+/// cameras are within a few percent); beyond it the fit is ill-conditioned (too little depth
+/// relief in the correspondences) and the scale is pinned to 1 for the rest of the run.
 pub(crate) const MAX_SCALE_ERROR: f64 = 0.05;
 /// Largest range offset the fit may estimate, metres (a time-of-flight camera's uncalibrated
 /// systematic error is up to about a centimetre); beyond it the offset is pinned to 0, as the
@@ -123,8 +123,9 @@ pub(crate) struct Stage {
     pub(crate) gate_m: f64,
     /// Cauchy kernel scale, metres.
     pub(crate) kernel_m: f64,
-    /// Whether the depth scale is a free parameter in this stage.
-    pub(crate) scale: bool,
+    /// Whether the depth scale is a free parameter in this stage: `Some(largest error)` it may
+    /// reach before it is taken as ill-conditioned and pinned to 1 for the rest of the run.
+    pub(crate) scale: Option<f64>,
     /// Whether the range offset is a free parameter in this stage.
     pub(crate) offset: bool,
     /// Iteration cap.
@@ -138,7 +139,7 @@ pub(crate) struct IcpResult {
     /// The depths' correction.
     pub(crate) depth: DepthCorrection,
     /// Whether `depth.kappa` was estimated (false when no stage freed it or the fit fell back
-    /// to a fixed scale because it left `1 ± MAX_SCALE_ERROR`).
+    /// to a fixed scale because it left the stage's bound).
     pub(crate) scale_estimated: bool,
     /// Whether `depth.range_m` was estimated (false when no stage freed it or the fit fell
     /// back to none because it left `± MAX_RANGE_OFFSET_M`).
@@ -596,10 +597,14 @@ pub(crate) fn icp_with_links(
         h[(k, k)] = 1.0;
         g[k] = 0.0;
     };
+    // The fit as it stood before a depth parameter was first freed: an estimate that leaves
+    // its bound has dragged the pose along, and the fit starts again from there without it.
+    let mut before_depth: Option<(Isometry3<f64>, DVector<f64>)> = None;
     for st in stages {
-        for it in 0..st.iterations {
+        let mut it = 0;
+        while it < st.iterations {
             let free = Stage {
-                scale: st.scale && scale_ok,
+                scale: st.scale.filter(|_| scale_ok),
                 offset: st.offset && offset_ok,
                 ..*st
             };
@@ -616,7 +621,7 @@ pub(crate) fn icp_with_links(
                     DVector::from_column_slice(a.g.as_slice()),
                 )
             };
-            for (k, is_free) in [(SCALE, free.scale), (OFFSET, free.offset)] {
+            for (k, is_free) in [(SCALE, free.scale.is_some()), (OFFSET, free.offset)] {
                 if !is_free {
                     pin(k, &mut h, &mut g);
                 }
@@ -629,8 +634,9 @@ pub(crate) fn icp_with_links(
             let mut delta = -hd.clone().cholesky()?.solve(&g);
             // An ill-conditioned depth parameter (too little depth relief in the
             // correspondences) falls back to none for the rest of the run.
-            let scale_wild =
-                free.scale && (depth.kappa + delta[SCALE] - 1.0).abs() > MAX_SCALE_ERROR;
+            let scale_wild = free
+                .scale
+                .is_some_and(|max| (depth.kappa + delta[SCALE] - 1.0).abs() > max);
             let offset_wild =
                 free.offset && (depth.range_m + delta[OFFSET]).abs() > MAX_RANGE_OFFSET_M;
             if scale_wild || offset_wild {
@@ -644,7 +650,16 @@ pub(crate) fn icp_with_links(
                     depth.range_m = 0.0;
                     pin(OFFSET, &mut hd, &mut g);
                 }
+                if let Some((t0, z0)) = before_depth.take() {
+                    (t, z) = (t0, z0);
+                    depth = DepthCorrection::NONE;
+                    it = 0;
+                    continue;
+                }
                 delta = -hd.cholesky()?.solve(&g);
+            }
+            if before_depth.is_none() && (free.scale.is_some() || free.offset) {
+                before_depth = Some((t, z.clone()));
             }
             let rho = Vector3::new(delta[0], delta[1], delta[2]);
             let phi = Vector3::new(delta[3], delta[4], delta[5]);
@@ -658,7 +673,7 @@ pub(crate) fn icp_with_links(
             z += delta.rows(NP, p);
             last = Some((
                 Stage {
-                    scale: free.scale && scale_ok,
+                    scale: free.scale.filter(|_| scale_ok),
                     offset: free.offset && offset_ok,
                     ..*st
                 },
@@ -672,6 +687,7 @@ pub(crate) fn icp_with_links(
             if small && links_small && it > 0 {
                 break;
             }
+            it += 1;
         }
     }
     let (fin, kernel) = last?;
@@ -688,7 +704,7 @@ pub(crate) fn icp_with_links(
         return None;
     }
     // The estimated depth parameters, and the pinned ones.
-    let free_depth: Vec<usize> = [(SCALE, st.scale), (OFFSET, st.offset)]
+    let free_depth: Vec<usize> = [(SCALE, st.scale.is_some()), (OFFSET, st.offset)]
         .iter()
         .filter_map(|&(k, f)| f.then_some(k))
         .collect();
@@ -721,7 +737,7 @@ pub(crate) fn icp_with_links(
         )
     };
     let used: Vec<usize> = (0..NP + p)
-        .filter(|&k| (k != SCALE || st.scale) && (k != OFFSET || st.offset))
+        .filter(|&k| (k != SCALE || st.scale.is_some()) && (k != OFFSET || st.offset))
         .collect();
     let patches = patch_scores(pts, surface, &t, &depth, &st, &links);
     let residual_spread_m = residual_spread(pts, surface, &t, &depth, &st, &links);
@@ -778,7 +794,7 @@ pub(crate) fn icp_with_links(
             model_from_camera: t,
             pose_per_depth_gradient,
             depth,
-            scale_estimated: st.scale,
+            scale_estimated: st.scale.is_some(),
             offset_estimated: st.offset,
             pose_per_fixed_depth,
             info6,

@@ -269,6 +269,7 @@ mod tests {
     fn gate_passes_good_and_rejects_each_bad_property() {
         let reg = good_registration();
         let frames = [FrameInput {
+            sigma: None,
             view: 0,
             camera_from_model: reg.camera_from_model,
             model_from_flange: None,
@@ -314,11 +315,13 @@ mod tests {
         let other = Isometry3::translation(0.003, 0.0, 0.0) * reg.camera_from_model;
         let frames = [
             FrameInput {
+                sigma: None,
                 view: 0,
                 camera_from_model: reg.camera_from_model,
                 model_from_flange: None,
             },
             FrameInput {
+                sigma: None,
                 view: 1,
                 camera_from_model: other,
                 model_from_flange: None,
@@ -356,6 +359,7 @@ mod tests {
         };
         let th = GateThresholds::default();
         let fixed = [FrameInput {
+            sigma: None,
             view: 0,
             camera_from_model: reg.camera_from_model,
             model_from_flange: None,
@@ -364,6 +368,7 @@ mod tests {
         let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
         assert!(v.passed(), "{v:?}");
         let wrist = [FrameInput {
+            sigma: None,
             model_from_flange: Some(Isometry3::translation(0.4, 0.0, 0.6)),
             ..fixed[0].clone()
         }];
@@ -399,6 +404,7 @@ mod tests {
             .into_iter()
             .enumerate()
             .map(|(view, camera_from_model)| FrameInput {
+                sigma: None,
                 view,
                 camera_from_model,
                 model_from_flange: Some(Isometry3::translation(0.4, 0.0, 0.6)),

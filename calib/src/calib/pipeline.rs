@@ -168,6 +168,10 @@ pub fn calibrate_frames(
             view: f.view,
             camera_from_model: reg.camera_from_model,
             model_from_flange: Some(model_from_flange),
+            sigma: Some((
+                reg.uncertainty.position_mm(opts.mount).0,
+                reg.uncertainty.rotation_deg,
+            )),
         });
         registrations.push(reg);
     }

@@ -353,6 +353,7 @@ mod tests {
             .iter()
             .enumerate()
             .map(|(view, r)| FrameInput {
+                sigma: None,
                 view,
                 camera_from_model: r.camera_from_model,
                 model_from_flange: Some(Isometry3::translation(0.4, 0.0, 0.6)),

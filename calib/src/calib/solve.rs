@@ -7,7 +7,8 @@
 //! - Eye-to-hand: `model_from_camera = camera_from_model⁻¹` per frame.
 //!
 //! Fusion is two-level: the frames of one view (captured without moving), then the views.
-//! Each level starts from the medoid, drops members farther than the outlier thresholds and
+//! Each level starts from the medoid, drops members farther than the outlier thresholds (or,
+//! for a noisy camera, than [`OUTLIER_SIGMAS`] of their own σ) and
 //! averages the rest (chordal L2 mean on SO(3), arithmetic mean of translations), three rounds.
 //! Positions are compared where the result is used: eye-in-hand at the camera origin (the
 //! camera is near the flange), eye-to-hand at the robot base (the camera is 1–2 m away, where
@@ -58,7 +59,16 @@ pub struct FrameInput {
     pub camera_from_model: Isometry3<f64>,
     /// Flange pose in the model frame at capture (eye-in-hand: required; eye-to-hand: ignored).
     pub model_from_flange: Option<Isometry3<f64>>,
+    /// The registration's 1σ where frames are compared (position mm: eye-to-hand at the robot
+    /// base, eye-in-hand at the camera origin; rotation degrees): a frame within
+    /// [`OUTLIER_SIGMAS`] of it from the others is not dropped, however noisy the camera.
+    /// `None`: the fixed thresholds of [`SolveOptions`] alone.
+    pub sigma: Option<(f64, f64)>,
 }
+
+/// A frame or view farther from the robust mean than this many of its own σ (and farther than
+/// the fixed thresholds) disagrees with the others.
+pub const OUTLIER_SIGMAS: f64 = 3.0;
 
 /// Outlier thresholds of the fusion.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -184,16 +194,33 @@ pub fn solve(
     view_ids.dedup();
     let mut frame_used = vec![false; frames.len()];
     let mut view_est = Vec::new();
+    let mut view_tol = Vec::new();
+    let tolerance = |sigma: Option<(f64, f64)>| {
+        let (t, r) = sigma.unwrap_or((0.0, 0.0));
+        (
+            opts.outlier_translation_mm.max(OUTLIER_SIGMAS * t),
+            opts.outlier_rotation_deg.max(OUTLIER_SIGMAS * r),
+        )
+    };
     for &v in &view_ids {
         let members: Vec<usize> = (0..frames.len()).filter(|&i| frames[i].view == v).collect();
         let items: Vec<Isometry3<f64>> = members.iter().map(|&i| per_frame[i]).collect();
-        let (mean, used) = robust_mean(&items, &at, opts);
+        let tol: Vec<(f64, f64)> = members
+            .iter()
+            .map(|&i| tolerance(frames[i].sigma))
+            .collect();
+        let (mean, used) = robust_mean(&items, &tol, &at);
         for (k, &i) in members.iter().enumerate() {
             frame_used[i] = used[k];
         }
         view_est.push(mean);
+        // The frames of one view share their error: the view is as uncertain as its members.
+        let n = tol.len().max(1) as f64;
+        let rms =
+            |f: fn(&(f64, f64)) -> f64| (tol.iter().map(|x| f(x).powi(2)).sum::<f64>() / n).sqrt();
+        view_tol.push((rms(|x| x.0), rms(|x| x.1)));
     }
-    let (estimate, view_used) = robust_mean(&view_est, &at, opts);
+    let (estimate, view_used) = robust_mean(&view_est, &view_tol, &at);
     let residual = |x: &Isometry3<f64>, index: usize, view: usize, used: bool| {
         let (translation_mm, rotation_deg) = distance(x, &estimate);
         Residual {
@@ -257,38 +284,41 @@ fn median_point(points: impl Iterator<Item = Vector3<f64>>) -> Point3<f64> {
 }
 
 /// Medoid start, outlier rejection, mean of the rest, positions compared at `at` (camera
-/// frame, metres); returns the mean and the inlier mask.
+/// frame, metres); `tol[k]` is how far item `k` may be from the mean (mm, degrees). Returns
+/// the mean and the inlier mask.
 fn robust_mean(
     items: &[Isometry3<f64>],
+    tol: &[(f64, f64)],
     at: &Point3<f64>,
-    opts: &SolveOptions,
 ) -> (Isometry3<f64>, Vec<bool>) {
-    let norm = |a: &Isometry3<f64>, b: &Isometry3<f64>| {
-        let (t, r) = distance_at(a, b, at);
-        t / opts.outlier_translation_mm + r / opts.outlier_rotation_deg
+    let within = |k: usize, est: &Isometry3<f64>| {
+        let (t, r) = distance_at(&items[k], est, at);
+        t <= tol[k].0 && r <= tol[k].1
+    };
+    let norm = |k: usize, b: &Isometry3<f64>| {
+        let (t, r) = distance_at(&items[k], b, at);
+        t / tol[k].0 + r / tol[k].1
     };
     let medoid = (0..items.len())
         .min_by(|&i, &j| {
-            let si: f64 = items.iter().map(|x| norm(&items[i], x)).sum();
-            let sj: f64 = items.iter().map(|x| norm(&items[j], x)).sum();
+            let si: f64 = (0..items.len()).map(|k| norm(k, &items[i])).sum();
+            let sj: f64 = (0..items.len()).map(|k| norm(k, &items[j])).sum();
             si.total_cmp(&sj)
         })
         .unwrap_or(0);
     let mut est = items[medoid];
     let mut used = vec![true; items.len()];
     for _ in 0..3 {
-        for (k, x) in items.iter().enumerate() {
-            let (t, r) = distance_at(x, &est, at);
-            used[k] = t <= opts.outlier_translation_mm && r <= opts.outlier_rotation_deg;
+        for (k, u) in used.iter_mut().enumerate() {
+            *u = within(k, &est);
         }
         if !used.iter().any(|&u| u) {
             used[medoid] = true;
         }
         est = mean(items.iter().zip(&used).filter(|(_, &u)| u).map(|(x, _)| x));
     }
-    for (k, x) in items.iter().enumerate() {
-        let (t, r) = distance_at(x, &est, at);
-        used[k] = used[k] && t <= opts.outlier_translation_mm && r <= opts.outlier_rotation_deg;
+    for (k, u) in used.iter_mut().enumerate() {
+        *u = *u && within(k, &est);
     }
     (est, used)
 }
@@ -340,6 +370,7 @@ mod tests {
                 );
                 let camera_from_model = (model_from_flange * flange_from_camera).inverse();
                 FrameInput {
+                    sigma: None,
                     view: k,
                     camera_from_model,
                     model_from_flange: Some(model_from_flange),
@@ -369,6 +400,7 @@ mod tests {
         let model_from_camera = pose([1.2, 0.4, 0.9], [0.5, 2.0, -0.3]);
         let frames = vec![
             FrameInput {
+                sigma: None,
                 view: 0,
                 camera_from_model: model_from_camera.inverse(),
                 model_from_flange: None
@@ -407,6 +439,7 @@ mod tests {
                 let x = truth * noise * bad;
                 let camera_from_model = (model_from_flange * x).inverse();
                 frames.push(FrameInput {
+                    sigma: None,
                     view: v,
                     camera_from_model,
                     model_from_flange: Some(model_from_flange),
@@ -420,5 +453,45 @@ mod tests {
         assert!(s.views.iter().filter(|v| v.used).count() == 4);
         assert!(s.views[3].rotation_deg > 1.0);
         assert!(s.frames.iter().filter(|f| f.view == 3).all(|f| !f.used));
+    }
+
+    /// A fixed camera whose every frame is uncertain by 10 mm / 1° (a consumer stereo camera
+    /// 1.3 m away): frames that scatter within that are all fused, not dropped for missing the
+    /// fixed 2 mm / 0.3°; one 6σ off is still dropped and named.
+    #[test]
+    fn a_noisy_cameras_frames_are_judged_by_their_own_sigma() {
+        let truth = pose([1.2, 0.4, 0.9], [0.5, 2.0, -0.3]);
+        let base = Point3::from(truth.inverse().translation.vector);
+        let mut frames: Vec<FrameInput> = (0..5)
+            .map(|v| {
+                let s = v as f64 - 2.0;
+                // Off by up to 8 mm at the robot base and 1.2°: within 3σ.
+                let off = pose([0.004 * s, -0.002 * s, 0.0], [0.01 * s, 0.0, 0.0]);
+                FrameInput {
+                    sigma: Some((10.0, 1.0)),
+                    view: v,
+                    camera_from_model: (truth * off).inverse(),
+                    model_from_flange: None,
+                }
+            })
+            .collect();
+        let s = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
+        assert!(s.frames.iter().all(|f| f.used), "{:?}", s.frames);
+        let (t, r) = distance_at(&s.estimate, &truth, &base);
+        assert!(t < 1.0 && r < 0.1, "{t} mm {r}°");
+        // Without their σ only the fixed thresholds count: most are dropped.
+        let blind: Vec<FrameInput> = frames
+            .iter()
+            .map(|f| FrameInput {
+                sigma: None,
+                ..f.clone()
+            })
+            .collect();
+        let s = solve(Mount::EyeToHand, &blind, &SolveOptions::default()).expect("solved");
+        assert!(s.frames.iter().filter(|f| !f.used).count() >= 2);
+        // A frame 6σ off is dropped.
+        frames[4].camera_from_model = (truth * pose([0.0, 0.0, 0.0], [0.1, 0.0, 0.0])).inverse();
+        let s = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
+        assert!(!s.frames[4].used && s.frames[..4].iter().all(|f| f.used));
     }
 }

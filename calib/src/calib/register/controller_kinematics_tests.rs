@@ -11,6 +11,7 @@ fn hand_eye_error(
     mount: &Isometry3<f64>,
 ) -> (f64, f64) {
     let frame = FrameInput {
+        sigma: None,
         view: 0,
         camera_from_model: reg.camera_from_model,
         model_from_flange: Some(model_from_flange_reported),
@@ -118,6 +119,7 @@ fn a_link_posed_where_the_arm_has_none_shows_in_its_support() {
         "{support:?}"
     );
     let frame = FrameInput {
+        sigma: None,
         view: 0,
         camera_from_model: reg.camera_from_model,
         model_from_flange: Some(scan.truth.model_from_flange_reported),

@@ -44,7 +44,7 @@ pub(super) fn refine_with_links(
     let stage = Stage {
         gate_m: p.m(0.004),
         kernel_m: p.m(0.001),
-        scale: fine.scale_estimated,
+        scale: fine.scale_estimated.then_some(opts.max_depth_scale_error),
         offset: fine.offset_estimated,
         iterations: 15,
     };

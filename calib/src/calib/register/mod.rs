@@ -63,6 +63,11 @@ pub struct RegisterOptions {
     /// Estimate the camera's depth-scale error as a parameter of the fit (the model's size
     /// fixes it).
     pub estimate_depth_scale: bool,
+    /// The largest depth-scale error an estimated scale may reach: beyond it the scan's
+    /// estimate is not the camera's scale (too little depth relief, or smooth depth errors
+    /// on a few links pulling it) and the scale is left at 1, its error in the covariance by
+    /// [`Self::fixed_depth_error`].
+    pub max_depth_scale_error: f64,
     /// Estimate the camera's range offset (every pixel's distance off by the same length along
     /// its ray, a time-of-flight camera's systematic error) as a parameter of the fit. Over the
     /// narrow depth range of one view an offset and a scale error look nearly alike (an offset
@@ -142,6 +147,7 @@ impl Default for RegisterOptions {
             coarse_spacing_m: 0.012,
             max_icp_points: 8000,
             estimate_depth_scale: true,
+            max_depth_scale_error: crate::calib::fine::MAX_SCALE_ERROR,
             estimate_depth_offset: false,
             fixed_depth_error: (0.0, 0.0),
             depth_gradient_error: 0.0,
@@ -163,6 +169,12 @@ impl Default for RegisterOptions {
 }
 
 impl RegisterOptions {
+    /// The stages' depth-scale freedom: `Some(bound)` when the scale is estimated.
+    pub(crate) fn free_depth_scale(&self) -> Option<f64> {
+        self.estimate_depth_scale
+            .then_some(self.max_depth_scale_error)
+    }
+
     /// These options tuned for a sensor class's depth errors. Structured light and active
     /// stereo: the depth scale estimated, as by default. Time of flight: the range offset
     /// estimated instead of the scale (a phase measurement's scale is set by its modulation
@@ -172,12 +184,13 @@ impl RegisterOptions {
     pub fn for_sensor(self, class: SensorClass) -> Self {
         match class {
             SensorClass::StructuredLight => self,
-            // Over one view the arm's size fixes the scale only loosely, and smooth depth
-            // errors on a few links pull it: on the real frames of a D4xx the estimated scale
-            // scattered over 0.5–2.8 % and moved the pose along the line of sight by as much.
-            // The scale is left at 1 and its documented error is in the covariance.
+            // Smooth depth errors on a few links can pull the estimated scale: on the real
+            // frames of a D4xx it came out 0.5–1.0 % on three and 2.5–2.8 % on two, whose
+            // poses it moved along the line of sight by 30 mm. An estimate beyond Intel's
+            // documented bound is not the camera's scale: the scale is left at 1 and its
+            // documented error enters the covariance.
             SensorClass::ActiveStereo => Self {
-                estimate_depth_scale: false,
+                max_depth_scale_error: 2.0 * ACTIVE_STEREO_SCALE_ERROR,
                 fixed_depth_error: (ACTIVE_STEREO_SCALE_ERROR, 0.0),
                 depth_gradient_error: ACTIVE_STEREO_DEPTH_GRADIENT,
                 ..self

@@ -242,6 +242,7 @@ fn simulated_ur5e_scan_is_registered_and_closes_the_chain() {
     let reg =
         register_posed(&scan.cloud, &posed, None, &RegisterOptions::default()).expect("registered");
     let frames = [FrameInput {
+        sigma: None,
         view: 0,
         camera_from_model: reg.camera_from_model,
         model_from_flange: Some(truth.model_from_flange_reported),
@@ -414,6 +415,7 @@ fn multipath_corners_are_left_out_of_a_time_of_flight_fit() {
         };
         let err = camera_error_mm(reg, scan);
         let frames = [FrameInput {
+            sigma: None,
             view: 0,
             camera_from_model: reg.camera_from_model,
             model_from_flange: Some(scan.truth.model_from_flange_reported),
