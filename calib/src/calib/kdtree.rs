@@ -55,17 +55,23 @@ impl KdTree {
     }
 
     /// The nearest point within `max_dist` of `q`: `(original index, squared distance)`.
+    ///
+    /// A subtree is skipped when the box around it (as far as the splits above it bound it)
+    /// is farther than the best point so far: the box's squared distance is kept per
+    /// dimension and updated at each split (Arya and Mount's incremental distance), which
+    /// prunes far more than the last split's distance alone.
     pub(crate) fn nearest(&self, q: [f32; 3], max_dist: f32) -> Option<(usize, f32)> {
         if self.nodes.is_empty() {
             return None;
         }
         let mut best_d2 = max_dist * max_dist;
         let mut best: Option<u32> = None;
-        let mut stack: [(u32, f32); 64] = [(0, 0.0); 64];
+        // (node, squared distance to its box, the box's offset from q per dimension)
+        let mut stack: [(u32, f32, [f32; 3]); 64] = [(0, 0.0, [0.0; 3]); 64];
         let mut sp = 1usize;
         while sp > 0 {
             sp -= 1;
-            let (ni, bound) = stack[sp];
+            let (ni, bound, off) = stack[sp];
             if bound >= best_d2 {
                 continue;
             }
@@ -87,16 +93,19 @@ impl KdTree {
                     left,
                     right,
                 } => {
-                    let diff = q[dim as usize] - value;
+                    let dim = dim as usize;
+                    let diff = q[dim] - value;
                     let (near, far) = if diff < 0.0 {
                         (left, right)
                     } else {
                         (right, left)
                     };
-                    let far_bound = bound.max(diff * diff);
+                    let far_bound = bound - off[dim] * off[dim] + diff * diff;
+                    let mut far_off = off;
+                    far_off[dim] = diff;
                     if sp + 2 <= stack.len() {
-                        stack[sp] = (far, far_bound);
-                        stack[sp + 1] = (near, bound);
+                        stack[sp] = (far, far_bound, far_off);
+                        stack[sp + 1] = (near, bound, off);
                         sp += 2;
                     }
                 }
