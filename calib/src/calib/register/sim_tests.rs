@@ -444,3 +444,43 @@ fn multipath_corners_are_left_out_of_a_time_of_flight_fit() {
         "{errors:?} vs {errors_using:?}"
     );
 }
+
+/// A fixed camera sees the whole arm standing on the floor: the objects on the floor show it,
+/// and the search stops there (the Hough vote and the derived planes are skipped) with the
+/// true pose among its candidates; asked to be thorough, every search runs (more hypotheses)
+/// and the true pose is still among them. `register_posed` falls back to the thorough search
+/// when the shortcut's candidates all fail the fine alignment.
+#[test]
+fn a_fixed_camera_stops_the_search_at_the_arm_standing_on_the_floor() {
+    use crate::bench::{plan_trials, BenchConfig};
+    let Some(model) = crate::testutil::shared_robot("ur/ur5e/ur5e.urdf") else {
+        return;
+    };
+    let cfg = BenchConfig {
+        views: 1,
+        scans_per_view: 1,
+        seed: 3,
+        ..BenchConfig::new(Mount::EyeToHand)
+    };
+    let plan = plan_trials(&model, &cfg).expect("views");
+    let q = &plan.views[0];
+    let scan = simulate_scan(&cfg.scan_request(&model, q, plan.mount, 5)).expect("simulated");
+    let posed = posed_model(&model, q).expect("posed");
+    let opts = cfg.register.clone();
+    let p = super::prepare::preprocess(&scan.cloud, &posed, &opts).expect("prepared");
+    let truth = plan.mount.inverse();
+    let near_truth = |c: &super::candidates::Candidates| {
+        c.ranked
+            .iter()
+            .any(|k| crate::calib::within(&k.pose, &truth, 0.02, 2.0))
+    };
+    let quick = super::candidates::candidates(&p, None, &opts, false).expect("found");
+    let thorough = super::candidates::candidates(&p, None, &opts, true).expect("found");
+    eprintln!(
+        "shortcut {} with {} hypotheses; thorough {} hypotheses",
+        quick.shortcut, quick.hypotheses, thorough.hypotheses
+    );
+    assert!(quick.shortcut && !thorough.shortcut);
+    assert!(thorough.hypotheses > quick.hypotheses);
+    assert!(near_truth(&quick) && near_truth(&thorough));
+}
