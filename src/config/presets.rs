@@ -48,6 +48,7 @@ pub fn sim_rig(
                 ..defaults::capture()
             },
             settle: Duration::from_millis(200),
+            sensor: defaults::SENSOR,
         },
         mount: MountConfig {
             mount: Mount::EyeInHand,

@@ -95,6 +95,7 @@ pub(super) struct RawCamera {
     pub(super) frame_timeout_s: Option<f64>,
     pub(super) exposure_us: Option<f64>,
     pub(super) settle_s: Option<f64>,
+    pub(super) sensor: Option<crate::geometry::SensorClass>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]

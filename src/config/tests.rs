@@ -627,3 +627,26 @@ fn issue_23_view_targets_and_obstacles_are_capped() {
     assert_eq!(e.key(), Some("views.obstacles"), "{e}");
     assert!(e.to_string().contains("at most 256"), "{e}");
 }
+
+/// `camera.sensor` names how the camera measures depth, and the run's registration is tuned for
+/// it; structured light unless given. An unknown class is refused with the key, its line and
+/// the classes there are.
+#[test]
+fn the_camera_sensor_class_is_read_and_checked() {
+    use crate::geometry::SensorClass;
+    assert_eq!(
+        parse(MINIMAL).expect("minimal").camera.sensor,
+        SensorClass::StructuredLight
+    );
+    let text = with("camera", "sensor = \"active-stereo\"");
+    assert_eq!(
+        parse(&text).expect("active stereo").camera.sensor,
+        SensorClass::ActiveStereo
+    );
+    let text = with("camera", "sensor = \"lidar\"");
+    let err = refused(&text, "camera.sensor", line_of(&text, "sensor"));
+    assert!(
+        err.to_string().contains("active-stereo") && err.to_string().contains("time-of-flight"),
+        "{err}"
+    );
+}

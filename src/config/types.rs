@@ -171,6 +171,10 @@ pub struct CameraConfig {
     /// Wait after the arm stops before capturing (`settle_s`): lets the arm and mount stop
     /// vibrating.
     pub settle: Duration,
+    /// How the camera measures depth (`sensor`: `"structured-light"`, the default,
+    /// `"active-stereo"` for a RealSense D4xx class, `"time-of-flight"`): the registration is
+    /// tuned for its errors ([`crate::calib::RegisterOptions::for_sensor`]).
+    pub sensor: crate::geometry::SensorClass,
 }
 
 /// How the camera is reached (`backend`).

@@ -580,6 +580,7 @@ impl Ctx<'_> {
                 Duration::from_secs_f64(defaults::SETTLE_S),
                 ranges::SETTLE,
             )?,
+            sensor: c.sensor.unwrap_or(defaults::SENSOR),
         })
     }
 

@@ -1096,6 +1096,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     ) -> PipelineOptions {
         let mount = self.cfg.mount.mount;
         let mut opts = PipelineOptions::new(mount);
+        opts.register = opts.register.for_sensor(self.cfg.camera.sensor);
         // The gate's largest-change check compares with our own last result only (a TCP on
         // the controller may be a gripper's).
         let model_from_base = self.model_from_base;
