@@ -386,6 +386,11 @@ fn accumulate(
 /// that counts them as independent evidence is overconfident by the square root of the points
 /// per patch. `Σ ψ ψᵀ` is the "meat" of a cluster-robust sandwich covariance, in which a shared
 /// error counts once.
+///
+/// From the same correspondences, per chain depth (`depths` of them, deeper links with the
+/// base), `Σ w J ∂r/∂g` of the two depth gradients of [`IcpResult::pose_per_depth_gradient`]:
+/// a relative depth error z · g · x/z (or y/z) moves the point along its ray as the scale
+/// does, by that fraction.
 fn patch_scores(
     pts: &[Oriented],
     surface: &ModelSurface,
@@ -393,9 +398,11 @@ fn patch_scores(
     depth: &DepthCorrection,
     st: &Stage,
     links: &[Isometry3<f64>],
-) -> Vec<(u8, VecP)> {
+    depths: usize,
+) -> (Vec<(u8, VecP)>, Vec<SMatrix<f64, NP, 2>>) {
     let mut patches: std::collections::HashMap<(i32, i32, i32, u8), VecP> =
         std::collections::HashMap::new();
+    let mut gradients = vec![SMatrix::<f64, NP, 2>::zeros(); depths.max(1)];
     for o in pts {
         let Some(Ok(c)) = correspond(o, surface, t, depth, st, links) else {
             continue;
@@ -407,8 +414,16 @@ fn patch_scores(
             c.depth,
         );
         *patches.entry(key).or_insert_with(VecP::zeros) += c.j * (c.w * c.r);
+        let along = nalgebra::RowVector2::new(o.p.x, o.p.y) * c.j[SCALE];
+        let d = Some(c.depth as usize)
+            .filter(|&d| d < gradients.len())
+            .unwrap_or(0);
+        gradients[d] += c.j * (c.w * along);
     }
-    patches.into_iter().map(|(k, psi)| (k.3, psi)).collect()
+    (
+        patches.into_iter().map(|(k, psi)| (k.3, psi)).collect(),
+        gradients,
+    )
 }
 
 /// 1.4826 × the median absolute deviation of the signed residuals of `pts` (see
@@ -444,32 +459,8 @@ fn residual_spread(
 }
 
 /// The columns of the normal equations (pose, depth and `prior`'s link parameters) of the two
-/// depth gradients of [`IcpResult::pose_per_depth_gradient`] at the converged fit: Σ w J ∂r/∂g,
-/// where a relative depth error z · g · x/z (or y/z) moves the point along its ray as the
-/// scale does, by that fraction.
-fn gradient_columns(
-    pts: &[Oriented],
-    surface: &ModelSurface,
-    t: &Isometry3<f64>,
-    depth: &DepthCorrection,
-    st: &Stage,
-    links: &[Isometry3<f64>],
-    prior: &LinkPrior,
-) -> DMatrix<f64> {
-    let depths = prior.a.len() + 1;
-    let mut by_depth = vec![SMatrix::<f64, NP, 2>::zeros(); depths];
-    for o in pts {
-        let Some(Ok(c)) = correspond(o, surface, t, depth, st, links) else {
-            continue;
-        };
-        if o.p.z <= 0.0 {
-            continue;
-        }
-        let along = nalgebra::RowVector2::new(o.p.x, o.p.y) * c.j[SCALE];
-        // Links deeper than the displaced ones stay where they are posed, like the base.
-        let d = Some(c.depth as usize).filter(|&d| d < depths).unwrap_or(0);
-        by_depth[d] += c.j * (c.w * along);
-    }
+/// depth gradients, from their per-depth sums (see [`patch_scores`]).
+fn gradient_columns(by_depth: &[SMatrix<f64, NP, 2>], prior: &LinkPrior) -> DMatrix<f64> {
     let p = prior.params();
     let mut cols = DMatrix::zeros(NP + p, 2);
     for (d, m) in by_depth.iter().enumerate() {
@@ -739,7 +730,8 @@ pub(crate) fn icp_with_links(
     let used: Vec<usize> = (0..NP + p)
         .filter(|&k| (k != SCALE || st.scale.is_some()) && (k != OFFSET || st.offset))
         .collect();
-    let patches = patch_scores(pts, surface, &t, &depth, &st, &links);
+    let (patches, gradients) =
+        patch_scores(pts, surface, &t, &depth, &st, &links, prior.a.len() + 1);
     let residual_spread_m = residual_spread(pts, surface, &t, &depth, &st, &links);
     let mut meat = DMatrix::zeros(NP + p, NP + p);
     for (d, psi) in &patches {
@@ -783,7 +775,7 @@ pub(crate) fn icp_with_links(
         let shift = -(&h_inv * col);
         nalgebra::Vector6::from_iterator(shift.rows(0, 6).iter().copied())
     });
-    let gradient_columns = gradient_columns(pts, surface, &t, &depth, &st, &links, prior);
+    let gradient_columns = gradient_columns(&gradients, prior);
     let pose_per_depth_gradient = [0, 1].map(|k| {
         let col = gradient_columns.column(k).select_rows(&used);
         let shift = -(&h_inv * col);
