@@ -172,7 +172,9 @@ impl CalibrationReport {
             views: solution.views.len(),
         };
         // Fused uncertainty: mean registration variance over the used views (views are
-        // independent, frames of one view are not), plus the spread of the views.
+        // independent, frames of one view are not), plus the spread of the views; the part
+        // the camera's own depth errors give (`Registration::camera_error`) is shared by every
+        // view and is not divided.
         let n = views_used.len().max(1) as f64;
         let used_regs: Vec<&Registration> = registrations
             .iter()
@@ -181,47 +183,37 @@ impl CalibrationReport {
             .map(|(r, _)| r)
             .collect();
         let m = used_regs.len().max(1) as f64;
-        let var_t = used_regs
-            .iter()
-            .map(|r| r.uncertainty.translation_mm.powi(2))
-            .sum::<f64>()
-            / m;
-        let var_r = used_regs
-            .iter()
-            .map(|r| r.uncertainty.rotation_deg.powi(2))
-            .sum::<f64>()
-            / m;
-        let spread_t = views_used
-            .iter()
-            .map(|v| v.translation_mm.powi(2))
-            .sum::<f64>()
-            / n;
-        let spread_r = views_used
-            .iter()
-            .map(|v| v.rotation_deg.powi(2))
-            .sum::<f64>()
-            / n;
+        // Mean over the used frames of the squared σ `sigma` picks, total and the camera's.
+        let mean_var = |sigma: &dyn Fn(&Uncertainty) -> Option<f64>| {
+            let total = used_regs
+                .iter()
+                .map(|r| sigma(&r.uncertainty).map(|s| s * s))
+                .sum::<Option<f64>>()?;
+            let camera: f64 = used_regs
+                .iter()
+                .filter_map(|r| sigma(&r.camera_error).map(|s| s * s))
+                .sum();
+            Some((total / m, (camera / m).min(total / m)))
+        };
+        let fused =
+            |(var, shared): (f64, f64), spread: f64| (shared + (var - shared + spread) / n).sqrt();
+        let spread = |pick: &dyn Fn(&Residual) -> f64| {
+            views_used.iter().map(|v| pick(v).powi(2)).sum::<f64>() / n
+        };
         // Eye-to-hand, the same at the robot base (where the views are compared): every used
         // frame's σ there, and the views' spread there.
         let workspace = solution.workspace_point.and_then(|p| {
-            let var_w = used_regs
-                .iter()
-                .map(|r| r.uncertainty.workspace.map(|w| w.translation_mm.powi(2)))
-                .sum::<Option<f64>>()?
-                / m;
-            let spread_w = views_used
-                .iter()
-                .map(|v| v.position_mm().powi(2))
-                .sum::<f64>()
-                / n;
+            let var = mean_var(&|u| u.workspace.map(|w| w.translation_mm))?;
             Some(WorkspaceSigma {
-                translation_mm: ((var_w + spread_w) / n).sqrt(),
+                translation_mm: fused(var, spread(&|v| v.position_mm())),
                 distance_m: p.coords.norm(),
             })
         });
         let uncertainty = Uncertainty {
-            translation_mm: ((var_t + spread_t) / n).sqrt(),
-            rotation_deg: ((var_r + spread_r) / n).sqrt(),
+            translation_mm: mean_var(&|u| Some(u.translation_mm))
+                .map_or(0.0, |var| fused(var, spread(&|v| v.translation_mm))),
+            rotation_deg: mean_var(&|u| Some(u.rotation_deg))
+                .map_or(0.0, |var| fused(var, spread(&|v| v.rotation_deg))),
             workspace,
         };
         let mut timings = ReportTimings {
@@ -389,5 +381,51 @@ mod tests {
             "{}",
             wrist.summary()
         );
+    }
+
+    /// Two views of one camera whose depth errors give 0.8 of each frame's 1 mm / 0.1°: the
+    /// fused σ keeps that shared part whole and divides only the rest, (0.8² + (1 − 0.8²) /
+    /// 2)^½ = 0.906 mm, not the 0.707 mm of independent views.
+    #[test]
+    fn the_cameras_own_error_is_not_divided_by_the_views() {
+        let mut reg = good_registration();
+        reg.uncertainty = Uncertainty {
+            translation_mm: 1.0,
+            rotation_deg: 0.1,
+            workspace: None,
+        };
+        let regs = [reg.clone(), reg.clone()];
+        let frames: Vec<FrameInput> = (0..2)
+            .map(|view| FrameInput {
+                sigma: None,
+                view,
+                camera_from_model: reg.camera_from_model,
+                model_from_flange: None,
+            })
+            .collect();
+        let s = solve(Mount::EyeToHand, &frames, &SolveOptions::default()).expect("solved");
+        let verdict = Verdict {
+            outcome: Outcome::Accepted,
+            reasons: vec![],
+        };
+        let names = ["a".to_string(), "b".to_string()];
+        let fused = |regs: &[Registration]| {
+            CalibrationReport::new(&s, regs, &names, &verdict, "base", &s.estimate, 0.0, 0.0)
+                .uncertainty
+        };
+        let independent = fused(&regs);
+        assert!((independent.translation_mm - 0.5f64.sqrt()).abs() < 1e-9);
+        let shared = regs.map(|mut r| {
+            r.camera_error = Uncertainty {
+                translation_mm: 0.8,
+                rotation_deg: 0.08,
+                workspace: None,
+            };
+            r
+        });
+        let u = fused(&shared);
+        let expected = (0.64f64 + 0.36 / 2.0).sqrt();
+        assert!((u.translation_mm - expected).abs() < 1e-9, "{u:?}");
+        assert!((u.rotation_deg - 0.1 * expected).abs() < 1e-9, "{u:?}");
     }
 }

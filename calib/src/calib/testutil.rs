@@ -268,6 +268,7 @@ pub(crate) fn good_registration() -> Registration {
             rotation_deg: 0.02,
             workspace: None,
         },
+        camera_error: Uncertainty::default(),
         quality: Quality {
             coverage: 0.9,
             free_space_violations: 0.01,

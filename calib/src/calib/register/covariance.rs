@@ -86,7 +86,24 @@ fn rss(cov: &Matrix3<f64>) -> f64 {
     cov.trace().max(0.0)
 }
 
-/// Covariance in the camera frame (inflated), its 1-σ summary and the degenerate directions.
+/// The 1-σ summary of a camera-frame pose covariance `cov` (see
+/// [`super::Registration::covariance_6x6`]); `base` is the model origin in the camera frame.
+fn summary(cov: &Matrix6<f64>, base: &Vector3<f64>) -> Uncertainty {
+    Uncertainty {
+        translation_mm: position_sigma_m(cov, &Vector3::zeros()) * 1000.0,
+        rotation_deg: rss(&cov.fixed_view::<3, 3>(3, 3).into_owned())
+            .sqrt()
+            .to_degrees(),
+        workspace: Some(WorkspaceSigma {
+            translation_mm: position_sigma_m(cov, base) * 1000.0,
+            distance_m: base.norm(),
+        }),
+    }
+}
+
+/// Covariance in the camera frame (inflated), its 1-σ summary, the summary of the part the
+/// camera's own depth errors give ([`super::Registration::camera_error`]) and the degenerate
+/// directions.
 ///
 /// `estimate` is the fit whose pose is returned (its covariance is the result's, plus the
 /// model's accuracy); `even` is the fit that trusts the posed links, whose information tells
@@ -96,7 +113,7 @@ pub(super) fn uncertainty(
     even: &IcpResult,
     camera_from_model: &Isometry3<f64>,
     opts: &RegisterOptions,
-) -> (Matrix6<f64>, Uncertainty, Vec<Vector6<f64>>) {
+) -> (Matrix6<f64>, Uncertainty, Uncertainty, Vec<Vector6<f64>>) {
     let r: Matrix3<f64> = camera_from_model.rotation.to_rotation_matrix().into_inner();
     let t = camera_from_model.translation.vector;
     let mut ad = Matrix6::zeros();
@@ -106,21 +123,11 @@ pub(super) fn uncertainty(
     ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
     let (floor_m, floor_rad) = opts.model_accuracy;
     let floor = isotropic(floor_m, floor_rad);
-    let cov = ad
-        * (estimate.cov6 + smooth_depth_error(estimate, opts) + fixed_depth_error(estimate, opts))
-        * ad.transpose()
-        + floor;
+    let camera = ad * fixed_depth_error(estimate, opts) * ad.transpose();
+    let cov =
+        ad * (estimate.cov6 + smooth_depth_error(estimate, opts)) * ad.transpose() + camera + floor;
     let base = camera_from_model.translation.vector;
-    let unc = Uncertainty {
-        translation_mm: position_sigma_m(&cov, &Vector3::zeros()) * 1000.0,
-        rotation_deg: rss(&cov.fixed_view::<3, 3>(3, 3).into_owned())
-            .sqrt()
-            .to_degrees(),
-        workspace: Some(WorkspaceSigma {
-            translation_mm: position_sigma_m(&cov, &base) * 1000.0,
-            distance_m: base.norm(),
-        }),
-    };
+    let (unc, camera_error) = (summary(&cov, &base), summary(&camera, &base));
     // Degeneracy: eigen-decomposition of the information about the correspondences' centroid
     // c (so rotations and translations decouple), rotations scaled by their spread L.
     // ρ = ρ' + [c]× φ maps the centred parameters to the model-origin ones.
@@ -146,7 +153,7 @@ pub(super) fn uncertainty(
             degenerate.push(dc.normalize());
         }
     }
-    (cov, unc, degenerate)
+    (cov, unc, camera_error, degenerate)
 }
 
 #[cfg(test)]

@@ -366,6 +366,11 @@ pub struct Registration {
     pub covariance_6x6: Matrix6<f64>,
     /// 1-σ summary of `covariance_6x6`.
     pub uncertainty: Uncertainty,
+    /// The part of [`Self::uncertainty`] the camera's own depth errors give (a depth scale the
+    /// fit left at 1, a depth error growing across the image; [`RegisterOptions::fixed_depth_error`],
+    /// [`RegisterOptions::depth_gradient_error`]): every frame of this camera shares it, and
+    /// fusing frames does not shrink it. Zero when the fit estimates them all.
+    pub camera_error: Uncertainty,
     /// Support of the result in the scan.
     pub quality: Quality,
     /// Directions the visible geometry leaves unconstrained, empty when the pose is fully
@@ -578,7 +583,7 @@ pub fn register_posed(
     );
     timings.fine = elapsed_ms(t2);
     let t3 = Instant::now();
-    let (covariance_6x6, uncertainty, degenerate_directions) =
+    let (covariance_6x6, uncertainty, camera_error, degenerate_directions) =
         covariance::uncertainty(&estimate, &judged.fine, &camera_from_model, opts);
     timings.verify = elapsed_ms(t3);
     timings.total = elapsed_ms(t0);
@@ -587,6 +592,7 @@ pub fn register_posed(
         camera_from_model,
         covariance_6x6,
         uncertainty,
+        camera_error,
         quality: Quality {
             coverage: e.coverage(),
             free_space_violations: e.violation_fraction(),
