@@ -765,22 +765,20 @@ pub(crate) fn icp_with_links(
     let small_sample = patches.len() as f64 / (patches.len() as f64 - dof).max(1.0);
     let cov = &h_inv * meat_used * &h_inv * small_sample;
     let cov6: Matrix6<f64> = cov.fixed_view::<6, 6>(0, 0).into_owned();
-    // A pinned depth parameter's error shifts the gradient by its column of H: the pose follows
-    // by −H⁻¹ of that column over the parameters in use.
+    // An error of a depth parameter the fit does not estimate shifts the gradient by its
+    // column of H: the pose follows by −H⁻¹ of that column over the parameters in use.
+    let pose_shift = |col: nalgebra::DVectorView<'_, f64>| {
+        let shift = -(&h_inv * col.select_rows(&used));
+        nalgebra::Vector6::from_iterator(shift.rows(0, 6).iter().copied())
+    };
     let pose_per_fixed_depth = [SCALE, OFFSET].map(|k| {
         if used.contains(&k) {
             return nalgebra::Vector6::zeros();
         }
-        let col = h.column(k).select_rows(&used);
-        let shift = -(&h_inv * col);
-        nalgebra::Vector6::from_iterator(shift.rows(0, 6).iter().copied())
+        pose_shift(h.column(k))
     });
     let gradient_columns = gradient_columns(&gradients, prior);
-    let pose_per_depth_gradient = [0, 1].map(|k| {
-        let col = gradient_columns.column(k).select_rows(&used);
-        let shift = -(&h_inv * col);
-        nalgebra::Vector6::from_iterator(shift.rows(0, 6).iter().copied())
-    });
+    let pose_per_depth_gradient = [0, 1].map(|k| pose_shift(gradient_columns.column(k)));
     Some((
         IcpResult {
             model_from_camera: t,
