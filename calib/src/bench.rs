@@ -644,24 +644,17 @@ mod tests {
     use super::*;
     use crate::calib::pipeline::{calibrate_frames, Frame};
     use crate::calib::solve::distance_at;
+    use crate::calib::testutil::eye_to_hand_plan;
     use crate::sim::simulate_scan;
-    use crate::testutil::shared_robot;
 
     /// Eye-to-hand: a fixed camera 0.8–2 m from the base sees the whole arm in random
     /// configurations; on structured-light scans each trial is accepted and within 2 mm /
     /// 0.5° of the true `base_from_camera`.
     #[test]
     fn an_eye_to_hand_bench_on_structured_light_scans_is_correct() {
-        let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+        let Some((model, cfg, plan)) = eye_to_hand_plan("ur/ur5e/ur5e.urdf", 2, 3) else {
             return;
         };
-        let cfg = BenchConfig {
-            views: 2,
-            scans_per_view: 1,
-            seed: 3,
-            ..BenchConfig::new(Mount::EyeToHand)
-        };
-        let plan = plan_trials(&model, &cfg).expect("views");
         let (near, far) = FIXED_CAMERA_DISTANCE_M;
         let d = plan.mount.translation.vector.norm();
         assert!(
@@ -709,17 +702,10 @@ mod tests {
     /// judges the base (accepted), and the result is right there.
     #[test]
     fn a_fixed_camera_far_from_the_arm_is_judged_at_the_robot_base() {
-        let Some(model) = shared_robot("ur/ur10e/ur10e.urdf") else {
+        // The camera 1.62 m from the base.
+        let Some((model, cfg, plan)) = eye_to_hand_plan("ur/ur10e/ur10e.urdf", 1, 2) else {
             return;
         };
-        let cfg = BenchConfig {
-            views: 1,
-            scans_per_view: 1,
-            // The camera 1.62 m from the base.
-            seed: 2,
-            ..BenchConfig::new(Mount::EyeToHand)
-        };
-        let plan = plan_trials(&model, &cfg).expect("views");
         let req = cfg.scan_request(&model, &plan.views[0], plan.mount, plan.scan_seeds[0][0]);
         let req = match cfg.true_arm(&model, plan.scan_seeds[0][0]) {
             Some(arm) => req.with_arm(arm),

@@ -287,3 +287,26 @@ pub(crate) fn good_registration() -> Registration {
         timings_ms: StageTimings::default(),
     }
 }
+
+/// A fixed camera's bench draw for the robot at `relative` under `../shared/robots`: the
+/// eye-to-hand bench configuration with `views` views of one scan each, drawn from `seed`, and
+/// its plan (camera pose, arm configurations, scan seeds); `None` without the robots.
+pub(crate) fn eye_to_hand_plan(
+    relative: &str,
+    views: usize,
+    seed: u64,
+) -> Option<(
+    Arc<crate::model::RobotModel>,
+    crate::bench::BenchConfig,
+    crate::bench::TrialPlan,
+)> {
+    let model = crate::testutil::shared_robot(relative)?;
+    let cfg = crate::bench::BenchConfig {
+        views,
+        scans_per_view: 1,
+        seed,
+        ..crate::bench::BenchConfig::new(super::Mount::EyeToHand)
+    };
+    let plan = crate::bench::plan_trials(&model, &cfg).expect("views");
+    Some((model, cfg, plan))
+}

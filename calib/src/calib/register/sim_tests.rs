@@ -452,17 +452,11 @@ fn multipath_corners_are_left_out_of_a_time_of_flight_fit() {
 /// when the shortcut's candidates all fail the fine alignment.
 #[test]
 fn a_fixed_camera_stops_the_search_at_the_arm_standing_on_the_floor() {
-    use crate::bench::{plan_trials, BenchConfig};
-    let Some(model) = crate::testutil::shared_robot("ur/ur5e/ur5e.urdf") else {
+    let Some((model, cfg, plan)) =
+        crate::calib::testutil::eye_to_hand_plan("ur/ur5e/ur5e.urdf", 1, 3)
+    else {
         return;
     };
-    let cfg = BenchConfig {
-        views: 1,
-        scans_per_view: 1,
-        seed: 3,
-        ..BenchConfig::new(Mount::EyeToHand)
-    };
-    let plan = plan_trials(&model, &cfg).expect("views");
     let q = &plan.views[0];
     let scan = simulate_scan(&cfg.scan_request(&model, q, plan.mount, 5)).expect("simulated");
     let posed = posed_model(&model, q).expect("posed");
