@@ -409,8 +409,9 @@ fn base_apart(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
 
 /// With the camera's class named (active stereo), every frame puts the robot base within 10 mm
 /// of where the reference puts it, and its reported σ covers how far it is (the base's
-/// position within 2σ, the rotation within 2.5σ: the frames' depth carries a gradient down the
-/// image that the reference does not, which turns the arm by 0.8–3.4°). The five
+/// position within 2σ, the rotation within 2.5σ: against the reference, the frames' depth
+/// carries a gradient down the image that a depth-only fit cannot tell from a turn of the arm,
+/// 0.8–3.4°). The five
 /// configurations fused use every frame and put the base within 5 mm.
 #[test]
 fn the_robot_base_is_where_the_reference_puts_it_and_the_sigma_covers_the_rest() {

@@ -175,11 +175,13 @@ impl RegisterOptions {
             .then_some(self.max_depth_scale_error)
     }
 
-    /// These options tuned for a sensor class's depth errors. Structured light and active
-    /// stereo: the depth scale estimated, as by default. Time of flight: the range offset
-    /// estimated instead of the scale (a phase measurement's scale is set by its modulation
-    /// frequency; its systematic error is an offset), the scale's error of
-    /// [`TOF_SCALE_ERROR`] in the covariance, and scan points in concave corners of the
+    /// These options tuned for a sensor class's depth errors. Structured light: the depth
+    /// scale estimated, as by default. Active stereo: the scale estimated within
+    /// [`ACTIVE_STEREO_SCALE_ERROR`]'s 2σ (beyond, left at 1 with that 1σ in the covariance),
+    /// [`ACTIVE_STEREO_DEPTH_GRADIENT`] in the covariance, half the ICP points. Time of
+    /// flight: the range offset estimated instead of the scale (a phase measurement's scale is
+    /// set by its modulation frequency; its systematic error is an offset), the scale's error
+    /// of [`TOF_SCALE_ERROR`] in the covariance, and scan points in concave corners of the
     /// model (within [`TOF_MULTIPATH_CLEARANCE_M`] of facing surface) left out.
     pub fn for_sensor(self, class: SensorClass) -> Self {
         match class {
