@@ -372,9 +372,13 @@ fn accumulate(
         a
     };
     if pts.len() > 2000 {
+        // Summed in the chunks' order, not as the threads finish: the same scan gives the same
+        // result to the last bit, however the work was shared.
         pts.par_chunks(1024)
             .map(chunk)
-            .reduce(|| Acc::new(depths), Acc::merge)
+            .collect::<Vec<Acc>>()
+            .into_iter()
+            .fold(Acc::new(depths), Acc::merge)
     } else {
         chunk(pts)
     }
@@ -400,8 +404,9 @@ fn patch_scores(
     links: &[Isometry3<f64>],
     depths: usize,
 ) -> (Vec<(u8, VecP)>, Vec<SMatrix<f64, NP, 2>>) {
-    let mut patches: std::collections::HashMap<(i32, i32, i32, u8), VecP> =
-        std::collections::HashMap::new();
+    // Ordered by key: the patches' scores are summed in the same order on every run.
+    let mut patches: std::collections::BTreeMap<(i32, i32, i32, u8), VecP> =
+        std::collections::BTreeMap::new();
     let mut gradients = vec![SMatrix::<f64, NP, 2>::zeros(); depths.max(1)];
     for o in pts {
         let Some(Ok(c)) = correspond(o, surface, t, depth, st, links) else {

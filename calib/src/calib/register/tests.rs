@@ -128,3 +128,33 @@ fn covariance_shrinks_with_points_and_round_base_is_degenerate() {
     });
     assert!(about_axis, "{:?}", reg.degenerate_directions);
 }
+
+/// The same scan gives the same result to the last bit, however many threads share the work
+/// (a recalibration that is repeated on the same data is not to move).
+#[test]
+fn the_same_scan_gives_the_same_result_on_any_number_of_threads() {
+    let q = [0.7, -1.2, 1.0];
+    let model = toy_robot(&q);
+    let truth = look_at(Point3::new(0.45, -0.3, 0.55), Point3::new(0.05, 0.0, 0.1));
+    let scan = render(&model, &truth, &Scene::default());
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool")
+            .install(|| register_posed(&scan, &model, None, &RegisterOptions::default()))
+            .expect("found")
+    };
+    let one = on(1);
+    // Several chunks of correspondences are summed.
+    assert!(one.quality.points_used > 2048, "{:?}", one.quality);
+    for threads in [2, 3, 2] {
+        let r = on(threads);
+        assert_eq!(
+            r.camera_from_model, one.camera_from_model,
+            "{threads} threads"
+        );
+        assert_eq!(r.covariance_6x6, one.covariance_6x6, "{threads} threads");
+        assert_eq!(r.quality, one.quality, "{threads} threads");
+    }
+}
