@@ -150,11 +150,22 @@ pub fn gate(
         }
         let (position_mm, base_m) = r.uncertainty.position_mm(solution.mount);
         let at = base_m.map(at_the_robot_base).unwrap_or_default();
-        if position_mm > th.max_uncertainty_translation_mm
-            || r.uncertainty.rotation_deg > th.max_uncertainty_rotation_deg
-        {
+        let over = |position_mm: f64, rotation_deg: f64| {
+            position_mm > th.max_uncertainty_translation_mm
+                || rotation_deg > th.max_uncertainty_rotation_deg
+        };
+        if over(position_mm, r.uncertainty.rotation_deg) {
+            let (camera_mm, _) = r.camera_error.position_mm(solution.mount);
+            let what_to_do = if over(camera_mm, r.camera_error.rotation_deg) {
+                format!(
+                    "the camera's own depth errors alone give {camera_mm:.2} mm / {:.3}° (its depth scale and a depth error across the image, which every frame of this camera shares: more views do not lower it); use a camera with more precise depth, or raise gate.max_uncertainty_translation_mm / gate.max_uncertainty_rotation_deg if that is accurate enough for the cell",
+                    r.camera_error.rotation_deg
+                )
+            } else {
+                "show more of the base and first links".to_string()
+            };
             reasons.push(format!(
-                "frame {i}: uncertainty {position_mm:.2} mm{at} / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links",
+                "frame {i}: uncertainty {position_mm:.2} mm{at} / {:.3}° (max {:.2} mm / {:.3}°): {what_to_do}",
                 r.uncertainty.rotation_deg,
                 th.max_uncertainty_translation_mm,
                 th.max_uncertainty_rotation_deg
@@ -385,6 +396,50 @@ mod tests {
         assert_eq!(
             v.reasons,
             ["frame 0: uncertainty 1.30 mm at the robot base (1.62 m from the camera) / 0.050° (max 1.00 mm / 0.200°): show more of the base and first links"]
+        );
+    }
+
+    /// A σ over the limit that the camera's own depth errors make up (a consumer RGB-D
+    /// camera's depth scale and its error across the image) is not cured by showing more of
+    /// the arm: the reason says it is the camera, and what the operator can do.
+    #[test]
+    fn a_sigma_the_camera_itself_makes_says_so() {
+        let mut reg = good_registration();
+        reg.uncertainty = Uncertainty {
+            translation_mm: 3.4,
+            rotation_deg: 0.45,
+            workspace: None,
+        };
+        reg.camera_error = Uncertainty {
+            translation_mm: 1.1,
+            rotation_deg: 0.40,
+            workspace: None,
+        };
+        let wrist = [FrameInput {
+            sigma: None,
+            view: 0,
+            camera_from_model: reg.camera_from_model,
+            model_from_flange: Some(Isometry3::translation(0.4, 0.0, 0.6)),
+        }];
+        let sol = solve(Mount::EyeInHand, &wrist, &SolveOptions::default()).expect("solved");
+        let th = GateThresholds::default();
+        let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(
+            v.reasons[0].starts_with("frame 0: uncertainty 3.40 mm / 0.450° (max 1.00 mm / 0.200°): the camera's own depth errors alone give 1.10 mm / 0.400°"),
+            "{v:?}"
+        );
+        assert!(
+            v.reasons[0].contains("raise gate.max_uncertainty_translation_mm"),
+            "{v:?}"
+        );
+        // The camera's part under the limits: the view is what to improve.
+        reg.camera_error.rotation_deg = 0.1;
+        reg.camera_error.translation_mm = 0.5;
+        let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
+        assert!(
+            v.reasons[0].ends_with("show more of the base and first links"),
+            "{v:?}"
         );
     }
 

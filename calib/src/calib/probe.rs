@@ -48,15 +48,22 @@ fn probe_bench_trials() {
         if !only.is_empty() && !only.split(',').any(|o| o.starts_with(&format!("{name}:"))) {
             continue;
         }
+        // The camera's noise and the registration tuned for its class, as `handeye bench`.
+        let defaults = BenchConfig::default();
         let cfg = BenchConfig {
             views,
             scans_per_view: spv,
             intrinsics: Intrinsics::preset(&camera).expect("camera"),
+            settings: crate::sim::SimSettings::for_camera(&camera),
+            register: match Intrinsics::preset_class(&camera) {
+                Some(class) => defaults.register.clone().for_sensor(class),
+                None => defaults.register.clone(),
+            },
             seed: env("PROBE_SEED", "1")
                 .parse::<u64>()
                 .expect("PROBE_SEED")
                 .wrapping_add(i as u64 * 7919),
-            ..BenchConfig::default()
+            ..defaults
         };
         let plan = plan_trials(&model, &cfg).expect("views");
         let mount = plan.mount;
