@@ -297,6 +297,7 @@ struct Correspondence {
 /// without a usable correspondence (`Err(depth)`), or a correspondence.
 /// `links[d − 1]` is the estimated displacement of the links at chain depth `d` (see
 /// [`super::links`]); the model surface there is taken as moved by it (empty: as posed).
+/// `clear`: what the point's previous search found (see [`Clearance`]), updated.
 fn correspond(
     o: &Oriented,
     surface: &ModelSurface,
@@ -304,11 +305,23 @@ fn correspond(
     depth: &DepthCorrection,
     st: &Stage,
     links: &[Isometry3<f64>],
+    clear: &mut Clearance,
 ) -> Option<Result<Correspondence, u8>> {
     let cos_min = 0.5;
     let rp = t.rotation * o.p.coords;
     let x = Point3::from(t.rotation * depth.apply(&o.p.coords) + t.translation.vector);
-    let s = surface.nearest(&x, st.gate_m.max(0.01))?;
+    let radius = st.gate_m.max(0.01);
+    // No sample within `clear.m` of where the point was: none within the radius now either
+    // while it has moved less than the difference.
+    if clear.m - (x - clear.at).norm() > radius {
+        return None;
+    }
+    let found = surface.nearest_with_distance(&x, radius + CLEARANCE_SLACK_M);
+    *clear = Clearance {
+        at: x,
+        m: found.map_or(radius + CLEARANCE_SLACK_M, |(_, d)| d),
+    };
+    let s = found.filter(|(_, d)| *d <= radius)?.0;
     // Multipath: where the model faces other surface the scan's depths are biased; those
     // points are not used, as if they were not near the fitted links.
     if s.depth as usize > surface.fit_depth || s.biased {
@@ -353,6 +366,7 @@ fn correspond(
 /// The normal equations and fit statistics of `pts` at `t`, `depth`, the links displaced by
 /// `links` (see [`correspond`]); when `links` is not empty, also per chain depth `0..=links.len()`
 /// (deeper links with the base: they are not displaced).
+/// `clear`: per point, what its previous search found ([`correspond`]).
 fn accumulate(
     pts: &[Oriented],
     surface: &ModelSurface,
@@ -360,12 +374,13 @@ fn accumulate(
     depth: &DepthCorrection,
     st: &Stage,
     links: &[Isometry3<f64>],
+    clear: &mut [Clearance],
 ) -> Acc {
     let depths = if links.is_empty() { 0 } else { links.len() + 1 };
-    let chunk = |c: &[Oriented]| {
+    let chunk = |(c, clear): (&[Oriented], &mut [Clearance])| {
         let mut a = Acc::new(depths);
-        for o in c {
-            if let Some(found) = correspond(o, surface, t, depth, st, links) {
+        for (o, clear) in c.iter().zip(clear) {
+            if let Some(found) = correspond(o, surface, t, depth, st, links, clear) {
                 a.add(found, st.kernel_m);
             }
         }
@@ -375,14 +390,29 @@ fn accumulate(
         // Summed in the chunks' order, not as the threads finish: the same scan gives the same
         // result to the last bit, however the work was shared.
         pts.par_chunks(1024)
+            .zip(clear.par_chunks_mut(1024))
             .map(chunk)
             .collect::<Vec<Acc>>()
             .into_iter()
             .fold(Acc::new(depths), Acc::merge)
     } else {
-        chunk(pts)
+        chunk((pts, clear))
     }
 }
+
+/// What a scan point's last search of the model found: no sample within `m` metres of `at`
+/// (where the point was). The pose moves little between iterations, so a point far from the
+/// model stays far, and its search is skipped while it cannot have come within the radius.
+/// `Default`: nothing known, the point is searched.
+#[derive(Debug, Clone, Copy, Default)]
+struct Clearance {
+    at: Point3<f64>,
+    m: f64,
+}
+
+/// How much farther than the radius a point's search looks, metres: what it finds beyond the
+/// radius is not used, but it lets the next iterations skip the point while it moves less.
+const CLEARANCE_SLACK_M: f64 = 0.003;
 
 /// The scores of the converged fit's correspondences summed per 6 cm patch of the model (and
 /// chain depth): `ψ = Σ w r J` of each patch. Residuals of neighbouring points are not
@@ -409,7 +439,8 @@ fn patch_scores(
         std::collections::BTreeMap::new();
     let mut gradients = vec![SMatrix::<f64, NP, 2>::zeros(); depths.max(1)];
     for o in pts {
-        let Some(Ok(c)) = correspond(o, surface, t, depth, st, links) else {
+        let Some(Ok(c)) = correspond(o, surface, t, depth, st, links, &mut Clearance::default())
+        else {
             continue;
         };
         let key = (
@@ -447,9 +478,19 @@ fn residual_spread(
     };
     let mut r: Vec<f64> = pts
         .par_iter()
-        .filter_map(|o| match correspond(o, surface, t, depth, &wide, links) {
-            Some(Ok(c)) => Some(c.r),
-            _ => None,
+        .filter_map(|o| {
+            match correspond(
+                o,
+                surface,
+                t,
+                depth,
+                &wide,
+                links,
+                &mut Clearance::default(),
+            ) {
+                Some(Ok(c)) => Some(c.r),
+                _ => None,
+            }
         })
         .collect();
     if r.is_empty() {
@@ -596,6 +637,7 @@ pub(crate) fn icp_with_links(
     // The fit as it stood before a depth parameter was first freed: an estimate that leaves
     // its bound has dragged the pose along, and the fit starts again from there without it.
     let mut before_depth: Option<(Isometry3<f64>, DVector<f64>)> = None;
+    let mut clear = vec![Clearance::default(); pts.len()];
     for st in stages {
         let mut it = 0;
         while it < st.iterations {
@@ -605,7 +647,7 @@ pub(crate) fn icp_with_links(
                 ..*st
             };
             let links = prior.displacements(&z);
-            let a = accumulate(pts, surface, &t, &depth, st, &links);
+            let a = accumulate(pts, surface, &t, &depth, st, &links, &mut clear);
             if a.n < 12 {
                 return None;
             }
@@ -695,7 +737,7 @@ pub(crate) fn icp_with_links(
         ..fin
     };
     let links = prior.displacements(&z);
-    let a = accumulate(pts, surface, &t, &depth, &st, &links);
+    let a = accumulate(pts, surface, &t, &depth, &st, &links, &mut clear);
     if a.n < 12 {
         return None;
     }

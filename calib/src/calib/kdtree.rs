@@ -12,19 +12,16 @@ const LEAF_SIZE: usize = 12;
 enum Node {
     /// Points `start..end` of the permuted arrays.
     Leaf { start: u32, end: u32 },
-    /// Children at `left` and `left + 1`-th subtree index `right`.
-    Split {
-        dim: u8,
-        value: f32,
-        left: u32,
-        right: u32,
-    },
+    /// Children at node indices `left` and `right`.
+    Split { left: u32, right: u32 },
 }
 
 /// Static k-d tree; `nearest` returns the index the point had in the slice given to [`KdTree::new`].
 #[derive(Debug, Clone)]
 pub(crate) struct KdTree {
     nodes: Vec<Node>,
+    /// Per node, the bounding box `[lo, hi]` of its points (same index as `nodes`).
+    boxes: Vec<[[f32; 3]; 2]>,
     points: Vec<[f32; 3]>,
     ids: Vec<u32>,
 }
@@ -34,8 +31,9 @@ impl KdTree {
     pub(crate) fn new(points: &[Point3<f32>]) -> Self {
         let mut ids: Vec<u32> = (0..points.len() as u32).collect();
         let mut nodes = Vec::with_capacity(2 * points.len() / LEAF_SIZE + 1);
+        let mut boxes = Vec::with_capacity(nodes.capacity());
         if !points.is_empty() {
-            build(points, &mut ids, 0, &mut nodes);
+            build(points, &mut ids, 0, &mut nodes, &mut boxes);
         }
         let pts = ids
             .iter()
@@ -43,6 +41,7 @@ impl KdTree {
             .collect();
         KdTree {
             nodes,
+            boxes,
             points: pts,
             ids,
         }
@@ -56,22 +55,22 @@ impl KdTree {
 
     /// The nearest point within `max_dist` of `q`: `(original index, squared distance)`.
     ///
-    /// A subtree is skipped when the box around it (as far as the splits above it bound it)
-    /// is farther than the best point so far: the box's squared distance is kept per
-    /// dimension and updated at each split (Arya and Mount's incremental distance), which
-    /// prunes far more than the last split's distance alone.
+    /// A subtree is skipped when the bounding box of its points is farther than the best
+    /// point so far. The boxes are the points' own (not the cells the splits cut), which on
+    /// points sampled from surfaces are far smaller: a query that finds nothing within the
+    /// radius, a scan point off the model, visits only the few subtrees whose points come
+    /// near it.
     pub(crate) fn nearest(&self, q: [f32; 3], max_dist: f32) -> Option<(usize, f32)> {
-        if self.nodes.is_empty() {
-            return None;
-        }
+        let root = self.boxes.first()?;
         let mut best_d2 = max_dist * max_dist;
         let mut best: Option<u32> = None;
-        // (node, squared distance to its box, the box's offset from q per dimension)
-        let mut stack: [(u32, f32, [f32; 3]); 64] = [(0, 0.0, [0.0; 3]); 64];
+        // (node, squared distance to its box)
+        let mut stack: [(u32, f32); 64] = [(0, 0.0); 64];
+        stack[0] = (0, box_dist2(root, q));
         let mut sp = 1usize;
         while sp > 0 {
             sp -= 1;
-            let (ni, bound, off) = stack[sp];
+            let (ni, bound) = stack[sp];
             if bound >= best_d2 {
                 continue;
             }
@@ -87,26 +86,20 @@ impl KdTree {
                         }
                     }
                 }
-                Node::Split {
-                    dim,
-                    value,
-                    left,
-                    right,
-                } => {
-                    let dim = dim as usize;
-                    let diff = q[dim] - value;
-                    let (near, far) = if diff < 0.0 {
-                        (left, right)
+                Node::Split { left, right } => {
+                    let dl = box_dist2(&self.boxes[left as usize], q);
+                    let dr = box_dist2(&self.boxes[right as usize], q);
+                    // The nearer child on top of the stack: searched first.
+                    let (near, far) = if dl <= dr {
+                        ((left, dl), (right, dr))
                     } else {
-                        (right, left)
+                        ((right, dr), (left, dl))
                     };
-                    let far_bound = bound - off[dim] * off[dim] + diff * diff;
-                    let mut far_off = off;
-                    far_off[dim] = diff;
-                    if sp + 2 <= stack.len() {
-                        stack[sp] = (far, far_bound, far_off);
-                        stack[sp + 1] = (near, bound, off);
-                        sp += 2;
+                    for (child, d2) in [far, near] {
+                        if d2 < best_d2 && sp < stack.len() {
+                            stack[sp] = (child, d2);
+                            sp += 1;
+                        }
                     }
                 }
             }
@@ -115,15 +108,26 @@ impl KdTree {
     }
 }
 
-fn build(points: &[Point3<f32>], ids: &mut [u32], offset: usize, nodes: &mut Vec<Node>) -> u32 {
-    let me = nodes.len() as u32;
-    if ids.len() <= LEAF_SIZE {
-        nodes.push(Node::Leaf {
-            start: offset as u32,
-            end: (offset + ids.len()) as u32,
-        });
-        return me;
+/// Squared distance from `q` to the box `[lo, hi]` (0 inside).
+#[inline]
+fn box_dist2(b: &[[f32; 3]; 2], q: [f32; 3]) -> f32 {
+    let mut d2 = 0.0;
+    for k in 0..3 {
+        let d = (b[0][k] - q[k]).max(q[k] - b[1][k]).max(0.0);
+        d2 += d * d;
     }
+    d2
+}
+
+/// Builds the subtree over `ids` (at `offset` in the permuted arrays); returns its node.
+fn build(
+    points: &[Point3<f32>],
+    ids: &mut [u32],
+    offset: usize,
+    nodes: &mut Vec<Node>,
+    boxes: &mut Vec<[[f32; 3]; 2]>,
+) -> u32 {
+    let me = nodes.len() as u32;
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
     for &i in ids.iter() {
@@ -133,6 +137,14 @@ fn build(points: &[Point3<f32>], ids: &mut [u32], offset: usize, nodes: &mut Vec
             hi[d] = hi[d].max(p[d]);
         }
     }
+    boxes.push([lo, hi]);
+    if ids.len() <= LEAF_SIZE {
+        nodes.push(Node::Leaf {
+            start: offset as u32,
+            end: (offset + ids.len()) as u32,
+        });
+        return me;
+    }
     let dim = (0..3)
         .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
         .unwrap_or(0);
@@ -140,17 +152,11 @@ fn build(points: &[Point3<f32>], ids: &mut [u32], offset: usize, nodes: &mut Vec
     ids.select_nth_unstable_by(mid, |&a, &b| {
         points[a as usize][dim].total_cmp(&points[b as usize][dim])
     });
-    let value = points[ids[mid] as usize][dim];
     nodes.push(Node::Leaf { start: 0, end: 0 });
     let (l, r) = ids.split_at_mut(mid);
-    let left = build(points, l, offset, nodes);
-    let right = build(points, r, offset + mid, nodes);
-    nodes[me as usize] = Node::Split {
-        dim: dim as u8,
-        value,
-        left,
-        right,
-    };
+    let left = build(points, l, offset, nodes, boxes);
+    let right = build(points, r, offset + mid, nodes, boxes);
+    nodes[me as usize] = Node::Split { left, right };
     me
 }
 
@@ -192,5 +198,51 @@ mod tests {
             assert!(limited.is_none());
         }
         assert!(KdTree::new(&[]).nearest([0.0; 3], 1.0).is_none());
+    }
+
+    /// Points on a surface (a sphere shell, as the model's samples are on its triangles) and
+    /// queries off it, many with nothing within the radius: the same answers as a brute-force
+    /// search, `None` included.
+    #[test]
+    fn surface_points_and_misses_match_brute_force() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let pts: Vec<Point3<f32>> = (0..20000)
+            .map(|_| {
+                let v = nalgebra::Vector3::new(
+                    rng.random::<f32>() - 0.5,
+                    rng.random::<f32>() - 0.5,
+                    rng.random::<f32>() - 0.5,
+                );
+                Point3::from(v.normalize() * 0.3)
+            })
+            .collect();
+        let tree = KdTree::new(&pts);
+        let (mut hits, mut misses) = (0, 0);
+        for _ in 0..2000 {
+            let q = [
+                rng.random::<f32>() - 0.5,
+                rng.random::<f32>() - 0.5,
+                rng.random::<f32>() - 0.5,
+            ];
+            let radius = 0.005 + 0.1 * rng.random::<f32>();
+            let brute = pts
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (i, (p.coords - nalgebra::Vector3::from(q)).norm_squared()))
+                .filter(|(_, d2)| *d2 < radius * radius)
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            let got = tree.nearest(q, radius);
+            assert_eq!(
+                got.map(|g| g.0),
+                brute.map(|b| b.0),
+                "query {q:?} radius {radius}"
+            );
+            if got.is_some() {
+                hits += 1;
+            } else {
+                misses += 1;
+            }
+        }
+        assert!(hits > 200 && misses > 200, "{hits} hits, {misses} misses");
     }
 }

@@ -325,9 +325,19 @@ impl ModelSurface {
     /// Nearest surface sample to `p` (model frame) within `max_dist_m`.
     #[inline]
     pub fn nearest(&self, p: &Point3<f64>, max_dist_m: f64) -> Option<&Sample> {
+        self.nearest_with_distance(p, max_dist_m).map(|(s, _)| s)
+    }
+
+    /// [`Self::nearest`] and its distance, metres.
+    #[inline]
+    pub(crate) fn nearest_with_distance(
+        &self,
+        p: &Point3<f64>,
+        max_dist_m: f64,
+    ) -> Option<(&Sample, f64)> {
         self.tree
             .nearest([p.x as f32, p.y as f32, p.z as f32], max_dist_m as f32)
-            .map(|(i, _)| &self.samples[i])
+            .map(|(i, d2)| (&self.samples[i], f64::from(d2).sqrt()))
     }
 }
 
