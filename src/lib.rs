@@ -28,7 +28,7 @@
 //!
 //! # Layout
 //! - The calibration core, [`handeye_calib`]: [`frames`], [`model`], [`cloud`], [`geometry`],
-//!   [`sim`], [`plan`], [`calib`], [`bench`].
+//!   [`sim`], [`plan`], [`calib`], [`mod@bench`].
 //! - [`camera`]: camera backends without a network protocol (file replay, external command)
 //!   and the reconnecting decorator for any camera.
 //! - [`record`]: the record of a run and the words for it (mode, trigger, stage, outcome,

@@ -407,7 +407,7 @@ pub struct SetAside {
 }
 
 /// The history database. `Send + Sync`; share it with an `Arc`. Every call blocks for the
-/// duration of one SQLite statement (with one fsync per write), at most [`BUSY_TIMEOUT`]
+/// duration of one SQLite statement (with one fsync per write), at most 5 s (`BUSY_TIMEOUT`)
 /// more while another process writes.
 #[derive(Debug)]
 pub struct Store {

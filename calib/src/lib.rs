@@ -26,7 +26,7 @@
 //!   checked for joint limits and collisions.
 //! - [`calib`]: registration of a scan against the posed model, the hand-eye solve, the
 //!   pass/fail gate, the report and the pipeline from frames to a gated result.
-//! - [`bench`]: the accuracy benchmark (the paper's protocol) on simulated scans.
+//! - [`mod@bench`]: the accuracy benchmark (the paper's protocol) on simulated scans.
 
 /// Tests measure the largest allocation a parser makes (the fuzz targets' memory bound).
 #[cfg(test)]

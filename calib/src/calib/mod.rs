@@ -1,11 +1,11 @@
 //! Registration of a scan against the posed robot model, the hand-eye solve, the pass/fail
 //! gate and the report.
 //!
-//! - [`register`] / [`register_posed`]: one scan (camera frame) + the model posed at the measured
+//! - [`fn@register`] / [`register_posed`]: one scan (camera frame) + the model posed at the measured
 //!   joints → `camera_from_model` with covariance, quality and timings. Works without a prior.
-//! - [`solve`]: closes the kinematic chain per frame and fuses frames and views
+//! - [`fn@solve`]: closes the kinematic chain per frame and fuses frames and views
 //!   (eye-in-hand `flange_from_camera`, eye-to-hand `model_from_camera`).
-//! - [`gate`]: pass/fail with configurable thresholds and reasons.
+//! - [`fn@gate`]: pass/fail with configurable thresholds and reasons.
 //! - [`report`]: the JSON report of a calibration.
 //!
 //! Frames: `model` is the URDF root link (for UR `base_link`), `camera` the optical frame

@@ -117,7 +117,7 @@ pub struct Sample {
     pub tri: u32,
     pub depth: u8,
     /// In a concave corner where a time-of-flight camera's range is biased by multipath (see
-    /// [`ModelSurface::mark_multipath`]): the fit does not use scan points there.
+    /// `ModelSurface::mark_multipath`): the fit does not use scan points there.
     pub biased: bool,
 }
 

@@ -4,7 +4,7 @@
 //! 1. `preprocess`: range image (pinhole intrinsics estimated from the organized grid), posed
 //!    model sampled into surface points with a k-d tree, a coarse grid of scan points.
 //! 2. `coarse`: with a prior, a short robust ICP from it and a projective check; without one (or
-//!    when the prior fails its check) the global search of [`super::coarse`] (dominant planes →
+//!    when the prior fails its check) the global search of `coarse` (dominant planes →
 //!    Hough for the base position → yaw/height sweep, the planes taking turns so clutter cannot
 //!    crowd the floor out), each hypothesis — and the strongest ones turned by half a turn about
 //!    the robot's axis — polished by a short ICP and ranked by the projective evidence (matched
@@ -19,7 +19,7 @@
 //!    reported as [`Quality::ambiguity`] and gated (a nearly symmetric view is rejected rather
 //!    than answered wrong). The winner is then refined once more with the fitted moving links'
 //!    kinematic error as parameters of the fit, each with a prior of the arm's calibration size
-//!    ([`super::links`]): the base holds what it can, the shoulder and upper arm add what they
+//!    (`calib::links`): the base holds what it can, the shoulder and upper arm add what they
 //!    know beyond their kinematic error.
 //! 4. `verify`: coverage of the expected visible model surface and free-space violations on the
 //!    dense model samples; degeneracy from the information matrix; the covariance from the
@@ -52,7 +52,7 @@ pub struct RegisterOptions {
     /// upper arm; `usize::MAX` every link). Deeper links carry more kinematic error; they only
     /// explain scan points. A camera on the flange sees the base and the first links from
     /// close by; a camera fixed in the cell sees the whole arm from afar, where every link's
-    /// surface counts (see [`crate::calib::PipelineOptions::new`]).
+    /// surface counts (see [`crate::calib::pipeline::PipelineOptions::new`]).
     pub fit_chain_depth: usize,
     /// Spacing of the model surface samples used for correspondences, metres.
     pub sample_spacing_m: f64,
@@ -362,7 +362,7 @@ pub struct Registration {
     /// Pose of the model (URDF root link) in the camera frame, metres.
     pub camera_from_model: Isometry3<f64>,
     /// Covariance of the result (residuals and the arm's kinematic error, see
-    /// [`RegisterOptions::kinematic_sigma_m`]) as a left perturbation
+    /// [`RegisterOptions::kinematic_error`]) as a left perturbation
     /// in the camera frame: `camera_from_model_true = exp(δ) · camera_from_model`,
     /// `δ = (ρ [m], φ [rad])`. `ρ` is also the displacement of the camera origin.
     pub covariance_6x6: Matrix6<f64>,
