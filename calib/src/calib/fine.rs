@@ -109,6 +109,71 @@ mod tests {
         assert!((c.depth_scale() - 1.0 / 0.999).abs() < 1e-12);
         assert_eq!(DepthCorrection::NONE.apply(&measured), measured);
     }
+
+    /// A point the ICP skips because its last search found nothing near it is one a search
+    /// would not find either: over twenty small moves of the pose, every point's answer with
+    /// what it carries from the move before is the answer of a fresh search, and most points
+    /// off the model are skipped.
+    #[test]
+    fn a_point_skipped_as_far_from_the_model_is_one_a_search_would_not_find() {
+        use rand::{Rng, SeedableRng};
+        let surface = ModelSurface::new(
+            &crate::calib::testutil::toy_robot(&[0.3, -0.8, 0.6]),
+            2,
+            0.002,
+            0.012,
+        );
+        let mut rng = rand::rngs::StdRng::seed_from_u64(5);
+        let pts: Vec<Oriented> = (0..3000)
+            .map(|_| Oriented {
+                p: Point3::new(
+                    rng.random_range(-0.25..0.25),
+                    rng.random_range(-0.25..0.25),
+                    rng.random_range(-0.05..0.45),
+                ),
+                n: Vector3::z(),
+            })
+            .collect();
+        let st = Stage {
+            gate_m: 0.01,
+            kernel_m: 0.003,
+            scale: None,
+            offset: false,
+            iterations: 1,
+        };
+        let answer = |found: Option<Result<Correspondence, u8>>| {
+            found.map(|f| f.map(|c| (c.x, c.r, c.w, c.depth)))
+        };
+        let mut clear = vec![Clearance::default(); pts.len()];
+        let mut t = Isometry3::identity();
+        let (mut skipped, mut found) = (0, 0);
+        for _ in 0..20 {
+            t = Isometry3::new(
+                Vector3::new(0.0004, -0.0003, 0.0002),
+                Vector3::new(0.001, 0.0, -0.0005),
+            ) * t;
+            for (o, c) in pts.iter().zip(&mut clear) {
+                let x = t * o.p;
+                if c.m - (x - c.at).norm() > st.gate_m {
+                    skipped += 1;
+                }
+                let carried = correspond(o, &surface, &t, &DepthCorrection::NONE, &st, &[], c);
+                let fresh = correspond(
+                    o,
+                    &surface,
+                    &t,
+                    &DepthCorrection::NONE,
+                    &st,
+                    &[],
+                    &mut Clearance::default(),
+                );
+                found += usize::from(fresh.is_some());
+                assert_eq!(answer(carried), answer(fresh), "point {:?}", o.p);
+            }
+        }
+        assert!(found > 500, "{found} correspondences");
+        assert!(skipped > 20 * 1000, "{skipped} skipped");
+    }
 }
 
 /// `p / |p|` (zero at the origin).
