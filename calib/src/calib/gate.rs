@@ -18,7 +18,11 @@ pub struct GateThresholds {
     pub min_link_support: f64,
     /// Maximum fraction of the expected visible surface where the scan sees through the model.
     pub max_free_space_violations: f64,
-    /// Maximum RMS point-to-surface residual, mm.
+    /// Maximum RMS point-to-surface residual, mm, for a scan as precise as the registration's
+    /// tuning; a noisier scan's limit widens with its measured noise ([`Quality::noise_scale`]:
+    /// a consumer RGB-D camera at 1.3 m, 0.75 mm of noise, has 3 × this).
+    ///
+    /// [`Quality::noise_scale`]: super::Quality::noise_scale
     pub max_rmse_mm: f64,
     /// Minimum fraction of scan points near the model that fit it.
     pub min_inlier_fraction: f64,
@@ -135,10 +139,15 @@ pub fn gate(
                 100.0 * th.max_free_space_violations
             ));
         }
-        if q.rmse_mm > th.max_rmse_mm {
+        let max_rmse_mm = th.max_rmse_mm * q.noise_scale();
+        if q.rmse_mm > max_rmse_mm {
+            let noisy = match q.noise_mm {
+                Some(n) if q.noise_scale() > 1.0 => format!(" for this scan's {n:.2} mm of noise"),
+                _ => String::new(),
+            };
             reasons.push(format!(
-                "frame {i}: residual RMS {:.2} mm (max {:.2} mm)",
-                q.rmse_mm, th.max_rmse_mm
+                "frame {i}: residual RMS {:.2} mm (max {max_rmse_mm:.2} mm{noisy})",
+                q.rmse_mm
             ));
         }
         if q.inlier_fraction < th.min_inlier_fraction {
@@ -318,6 +327,17 @@ mod tests {
             let v = gate(&[r], &sol, None, &th);
             assert!(!v.passed() && v.reasons.len() == 1, "case {k}: {v:?}");
         }
+        // A noisy scan's residuals are judged in its own noise: 3 mm passes a scan measuring
+        // 0.75 mm of noise (limit 3 × 1.5 mm), 5 mm does not, and the reason says why.
+        let mut noisy = reg.clone();
+        noisy.quality.noise_mm = Some(0.75);
+        noisy.quality.rmse_mm = 3.0;
+        assert!(gate(std::slice::from_ref(&noisy), &sol, None, &th).passed());
+        noisy.quality.rmse_mm = 5.0;
+        assert_eq!(
+            gate(std::slice::from_ref(&noisy), &sol, None, &th).reasons,
+            ["frame 0: residual RMS 5.00 mm (max 4.50 mm for this scan's 0.75 mm of noise)"]
+        );
         // Drift from the previous calibration.
         let prev = sol.estimate * Isometry3::translation(0.01, 0.0, 0.0);
         assert!(!gate(std::slice::from_ref(&reg), &sol, Some(&prev), &th).passed());

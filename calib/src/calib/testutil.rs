@@ -270,6 +270,7 @@ pub(crate) fn good_registration() -> Registration {
         },
         camera_error: Uncertainty::default(),
         quality: Quality {
+            noise_mm: None,
             coverage: 0.9,
             free_space_violations: 0.01,
             rmse_mm: 0.3,

@@ -297,6 +297,10 @@ pub struct Quality {
     pub free_space_violations: f64,
     /// RMS point-to-surface residual of the inlier correspondences, mm.
     pub rmse_mm: f64,
+    /// The scan's measured per-pixel noise, mm (the median RMS of small surface fits on the
+    /// range image); `None` when too few patches qualify.
+    #[serde(default)]
+    pub noise_mm: Option<f64>,
     /// Fraction of scan points near the fitted links that are inliers, 0–1.
     pub inlier_fraction: f64,
     /// Correspondences used by the final ICP.
@@ -319,6 +323,15 @@ pub struct Quality {
     /// are posed by kinematics that are not the arm's (a wrong model, a wrong calibration); a
     /// link merely out of view or at a grazing angle has no measurements, not low support.
     pub link_support: [Option<f64>; MAX_REPORTED_LINKS],
+}
+
+impl Quality {
+    /// How much wider than tuned the registration's distances were for this scan's noise: 1
+    /// for scans as precise as the tuning (a structured-light camera), the noise over 0.25 mm
+    /// for noisier ones, at most 8. The gate's residual limit widens by it.
+    pub fn noise_scale(&self) -> f64 {
+        prepare::noise_scale(self.noise_mm.map(|mm| mm * 1e-3))
+    }
 }
 
 /// Fitted links (by chain depth, the base first) whose support [`Quality::link_support`]
@@ -599,6 +612,7 @@ pub fn register_posed(
             coverage: e.coverage(),
             free_space_violations: e.violation_fraction(),
             rmse_mm: estimate.rmse_m * 1000.0,
+            noise_mm: p.range.noise_m().map(|m| m * 1e3),
             inlier_fraction: estimate.inlier_fraction,
             points_used: estimate.n_used,
             visible_samples: (e.matched + e.violated + e.missing) as usize,

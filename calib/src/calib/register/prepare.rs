@@ -26,7 +26,7 @@ const COARSE_CAMERA_SLACK_M: f64 = 0.1;
 /// measured noise: 1 for scans as precise as the tuning (or when the noise cannot be measured),
 /// the noise over [`TUNED_NOISE_M`] for noisier ones (a consumer RGB-D camera at 1.3 m measures
 /// about 0.7 mm: 2.9), at most 8.
-fn noise_scale(noise_m: Option<f64>) -> f64 {
+pub(super) fn noise_scale(noise_m: Option<f64>) -> f64 {
     noise_m.map_or(1.0, |n| (n / TUNED_NOISE_M).clamp(1.0, 8.0))
 }
 
