@@ -116,6 +116,18 @@ pub(crate) fn parse_distance(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `--max-uncertainty`: the gate's largest 1σ per frame, `mm,degrees`, each above 0 (at most
+/// 1000 mm and 180°, the cell config's ranges for the same `[gate]` keys).
+pub(crate) fn parse_max_uncertainty(s: &str) -> Result<(f64, f64), String> {
+    match parse_numbers(s)?[..] {
+        [mm, deg] if mm > 0.0 && mm <= 1000.0 && deg > 0.0 && deg <= 180.0 => Ok((mm, deg)),
+        _ => Err(format!(
+            "expected the largest position σ in mm and rotation σ in degrees, each above 0 (at most 1000 mm and 180°), e.g. `5,0.5`; got `{}`",
+            handeye_hal::limits::Quoted(s)
+        )),
+    }
+}
+
 fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
     s.split(',')
         .map(|t| {
@@ -201,6 +213,19 @@ pub(crate) fn resolve_robot(name_or_path: &str) -> Result<std::path::PathBuf, St
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_gate_limits_are_two_positive_numbers_in_range() {
+        assert_eq!(parse_max_uncertainty("5, 0.5"), Ok((5.0, 0.5)));
+        for bad in ["5", "5,0.5,1", "0,0.5", "5,-1", "2000,1", "5,200"] {
+            let e = parse_max_uncertainty(bad).expect_err(bad);
+            assert!(e.contains("e.g. `5,0.5`"), "{bad}: {e}");
+        }
+        for bad in ["x,1", "nan,1"] {
+            let e = parse_max_uncertainty(bad).expect_err(bad);
+            assert!(e.contains("is not a finite number"), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn poses_round_trip_and_errors_name_the_problem() {

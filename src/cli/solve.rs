@@ -22,7 +22,8 @@ use nalgebra::Isometry3;
 
 use super::args::{
     check_joint_limits, check_pose_distance, parse_distance, parse_joints, parse_kinematic_error,
-    parse_pose, resolve_robot, MAX_CELL_CAMERA_DISTANCE_M, MAX_MOUNT_DISTANCE_M,
+    parse_max_uncertainty, parse_pose, resolve_robot, MAX_CELL_CAMERA_DISTANCE_M,
+    MAX_MOUNT_DISTANCE_M,
 };
 
 /// Arguments of this subcommand.
@@ -91,6 +92,12 @@ pub(crate) struct Args {
     /// corners, where multipath biases the range, are left out).
     #[arg(long, value_parser = parse_sensor)]
     sensor: Option<SensorClass>,
+    /// The gate's largest 1σ per frame, `mm,degrees` (default `1,0.2`; the position eye-to-hand
+    /// at the robot base): as `max_uncertainty_translation_mm` / `max_uncertainty_rotation_deg`
+    /// in a cell config's `[gate]`. Raise it when a camera's own depth errors keep its σ above
+    /// the default and that accuracy is enough for the cell.
+    #[arg(long, value_name = "MM,DEG", value_parser = parse_max_uncertainty)]
+    max_uncertainty: Option<(f64, f64)>,
     /// Print one JSON object instead of a summary.
     #[arg(long)]
     json: bool,
@@ -452,6 +459,10 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(class) = args.sensor {
         opts.register = opts.register.for_sensor(class);
     }
+    if let Some((mm, deg)) = args.max_uncertainty {
+        opts.gate.max_uncertainty_translation_mm = mm;
+        opts.gate.max_uncertainty_rotation_deg = deg;
+    }
     if inputs.mount == Mount::EyeInHand {
         if let Some(d) = args.max_camera_flange_distance {
             opts.register.max_camera_flange_distance_m = Some(d);
@@ -587,6 +598,7 @@ mod tests {
             max_camera_flange_distance: None,
             eye_to_hand: false,
             sensor: None,
+            max_uncertainty: None,
             json: true,
             report: None,
         }
@@ -678,6 +690,11 @@ mod tests {
                 "{text}"
             );
         }
+        // Issue 25: the gate's σ limit is the user's: a limit below the scan's σ rejects the
+        // same scan (exit 1), the default accepts it.
+        let mut strict = args(urdf.clone(), &joints, ply.clone(), None);
+        strict.max_uncertainty = Some((0.001, 0.0001));
+        assert_eq!(run(strict).expect("runs"), ExitCode::from(1));
         // Issue 25: a guess of the other mount's unknown is refused, not ignored.
         let mut wrong_guess = args(urdf.clone(), &joints, ply.clone(), None);
         wrong_guess.guess_base_from_camera = Some("0.5,0,0.5,0,0,0".into());

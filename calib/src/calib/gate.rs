@@ -167,7 +167,7 @@ pub fn gate(
             let (camera_mm, _) = r.camera_error.position_mm(solution.mount);
             let what_to_do = if over(camera_mm, r.camera_error.rotation_deg) {
                 format!(
-                    "the camera's own depth errors alone give {camera_mm:.2} mm / {:.3}° (its depth scale and a depth error across the image, which every frame of this camera shares: more views do not lower it); use a camera with more precise depth, or raise max_uncertainty_translation_mm / max_uncertainty_rotation_deg in the cell config's [gate] if that is accurate enough for the cell",
+                    "the camera's own depth errors alone give {camera_mm:.2} mm / {:.3}° (its depth scale and a depth error across the image, which every frame of this camera shares: more views do not lower it); use a camera with more precise depth, or raise max_uncertainty_translation_mm / max_uncertainty_rotation_deg in the cell config's [gate] (solve: --max-uncertainty) if that is accurate enough for the cell",
                     r.camera_error.rotation_deg
                 )
             } else {
