@@ -650,3 +650,19 @@ fn the_camera_sensor_class_is_read_and_checked() {
         "{err}"
     );
 }
+
+/// A value with control characters is echoed escaped, never raw into the message (a tab in
+/// `daemon.listen` and `daemon.startup`, as the config fuzzer found).
+#[test]
+fn values_are_echoed_escaped_in_the_errors() {
+    // TOML basic strings: `\t` a tab, `\u001b` an escape.
+    for (key, value) in [
+        ("listen", r#""127.0.0.1:8\t650""#),
+        ("startup", r#""check\u001b[2J""#),
+    ] {
+        let text = format!("{MINIMAL}\n[daemon]\n{key} = {value}\n");
+        let msg = parse(&text).expect_err("refused").to_string();
+        assert!(msg.contains(&format!("daemon.{key}")), "{msg}");
+        assert!(!msg.chars().any(char::is_control), "{msg:?}");
+    }
+}

@@ -5,6 +5,7 @@ use std::net::{IpAddr, SocketAddr};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use handeye_hal::limits::Quoted;
 use handeye_hal::ur_dh::UrModel;
 use handeye_hal::{CaptureSettings, MotionLimits, UrPose};
 use nalgebra::Isometry3;
@@ -315,8 +316,9 @@ impl Ctx<'_> {
                     return Err(self.invalid(
                         "daemon.startup",
                         format!(
-                            "daemon.startup = \"{name}\": expected \"none\", \"calibrate\" or \"check\""
-                        ),
+                        "daemon.startup = \"{}\": expected \"none\", \"calibrate\" or \"check\"",
+                        Quoted(name)
+                    ),
                     ))
                 }
             },
@@ -326,7 +328,7 @@ impl Ctx<'_> {
             Some(l) => l.trim().parse().map_err(|_| {
                 self.invalid(
                     "daemon.listen",
-                    format!("daemon.listen = \"{l}\": expected IP:PORT, e.g. \"127.0.0.1:8650\" (localhost only) or \"0.0.0.0:8650\""),
+                    format!("daemon.listen = \"{}\": expected IP:PORT, e.g. \"127.0.0.1:8650\" (localhost only) or \"0.0.0.0:8650\"", Quoted(l)),
                 )
             })?,
         };
