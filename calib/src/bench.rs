@@ -103,6 +103,17 @@ impl BenchConfig {
         }
     }
 
+    /// This configuration with the registration tuned for camera preset `camera`'s sensor
+    /// class ([`RegisterOptions::for_sensor`]: time of flight its range offset and multipath,
+    /// active stereo its scale bound and depth gradient), as `handeye bench --camera` runs it;
+    /// unchanged for a name that is no preset.
+    pub fn tuned_for_camera(mut self, camera: &str) -> Self {
+        if let Some(class) = Intrinsics::preset_class(camera) {
+            self.register = self.register.for_sensor(class);
+        }
+        self
+    }
+
     /// The simulated scan of one trial: `model` at `joints`, the camera at `mount`
     /// (eye-in-hand: `flange_from_camera`; eye-to-hand: `model_from_camera`, see
     /// [`TrialPlan::mount`]), this configuration's camera and simulator settings.

@@ -116,15 +116,18 @@ pub(crate) fn parse_distance(s: &str) -> Result<f64, String> {
     }
 }
 
-/// `--max-uncertainty`: the gate's largest 1σ per frame, `mm,degrees`, each above 0 (at most
-/// 1000 mm and 180°, the cell config's ranges for the same `[gate]` keys).
+/// `--max-uncertainty`: the gate's largest 1σ per frame, `mm,degrees`, in the cell config's
+/// ranges for the same `[gate]` keys.
 pub(crate) fn parse_max_uncertainty(s: &str) -> Result<(f64, f64), String> {
-    match parse_numbers(s)?[..] {
-        [mm, deg] if mm > 0.0 && mm <= 1000.0 && deg > 0.0 && deg <= 180.0 => Ok((mm, deg)),
-        _ => Err(format!(
-            "expected the largest position σ in mm and rotation σ in degrees, each above 0 (at most 1000 mm and 180°), e.g. `5,0.5`; got `{}`",
+    let expected = |why: &str| {
+        format!(
+            "expected the largest position σ in mm and rotation σ in degrees ({why}), e.g. `5,0.5`; got `{}`",
             handeye_hal::limits::Quoted(s)
-        )),
+        )
+    };
+    match parse_numbers(s)?[..] {
+        [mm, deg] => handeye::config::check_gate_uncertainty(mm, deg).map_err(|e| expected(&e)),
+        _ => Err(expected("two numbers")),
     }
 }
 

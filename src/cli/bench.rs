@@ -99,12 +99,9 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             .map(|r| resolve_robot(r.trim()).map_err(anyhow::Error::msg))
             .collect::<Result<_, _>>()?
     };
-    // The registration tuned for the preset's sensor class (time of flight: its range offset
-    // and multipath).
-    let register = match Intrinsics::preset_class(&args.camera) {
-        Some(class) => BenchConfig::new(args.mount).register.for_sensor(class),
-        None => BenchConfig::new(args.mount).register,
-    };
+    let register = BenchConfig::new(args.mount)
+        .tuned_for_camera(&args.camera)
+        .register;
     let mut summaries = Vec::new();
     for (i, path) in robots.iter().enumerate() {
         let model = RobotModel::load(path)?;

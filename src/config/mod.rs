@@ -36,6 +36,7 @@ use validation::{schema_error, Ctx};
 
 pub use presets::sim_rig;
 pub use types::*;
+pub use validation::check_gate_uncertainty;
 
 /// Largest configuration file read (the example, every key commented, is ~10 kB).
 pub const MAX_CONFIG_BYTES: u64 = 1 << 20;

@@ -77,6 +77,21 @@ impl Range {
     }
 }
 
+/// Checks `solve --max-uncertainty` against the ranges of the `[gate]` keys it stands for
+/// (`max_uncertainty_translation_mm`, `max_uncertainty_rotation_deg`): `Err` says them.
+pub fn check_gate_uncertainty(mm: f64, deg: f64) -> Result<(f64, f64), String> {
+    let (t, r) = (ranges::GATE_MM, ranges::GATE_DEG);
+    if t.contains(mm) && r.contains(deg) {
+        Ok((mm, deg))
+    } else {
+        Err(format!(
+            "position σ {}, rotation σ {}",
+            t.describe(),
+            r.describe()
+        ))
+    }
+}
+
 mod ranges {
     use super::{above, within, Range};
     use std::f64::consts::PI;

@@ -153,8 +153,7 @@ mod tests {
                 Vector3::new(0.001, 0.0, -0.0005),
             ) * t;
             for (o, c) in pts.iter().zip(&mut clear) {
-                let x = t * o.p;
-                if c.m - (x - c.at).norm() > st.gate_m {
+                if c.rules_out(&(t * o.p), st.gate_m) {
                     skipped += 1;
                 }
                 let carried = correspond(o, &surface, &t, &DepthCorrection::NONE, &st, &[], c);
@@ -376,9 +375,7 @@ fn correspond(
     let rp = t.rotation * o.p.coords;
     let x = Point3::from(t.rotation * depth.apply(&o.p.coords) + t.translation.vector);
     let radius = st.gate_m.max(0.01);
-    // No sample within `clear.m` of where the point was: none within the radius now either
-    // while it has moved less than the difference.
-    if clear.m - (x - clear.at).norm() > radius {
+    if clear.rules_out(&x, radius) {
         return None;
     }
     let found = surface.nearest_with_distance(&x, radius + CLEARANCE_SLACK_M);
@@ -473,6 +470,14 @@ fn accumulate(
 struct Clearance {
     at: Point3<f64>,
     m: f64,
+}
+
+impl Clearance {
+    /// Whether no sample can be within `radius` of `x`: none was within `m` of where the point
+    /// was, and it has moved less than the difference.
+    fn rules_out(&self, x: &Point3<f64>, radius: f64) -> bool {
+        self.m - (x - self.at).norm() > radius
+    }
 }
 
 /// How much farther than the radius a point's search looks, metres: what it finds beyond the

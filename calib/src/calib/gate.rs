@@ -139,10 +139,11 @@ pub fn gate(
                 100.0 * th.max_free_space_violations
             ));
         }
-        let max_rmse_mm = th.max_rmse_mm * q.noise_scale();
+        let noise_scale = q.noise_scale();
+        let max_rmse_mm = th.max_rmse_mm * noise_scale;
         if q.rmse_mm > max_rmse_mm {
             let noisy = match q.noise_mm {
-                Some(n) if q.noise_scale() > 1.0 => format!(" for this scan's {n:.2} mm of noise"),
+                Some(n) if noise_scale > 1.0 => format!(" for this scan's {n:.2} mm of noise"),
                 _ => String::new(),
             };
             reasons.push(format!(

@@ -49,22 +49,18 @@ fn probe_bench_trials() {
             continue;
         }
         // The camera's noise and the registration tuned for its class, as `handeye bench`.
-        let defaults = BenchConfig::default();
         let cfg = BenchConfig {
             views,
             scans_per_view: spv,
             intrinsics: Intrinsics::preset(&camera).expect("camera"),
             settings: crate::sim::SimSettings::for_camera(&camera),
-            register: match Intrinsics::preset_class(&camera) {
-                Some(class) => defaults.register.clone().for_sensor(class),
-                None => defaults.register.clone(),
-            },
             seed: env("PROBE_SEED", "1")
                 .parse::<u64>()
                 .expect("PROBE_SEED")
                 .wrapping_add(i as u64 * 7919),
-            ..defaults
-        };
+            ..BenchConfig::default()
+        }
+        .tuned_for_camera(&camera);
         let plan = plan_trials(&model, &cfg).expect("views");
         let mount = plan.mount;
         for (v, (q, seeds)) in plan.views.iter().zip(&plan.scan_seeds).enumerate() {
