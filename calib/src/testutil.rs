@@ -5,6 +5,12 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion};
+
+use crate::calib::pipeline::{fixed_frame, Frame, PipelineOptions};
+use crate::calib::Mount;
+use crate::cloud::read_cloud;
+use crate::geometry::SensorClass;
 use crate::model::RobotModel;
 
 /// `../shared/<relative>` (beside the checkout), or `None` (with a SKIP line) when it is
@@ -51,4 +57,75 @@ pub fn shared_robot(relative: &str) -> Option<Arc<RobotModel>> {
         .entry(relative.to_string())
         .or_insert_with(|| Arc::new(RobotModel::load(&path).expect("shared robot loads")));
     Some(Arc::clone(model))
+}
+
+/// The real scans of `../shared/realdata/xarm7_realsense` (see its README): an Intel
+/// RealSense D4xx fixed ~1.3 m from a UFACTORY xArm7, five arm configurations.
+#[derive(Debug)]
+pub struct RealSet {
+    pub model: Arc<RobotModel>,
+    pub frames: Vec<Frame>,
+    /// `base_from_camera` (`link_base`) as the data's authors estimated it.
+    pub reference: Isometry3<f64>,
+}
+
+impl RealSet {
+    /// The reference as the pipeline's eye-to-hand unknown, `model_from_camera`.
+    pub fn model_from_camera(&self) -> Isometry3<f64> {
+        fixed_frame(&self.model, "link_base").expect("link_base is fixed") * self.reference
+    }
+
+    /// The options of `handeye solve --eye-to-hand --base-frame link_base --sensor
+    /// active-stereo`, with the reference as `--guess-base-from-camera` when `guess`.
+    pub fn options(&self, guess: bool) -> PipelineOptions {
+        let mut opts = PipelineOptions::new(Mount::EyeToHand);
+        opts.register = opts.register.for_sensor(SensorClass::ActiveStereo);
+        opts.base_frame = Some("link_base".into());
+        opts.prior = guess.then(|| self.model_from_camera());
+        opts
+    }
+}
+
+/// The real data set, or `None` (with a SKIP line) where `../shared` is absent ([`shared`]).
+pub fn real_set() -> Option<RealSet> {
+    let dir = shared("realdata/xarm7_realsense")?;
+    let text = std::fs::read_to_string(dir.join("manifest.json")).expect("manifest");
+    let m: serde_json::Value = serde_json::from_str(&text).expect("manifest is JSON");
+    let model = shared_robot("ufactory_xarm7/ufactory_xarm7.urdf")?;
+    let frames = m["frames"]
+        .as_array()
+        .expect("frames")
+        .iter()
+        .enumerate()
+        .map(|(view, f)| {
+            let scan = PathBuf::from(f["scan"].as_str().expect("scan name"));
+            Frame {
+                view,
+                cloud: read_cloud(&dir.join(&scan)).expect("the scan reads"),
+                joints: f["joints_rad"]
+                    .as_array()
+                    .expect("joints")
+                    .iter()
+                    .map(|v| v.as_f64().expect("joint"))
+                    .collect(),
+                model_from_flange: None,
+                source: scan.display().to_string(),
+            }
+        })
+        .collect();
+    Some(RealSet {
+        model,
+        frames,
+        reference: rigid(&m["reference_base_from_camera"]),
+    })
+}
+
+/// A 4×4 of the manifest, its rotation printed to 9 digits: the nearest rotation.
+fn rigid(m: &serde_json::Value) -> Isometry3<f64> {
+    let at = |r: usize, c: usize| m[r][c].as_f64().expect("number");
+    let rotation = Matrix3::from_fn(at);
+    Isometry3::from_parts(
+        Translation3::new(at(0, 3), at(1, 3), at(2, 3)),
+        UnitQuaternion::from_matrix(&rotation),
+    )
 }

@@ -10,73 +10,15 @@
 //! - with or without a guess, no result far from the reference is accepted, per frame or
 //!   fused.
 
-use std::path::PathBuf;
-use std::sync::Arc;
-
-use handeye_calib::calib::pipeline::{calibrate_frames, fixed_frame, Frame, PipelineOptions};
+use handeye_calib::calib::pipeline::{calibrate_frames, Frame};
 use handeye_calib::calib::range::RangeImage;
-use handeye_calib::calib::Mount;
-use handeye_calib::cloud::read_cloud;
-use handeye_calib::geometry::SensorClass;
-use handeye_calib::model::RobotModel;
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion};
+use handeye_calib::testutil::RealSet;
+use nalgebra::Isometry3;
 
 /// A result this close to the reference agrees with it (the bar for an accepted
 /// frame); farther and accepted is a wrong result.
 const AGREE_MM: f64 = 5.0;
 const AGREE_DEG: f64 = 0.5;
-
-struct RealSet {
-    model: Arc<RobotModel>,
-    frames: Vec<Frame>,
-    /// `base_from_camera` (`link_base`) as the data's authors estimated it.
-    reference: Isometry3<f64>,
-}
-
-/// The data set, or `None` (with a SKIP line) where `../shared` is absent; under CI it must
-/// be there ([`handeye_calib::testutil::shared`]).
-fn real_set() -> Option<RealSet> {
-    let dir = handeye_calib::testutil::shared("realdata/xarm7_realsense")?;
-    let text = std::fs::read_to_string(dir.join("manifest.json")).expect("manifest");
-    let m: serde_json::Value = serde_json::from_str(&text).expect("manifest is JSON");
-    let model = handeye_calib::testutil::shared_robot("ufactory_xarm7/ufactory_xarm7.urdf")?;
-    let frames = m["frames"]
-        .as_array()
-        .expect("frames")
-        .iter()
-        .enumerate()
-        .map(|(view, f)| {
-            let scan = PathBuf::from(f["scan"].as_str().expect("scan name"));
-            Frame {
-                view,
-                cloud: read_cloud(&dir.join(&scan)).expect("the scan reads"),
-                joints: f["joints_rad"]
-                    .as_array()
-                    .expect("joints")
-                    .iter()
-                    .map(|v| v.as_f64().expect("joint"))
-                    .collect(),
-                model_from_flange: None,
-                source: scan.display().to_string(),
-            }
-        })
-        .collect();
-    Some(RealSet {
-        model,
-        frames,
-        reference: rigid(&m["reference_base_from_camera"]),
-    })
-}
-
-/// A 4×4 of the manifest, its rotation printed to 9 digits: the nearest rotation.
-fn rigid(m: &serde_json::Value) -> Isometry3<f64> {
-    let at = |r: usize, c: usize| m[r][c].as_f64().expect("number");
-    let rotation = Matrix3::from_fn(at);
-    Isometry3::from_parts(
-        Translation3::new(at(0, 3), at(1, 3), at(2, 3)),
-        UnitQuaternion::from_matrix(&rotation),
-    )
-}
 
 /// Camera-origin distance (mm) and rotation (degrees) between two `base_from_camera`.
 fn apart(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
@@ -86,20 +28,11 @@ fn apart(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
     )
 }
 
-fn options(set: &RealSet, guess: bool) -> PipelineOptions {
-    let mut opts = PipelineOptions::new(Mount::EyeToHand);
-    opts.register = opts.register.for_sensor(SensorClass::ActiveStereo);
-    opts.base_frame = Some("link_base".into());
-    let model_from_base = fixed_frame(&set.model, "link_base").expect("link_base is fixed");
-    opts.prior = guess.then(|| model_from_base * set.reference);
-    opts
-}
-
 /// Calibrates `frames` and checks the one rule no configuration may break: an accepted result
 /// agrees with the reference. Returns how far the result is from it, and whether accepted.
 fn calibrate_and_check(set: &RealSet, frames: &[Frame], guess: bool) -> Option<(f64, f64, bool)> {
     let names: Vec<&str> = frames.iter().map(|f| f.source.as_str()).collect();
-    match calibrate_frames(&set.model, frames, &options(set, guess)) {
+    match calibrate_frames(&set.model, frames, &set.options(guess)) {
         Err(e) => {
             eprintln!("{names:?} (guess {guess}): {e}");
             None
@@ -130,12 +63,11 @@ fn reference_request<'a>(
 ) -> handeye_calib::sim::ScanRequest<'a> {
     use handeye_calib::geometry::Intrinsics;
     use handeye_calib::sim::{Placement, ScanRequest};
-    let model_from_base = fixed_frame(&set.model, "link_base").expect("link_base is fixed");
     ScanRequest::new(
         &set.model,
         f.joints.clone(),
         Placement::EyeToHand {
-            model_from_camera: model_from_base * set.reference,
+            model_from_camera: set.model_from_camera(),
         },
         Intrinsics::preset("realsense-d435").expect("preset"),
         settings,
@@ -145,7 +77,9 @@ fn reference_request<'a>(
 
 #[test]
 fn a_real_sensor_measures_noisier_than_the_simulated_one() {
-    let Some(set) = real_set() else { return };
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
     for f in &set.frames {
         let noise = RangeImage::new(&f.cloud)
             .expect("a scan")
@@ -187,7 +121,9 @@ fn a_real_sensor_measures_noisier_than_the_simulated_one() {
 #[test]
 fn the_simulated_active_stereo_camera_is_as_noisy_as_the_real_one() {
     use handeye_calib::sim::{simulate_scan, SimSettings};
-    let Some(set) = real_set() else { return };
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
     let settings = SimSettings::for_camera("realsense-d435");
     for (k, f) in set.frames.iter().enumerate() {
         let real = RangeImage::new(&f.cloud)
@@ -266,7 +202,9 @@ fn median_iqr(x: &mut [f64]) -> (f64, f64) {
 #[test]
 fn the_simulated_active_stereo_depth_errors_on_the_arm_match_the_real_ones() {
     use handeye_calib::sim::{simulate_scan, ScanNoise, SimSettings};
-    let Some(set) = real_set() else { return };
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
     let settings = SimSettings::for_camera("realsense-d435");
     let exact_settings = SimSettings {
         noise: ScanNoise::none(),
@@ -330,7 +268,9 @@ fn the_simulated_active_stereo_depth_errors_on_the_arm_match_the_real_ones() {
 #[test]
 fn on_simulated_active_stereo_scans_of_this_setting_nothing_wrong_is_accepted() {
     use handeye_calib::sim::{simulate_scan, SimSettings};
-    let Some(set) = real_set() else { return };
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
     let settings = SimSettings::for_camera("realsense-d435");
     let frames: Vec<Frame> = set
         .frames
@@ -357,7 +297,9 @@ fn on_simulated_active_stereo_scans_of_this_setting_nothing_wrong_is_accepted() 
 /// it (every link fitted at its measured joints), and an accepted result agrees with it.
 #[test]
 fn the_guess_is_honoured_on_every_real_frame() {
-    let Some(set) = real_set() else { return };
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
     for f in &set.frames {
         let Some((mm, deg, _)) = calibrate_and_check(&set, std::slice::from_ref(f), true) else {
             panic!(
@@ -383,7 +325,9 @@ fn the_guess_is_honoured_on_every_real_frame() {
 /// the search, keep it there), and nothing it returns is accepted far from the reference.
 #[test]
 fn without_a_guess_the_arm_is_found_among_the_clutter() {
-    let Some(set) = real_set() else { return };
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
     let found = set
         .frames
         .iter()
@@ -415,9 +359,11 @@ fn base_apart(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
 /// configurations fused use every frame and put the base within 5 mm.
 #[test]
 fn the_robot_base_is_where_the_reference_puts_it_and_the_sigma_covers_the_rest() {
-    let Some(set) = real_set() else { return };
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
     let calibrate = |frames: &[Frame]| {
-        calibrate_frames(&set.model, frames, &options(&set, true)).expect("registered")
+        calibrate_frames(&set.model, frames, &set.options(true)).expect("registered")
     };
     for f in &set.frames {
         let c = calibrate(std::slice::from_ref(f));
