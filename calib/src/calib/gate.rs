@@ -133,8 +133,24 @@ pub fn gate(
             }
         }
         if q.free_space_violations > th.max_free_space_violations {
+            // Residuals far above the pixel noise, of a fit within the residual limit for this
+            // scan's noise, are a camera's bent depth (a stereo camera a metre or more away
+            // bends it by centimetre-wide blobs), which lies behind the arm in places as seeing
+            // through it would. A scan as precise as the tuning never reads so.
+            let bent = match q.noise_mm {
+                Some(n)
+                    if q.rmse_mm - n > th.max_rmse_mm
+                        && q.rmse_mm <= th.max_rmse_mm * q.noise_scale() =>
+                {
+                    format!(
+                    "; or the camera's depth bent behind the arm, as this scan's residuals ({:.2} mm RMS against {n:.2} mm of pixel noise) suggest, which this check cannot tell from seeing through it: if the report picture (solve --report) shows the model's outline on the arm, the camera's depth is the limit",
+                    q.rmse_mm
+                )
+                }
+                _ => String::new(),
+            };
             reasons.push(format!(
-                "frame {i}: the scan sees through {:.1}% of the posed model (max {:.1}%): wrong pose or wrong joints",
+                "frame {i}: the scan sees through {:.1}% of the posed model (max {:.1}%): wrong pose or wrong joints{bent}",
                 100.0 * q.free_space_violations,
                 100.0 * th.max_free_space_violations
             ));
@@ -418,6 +434,49 @@ mod tests {
             v.reasons,
             ["frame 0: uncertainty 1.30 mm at the robot base (1.62 m from the camera) / 0.050° (max 1.00 mm / 0.200°): show more of the base and first links"]
         );
+    }
+
+    /// Seeing through the posed model is a wrong pose, or (when the residuals are far above
+    /// the scan's pixel noise) a camera whose depth is bent behind the arm: the reason names
+    /// both then, and how to tell them apart.
+    #[test]
+    fn a_camera_that_bends_its_depth_is_named_beside_seeing_through() {
+        let th = GateThresholds::default();
+        let frames = |reg: &Registration| {
+            [FrameInput {
+                sigma: None,
+                view: 0,
+                camera_from_model: reg.camera_from_model,
+                model_from_flange: None,
+            }]
+        };
+        let mut reg = good_registration();
+        reg.quality.free_space_violations = 0.05;
+        // Residuals the pixel noise explains: seeing through is the only reading.
+        reg.quality.noise_mm = Some(0.2);
+        reg.quality.rmse_mm = 0.5;
+        let sol = solve(Mount::EyeToHand, &frames(&reg), &SolveOptions::default()).expect("solved");
+        let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(
+            v.reasons[0].ends_with("wrong pose or wrong joints"),
+            "{v:?}"
+        );
+        // A real stereo frame 1.3 m away: 4.1 mm RMS against 0.7 mm of pixel noise (within
+        // the 4.2 mm that noise allows).
+        reg.quality.noise_mm = Some(0.7);
+        reg.quality.rmse_mm = 4.1;
+        let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(
+            v.reasons[0].contains("the camera's depth bent behind the arm")
+                && v.reasons[0].contains("4.10 mm RMS against 0.70 mm of pixel noise"),
+            "{v:?}"
+        );
+        // A fit whose residuals are over the limit for its noise is not read as bent depth.
+        reg.quality.rmse_mm = 5.0;
+        let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
+        assert!(v.reasons.iter().all(|r| !r.contains("bent")), "{v:?}");
     }
 
     /// A σ over the limit that the camera's own depth errors make up (a consumer RGB-D
