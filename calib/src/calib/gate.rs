@@ -132,16 +132,16 @@ pub fn gate(
                 ));
             }
         }
+        // The residual limit for this scan's noise (see `GateThresholds::max_rmse_mm`).
+        let noise_scale = q.noise_scale();
+        let max_rmse_mm = th.max_rmse_mm * noise_scale;
         if q.free_space_violations > th.max_free_space_violations {
             // Residuals far above the pixel noise, of a fit within the residual limit for this
             // scan's noise, are a camera's bent depth (a stereo camera a metre or more away
             // bends it by centimetre-wide blobs), which lies behind the arm in places as seeing
             // through it would. A scan as precise as the tuning never reads so.
             let bent = match q.noise_mm {
-                Some(n)
-                    if q.rmse_mm - n > th.max_rmse_mm
-                        && q.rmse_mm <= th.max_rmse_mm * q.noise_scale() =>
-                {
+                Some(n) if q.rmse_mm - n > th.max_rmse_mm && q.rmse_mm <= max_rmse_mm => {
                     format!(
                     "; or the camera's depth bent behind the arm, as this scan's residuals ({:.2} mm RMS against {n:.2} mm of pixel noise) suggest, which this check cannot tell from seeing through it: if the report picture (solve --report) shows the model's outline on the arm, the camera's depth is the limit",
                     q.rmse_mm
@@ -155,8 +155,6 @@ pub fn gate(
                 100.0 * th.max_free_space_violations
             ));
         }
-        let noise_scale = q.noise_scale();
-        let max_rmse_mm = th.max_rmse_mm * noise_scale;
         if q.rmse_mm > max_rmse_mm {
             let noisy = match q.noise_mm {
                 Some(n) if noise_scale > 1.0 => format!(" for this scan's {n:.2} mm of noise"),

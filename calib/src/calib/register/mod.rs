@@ -589,7 +589,7 @@ pub fn register_posed(
         judged => judged?,
     };
     let (camera_from_model, mut estimate) = link_fit::refine_with_links(&p, model, &judged, opts)?;
-    estimate.pixel_noise_m = p.range.noise_m().unwrap_or(0.0);
+    estimate.pixel_noise_m = p.noise_m.unwrap_or(0.0);
     tracing::debug!(
         depth = ?estimate.depth,
         spread_mm = estimate.residual_spread_m * 1e3,
@@ -612,7 +612,7 @@ pub fn register_posed(
             coverage: e.coverage(),
             free_space_violations: e.violation_fraction(),
             rmse_mm: estimate.rmse_m * 1000.0,
-            noise_mm: p.range.noise_m().map(|m| m * 1e3),
+            noise_mm: p.noise_m.map(|m| m * 1e3),
             inlier_fraction: estimate.inlier_fraction,
             points_used: estimate.n_used,
             visible_samples: (e.matched + e.violated + e.missing) as usize,

@@ -40,7 +40,9 @@ pub(super) struct Prepared<'a> {
     /// Sparse pool for polishing: 500 points per hypothesis drawn from it save transforming
     /// 150 000 points for each of a dozen hypotheses.
     pub(super) polish_pool: ScanPool,
-    /// Every distance's factor for this scan's noise ([`noise_scale`]).
+    /// The scan's per-pixel noise, metres ([`RangeImage::noise_m`], measured once here).
+    pub(super) noise_m: Option<f64>,
+    /// Every distance's factor for that noise ([`noise_scale`]).
     pub(super) k: f64,
     /// Eye-in-hand: the camera is at most this far from the posed flange (see
     /// [`RegisterOptions::max_camera_flange_distance_m`]).
@@ -63,7 +65,8 @@ pub(super) fn preprocess<'a>(
     let range = RangeImage::new(scan)?;
     // Every distance of the registration was chosen for scans as precise as the simulator's
     // structured-light camera; a noisier scan widens them in proportion to its own noise.
-    let k = noise_scale(range.noise_m());
+    let noise_m = range.noise_m();
+    let k = noise_scale(noise_m);
     let mut surface = ModelSurface::new(
         model,
         opts.fit_chain_depth,
@@ -83,6 +86,7 @@ pub(super) fn preprocess<'a>(
         surface,
         pool,
         polish_pool,
+        noise_m,
         k,
         reach: opts
             .max_camera_flange_distance_m
