@@ -718,7 +718,7 @@ impl Robot for UrRobot {
     }
 
     /// Sends `stopj` and returns once the arm stands and the stop program has ended (within
-    /// 10 s): whatever comes next (the next run's preflight) must not find our own
+    /// `STOP_TIMEOUT`): whatever comes next (the next run's preflight) must not find our own
     /// stop still playing.
     async fn stop(&self) -> Result<(), HalError> {
         let a = self.inner.cfg.max_joint_accel_rad_s2.max(2.0);
