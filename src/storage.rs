@@ -53,6 +53,11 @@ pub struct CaptureFile {
     /// The controller's calibrated kinematics the run posed the model by (`None`: nominal).
     #[serde(default)]
     pub controller_dh: Option<handeye_hal::ur_dh::DhParams>,
+    /// Whether `controller_dh` is the controller's own, which computed the flange poses: they
+    /// must then be its forward kinematics to the millimetre. False for a calibration file's
+    /// DH, and in captures written before this was recorded (checked against the nominal URDF).
+    #[serde(default)]
+    pub dh_from_controller: bool,
     /// One entry per view, with its frames' file paths.
     pub views: Vec<CaptureRecord>,
 }

@@ -101,15 +101,10 @@ impl DepthCamera for AnyCamera {
     }
 }
 
-/// Connects RTDE, dashboard and primary of the configured controller, every move guarded in
-/// the configured cell (joint limits, floor, self-collision, obstacles, speed caps).
-pub(crate) async fn connect_robot(
-    cfg: &Config,
-    model: &Arc<RobotModel>,
-) -> anyhow::Result<MotionGuard<UrRobot>> {
+/// The configured controller (`[robot]`: host, ports, speed and acceleration caps), claiming
+/// no RTDE input register.
+pub(crate) fn ur_config(cfg: &Config) -> UrConfig {
     let p = cfg.robot.ports;
-    // Claim exactly the RTDE input registers the configuration writes (and the pendant
-    // handshake's), no others: they stay free for the cell's own clients.
     let mut ur = UrConfig::new(cfg.robot.host).without_registers();
     ur.ports = Ports {
         dashboard: p.dashboard,
@@ -120,6 +115,18 @@ pub(crate) async fn connect_robot(
     };
     ur.max_joint_speed_rad_s = cfg.robot.limits.max_joint_speed_rad_s;
     ur.max_joint_accel_rad_s2 = cfg.robot.limits.max_joint_accel_rad_s2;
+    ur
+}
+
+/// Connects RTDE, dashboard and primary of the configured controller, every move guarded in
+/// the configured cell (joint limits, floor, self-collision, obstacles, speed caps).
+pub(crate) async fn connect_robot(
+    cfg: &Config,
+    model: &Arc<RobotModel>,
+) -> anyhow::Result<MotionGuard<UrRobot>> {
+    // Claim exactly the RTDE input registers the configuration writes (and the pendant
+    // handshake's), no others: they stay free for the cell's own clients.
+    let mut ur = ur_config(cfg);
     let mut ints: Vec<u32> = Vec::new();
     if let Some(map) = cfg.write_back.registers {
         ur.registers = map.double_start..=map.double_start + 5;

@@ -262,6 +262,15 @@ async fn restore_sentence<R: Robot>(
     }
 }
 
+/// The DH set a reported flange is checked against exactly: the controller's own (it computes
+/// its flange pose with it); a calibration file's or the nominal URDF's only loosely.
+fn reference_dh(k: &KinematicsUsed) -> Option<handeye_hal::ur_dh::DhParams> {
+    match k.source {
+        KinematicsOrigin::Controller => k.dh,
+        KinematicsOrigin::File | KinematicsOrigin::Nominal => None,
+    }
+}
+
 /// Everything a run works with, resolved once.
 struct Context<'a, R, C> {
     robot: &'a R,
@@ -501,7 +510,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         let robot = self.robot;
         let camera = self.camera;
         let allow_power_on = self.cfg.robot.allow_power_on;
-        let (status, start, tcp, powered_on) = cancellable(self.cancel, stage, async {
+        let (status, start, tcp, flange, powered_on) = cancellable(self.cancel, stage, async {
             let mut status = robot
                 .status()
                 .await
@@ -536,7 +545,11 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 .tcp_offset()
                 .await
                 .map_err(|e| Failure::robot(stage, "reading the TCP", e))?;
-            Ok((status, start, tcp, powered_on))
+            let flange = robot
+                .flange_pose()
+                .await
+                .map_err(|e| Failure::robot(stage, "reading the flange pose", e))?;
+            Ok((status, start, tcp, flange, powered_on))
         })
         .await?;
         let identity =
@@ -641,6 +654,14 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         })
         .await;
         let controller_dh = kinematics.dh;
+        // Before anything moves: the controller's joints and flange must belong together.
+        let flange_check = self.check_flange(
+            stage,
+            &start,
+            &flange,
+            reference_dh(&kinematics).as_ref(),
+            "at the start",
+        );
         let reference = self.reference(&tcp, identity.as_ref());
         self.record.preflight = Some(PreflightRecord {
             status: status.clone(),
@@ -652,6 +673,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             controller: identity,
         });
         model_check.map_err(|m| Failure::error(stage, m))?;
+        flange_check?;
         preflight_status(&status, self.req.program_handover, allow_power_on)?;
         camera_info?;
         Ok((controller_dh, reference))
@@ -890,6 +912,11 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             base_frame: "base".into(),
             prior: self.cfg.mount.prior.as_ref().map(to_row_major),
             controller_dh: self.record.preflight.as_ref().and_then(|p| p.kinematics.dh),
+            dh_from_controller: self
+                .record
+                .preflight
+                .as_ref()
+                .is_some_and(|p| reference_dh(&p.kinematics).is_some()),
             views: Vec::new(),
         };
         for (v, q) in views.iter().enumerate() {
@@ -931,7 +958,28 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             self.links_intact(Stage::Capture)?;
             self.record.timings_ms.capture += elapsed_ms(t);
             let base_from_flange = crate::frames::from_row_major(&capture.base_from_flange)
-                .unwrap_or_else(Isometry3::identity);
+                .ok_or_else(|| {
+                    Failure::error(
+                        Stage::Capture,
+                        format!(
+                            "the controller's flange pose at view {} is not a rigid transform; \
+                             check the controller (nothing was written)",
+                            v + 1
+                        ),
+                    )
+                })?;
+            let dh = self
+                .record
+                .preflight
+                .as_ref()
+                .and_then(|p| reference_dh(&p.kinematics));
+            self.check_flange(
+                Stage::Capture,
+                &capture.joints,
+                &base_from_flange,
+                dh.as_ref(),
+                &format!("at view {}", v + 1),
+            )?;
             let mut record = capture;
             for (k, cloud) in clouds.into_iter().enumerate() {
                 let path = if keep {
@@ -1000,6 +1048,45 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             }
         }
         r
+    }
+
+    /// Refuses a flange pose (`base_from_flange`, as the controller reported it with `joints`)
+    /// that is not the forward kinematics of those joints: by the controller's own DH
+    /// (`controller_dh`, tight) or else the nominal URDF. A corrupt or inconsistent controller
+    /// value would become a wrong TCP: nothing moves or is written after this fails.
+    fn check_flange(
+        &self,
+        stage: Stage,
+        joints: &[f64],
+        base_from_flange: &Isometry3<f64>,
+        controller_dh: Option<&handeye_hal::ur_dh::DhParams>,
+        when: &str,
+    ) -> Result<(), Failure> {
+        use crate::model::reported::{check_reported_flange, FlangeReference};
+        let reference = match controller_dh {
+            Some(dh) => FlangeReference::ControllerDh {
+                dh,
+                model_from_base: &self.model_from_base,
+            },
+            None => FlangeReference::Nominal,
+        };
+        let model_from_flange = self.model_from_base * base_from_flange;
+        match check_reported_flange(self.model, joints, &model_from_flange, reference) {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(m)) => Err(Failure::error(
+                stage,
+                format!(
+                    "the controller's flange pose {when} {m}: the controller reports joints and \
+                     a flange that do not belong together (corrupt data, or another robot \
+                     model than robot.model); check the controller and the network — nothing \
+                     was written"
+                ),
+            )),
+            Err(e) => Err(Failure::error(
+                stage,
+                format!("the controller's joints {when}: {e}"),
+            )),
+        }
     }
 
     /// Records joints and flange pose, captures the frames, checks the arm stood still.
