@@ -55,6 +55,8 @@ enum Command {
     /// Ask the running daemon to cancel the run in progress (the arm is stopped) and every
     /// queued one; sends the API token. Exit 0 when one was cancelled or none was running.
     Cancel(cli::cancel::Args),
+    /// The configuration's reference: every key with its unit, default and range.
+    Config(cli::config::Args),
     /// Run protocol simulators (a UR controller, a GigE Vision 3D camera).
     #[command(subcommand)]
     Sim(SimCommand),
@@ -145,13 +147,30 @@ fn default_filter(command: &Command) -> &'static str {
     }
 }
 
+/// Log targets of dependencies that log, at ERROR, every error they also return to us: the
+/// GenApi interpreter (a camera that dies mid-run printed `ERROR cameleon_genapi: …` beside our
+/// own message, which already says what failed and what to do). Silenced unless `RUST_LOG`
+/// names them.
+const DUPLICATE_ERROR_TARGETS: [&str; 1] = ["cameleon_genapi"];
+
+/// The filter: `RUST_LOG` if set, else `default`; either way without
+/// [`DUPLICATE_ERROR_TARGETS`] unless `RUST_LOG` names them.
+fn log_filter(rust_log: Option<&str>, default: &str) -> tracing_subscriber::EnvFilter {
+    let mut directives = rust_log.unwrap_or(default).to_string();
+    for target in DUPLICATE_ERROR_TARGETS {
+        if !directives.contains(target) {
+            directives.push_str(&format!(",{target}=off"));
+        }
+    }
+    tracing_subscriber::EnvFilter::try_new(&directives)
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default))
+}
+
 fn init_tracing(default: &str) {
     use std::io::IsTerminal as _;
+    let rust_log = std::env::var("RUST_LOG").ok();
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default)),
-        )
+        .with_env_filter(log_filter(rust_log.as_deref(), default))
         .with_writer(std::io::stderr)
         // Colour codes only for a person at a terminal, never into a log file or journal.
         .with_ansi(std::io::stderr().is_terminal())
@@ -197,6 +216,7 @@ fn main() -> ExitCode {
         Command::History(a) => cli::history::run(a),
         Command::Status(a) => cli::status::run(a),
         Command::Cancel(a) => cli::cancel::run(a),
+        Command::Config(a) => cli::config::run(a),
         // Asynchronous: talk to devices or serve them; stop on the shutdown token.
         Command::Demo(a) => with_runtime(|shutdown| cli::demo::run(a, shutdown)),
         Command::Daemon(a) => with_runtime(|shutdown| cli::daemon::run(a, shutdown)),
@@ -218,5 +238,59 @@ fn main() -> ExitCode {
             eprintln!("error: {}", cli::args::error_text(&e));
             ExitCode::from(2)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::{Arc, Mutex};
+
+    use super::*;
+
+    /// What a subscriber with `filter` prints for one error of ours and one of the GenApi
+    /// interpreter's.
+    fn logged(filter: tracing_subscriber::EnvFilter) -> String {
+        let buf = Arc::new(Mutex::new(Vec::<u8>::new()));
+        let sink = Arc::clone(&buf);
+        let subscriber = tracing_subscriber::fmt()
+            .with_env_filter(filter)
+            .with_ansi(false)
+            .with_writer(move || Sink(Arc::clone(&sink)))
+            .finish();
+        tracing::subscriber::with_default(subscriber, || {
+            tracing::error!(target: "cameleon_genapi", "device error: timeout");
+            tracing::warn!(target: "handeye", "the camera does not answer");
+        });
+        let bytes = buf.lock().expect("log").clone();
+        String::from_utf8(bytes).expect("text")
+    }
+
+    struct Sink(Arc<Mutex<Vec<u8>>>);
+
+    impl std::io::Write for Sink {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().expect("log").extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// Issue 38: the GenApi interpreter's own ERROR lines (duplicates of the errors it returns
+    /// to us) are not printed beside ours, also with a RUST_LOG that does not name it; a
+    /// RUST_LOG that names it shows them.
+    #[test]
+    fn dependency_error_lines_are_left_to_our_messages() {
+        for rust_log in [None, Some("warn"), Some("debug")] {
+            let text = logged(log_filter(rust_log, "warn"));
+            assert!(
+                text.contains("the camera does not answer"),
+                "{rust_log:?}: {text}"
+            );
+            assert!(!text.contains("cameleon_genapi"), "{rust_log:?}: {text}");
+        }
+        let text = logged(log_filter(Some("warn,cameleon_genapi=error"), "warn"));
+        assert!(text.contains("device error"), "{text}");
     }
 }

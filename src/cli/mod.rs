@@ -7,6 +7,7 @@ pub(crate) mod bench;
 pub(crate) mod calibrate;
 pub(crate) mod camera;
 pub(crate) mod cancel;
+pub(crate) mod config;
 pub(crate) mod daemon;
 pub(crate) mod demo;
 pub(crate) mod history;

@@ -23,6 +23,7 @@ pub mod defaults;
 mod locate;
 mod presets;
 mod raw;
+pub mod reference;
 #[cfg(test)]
 mod tests;
 mod types;

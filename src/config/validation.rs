@@ -20,12 +20,12 @@ use super::{defaults, ConfigError};
 // Ranges: every number's allowed interval, with its unit, stated once.
 
 #[derive(Debug, Clone, Copy)]
-struct Range {
+pub(super) struct Range {
     lo: f64,
     lo_inclusive: bool,
     hi: f64,
     hi_inclusive: bool,
-    unit: &'static str,
+    pub(super) unit: &'static str,
 }
 
 /// `lo < value <= hi`.
@@ -65,7 +65,14 @@ impl Range {
             })
     }
 
-    fn describe(&self) -> String {
+    /// The interval alone, without the unit: `(0, 3.15]`.
+    pub(super) fn interval(&self) -> String {
+        let lo = if self.lo_inclusive { '[' } else { '(' };
+        let hi = if self.hi_inclusive { ']' } else { ')' };
+        format!("{lo}{}, {}{hi}", self.lo, self.hi)
+    }
+
+    pub(super) fn describe(&self) -> String {
         let lo = if self.lo_inclusive { "<=" } else { "<" };
         let hi = if self.hi_inclusive { "<=" } else { "<" };
         let unit = if self.unit.is_empty() {
@@ -92,48 +99,48 @@ pub fn check_gate_uncertainty(mm: f64, deg: f64) -> Result<(f64, f64), String> {
     }
 }
 
-mod ranges {
+pub(super) mod ranges {
     use super::{above, within, Range};
     use std::f64::consts::PI;
 
-    pub(super) const PORT: Range = within(1.0, 65535.0, "");
+    pub(in crate::config) const PORT: Range = within(1.0, 65535.0, "");
     // The hal's UR limits table: no cap above what a UR joint can do.
-    pub(super) const JOINT_SPEED: Range = above(
+    pub(in crate::config) const JOINT_SPEED: Range = above(
         0.0,
         handeye_hal::ur_limits::MAX_JOINT_SPEED_CAP_RAD_S,
         "rad/s",
     );
-    pub(super) const JOINT_ACCEL: Range = above(
+    pub(in crate::config) const JOINT_ACCEL: Range = above(
         0.0,
         handeye_hal::ur_limits::MAX_JOINT_ACCEL_RAD_S2,
         "rad/s²",
     );
-    pub(super) const MOVE_TIMEOUT: Range = above(0.0, 3600.0, "s");
-    pub(super) const FRAMES: Range = within(1.0, 100.0, "");
-    pub(super) const FRAME_TIMEOUT: Range = above(0.0, 600.0, "s");
-    pub(super) const EXPOSURE: Range = above(0.0, 10_000_000.0, "µs");
-    pub(super) const SETTLE: Range = within(0.0, 60.0, "s");
-    pub(super) const EXEC_TIMEOUT: Range = above(0.0, 3600.0, "s");
-    pub(super) const PRIOR_TRANSLATION: Range = within(-5.0, 5.0, "m");
-    pub(super) const PRIOR_ROTATION: Range = within(-2.0 * PI, 2.0 * PI, "rad");
-    pub(super) const CAMERA_FLANGE_DISTANCE: Range = above(0.0, 2.0, "m");
-    pub(super) const JOINT: Range = within(-2.0 * PI, 2.0 * PI, "rad (±2π)");
-    pub(super) const VIEW_COUNT: Range = within(1.0, 10.0, "");
-    pub(super) const VIEW_DISTANCE: Range = above(0.1, 3.0, "m");
-    pub(super) const SEED: Range = within(0.0, 9.007_199_254_740_992e15, "");
-    pub(super) const OBSTACLE_CENTRE: Range = within(-10.0, 10.0, "m");
-    pub(super) const OBSTACLE_SIZE: Range = above(0.0, 20.0, "m");
-    pub(super) const CHECK_INTERVAL: Range = within(1.0, 31_536_000.0, "s");
-    pub(super) const KEEP_RUNS: Range = within(0.0, 1_000_000.0, "");
-    pub(super) const KEEP_DAYS: Range = within(0.0, 36_500.0, "days");
-    pub(super) const FLOOR_CLEARANCE: Range = within(0.0, 0.5, "m");
-    pub(super) const FRACTION: Range = within(0.0, 1.0, "");
-    pub(super) const GATE_MM: Range = above(0.0, 1000.0, "mm");
-    pub(super) const GATE_DEG: Range = above(0.0, 180.0, "°");
-    pub(super) const DEPTH_SCALE_ERROR: Range = within(0.0, 0.5, "");
-    pub(super) const DRIFT_MM: Range = above(0.0, 1000.0, "mm");
-    pub(super) const DRIFT_DEG: Range = above(0.0, 180.0, "°");
-    pub(super) const REGISTER: Range = within(0.0, 47.0, "");
+    pub(in crate::config) const MOVE_TIMEOUT: Range = above(0.0, 3600.0, "s");
+    pub(in crate::config) const FRAMES: Range = within(1.0, 100.0, "");
+    pub(in crate::config) const FRAME_TIMEOUT: Range = above(0.0, 600.0, "s");
+    pub(in crate::config) const EXPOSURE: Range = above(0.0, 10_000_000.0, "µs");
+    pub(in crate::config) const SETTLE: Range = within(0.0, 60.0, "s");
+    pub(in crate::config) const EXEC_TIMEOUT: Range = above(0.0, 3600.0, "s");
+    pub(in crate::config) const PRIOR_TRANSLATION: Range = within(-5.0, 5.0, "m");
+    pub(in crate::config) const PRIOR_ROTATION: Range = within(-2.0 * PI, 2.0 * PI, "rad");
+    pub(in crate::config) const CAMERA_FLANGE_DISTANCE: Range = above(0.0, 2.0, "m");
+    pub(in crate::config) const JOINT: Range = within(-2.0 * PI, 2.0 * PI, "rad (±2π)");
+    pub(in crate::config) const VIEW_COUNT: Range = within(1.0, 10.0, "");
+    pub(in crate::config) const VIEW_DISTANCE: Range = above(0.1, 3.0, "m");
+    pub(in crate::config) const SEED: Range = within(0.0, 9.007_199_254_740_992e15, "");
+    pub(in crate::config) const OBSTACLE_CENTRE: Range = within(-10.0, 10.0, "m");
+    pub(in crate::config) const OBSTACLE_SIZE: Range = above(0.0, 20.0, "m");
+    pub(in crate::config) const CHECK_INTERVAL: Range = within(1.0, 31_536_000.0, "s");
+    pub(in crate::config) const KEEP_RUNS: Range = within(0.0, 1_000_000.0, "");
+    pub(in crate::config) const KEEP_DAYS: Range = within(0.0, 36_500.0, "days");
+    pub(in crate::config) const FLOOR_CLEARANCE: Range = within(0.0, 0.5, "m");
+    pub(in crate::config) const FRACTION: Range = within(0.0, 1.0, "");
+    pub(in crate::config) const GATE_MM: Range = above(0.0, 1000.0, "mm");
+    pub(in crate::config) const GATE_DEG: Range = above(0.0, 180.0, "°");
+    pub(in crate::config) const DEPTH_SCALE_ERROR: Range = within(0.0, 0.5, "");
+    pub(in crate::config) const DRIFT_MM: Range = above(0.0, 1000.0, "mm");
+    pub(in crate::config) const DRIFT_DEG: Range = above(0.0, 180.0, "°");
+    pub(in crate::config) const REGISTER: Range = within(0.0, 47.0, "");
 }
 
 // ---------------------------------------------------------------------------------------------
