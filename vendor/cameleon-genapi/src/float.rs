@@ -115,7 +115,21 @@ impl IFloat for FloatNode {
         store: &impl NodeStore,
         cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<f64> {
-        self.min.value(device, store, cx)
+        let min = self.min.value(device, store, cx)?;
+        // handeye patch: without <Min>/<pMin> (the parser's f64::MIN), the bound is the
+        // pValue node's, as in the EMVA reference (Basler's ExposureTime -> d_691 -> d_687).
+        match &self.value_kind {
+            ValueKind::PValue(p) if min == f64::MIN => {
+                if let Some(n) = p.p_value.as_ifloat_kind(store) {
+                    n.min(device, store, cx)
+                } else if let Some(n) = p.p_value.as_iinteger_kind(store) {
+                    Ok(crate::interface::IInteger::min(&n, device, store, cx)? as f64)
+                } else {
+                    Ok(min)
+                }
+            }
+            _ => Ok(min),
+        }
     }
 
     #[tracing::instrument(skip(self, device, store, cx),
@@ -127,7 +141,20 @@ impl IFloat for FloatNode {
         store: &impl NodeStore,
         cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<f64> {
-        self.max.value(device, store, cx)
+        let max = self.max.value(device, store, cx)?;
+        // handeye patch: without <Max>/<pMax>, the pValue node's bound (see `min`).
+        match &self.value_kind {
+            ValueKind::PValue(p) if max == f64::MAX => {
+                if let Some(n) = p.p_value.as_ifloat_kind(store) {
+                    n.max(device, store, cx)
+                } else if let Some(n) = p.p_value.as_iinteger_kind(store) {
+                    Ok(crate::interface::IInteger::max(&n, device, store, cx)? as f64)
+                } else {
+                    Ok(max)
+                }
+            }
+            _ => Ok(max),
+        }
     }
 
     fn inc_mode(&self, _store: &impl NodeStore) -> Option<IncrementMode> {

@@ -32,6 +32,17 @@ impl Formula {
     {
         self.expr.eval(var_env)
     }
+
+    /// handeye patch: evaluates as the integer nodes (IntSwissKnife, IntConverter) do in the
+    /// EMVA reference: a division of two integers is an integer division (`(P / 8)` of a
+    /// 12-bit pixel size is 1, not 1.5).
+    pub fn eval_integer<K, V>(&self, var_env: &HashMap<K, V>) -> GenApiResult<EvaluationResult>
+    where
+        K: Borrow<str> + Eq + Hash + fmt::Debug,
+        V: Borrow<Expr> + fmt::Debug,
+    {
+        self.expr.eval_in(var_env, true)
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -141,14 +152,23 @@ impl Expr {
         K: Borrow<str> + Eq + Hash + fmt::Debug,
         V: Borrow<Expr> + fmt::Debug,
     {
+        self.eval_in(var_env, false)
+    }
+
+    /// `int_mode`: integer division of integers (handeye patch, see `Formula::eval_integer`).
+    fn eval_in<K, V>(&self, var_env: &HashMap<K, V>, int_mode: bool) -> GenApiResult<EvaluationResult>
+    where
+        K: Borrow<str> + Eq + Hash + fmt::Debug,
+        V: Borrow<Expr> + fmt::Debug,
+    {
         match self {
-            Self::BinOp { kind, lhs, rhs } => lhs.eval_binop(*kind, rhs, var_env),
-            Self::UnOp { kind, expr } => expr.eval_unop(*kind, var_env),
+            Self::BinOp { kind, lhs, rhs } => lhs.eval_binop(*kind, rhs, var_env, int_mode),
+            Self::UnOp { kind, expr } => expr.eval_unop(*kind, var_env, int_mode),
             Self::If { cond, then, else_ } => {
-                if cond.eval(var_env)?.as_bool() {
-                    then.eval(var_env)
+                if cond.eval_in(var_env, int_mode)?.as_bool() {
+                    then.eval_in(var_env, int_mode)
                 } else {
-                    else_.eval(var_env)
+                    else_.eval_in(var_env, int_mode)
                 }
             }
             &Self::Integer(i) => Ok(i.into()),
@@ -161,7 +181,7 @@ impl Expr {
                     )
                 })?
                 .borrow()
-                .eval(var_env),
+                .eval_in(var_env, int_mode),
         }
     }
 
@@ -170,6 +190,7 @@ impl Expr {
         op: BinOpKind,
         rhs: &Self,
         var_env: &HashMap<K, V>,
+        int_mode: bool,
     ) -> GenApiResult<EvaluationResult>
     where
         K: Borrow<str> + Eq + Hash + fmt::Debug,
@@ -179,13 +200,13 @@ impl Expr {
 
         Ok(match op {
             BinOpKind::And => {
-                (self.eval(var_env)?.as_bool() && rhs.eval(var_env)?.as_bool()).into()
+                (self.eval_in(var_env, int_mode)?.as_bool() && rhs.eval_in(var_env, int_mode)?.as_bool()).into()
             }
-            BinOpKind::Or => (self.eval(var_env)?.as_bool() || rhs.eval(var_env)?.as_bool()).into(),
+            BinOpKind::Or => (self.eval_in(var_env, int_mode)?.as_bool() || rhs.eval_in(var_env, int_mode)?.as_bool()).into(),
 
             _ => {
-                let lhs = self.eval(var_env)?;
-                let rhs = rhs.eval(var_env)?;
+                let lhs = self.eval_in(var_env, int_mode)?;
+                let rhs = rhs.eval_in(var_env, int_mode)?;
 
                 macro_rules! apply_arithmetic_op {
                     ($fint:ident, $ffloat:ident) => {{
@@ -210,10 +231,28 @@ impl Expr {
                     BinOpKind::Add => apply_arithmetic_op!(overflowing_add, add),
                     BinOpKind::Sub => apply_arithmetic_op!(overflowing_sub, sub),
                     BinOpKind::Mul => apply_arithmetic_op!(overflowing_mul, mul),
+                    BinOpKind::Div if int_mode && lhs.is_integer() && rhs.is_integer() => {
+                        // handeye patch: integer division, truncating (C, GenApi).
+                        let d = rhs.as_integer();
+                        if d == 0 {
+                            return Err(GenApiError::invalid_node(
+                                "division by zero in a formula".into(),
+                            ));
+                        }
+                        lhs.as_integer().wrapping_div(d).into()
+                    }
                     BinOpKind::Div => {
                         // Division must be treated as floating points.
                         // e.g. Converter node with `<FormulaFrom>TO/(1&lt;&lt;P1)</FormulaFrom>` where `P1` points to integer node are commonplace.
-                        (lhs.as_float() / rhs.as_float()).into()
+                        let q = lhs.as_float() / rhs.as_float();
+                        // handeye patch: a division by zero is an error, as in the EMVA
+                        // reference ("#Infinity somewhere!"), not a NaN or infinite value.
+                        if !q.is_finite() && lhs.as_float().is_finite() {
+                            return Err(GenApiError::invalid_node(
+                                "division by zero in a formula".into(),
+                            ));
+                        }
+                        q.into()
                     }
                     BinOpKind::Rem => apply_arithmetic_op!(overflowing_rem, rem),
                     BinOpKind::Pow => {
@@ -255,6 +294,7 @@ impl Expr {
         &self,
         op: UnOpKind,
         var_env: &HashMap<K, V>,
+        int_mode: bool,
     ) -> GenApiResult<EvaluationResult>
     where
         K: Borrow<str> + Eq + Hash + fmt::Debug,
@@ -262,7 +302,7 @@ impl Expr {
     {
         use std::ops::Neg;
 
-        let res = self.eval(var_env)?;
+        let res = self.eval_in(var_env, int_mode)?;
         macro_rules! apply_op {
             ($f:ident) => {
                 match res {
@@ -518,9 +558,36 @@ impl Parser<'_> {
                     "FLOOR" => UnOpKind::Floor,
                     "CEIL" => UnOpKind::Ceil,
                     "ROUND" => UnOpKind::Round,
+                    // handeye patch: SGN is in the GenApi formula grammar.
+                    "SGN" => UnOpKind::Sgn,
                     other => panic!("{} is not a keyword or function name", other),
                 };
                 let expr = self.expr();
+                // handeye patch: `ROUND(x, n)` rounds to n decimals (FLIR, Basler write
+                // `ROUND(x, 0)`): ROUND(x * 10**n) / 10**n.
+                if op == UnOpKind::Round && self.eat(&Token::Comma) {
+                    let digits = self.expr();
+                    self.expect(&Token::RParen);
+                    let scale = Expr::BinOp {
+                        kind: BinOpKind::Pow,
+                        lhs: Expr::Integer(10).into(),
+                        rhs: digits.into(),
+                    };
+                    let rounded = Expr::UnOp {
+                        kind: UnOpKind::Round,
+                        expr: Expr::BinOp {
+                            kind: BinOpKind::Mul,
+                            lhs: expr.into(),
+                            rhs: scale.clone().into(),
+                        }
+                        .into(),
+                    };
+                    return Expr::BinOp {
+                        kind: BinOpKind::Div,
+                        lhs: rounded.into(),
+                        rhs: scale.into(),
+                    };
+                }
                 self.expect(&Token::RParen);
                 Expr::UnOp {
                     kind: op,
@@ -602,6 +669,8 @@ enum Token {
     Eq,
     Ne,
     Colon,
+    // handeye patch: the argument separator of `ROUND(x, n)`.
+    Comma,
     Question,
     Lt,
     Le,
@@ -676,6 +745,7 @@ impl<'a> Lexer<'a> {
             '~' => Token::Tilde,
             '=' => Token::Eq,
             ':' => Token::Colon,
+            ',' => Token::Comma,
             '?' => Token::Question,
             '<' => {
                 if self.eat_char(|c| c == '>') {
@@ -700,6 +770,7 @@ impl<'a> Lexer<'a> {
             '.' => {
                 let start_pos = self.cur - 1;
                 while self.eat_char(char::is_numeric) {}
+                self.eat_exponent();
                 let end_pos = self.cur;
                 let f = f64::from_str(self.sub_string(start_pos, end_pos)).unwrap();
                 Token::Float(f)
@@ -731,6 +802,10 @@ impl<'a> Lexer<'a> {
                         }
                     };
                     while self.eat_char(&mut check_digit) {}
+                    // handeye patch: `1e6` (Basler: `(P1<>0)?(1e6/P1):(0)`) is a float.
+                    if self.eat_exponent() {
+                        is_integer = false;
+                    }
                     let end_pos = self.cur;
                     let s = self.sub_string(start_pos, end_pos);
                     if is_integer {
@@ -745,6 +820,21 @@ impl<'a> Lexer<'a> {
         });
 
         self.peek.as_ref()
+    }
+
+    /// handeye patch: eats a float literal's exponent (`e6`, `E-3`, `e+2`) when one follows.
+    fn eat_exponent(&mut self) -> bool {
+        let rest = &self.src[self.cur..];
+        let digits_at = match rest {
+            [b'e' | b'E', b'+' | b'-', d, ..] if d.is_ascii_digit() => 2,
+            [b'e' | b'E', d, ..] if d.is_ascii_digit() => 1,
+            _ => return false,
+        };
+        // A cached peek is the `e` at `cur`: drop it and step over `e` and the sign.
+        self.peek_char = None;
+        self.cur += digits_at;
+        while self.eat_char(|c| c.is_ascii_digit()) {}
+        true
     }
 
     fn next_char(&mut self) -> Option<char> {
@@ -882,6 +972,23 @@ mod tests {
         test_eval_no_var_impl("(0xff00 | 0xf0f0) = 0xfff0");
         test_eval_no_var_impl("(0xff00 ^ 0xf0f0) = 0x0ff0");
         test_eval_no_var_impl("(~0) = (0 - 1)");
+    }
+
+    /// handeye patch: literals and functions real vendor files use.
+    #[test]
+    fn test_eval_vendor_forms() {
+        test_eval_no_var_impl("1e6 = 1000000.0");
+        test_eval_no_var_impl("((4<>0)?(1e6/4):(0)) = 250000");
+        test_eval_no_var_impl("2.5E-1 = 0.25");
+        test_eval_no_var_impl(".5e1 = 5");
+        test_eval_no_var_impl("1E+2 = 100");
+        test_eval_no_var_impl("ROUND(2.567, 2) = 2.57");
+        test_eval_no_var_impl("ROUND(7.5, 0) = 8");
+        test_eval_no_var_impl("ROUND(2.5) = 3");
+        test_eval_no_var_impl("SGN(0 - 3) = (0 - 1)");
+        // An identifier may hold an `e` after digits; it is no exponent.
+        let env: HashMap<&str, Expr> = vec![("P1e6", Expr::Integer(3))].into_iter().collect();
+        test_eval_impl("P1e6 = 3", &env);
     }
 
     #[test]

@@ -100,7 +100,7 @@ impl IInteger for IntConverterNode {
         collector.insert("TO", self.p_value(), device, store, cx)?;
         let var_env = collector.collect(device, store, cx)?;
 
-        let eval_result = self.formula_from.eval(&var_env)?;
+        let eval_result = self.formula_from.eval_integer(&var_env)?;
         Ok(eval_result.as_integer())
     }
 
@@ -121,7 +121,7 @@ impl IInteger for IntConverterNode {
         collector.insert_imm("FROM", value);
         let var_env = collector.collect(device, store, cx)?;
 
-        let eval_result = self.formula_to.eval(&var_env)?;
+        let eval_result = self.formula_to.eval_integer(&var_env)?;
         utils::set_eval_result(self.p_value, eval_result, device, store, cx)?;
         Ok(())
     }

@@ -109,7 +109,16 @@ impl IInteger for IntegerNode {
         store: &impl NodeStore,
         cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<i64> {
-        self.min.value(device, store, cx)
+        let min = self.min.value(device, store, cx)?;
+        // handeye patch: without <Min>/<pMin> (the parser's i64::MIN), the bound is the
+        // pValue node's, as in the EMVA reference (Mikrotron's ExposureTime).
+        match &self.value_kind {
+            ValueKind::PValue(p) if min == i64::MIN => match p.p_value.as_iinteger_kind(store) {
+                Some(n) => n.min(device, store, cx),
+                None => Ok(min),
+            },
+            _ => Ok(min),
+        }
     }
 
     #[tracing::instrument(skip(self, device, store, cx),
@@ -121,7 +130,15 @@ impl IInteger for IntegerNode {
         store: &impl NodeStore,
         cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<i64> {
-        self.max.value(device, store, cx)
+        let max = self.max.value(device, store, cx)?;
+        // handeye patch: without <Max>/<pMax>, the pValue node's bound (see `min`).
+        match &self.value_kind {
+            ValueKind::PValue(p) if max == i64::MAX => match p.p_value.as_iinteger_kind(store) {
+                Some(n) => n.max(device, store, cx),
+                None => Ok(max),
+            },
+            _ => Ok(max),
+        }
     }
 
     fn inc_mode(&self, _: &impl NodeStore) -> Option<IncrementMode> {

@@ -22,7 +22,8 @@ pub(super) fn bool_from_id<T: ValueStore, U: CacheStore>(
     if let Some(node) = node_id.as_iboolean_kind(store) {
         node.value(device, store, cx)
     } else if let Some(node) = node_id.as_iinteger_kind(store) {
-        Ok(node.value(device, store, cx)? == 1)
+        // handeye patch: an integer is true when non-zero (GenApi), not only when 1.
+        Ok(node.value(device, store, cx)? != 0)
     } else {
         Err(GenApiError::invalid_node(
             "the node doesn't implement `IInteger` nor `IBoolean".into(),
@@ -372,10 +373,9 @@ fn expr_from_nid<T: ValueStore, U: CacheStore>(
     } else if let Some(node) = nid.as_iboolean_kind(store) {
         node.value(device, store, cx)?.into()
     } else if let Some(node) = nid.as_ienumeration_kind(store) {
-        node.current_entry(device, store, cx)
-            .map(|nid| nid.expect_enum_entry(store).unwrap())?
-            .numeric_value()
-            .into()
+        // handeye patch: an enumeration is its integer value (the reference's GetIntValue),
+        // also when no entry matches it.
+        node.current_value(device, store, cx)?.into()
     } else {
         return Err(GenApiError::invalid_node(
             format!("{}`", nid.name(store)).into(),

@@ -372,14 +372,16 @@ where
 pub(super) fn convert_to_bool(value: &str) -> bool {
     match convert_to_bool_opt(value) {
         Some(b) => b,
-        _ => unreachable!(),
+        // handeye patch: say what was found (the panic is reported as the parser's abort).
+        _ => panic!("`{}` is not a boolean", value),
     }
 }
 
 pub(super) fn convert_to_bool_opt(value: &str) -> Option<bool> {
     match value {
-        "Yes" | "true" => Some(true),
-        "No" | "false" => Some(false),
+        // handeye patch: xs:boolean's `1`/`0` too (AVT: `<Boolean><Value>0</Value>`).
+        "Yes" | "true" | "1" => Some(true),
+        "No" | "false" | "0" => Some(false),
         _ => None,
     }
 }
@@ -392,7 +394,10 @@ impl Parse for bool {
         _: &mut impl CacheStoreBuilder,
     ) -> Self {
         let text = node.next_text().unwrap();
-        convert_to_bool(&text.view())
+        // handeye patch: an empty element (`<Streamable/>`, Basler) reads as No, the value of
+        // an absent one.
+        let text = text.view();
+        !text.is_empty() && convert_to_bool(&text)
     }
 }
 

@@ -35,7 +35,7 @@ impl Parse for StringNode {
         let value = node.next_if(VALUE).map_or_else(
             || ImmOrPNode::PNode(node_builder.get_or_intern(node.next_text().unwrap().view())),
             |next_node| {
-                let id = value_builder.store(next_node.text().view().into_owned());
+                let id = value_builder.store(next_node.text().view_raw().into_owned());
                 ImmOrPNode::Imm(id)
             },
         );

@@ -166,8 +166,22 @@ pub(super) struct TextView<'a, 'input> {
 }
 
 impl<'a> TextView<'a, '_> {
+    /// The element's text with surrounding whitespace removed (vendors pad values:
+    /// `<Visibility>\n Beginner\n</Visibility>`); empty for an empty element (`<Streamable/>`).
+    /// handeye patch.
     pub(super) fn view(&self) -> std::borrow::Cow<'a, str> {
-        let first_child = self.inner.first_child().unwrap();
+        match self.view_raw() {
+            std::borrow::Cow::Borrowed(s) => std::borrow::Cow::Borrowed(s.trim()),
+            std::borrow::Cow::Owned(s) => std::borrow::Cow::Owned(s.trim().to_owned()),
+        }
+    }
+
+    /// The element's text as written (a String node's value keeps its spaces).
+    pub(super) fn view_raw(&self) -> std::borrow::Cow<'a, str> {
+        // handeye patch: an empty element has no child.
+        let Some(first_child) = self.inner.first_child() else {
+            return std::borrow::Cow::Borrowed("");
+        };
         if first_child.has_siblings() {
             let mut s = String::new();
             for child in self.inner.children() {
@@ -180,7 +194,7 @@ impl<'a> TextView<'a, '_> {
             }
             s.into()
         } else {
-            first_child.text().unwrap().into()
+            first_child.text().unwrap_or_default().into()
         }
     }
 }
