@@ -2,7 +2,8 @@
 
 use std::time::{Duration, Instant};
 
-use handeye_gige::sim::{SceneSource, SimCamera, SimOptions};
+use handeye_gige::genicam::FeatureKind;
+use handeye_gige::sim::{SceneSource, SimCamera, SimOptions, VendorHabits};
 use handeye_gige::{discover, ControlConfig, GigeCamera, GigeError, GvcpClient};
 use handeye_hal::{CaptureSettings, DepthCamera};
 
@@ -223,4 +224,34 @@ fn issue_16_unusable_options_are_refused_at_start() {
         .expect_err("refused");
         assert!(matches!(e, GigeError::InvalidArgument(_)), "{e}");
     }
+}
+
+/// Issue 35: five Allied Vision cameras declare `TLParamsLocked` a Boolean. The driver wrote it
+/// as an Integer, and the capture aborted before `AcquisitionStart`.
+#[test]
+fn capture_with_a_boolean_tl_params_locked() {
+    let s = sim(SimOptions {
+        frame_rate: 50.0,
+        habits: VendorHabits {
+            tl_params_locked_boolean: true,
+            ..VendorHabits::default()
+        },
+        ..SimOptions::default()
+    });
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    cam.with_features(|n, _| {
+        assert_eq!(n.kind("TLParamsLocked"), Some(FeatureKind::Boolean));
+        Ok(())
+    })
+    .expect("features");
+    let (clouds, _) = cam
+        .capture_blocking(1, Duration::from_secs(2))
+        .expect("capture");
+    check_scene(&clouds, 64, 48, 1e-5);
+    assert!(!s.is_acquiring(), "acquisition stopped after capture");
+    assert!(
+        cam.with_features(|n, p| n.boolean(p, "TLParamsLocked"))
+            .is_ok_and(|locked| !locked),
+        "unlocked after the capture"
+    );
 }
