@@ -75,7 +75,9 @@ pub struct VendorHabits {
     /// `TLParamsLocked` is a Boolean (five Allied Vision cameras do so) instead of an Integer.
     pub tl_params_locked_boolean: bool,
     /// Offers an Intensity component (Mono16, `ComponentIDValue` 1, enabled from power-on) and
-    /// sends it as the first part of a multi-part payload, before Range (Photoneo).
+    /// sends it as the first part of a multi-part payload, before Range; without multi-part it
+    /// streams the intensity image alone (Photoneo sends its other components as chunks then,
+    /// which this simulator leaves out).
     pub intensity_first: bool,
     /// Streams chunk data only (GVSP payload type 0x0004): Range, and Intensity / Confidence
     /// when enabled, each a chunk whose id is its `ComponentIDValue` (Photoneo's other mode).
@@ -190,10 +192,21 @@ impl State {
             && self.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0
     }
 
+    /// Streams the intensity image alone (no multi-part, no chunks).
+    fn intensity_only(&self) -> bool {
+        self.habits.intensity_first
+            && self.intensity_enabled
+            && !self.multipart()
+            && !self.habits.chunk_only
+    }
+
     fn payload_size(&self) -> u32 {
         let (w, h) = (self.reg(WIDTH), self.reg(HEIGHT));
-        let main = gvsp::image_bytes(self.reg(PIXEL_FORMAT), w, h, 0);
         let plane = u64::from(w) * u64::from(h) * 2;
+        if self.intensity_only() {
+            return u32::try_from(plane).unwrap_or(u32::MAX);
+        }
+        let main = gvsp::image_bytes(self.reg(PIXEL_FORMAT), w, h, 0);
         let components = self.multipart() || self.habits.chunk_only;
         let extra = [self.confidence_enabled, self.intensity_enabled]
             .iter()
@@ -886,6 +899,8 @@ struct StreamSettings {
     /// Components sent beside Range (in multi-part or chunk payloads).
     confidence: bool,
     intensity: bool,
+    /// The intensity image alone.
+    intensity_only: bool,
     w: u32,
     h: u32,
     pf: u32,
@@ -899,7 +914,9 @@ impl StreamSettings {
             mp: s.multipart(),
             chunks: s.habits.chunk_only,
             confidence: s.confidence_enabled && (s.multipart() || s.habits.chunk_only),
-            intensity: s.intensity_enabled && (s.multipart() || s.habits.chunk_only),
+            intensity: s.intensity_enabled
+                && (s.multipart() || s.habits.chunk_only || s.intensity_only()),
+            intensity_only: s.intensity_only(),
             w: s.reg(WIDTH),
             h: s.reg(HEIGHT),
             pf: s.reg(PIXEL_FORMAT),
@@ -1233,6 +1250,7 @@ fn make_block(
         chunks,
         confidence,
         intensity,
+        intensity_only,
         ..
     } = *settings;
     let (cw, ch) = (cloud.width as usize, cloud.height as usize);
@@ -1322,6 +1340,14 @@ fn make_block(
                 },
                 payload,
             )],
+            multipart: false,
+        };
+    }
+    if intensity_only {
+        return Block {
+            block_id: 1,
+            timestamp,
+            parts: vec![part(gvsp::PART_2D_IMAGE, pfnc::MONO16, ID_INTENSITY, gray)],
             multipart: false,
         };
     }
