@@ -4,7 +4,7 @@ use handeye_hal::nalgebra::Point3;
 use handeye_hal::PointCloud;
 
 use crate::error::{GigeError, Result};
-use crate::gvsp::{Frame, PartInfo, PART_CONFIDENCE};
+use crate::gvsp::{Frame, PartInfo, PART_3D_IMAGE, PART_CONFIDENCE};
 
 /// PFNC codes this module knows.
 pub mod pfnc {
@@ -61,6 +61,8 @@ pub struct Scan3d {
     pub focal_length: f64,
     /// Principal point in pixels.
     pub principal_point: (f64, f64),
+    /// Scan3dAspectRatio: a pixel's height over its width (depth maps: y scales by it).
+    pub aspect_ratio: f64,
 }
 
 impl Default for Scan3d {
@@ -72,6 +74,7 @@ impl Default for Scan3d {
             invalid_value: None,
             focal_length: 0.0,
             principal_point: (0.0, 0.0),
+            aspect_ratio: 1.0,
         }
     }
 }
@@ -132,7 +135,9 @@ fn scalar_plane(p: &PartInfo, data: &[u8]) -> Result<Vec<f32>> {
     Ok(out)
 }
 
-/// Decode the range part of a frame (plus confidence/intensity parts when present).
+/// Decode the range part of a frame (plus confidence/intensity parts when present). The range
+/// part is the one in a 3D pixel format, else the one of the 3D data type, else the only part
+/// (cameras send intensity first: a multi-part frame's first part need not be the range).
 pub fn decode(frame: &Frame, s: &Scan3d) -> Result<PointCloud> {
     let range = frame
         .parts
@@ -143,8 +148,41 @@ pub fn decode(frame: &Frame, s: &Scan3d) -> Result<PointCloud> {
                 pfnc::COORD3D_ABC32F | pfnc::COORD3D_C16 | pfnc::COORD3D_C32F
             )
         })
-        .or_else(|| frame.parts.first())
-        .ok_or_else(|| GigeError::malformed("3D frame", "frame without data"))?;
+        .or_else(|| {
+            frame
+                .parts
+                .iter()
+                .find(|(p, _)| p.data_type == PART_3D_IMAGE)
+        })
+        .or(match frame.parts.as_slice() {
+            [only] => Some(only),
+            _ => None,
+        })
+        .ok_or_else(|| {
+            let parts: Vec<String> = frame
+                .parts
+                .iter()
+                .map(|(p, _)| {
+                    format!(
+                        "{} (data type {:#x})",
+                        pfnc::name(p.pixel_format),
+                        p.data_type
+                    )
+                })
+                .collect();
+            GigeError::malformed(
+                "3D frame",
+                if parts.is_empty() {
+                    "frame without data".to_owned()
+                } else {
+                    format!(
+                        "no range part among {}; enable ComponentSelector Range with a \
+                         Coord3D pixel format",
+                        parts.join(", ")
+                    )
+                },
+            )
+        })?;
     let mut cloud = decode_range(&range.0, &range.1, s)?;
     for (p, d) in &frame.parts {
         let is_conf = p.data_type == PART_CONFIDENCE
@@ -220,7 +258,7 @@ pub fn decode_range(p: &PartInfo, data: &[u8], s: &Scan3d) -> Result<PointCloud>
                     }
                     let z = (raw * s.scale[2] + s.offset[2]) * m;
                     let x = (u as f64 - cu) * z / s.focal_length;
-                    let y = (v as f64 - cv) * z / s.focal_length;
+                    let y = (v as f64 - cv) * z * s.aspect_ratio / s.focal_length;
                     points.push(Point3::new(x as f32, y as f32, z as f32));
                 }
             }
