@@ -309,7 +309,7 @@ fn check_move(
 }
 
 /// Writes `INDEX=VALUE` pairs, then prints input and output double registers 24–47 and the
-/// input integer registers 24–47.
+/// input integer registers 24–31.
 async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Result<ExitCode> {
     for s in set {
         let (i, v) = s
@@ -339,7 +339,12 @@ async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Resul
     for i in 24..=47 {
         let input = robot.read_double_register(i).await?;
         let output = robot.read_output_double_register(i).await?;
-        let input_int = robot.read_int_register(i).await?;
+        // The integer registers this client reads (24..=31); `null` beyond.
+        let input_int = match robot.read_int_register(i).await {
+            Ok(v) => Some(v),
+            Err(handeye_hal::HalError::InvalidArgument(_)) => None,
+            Err(e) => return Err(e.into()),
+        };
         rows.push(
             serde_json::json!({"index": i, "input": input, "output": output, "input_int": input_int}),
         );

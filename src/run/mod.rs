@@ -1440,6 +1440,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 return;
             }
         };
+        journal::pause_point("return").await;
         let checked = self.planner().check_path(&here, &start, PATH_STEP_RAD);
         let result = match checked {
             Ok(Ok(_)) => {

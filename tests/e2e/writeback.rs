@@ -1,6 +1,6 @@
 //! issue 36: the write-back as a transaction. A real `handeye daemon` is killed (`kill -9`)
 //! against `handeye sim rig` at every step of its write-back (env `HANDEYE_TEST_PAUSE_AT`
-//! makes it stop at the named step, so the kill lands exactly there), during the return move,
+//! makes it stop at the named step, so the kill lands exactly there), as the return move starts,
 //! and at random moments of runs; after each restart the controller (TCP and registers read
 //! over RTDE), `current/`, the history and `/api/latest` must agree, with no torn register
 //! set. The soak of 50 random kills is `#[ignore]`d (run it with `--ignored`); the default
@@ -14,7 +14,8 @@ use nalgebra::Isometry3;
 use crate::daemon::{config, http, wait_status, TOKEN};
 use crate::support::{iso, pose_error, run, secs, shared, start_rig, ur_pose, Daemon, TempDir};
 
-/// Every step of the write-back the daemon can be stopped at (see `src/run/mod.rs`).
+/// Every step of the write-back the daemon can be stopped at (see `src/run/mod.rs`); the
+/// return move's step (`return`, as the move starts) is killed on its own below.
 const STEPS: &[&str] = &[
     "journal",
     "tcp",
@@ -140,9 +141,20 @@ impl Cell {
     /// registers hold one whole set (the current calibration's), the run `killed` is
     /// recorded as accepted exactly when `current/` names it, never `running`, and no
     /// staging folder or journal is left. Returns whether `killed` was accepted.
-    fn agree(&self, killed: &str, step: &str) -> bool {
-        let (tcp, regs, seq) = self.controller();
+    fn agree(&self, daemon: Daemon, killed: &str, step: &str) -> bool {
         let (current_run, current_pose) = self.current().expect("current/ after the first run");
+        let (code, body) = http(&self.api, "GET", "/api/latest", None);
+        assert_eq!(code, 200, "{step}: {body}");
+        let latest: serde_json::Value = serde_json::from_str(&body).expect("json");
+        assert_eq!(
+            latest["run_id"].as_str(),
+            Some(current_run.as_str()),
+            "{step}: /api/latest is not current/'s run: {latest}"
+        );
+        let (code, body) = http(&self.api, "GET", &format!("/api/runs/{killed}"), None);
+        // The running daemon holds the registers: read the controller once it has stopped.
+        daemon.stop();
+        let (tcp, regs, seq) = self.controller();
         let (mm, deg) = pose_error(&tcp, &current_pose);
         assert!(
             mm < 1e-3 && deg < 1e-4,
@@ -154,15 +166,6 @@ impl Cell {
             "{step}: the registers {regs:?} (sequence {seq}) are not current/'s set ({current_run}): {mm} mm / {deg}°"
         );
         assert!(seq >= 1, "{step}: sequence {seq}");
-        let (code, body) = http(&self.api, "GET", "/api/latest", None);
-        assert_eq!(code, 200, "{step}: {body}");
-        let latest: serde_json::Value = serde_json::from_str(&body).expect("json");
-        assert_eq!(
-            latest["run_id"].as_str(),
-            Some(current_run.as_str()),
-            "{step}: /api/latest is not current/'s run: {latest}"
-        );
-        let (code, body) = http(&self.api, "GET", &format!("/api/runs/{killed}"), None);
         let accepted = current_run == killed;
         if code == 404 && !accepted && step.starts_with("random") {
             // Killed before the run was begun in the history.
@@ -225,52 +228,50 @@ fn kill_everywhere(cell: &mut Cell, random: usize, seed: u64) {
         s["state"] == "idle" && s["last"]["run_id"] == first.as_str()
     });
     assert_eq!(history_outcome(&cell.cfg, &first), "accepted");
-    let mut daemon = Some(daemon);
+    daemon.stop();
     let mut accepted = 0;
     let t = Instant::now();
     for step in STEPS {
-        if let Some(d) = daemon.take() {
-            d.stop();
-        }
-        let d = cell.daemon(&[("HANDEYE_TEST_PAUSE_AT", step)]);
-        let mut d = d;
+        let mut d = cell.daemon(&[("HANDEYE_TEST_PAUSE_AT", step)]);
         let killed = cell.calibrate();
         d.wait_for_log(&format!("handeye: paused at {step} "), secs(120));
         cell.kill(d);
         let d = cell.daemon(&[]);
-        accepted += usize::from(cell.agree(&killed, step));
+        let was = cell.agree(d, &killed, step);
+        accepted += usize::from(was);
         assert_eq!(
             history_outcome(&cell.cfg, &killed),
-            if cell.current().is_some_and(|(r, _)| r == killed) {
-                "accepted"
-            } else {
-                "aborted"
-            }
+            if was { "accepted" } else { "aborted" },
+            "{step}"
         );
-        daemon = Some(d);
+        // Before the TCP is written nothing changes; once the whole set is written (from
+        // `sequence` on) the run completes.
+        match *step {
+            "journal" => assert!(!was, "{step}"),
+            "sequence" | "record" | "current" => assert!(was, "{step}"),
+            _ => {}
+        }
     }
-    // Before the TCP is written nothing changes; from `sequence` on (the whole set written)
-    // the run completes.
     assert!(accepted >= 3, "{accepted} of the step kills were completed");
     // During the return move.
     {
-        let d = daemon.take().expect("daemon");
+        let mut d = cell.daemon(&[("HANDEYE_TEST_PAUSE_AT", "return")]);
         let killed = cell.calibrate();
-        wait_status(&cell.api, secs(120), "the return move", |s| {
-            s["current"]["stage"] == "return"
-        });
-        std::thread::sleep(Duration::from_millis(100));
+        d.wait_for_log("handeye: paused at return ", secs(120));
         cell.kill(d);
         let d = cell.daemon(&[]);
+        let (_, body) = http(&cell.api, "GET", &format!("/api/runs/{killed}"), None);
         assert!(
-            cell.agree(&killed, "return"),
+            cell.agree(d, &killed, "return"),
             "a kill in the return move keeps the result"
         );
-        let (_, body) = http(&cell.api, "GET", &format!("/api/runs/{killed}"), None);
         assert!(body.contains("not moved back to the start"), "{body}");
-        daemon = Some(d);
     }
-    eprintln!("step kills: {:.1} s", t.elapsed().as_secs_f64());
+    eprintln!(
+        "{} step kills and one in the return move: {:.1} s",
+        STEPS.len(),
+        t.elapsed().as_secs_f64()
+    );
     // Random moments: anywhere from the request to the end of the run.
     let mut state = seed;
     let mut next = || {
@@ -279,17 +280,19 @@ fn kill_everywhere(cell: &mut Cell, random: usize, seed: u64) {
         state ^= state << 17;
         state
     };
-    let run_s = 12.0;
+    // A run of the rig takes about 2 s from the request to its end.
+    let run_s = 2.5;
+    let t = Instant::now();
     for k in 0..random {
-        let d = daemon.take().expect("daemon");
+        let d = cell.daemon(&[]);
         let killed = cell.calibrate();
         let at = Duration::from_secs_f64((next() % 10_000) as f64 / 10_000.0 * run_s);
         std::thread::sleep(at);
         cell.kill(d);
         let d = cell.daemon(&[]);
-        cell.agree(&killed, &format!("random kill {k} at {at:?}"));
-        daemon = Some(d);
+        cell.agree(d, &killed, &format!("random kill {k} at {at:?}"));
     }
+    eprintln!("{random} random kills: {:.1} s", t.elapsed().as_secs_f64());
 }
 
 #[test]
