@@ -152,6 +152,8 @@ impl Cell {
             "{step}: /api/latest is not current/'s run: {latest}"
         );
         let (code, body) = http(&self.api, "GET", &format!("/api/runs/{killed}"), None);
+        let (_, status) = http(&self.api, "GET", "/api/status", None);
+        let status: serde_json::Value = serde_json::from_str(&status).expect("status json");
         // The running daemon holds the registers: read the controller once it has stopped.
         daemon.stop();
         let (tcp, regs, seq) = self.controller();
@@ -192,6 +194,12 @@ impl Cell {
             ended || reason.contains("interrupted") || reason.contains("the program stopped"),
             "{step}: {record}"
         );
+        // The status says the same of it as the history.
+        if !step.starts_with("random") {
+            assert_eq!(status["last"]["run_id"], killed, "{step}: {status}");
+            assert_eq!(status["last"]["outcome"], outcome, "{step}: {status}");
+            assert_eq!(status["last"]["reasons"][0], reason, "{step}: {status}");
+        }
         // Rolled back from a partial write: the pendant warning.
         if reason.contains("rolled back") {
             assert!(
