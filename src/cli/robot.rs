@@ -321,7 +321,8 @@ fn check_move(
     ))
 }
 
-/// Writes `INDEX=VALUE` pairs, then prints input and output double registers 24–47.
+/// Writes `INDEX=VALUE` pairs, then prints input and output double registers 24–47 and the
+/// input integer registers 24–31.
 async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Result<ExitCode> {
     for s in set {
         let (i, v) = s
@@ -351,19 +352,28 @@ async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Resul
     for i in 24..=47 {
         let input = robot.read_double_register(i).await?;
         let output = robot.read_output_double_register(i).await?;
-        rows.push(serde_json::json!({"index": i, "input": input, "output": output}));
+        // The integer registers this client reads (24..=31); `null` beyond.
+        let input_int = match robot.read_int_register(i).await {
+            Ok(v) => Some(v),
+            Err(handeye_hal::HalError::InvalidArgument(_)) => None,
+            Err(e) => return Err(e.into()),
+        };
+        rows.push(
+            serde_json::json!({"index": i, "input": input, "output": output, "input_int": input_int}),
+        );
     }
     let mut text = String::new();
     if json {
         text = serde_json::to_string_pretty(&rows)? + "\n";
     } else {
-        text.push_str("register  input_double  output_double\n");
+        text.push_str("register  input_double  output_double  input_int\n");
         for r in rows {
             text.push_str(&format!(
-                "{:>8}  {:>12}  {:>13}\n",
+                "{:>8}  {:>12}  {:>13}  {:>9}\n",
                 r["index"].to_string(),
                 r["input"].to_string(),
-                r["output"].to_string()
+                r["output"].to_string(),
+                r["input_int"].to_string()
             ));
         }
     }

@@ -571,7 +571,7 @@ fn issue_38_robot_config_reaches_the_configured_controller() {
         return;
     };
     let dir = TempDir::new("robot-config");
-    let (robot_ip, camera_ip) = ("127.0.0.160", "127.0.0.161");
+    let (robot_ip, camera_ip) = ("127.0.0.166", "127.0.0.167");
     let rig = start_rig(&dir, robot_ip, camera_ip, &["--serial", "20205500160"]);
     let cfg = config(&dir, robot_ip, camera_ip);
     let cfg_arg = cfg.to_str().expect("utf-8");
@@ -619,7 +619,7 @@ fn issue_38_robot_config_reaches_the_configured_controller() {
         &[
             "robot",
             "--host",
-            "127.0.0.162",
+            "127.0.0.168",
             "--timeout-s",
             "1",
             "move",
@@ -631,7 +631,7 @@ fn issue_38_robot_config_reaches_the_configured_controller() {
         secs(30),
     );
     assert_ne!(out.code(), 0, "{out}");
-    assert!(out.stderr.contains("127.0.0.162"), "{out}");
+    assert!(out.stderr.contains("127.0.0.168"), "{out}");
     assert!(max_change(&joints(robot_ip), &target) < 1e-3, "{out}");
 }
 
@@ -662,7 +662,7 @@ fn issue_36_corrupt_controller_values_get_nothing_written() {
         return;
     };
     let dir = TempDir::new("fault-proxy");
-    let (robot_ip, camera_ip, proxy_ip) = ("127.0.0.163", "127.0.0.164", "127.0.0.165");
+    let (robot_ip, camera_ip, proxy_ip) = ("127.0.0.169", "127.0.0.170", "127.0.0.171");
     let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
     let rt = tokio::runtime::Runtime::new().expect("runtime");
     let proxy = rt
