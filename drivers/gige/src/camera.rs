@@ -143,49 +143,7 @@ impl GigeCamera {
 
     /// Read the Scan3d conversion parameters (defaults where the camera lacks a feature).
     pub fn scan3d_blocking(&self) -> Result<Scan3d> {
-        self.with_features(|n, p| {
-            let mut s = Scan3d::default();
-            if n.has("Scan3dDistanceUnit") {
-                s.metres_per_unit = match n.enum_symbol(p, "Scan3dDistanceUnit")?.as_str() {
-                    "Millimeter" => 0.001,
-                    "Inch" => 0.0254,
-                    "Meter" => 1.0,
-                    other => {
-                        return Err(GigeError::feature(
-                            "Scan3dDistanceUnit",
-                            format!("unknown unit `{other}`"),
-                        ))
-                    }
-                };
-            }
-            if n.has("Scan3dCoordinateSelector") {
-                for (k, sym) in ["CoordinateA", "CoordinateB", "CoordinateC"]
-                    .iter()
-                    .enumerate()
-                {
-                    n.set_enum(p, "Scan3dCoordinateSelector", sym)?;
-                    if n.has("Scan3dCoordinateScale") {
-                        s.scale[k] = n.number(p, "Scan3dCoordinateScale")?;
-                    }
-                    if n.has("Scan3dCoordinateOffset") {
-                        s.offset[k] = n.number(p, "Scan3dCoordinateOffset")?;
-                    }
-                }
-            }
-            let flagged =
-                !n.has("Scan3dInvalidDataFlag") || n.boolean(p, "Scan3dInvalidDataFlag")?;
-            if flagged && n.has("Scan3dInvalidDataValue") {
-                s.invalid_value = Some(n.number(p, "Scan3dInvalidDataValue")?);
-            }
-            if n.has("Scan3dFocalLength") {
-                s.focal_length = n.number(p, "Scan3dFocalLength")?;
-                s.principal_point = (
-                    n.number(p, "Scan3dPrincipalPointU")?,
-                    n.number(p, "Scan3dPrincipalPointV")?,
-                );
-            }
-            Ok(s)
-        })
+        self.with_features(Scan3d::read)
     }
 
     /// Take control, stream until `frames` complete frames arrived (incomplete ones are
