@@ -178,77 +178,7 @@ impl GigeCamera {
     /// `Scan3dCoordinateOffset` to the depth (C). An output mode that needs the camera's
     /// coordinate maps (`ProjectedC`, `UncalibratedC`, …) is an error.
     pub fn scan3d_blocking(&self) -> Result<Scan3d> {
-        self.with_features(|n, p| {
-            let mut s = Scan3d::default();
-            if n.has("Scan3dOutputMode") {
-                let mode = n.enum_symbol(p, "Scan3dOutputMode")?;
-                check_output_mode(&mode)?;
-            }
-            if !n.has("Scan3dDistanceUnit") {
-                tracing::warn!(
-                    "the camera has no Scan3dDistanceUnit: its 3D values are taken as \
-                     millimetres (check the vendor's manual if the points come out 1000 times \
-                     too small or large)"
-                );
-            } else {
-                s.metres_per_unit = match n.enum_symbol(p, "Scan3dDistanceUnit")?.as_str() {
-                    "Millimeter" => 0.001,
-                    "Inch" => 0.0254,
-                    "Meter" => 1.0,
-                    other => {
-                        return Err(GigeError::feature(
-                            "Scan3dDistanceUnit",
-                            format!("unknown unit `{other}`"),
-                        ))
-                    }
-                };
-            }
-            if n.has("Scan3dCoordinateSelector") {
-                for (k, sym) in ["CoordinateA", "CoordinateB", "CoordinateC"]
-                    .iter()
-                    .enumerate()
-                {
-                    n.set_enum(p, "Scan3dCoordinateSelector", sym)?;
-                    if n.has("Scan3dCoordinateScale") {
-                        s.scale[k] = n.number(p, "Scan3dCoordinateScale")?;
-                    }
-                    if n.has("Scan3dCoordinateOffset") {
-                        s.offset[k] = n.number(p, "Scan3dCoordinateOffset")?;
-                    }
-                }
-            } else {
-                // One pair for the whole camera (Nerian, depth-only cameras).
-                if n.has("Scan3dCoordinateScale") {
-                    s.scale = [n.number(p, "Scan3dCoordinateScale")?; 3];
-                }
-                if n.has("Scan3dCoordinateOffset") {
-                    s.offset[2] = n.number(p, "Scan3dCoordinateOffset")?;
-                }
-            }
-            if n.has("Scan3dAspectRatio") {
-                let a = n.number(p, "Scan3dAspectRatio")?;
-                if !(a.is_finite() && a > 0.0) {
-                    return Err(GigeError::feature(
-                        "Scan3dAspectRatio",
-                        format!("{a} is not a positive pixel aspect ratio"),
-                    ));
-                }
-                s.aspect_ratio = a;
-            }
-            let flagged =
-                !n.has("Scan3dInvalidDataFlag") || n.boolean(p, "Scan3dInvalidDataFlag")?;
-            if flagged && n.has("Scan3dInvalidDataValue") {
-                s.invalid_value = Some(n.number(p, "Scan3dInvalidDataValue")?);
-            }
-            if n.has("Scan3dFocalLength") {
-                s.focal_length = n.number(p, "Scan3dFocalLength")?;
-                s.principal_point = (
-                    n.number(p, "Scan3dPrincipalPointU")?,
-                    n.number(p, "Scan3dPrincipalPointV")?,
-                );
-            }
-            Ok(s)
-        })
+        self.with_features(Scan3d::read)
     }
 
     /// Take control, stream until `frames` complete frames arrived (incomplete ones are

@@ -132,6 +132,33 @@ pub fn xml_text(bytes: &[u8]) -> Result<String> {
 /// hundred kB (ZIP: tens of kB), and each 536 bytes of device memory is one GVCP round trip.
 pub const MAX_XML_BYTES: usize = 16 << 20;
 
+/// Read the XML a URL names: `Local:` through `read_mem(address, length)` (the device's
+/// memory), `File:` from this host; unzipped when zipped. `http:` is refused with what to do.
+pub fn load_xml(
+    url: XmlUrl,
+    read_mem: impl FnOnce(u32, usize) -> Result<Vec<u8>>,
+) -> Result<String> {
+    match url {
+        XmlUrl::Local {
+            address, length, ..
+        } => xml_text(&read_mem(address, length as usize)?),
+        XmlUrl::File(path) => {
+            // The device names the file: never a FIFO or device, never unbounded.
+            handeye_hal::limits::check_regular_file(
+                std::path::Path::new(&path),
+                MAX_XML_BYTES as u64,
+            )
+            .and_then(|_| std::fs::read(&path))
+            .map_err(|e| GigeError::io(path, e))
+            .and_then(|bytes| xml_text(&bytes))
+        }
+        XmlUrl::Http(u) => Err(GigeError::malformed(
+            "XML URL",
+            format!("`{u}`: downloading the XML is not supported; save it and use a File: URL"),
+        )),
+    }
+}
+
 /// Read the XML of a device: first URL register, then the second one as fallback.
 pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
     let mut last_err = None;
@@ -139,27 +166,7 @@ pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
         let fetched = client
             .read_string(url_reg, 512)
             .and_then(|u| XmlUrl::parse(&u))
-            .and_then(|url| match url {
-                XmlUrl::Local {
-                    address, length, ..
-                } => xml_text(&client.read_mem(address, length as usize)?),
-                XmlUrl::File(path) => {
-                    // The device names the file: never a FIFO or device, never unbounded.
-                    handeye_hal::limits::check_regular_file(
-                        std::path::Path::new(&path),
-                        MAX_XML_BYTES as u64,
-                    )
-                    .and_then(|_| std::fs::read(&path))
-                    .map_err(|e| GigeError::io(path, e))
-                    .and_then(|bytes| xml_text(&bytes))
-                }
-                XmlUrl::Http(u) => Err(GigeError::malformed(
-                    "XML URL",
-                    format!(
-                        "`{u}`: downloading the XML is not supported; save it and use a File: URL"
-                    ),
-                )),
-            });
+            .and_then(|url| load_xml(url, |address, length| client.read_mem(address, length)));
         match fetched {
             Ok(x) => return Ok(x),
             // A device that does not answer (or stalls) will not answer the second URL either.
@@ -236,6 +243,10 @@ fn check_formulas(xml: &str) -> std::result::Result<(), String> {
     }
     Ok(())
 }
+
+/// Register access a [`NodeMap`] reads and writes features through: [`GvcpPort`] here, a
+/// GenTL producer's port in `handeye-gentl`.
+pub use cameleon_genapi::Device as RegisterPort;
 
 /// Register access for the node map over GVCP: 4-byte aligned accesses use READREG/WRITEREG
 /// (always supported), others READMEM/WRITEMEM.
