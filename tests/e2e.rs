@@ -10,6 +10,8 @@
 mod calibrate;
 #[path = "e2e/daemon.rs"]
 mod daemon;
+#[path = "e2e/gentl.rs"]
+mod gentl;
 #[path = "e2e/monitoring.rs"]
 mod monitoring;
 #[path = "e2e/readme.rs"]
