@@ -12,6 +12,8 @@ mod book;
 mod calibrate;
 #[path = "e2e/daemon.rs"]
 mod daemon;
+#[path = "e2e/gentl.rs"]
+mod gentl;
 #[path = "e2e/hostile.rs"]
 mod hostile;
 #[path = "e2e/monitoring.rs"]
