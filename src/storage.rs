@@ -747,7 +747,7 @@ impl StagedResult {
 
 /// Space kept in reserve (`<storage>/space-reserve`) for the end of a run: when the disk
 /// fills during a run, its final record and history row are written after the reserve is
-/// released ([`release_reserve`]), so a result the controller took is never left unrecorded.
+/// released (`release_reserve`), so a result the controller took is never left unrecorded.
 pub const RESERVE_BYTES: u64 = 2 << 20;
 const RESERVE_FILE: &str = "space-reserve";
 

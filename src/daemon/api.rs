@@ -5,7 +5,10 @@
 //! whoever can reach `daemon.listen` (localhost by default); anything that moves the arm
 //! (`/api/calibrate`, `/api/check`) or stops it (`/api/cancel`) needs
 //! `Authorization: Bearer <token>` with the token from `daemon.token_file` (or the systemd
-//! credential `token`). Without a configured token those requests are refused outright.
+//! credential `token`). Without a configured token those requests are refused outright. A
+//! client refused 20 times in 10 s (`AuthLimit`) gets 429 for them
+//! until the window ends. The local CLI's cancel does not depend on this API at all
+//! ([`crate::daemon::control`]).
 //!
 //! | route | what |
 //! |---|---|

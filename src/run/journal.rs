@@ -375,7 +375,7 @@ pub(crate) async fn pause_point(step: &str) {
     }
 }
 
-/// The env variable of [`pause_point`].
+/// The env variable of the tests' pause points (`pause_point`): `HANDEYE_TEST_PAUSE_AT=<step>`.
 pub const PAUSE_ENV: &str = "HANDEYE_TEST_PAUSE_AT";
 
 #[cfg(test)]

@@ -39,6 +39,10 @@ fn issue_36_cancel_stops_a_moving_run_while_local_connections_fill_the_api() {
     let out = run(&["cancel", "--config", config_arg], secs(15));
     assert_eq!(out.code(), 0, "{out}");
     assert!(out.stdout.starts_with("cancelled"), "{out}");
+    // `handeye status` answers too (through the control socket).
+    let out = run(&["status", "--config", config_arg, "--json"], secs(15));
+    assert_eq!(out.code(), 0, "{out}");
+    assert!(out.json()["state"].is_string(), "{out}");
 
     // Without the control socket, the HTTP API is over its limits: the error says so, not
     // "no daemon".
