@@ -8,6 +8,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use tokio_util::sync::CancellationToken;
 
+mod xml;
+
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -77,6 +79,17 @@ enum CameraCommand {
         #[arg(long)]
         confidence: bool,
     },
+    /// Check a camera's GenICam description offline (the .xml or .zip it serves, or a vendor's
+    /// download): pixel formats, 3D components, Scan3d features, what is missing, and whether
+    /// the driver could stream points from it. Exit 0 when it loads, 2 with the reason when not.
+    Xml {
+        /// The description, `.xml` or zipped (`.zip`).
+        #[arg(value_name = "FILE")]
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// Most frames one `capture` takes (each is held in memory until written).
@@ -109,6 +122,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
 
 async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
     match command {
+        CameraCommand::Xml { file, json } => xml::run(&file, json),
         CameraCommand::Probe {
             gentl: Some(producer),
             json,

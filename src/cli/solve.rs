@@ -419,22 +419,24 @@ fn choose_kinematics(inputs: &mut Inputs, args: &Args) -> anyhow::Result<serde_j
         (None, Some(file)) => {
             let calibration = UrCalibration::load(file)?;
             // The file's DH set poses the model exactly as the controller's would.
-            let nominal = inputs
-                .model
-                .ur_model()
-                .ok_or_else(|| {
-                    anyhow::anyhow!(
-                        "--calibration: {} is not a UR arm (its file or robot name must name the \
-                         model, e.g. ur5e)",
-                        inputs.model.name()
-                    )
-                })?
-                .dh();
-            inputs.controller_dh = Some(
-                calibration
-                    .dh(&nominal)
-                    .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?,
-            );
+            let ur_model = inputs.model.ur_model().ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--calibration: {} is not a UR arm (its file or robot name must name the \
+                     model, e.g. ur5e)",
+                    inputs.model.name()
+                )
+            })?;
+            let dh = calibration
+                .dh(&ur_model.dh())
+                .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?;
+            // As the run's preflight does: the file must calibrate this model's arm.
+            handeye::run::check_model_matches(
+                ur_model,
+                None,
+                Some((&dh, handeye::run::KinematicsOrigin::File)),
+            )
+            .map_err(|e| anyhow::anyhow!("--calibration {}: {e}", file.display()))?;
+            inputs.controller_dh = Some(dh);
             serde_json::json!({
                 "source": "file",
                 "file": file.display().to_string(),
@@ -710,6 +712,27 @@ mod tests {
             format!("{e:#}").contains("--guess-flange-from-camera"),
             "{e:#}"
         );
+        // Issue 35: a calibration file of another arm (a UR10e's for this UR5e) is refused as
+        // the run's preflight refuses it; this arm's file is taken.
+        use handeye_hal::ur_dh::UrModel;
+        for (arm, refused) in [(UrModel::Ur10e, true), (UrModel::Ur5e, false)] {
+            let file = tmp.join(format!("{arm}_calibration.yaml"));
+            let yaml = handeye::model::ur_calibration_yaml(&arm.dh(), &arm.dh(), "calib_35");
+            std::fs::write(&file, yaml).expect("calibration file");
+            let mut with_file = args(urdf.clone(), &joints, ply.clone(), None);
+            with_file.calibration = Some(file);
+            let r = solve(with_file);
+            if refused {
+                let text = format!("{:#}", r.expect_err("another arm's calibration"));
+                assert!(
+                    text.contains("--calibration")
+                        && text.contains("the calibration file's kinematics are a ur10e"),
+                    "{text}"
+                );
+            } else {
+                r.expect("this arm's calibration");
+            }
+        }
         let _ = std::fs::remove_dir_all(&tmp);
     }
 

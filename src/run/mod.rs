@@ -1553,7 +1553,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
 /// not a UR5 from a UR5e), then its kinematics (`kinematics`: the controller's or the
 /// calibration file's DH and which): they must be a calibration of the model's nominal ones.
 /// Else what to configure, naming both.
-fn check_model_matches(
+pub fn check_model_matches(
     model: handeye_hal::ur_dh::UrModel,
     reported: Option<&str>,
     kinematics: Option<(&handeye_hal::ur_dh::DhParams, KinematicsOrigin)>,

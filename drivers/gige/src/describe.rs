@@ -82,13 +82,19 @@ fn without(name: &str) -> &'static str {
         "ComponentSelector" | "ComponentEnable" => "single-part range images only",
         "ExposureTime" => "an exposure setting is ignored",
         "TLParamsLocked" | "AcquisitionMode" => "not set (fine)",
+        "GevSCPSPacketSize" => "not used (the packet size goes to the bootstrap register)",
         "Scan3dOutputMode" => "the output is taken as calibrated",
         _ => "not used",
     }
 }
 
-/// Reads a feature's value from the description alone.
+/// Reads a feature's value from the description alone. The node map logs each failed
+/// register access as an error; offline they are expected, so nothing is logged meanwhile.
 fn offline_value(nm: &mut NodeMap, name: &str) -> Option<String> {
+    tracing::dispatcher::with_default(&tracing::Dispatch::none(), || offline_value_quiet(nm, name))
+}
+
+fn offline_value_quiet(nm: &mut NodeMap, name: &str) -> Option<String> {
     let mut dev = NoCamera;
     match nm.kind(name)? {
         FeatureKind::Integer => nm.integer(&mut dev, name).ok().map(|v| v.to_string()),
