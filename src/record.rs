@@ -187,6 +187,22 @@ pub struct RunTimings {
 }
 
 impl RunTimings {
+    /// Adds `ms` to `stage`'s time.
+    pub fn add(&mut self, stage: Stage, ms: f64) {
+        let field = match stage {
+            Stage::Preflight => &mut self.preflight,
+            Stage::Plan => &mut self.plan,
+            Stage::Move => &mut self.moves,
+            Stage::Settle => &mut self.settle,
+            Stage::Capture => &mut self.capture,
+            Stage::Register => &mut self.register,
+            Stage::Solve => &mut self.solve,
+            Stage::WriteBack => &mut self.write_back,
+            Stage::Return => &mut self.return_move,
+        };
+        *field += ms;
+    }
+
     /// Every stage's time with its JSON name, in run order (without the total).
     pub fn stages(&self) -> [(&'static str, f64); 9] {
         [
@@ -411,6 +427,23 @@ pub struct Written {
     pub detail: String,
 }
 
+/// A calibration allowed to move beyond `gate.max_change_*` from the previous one, because
+/// the camera was remounted on purpose (`handeye calibrate --accept-change`,
+/// `POST /api/calibrate/accept-change`, the page's Accept remount button).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ChangeAccepted {
+    /// Who or what accepted it: `cli (user alice)`, `api client 127.0.0.1`,
+    /// `web page (127.0.0.1)`.
+    pub by: String,
+    /// How far the result moved from the previous calibration, mm; `None` when there was
+    /// none to compare with.
+    pub translation_mm: Option<f64>,
+    /// How far it turned, degrees.
+    pub rotation_deg: Option<f64>,
+    /// Whether that was beyond `gate.max_change_*` (otherwise accepting was not needed).
+    pub beyond_limits: bool,
+}
+
 /// The complete record of one run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunRecord {
@@ -455,6 +488,10 @@ pub struct RunRecord {
     /// Check: the comparison with the current calibration.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub drift: Option<DriftRecord>,
+    /// Calibrate with `--accept-change` (a deliberate remount): who accepted a result beyond
+    /// `gate.max_change_*`, and how far it moved.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub change_accepted: Option<ChangeAccepted>,
     /// What was written back (empty unless accepted in calibrate mode).
     pub written: Vec<Written>,
     /// Whether the arm was moved back to where it started.
@@ -484,6 +521,7 @@ impl RunRecord {
             capture_file: None,
             result: None,
             drift: None,
+            change_accepted: None,
             written: Vec::new(),
             returned_to_start: false,
             timings_ms: RunTimings::default(),

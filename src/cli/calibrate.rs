@@ -28,6 +28,12 @@ pub(crate) struct CalibrateArgs {
     /// Preflight and plan only: print the targets and the checked paths, move nothing.
     #[arg(long)]
     dry_run: bool,
+    /// The camera was remounted on purpose: accept a result that moved beyond
+    /// `gate.max_change_translation_mm` / `max_change_rotation_deg` from the previous
+    /// calibration (every other check of the gate still applies). The record and the history
+    /// say who accepted it and how far it moved.
+    #[arg(long)]
+    accept_change: bool,
 }
 
 /// Arguments of `check`.
@@ -51,8 +57,22 @@ pub(crate) async fn calibrate(
         dry_run: args.dry_run,
         run_id: None,
         program_handover: false,
+        accept_change: args.accept_change.then(cli_user),
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
+}
+
+/// Who runs this command, for the record of an accepted change: `cli (user alice)` (the user
+/// behind `sudo` when there is one).
+fn cli_user() -> String {
+    let name = ["SUDO_USER", "USER", "LOGNAME"]
+        .iter()
+        .find_map(|v| std::env::var(v).ok().filter(|s| !s.trim().is_empty()));
+    match name {
+        Some(n) => format!("cli (user {})", n.trim()),
+        // SAFETY: getuid has no preconditions and cannot fail.
+        None => format!("cli (uid {})", unsafe { libc::getuid() }),
+    }
 }
 
 pub(crate) async fn check(
@@ -65,6 +85,7 @@ pub(crate) async fn check(
         dry_run: false,
         run_id: None,
         program_handover: false,
+        accept_change: None,
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }

@@ -215,6 +215,7 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
         dry_run: false,
         run_id: None,
         program_handover: false,
+        accept_change: None,
     };
     let record = execute(&cfg, req, shutdown, args.json).await?;
     let estimate = record

@@ -14,9 +14,10 @@ use handeye::store::{RunSummary, Store, StoredRun, HISTORY_FILE};
 /// Arguments of `history`.
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
-    /// The cell's configuration; the history is `<storage.dir>/history.sqlite`.
-    #[arg(long, value_name = "FILE")]
-    config: PathBuf,
+    /// The cell's configuration; the history is `<storage.dir>/history.sqlite`. Before or
+    /// after the subcommand (`history --config F list` or `history list --config F`).
+    #[arg(long, value_name = "FILE", global = true)]
+    config: Option<PathBuf>,
     #[command(subcommand)]
     command: HistoryCommand,
 }
@@ -60,7 +61,10 @@ enum Format {
 }
 
 pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
-    let cfg = Config::load(&args.config)?;
+    let Some(config) = &args.config else {
+        anyhow::bail!("--config FILE is required: the cell's configuration, whose storage.dir holds the history");
+    };
+    let cfg = Config::load(config)?;
     let path = cfg.storage.dir.join(HISTORY_FILE);
     let store = Store::open_read_only(&path)?;
     let stdout = std::io::stdout();
@@ -248,6 +252,20 @@ fn write_record(
             u.rotation_deg,
             u.workspace_note()
         )?;
+    }
+    if let Some(c) = &rec.change_accepted {
+        let moved = match (c.translation_mm, c.rotation_deg) {
+            (Some(mm), Some(deg)) => {
+                format!("moved {mm:.2} mm, {deg:.3}° from the previous calibration")
+            }
+            _ => "no previous calibration to compare with".into(),
+        };
+        let beyond = if c.beyond_limits {
+            "beyond gate.max_change_*"
+        } else {
+            "within gate.max_change_*"
+        };
+        writeln!(out, "remount   accepted by {}: {moved} ({beyond})", c.by)?;
     }
     if let Some(d) = &rec.drift {
         let verdict = if d.drifted {
@@ -458,6 +476,7 @@ mod tests {
                 max_rotation_deg: 0.5,
                 drifted: false,
             }),
+            change_accepted: None,
             written: if accepted && mode == RunMode::Calibrate {
                 vec![Written {
                     target: handeye::record::WriteTarget::Tcp,
@@ -483,6 +502,29 @@ mod tests {
         let mut out = Vec::new();
         execute(store, &cli.args.command, &mut out)?;
         Ok(String::from_utf8(out)?)
+    }
+
+    /// `--config` goes before or after the subcommand, as with every other command (issue
+    /// 38); without it the message says what to give.
+    #[test]
+    fn config_is_accepted_before_or_after_the_subcommand() {
+        for argv in [
+            &["history", "--config", "cell.toml", "list"][..],
+            &["history", "list", "--config", "cell.toml"][..],
+            &["history", "show", "r1", "--config", "cell.toml", "--json"][..],
+        ] {
+            let cli = Cli::try_parse_from(argv).expect("parses");
+            assert_eq!(
+                cli.args.config.as_deref(),
+                Some(Path::new("cell.toml")),
+                "{argv:?}"
+            );
+        }
+        let err = run(Cli::parse_from(["history", "list"]).args).expect_err("no config");
+        assert!(
+            err.to_string().contains("--config FILE is required"),
+            "{err}"
+        );
     }
 
     #[test]

@@ -38,10 +38,10 @@ pub(crate) struct Args {
     #[arg(long, value_name = "POSE", allow_hyphen_values = true)]
     mount: Option<String>,
     /// Sensor width in pixels.
-    #[arg(long, default_value_t = 640)]
+    #[arg(long, default_value_t = DEFAULT_WIDTH)]
     width: u32,
     /// Sensor height in pixels.
-    #[arg(long, default_value_t = 480)]
+    #[arg(long, default_value_t = DEFAULT_HEIGHT)]
     height: u32,
     /// Frames per second while acquiring.
     #[arg(long, default_value_t = 10.0)]
@@ -78,6 +78,12 @@ const MIN_FRAME_RATE_HZ: f64 = 0.01;
 const MAX_FRAME_RATE_HZ: f64 = 120.0;
 /// Sensor sizes the simulated camera renders, pixels per side.
 pub(crate) const MIN_PIXELS: u32 = 16;
+/// The simulated camera's size unless `--width`/`--height` say otherwise, for `sim camera`
+/// and `sim rig` alike: the `compact` preset's 1280×960, what the demo and the benchmarks use.
+pub(crate) const DEFAULT_WIDTH: u32 = 1280;
+/// See [`DEFAULT_WIDTH`].
+pub(crate) const DEFAULT_HEIGHT: u32 = 960;
+/// See [`MIN_PIXELS`].
 pub(crate) const MAX_PIXELS: u32 = 8192;
 
 /// Serves until `shutdown` is cancelled (Ctrl-C or SIGTERM), then stops the camera and prints

@@ -15,6 +15,8 @@ use handeye::model::RobotModel;
 use handeye::sim::{Intrinsics, KinematicError, SimSettings};
 use handeye_gige::sim::{SimCamera, SimOptions};
 use handeye_gige::GvcpClient;
+
+use super::sim_camera::{MAX_PIXELS, MIN_PIXELS};
 use handeye_hal::ur_dh::{DhParams, UrModel};
 use handeye_hal::UrPose;
 use handeye_ur::sim::{SimConfig, SimHandle, Simulator};
@@ -216,10 +218,10 @@ pub(crate) struct Args {
     #[arg(long, value_name = "SERIAL", value_parser = super::sim_robot::parse_serial)]
     serial: Option<String>,
     /// Sensor width, pixels.
-    #[arg(long, default_value_t = 1280)]
+    #[arg(long, default_value_t = super::sim_camera::DEFAULT_WIDTH)]
     width: u32,
     /// Sensor height, pixels.
-    #[arg(long, default_value_t = 960)]
+    #[arg(long, default_value_t = super::sim_camera::DEFAULT_HEIGHT)]
     height: u32,
     /// Write the ground truth (mount, the arm's DH, addresses) to this JSON file.
     #[arg(long, value_name = "FILE")]
@@ -258,8 +260,9 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         );
     }
     anyhow::ensure!(
-        (16..=8192).contains(&args.width) && (16..=8192).contains(&args.height),
-        "--width and --height must be 16–8192 pixels"
+        (MIN_PIXELS..=MAX_PIXELS).contains(&args.width)
+            && (MIN_PIXELS..=MAX_PIXELS).contains(&args.height),
+        "--width and --height must be {MIN_PIXELS}–{MAX_PIXELS} pixels"
     );
     let rig = Rig::start(RigOptions {
         model: args.model,

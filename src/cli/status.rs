@@ -1,8 +1,10 @@
 //! `handeye status --config FILE [--json]`: asks the running daemon (`GET /api/status` at
 //! `daemon.listen`) what it is doing and prints it: state, the run in progress and its stage,
 //! the last run, the last calibration and check, the drift alarm, the connections. Plain
-//! HTTP/1.1 over a `std` socket with a 3 s timeout; no runtime. Exit 0 when the daemon
-//! answered, 2 when none answers (or it answered with an error).
+//! HTTP/1.1 over a `std` socket with a 3 s timeout; no runtime. Exit codes for scripts
+//! ([`exit_code`]): 0 all is well, 1 the daemon answered but needs attention (the drift alarm
+//! is on, the last run failed — rejected, aborted or error — or the storage cannot take a
+//! run), 2 no daemon answers (or it answered with an error).
 
 use std::io::{Read, Write};
 use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, TcpStream};
@@ -74,7 +76,20 @@ fn status_at(
     } else {
         print!("{}", render(addr, &status, unix_now()));
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(ExitCode::from(exit_code(&status)))
+}
+
+/// The exit code of an answered status: 1 when the drift alarm is on, the last run failed
+/// (rejected, aborted, error) or the storage cannot take a run; else 0.
+fn exit_code(status: &Status) -> u8 {
+    use handeye::run::Outcome;
+    let last_failed = status.last.as_ref().is_some_and(|l| {
+        matches!(
+            l.outcome,
+            Outcome::Rejected | Outcome::Aborted | Outcome::Error
+        )
+    });
+    u8::from(status.drift_alarm || last_failed || status.storage_problem.is_some())
 }
 
 /// Where to connect for a daemon listening on `listen`: a wildcard address is reached on
@@ -403,6 +418,36 @@ mod tests {
         assert_eq!(reachable(lan), lan);
     }
 
+    /// Scripts tell a cell that needs attention from one that is fine: 1 for the drift alarm,
+    /// a failed last run or unusable storage.
+    #[test]
+    fn exit_codes_tell_fine_from_needing_attention() {
+        use handeye::run::Outcome;
+        let mut st = sample();
+        st.drift_alarm = false;
+        st.storage_problem = None;
+        if let Some(last) = st.last.as_mut() {
+            last.outcome = Outcome::Accepted;
+        }
+        assert_eq!(exit_code(&st), 0);
+        let mut alarm = st.clone();
+        alarm.drift_alarm = true;
+        assert_eq!(exit_code(&alarm), 1);
+        for failed in [Outcome::Rejected, Outcome::Aborted, Outcome::Error] {
+            let mut s = st.clone();
+            if let Some(last) = s.last.as_mut() {
+                last.outcome = failed;
+            }
+            assert_eq!(exit_code(&s), 1, "{failed:?}");
+        }
+        let mut full = st.clone();
+        full.storage_problem = Some("0 MB free".into());
+        assert_eq!(exit_code(&full), 1);
+        let mut none = st;
+        none.last = None;
+        assert_eq!(exit_code(&none), 0);
+    }
+
     #[test]
     fn no_daemon_exits_2() {
         let port = TcpListener::bind("127.0.0.1:0")
@@ -446,7 +491,8 @@ mod tests {
             true,
         )
         .expect("answered");
-        assert_eq!(code, ExitCode::SUCCESS);
+        // The sample's drift alarm is on.
+        assert_eq!(code, ExitCode::from(1));
         let req = server.join().expect("server");
         assert!(req.starts_with("GET /api/status HTTP/1.1\r\n"), "{req}");
     }

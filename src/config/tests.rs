@@ -71,6 +71,16 @@ fn every_example_file_loads() {
         let c = Config::load(&path).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(c.origin, path.display().to_string());
         assert!(c.storage.dir.is_absolute(), "{name}: storage.dir resolved");
+        // Runnable from the checkout (a simulator on loopback): its runs' data stays outside
+        // it (issue 38: `calibrate --config config/sim-rig.example.toml` left an untracked
+        // folder in config/).
+        if c.robot.host.is_loopback() {
+            assert!(
+                !c.storage.dir.starts_with(&dir),
+                "{name}: storage.dir {} is inside the checkout",
+                c.storage.dir.display()
+            );
+        }
         loaded.push(name.to_string());
     }
     loaded.sort();

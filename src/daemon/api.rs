@@ -302,6 +302,7 @@ pub fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router
         .merge(expensive)
         .route("/api/status", get(status))
         .route("/api/calibrate", post(calibrate))
+        .route("/api/calibrate/accept-change", post(accept_change))
         .route("/api/check", post(check))
         .route("/api/cancel", post(cancel))
         .route("/api/runs", get(runs))
@@ -746,7 +747,26 @@ async fn calibrate(
     ConnectInfo(peer): ConnectInfo<SocketAddr>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    start(&state, &headers, peer, RunMode::Calibrate)
+    start(&state, &headers, peer, RunMode::Calibrate, None)
+}
+
+/// `POST /api/calibrate/accept-change`: a calibration that accepts a result beyond
+/// `gate.max_change_*` (the camera was remounted on purpose). The record says who: `web page
+/// (ADDR)` when the page sent it (header `X-Handeye-Client: page`), else `api client ADDR`.
+async fn accept_change(
+    State(state): State<AppState>,
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let from_page = headers
+        .get("x-handeye-client")
+        .is_some_and(|v| v.as_bytes() == b"page");
+    let by = if from_page {
+        format!("web page ({})", peer.ip())
+    } else {
+        format!("api client {}", peer.ip())
+    };
+    start(&state, &headers, peer, RunMode::Calibrate, Some(by))
 }
 
 async fn check(
@@ -754,7 +774,7 @@ async fn check(
     ConnectInfo(peer): ConnectInfo<SocketAddr>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    start(&state, &headers, peer, RunMode::Check)
+    start(&state, &headers, peer, RunMode::Check, None)
 }
 
 /// `POST /api/calibrate` and `/api/check`: 202 with the run id, 409 when a run is going.
@@ -763,13 +783,19 @@ fn start(
     headers: &HeaderMap,
     peer: SocketAddr,
     mode: RunMode,
+    accept_change: Option<String>,
 ) -> Result<Response, ApiError> {
-    let what = match mode {
-        RunMode::Calibrate => "POST /api/calibrate",
-        RunMode::Check => "POST /api/check",
+    let what = match (mode, &accept_change) {
+        (RunMode::Calibrate, Some(_)) => "POST /api/calibrate/accept-change",
+        (RunMode::Calibrate, None) => "POST /api/calibrate",
+        (RunMode::Check, _) => "POST /api/check",
     };
     authorize(state, headers, peer, what)?;
-    match state.handle.request(mode, Trigger::Api) {
+    let asked = match accept_change {
+        Some(by) => state.handle.request_accepting_change(Trigger::Api, by),
+        None => state.handle.request(mode, Trigger::Api),
+    };
+    match asked {
         Ok(run_id) => {
             tracing::info!(%peer, run_id = %run_id, "{what}: run accepted");
             Ok((StatusCode::ACCEPTED, Json(json!({ "run_id": run_id }))).into_response())

@@ -1,5 +1,6 @@
 //! The daemon's counters and gauges for `GET /metrics`, in the Prometheus text exposition
-//! format: runs by trigger and outcome, run durations, the last calibration's uncertainty, the
+//! format: runs by trigger and outcome (a check that found drift counts as `drifted`, not as
+//! `accepted`), run durations, the last calibration's uncertainty, the
 //! last drift, alarms, the connections and the queue.
 
 use std::fmt::Write as _;
@@ -10,11 +11,21 @@ use crate::store::RunSummary;
 /// Upper bounds of the run-duration histogram, s.
 const DURATION_BUCKETS: [f64; 8] = [1.0, 2.5, 5.0, 10.0, 20.0, 30.0, 60.0, 120.0];
 
+/// The `outcome` label of a finished run in `handeye_runs_total`: `drifted` for a check that
+/// measured the camera beyond `[check]`'s thresholds (so a dashboard's runs by outcome shows
+/// drift apart from the checks within limits, which stay `accepted`), else the outcome.
+pub(super) fn outcome_label(record: &RunRecord) -> &'static str {
+    match record.drift_found() {
+        Some(true) => "drifted",
+        _ => record.outcome.name(),
+    }
+}
+
 /// What the runs so far add up to.
 #[derive(Debug, Default, Clone)]
 pub(super) struct Metrics {
-    /// Runs by (trigger, outcome).
-    runs: Vec<((Trigger, Outcome), u64)>,
+    /// Runs by (trigger, outcome label: [`outcome_label`]).
+    runs: Vec<((Trigger, &'static str), u64)>,
     /// Durations of every finished run, s, bucketed.
     duration_buckets: [u64; DURATION_BUCKETS.len()],
     duration_sum_s: f64,
@@ -50,13 +61,14 @@ pub(super) struct Live {
 impl Metrics {
     /// Counts a run that ended (asked for by `trigger`).
     pub(super) fn record(&mut self, trigger: Trigger, record: &RunRecord) {
+        let outcome = outcome_label(record);
         match self
             .runs
             .iter_mut()
-            .find(|((t, o), _)| *t == trigger && *o == record.outcome)
+            .find(|((t, o), _)| *t == trigger && *o == outcome)
         {
             Some((_, n)) => *n += 1,
-            None => self.runs.push(((trigger, record.outcome), 1)),
+            None => self.runs.push(((trigger, outcome), 1)),
         }
         let secs = record.timings_ms.total / 1e3;
         if let Some(k) = DURATION_BUCKETS.iter().position(|le| secs <= *le) {
@@ -110,15 +122,14 @@ impl Metrics {
         let mut s = String::new();
         let _ = writeln!(
             s,
-            "# HELP handeye_runs_total Calibration runs by trigger and outcome."
+            "# HELP handeye_runs_total Calibration runs by trigger and outcome (accepted, drifted: a check beyond the thresholds, rejected, aborted, error)."
         );
         let _ = writeln!(s, "# TYPE handeye_runs_total counter");
         for ((trigger, outcome), n) in &m.runs {
             let _ = writeln!(
                 s,
-                "handeye_runs_total{{trigger=\"{}\",outcome=\"{}\"}} {n}",
+                "handeye_runs_total{{trigger=\"{}\",outcome=\"{outcome}\"}} {n}",
                 trigger.name(),
-                outcome.name()
             );
         }
         let _ = writeln!(
@@ -225,5 +236,66 @@ impl Metrics {
             u8::from(live.storage_usable)
         );
         s
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::record::DriftRecord;
+
+    fn check(drifted: bool) -> RunRecord {
+        let mut r = RunRecord::starting("r".into(), RunMode::Check, false, "cell.toml".into());
+        r.outcome = Outcome::Accepted;
+        r.drift = Some(DriftRecord {
+            reference: "result of run q".into(),
+            reference_pose: [[0.0; 4]; 4],
+            translation_mm: if drifted { 2.0 } else { 0.1 },
+            rotation_deg: 0.01,
+            max_translation_mm: 1.0,
+            max_rotation_deg: 0.2,
+            drifted,
+        });
+        r
+    }
+
+    fn live() -> Live {
+        Live {
+            drift_alarm: true,
+            robot: (true, 0),
+            camera: (true, 0),
+            busy: false,
+            queued: 0,
+            storage_usable: true,
+            last_check_unix_s: None,
+            last_calibration_unix_s: None,
+        }
+    }
+
+    /// A check that found drift counts as `drifted`, apart from the checks within limits
+    /// (`accepted`), so runs by outcome show drift; other runs keep their outcome.
+    #[test]
+    fn a_drifted_check_counts_as_drifted() {
+        let mut m = Metrics::default();
+        m.record(Trigger::Schedule, &check(true));
+        m.record(Trigger::Schedule, &check(true));
+        m.record(Trigger::Schedule, &check(false));
+        let mut failed = RunRecord::starting("e".into(), RunMode::Calibrate, false, "c".into());
+        failed.outcome = Outcome::Error;
+        m.record(Trigger::Api, &failed);
+        let text = m.exposition(&live());
+        assert!(
+            text.contains("handeye_runs_total{trigger=\"schedule\",outcome=\"drifted\"} 2\n"),
+            "{text}"
+        );
+        assert!(
+            text.contains("handeye_runs_total{trigger=\"schedule\",outcome=\"accepted\"} 1\n"),
+            "{text}"
+        );
+        assert!(
+            text.contains("handeye_runs_total{trigger=\"api\",outcome=\"error\"} 1\n"),
+            "{text}"
+        );
+        assert!(text.contains("handeye_alarms_total 2\n"), "{text}");
     }
 }

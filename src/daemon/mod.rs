@@ -296,6 +296,9 @@ struct Job {
     entry: Current,
     /// The program on the controller asked for the run (preflight accepts it running).
     handover: bool,
+    /// A calibration that accepts a change beyond `gate.max_change_*` (a deliberate remount),
+    /// and who accepted it.
+    accept_change: Option<String>,
     /// Cancels it (a child of the shutdown token).
     cancel: CancellationToken,
 }
@@ -314,16 +317,33 @@ impl DaemonHandle {
     /// Asks for a run. Returns its id at once (it runs in the background), or why not: one
     /// run at a time; while one runs, the next is refused or queued (`daemon.when_busy`).
     pub fn request(&self, mode: RunMode, trigger: Trigger) -> Result<String, Refusal> {
-        self.enqueue(mode, trigger, false)
+        self.enqueue(mode, trigger, false, None)
+    }
+
+    /// Asks for a calibration that accepts a result beyond `gate.max_change_*` from the
+    /// previous one, because the camera was remounted on purpose; `by` says who accepted it
+    /// (`api client 127.0.0.1`), for the record and the history.
+    pub fn request_accepting_change(
+        &self,
+        trigger: Trigger,
+        by: String,
+    ) -> Result<String, Refusal> {
+        self.enqueue(RunMode::Calibrate, trigger, false, Some(by))
     }
 
     /// Like [`Self::request`], for a program on the controller that asked for the run and
     /// hands the arm over (preflight accepts the program running).
     fn request_with_handover(&self, mode: RunMode, trigger: Trigger) -> Result<String, Refusal> {
-        self.enqueue(mode, trigger, true)
+        self.enqueue(mode, trigger, true, None)
     }
 
-    fn enqueue(&self, mode: RunMode, trigger: Trigger, handover: bool) -> Result<String, Refusal> {
+    fn enqueue(
+        &self,
+        mode: RunMode,
+        trigger: Trigger,
+        handover: bool,
+        accept_change: Option<String>,
+    ) -> Result<String, Refusal> {
         if self.shared.shutdown.is_cancelled() {
             return Err(Refusal::ShuttingDown);
         }
@@ -370,6 +390,7 @@ impl DaemonHandle {
         st.runs.push_back(Job {
             entry,
             handover,
+            accept_change,
             cancel: self.shared.shutdown.child_token(),
         });
         self.shared.wake.notify_one();
@@ -1017,6 +1038,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         dry_run: false,
         run_id: Some(job.entry.run_id.clone()),
         program_handover: job.handover,
+        accept_change: job.accept_change.clone(),
     };
     let trigger = job.entry.trigger;
     tracing::info!(

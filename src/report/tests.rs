@@ -268,6 +268,7 @@ async fn a_run_that_fails_still_writes_its_picture() {
             dry_run: false,
             run_id: None,
             program_handover: false,
+            accept_change: None,
         },
         &tokio_util::sync::CancellationToken::new(),
         &Silent,

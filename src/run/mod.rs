@@ -46,9 +46,9 @@ use crate::sim::Intrinsics;
 use crate::calendar::unix_now;
 pub use crate::calib::pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
 pub use crate::record::{
-    CaptureRecord, DriftRecord, FrameRecord, KinematicsOrigin, KinematicsUsed, Outcome,
-    PlannedView, PreflightRecord, ResultRecord, RunMode, RunRecord, RunTimings, Stage, WriteTarget,
-    Written,
+    CaptureRecord, ChangeAccepted, DriftRecord, FrameRecord, KinematicsOrigin, KinematicsUsed,
+    Outcome, PlannedView, PreflightRecord, ResultRecord, RunMode, RunRecord, RunTimings, Stage,
+    WriteTarget, Written,
 };
 use crate::storage::{self, load_current, new_run_id, CaptureFile};
 pub use recorder::{open_history, Recorder};
@@ -72,6 +72,10 @@ pub struct RunRequest {
     /// hands the arm over: preflight accepts it running. Our first move stops it, as any
     /// remote script does on a UR.
     pub program_handover: bool,
+    /// Calibrate only: accept a result beyond `gate.max_change_*` from the previous
+    /// calibration (the camera was remounted on purpose), naming who accepted it (`cli (user
+    /// alice)`, `api client 127.0.0.1`). The record says who and how far it moved.
+    pub accept_change: Option<String>,
 }
 
 /// Progress of a run, as it happens: the stage entered and a one-line detail.
@@ -367,6 +371,12 @@ async fn execute<R: Robot, C: DepthCamera>(
     let span = tracing::info_span!("calibration", run_id = %run_id);
     let result = tracing::Instrument::instrument(cx.steps(), span).await;
     if let Err(f) = result {
+        // The stage that failed never recorded its time: it is what the run spent beyond
+        // the stages that finished (a summary showed it as 0 ms).
+        let spent: f64 = cx.record.timings_ms.stages().iter().map(|(_, ms)| ms).sum();
+        cx.record
+            .timings_ms
+            .add(f.stage, (elapsed_ms(t0) - spent).max(0.0));
         cx.record.outcome = f.outcome;
         cx.record.failed_stage = Some(f.stage);
         let arm_usable = f.arm_usable();
@@ -487,6 +497,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         match self.req.mode {
             RunMode::Check => self.compare(&unknown, reference),
             RunMode::Calibrate => {
+                self.accept_change(&unknown, reference.as_ref());
                 self.links_intact(Stage::WriteBack)?;
                 let t = Instant::now();
                 self.progress.stage(Stage::WriteBack, "writing the result");
@@ -1202,16 +1213,64 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             Mount::EyeToHand => None,
         };
         opts.gate = self.cfg.gate;
-        opts.previous = match (self.req.mode, reference) {
-            (RunMode::Calibrate, Some((p, source)))
-                if source.starts_with("result") && !self.other_arm =>
-            {
-                Some(to_estimate_frame(*p))
-            }
-            _ => None,
+        opts.previous = match self.previous_result(reference) {
+            // A deliberate remount: the change is measured and recorded after the gate
+            // (`Self::accept_change`), not gated.
+            Some(_) if self.req.accept_change.is_some() => None,
+            p => p.map(to_estimate_frame),
         };
         opts.base_frame = Some("base".into());
         opts
+    }
+
+    /// Calibrate mode: the previous result the gate's largest-change check compares with (our
+    /// own last result on this arm; a TCP on the controller may be a gripper's).
+    fn previous_result(
+        &self,
+        reference: Option<&(Isometry3<f64>, String)>,
+    ) -> Option<Isometry3<f64>> {
+        match (self.req.mode, reference) {
+            (RunMode::Calibrate, Some((p, source)))
+                if source.starts_with("result") && !self.other_arm =>
+            {
+                Some(*p)
+            }
+            _ => None,
+        }
+    }
+
+    /// Calibrate with `accept_change`: records who accepted the result and how far it moved
+    /// from the previous calibration, and says so among the warnings when that was beyond
+    /// `gate.max_change_*`.
+    fn accept_change(
+        &mut self,
+        unknown: &Isometry3<f64>,
+        reference: Option<&(Isometry3<f64>, String)>,
+    ) {
+        let Some(by) = self.req.accept_change.clone() else {
+            return;
+        };
+        let g = &self.cfg.gate;
+        let moved = self
+            .previous_result(reference)
+            .map(|p| pose_difference(&p, unknown));
+        let beyond = moved.is_some_and(|(mm, deg)| {
+            mm > g.max_change_translation_mm || deg > g.max_change_rotation_deg
+        });
+        if let (true, Some((mm, deg))) = (beyond, moved) {
+            let line = format!(
+                "the result moved {mm:.2} mm / {deg:.3}° from the previous calibration (max {:.2} mm / {:.3}°) and was accepted as a deliberate remount by {by}",
+                g.max_change_translation_mm, g.max_change_rotation_deg
+            );
+            tracing::warn!("{line}");
+            self.record.warnings.push(line);
+        }
+        self.record.change_accepted = Some(ChangeAccepted {
+            by,
+            translation_mm: moved.map(|m| m.0),
+            rotation_deg: moved.map(|m| m.1),
+            beyond_limits: beyond,
+        });
     }
 
     /// Check mode: compares the measured unknown with the current calibration.

@@ -169,6 +169,7 @@ async fn start<R: Robot, C: DepthCamera>(
         dry_run,
         run_id: None,
         program_handover: false,
+        accept_change: None,
     };
     run(
         robot,
@@ -205,6 +206,7 @@ async fn calibrate_cancelled<R: Robot, C: DepthCamera>(
         dry_run: false,
         run_id: None,
         program_handover: false,
+        accept_change: None,
     };
     let record = run(robot, camera, &f.model, cfg, req, cancel, &Silent).await;
     let ended = Instant::now();
@@ -712,6 +714,7 @@ async fn a_run_cancelled_before_it_starts_moves_nothing() {
         dry_run: false,
         run_id: None,
         program_handover: false,
+        accept_change: None,
     };
     let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
     assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
@@ -773,6 +776,12 @@ async fn a_cancel_during_a_hanging_capture_aborts_at_once_and_stays_put() {
     );
     assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
     assert_eq!(record.failed_stage, Some(Stage::Capture));
+    // The failed stage's own time is in the record (the summary showed 0 ms): it hung 200 ms.
+    assert!(
+        record.timings_ms.capture >= 150.0,
+        "{:?}",
+        record.timings_ms
+    );
     assert!(
         reasons(&record).contains("cancelled"),
         "{:?}",
@@ -1382,6 +1391,7 @@ async fn issue_23_storage_filling_during_the_run_writes_nothing_to_the_controlle
         dry_run: false,
         run_id: None,
         program_handover: false,
+        accept_change: None,
     };
     let cancel = CancellationToken::new();
     let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &fill_at_move).await;

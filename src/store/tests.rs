@@ -98,6 +98,7 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
             max_rotation_deg: 0.5,
             drifted: false,
         }),
+        change_accepted: None,
         written: if accepted && mode == RunMode::Calibrate {
             vec![
                 Written {

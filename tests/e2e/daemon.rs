@@ -320,6 +320,16 @@ fn scheduled_checks_raise_the_alarm_when_the_camera_slips() {
     assert_eq!(drift["exceeded"], true, "{st}");
     let (_, metrics) = http(&api, "GET", "/metrics", None);
     assert!(metrics.contains("handeye_drift_alarm 1"), "{metrics}");
+    // Issue 38: the drifted check counts as its own outcome, apart from the checks within
+    // limits (`accepted`).
+    assert!(
+        metrics.contains("handeye_runs_total{trigger=\"schedule\",outcome=\"drifted\"} "),
+        "{metrics}"
+    );
+    assert!(
+        metrics.contains("handeye_runs_total{trigger=\"schedule\",outcome=\"accepted\"} "),
+        "{metrics}"
+    );
     assert!(daemon.log().contains("ALARM"), "{}", daemon.log());
     // The history lists the drifted check with the same word the status and the page use.
     let (code, body) = http(&api, "GET", "/api/runs", None);
@@ -363,6 +373,135 @@ fn scheduled_checks_raise_the_alarm_when_the_camera_slips() {
         secs(15),
     );
     assert!(text.stdout.contains("drift alarm: ON"), "{}", text.stdout);
+    // Issue 38: scripts see the alarm in the exit code.
+    assert_eq!(text.code(), 1, "{text}");
+}
+
+/// Issue 38: after a deliberate remount the calibration is rejected naming the way out, and
+/// accepted only when asked explicitly (`POST /api/calibrate/accept-change`); that clears the
+/// alarm and the history says who accepted how large a change. `handeye status` exits 1 with
+/// the alarm on and 0 once the cell is fine, 2 once no daemon answers.
+#[test]
+fn issue_38_a_deliberate_remount_is_accepted_explicitly() {
+    let Some(_) = shared("issue_38_a_deliberate_remount_is_accepted_explicitly") else {
+        return;
+    };
+    let dir = TempDir::new("remount");
+    let (robot_ip, camera_ip) = ("127.0.0.160", "127.0.0.161");
+    let _rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let cfg = config(&dir, robot_ip, camera_ip, "startup = \"calibrate\"");
+    let cfg_arg = cfg.to_str().expect("utf-8");
+    let mut daemon = start_daemon(&dir, "daemon", &cfg);
+    let api = format!("{robot_ip}:8650");
+    let st = wait_status(&api, secs(90), "the startup calibration", |s| {
+        s["last_calibration"]["trigger"] == "startup" && s["state"] == "idle"
+    });
+    assert_eq!(
+        st["last_calibration"]["outcome"],
+        "accepted",
+        "{st}\n{}",
+        daemon.log()
+    );
+    assert_eq!(run(&["status", "--config", cfg_arg], secs(15)).code(), 0);
+
+    // The camera is remounted 8 mm and 2° away (beyond gate.max_change_*: 5 mm / 1°).
+    let remounted = true_mount()
+        * Isometry3::new(
+            Vector3::new(0.0, 0.008, 0.0),
+            Vector3::new(2f64.to_radians(), 0.0, 0.0),
+        );
+    std::fs::write(dir.join("mount.txt"), pose_arg(&remounted)).expect("mount file");
+    let finished = |what: &str, run_id: &serde_json::Value| {
+        wait_status(&api, secs(90), what, |s| {
+            s["last"]["run_id"] == *run_id && s["state"] == "idle"
+        })
+    };
+    let (code, body) = http(&api, "POST", "/api/check", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let st = finished("the check", &json(&body)["run_id"]);
+    assert_eq!(st["drift_alarm"], true, "{st}");
+
+    // An ordinary calibration is rejected, naming the way out, and the alarm stays.
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let st = finished("the calibration", &json(&body)["run_id"]);
+    assert_eq!(st["last"]["outcome"], "rejected", "{st}");
+    let reasons = st["last"]["reasons"].to_string();
+    assert!(
+        reasons.contains("from the previous calibration")
+            && reasons.contains("handeye calibrate --accept-change")
+            && reasons.contains("POST /api/calibrate/accept-change"),
+        "{reasons}"
+    );
+    assert_eq!(
+        st["drift_alarm"], true,
+        "a rejected calibration leaves the alarm: {st}"
+    );
+    let status = run(&["status", "--config", cfg_arg], secs(15));
+    assert_eq!(status.code(), 1, "{status}");
+
+    // Accepting needs the token, as every route that moves the arm.
+    let (code, body) = http(&api, "POST", "/api/calibrate/accept-change", None);
+    assert_eq!(code, 401, "{body}");
+    let (code, body) = http(&api, "POST", "/api/calibrate/accept-change", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let run_id = json(&body)["run_id"].clone();
+    let st = finished("the accepted remount", &run_id);
+    assert_eq!(st["last"]["outcome"], "accepted", "{st}\n{}", daemon.log());
+    assert_eq!(
+        st["drift_alarm"], false,
+        "the accepted calibration clears the alarm: {st}"
+    );
+    assert!(
+        st["last"]["warnings"]
+            .to_string()
+            .contains("accepted as a deliberate remount by api client 127."),
+        "{st}"
+    );
+    let (code, body) = http(
+        &api,
+        "GET",
+        &format!("/api/runs/{}", run_id.as_str().expect("id")),
+        None,
+    );
+    assert_eq!(code, 200, "{body}");
+    let record = json(&body);
+    let accepted = &record["change_accepted"];
+    assert!(
+        accepted["by"]
+            .as_str()
+            .is_some_and(|b| b.starts_with("api client 127.")),
+        "{record}"
+    );
+    assert_eq!(accepted["beyond_limits"], true, "{record}");
+    let mm = accepted["translation_mm"].as_f64().expect("mm");
+    assert!(mm > 5.0, "{record}");
+    let show = run(
+        &[
+            "history",
+            "show",
+            run_id.as_str().expect("id"),
+            "--config",
+            cfg_arg,
+        ],
+        secs(20),
+    )
+    .success();
+    assert!(
+        show.stdout
+            .contains("remount   accepted by api client 127."),
+        "{show}"
+    );
+    // The camera where it is now is the new reference: a check is within limits.
+    let (code, body) = http(&api, "POST", "/api/check", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let st = finished("the check after the remount", &json(&body)["run_id"]);
+    assert_eq!(st["last"]["verdict"], "within limits", "{st}");
+    assert_eq!(run(&["status", "--config", cfg_arg], secs(15)).code(), 0);
+
+    daemon.signal(libc::SIGTERM);
+    assert!(daemon.wait_exit(secs(20)).success(), "{}", daemon.log());
+    assert_eq!(run(&["status", "--config", cfg_arg], secs(15)).code(), 2);
 }
 
 #[test]

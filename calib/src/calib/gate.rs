@@ -77,6 +77,12 @@ impl Default for GateThresholds {
     }
 }
 
+/// The way out named when a result moved beyond `max_change_*`: a camera remounted on purpose
+/// is accepted explicitly, never by the gate.
+pub const REMOUNT: &str = "if the camera was remounted on purpose, accept the new mount with \
+     `handeye calibrate --accept-change` (or the web page's Accept remount button, or \
+     POST /api/calibrate/accept-change)";
+
 /// Outcome of [`gate`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Verdict {
@@ -277,7 +283,7 @@ pub fn gate(
         let (t, r) = distance(prev, &solution.estimate);
         if t > th.max_change_translation_mm || r > th.max_change_rotation_deg {
             reasons.push(format!(
-                "the result moved {t:.2} mm / {r:.3}° from the previous calibration (max {:.2} mm / {:.3}°): check the camera mount",
+                "the result moved {t:.2} mm / {r:.3}° from the previous calibration (max {:.2} mm / {:.3}°): check the camera mount; {REMOUNT}",
                 th.max_change_translation_mm, th.max_change_rotation_deg
             ));
         }

@@ -70,8 +70,15 @@ function ask(action) {
 async function act(action) {
   if (token === null) { ask(action); return; }
   message(`Sending ${action}...`, "");
-  const path = { calibrate: "/api/calibrate", check: "/api/check", cancel: "/api/cancel" }[action];
+  const path = {
+    calibrate: "/api/calibrate",
+    check: "/api/check",
+    cancel: "/api/cancel",
+    remount: "/api/calibrate/accept-change",
+  }[action];
   const headers = token ? { Authorization: `Bearer ${token}` } : {};
+  // The history records an accepted remount as the page's.
+  headers["X-Handeye-Client"] = "page";
   let r, body;
   try {
     r = await fetch(path, { method: "POST", headers, cache: "no-store" });
@@ -95,7 +102,8 @@ async function act(action) {
   if (action === "cancel") {
     message(body.cancelled ? "Cancel sent: the arm is stopped where it is." : "Nothing was running.", "good");
   } else {
-    message(`${action === "check" ? "Check" : "Calibration"} accepted: run ${body.run_id}.`, "good");
+    const what = { check: "Check", calibrate: "Calibration", remount: "Calibration accepting the new mount" }[action];
+    message(`${what} accepted: run ${body.run_id}.`, "good");
   }
   poll();
 }
@@ -104,6 +112,14 @@ function wireActions() {
   $("btn-calibrate").addEventListener("click", () => act("calibrate"));
   $("btn-check").addEventListener("click", () => act("check"));
   $("btn-cancel").addEventListener("click", () => act("cancel"));
+  $("btn-remount").addEventListener("click", () => {
+    const sure = window.confirm(
+      "Accept a new camera mount?\n\nOnly when the camera was remounted on purpose: the arm moves, "
+      + "and a result that moved beyond the gate's largest change (gate.max_change_*) is "
+      + "accepted and written back. Every other check still applies; the history records it.");
+    if (sure) act("remount");
+    else message("Not sent. Nothing moved.", "");
+  });
   $("token-box").addEventListener("submit", (ev) => {
     ev.preventDefault();
     token = $("token").value.trim();
@@ -149,6 +165,7 @@ function drawStatus(st) {
   show($("chip-alarm"), !!st.drift_alarm);
   $("btn-calibrate").disabled = running;
   $("btn-check").disabled = running;
+  $("btn-remount").disabled = running;
   $("btn-cancel").disabled = !running;
 
   const now = $("now");
