@@ -1454,6 +1454,7 @@ async fn issue_36_a_disk_filling_after_the_write_back_leaves_the_run_accepted() 
         dry_run: false,
         run_id: None,
         program_handover: false,
+        accept_change: None,
     };
     let cancel = CancellationToken::new();
     let record = super::Recorder::new(Arc::clone(&store), Trigger::Cli)
