@@ -353,27 +353,6 @@ impl GigeCamera {
     }
 }
 
-/// The output modes whose frames the driver turns into points: an organized XYZ grid, or a
-/// depth map with the published pinhole intrinsics.
-pub const SUPPORTED_OUTPUT_MODES: &[&str] = &["CalibratedABC_Grid", "CalibratedC", "RectifiedC"];
-
-/// Refuses an output mode whose frames would need the camera's per-pixel coordinate maps (or
-/// other data this driver does not read) to become points.
-pub fn check_output_mode(mode: &str) -> Result<()> {
-    if SUPPORTED_OUTPUT_MODES.contains(&mode) {
-        return Ok(());
-    }
-    Err(GigeError::feature(
-        "Scan3dOutputMode",
-        format!(
-            "is {mode}: its values become points only with the camera's coordinate maps (or \
-             disparity calibration), which this driver does not read; set Scan3dOutputMode to \
-             CalibratedABC_Grid (Coord3D_ABC32f), or CalibratedC/RectifiedC with a Coord3D_C \
-             format and Scan3dFocalLength"
-        ),
-    ))
-}
-
 /// Where the range component sits in a chunk-only payload.
 #[derive(Debug, Clone, PartialEq, Eq)]
 struct ChunkLayout {

@@ -90,6 +90,27 @@ impl Default for Scan3d {
     }
 }
 
+/// The output modes whose frames the driver turns into points: an organized XYZ grid, or a
+/// depth map with the published pinhole intrinsics.
+pub const SUPPORTED_OUTPUT_MODES: &[&str] = &["CalibratedABC_Grid", "CalibratedC", "RectifiedC"];
+
+/// Refuses an output mode whose frames would need the camera's per-pixel coordinate maps (or
+/// other data this driver does not read) to become points.
+pub fn check_output_mode(mode: &str) -> Result<()> {
+    if SUPPORTED_OUTPUT_MODES.contains(&mode) {
+        return Ok(());
+    }
+    Err(GigeError::feature(
+        "Scan3dOutputMode",
+        format!(
+            "is {mode}: its values become points only with the camera's coordinate maps (or \
+             disparity calibration), which this driver does not read; set Scan3dOutputMode to \
+             CalibratedABC_Grid (Coord3D_ABC32f), or CalibratedC/RectifiedC with a Coord3D_C \
+             format and Scan3dFocalLength"
+        ),
+    ))
+}
+
 impl Scan3d {
     /// Read the camera's Scan3d features through its node map (defaults where the camera lacks
     /// a feature): distance unit, per-coordinate scale and offset, the invalid-data marker, and
@@ -98,7 +119,7 @@ impl Scan3d {
         let mut s = Scan3d::default();
         if n.has("Scan3dOutputMode") {
             let mode = n.enum_symbol(p, "Scan3dOutputMode")?;
-            crate::camera::check_output_mode(&mode)?;
+            check_output_mode(&mode)?;
         }
         if !n.has("Scan3dDistanceUnit") {
             tracing::warn!(
