@@ -188,6 +188,13 @@ fn check_capture(
     path: &Path,
     model: &RobotModel,
 ) -> anyhow::Result<(Vec<Frame>, Option<Isometry3<f64>>)> {
+    // A frame name is printable: anything else would reach the terminal in every message.
+    if capture.base_frame.chars().any(char::is_control) {
+        bail!(
+            "the capture's base frame `{}` is not a frame name",
+            handeye_hal::limits::Quoted(&capture.base_frame)
+        );
+    }
     let model_from_base = fixed_frame(model, &capture.base_frame)
         .with_context(|| format!("the capture's base frame `{}`", capture.base_frame))?;
     let dir = path.parent().unwrap_or(Path::new("."));

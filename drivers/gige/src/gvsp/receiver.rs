@@ -98,6 +98,11 @@ pub(super) struct Asm {
     generic: Vec<u8>,
     parts: HashMap<u8, Vec<u8>>,
     received: Vec<bool>,
+    /// End of the data written so far (offset + length), of the generic payload and of each
+    /// part: a frame whose data ends short of what its leader claims is incomplete, however
+    /// many packets arrived.
+    generic_end: usize,
+    part_ends: HashMap<u8, u64>,
     count: u32,
     highest: Option<u32>,
     trailer_id: Option<u32>,
@@ -131,6 +136,8 @@ impl Asm {
             generic: Vec::new(),
             parts: HashMap::new(),
             received: Vec::new(),
+            generic_end: 0,
+            part_ends: HashMap::new(),
             count: 0,
             highest: None,
             trailer_id: None,
@@ -414,6 +421,7 @@ impl StreamReceiver {
                 } else {
                     grow_to(&mut f.generic, off + body.len(), max_bytes);
                     f.generic[off..off + body.len()].copy_from_slice(body);
+                    f.generic_end = f.generic_end.max(off + body.len());
                     true
                 }
             }
@@ -428,6 +436,8 @@ impl StreamReceiver {
                     let buf = f.parts.entry(part).or_default();
                     grow_to(buf, off + d.len(), max_bytes);
                     buf[off..off + d.len()].copy_from_slice(d);
+                    let end = f.part_ends.entry(part).or_default();
+                    *end = (*end).max((off + d.len()) as u64);
                     true
                 }
             }
@@ -559,6 +569,20 @@ impl StreamReceiver {
             f.received.iter().take(n as usize).filter(|&&r| r).count() as u32 == n
         });
         let missing = expected.map_or(1, |n| n.saturating_sub(f.count));
+        // Every packet can have arrived and the data still end short of the leader's sizes (a
+        // leader claiming 1280×480 over a 640×480 payload): the rest would be zeros taken as
+        // points.
+        let short = match &f.leader {
+            Some(l) if l.payload_type == PAYLOAD_MULTIPART => l
+                .parts
+                .iter()
+                .enumerate()
+                .any(|(i, p)| f.part_ends.get(&(i as u8)).copied().unwrap_or(0) < p.length),
+            Some(l) if l.payload_type == PAYLOAD_CHUNK => false,
+            Some(l) => (f.generic_end as u64) < l.parts.iter().map(|p| p.length).sum::<u64>(),
+            None => false,
+        };
+        let complete = complete && !short;
         let (timestamp, parts) = match f.leader.take() {
             Some(l) if l.payload_type == PAYLOAD_MULTIPART => {
                 let parts = l

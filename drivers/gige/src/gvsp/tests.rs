@@ -136,6 +136,32 @@ fn lost_packets_are_detected_and_frame_closes_incomplete() {
     assert_eq!(f.missing_packets, 1);
 }
 
+/// Issue 36: a leader that claims more than the payload carries (twice the image over the
+/// packets of one, closed by its trailer) is an incomplete frame, standard and multipart: the
+/// missing half is not zeros counted as points.
+#[test]
+fn issue_36_a_payload_short_of_its_leader_is_incomplete() {
+    for mp in [false, true] {
+        let mut r = receiver(false, false);
+        let now = Instant::now();
+        let small = block(7, mp);
+        let mut big = small.clone();
+        for (info, data) in &mut big.parts {
+            info.height *= 2;
+            info.length *= 2;
+            data.extend(data.clone());
+        }
+        let mut pk = packetize(&small, 400, false).expect("packetize");
+        pk[0] = packetize(&big, 400, false).expect("packetize")[0].clone();
+        for p in &pk {
+            r.handle(p, now);
+        }
+        r.housekeeping(now + Duration::from_secs(1));
+        let f = r.ready.pop_front().expect("frame");
+        assert!(!f.complete, "multipart {mp}");
+    }
+}
+
 /// Fuzz target `gvsp` (hal::fuzz): mutated leader, payload and trailer packets (single- and
 /// multi-part, standard and extended ids) fed to one receiver: a header and leader parse or
 /// are refused with a message; the receiver never holds more frames than its budget and lets
