@@ -6,8 +6,8 @@
 //!
 //! ```text
 //! handeye (this crate: the service)
-//!   daemon            (+ api and its listener, the web page, metrics, pendant, schedule, systemd notify)
-//!     run             (+ the recorder: history row, record, picture, pruning)
+//!   daemon            (+ api and its listener, the control socket, the web page, metrics, pendant, schedule, systemd notify)
+//!     run             (+ the recorder: history row, record, picture, pruning; the write-back journal)
 //!       storage, store        the run folder (one owner) | the history (SQLite only)
 //!         report, guard       the report picture and the drift chart | every move checked
 //!           config            the cell's TOML, validated

@@ -53,6 +53,11 @@ pub struct CaptureFile {
     /// The controller's calibrated kinematics the run posed the model by (`None`: nominal).
     #[serde(default)]
     pub controller_dh: Option<handeye_hal::ur_dh::DhParams>,
+    /// Whether `controller_dh` is the controller's own, which computed the flange poses: they
+    /// must then be its forward kinematics to the millimetre. False for a calibration file's
+    /// DH, and in captures written before this was recorded (checked against the nominal URDF).
+    #[serde(default)]
+    pub dh_from_controller: bool,
     /// One entry per view, with its frames' file paths.
     pub views: Vec<CaptureRecord>,
 }
@@ -136,7 +141,7 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     }
     let tmp = temporary(path);
     let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
+        let mut f = create_fresh(&tmp)?;
         f.write_all(bytes)?;
         f.sync_all()?;
         #[cfg(test)]
@@ -152,6 +157,150 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
         let _ = d.sync_all();
     }
     Ok(())
+}
+
+/// Creates `path` as a new, empty regular file: whatever had its name before (a file left by
+/// a crash, or a link planted there) is removed first — never followed — and the file is
+/// created exclusively (`O_EXCL`, `O_NOFOLLOW`), so a write never lands outside the folder.
+fn create_fresh(path: &Path) -> std::io::Result<std::fs::File> {
+    match std::fs::remove_file(path) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(e),
+    }
+    let mut options = std::fs::OpenOptions::new();
+    options.write(true).create_new(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt as _;
+        options.custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC);
+    }
+    options.open(path)
+}
+
+/// Reads the file `rel` (plain names, no `..`) beneath the storage directory `storage` the
+/// way every file in the storage folder is read back: no link is followed on the way (each
+/// folder opened with `openat(O_NOFOLLOW | O_DIRECTORY)` from the one above, the file with
+/// `O_NOFOLLOW | O_NONBLOCK`, so a FIFO never blocks), only a regular file is read, and at
+/// most `max` bytes of it (a larger one is refused before reading). Blocking I/O.
+pub fn read_beneath(storage: &Path, rel: &Path, max: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read as _;
+    let file = open_beneath(storage, rel)?;
+    let meta = file.metadata()?;
+    let shown = storage.join(rel);
+    if !meta.is_file() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "{} is not a regular file (a folder, FIFO, socket or device was put there); remove it",
+                shown.display()
+            ),
+        ));
+    }
+    if meta.len() > max {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "{} holds {} bytes, more than the {max} a handeye file has at most; remove it",
+                shown.display(),
+                meta.len()
+            ),
+        ));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    file.take(max.saturating_add(1)).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{} grew beyond {max} bytes while read", shown.display()),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// [`read_beneath`] as UTF-8 text.
+pub fn read_text_beneath(storage: &Path, rel: &Path, max: u64) -> std::io::Result<String> {
+    String::from_utf8(read_beneath(storage, rel, max)?)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
+}
+
+/// Opens `rel` beneath `storage` without following links (see [`read_beneath`]).
+#[cfg(unix)]
+fn open_beneath(storage: &Path, rel: &Path) -> std::io::Result<std::fs::File> {
+    use std::os::fd::{AsRawFd as _, FromRawFd as _, OwnedFd};
+    use std::os::unix::ffi::OsStrExt as _;
+    use std::os::unix::fs::OpenOptionsExt as _;
+    let names: Vec<&std::ffi::OsStr> = rel
+        .components()
+        .map(|c| match c {
+            std::path::Component::Normal(n) => Ok(n),
+            _ => Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                format!(
+                    "`{}` is not a path beneath the storage folder",
+                    rel.display()
+                ),
+            )),
+        })
+        .collect::<Result<_, _>>()?;
+    let Some((last, folders)) = names.split_last() else {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "an empty path",
+        ));
+    };
+    // The storage directory itself is the configured one (it may be a link its owner made).
+    let mut dir: OwnedFd = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_DIRECTORY | libc::O_CLOEXEC)
+        .open(storage)?
+        .into();
+    let at = |dir: &OwnedFd, name: &std::ffi::OsStr, flags: i32| -> std::io::Result<OwnedFd> {
+        let c = std::ffi::CString::new(name.as_bytes())
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
+        // SAFETY: a valid directory descriptor and a NUL-terminated name; the returned
+        // descriptor is owned once checked.
+        let fd = unsafe { libc::openat(dir.as_raw_fd(), c.as_ptr(), flags) };
+        if fd < 0 {
+            let e = std::io::Error::last_os_error();
+            return Err(match e.raw_os_error() {
+                Some(libc::ELOOP) | Some(libc::ENOTDIR) => std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    format!(
+                        "{} is a symbolic link or not a folder where one is expected (files in the storage folder are never followed); remove it",
+                        storage.join(rel).display()
+                    ),
+                ),
+                _ => e,
+            });
+        }
+        // SAFETY: `fd` is a new descriptor nobody else owns.
+        Ok(unsafe { OwnedFd::from_raw_fd(fd) })
+    };
+    for name in folders {
+        dir = at(
+            &dir,
+            name,
+            libc::O_RDONLY | libc::O_DIRECTORY | libc::O_NOFOLLOW | libc::O_CLOEXEC,
+        )?;
+    }
+    let fd = at(
+        &dir,
+        last,
+        libc::O_RDONLY | libc::O_NOFOLLOW | libc::O_NONBLOCK | libc::O_CLOEXEC,
+    )?;
+    Ok(std::fs::File::from(fd))
+}
+
+/// Without `openat`: the bounded reader of regular files.
+#[cfg(not(unix))]
+fn open_beneath(storage: &Path, rel: &Path) -> std::io::Result<std::fs::File> {
+    std::fs::File::open(storage.join(rel))
+}
+
+/// Whether `path` is a real folder (not a link to one).
+fn is_real_dir(path: &Path) -> bool {
+    std::fs::symlink_metadata(path).is_ok_and(|m| m.file_type().is_dir())
 }
 
 /// Writes every export file into `dir`, each with [`write_atomically`]; returns their paths.
@@ -243,15 +392,38 @@ pub fn parse_capture(text: &str, path: &Path) -> Result<CaptureFile, String> {
     })
 }
 
+/// Largest report picture read back (a picture is a few hundred kB).
+pub const MAX_PICTURE_BYTES: u64 = 32 << 20;
+
 /// Largest `record.json` read back (a record is tens of kB).
 const MAX_RECORD_FILE_BYTES: u64 = 16 << 20;
 
-/// A `record.json` read back: bounded in size, parsed.
-fn read_record_file(path: &Path) -> Result<RunRecord, String> {
-    handeye_hal::limits::read_text_file(path, MAX_RECORD_FILE_BYTES)
-        .map_err(|e| e.to_string())
-        .and_then(|text| serde_json::from_str::<RunRecord>(&text).map_err(|e| e.to_string()))
+/// Run `run_id`'s `record.json` read back (beneath `storage`, no link followed, bounded in
+/// size), parsed, and checked to be that run's: its id is the folder's and its start is not
+/// in the future (a record planted there never passes for a run).
+fn read_record_file(storage: &Path, run_id: &str) -> Result<RunRecord, String> {
+    let rel = Path::new(RUNS_DIR).join(run_id).join(RECORD_FILE);
+    let text =
+        read_text_beneath(storage, &rel, MAX_RECORD_FILE_BYTES).map_err(|e| e.to_string())?;
+    let record = serde_json::from_str::<RunRecord>(&text).map_err(|e| e.to_string())?;
+    if record.run_id != run_id {
+        return Err(format!(
+            "it names run `{}`, not its folder's run; not a record of this storage",
+            handeye_hal::limits::sanitize_message(&record.run_id)
+        ));
+    }
+    let now = crate::calendar::unix_now();
+    if !(record.started_unix_s.is_finite() && record.started_unix_s <= now + MAX_CLOCK_AHEAD_S) {
+        return Err(format!(
+            "it says the run started at {}, after now; not a record this program wrote",
+            record.started_unix_s
+        ));
+    }
+    Ok(record)
 }
+
+/// How far a record's start may lie after now, s (a clock set back a little since).
+pub const MAX_CLOCK_AHEAD_S: f64 = 300.0;
 
 /// The records of every run folder under `storage` (`runs/<id>/record.json`), oldest first;
 /// a folder whose record is missing or does not read back is skipped with a warning.
@@ -267,7 +439,7 @@ pub fn run_records(storage: &Path) -> Vec<RunRecord> {
             continue;
         }
         let path = entry.path().join(RECORD_FILE);
-        match read_record_file(&path) {
+        match read_record_file(storage, &name.to_string_lossy()) {
             Ok(record) => records.push(record),
             Err(e) => tracing::warn!("skipping {}: {e}", path.display()),
         }
@@ -280,10 +452,10 @@ pub fn run_records(storage: &Path) -> Vec<RunRecord> {
 /// absent) when it cannot be read.
 pub fn read_run_record(storage: &Path, run_id: &str) -> Option<RunRecord> {
     let path = run_dir(storage, run_id)?.join(RECORD_FILE);
-    if !path.exists() {
+    if std::fs::symlink_metadata(&path).is_err() {
         return None;
     }
-    match read_record_file(&path) {
+    match read_record_file(storage, run_id) {
         Ok(r) => Some(r),
         Err(e) => {
             tracing::warn!("cannot read {}: {e}", path.display());
@@ -296,7 +468,18 @@ pub fn read_run_record(storage: &Path, run_id: &str) -> Option<RunRecord> {
 /// controller it was made on.
 pub fn load_current(storage: &Path, mount: Mount) -> Option<Current> {
     let path = storage.join(CURRENT_DIR).join(CALIBRATION_FILE);
-    let text = std::fs::read_to_string(&path).ok()?;
+    let text = match read_text_beneath(
+        storage,
+        &Path::new(CURRENT_DIR).join(CALIBRATION_FILE),
+        MAX_RECORD_FILE_BYTES,
+    ) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
+        Err(e) => {
+            tracing::warn!("ignoring {}: {e}", path.display());
+            return None;
+        }
+    };
     let current: CurrentCalibration = match serde_json::from_str(&text) {
         Ok(c) => c,
         Err(e) => {
@@ -408,6 +591,187 @@ impl Drop for StagedResult {
             let _ = std::fs::remove_dir_all(&self.staging);
         }
     }
+}
+
+/// The write-back journal ([`crate::run::journal`]): what a run is about to write to the
+/// controller, kept until the run's end is recorded.
+pub const JOURNAL_FILE: &str = "writeback-journal.json";
+/// Held (`flock`) by the process whose write-back the journal describes, while it lives.
+const JOURNAL_LOCK_FILE: &str = "writeback.lock";
+/// Largest journal read back (it holds one run record: tens of kB).
+const MAX_JOURNAL_BYTES: u64 = 16 << 20;
+
+/// Writes the write-back journal durably (file and folder flushed) before the controller
+/// changes. Blocking I/O.
+pub(crate) fn write_journal(storage: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    write_atomically(&storage.join(JOURNAL_FILE), bytes)
+}
+
+/// The journal's text, when there is one (bounded, a regular file only).
+pub(crate) fn read_journal(storage: &Path) -> Result<Option<String>, String> {
+    let path = storage.join(JOURNAL_FILE);
+    match read_text_beneath(storage, Path::new(JOURNAL_FILE), MAX_JOURNAL_BYTES) {
+        Ok(text) => Ok(Some(text)),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(format!("cannot read {}: {e}", path.display())),
+    }
+}
+
+/// Removes the journal durably (the folder flushed), once the run's end is recorded.
+pub(crate) fn remove_journal(storage: &Path) -> std::io::Result<()> {
+    match std::fs::remove_file(storage.join(JOURNAL_FILE)) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(e),
+    }
+    std::fs::File::open(storage)?.sync_all()
+}
+
+/// The lock a process holds while its write-back journal describes a live run: another
+/// process (`handeye calibrate` beside the daemon) never reconciles a journal whose writer
+/// lives. The operating system drops it when the process dies, however it dies.
+#[derive(Debug)]
+pub(crate) struct JournalLock(#[allow(dead_code)] std::fs::File);
+
+impl JournalLock {
+    /// Takes the lock without waiting; `Ok(None)` when another live process holds it.
+    pub(crate) fn try_acquire(storage: &Path) -> std::io::Result<Option<JournalLock>> {
+        std::fs::create_dir_all(storage)?;
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(storage.join(JOURNAL_LOCK_FILE))?;
+        Ok(
+            crate::store::flock(&file, crate::store::FlockMode::ExclusiveNow)?
+                .then_some(JournalLock(file)),
+        )
+    }
+}
+
+/// The run whose result `current/` holds (`current/calibration.json`'s `run_id`).
+pub fn current_run_id(storage: &Path) -> Option<String> {
+    let rel = Path::new(CURRENT_DIR).join(CALIBRATION_FILE);
+    let text = read_text_beneath(storage, &rel, MAX_RECORD_FILE_BYTES).ok()?;
+    serde_json::from_str::<CurrentCalibration>(&text)
+        .ok()
+        .map(|c| c.run_id)
+}
+
+/// Removes what a crash left of replacing `current/`: the staging folders
+/// (`.current.<id>`) and the set-aside previous ones (`.current.old.<id>`) — except run
+/// `keep`'s staging; when `current/` itself is missing (a crash between the two renames of
+/// [`StagedResult::commit`]) the set-aside one is put back first. Returns what was removed.
+pub(crate) fn clean_staging(storage: &Path, keep: Option<&str>) -> Vec<PathBuf> {
+    let Ok(entries) = std::fs::read_dir(storage) else {
+        return Vec::new();
+    };
+    let old_prefix = format!(".{CURRENT_DIR}.old.");
+    let staging_prefix = format!(".{CURRENT_DIR}.");
+    let mut removed = Vec::new();
+    let current = storage.join(CURRENT_DIR);
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let id = if let Some(id) = name.strip_prefix(&old_prefix) {
+            if !current.exists() && is_run_id(id) && std::fs::rename(entry.path(), &current).is_ok()
+            {
+                tracing::warn!(
+                    "put the previous calibration back into {} from {name} (a crash while it was replaced)",
+                    current.display()
+                );
+                continue;
+            }
+            id
+        } else if let Some(id) = name.strip_prefix(&staging_prefix) {
+            if keep == Some(id) {
+                continue;
+            }
+            id
+        } else {
+            continue;
+        };
+        // Only our own folders (a run id, a real folder, not a link).
+        let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
+        if is_run_id(id) && is_dir && std::fs::remove_dir_all(entry.path()).is_ok() {
+            removed.push(entry.path());
+        }
+    }
+    removed
+}
+
+/// Makes the result files `names` of the run in `run_dir` current (copied into a staging
+/// folder, then [`StagedResult::commit`]): how a write-back interrupted before `current/`
+/// was replaced is completed. Returns the paths in `current/`.
+pub(crate) fn make_current_from_run(
+    storage: &Path,
+    run_dir: &Path,
+    run_id: &str,
+    names: &[String],
+) -> std::io::Result<Vec<PathBuf>> {
+    let staging = storage.join(format!(".{CURRENT_DIR}.{run_id}"));
+    let _ = std::fs::remove_dir_all(&staging);
+    let mut staged = StagedResult {
+        storage: storage.to_path_buf(),
+        run_id: run_id.to_string(),
+        staging: staging.clone(),
+        names: Vec::new(),
+        committed: false,
+    };
+    for name in names {
+        if name.contains('/') || name.starts_with('.') {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("`{name}` is not a result file name"),
+            ));
+        }
+        let rel = run_dir
+            .strip_prefix(storage)
+            .map_err(|_| std::io::Error::other("the run folder is not in the storage folder"))?
+            .join(name);
+        let bytes = read_beneath(storage, &rel, MAX_RECORD_FILE_BYTES)?;
+        write_atomically(&staging.join(name), &bytes)?;
+        staged.names.push(name.into());
+    }
+    staged.commit()
+}
+
+impl StagedResult {
+    /// The names of the files a staged result puts into `current/`.
+    pub(crate) fn file_names(&self) -> Vec<String> {
+        self.names
+            .iter()
+            .map(|n| n.to_string_lossy().into_owned())
+            .collect()
+    }
+}
+
+/// Space kept in reserve (`<storage>/space-reserve`) for the end of a run: when the disk
+/// fills during a run, its final record and history row are written after the reserve is
+/// released (`release_reserve`), so a result the controller took is never left unrecorded.
+pub const RESERVE_BYTES: u64 = 2 << 20;
+const RESERVE_FILE: &str = "space-reserve";
+
+/// Makes sure the reserve is there (written, not sparse, so the space is really taken).
+/// Blocking I/O.
+pub(crate) fn keep_reserve(storage: &Path) -> std::io::Result<()> {
+    let path = storage.join(RESERVE_FILE);
+    if std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file() && m.len() == RESERVE_BYTES) {
+        return Ok(());
+    }
+    write_atomically(&path, &vec![0u8; RESERVE_BYTES as usize])
+}
+
+/// Frees the reserve for the end of a run on a full disk; whether there was one.
+pub(crate) fn release_reserve(storage: &Path) -> bool {
+    let released = std::fs::remove_file(storage.join(RESERVE_FILE)).is_ok();
+    if released {
+        tracing::warn!(
+            "the storage {} is full: its {} MB reserve was released to record the end of the run; free space there",
+            storage.display(),
+            RESERVE_BYTES >> 20
+        );
+    }
+    released
 }
 
 /// Room a run needs besides its raw scans: record, capture file, exports, report picture and
@@ -539,6 +903,18 @@ pub fn remove_raw_captures(storage: &Path, run_id: &str) -> Result<Vec<PathBuf>,
             source,
         }
     };
+    // Pruning never leaves the folder: `runs/` and the run's folder must be real folders
+    // (a link planted in their place is left alone), and only regular files are removed.
+    if std::fs::symlink_metadata(&dir).is_err() {
+        return Ok(Vec::new());
+    }
+    if !is_real_dir(&storage.join(RUNS_DIR)) || !is_real_dir(&dir) {
+        tracing::warn!(
+            "not pruning {}: it is not a real folder of the storage (a link?)",
+            dir.display()
+        );
+        return Ok(Vec::new());
+    }
     let entries = match std::fs::read_dir(&dir) {
         Ok(entries) => entries,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
@@ -547,7 +923,9 @@ pub fn remove_raw_captures(storage: &Path, run_id: &str) -> Result<Vec<PathBuf>,
     let mut removed = Vec::new();
     for entry in entries {
         let entry = entry.map_err(io("read the folder", &dir))?;
-        if !is_raw_capture(&entry.file_name().to_string_lossy()) {
+        if !is_raw_capture(&entry.file_name().to_string_lossy())
+            || !entry.file_type().is_ok_and(|t| t.is_file())
+        {
             continue;
         }
         let path = entry.path();
@@ -668,6 +1046,88 @@ mod tests {
         write_record(&dir, &newer).expect("newer record");
         assert_eq!(read_record(&dir), newer.run_id);
         assert!(!PathBuf::from(tmp).exists());
+        std::fs::remove_dir_all(&dir).expect("cleanup");
+    }
+
+    /// Issue 36: links and special files planted in the storage folder are never followed:
+    /// a write's temporary file, reads (a link, a FIFO, a file too large) and pruning.
+    #[cfg(unix)]
+    #[test]
+    fn issue_36_planted_links_and_special_files_are_not_followed() {
+        use std::os::unix::fs::symlink;
+        let dir = temp_dir("planted");
+        let storage = dir.join("storage");
+        let outside = dir.join("outside");
+        std::fs::create_dir_all(storage.join(RUNS_DIR)).expect("storage");
+        std::fs::create_dir_all(&outside).expect("outside");
+        let victim = outside.join("victim");
+        std::fs::write(&victim, "keep").expect("victim");
+        // The check's probe: its temporary file planted as a link.
+        symlink(&victim, storage.join(".probe.tmp")).expect("link");
+        check_room(&storage, 0).expect("room");
+        assert_eq!(std::fs::read_to_string(&victim).expect("victim"), "keep");
+        // Reads: a link, a FIFO (must not block), a file beyond the bound.
+        std::fs::create_dir_all(storage.join(CURRENT_DIR)).expect("current");
+        let current = storage.join(CURRENT_DIR).join(CALIBRATION_FILE);
+        let rel = Path::new(CURRENT_DIR).join(CALIBRATION_FILE);
+        symlink("/dev/zero", &current).expect("link");
+        let e = read_beneath(&storage, &rel, 1 << 20).expect_err("a link");
+        assert!(e.to_string().contains("symbolic link"), "{e}");
+        assert_eq!(load_current(&storage, Mount::EyeInHand), None);
+        std::fs::remove_file(&current).expect("rm");
+        let c = std::ffi::CString::new(current.to_str().expect("utf-8")).expect("c");
+        // SAFETY: a NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let t = Instant::now();
+        let e = read_beneath(&storage, &rel, 1 << 20).expect_err("a FIFO");
+        assert!(e.to_string().contains("not a regular file"), "{e}");
+        assert_eq!(load_current(&storage, Mount::EyeInHand), None);
+        assert!(t.elapsed() < Duration::from_secs(1));
+        std::fs::remove_file(&current).expect("rm");
+        std::fs::File::create(&current)
+            .and_then(|f| f.set_len(2 << 20))
+            .expect("large");
+        let e = read_beneath(&storage, &rel, 1 << 20).expect_err("too large");
+        assert!(e.to_string().contains("more than"), "{e}");
+        // A folder on the way as a link.
+        std::fs::remove_dir_all(storage.join(CURRENT_DIR)).expect("rm");
+        std::fs::create_dir_all(outside.join("cur")).expect("dir");
+        std::fs::write(outside.join("cur").join(CALIBRATION_FILE), "{}").expect("file");
+        symlink(outside.join("cur"), storage.join(CURRENT_DIR)).expect("link");
+        assert!(read_beneath(&storage, &rel, 1 << 20).is_err());
+        // Pruning: a run folder replaced by a link to a folder outside.
+        let scan = outside.join("view0_frame0.ply");
+        std::fs::write(&scan, "keep").expect("scan");
+        symlink(
+            &outside,
+            storage.join(RUNS_DIR).join("20261128T000000Z-0001"),
+        )
+        .expect("link");
+        let removed = remove_raw_captures(&storage, "20261128T000000Z-0001").expect("prune");
+        assert!(removed.is_empty(), "{removed:?}");
+        assert_eq!(std::fs::read_to_string(&scan).expect("scan"), "keep");
+        std::fs::remove_dir_all(&dir).expect("cleanup");
+    }
+
+    /// Issue 36: a record planted in a run folder — dated after now, or naming another run —
+    /// is not taken for a run when the history is rebuilt.
+    #[test]
+    fn issue_36_forged_records_are_not_runs() {
+        let dir = temp_dir("forged");
+        let good = RunRecord::starting(new_run_id(), RunMode::Calibrate, false, "t".into());
+        write_record(&run_folder(&dir, &good.run_id), &good).expect("good");
+        let mut future = RunRecord::starting(
+            "20991231T000000Z-ffff".into(),
+            RunMode::Calibrate,
+            false,
+            "t".into(),
+        );
+        future.started_unix_s = 4_102_444_800.0;
+        write_record(&run_folder(&dir, &future.run_id), &future).expect("future");
+        let other = RunRecord::starting(good.run_id.clone(), RunMode::Calibrate, false, "t".into());
+        write_record(&run_folder(&dir, "20261128T000000Z-0002"), &other).expect("other");
+        let ids: Vec<String> = run_records(&dir).into_iter().map(|r| r.run_id).collect();
+        assert_eq!(ids, vec![good.run_id.clone()]);
         std::fs::remove_dir_all(&dir).expect("cleanup");
     }
 

@@ -734,7 +734,8 @@ impl Store {
         }
     }
 
-    /// The newest run, optionally of one mode and/or with one outcome.
+    /// The newest run, optionally of one mode and/or with one outcome; a row dated after now
+    /// (more than [`crate::storage::MAX_CLOCK_AHEAD_S`]) is not one (a planted or forged one).
     pub fn latest(
         &self,
         mode: Option<RunMode>,
@@ -744,11 +745,16 @@ impl Store {
         let sql = format!(
             "SELECT {SUMMARY_COLUMNS} FROM runs
              WHERE (?1 IS NULL OR mode = ?1) AND (?2 IS NULL OR outcome = ?2)
+               AND started_unix_s <= ?3
              ORDER BY started_unix_s DESC, run_id DESC LIMIT 1"
         );
         conn.query_row(
             &sql,
-            params![mode.map(RunMode::name), outcome.map(Outcome::name)],
+            params![
+                mode.map(RunMode::name),
+                outcome.map(Outcome::name),
+                unix_now() + crate::storage::MAX_CLOCK_AHEAD_S
+            ],
             summary_from_row,
         )
         .optional()

@@ -1,5 +1,5 @@
-//! `handeye camera`: probe a GigE Vision 3D camera and capture point clouds from it, or from
-//! the file (`--file`) and external-command (`--exec`) backends.
+//! `handeye camera`: probe a GigE Vision 3D camera or a GenTL producer's cameras and capture
+//! point clouds from them, or from the file (`--file`) and external-command (`--exec`) backends.
 
 use anyhow::Context;
 use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
@@ -7,6 +7,8 @@ use handeye_hal::limits;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use tokio_util::sync::CancellationToken;
+
+mod xml;
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -17,21 +19,33 @@ pub(crate) struct Args {
 
 #[derive(Debug, clap::Subcommand)]
 enum CameraCommand {
-    /// Identify the camera: vendor, model, serial, firmware, size, pixel formats.
+    /// Identify the camera: vendor, model, serial, firmware, size, pixel formats; with --gentl,
+    /// list the producer's interfaces and devices.
+    #[command(group(clap::ArgGroup::new("source").required(true).args(["gige", "gentl"])))]
     Probe {
         /// Camera address, `IP` or `IP:PORT` (GVCP, default port 3956).
         #[arg(long, value_name = "ADDR")]
-        gige: String,
+        gige: Option<String>,
+        /// A GenTL producer (the vendor's `.cti`): list its interfaces and devices.
+        #[arg(long, value_name = "FILE.cti")]
+        gentl: Option<PathBuf>,
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
     },
     /// Capture point clouds and print frame statistics.
-    #[command(group(clap::ArgGroup::new("source").required(true).args(["gige", "file", "exec"])))]
+    #[command(group(clap::ArgGroup::new("source").required(true).args(["gige", "gentl", "file", "exec"])))]
     Capture {
         /// Camera address, `IP` or `IP:PORT` (GVCP, default port 3956).
         #[arg(long, value_name = "ADDR")]
         gige: Option<String>,
+        /// Capture through this GenTL producer (the vendor's `.cti`).
+        #[arg(long, value_name = "FILE.cti")]
+        gentl: Option<PathBuf>,
+        /// With --gentl: the camera's serial number, model, GenTL id or index (`camera probe
+        /// --gentl` lists them) [default: the first device].
+        #[arg(long, value_name = "ID")]
+        device: Option<String>,
         /// Replay this PLY/PCD file instead of a camera (repeat for several; frames cycle
         /// through them in order).
         #[arg(long, value_name = "PATH")]
@@ -58,12 +72,23 @@ enum CameraCommand {
         /// networks.
         #[arg(long, default_value_t = 1500)]
         packet_size: u32,
-        /// GigE only: give up on a frame after this many milliseconds.
+        /// GigE and GenTL: give up on a frame after this many milliseconds.
         #[arg(long, default_value_t = 5000)]
         frame_timeout_ms: u64,
-        /// GigE only: also stream the confidence component when the camera has one.
+        /// GigE and GenTL: also stream the confidence component when the camera has one.
         #[arg(long)]
         confidence: bool,
+    },
+    /// Check a camera's GenICam description offline (the .xml or .zip it serves, or a vendor's
+    /// download): pixel formats, 3D components, Scan3d features, what is missing, and whether
+    /// the driver could stream points from it. Exit 0 when it loads, 2 with the reason when not.
+    Xml {
+        /// The description, `.xml` or zipped (`.zip`).
+        #[arg(value_name = "FILE")]
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -97,7 +122,39 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
 
 async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
     match command {
-        CameraCommand::Probe { gige, json } => {
+        CameraCommand::Xml { file, json } => xml::run(&file, json),
+        CameraCommand::Probe {
+            gentl: Some(producer),
+            json,
+            ..
+        } => {
+            let list = blocking(move || {
+                handeye_gentl::list_devices(&producer)
+                    .with_context(|| format!("probing the GenTL producer {}", producer.display()))
+            })
+            .await?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&list)?);
+            } else {
+                let mut index = 0;
+                for i in &list {
+                    println!("interface {}", i.interface);
+                    for d in &i.devices {
+                        println!(
+                            "  {index}: {} {} (serial {}, version {}, id {}, {})",
+                            d.vendor, d.model, d.serial, d.version, d.id, d.tl_type
+                        );
+                        index += 1;
+                    }
+                }
+                if index == 0 {
+                    println!("no devices");
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        CameraCommand::Probe { gige, json, .. } => {
+            let gige = gige.context("--gige or --gentl is required")?;
             let info = blocking(move || {
                 let cam = connect(&gige)?;
                 Ok(cam.info_blocking()?)
@@ -117,6 +174,8 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
         }
         CameraCommand::Capture {
             gige,
+            gentl,
+            device,
             file,
             exec,
             timeout_s,
@@ -127,6 +186,11 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
             frame_timeout_ms,
             confidence,
         } => {
+            if device.is_some() && gentl.is_none() {
+                anyhow::bail!(
+                    "--device chooses among a GenTL producer's cameras: give --gentl FILE.cti too"
+                );
+            }
             let frames = frames.unwrap_or(if file.is_empty() {
                 1
             } else {
@@ -162,6 +226,26 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
                     "incomplete": stats.incomplete,
                     "resent_packets": stats.resent_packets,
                     "stream": stats.stream,
+                });
+                (clouds, Some(stats))
+            } else if let Some(producer) = gentl {
+                let options = handeye_gentl::GentlOptions { device, confidence };
+                let shown = producer.display().to_string();
+                let cam =
+                    blocking(move || Ok(handeye_gentl::GentlCamera::connect(&producer, options)?))
+                        .await
+                        .with_context(|| {
+                            format!("opening the camera through the GenTL producer {shown}")
+                        })?;
+                let settings = handeye_hal::CaptureSettings {
+                    frames,
+                    frame_timeout,
+                    ..handeye_hal::CaptureSettings::default()
+                };
+                let (clouds, stats) = cam.capture_with_stats(&settings).await?;
+                let stats = serde_json::json!({
+                    "complete": stats.complete,
+                    "incomplete": stats.incomplete,
                 });
                 (clouds, Some(stats))
             } else {
@@ -217,7 +301,8 @@ async fn capture_local(
     Ok(clouds?)
 }
 
-/// Prints frame statistics (`stats`: backend-specific JSON fields, GigE's stream counters) and
+/// Prints frame statistics (`stats`: backend-specific JSON fields, GigE's stream counters,
+/// GenTL's complete and incomplete buffers) and
 /// writes the clouds to `out`.
 fn report(
     clouds: &[handeye_hal::PointCloud],
@@ -245,12 +330,16 @@ fn report(
         }
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else if let Some(stats) = stats {
+        // GigE Vision counts resent packets; a GenTL producer does not tell.
+        let resent = stats
+            .get("resent_packets")
+            .map(|r| format!(", {r} packets resent"))
+            .unwrap_or_default();
         println!(
-            "{} frames ({} complete, {} incomplete dropped, {} packets resent); valid points per frame: {:?}",
+            "{} frames ({} complete, {} incomplete dropped{resent}); valid points per frame: {:?}",
             clouds.len(),
             stats["complete"],
             stats["incomplete"],
-            stats["resent_packets"],
             valid
         );
     } else {
@@ -306,6 +395,10 @@ mod tests {
     #[test]
     fn exactly_one_source() {
         assert!(parse(&["capture"]).is_err());
+        assert!(parse(&["capture", "--gentl", "a.cti", "--gige", "127.0.0.1"]).is_err());
+        assert!(parse(&["capture", "--gentl", "a.cti", "--device", "0"]).is_ok());
+        assert!(parse(&["probe"]).is_err());
+        assert!(parse(&["probe", "--gentl", "a.cti"]).is_ok());
         assert!(parse(&["capture", "--gige", "127.0.0.1", "--file", "a.ply"]).is_err());
         assert!(parse(&["capture", "--exec", "true", "--file", "a.ply"]).is_err());
         assert!(parse(&["capture", "--gige", "127.0.0.1"]).is_ok());
@@ -316,6 +409,13 @@ mod tests {
         };
         assert_eq!(file.len(), 2);
         assert_eq!(frames, None);
+    }
+
+    #[tokio::test]
+    async fn device_needs_a_gentl_producer() {
+        let cmd = parse(&["capture", "--gige", "127.0.0.1", "--device", "0"]).expect("parses");
+        let err = command(cmd).await.expect_err("refused").to_string();
+        assert!(err.contains("give --gentl FILE.cti too"), "{err}");
     }
 
     #[tokio::test]

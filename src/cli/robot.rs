@@ -23,9 +23,17 @@ use tokio_util::sync::CancellationToken;
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
-    /// Controller address (e.g. 192.168.56.101, or 127.0.0.1 for `handeye sim robot`).
-    #[arg(long, global = true, default_value = "127.0.0.1")]
-    host: IpAddr,
+    /// Controller address (e.g. 192.168.56.101, or 127.0.0.1 for `handeye sim robot`);
+    /// overrides the configuration's `robot.host`. Default: `robot.host` with `--config`,
+    /// else 127.0.0.1.
+    #[arg(long, global = true)]
+    host: Option<IpAddr>,
+    /// The cell's configuration: the controller it names (`robot.host`, `robot.ports`, speed
+    /// caps); `move` checks the path against its robot model, camera mount, floor clearance
+    /// and obstacles and caps the speed at its limits; `status` says whether its current
+    /// calibration was made on this arm.
+    #[arg(long, global = true, value_name = "FILE")]
+    config: Option<PathBuf>,
     /// Limit for each request to the controller (connect, dashboard, RTDE setup, script
     /// read-back), seconds (0.1–600). A move's own limit is `move --move-timeout-s`.
     #[arg(long, global = true, default_value_t = 3.0)]
@@ -42,10 +50,6 @@ enum Command {
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
-        /// The cell's configuration: also says whether its current calibration was made on
-        /// this arm (serial and kinematics checksum as recorded by the run that made it).
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
     },
     /// Joint move (`movej`); returns when the arm has arrived; Ctrl-C stops the arm.
     Move {
@@ -70,12 +74,6 @@ enum Command {
         /// same as `--timeout-s`, the limit for each request to the controller.
         #[arg(long, default_value_t = 60.0)]
         move_timeout_s: f64,
-        /// The cell's configuration: the path is checked against its robot model, camera
-        /// mount, floor clearance and obstacles, and the speed capped at its limits. Without
-        /// it, the arm's model comes from the controller's kinematics and only the arm itself
-        /// and the floor are checked.
-        #[arg(long, value_name = "FILE")]
-        config: Option<PathBuf>,
     },
     /// Set the runtime TCP (flange → TCP, UR pose `x,y,z,rx,ry,rz` in m and rad) and read it back.
     SetTcp {
@@ -105,6 +103,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     )
     .map_err(anyhow::Error::msg)?;
     // Everything the user gave is checked before anything is connected or moved.
+    let config = args.config.as_deref().map(Config::load).transpose()?;
     let checked_move = match &args.command {
         Command::Move {
             joints,
@@ -112,15 +111,28 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             speed,
             accel,
             move_timeout_s,
-            config,
-        } => Some((
-            check_move(joints, *deg, *speed, *accel, *move_timeout_s)?,
-            config.as_deref().map(Config::load).transpose()?,
-        )),
+        } => Some(check_move(joints, *deg, *speed, *accel, *move_timeout_s)?),
         _ => None,
     };
-    let mut cfg = UrConfig::new(args.host);
+    let mut cfg = match &config {
+        Some(c) => super::wiring::ur_config(c),
+        None => UrConfig::new(DEFAULT_HOST),
+    };
+    if let Some(host) = args.host {
+        cfg.host = host;
+    }
     cfg.timeout = request_timeout;
+    // Before anything is sent: which controller this is, and why this one.
+    let whence = match (&args.host, &args.config) {
+        (Some(_), _) => "--host".to_string(),
+        (None, Some(path)) => format!("robot.host in {}", path.display()),
+        (None, None) => "the default; give --config FILE or --host".to_string(),
+    };
+    eprintln!(
+        "controller {} (dashboard port {}, RTDE port {}; {whence})",
+        cfg.host, cfg.ports.dashboard, cfg.ports.rtde
+    );
+    let host = cfg.host;
     // Only `registers` reads and writes them: the others claim no RTDE input, so they work
     // beside a running daemon (or another client) that holds the registers.
     if !matches!(args.command, Command::Registers { .. }) {
@@ -128,15 +140,15 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     }
     let robot = tokio::select! {
         r = UrRobot::connect(cfg) => {
-            r.with_context(|| format!("connecting to the controller at {}", args.host))?
+            r.with_context(|| format!("connecting to the controller at {host}"))?
         }
         () = shutdown.cancelled() => {
-            anyhow::bail!("interrupted while connecting to {}", args.host)
+            anyhow::bail!("interrupted while connecting to {host}")
         }
     };
     match args.command {
         Command::Move { .. } => {
-            let ((q, lim), config) = checked_move.context("move arguments were checked")?;
+            let (q, lim) = checked_move.context("move arguments were checked")?;
             let cell = move_cell(&robot, config.as_ref(), lim).await?;
             let robot = MotionGuard::new(robot, cell);
             // Dropping the move (on `shutdown`) stops the arm; say so to the controller too.
@@ -150,9 +162,8 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             emit("arrived\n")?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Status { json, config } => {
-            let cfg = config.as_deref().map(Config::load).transpose()?;
-            interruptible(&shutdown, status(&robot, json, cfg.as_ref())).await
+        Command::Status { json } => {
+            interruptible(&shutdown, status(&robot, json, config.as_ref())).await
         }
         Command::SetTcp { pose } => interruptible(&shutdown, set_tcp(&robot, pose)).await,
         Command::Registers { set, json } => {
@@ -222,6 +233,8 @@ async fn set_tcp(robot: &UrRobot, p: UrPose) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The controller without `--host` or `--config`: `handeye sim robot` on this PC.
+const DEFAULT_HOST: IpAddr = IpAddr::V4(std::net::Ipv4Addr::LOCALHOST);
 /// Shortest and longest limit for one request to the controller (`--timeout-s`), seconds.
 const MIN_REQUEST_TIMEOUT_S: f64 = 0.1;
 const MAX_REQUEST_TIMEOUT_S: f64 = 600.0;
@@ -308,7 +321,8 @@ fn check_move(
     ))
 }
 
-/// Writes `INDEX=VALUE` pairs, then prints input and output double registers 24–47.
+/// Writes `INDEX=VALUE` pairs, then prints input and output double registers 24–47 and the
+/// input integer registers 24–31.
 async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Result<ExitCode> {
     for s in set {
         let (i, v) = s
@@ -338,19 +352,28 @@ async fn registers(robot: &UrRobot, set: &[String], json: bool) -> anyhow::Resul
     for i in 24..=47 {
         let input = robot.read_double_register(i).await?;
         let output = robot.read_output_double_register(i).await?;
-        rows.push(serde_json::json!({"index": i, "input": input, "output": output}));
+        // The integer registers this client reads (24..=31); `null` beyond.
+        let input_int = match robot.read_int_register(i).await {
+            Ok(v) => Some(v),
+            Err(handeye_hal::HalError::InvalidArgument(_)) => None,
+            Err(e) => return Err(e.into()),
+        };
+        rows.push(
+            serde_json::json!({"index": i, "input": input, "output": output, "input_int": input_int}),
+        );
     }
     let mut text = String::new();
     if json {
         text = serde_json::to_string_pretty(&rows)? + "\n";
     } else {
-        text.push_str("register  input_double  output_double\n");
+        text.push_str("register  input_double  output_double  input_int\n");
         for r in rows {
             text.push_str(&format!(
-                "{:>8}  {:>12}  {:>13}\n",
+                "{:>8}  {:>12}  {:>13}  {:>9}\n",
                 r["index"].to_string(),
                 r["input"].to_string(),
-                r["output"].to_string()
+                r["output"].to_string(),
+                r["input_int"].to_string()
             ));
         }
     }

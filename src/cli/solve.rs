@@ -219,6 +219,10 @@ fn check_capture(
             &view.joints,
             &(model_from_base * base_from_flange),
             &capture.base_frame,
+            capture
+                .controller_dh
+                .as_ref()
+                .filter(|_| capture.dh_from_controller),
             &format!("{what}: the flange pose"),
         )?;
         for f in &view.frames {
@@ -263,36 +267,32 @@ fn check_capture(
 /// Most scans one solve takes.
 const MAX_SCANS: usize = 100;
 
-/// How far a `--flange-pose` may be from the URDF's forward kinematics of its joints: a real
-/// arm's factory calibration moves its flange by millimetres and hundredths of a degree, so
-/// more than this is a pose of other joints, of the TCP instead of the flange, in another
-/// frame, or of another robot model — a wrong result if accepted.
-const MAX_FLANGE_POSE_DEVIATION_M: f64 = 0.03;
-const MAX_FLANGE_POSE_DEVIATION_RAD: f64 = 0.05;
-
 /// Refuses a reported flange pose (`model_from_flange`, `what` in messages) that cannot belong
-/// to `joints`.
+/// to `joints`: by the controller's DH when `dh` is the controller's own (it computed the
+/// pose), else by the nominal URDF ([`handeye::model::reported`]).
 fn check_flange_pose(
     model: &RobotModel,
     joints: &[f64],
     reported: &Isometry3<f64>,
     base_frame: &str,
+    dh: Option<&DhParams>,
     what: &str,
 ) -> anyhow::Result<()> {
-    let fk = model.frame_pose(model.flange_link(), joints)?;
-    let d = fk.inverse() * reported;
-    let (dt, dr) = (d.translation.vector.norm(), d.rotation.angle());
-    if dt > MAX_FLANGE_POSE_DEVIATION_M || dr > MAX_FLANGE_POSE_DEVIATION_RAD {
-        let base_from_model = fixed_frame(model, base_frame)?.inverse();
+    use handeye::model::reported::{check_reported_flange, FlangeReference};
+    let model_from_base = fixed_frame(model, base_frame)?;
+    let reference = match dh {
+        Some(dh) => FlangeReference::ControllerDh {
+            dh,
+            model_from_base: &model_from_base,
+        },
+        None => FlangeReference::Nominal,
+    };
+    if let Err(m) = check_reported_flange(model, joints, reported, reference)? {
         bail!(
-            "{what} is {:.3} m / {:.2}° from the flange pose the URDF gives for its joints \
-             ({} in `{base_frame}`; at most {MAX_FLANGE_POSE_DEVIATION_M} m / {:.1}° are a real \
-             arm's calibration): give the controller's flange pose (not the TCP) for these \
-             joints, in --base-frame (`base` for UR controller poses), for this robot model",
-            dt,
-            dr.to_degrees(),
-            handeye_hal::UrPose::from(&(base_from_model * fk)),
-            MAX_FLANGE_POSE_DEVIATION_RAD.to_degrees()
+            "{what} {m} ({} in `{base_frame}`): give the controller's flange pose (not the \
+             TCP) for these joints, in --base-frame (`base` for UR controller poses), for this \
+             robot model",
+            handeye_hal::UrPose::from(&(model_from_base.inverse() * m.computed)),
         );
     }
     Ok(())
@@ -344,8 +344,15 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
             .transpose()
             .map_err(|e| anyhow::anyhow!("--flange-pose: {e}"))?;
         if let Some(reported) = &model_from_flange {
-            check_flange_pose(&model, &joints, reported, &base_frame, "--flange-pose")
-                .with_context(|| format!("scan {}", scan_path.display()))?;
+            check_flange_pose(
+                &model,
+                &joints,
+                reported,
+                &base_frame,
+                None,
+                "--flange-pose",
+            )
+            .with_context(|| format!("scan {}", scan_path.display()))?;
         }
         let cloud = handeye::cloud::read_cloud(scan_path)
             .with_context(|| format!("reading scan {}", scan_path.display()))?;
@@ -412,22 +419,24 @@ fn choose_kinematics(inputs: &mut Inputs, args: &Args) -> anyhow::Result<serde_j
         (None, Some(file)) => {
             let calibration = UrCalibration::load(file)?;
             // The file's DH set poses the model exactly as the controller's would.
-            let nominal = inputs
-                .model
-                .ur_model()
-                .ok_or_else(|| {
-                    anyhow::anyhow!(
-                        "--calibration: {} is not a UR arm (its file or robot name must name the \
-                         model, e.g. ur5e)",
-                        inputs.model.name()
-                    )
-                })?
-                .dh();
-            inputs.controller_dh = Some(
-                calibration
-                    .dh(&nominal)
-                    .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?,
-            );
+            let ur_model = inputs.model.ur_model().ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--calibration: {} is not a UR arm (its file or robot name must name the \
+                     model, e.g. ur5e)",
+                    inputs.model.name()
+                )
+            })?;
+            let dh = calibration
+                .dh(&ur_model.dh())
+                .map_err(|e| anyhow::anyhow!("--calibration: {e}"))?;
+            // As the run's preflight does: the file must calibrate this model's arm.
+            handeye::run::check_model_matches(
+                ur_model,
+                None,
+                Some((&dh, handeye::run::KinematicsOrigin::File)),
+            )
+            .map_err(|e| anyhow::anyhow!("--calibration {}: {e}", file.display()))?;
+            inputs.controller_dh = Some(dh);
             serde_json::json!({
                 "source": "file",
                 "file": file.display().to_string(),
@@ -686,7 +695,7 @@ mod tests {
             let text = format!("{e:#}");
             assert!(
                 text.contains("--flange-pose is")
-                    && text.contains("from the flange pose the URDF gives for its joints"),
+                    && text.contains("from the flange pose the nominal URDF gives for its joints"),
                 "{text}"
             );
         }
@@ -703,6 +712,27 @@ mod tests {
             format!("{e:#}").contains("--guess-flange-from-camera"),
             "{e:#}"
         );
+        // Issue 35: a calibration file of another arm (a UR10e's for this UR5e) is refused as
+        // the run's preflight refuses it; this arm's file is taken.
+        use handeye_hal::ur_dh::UrModel;
+        for (arm, refused) in [(UrModel::Ur10e, true), (UrModel::Ur5e, false)] {
+            let file = tmp.join(format!("{arm}_calibration.yaml"));
+            let yaml = handeye::model::ur_calibration_yaml(&arm.dh(), &arm.dh(), "calib_35");
+            std::fs::write(&file, yaml).expect("calibration file");
+            let mut with_file = args(urdf.clone(), &joints, ply.clone(), None);
+            with_file.calibration = Some(file);
+            let r = solve(with_file);
+            if refused {
+                let text = format!("{:#}", r.expect_err("another arm's calibration"));
+                assert!(
+                    text.contains("--calibration")
+                        && text.contains("the calibration file's kinematics are a ur10e"),
+                    "{text}"
+                );
+            } else {
+                r.expect("this arm's calibration");
+            }
+        }
         let _ = std::fs::remove_dir_all(&tmp);
     }
 
@@ -796,6 +826,7 @@ mod tests {
                 nalgebra::Vector3::new(-0.26, 0.0, 0.0),
             ))),
             controller_dh: Some(handeye_hal::ur_dh::UrModel::Ur5e.dh()),
+            dh_from_controller: true,
             views: vec![view(
                 0,
                 vec![0.1, -1.2, 1.0, -1.4, -1.5, 0.2],

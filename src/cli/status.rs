@@ -36,22 +36,32 @@ pub(crate) struct Args {
 
 pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
-    status_at(cfg.daemon.listen, &args.config, args.json)
+    status_at(cfg.daemon.listen, &cfg.storage.dir, &args.config, args.json)
 }
 
-/// Asks the daemon listening on `listen` and prints its status.
-fn status_at(listen: SocketAddr, config: &Path, json: bool) -> anyhow::Result<ExitCode> {
+/// Asks the daemon listening on `listen` (or, when its HTTP API does not answer, its control
+/// socket in `storage`) and prints its status.
+fn status_at(
+    listen: SocketAddr,
+    storage: &Path,
+    config: &Path,
+    json: bool,
+) -> anyhow::Result<ExitCode> {
     let addr = reachable(listen);
     let (code, body) = match http_get(addr, "/api/status") {
         Ok(answer) => answer,
-        Err(e) => {
-            eprintln!(
-                "no daemon answers at {addr} ({e:#}); start it with `handeye daemon --config {}` \
-                 or `systemctl start handeye`",
-                config.display()
-            );
-            return Ok(ExitCode::from(2));
-        }
+        // Over its connection limits, the daemon still answers on its control socket.
+        Err(e) => match handeye::daemon::control::request(storage, "status") {
+            Ok(text) => (200, text.into_bytes()),
+            Err(_) => {
+                eprintln!(
+                    "no daemon answers at {addr} ({e:#}); start it with `handeye daemon --config {}` \
+                     or `systemctl start handeye`",
+                    config.display()
+                );
+                return Ok(ExitCode::from(2));
+            }
+        },
     };
     if code != 200 {
         let msg = serde_json::from_slice::<ErrorBody>(&body)
@@ -443,7 +453,13 @@ mod tests {
         let port = TcpListener::bind("127.0.0.1:0")
             .and_then(|l| l.local_addr())
             .expect("free port");
-        let code = status_at(port, Path::new("cell.toml"), false).expect("no error");
+        let code = status_at(
+            port,
+            Path::new("no-storage-here"),
+            Path::new("cell.toml"),
+            false,
+        )
+        .expect("no error");
         assert_eq!(code, ExitCode::from(2));
     }
 
@@ -468,7 +484,13 @@ mod tests {
             s.write_all(answer.as_bytes()).expect("write");
             String::from_utf8(req).expect("text")
         });
-        let code = status_at(addr, Path::new("cell.toml"), true).expect("answered");
+        let code = status_at(
+            addr,
+            Path::new("no-storage-here"),
+            Path::new("cell.toml"),
+            true,
+        )
+        .expect("answered");
         // The sample's drift alarm is on.
         assert_eq!(code, ExitCode::from(1));
         let req = server.join().expect("server");

@@ -1,5 +1,5 @@
 //! Driver wiring, in one place: the concrete robot and camera the configuration names (the
-//! binary is the only code that names `handeye-ur` and `handeye-gige`), the robot model, and
+//! binary is the only code that names `handeye-ur`, `handeye-gige` and `handeye-gentl`), the robot model, and
 //! the history file. `calibrate`, `check`, `demo` and `daemon` all connect through here.
 
 use std::path::PathBuf;
@@ -11,6 +11,7 @@ use handeye::config::{CameraBackend, Config};
 use handeye::guard::{Cell, MotionGuard};
 use handeye::model::RobotModel;
 use handeye::store::HISTORY_FILE;
+use handeye_gentl::{GentlCamera, GentlOptions};
 use handeye_gige::{ControlConfig, GigeCamera, GvcpClient};
 use handeye_hal::DepthCamera;
 use handeye_ur::{Ports, UrConfig, UrRobot};
@@ -53,6 +54,8 @@ pub(crate) fn load_model(cfg: &Config) -> anyhow::Result<Arc<RobotModel>> {
 pub(crate) enum AnyCamera {
     /// GigE Vision.
     Gige(GigeCamera),
+    /// A vendor's GenTL producer.
+    Gentl(GentlCamera),
     /// A vendor SDK through a command.
     Exec(ExecCamera),
     /// Recorded files.
@@ -72,6 +75,21 @@ impl AnyCamera {
                 .with_context(|| format!("connecting to the GigE Vision camera at {addr}"))?;
                 AnyCamera::Gige(camera)
             }
+            CameraBackend::Gentl { producer, device } => {
+                let producer = handeye_gentl::resolve_producer(producer.as_deref())?;
+                let options = GentlOptions {
+                    device: device.clone(),
+                    ..GentlOptions::default()
+                };
+                let shown = producer.display().to_string();
+                let camera =
+                    tokio::task::spawn_blocking(move || GentlCamera::connect(&producer, options))
+                        .await?
+                        .with_context(|| {
+                            format!("opening the camera through the GenTL producer {shown}")
+                        })?;
+                AnyCamera::Gentl(camera)
+            }
             CameraBackend::Exec { command, timeout } => {
                 AnyCamera::Exec(ExecCamera::new(command.clone(), *timeout)?)
             }
@@ -84,6 +102,7 @@ impl DepthCamera for AnyCamera {
     async fn info(&self) -> Result<handeye_hal::CameraInfo, handeye_hal::HalError> {
         match self {
             AnyCamera::Gige(c) => c.info().await,
+            AnyCamera::Gentl(c) => c.info().await,
             AnyCamera::Exec(c) => c.info().await,
             AnyCamera::File(c) => c.info().await,
         }
@@ -95,21 +114,17 @@ impl DepthCamera for AnyCamera {
     ) -> Result<Vec<handeye_hal::PointCloud>, handeye_hal::HalError> {
         match self {
             AnyCamera::Gige(c) => c.capture(settings).await,
+            AnyCamera::Gentl(c) => c.capture(settings).await,
             AnyCamera::Exec(c) => c.capture(settings).await,
             AnyCamera::File(c) => c.capture(settings).await,
         }
     }
 }
 
-/// Connects RTDE, dashboard and primary of the configured controller, every move guarded in
-/// the configured cell (joint limits, floor, self-collision, obstacles, speed caps).
-pub(crate) async fn connect_robot(
-    cfg: &Config,
-    model: &Arc<RobotModel>,
-) -> anyhow::Result<MotionGuard<UrRobot>> {
+/// The configured controller (`[robot]`: host, ports, speed and acceleration caps), claiming
+/// no RTDE input register.
+pub(crate) fn ur_config(cfg: &Config) -> UrConfig {
     let p = cfg.robot.ports;
-    // Claim exactly the RTDE input registers the configuration writes (and the pendant
-    // handshake's), no others: they stay free for the cell's own clients.
     let mut ur = UrConfig::new(cfg.robot.host).without_registers();
     ur.ports = Ports {
         dashboard: p.dashboard,
@@ -120,6 +135,18 @@ pub(crate) async fn connect_robot(
     };
     ur.max_joint_speed_rad_s = cfg.robot.limits.max_joint_speed_rad_s;
     ur.max_joint_accel_rad_s2 = cfg.robot.limits.max_joint_accel_rad_s2;
+    ur
+}
+
+/// Connects RTDE, dashboard and primary of the configured controller, every move guarded in
+/// the configured cell (joint limits, floor, self-collision, obstacles, speed caps).
+pub(crate) async fn connect_robot(
+    cfg: &Config,
+    model: &Arc<RobotModel>,
+) -> anyhow::Result<MotionGuard<UrRobot>> {
+    // Claim exactly the RTDE input registers the configuration writes (and the pendant
+    // handshake's), no others: they stay free for the cell's own clients.
+    let mut ur = ur_config(cfg);
     let mut ints: Vec<u32> = Vec::new();
     if let Some(map) = cfg.write_back.registers {
         ur.registers = map.double_start..=map.double_start + 5;

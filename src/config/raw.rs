@@ -79,6 +79,7 @@ pub(super) struct RawPorts {
 #[serde(rename_all = "lowercase")]
 pub(super) enum RawBackend {
     Gige,
+    Gentl,
     Exec,
     File,
 }
@@ -88,6 +89,8 @@ pub(super) enum RawBackend {
 pub(super) struct RawCamera {
     pub(super) backend: RawBackend,
     pub(super) address: Option<String>,
+    pub(super) producer: Option<String>,
+    pub(super) device: Option<String>,
     pub(super) command: Option<Vec<String>>,
     pub(super) timeout_s: Option<f64>,
     pub(super) files: Option<Vec<String>>,

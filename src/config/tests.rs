@@ -502,6 +502,37 @@ fn camera_backends_need_their_keys_and_refuse_the_others() {
     refused(&text, "camera.command", line_of(&text, "command"));
     let text = MINIMAL.replace("address = \"192.168.1.50\"\n", "");
     refused(&text, "camera.address", line_of(&text, "backend"));
+
+    // GenTL: the producer resolves against the config's directory, both keys are optional
+    // (GENICAM_GENTL64_PATH, the first device), and the other backends' keys are refused.
+    let gentl = |keys: &str| {
+        MINIMAL.replace(
+            "backend = \"gige\"\naddress = \"192.168.1.50\"",
+            &format!("backend = \"gentl\"\n{keys}"),
+        )
+    };
+    let c = parse(&gentl("producer = \"zivid.cti\"\ndevice = \" 2024A \"")).expect("gentl");
+    let CameraBackend::Gentl { producer, device } = c.camera.backend else {
+        panic!("gentl backend");
+    };
+    assert!(producer.is_some_and(|p| p.ends_with("zivid.cti") && p.is_absolute()));
+    assert_eq!(device.as_deref(), Some("2024A"));
+    assert_eq!(
+        parse(&gentl("")).expect("defaults").camera.backend,
+        CameraBackend::Gentl {
+            producer: None,
+            device: None
+        }
+    );
+    let text = gentl("address = \"192.168.1.50\"");
+    refused(&text, "camera.address", line_of(&text, "address"));
+    let text = gentl("device = \" \"");
+    refused(&text, "camera.device", line_of(&text, "device"));
+    let text = MINIMAL.replace(
+        "address = \"192.168.1.50\"",
+        "address = \"192.168.1.50\"\ndevice = \"x\"",
+    );
+    refused(&text, "camera.device", line_of(&text, "device"));
 }
 
 #[test]

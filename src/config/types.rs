@@ -186,6 +186,16 @@ pub enum CameraBackend {
         /// `IP` or `IP:PORT`, as written (checked to parse).
         address: String,
     },
+    /// A camera through its vendor's GenTL producer (`backend = "gentl"`, `producer` = the
+    /// `.cti`, `device` = serial, model, id or index).
+    Gentl {
+        /// The producer; `None`: the first `*.cti` on `GENICAM_GENTL64_PATH`, as the GenTL
+        /// standard searches (resolved when connecting).
+        producer: Option<PathBuf>,
+        /// Which of the producer's devices (serial number, model, producer id or index); the
+        /// first one when `None`.
+        device: Option<String>,
+    },
     /// An external command that captures one frame to a file (`backend = "exec"`,
     /// `command = [...]`, `timeout_s`); see [`crate::camera::ExecCamera`]. `{config_dir}`
     /// in an argument is replaced by the config file's directory when loading.

@@ -504,6 +504,8 @@ impl Ctx<'_> {
         let backend = match c.backend {
             RawBackend::Gige => {
                 let why = "with backend = \"gige\"";
+                self.unused("camera.producer", &c.producer, why)?;
+                self.unused("camera.device", &c.device, why)?;
                 self.unused("camera.command", &c.command, why)?;
                 self.unused("camera.timeout_s", &c.timeout_s, why)?;
                 self.unused("camera.files", &c.files, why)?;
@@ -525,9 +527,32 @@ impl Ctx<'_> {
                     address: a.to_string(),
                 }
             }
+            RawBackend::Gentl => {
+                let why = "with backend = \"gentl\"";
+                self.unused("camera.address", &c.address, why)?;
+                self.unused("camera.command", &c.command, why)?;
+                self.unused("camera.timeout_s", &c.timeout_s, why)?;
+                self.unused("camera.files", &c.files, why)?;
+                if c.device.as_deref().is_some_and(|d| d.trim().is_empty()) {
+                    return Err(self.invalid(
+                        "camera.device",
+                        "camera.device is empty: give the camera's serial number, model, GenTL id or index (`handeye camera probe --gentl FILE.cti` lists them), or remove it for the first device",
+                    ));
+                }
+                CameraBackend::Gentl {
+                    producer: c
+                        .producer
+                        .as_deref()
+                        .map(|p| self.path("camera.producer", p))
+                        .transpose()?,
+                    device: c.device.map(|d| d.trim().to_owned()),
+                }
+            }
             RawBackend::Exec => {
                 let why = "with backend = \"exec\"";
                 self.unused("camera.address", &c.address, why)?;
+                self.unused("camera.producer", &c.producer, why)?;
+                self.unused("camera.device", &c.device, why)?;
                 self.unused("camera.files", &c.files, why)?;
                 let command = c.command.unwrap_or_default();
                 if command.first().is_none_or(|p| p.trim().is_empty()) {
@@ -554,6 +579,8 @@ impl Ctx<'_> {
             RawBackend::File => {
                 let why = "with backend = \"file\"";
                 self.unused("camera.address", &c.address, why)?;
+                self.unused("camera.producer", &c.producer, why)?;
+                self.unused("camera.device", &c.device, why)?;
                 self.unused("camera.command", &c.command, why)?;
                 self.unused("camera.timeout_s", &c.timeout_s, why)?;
                 let files = c.files.unwrap_or_default();

@@ -5,7 +5,10 @@
 //! whoever can reach `daemon.listen` (localhost by default); anything that moves the arm
 //! (`/api/calibrate`, `/api/check`) or stops it (`/api/cancel`) needs
 //! `Authorization: Bearer <token>` with the token from `daemon.token_file` (or the systemd
-//! credential `token`). Without a configured token those requests are refused outright.
+//! credential `token`). Without a configured token those requests are refused outright. A
+//! client refused 20 times in 10 s (`AuthLimit`) gets 429 for them
+//! until the window ends. The local CLI's cancel does not depend on this API at all
+//! ([`crate::daemon::control`]).
 //!
 //! | route | what |
 //! |---|---|
@@ -27,7 +30,7 @@ use std::sync::Arc;
 
 use crate::calib::export::{ExportMeta, Exports};
 use crate::config::Config;
-use crate::daemon::listener::RateLimit;
+use crate::daemon::listener::{AuthLimit, RateLimit};
 use crate::daemon::{DaemonHandle, Frontend, Refusal};
 use crate::record::Trigger;
 use crate::report::{DriftLimits, DriftPoint};
@@ -265,6 +268,8 @@ struct AppState {
     site: Arc<Site>,
     /// Each client's allowance on the routes that read files or draw ([`rate_limited`]).
     rate: Arc<RateLimit>,
+    /// Each client's refused tokens ([`authorize`]).
+    auth: Arc<AuthLimit>,
     /// Charts drawn at once (each holds its pixels: up to 16 MB at the largest size).
     charts: Arc<tokio::sync::Semaphore>,
 }
@@ -276,6 +281,7 @@ pub fn router(handle: DaemonHandle, token: Option<String>, site: Site) -> Router
         token: token.map(Arc::from),
         site: Arc::new(site),
         rate: Arc::new(RateLimit::default()),
+        auth: Arc::new(AuthLimit::default()),
         charts: Arc::new(tokio::sync::Semaphore::new(CHARTS_AT_ONCE)),
     };
     // The routes that read a run's files, the history or draw: limited per client.
@@ -324,6 +330,8 @@ struct ApiError {
     message: String,
     /// `WWW-Authenticate` value for 401s.
     challenge: Option<&'static str>,
+    /// `Retry-After`, s.
+    retry_after_s: Option<u64>,
 }
 
 impl ApiError {
@@ -332,6 +340,7 @@ impl ApiError {
             status,
             message: message.into(),
             challenge: None,
+            retry_after_s: None,
         }
     }
 
@@ -353,6 +362,11 @@ impl IntoResponse for ApiError {
             resp.headers_mut()
                 .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static(c));
         }
+        if let Some(s) = self.retry_after_s {
+            if let Ok(v) = HeaderValue::from_str(&s.to_string()) {
+                resp.headers_mut().insert(header::RETRY_AFTER, v);
+            }
+        }
         resp
     }
 }
@@ -367,17 +381,35 @@ fn token_matches(expected: &[u8], given: &[u8]) -> bool {
 }
 
 /// Lets a request that moves (or stops) the arm through only with the right bearer token.
-/// Refusals are logged at warn with the peer and the reason, never the token.
+/// Refusals are logged at warn with the peer and the reason, never the token, once per
+/// window and client; a client refused [`AuthLimit::MAX_FAILURES`] times in a window gets
+/// 429 (with `Retry-After`) without its token being looked at until the window ends.
 fn authorize(
     state: &AppState,
     headers: &HeaderMap,
     peer: SocketAddr,
     what: &str,
 ) -> Result<(), ApiError> {
-    let refuse = |reason: &str| tracing::warn!(%peer, "refused {what}: {reason}");
     let Some(expected) = &state.token else {
-        refuse("no API token configured");
+        tracing::warn!(%peer, "refused {what}: no API token configured");
         return Err(ApiError::new(StatusCode::FORBIDDEN, NO_TOKEN));
+    };
+    if let Err(wait_s) = state.auth.check(peer.ip()) {
+        return Err(ApiError {
+            retry_after_s: Some(wait_s.ceil().max(1.0) as u64),
+            ..ApiError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                format!(
+                    "too many refused tokens from {}; wait {wait_s:.0} s, then send the token from daemon.token_file",
+                    peer.ip()
+                ),
+            )
+        });
+    }
+    let refuse = |reason: &str| {
+        if let Some(more) = state.auth.failed(peer.ip()) {
+            tracing::warn!(%peer, "refused {what}: {reason}{more}");
+        }
     };
     let Some(value) = headers.get(header::AUTHORIZATION) else {
         refuse("no Authorization header");
@@ -519,12 +551,22 @@ async fn report_picture(
             ),
         )
     };
-    let Some(path) = (state.site.storage.as_deref())
-        .and_then(|storage| crate::storage::report_picture_path(storage, &id))
-    else {
+    let Some((storage, path)) = (state.site.storage.as_deref()).and_then(|storage| {
+        crate::storage::report_picture_path(storage, &id).map(|p| (storage.to_path_buf(), p))
+    }) else {
         return Err(missing());
     };
-    match tokio::fs::read(&path).await {
+    // Beneath the storage folder, no link followed, a regular file of bounded size.
+    let rel = path
+        .strip_prefix(&storage)
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    let read = tokio::task::spawn_blocking(move || {
+        crate::storage::read_beneath(&storage, &rel, crate::storage::MAX_PICTURE_BYTES)
+    })
+    .await
+    .unwrap_or_else(|e| Err(std::io::Error::other(e)));
+    match read {
         Ok(bytes) => Ok(png(bytes)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(missing()),
         Err(e) => {
@@ -1373,6 +1415,26 @@ mod tests {
             }
             assert_eq!(rig.get("/api/status").await.json()["state"], "idle");
             assert!(rig.robot.moves().is_empty());
+        })
+        .await;
+    }
+
+    /// Issue 36: wrong tokens are limited per client (14 500 tries/s were answered before);
+    /// past the limit even the right token waits for the next window.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn issue_36_wrong_tokens_are_rate_limited_per_client() {
+        with_rig("auth-limit", Some(TOKEN), |rig| async move {
+            let wrong = "not-the-token-0123456789";
+            for k in 0..AuthLimit::MAX_FAILURES {
+                let a = rig.post("/api/cancel", Some(wrong)).await;
+                assert_eq!(a.code, 401, "try {k}: {a:?}");
+            }
+            for token in [wrong, TOKEN] {
+                let a = rig.post("/api/cancel", Some(token)).await;
+                assert_eq!(a.code, 429, "{a:?}");
+                assert!(a.header("retry-after").is_some(), "{}", a.head);
+            }
+            assert_eq!(rig.get("/api/status").await.code, 200);
         })
         .await;
     }

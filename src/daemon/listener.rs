@@ -330,9 +330,102 @@ impl RateLimit {
     }
 }
 
+/// Refused authorisations (a wrong, missing or malformed token) per client address: at most
+/// [`Self::MAX_FAILURES`] in a [`Self::WINDOW`]; beyond, the client's requests that need the
+/// token are refused (429) without looking at the token until the window ends, and its
+/// refusals are logged once per window, so guessing is slow and the log stays small.
+#[derive(Debug, Default)]
+pub(crate) struct AuthLimit {
+    /// By client: when its window started, its refusals in it, and those of the last window
+    /// (reported with the next log line).
+    clients: Mutex<HashMap<IpAddr, AuthWindow>>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct AuthWindow {
+    start: Instant,
+    failures: u32,
+    refused: u64,
+}
+
+impl AuthLimit {
+    /// Refusals a client may have in a window before it has to wait for the next one.
+    pub(crate) const MAX_FAILURES: u32 = 20;
+    /// The window, and the longest a client waits.
+    pub(crate) const WINDOW: Duration = Duration::from_secs(10);
+    /// Clients remembered at most (windows that ended go first beyond it).
+    const CLIENTS: usize = 4096;
+
+    /// Whether `client` may try a token now: `Err(seconds to wait)` after its refusals used
+    /// up the window (the attempt is counted, not logged).
+    pub(crate) fn check(&self, client: IpAddr) -> Result<(), f64> {
+        let mut clients = self.clients.lock().unwrap_or_else(|e| e.into_inner());
+        match clients.get_mut(&client) {
+            Some(w) if w.start.elapsed() < Self::WINDOW && w.failures >= Self::MAX_FAILURES => {
+                w.refused += 1;
+                Err((Self::WINDOW - w.start.elapsed()).as_secs_f64())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// Counts a refusal of `client`; returns the log line to write (once per window: the
+    /// first refusal of a window, with how many the previous one had), else `None`.
+    pub(crate) fn failed(&self, client: IpAddr) -> Option<String> {
+        let now = Instant::now();
+        let mut clients = self.clients.lock().unwrap_or_else(|e| e.into_inner());
+        if clients.len() >= Self::CLIENTS && !clients.contains_key(&client) {
+            clients.retain(|_, w| w.start.elapsed() < Self::WINDOW);
+        }
+        let w = clients.entry(client).or_insert(AuthWindow {
+            start: now,
+            failures: 0,
+            refused: 0,
+        });
+        let mut before = None;
+        if now.duration_since(w.start) >= Self::WINDOW {
+            before = Some(u64::from(w.failures) + w.refused);
+            *w = AuthWindow {
+                start: now,
+                failures: 0,
+                refused: 0,
+            };
+        }
+        w.failures += 1;
+        (w.failures == 1).then(|| match before {
+            Some(n) if n > 1 => format!(
+                " ({n} refused in the previous {} s; after {} in {} s a client waits for the next window, logged once per window)",
+                Self::WINDOW.as_secs(),
+                Self::MAX_FAILURES,
+                Self::WINDOW.as_secs()
+            ),
+            _ => String::new(),
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn refused_tokens_are_limited_and_logged_once_per_window() {
+        let limit = AuthLimit::default();
+        let a: IpAddr = [127, 0, 0, 1].into();
+        let b: IpAddr = [127, 0, 0, 2].into();
+        let mut lines = 0;
+        for _ in 0..AuthLimit::MAX_FAILURES {
+            assert!(limit.check(a).is_ok());
+            lines += usize::from(limit.failed(a).is_some());
+        }
+        assert_eq!(lines, 1, "one log line per window");
+        let wait = limit.check(a).expect_err("over the limit");
+        assert!(
+            wait > 0.0 && wait <= AuthLimit::WINDOW.as_secs_f64(),
+            "{wait}"
+        );
+        assert!(limit.check(b).is_ok(), "another client is not affected");
+    }
 
     #[test]
     fn a_client_gets_its_burst_then_its_rate() {

@@ -16,6 +16,7 @@
 //! with devices at hand call [`run`].
 
 pub mod api;
+pub mod control;
 pub mod listener;
 pub mod lock;
 mod metrics;
@@ -83,6 +84,28 @@ pub struct Finished {
     pub duration_ms: f64,
     /// Check: the camera's change from the current calibration.
     pub drift: Option<Drift>,
+}
+
+impl Finished {
+    /// How `record` (a `mode` run asked for by `trigger`) ended, as the status shows it.
+    fn of(mode: RunMode, trigger: Trigger, record: &RunRecord) -> Finished {
+        Finished {
+            run_id: record.run_id.clone(),
+            mode,
+            trigger,
+            outcome: record.outcome,
+            verdict: record.verdict().to_string(),
+            reasons: record.reasons.clone(),
+            warnings: record.warnings.clone(),
+            finished_unix_s: unix_now(),
+            duration_ms: record.timings_ms.total,
+            drift: record.drift.as_ref().map(|d| Drift {
+                translation_mm: d.translation_mm,
+                rotation_deg: d.rotation_deg,
+                exceeded: d.drifted,
+            }),
+        }
+    }
 }
 
 /// A check's measured change of the camera pose from the current calibration.
@@ -222,6 +245,8 @@ struct State {
     links: (u64, u64),
     /// Why the storage directory cannot take a run, as last checked.
     storage_problem: Option<String>,
+    /// The camera's resolution, once it answered: what a run keeps depends on it.
+    camera_size: Option<(u32, u32)>,
     /// What the daemon waits for before it has the robot and the camera.
     waiting: Option<Waiting>,
     metrics: metrics::Metrics,
@@ -515,22 +540,7 @@ impl DaemonHandle {
     fn finished(&self, job: &Job, record: &RunRecord) {
         let mut st = self.lock();
         let (mode, trigger) = (job.entry.mode, job.entry.trigger);
-        let f = Finished {
-            run_id: record.run_id.clone(),
-            mode,
-            trigger,
-            outcome: record.outcome,
-            verdict: record.verdict().to_string(),
-            reasons: record.reasons.clone(),
-            warnings: record.warnings.clone(),
-            finished_unix_s: unix_now(),
-            duration_ms: record.timings_ms.total,
-            drift: record.drift.as_ref().map(|d| Drift {
-                translation_mm: d.translation_mm,
-                rotation_deg: d.rotation_deg,
-                exceeded: d.drifted,
-            }),
-        };
+        let f = Finished::of(mode, trigger, record);
         st.metrics.record(trigger, record);
         if record.drift_found() == Some(true) {
             tracing::error!(
@@ -560,6 +570,14 @@ impl DaemonHandle {
     /// both the newest accepted calibration and the newest check that measured drift are
     /// found (or the history ends).
     /// The shown runs' warnings come from their records in `storage` (the history keeps none).
+    /// Shows the run whose interrupted write-back was just reconciled as the last one (it
+    /// was, when the daemon stopped).
+    fn reconciled(&self, record: &RunRecord) {
+        let trigger = record.trigger.unwrap_or(Trigger::Cli);
+        let f = Finished::of(record.mode, trigger, record);
+        self.lock().apply(f, record.drift_found());
+    }
+
     fn restore_from_history(
         &self,
         storage: &std::path::Path,
@@ -692,6 +710,7 @@ fn handle(store: Arc<Store>, when_busy: WhenBusy, shutdown: CancellationToken) -
             camera_connected: true,
             links: (0, 0),
             storage_problem: None,
+            camera_size: None,
             waiting: None,
             metrics: metrics::Metrics::default(),
         }),
@@ -772,6 +791,11 @@ pub async fn run_with<R, C, F, Fut>(
     check_storage(&cfg, &handle).await;
     let notifier = notify::Notifier::from_env();
     let frontend_task = tokio::spawn(frontend.serve(handle.clone(), shutdown.clone()));
+    let control_task = tokio::spawn(control::serve(
+        cfg.storage.dir.clone(),
+        handle.clone(),
+        shutdown.clone(),
+    ));
     if let Some(n) = &notifier {
         if n.watchdog_interval().is_some() {
             if let Some(w) = notify::Notifier::from_env() {
@@ -790,6 +814,7 @@ pub async fn run_with<R, C, F, Fut>(
             n.stopping();
         }
         let _ = frontend_task.await;
+        let _ = control_task.await;
         return;
     };
     {
@@ -799,6 +824,19 @@ pub async fn run_with<R, C, F, Fut>(
         st.camera_connected = true;
     }
     tracing::info!("robot and camera connected");
+    // What a run keeps depends on the camera's resolution: the storage is checked for it.
+    if let Ok(Ok(info)) = tokio::time::timeout(HEALTH_TIMEOUT, camera.info()).await {
+        handle.lock().camera_size = Some((info.width, info.height));
+        check_storage(&cfg, &handle).await;
+    }
+    // A write-back interrupted by the last stop is reconciled before anything else runs.
+    match crate::run::journal::reconcile(&robot, &cfg.storage.dir, Some(handle.store().as_ref()))
+        .await
+    {
+        Ok(Some(record)) => handle.reconciled(&record),
+        Ok(None) => {}
+        Err(e) => tracing::error!("{e}"),
+    }
     ready(&handle);
     if let Some(mode) = cfg.daemon.startup {
         if let Err(e) = handle.request(mode, Trigger::Startup) {
@@ -881,7 +919,11 @@ pub async fn run_with<R, C, F, Fut>(
                 check_storage(&cfg, &handle).await;
                 if handle.status().current.is_none() {
                     let robot_up = tokio::time::timeout(HEALTH_TIMEOUT, robot.status()).await.is_ok_and(|r| r.is_ok());
-                    let camera_up = tokio::time::timeout(HEALTH_TIMEOUT, camera.info()).await.is_ok_and(|r| r.is_ok());
+                    let info = tokio::time::timeout(HEALTH_TIMEOUT, camera.info()).await;
+                    let camera_up = matches!(info, Ok(Ok(_)));
+                    if let Ok(Ok(info)) = info {
+                        handle.lock().camera_size = Some((info.width, info.height));
+                    }
                     handle.set_connections(robot_up, camera_up, (robot.link_generation(), camera.link_generation()));
                 }
             }
@@ -903,6 +945,7 @@ pub async fn run_with<R, C, F, Fut>(
         tracing::info!(run_id = %record.run_id, "run accepted before the shutdown: {}", record.outcome);
     }
     let _ = frontend_task.await;
+    let _ = control_task.await;
 }
 
 /// Checks that the storage directory can take a run ([`crate::storage::check_room`] for
@@ -910,10 +953,9 @@ pub async fn run_with<R, C, F, Fut>(
 /// cannot (each run checks again for its scans before it moves).
 async fn check_storage(cfg: &Config, handle: &DaemonHandle) {
     let dir = cfg.storage.dir.clone();
-    let checked = tokio::task::spawn_blocking(move || {
-        crate::storage::check_room(&dir, crate::storage::RUN_BASE_BYTES)
-    })
-    .await;
+    let needed = run_bytes(cfg, handle.lock().camera_size);
+    let checked =
+        tokio::task::spawn_blocking(move || crate::storage::check_room(&dir, needed)).await;
     let problem = match checked {
         Ok(Ok(())) => None,
         Ok(Err(e)) => Some(e.to_string()),
@@ -924,6 +966,19 @@ async fn check_storage(cfg: &Config, handle: &DaemonHandle) {
 
 /// The journal's one line on how a run ended: verdict, duration, and the drift (a check),
 /// the uncertainty (an accepted calibration) or the first reason (anything not accepted).
+/// What the configured run keeps in storage at most ([`crate::storage::run_bytes`]): its raw
+/// scans at the camera's resolution (`camera_size`, once known) × frames × views, plus the
+/// record, exports and picture.
+fn run_bytes(cfg: &Config, camera_size: Option<(u32, u32)>) -> u64 {
+    let views = match &cfg.views.targets {
+        crate::config::ViewTargets::Joints(q) => q.len(),
+        crate::config::ViewTargets::Auto { count, .. } => *count,
+    };
+    let frames = views * cfg.camera.capture.frames as usize;
+    let (width, height) = camera_size.unwrap_or((0, 0));
+    crate::storage::run_bytes(width, height, frames, cfg.storage.keep_captures)
+}
+
 fn outcome_line(record: &RunRecord, took: Duration) -> String {
     let mut line = format!(
         "run {} ended: {} {} in {:.1} s",

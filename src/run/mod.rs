@@ -18,6 +18,7 @@
 //! nothing but its own record. The [`Recorder`] keeps it: the history row, the record and the
 //! report picture in the run's folder (`crate::storage`), pruning.
 
+pub mod journal;
 pub mod recorder;
 #[cfg(test)]
 mod tests;
@@ -189,17 +190,17 @@ const WRITING_REASON: &str = "interrupted while writing the result above to the 
 /// What the controller held before a run wrote its result: put back when the result cannot be
 /// recorded (the record and `current/` must describe what the controller holds).
 #[derive(Debug, Clone)]
-struct Previous {
+pub(crate) struct Previous {
     /// The TCP read at preflight, when the run set the TCP.
-    tcp: Option<Isometry3<f64>>,
+    pub(crate) tcp: Option<Isometry3<f64>>,
     /// The result registers read just before they were written, when the run wrote them.
-    registers: Option<(crate::config::RegisterMap, [f64; 6])>,
+    pub(crate) registers: Option<(crate::config::RegisterMap, [f64; 6])>,
 }
 
 /// Writes `previous` back to the controller: the TCP, then the registers with a new sequence
 /// number (so a pendant program that applied the unrecorded result applies the previous values
 /// again). Returns what was done, for the run's reasons, or why it could not be done.
-async fn put_back<R: Robot>(robot: &R, previous: &Previous) -> Result<String, String> {
+pub(crate) async fn put_back<R: Robot>(robot: &R, previous: &Previous) -> Result<String, String> {
     let mut done = Vec::new();
     if let Some(tcp) = &previous.tcp {
         robot
@@ -266,6 +267,15 @@ async fn restore_sentence<R: Robot>(
     }
 }
 
+/// The DH set a reported flange is checked against exactly: the controller's own (it computes
+/// its flange pose with it); a calibration file's or the nominal URDF's only loosely.
+fn reference_dh(k: &KinematicsUsed) -> Option<handeye_hal::ur_dh::DhParams> {
+    match k.source {
+        KinematicsOrigin::Controller => k.dh,
+        KinematicsOrigin::File | KinematicsOrigin::Nominal => None,
+    }
+}
+
 /// Everything a run works with, resolved once.
 struct Context<'a, R, C> {
     robot: &'a R,
@@ -291,6 +301,8 @@ struct Context<'a, R, C> {
     other_arm: bool,
     /// What the controller held before the write-back, once the run changed it.
     previous: Option<Previous>,
+    /// Held from the write-back journal's write until the recorder removes it.
+    journal: Option<storage::JournalLock>,
 }
 
 /// The scan a run's report picture shows: its first frame, that frame's registration and the
@@ -334,7 +346,7 @@ async fn execute<R: Robot, C: DepthCamera>(
     run_dir: PathBuf,
     cancel: &CancellationToken,
     progress: &dyn Progress,
-) -> (RunRecord, Option<PictureScan>) {
+) -> (RunRecord, Option<PictureScan>, Option<storage::JournalLock>) {
     let t0 = Instant::now();
     let run_id = record.run_id.clone();
     let model_from_base = guard::model_from_base(model);
@@ -354,6 +366,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         links: (robot.link_generation(), camera.link_generation()),
         other_arm: false,
         previous: None,
+        journal: None,
     };
     let span = tracing::info_span!("calibration", run_id = %run_id);
     let result = tracing::Instrument::instrument(cx.steps(), span).await;
@@ -373,7 +386,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         }
     }
     cx.record.timings_ms.total = elapsed_ms(t0);
-    (cx.record, cx.picture)
+    (cx.record, cx.picture, cx.journal)
 }
 
 impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
@@ -512,7 +525,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         let robot = self.robot;
         let camera = self.camera;
         let allow_power_on = self.cfg.robot.allow_power_on;
-        let (status, start, tcp, powered_on) = cancellable(self.cancel, stage, async {
+        let (status, start, tcp, flange, powered_on) = cancellable(self.cancel, stage, async {
             let mut status = robot
                 .status()
                 .await
@@ -547,7 +560,11 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 .tcp_offset()
                 .await
                 .map_err(|e| Failure::robot(stage, "reading the TCP", e))?;
-            Ok((status, start, tcp, powered_on))
+            let flange = robot
+                .flange_pose()
+                .await
+                .map_err(|e| Failure::robot(stage, "reading the flange pose", e))?;
+            Ok((status, start, tcp, flange, powered_on))
         })
         .await?;
         let identity =
@@ -652,6 +669,14 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         })
         .await;
         let controller_dh = kinematics.dh;
+        // Before anything moves: the controller's joints and flange must belong together.
+        let flange_check = self.check_flange(
+            stage,
+            &start,
+            &flange,
+            reference_dh(&kinematics).as_ref(),
+            "at the start",
+        );
         let reference = self.reference(&tcp, identity.as_ref());
         self.record.preflight = Some(PreflightRecord {
             status: status.clone(),
@@ -663,6 +688,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             controller: identity,
         });
         model_check.map_err(|m| Failure::error(stage, m))?;
+        flange_check?;
         preflight_status(&status, self.req.program_handover, allow_power_on)?;
         camera_info?;
         Ok((controller_dh, reference))
@@ -901,6 +927,11 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             base_frame: "base".into(),
             prior: self.cfg.mount.prior.as_ref().map(to_row_major),
             controller_dh: self.record.preflight.as_ref().and_then(|p| p.kinematics.dh),
+            dh_from_controller: self
+                .record
+                .preflight
+                .as_ref()
+                .is_some_and(|p| reference_dh(&p.kinematics).is_some()),
             views: Vec::new(),
         };
         for (v, q) in views.iter().enumerate() {
@@ -942,7 +973,28 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             self.links_intact(Stage::Capture)?;
             self.record.timings_ms.capture += elapsed_ms(t);
             let base_from_flange = crate::frames::from_row_major(&capture.base_from_flange)
-                .unwrap_or_else(Isometry3::identity);
+                .ok_or_else(|| {
+                    Failure::error(
+                        Stage::Capture,
+                        format!(
+                            "the controller's flange pose at view {} is not a rigid transform; \
+                             check the controller (nothing was written)",
+                            v + 1
+                        ),
+                    )
+                })?;
+            let dh = self
+                .record
+                .preflight
+                .as_ref()
+                .and_then(|p| reference_dh(&p.kinematics));
+            self.check_flange(
+                Stage::Capture,
+                &capture.joints,
+                &base_from_flange,
+                dh.as_ref(),
+                &format!("at view {}", v + 1),
+            )?;
             let mut record = capture;
             for (k, cloud) in clouds.into_iter().enumerate() {
                 let path = if keep {
@@ -1011,6 +1063,45 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             }
         }
         r
+    }
+
+    /// Refuses a flange pose (`base_from_flange`, as the controller reported it with `joints`)
+    /// that is not the forward kinematics of those joints: by the controller's own DH
+    /// (`controller_dh`, tight) or else the nominal URDF. A corrupt or inconsistent controller
+    /// value would become a wrong TCP: nothing moves or is written after this fails.
+    fn check_flange(
+        &self,
+        stage: Stage,
+        joints: &[f64],
+        base_from_flange: &Isometry3<f64>,
+        controller_dh: Option<&handeye_hal::ur_dh::DhParams>,
+        when: &str,
+    ) -> Result<(), Failure> {
+        use crate::model::reported::{check_reported_flange, FlangeReference};
+        let reference = match controller_dh {
+            Some(dh) => FlangeReference::ControllerDh {
+                dh,
+                model_from_base: &self.model_from_base,
+            },
+            None => FlangeReference::Nominal,
+        };
+        let model_from_flange = self.model_from_base * base_from_flange;
+        match check_reported_flange(self.model, joints, &model_from_flange, reference) {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(m)) => Err(Failure::error(
+                stage,
+                format!(
+                    "the controller's flange pose {when} {m}: the controller reports joints and \
+                     a flange that do not belong together (corrupt data, or another robot \
+                     model than robot.model); check the controller and the network — nothing \
+                     was written"
+                ),
+            )),
+            Err(e) => Err(Failure::error(
+                stage,
+                format!("the controller's joints {when}: {e}"),
+            )),
+        }
     }
 
     /// Records joints and flange pose, captures the frames, checks the arm stood still.
@@ -1214,30 +1305,47 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         });
     }
 
-    /// Writes the accepted result. Write-ahead first: the result files (staged for
-    /// `current/`) and a record saying the result is being written to the controller are
-    /// durably on disk before the controller changes, so a full disk stops the run with nothing
-    /// written. Then the TCP, then the registers (the sequence number last: a pendant program
-    /// applies nothing half-written), then the record saying they were written, then
-    /// `current/` is replaced, so it only ever holds a calibration the controller has
-    /// confirmed. When that record or `current/` cannot be written, the controller gets back
-    /// the TCP read at preflight and the registers read before writing them ([`put_back`]), and
-    /// the error says so.
+    /// Writes the accepted result as a transaction ([`journal`]). Write-ahead first: the
+    /// result files (staged for `current/`), a record saying the result is being written to
+    /// the controller, and the intent journal (what the controller holds now, what is about
+    /// to be written, the record once it is) are durably on disk before the controller
+    /// changes, so a full disk stops the run with nothing written and a kill at any later
+    /// instant is reconciled at the next start. Then the TCP, then the registers (the
+    /// sequence number last, so a pendant program applies nothing half-written, and the set
+    /// read back), then the record saying they were written, then `current/` is replaced, so
+    /// it only ever holds a calibration the controller has confirmed. From the journal on,
+    /// a cancel or a shutdown waits for these few requests: they never stop half-way. When a
+    /// write, the record or `current/` fails, the controller gets back the TCP read at
+    /// preflight and the registers read before writing them ([`put_back`]), and the error
+    /// says so. The journal goes once the recorder has kept the run's end.
     async fn write_back(&mut self, unknown: &Isometry3<f64>) -> Result<(), Failure> {
         let stage = Stage::WriteBack;
         let wb = self.cfg.write_back;
         let mount = self.cfg.mount.mount;
         let robot = self.robot;
+        let storage_dir = self.cfg.storage.dir.clone();
         let kept = |what: &str, e: std::io::Error| {
             Failure::error(
                 stage,
                 format!("cannot keep {what} before writing it to the controller: {e}; nothing was written to the controller; free space in the storage directory (`[storage] dir`) and run again"),
             )
         };
+        // The journal's lock first: no other process takes this run's staging or journal
+        // for a crash's leftovers.
+        let lock = match storage::JournalLock::try_acquire(&storage_dir) {
+            Ok(Some(lock)) => lock,
+            Ok(None) => {
+                return Err(Failure::error(
+                    stage,
+                    "another handeye process is writing a result to the controller from the same storage directory; nothing was written; run again once it has ended",
+                ))
+            }
+            Err(e) => return Err(kept("the write-back journal's lock", e)),
+        };
         let staged = if wb.files {
             let result = self.record.result.clone();
             let staged = storage::stage_result(
-                &self.cfg.storage.dir,
+                &storage_dir,
                 &self.run_dir,
                 unknown,
                 mount,
@@ -1256,7 +1364,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         storage::write_record(&self.run_dir, &pending).map_err(|e| kept("the run record", e))?;
         // What to put back if the result cannot be recorded: the TCP read at preflight and
         // the registers as they are now.
-        let previous_tcp = (wb.tcp && mount == Mount::EyeInHand)
+        let set_tcp = wb.tcp && mount == Mount::EyeInHand;
+        let previous_tcp = set_tcp
             .then(|| {
                 self.record
                     .preflight
@@ -1264,77 +1373,107 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     .and_then(|p| crate::frames::from_row_major(&p.tcp_offset))
             })
             .flatten();
-        let previous_registers = match wb.registers {
+        let p = UrPose::from(unknown).values();
+        let registers = match wb.registers {
             Some(map) => {
-                let values = cancellable(self.cancel, stage, async {
+                let (previous, previous_sequence) = cancellable(self.cancel, stage, async {
+                    let failed = |e| Failure::robot(stage, "reading the result registers", e);
                     let mut values = [0.0; 6];
                     for (k, v) in values.iter_mut().enumerate() {
                         *v = robot
                             .read_double_register(map.double_start + k as u32)
                             .await
-                            .map_err(|e| {
-                                Failure::robot(stage, "reading the result registers", e)
-                            })?;
+                            .map_err(failed)?;
                     }
-                    Ok(values)
+                    let seq = robot
+                        .read_int_register(map.sequence_int)
+                        .await
+                        .map_err(failed)?;
+                    Ok((values, seq))
                 })
                 .await?;
-                Some((map, values))
+                Some(journal::RegisterChange {
+                    double_start: map.double_start,
+                    sequence_int: map.sequence_int,
+                    previous,
+                    previous_sequence,
+                    new: p,
+                    sequence: previous_sequence.wrapping_add(1).max(1),
+                })
             }
             None => None,
         };
-        self.previous = Some(Previous {
-            tcp: previous_tcp,
-            registers: previous_registers,
+        let tcp_written = Written {
+            target: WriteTarget::Tcp,
+            detail: format!(
+                "set_tcp(p[{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}]), read back over RTDE",
+                p[0], p[1], p[2], p[3], p[4], p[5]
+            ),
+        };
+        let registers_written = registers.as_ref().map(|r| Written {
+            target: WriteTarget::Registers,
+            detail: format!(
+                "input_double_register_{}..{} = x,y,z,rx,ry,rz (m, rad); input_int_register_{} = {}; read back",
+                r.double_start,
+                r.double_start + 5,
+                r.sequence_int,
+                r.sequence
+            ),
         });
-        if wb.tcp && mount == Mount::EyeInHand {
-            cancellable(self.cancel, stage, async {
-                robot
-                    .set_tcp(unknown)
-                    .await
-                    .map_err(|e| Failure::robot(stage, "setting the TCP", e))
-            })
-            .await?;
-            let p = UrPose::from(unknown).values();
-            self.record.written.push(Written {
-                target: WriteTarget::Tcp,
-                detail: format!(
-                    "set_tcp(p[{:.6}, {:.6}, {:.6}, {:.6}, {:.6}, {:.6}]), read back over RTDE",
-                    p[0], p[1], p[2], p[3], p[4], p[5]
-                ),
-            });
+        let current_files = staged.as_ref().map(|s| s.file_names()).unwrap_or_default();
+        let files_written = staged.as_ref().map(|_| Written {
+            target: WriteTarget::Files,
+            detail: current_files
+                .iter()
+                .map(|n| {
+                    storage_dir
+                        .join(storage::CURRENT_DIR)
+                        .join(n)
+                        .display()
+                        .to_string()
+                })
+                .collect::<Vec<_>>()
+                .join(", "),
+        });
+        // The record as it reads once everything is written: what the next start completes
+        // when the program stops after the controller took the result.
+        let mut done = self.record.clone();
+        done.written.extend(
+            set_tcp
+                .then(|| tcp_written.clone())
+                .into_iter()
+                .chain(registers_written.clone())
+                .chain(files_written.clone()),
+        );
+        let intent = journal::Intent {
+            run_id: self.record.run_id.clone(),
+            written_unix_s: unix_now(),
+            tcp: previous_tcp.as_ref().map(|prev| journal::TcpChange {
+                previous: UrPose::from(prev).values(),
+                new: p,
+            }),
+            registers: registers.clone(),
+            current_files,
+            record: done,
+        };
+        intent
+            .write(&storage_dir)
+            .map_err(|e| kept("the write-back journal", e))?;
+        self.journal = Some(lock);
+        self.previous = Some(intent.previous());
+        journal::pause_point("journal").await;
+        if set_tcp {
+            if let Err(e) = robot.set_tcp(unknown).await {
+                return Err(self.undo(Failure::robot(stage, "setting the TCP", e)).await);
+            }
+            self.record.written.push(tcp_written);
+            journal::pause_point("tcp").await;
         }
-        if let Some(map) = wb.registers {
-            let p = UrPose::from(unknown).values();
-            let seq = cancellable(self.cancel, stage, async {
-                for (k, v) in p.iter().enumerate() {
-                    robot
-                        .write_double_register(map.double_start + k as u32, *v)
-                        .await
-                        .map_err(|e| Failure::robot(stage, "writing the result registers", e))?;
-                }
-                let seq = robot
-                    .read_int_register(map.sequence_int)
-                    .await
-                    .map_err(|e| Failure::robot(stage, "reading the sequence register", e))?
-                    .wrapping_add(1)
-                    .max(1);
-                robot
-                    .write_int_register(map.sequence_int, seq)
-                    .await
-                    .map_err(|e| Failure::robot(stage, "writing the sequence register", e))?;
-                Ok(seq)
-            })
-            .await?;
-            self.record.written.push(Written {
-                target: WriteTarget::Registers,
-                detail: format!(
-                    "input_double_register_{}..{} = x,y,z,rx,ry,rz (m, rad); input_int_register_{} = {seq}",
-                    map.double_start,
-                    map.double_start + 5,
-                    map.sequence_int
-                ),
-            });
+        if let (Some(r), Some(w)) = (&registers, registers_written) {
+            if let Err(f) = self.write_registers(r).await {
+                return Err(self.undo(f).await);
+            }
+            self.record.written.push(w);
         }
         // The record that describes what the controller now holds, before `current/` says so;
         // when it cannot be kept, the controller gets back what it held.
@@ -1345,24 +1484,68 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 format!("the result was written to the controller but the run record could not be written: {e}; {undone}; free space in the storage directory (`[storage] dir`) and run again"),
             ));
         }
-        if let Some(staged) = staged {
+        journal::pause_point("record").await;
+        if let (Some(staged), Some(w)) = (staged, files_written) {
             match staged.commit() {
-                Ok(paths) => self.record.written.push(Written {
-                    target: WriteTarget::Files,
-                    detail: paths
-                        .iter()
-                        .map(|p| p.display().to_string())
-                        .collect::<Vec<_>>()
-                        .join(", "),
-                }),
+                Ok(_) => self.record.written.push(w),
                 Err(e) => {
                     let what = format!("`current/` could not be replaced after the result was written to the controller: {e}");
                     let put_back = self.put_back().await;
                     return Err(Failure::error(stage, format!("{what}; {put_back}")));
                 }
             }
+            journal::pause_point("current").await;
         }
         Ok(())
+    }
+
+    /// Writes the result registers of `r`: the six doubles, then the sequence number (a
+    /// pendant program waits for it, so it never applies a half-written set), then reads the
+    /// set back. Not cancellable: it is a few requests and never stops half-way.
+    async fn write_registers(&self, r: &journal::RegisterChange) -> Result<(), Failure> {
+        let stage = Stage::WriteBack;
+        let robot = self.robot;
+        let failed = |what: &'static str| move |e: HalError| Failure::robot(stage, what, e);
+        for (k, v) in r.new.iter().enumerate() {
+            robot
+                .write_double_register(r.double_start + k as u32, *v)
+                .await
+                .map_err(failed("writing the result registers"))?;
+            journal::pause_point(&format!("register-{k}")).await;
+        }
+        robot
+            .write_int_register(r.sequence_int, r.sequence)
+            .await
+            .map_err(failed("writing the sequence register"))?;
+        journal::pause_point("sequence").await;
+        let mut back = [0.0; 6];
+        for (k, v) in back.iter_mut().enumerate() {
+            *v = robot
+                .read_double_register(r.double_start + k as u32)
+                .await
+                .map_err(failed("reading the result registers back"))?;
+        }
+        let seq = robot
+            .read_int_register(r.sequence_int)
+            .await
+            .map_err(failed("reading the sequence register back"))?;
+        if back != r.new || seq != r.sequence {
+            return Err(Failure::error(
+                stage,
+                format!(
+                    "the result registers read back {back:?} (sequence {seq}) instead of {:?} (sequence {}): another RTDE client writes them?",
+                    r.new, r.sequence
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `f` with what [`Self::put_back`] did about the partly written result.
+    async fn undo(&mut self, mut f: Failure) -> Failure {
+        let undone = self.put_back().await;
+        f.message = format!("{}; {undone}", f.message);
+        f
     }
 
     /// Puts back what the controller held before the write-back (see [`put_back`]); on
@@ -1403,6 +1586,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 return;
             }
         };
+        journal::pause_point("return").await;
         let checked = self.planner().check_path(&here, &start, PATH_STEP_RAD);
         let result = match checked {
             Ok(Ok(_)) => {
@@ -1428,7 +1612,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
 /// not a UR5 from a UR5e), then its kinematics (`kinematics`: the controller's or the
 /// calibration file's DH and which): they must be a calibration of the model's nominal ones.
 /// Else what to configure, naming both.
-fn check_model_matches(
+pub fn check_model_matches(
     model: handeye_hal::ur_dh::UrModel,
     reported: Option<&str>,
     kinematics: Option<(&handeye_hal::ur_dh::DhParams, KinematicsOrigin)>,

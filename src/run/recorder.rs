@@ -65,7 +65,18 @@ impl Recorder {
         let mut record = RunRecord::starting(run_id, req.mode, req.dry_run, cfg.origin.clone());
         record.trigger = self.history.as_ref().map(|(_, trigger)| *trigger);
         let run_dir = storage::run_folder(&cfg.storage.dir, &record.run_id);
-        if let Err(why) = self.write_ahead(&record, &run_dir, cfg) {
+        // A write-back interrupted by a crash is reconciled with the controller first.
+        let reconciled = super::journal::reconcile(
+            robot,
+            &cfg.storage.dir,
+            self.history.as_ref().map(|(s, _)| s.as_ref()),
+        )
+        .await;
+        let ahead = match reconciled {
+            Ok(_) => self.write_ahead(&record, &run_dir, cfg),
+            Err(e) => Err(e.to_string()),
+        };
+        if let Err(why) = ahead {
             tracing::error!(run_id = %record.run_id, "run not started: {why}");
             record.failed_stage = Some(Stage::Preflight);
             record.reasons.push(format!(
@@ -80,7 +91,7 @@ impl Recorder {
             let _ = std::fs::remove_dir(&run_dir);
             return record;
         }
-        let (mut record, picture) = execute(
+        let (mut record, picture, journal) = execute(
             robot,
             camera,
             model,
@@ -92,7 +103,11 @@ impl Recorder {
             progress,
         )
         .await;
-        if let Err(e) = storage::write_record(&run_dir, &record) {
+        let mut kept = storage::write_record(&run_dir, &record);
+        if kept.is_err() && storage::release_reserve(&cfg.storage.dir) {
+            kept = storage::write_record(&run_dir, &record);
+        }
+        if let Err(e) = kept {
             tracing::error!(
                 "cannot write the run record into {}: {e}",
                 run_dir.display()
@@ -103,10 +118,22 @@ impl Recorder {
         }
         // The picture comes after the record: whatever happens to it, the run is kept.
         write_picture(run_dir, &record, model, picture).await;
+        let mut recorded = true;
         if let Some((store, trigger)) = &self.history {
-            if let Err(e) = store.finish(*trigger, &record) {
+            let mut finished = store.finish(*trigger, &record);
+            if finished.is_err() && storage::release_reserve(&cfg.storage.dir) {
+                finished = store.finish(*trigger, &record);
+            }
+            if let Err(e) = finished {
+                recorded = false;
                 tracing::error!("cannot record the end of run {}: {e}", record.run_id);
             }
+        }
+        if journal.is_some() {
+            end_journal(&cfg.storage.dir, &record, recorded);
+        }
+        drop(journal);
+        if let Some((store, _)) = &self.history {
             let d = &cfg.daemon;
             match prune_captures(
                 store,
@@ -136,6 +163,13 @@ impl Recorder {
     ) -> Result<(), String> {
         storage::check_room(&cfg.storage.dir, storage::RUN_BASE_BYTES)
             .map_err(|e| e.to_string())?;
+        if let Err(e) = storage::keep_reserve(&cfg.storage.dir) {
+            tracing::warn!(
+                "cannot keep {} MB in reserve in {}: {e}",
+                storage::RESERVE_BYTES >> 20,
+                cfg.storage.dir.display()
+            );
+        }
         if let Some((store, trigger)) = &self.history {
             let start = RunStart::new(record, *trigger, config_digest(&format!("{cfg:?}")));
             store
@@ -151,6 +185,30 @@ impl Recorder {
                 run_dir.display()
             )
         })
+    }
+}
+
+/// Removes the run's write-back journal once its end is kept and agrees with the controller:
+/// the history row is written (`recorded`) and the record is accepted or lists nothing
+/// written to the controller (rolled back). Otherwise it stays, for the next start to
+/// reconcile ([`super::journal::reconcile`]).
+fn end_journal(storage_dir: &std::path::Path, record: &RunRecord, recorded: bool) {
+    use crate::record::WriteTarget;
+    let controller_unrecorded = record.outcome != Outcome::Accepted
+        && record
+            .written
+            .iter()
+            .any(|w| matches!(w.target, WriteTarget::Tcp | WriteTarget::Registers));
+    if !recorded || controller_unrecorded {
+        tracing::error!(
+            run_id = %record.run_id,
+            "the write-back journal stays in {}: the next start reconciles the controller with this run's record",
+            storage_dir.display()
+        );
+        return;
+    }
+    if let Err(e) = storage::remove_journal(storage_dir) {
+        tracing::error!("cannot remove the write-back journal: {e}; the next start reconciles it");
     }
 }
 

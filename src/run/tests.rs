@@ -1426,3 +1426,60 @@ async fn issue_23_storage_filling_during_the_run_writes_nothing_to_the_controlle
     assert!(fs.path().join(CURRENT_DIR).join("result.json").is_file());
     assert_eq!(fs.temporary_files(), Vec::<PathBuf>::new());
 }
+
+/// Issue 36: the disk fills right after `current/` is swapped in (during the return move):
+/// the run's end is still recorded — its history row `accepted` at once (the storage's
+/// reserve is released for it), never left `running` and later read as aborted — and the
+/// latest calibration is this run, also after a restart.
+#[tokio::test]
+async fn issue_36_a_disk_filling_after_the_write_back_leaves_the_run_accepted() {
+    use crate::record::Trigger;
+    use crate::store::{RunStatus, Store};
+    let Some(f) = fixture() else { return };
+    let Some(fs) = SmallFs::mount("run-fills-late", 64 << 20) else {
+        return;
+    };
+    let cfg = test_config(fs.path(), f.view);
+    let robot = calibrated_robot(f);
+    let camera = FakeCamera::new(vec![f.scan.clone()]);
+    let db = fs.path().join(crate::store::HISTORY_FILE);
+    let store = Arc::new(Store::open(&db).expect("history"));
+    let fill_at_return = OnStage(|stage| {
+        if stage == Stage::Return && !fs.path().join("filler").exists() {
+            fs.fill();
+        }
+    });
+    let req = RunRequest {
+        mode: RunMode::Calibrate,
+        dry_run: false,
+        run_id: None,
+        program_handover: false,
+        accept_change: None,
+    };
+    let cancel = CancellationToken::new();
+    let record = super::Recorder::new(Arc::clone(&store), Trigger::Cli)
+        .run(
+            &robot,
+            &camera,
+            &f.model,
+            &cfg,
+            req,
+            &cancel,
+            &fill_at_return,
+        )
+        .await;
+    assert!(fs.path().join("filler").exists(), "the disk was filled");
+    assert_eq!(record.outcome, Outcome::Accepted, "{:?}", record.reasons);
+    let row = store.summary(&record.run_id).expect("read").expect("row");
+    assert_eq!(row.outcome, RunStatus::Ended(Outcome::Accepted), "{row:?}");
+    let latest = store
+        .latest(Some(RunMode::Calibrate), Some(Outcome::Accepted))
+        .expect("latest")
+        .expect("one");
+    assert_eq!(latest.run_id, record.run_id);
+    assert!(!fs.path().join(crate::storage::JOURNAL_FILE).exists());
+    drop(store);
+    let store = super::open_history(&db).expect("reopened");
+    let row = store.summary(&record.run_id).expect("read").expect("row");
+    assert_eq!(row.outcome, RunStatus::Ended(Outcome::Accepted), "{row:?}");
+}

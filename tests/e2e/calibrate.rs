@@ -9,8 +9,8 @@ use handeye_hal::ur_dh::DhParams;
 use nalgebra::{Isometry3, Vector3};
 
 use crate::support::{
-    history, iso, joints, max_change, pose_arg, pose_error, python, rig_config, run, secs, shared,
-    start_rig, ur_pose, Output, TempDir,
+    csv, history, iso, joints, max_change, pose_arg, pose_error, python, rig_config, run, secs,
+    shared, start_rig, ur_pose, Output, TempDir,
 };
 
 /// A configuration for the rig at `robot_ip`/`camera_ip`: 3 frames per view, the result
@@ -166,8 +166,18 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
         *m = serde_json::json!(m.as_f64().expect("x") + 1.0);
     });
     assert!(
-        shifted.contains("from the flange pose the URDF gives"),
+        shifted.contains("from the flange pose the controller's DH gives"),
         "{shifted}"
+    );
+    // Issue 36: the capture holds the controller's own DH, so a centimetre (well inside a
+    // nominal URDF's tolerance for a real arm) is refused too.
+    let nudged = tampered("nudged.json", &|d| {
+        let m = &mut d["views"][0]["base_from_flange"][0][3];
+        *m = serde_json::json!(m.as_f64().expect("x") + 0.01);
+    });
+    assert!(
+        nudged.contains("0.0100 m / 0.000° from the flange pose the controller's DH gives"),
+        "{nudged}"
     );
     let beyond = tampered("beyond.json", &|d| {
         d["views"][0]["joints"][1] = serde_json::json!(20.0);
@@ -549,4 +559,170 @@ fn bad_configs_name_the_key_and_the_line() {
         out.stderr.contains("hots") && out.stderr.contains("bad.toml:3:"),
         "{out}"
     );
+}
+
+/// Issue 38: `robot --config` talks to the controller the configuration names (its
+/// `robot.host` and ports), not to the `--host` default 127.0.0.1, says which before it moves,
+/// and `--host` overrides it. Nothing listens on 127.0.0.1's standard ports here, so a command
+/// that went there fails.
+#[test]
+fn issue_38_robot_config_reaches_the_configured_controller() {
+    let Some(_) = shared("issue_38_robot_config_reaches_the_configured_controller") else {
+        return;
+    };
+    let dir = TempDir::new("robot-config");
+    let (robot_ip, camera_ip) = ("127.0.0.166", "127.0.0.167");
+    let rig = start_rig(&dir, robot_ip, camera_ip, &["--serial", "20205500160"]);
+    let cfg = config(&dir, robot_ip, camera_ip);
+    let cfg_arg = cfg.to_str().expect("utf-8");
+
+    // `--config` before or after the subcommand: the same controller.
+    for args in [
+        &["robot", "--config", cfg_arg, "status", "--json"][..],
+        &["robot", "status", "--config", cfg_arg, "--json"][..],
+    ] {
+        let out = run(args, secs(15)).success();
+        assert_eq!(out.json()["controller"]["serial"], "20205500160", "{out}");
+        assert!(
+            out.stderr
+                .contains(&format!("controller {robot_ip} (dashboard port 29999")),
+            "{out}"
+        );
+    }
+
+    // A move goes to the configured arm, which says so first.
+    let start = joints(robot_ip);
+    let mut target = start.clone();
+    target[5] += 0.1;
+    let out = run(
+        &[
+            "robot",
+            "move",
+            "--config",
+            cfg_arg,
+            "--joints",
+            &csv(&target),
+        ],
+        secs(60),
+    )
+    .success();
+    assert!(
+        out.stderr.contains(&format!("controller {robot_ip} ")),
+        "{out}\n{}",
+        rig.log()
+    );
+    assert!(max_change(&joints(robot_ip), &target) < 1e-3, "{out}");
+
+    // `--host` overrides the configuration: an address where no controller answers fails,
+    // naming it, and the configured arm stays where it is.
+    let out = run(
+        &[
+            "robot",
+            "--host",
+            "127.0.0.168",
+            "--timeout-s",
+            "1",
+            "move",
+            "--config",
+            cfg_arg,
+            "--joints",
+            &csv(&start),
+        ],
+        secs(30),
+    );
+    assert_ne!(out.code(), 0, "{out}");
+    assert!(out.stderr.contains("127.0.0.168"), "{out}");
+    assert!(max_change(&joints(robot_ip), &target) < 1e-3, "{out}");
+}
+
+/// What the real controller behind a proxy holds: its TCP offset, input registers 24..29 and
+/// joints.
+fn controller_state(ip: &str) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let status = run(&["robot", "--host", ip, "status", "--json"], secs(15)).success();
+    let doc = status.json();
+    let tcp: Vec<f64> =
+        serde_json::from_value(doc["flange_from_tcp_ur_pose"].clone()).expect("TCP offset");
+    let q: Vec<f64> = serde_json::from_value(doc["joint_positions_rad"].clone()).expect("joints");
+    let regs = run(&["robot", "--host", ip, "registers", "--json"], secs(15)).success();
+    let inputs: Vec<f64> = (0..6)
+        .map(|k| regs.json()[k]["input"].as_f64().expect("register"))
+        .collect();
+    (tcp, inputs, q)
+}
+
+/// Issue 36: a controller (or anything between it and this PC) that reports values no arm can
+/// have — a NaN TCP pose, a flange a centimetre from its joints' forward kinematics, joints
+/// 0.3 rad from where the arm stands — gets nothing written and the arm is not moved; the
+/// error names the value. Through a proxy that corrupts the real RTDE packages of the
+/// simulated controller; the same calibration through the proxy without faults passes.
+#[test]
+fn issue_36_corrupt_controller_values_get_nothing_written() {
+    use handeye_ur::sim::fault_proxy::{Corruption, FaultProxy};
+    let Some(_) = shared("issue_36_corrupt_controller_values_get_nothing_written") else {
+        return;
+    };
+    let dir = TempDir::new("fault-proxy");
+    let (robot_ip, camera_ip, proxy_ip) = ("127.0.0.169", "127.0.0.170", "127.0.0.171");
+    let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let rt = tokio::runtime::Runtime::new().expect("runtime");
+    let proxy = rt
+        .block_on(FaultProxy::start(
+            proxy_ip.parse().expect("ip"),
+            robot_ip.parse().expect("ip"),
+            handeye_ur::Ports::STANDARD,
+        ))
+        .expect("proxy starts");
+    // The cell's configuration names the proxy as its controller.
+    let cfg = config(&dir, proxy_ip, camera_ip);
+    let before = controller_state(robot_ip);
+
+    for (field, corruption, says) in [
+        ("actual_TCP_pose", Corruption::Nan, "not a finite pose"),
+        (
+            "actual_TCP_pose",
+            Corruption::Add {
+                index: 0,
+                delta: 0.01,
+            },
+            "from the flange pose the controller's DH gives",
+        ),
+        (
+            "actual_q",
+            Corruption::Add {
+                index: 0,
+                delta: 0.3,
+            },
+            "from the flange pose the controller's DH gives",
+        ),
+        ("tcp_offset", Corruption::Infinity, "tcp_offset"),
+    ] {
+        proxy.corrupt(field, corruption.clone());
+        let out = handeye("calibrate", &cfg, &[]);
+        proxy.heal(field);
+        assert_ne!(
+            out.code(),
+            0,
+            "{field} {corruption:?}: {out}\n{}",
+            rig.log()
+        );
+        let text = format!("{}{}", out.stdout, out.stderr);
+        assert!(text.contains(says), "{field} {corruption:?}: {out}");
+        assert_eq!(
+            out.json()["written"].as_array().map(Vec::len),
+            Some(0),
+            "{field} {corruption:?}: {out}"
+        );
+        let after = controller_state(robot_ip);
+        assert_eq!(after.0, before.0, "{field}: the TCP changed: {out}");
+        assert_eq!(after.1, before.1, "{field}: the registers changed: {out}");
+        assert!(
+            max_change(&after.2, &before.2) < 1e-6,
+            "{field}: the arm moved: {out}"
+        );
+    }
+
+    // The proxy itself is transparent: without faults the calibration passes through it.
+    let out = handeye("calibrate", &cfg, &[]);
+    assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
+    assert_ne!(controller_state(robot_ip).0, before.0, "{out}");
 }

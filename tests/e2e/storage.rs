@@ -33,7 +33,7 @@ fn controller(robot_ip: &str, registers: bool) -> serde_json::Value {
 const REGISTERS: &str = "[write_back.registers]\ndouble_start = 24\nsequence_int = 24\n";
 
 /// Moves the storage of the configuration at `path` into `storage`.
-fn store_in(path: &Path, storage: &Path) -> PathBuf {
+pub(crate) fn store_in(path: &Path, storage: &Path) -> PathBuf {
     let text = std::fs::read_to_string(path).expect("config");
     assert!(text.contains("dir = \"data\""), "{text}");
     let text = text.replace(

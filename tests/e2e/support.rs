@@ -200,6 +200,18 @@ impl Daemon {
         Self::spawn(dir, name, command(args))
     }
 
+    /// Like [`Self::start`], with more environment variables.
+    pub(crate) fn start_env(
+        dir: &TempDir,
+        name: &str,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
+        let mut c = command(args);
+        c.envs(env.iter().copied());
+        Self::spawn(dir, name, c)
+    }
+
     /// Like [`Self::start`], without `RUST_LOG`: the log as a journal shows it by default.
     pub(crate) fn start_with_default_log(dir: &TempDir, name: &str, args: &[&str]) -> Self {
         let mut c = command(args);

@@ -14,6 +14,7 @@ mod collada;
 pub(crate) mod kinematic;
 mod mesh;
 mod primitives;
+pub mod reported;
 #[cfg(test)]
 mod tests;
 mod ur_calibration;
@@ -1215,6 +1216,9 @@ fn parse_mesh(bytes: &[u8], ext: &str, path: &Path, link: &str) -> Result<TriMes
     };
     let mesh = match ext {
         "dae" => collada::parse(bytes).map_err(malformed)?,
+        "stl" if !stl_size_matches(bytes) => {
+            return Err(malformed(stl_size_mismatch(bytes)));
+        }
         _ => {
             let loader = mesh_loader::Loader::default();
             let scene = if ext == "stl" {
@@ -1244,6 +1248,45 @@ fn parse_mesh(bytes: &[u8], ext: &str, path: &Path, link: &str) -> Result<TriMes
         return Err(malformed(format!("a vertex is not finite ({v:?})")));
     }
     Ok(mesh)
+}
+
+/// Whether an STL file is either a binary STL exactly as long as its header's triangle count
+/// says (84 + 50 bytes per triangle), or ASCII (`solid …`, text only). A binary STL may also
+/// begin with `solid` (some CAD tools write it), so the length decides first, and a file
+/// with bytes no text holds (a binary count, floats) is binary.
+fn stl_size_matches(bytes: &[u8]) -> bool {
+    match stl_claimed_bytes(bytes) {
+        Some(claimed) if claimed == bytes.len() as u64 => true,
+        _ => {
+            bytes.trim_ascii_start().starts_with(b"solid")
+                && bytes
+                    .iter()
+                    .all(|b| b.is_ascii_graphic() || b.is_ascii_whitespace())
+        }
+    }
+}
+
+/// The length a binary STL's header claims (84 + 50 × its triangle count), if it has one.
+fn stl_claimed_bytes(bytes: &[u8]) -> Option<u64> {
+    let count = bytes.get(80..84)?;
+    let count = u32::from_le_bytes(count.try_into().ok()?);
+    Some(84 + 50 * u64::from(count))
+}
+
+/// Why an STL that is neither ASCII nor as long as its binary header says was refused.
+fn stl_size_mismatch(bytes: &[u8]) -> String {
+    match stl_claimed_bytes(bytes) {
+        Some(claimed) => format!(
+            "its binary header claims {} triangles ({claimed} bytes) but the file holds {} \
+             bytes: a truncated or corrupt file",
+            (claimed - 84) / 50,
+            bytes.len()
+        ),
+        None => format!(
+            "{} bytes are neither an ASCII STL (`solid …`) nor a binary STL's 84-byte header",
+            bytes.len()
+        ),
+    }
 }
 
 /// Flattens a mesh-loader scene (STL, OBJ) into one [`TriMesh`].

@@ -984,3 +984,40 @@ fn issue_16_structured_fuzz_of_nesting_counts_and_numbers() {
     assert!(t0.elapsed().as_secs() < 20, "took {:?}", t0.elapsed());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 36: a binary STL whose header's triangle count disagrees with the file's length — a
+/// huge count over a few triangles, or a count short of what the file holds — is refused with
+/// both numbers, instead of loading part of the mesh (or none of it) as the link's shape.
+/// ASCII and well-formed binary STLs (also one whose header begins with `solid`) still load.
+#[test]
+fn issue_36_an_stl_whose_count_disagrees_with_its_length_is_refused() {
+    let path = Path::new("parts/base.stl");
+    let one = binary_stl();
+    let mut three = one.clone();
+    three[80..84].copy_from_slice(&3u32.to_le_bytes());
+    let facet = one[84..].to_vec();
+    three.extend(&facet);
+    three.extend(&facet);
+    let mut solid = three.clone();
+    solid[..5].copy_from_slice(b"solid");
+    for ok in [&one, &three, &solid, &STL_MM.as_bytes().to_vec()] {
+        parse_mesh(ok, "stl", path, "base_link").expect("a well-formed STL loads");
+    }
+    for (count, bytes) in [
+        (u32::MAX, &one),
+        (1_000_000, &three),
+        (1, &three),
+        (2, &solid),
+    ] {
+        let mut b = bytes.clone();
+        b[80..84].copy_from_slice(&count.to_le_bytes());
+        let e = parse_mesh(&b, "stl", path, "base_link").expect_err("count disagrees");
+        let msg = e.to_string();
+        assert!(
+            msg.contains(&format!("claims {count} triangles"))
+                && msg.contains(&format!("holds {} bytes", b.len()))
+                && msg.contains("base_link"),
+            "{msg}"
+        );
+    }
+}

@@ -11,7 +11,38 @@ use crate::decode::{self, Scan3d};
 use crate::error::{GigeError, Result};
 use crate::genicam::{fetch_xml, GvcpPort, NodeMap};
 use crate::gvcp::{cap, reg};
-use crate::gvsp::{Frame, StreamConfig, StreamReceiver, StreamStats};
+use crate::gvsp::{
+    image_bytes, split_chunks, Frame, PartInfo, StreamConfig, StreamReceiver, StreamStats,
+    PART_3D_IMAGE, PART_CHUNK,
+};
+
+/// Every GenICam feature the driver reads or writes (what `handeye camera xml` looks for, and
+/// what the corpus test checks against the EMVA reference GenApi).
+pub const DRIVER_FEATURES: &[&str] = &[
+    "Width",
+    "Height",
+    "PixelFormat",
+    "PayloadSize",
+    "GevSCPSPacketSize",
+    "AcquisitionMode",
+    "AcquisitionStart",
+    "AcquisitionStop",
+    "TLParamsLocked",
+    "ExposureTime",
+    "ComponentSelector",
+    "ComponentEnable",
+    "Scan3dDistanceUnit",
+    "Scan3dOutputMode",
+    "Scan3dCoordinateSelector",
+    "Scan3dCoordinateScale",
+    "Scan3dCoordinateOffset",
+    "Scan3dInvalidDataFlag",
+    "Scan3dInvalidDataValue",
+    "Scan3dFocalLength",
+    "Scan3dPrincipalPointU",
+    "Scan3dPrincipalPointV",
+    "Scan3dAspectRatio",
+];
 
 /// Streaming options of a capture.
 #[derive(Debug, Clone, PartialEq)]
@@ -141,51 +172,13 @@ impl GigeCamera {
         })
     }
 
-    /// Read the Scan3d conversion parameters (defaults where the camera lacks a feature).
+    /// Read the Scan3d conversion parameters (defaults where the camera lacks a feature):
+    /// without `Scan3dDistanceUnit` values are millimetres (a warning says so); without
+    /// `Scan3dCoordinateSelector` the one `Scan3dCoordinateScale` applies to every coordinate and
+    /// `Scan3dCoordinateOffset` to the depth (C). An output mode that needs the camera's
+    /// coordinate maps (`ProjectedC`, `UncalibratedC`, …) is an error.
     pub fn scan3d_blocking(&self) -> Result<Scan3d> {
-        self.with_features(|n, p| {
-            let mut s = Scan3d::default();
-            if n.has("Scan3dDistanceUnit") {
-                s.metres_per_unit = match n.enum_symbol(p, "Scan3dDistanceUnit")?.as_str() {
-                    "Millimeter" => 0.001,
-                    "Inch" => 0.0254,
-                    "Meter" => 1.0,
-                    other => {
-                        return Err(GigeError::feature(
-                            "Scan3dDistanceUnit",
-                            format!("unknown unit `{other}`"),
-                        ))
-                    }
-                };
-            }
-            if n.has("Scan3dCoordinateSelector") {
-                for (k, sym) in ["CoordinateA", "CoordinateB", "CoordinateC"]
-                    .iter()
-                    .enumerate()
-                {
-                    n.set_enum(p, "Scan3dCoordinateSelector", sym)?;
-                    if n.has("Scan3dCoordinateScale") {
-                        s.scale[k] = n.number(p, "Scan3dCoordinateScale")?;
-                    }
-                    if n.has("Scan3dCoordinateOffset") {
-                        s.offset[k] = n.number(p, "Scan3dCoordinateOffset")?;
-                    }
-                }
-            }
-            let flagged =
-                !n.has("Scan3dInvalidDataFlag") || n.boolean(p, "Scan3dInvalidDataFlag")?;
-            if flagged && n.has("Scan3dInvalidDataValue") {
-                s.invalid_value = Some(n.number(p, "Scan3dInvalidDataValue")?);
-            }
-            if n.has("Scan3dFocalLength") {
-                s.focal_length = n.number(p, "Scan3dFocalLength")?;
-                s.principal_point = (
-                    n.number(p, "Scan3dPrincipalPointU")?,
-                    n.number(p, "Scan3dPrincipalPointV")?,
-                );
-            }
-            Ok(s)
-        })
+        self.with_features(Scan3d::read)
     }
 
     /// Take control, stream until `frames` complete frames arrived (incomplete ones are
@@ -203,10 +196,16 @@ impl GigeCamera {
         client.write_reg(reg::SCPS0, o.packet_size & 0xFFFF)?;
         let packet_size = (client.read_reg(reg::SCPS0)? & 0xFFFF) as usize;
         let mut extended = false;
-        if o.confidence {
-            match self.enable_confidence(&client) {
+        let offers_range = self.with_features(|n, _| {
+            Ok(n.enum_entries("ComponentSelector")
+                .is_ok_and(|e| e.iter().any(|c| c == "Range")))
+        })?;
+        if offers_range {
+            match self.enable_components(&client, o.confidence) {
                 Ok(()) => extended = true,
-                Err(e) => tracing::warn!("confidence not available, streaming the range only: {e}"),
+                Err(e) => tracing::warn!(
+                    "multi-part not available, streaming the camera's single image: {e}"
+                ),
             }
         }
         let local_ip = local_ip_towards(self.peer)?;
@@ -225,7 +224,7 @@ impl GigeCamera {
                 n.set_enum(p, "AcquisitionMode", "Continuous")?;
             }
             if n.has("TLParamsLocked") {
-                n.set_integer(p, "TLParamsLocked", 1)?;
+                n.set_switch(p, "TLParamsLocked", true)?;
             }
             n.execute(p, "AcquisitionStart")
         })?;
@@ -261,7 +260,7 @@ impl GigeCamera {
         let stop = self.with_features(|n, p| {
             n.execute(p, "AcquisitionStop")?;
             if n.has("TLParamsLocked") {
-                n.set_integer(p, "TLParamsLocked", 0)?;
+                n.set_switch(p, "TLParamsLocked", false)?;
             }
             Ok(())
         });
@@ -273,14 +272,62 @@ impl GigeCamera {
         Ok((out, stats))
     }
 
-    fn enable_confidence(&self, client: &GvcpClient) -> Result<()> {
+    /// Enable the Range component (and Confidence when asked and offered) and ask for a
+    /// multi-part payload: cameras that offer components send them so (Photoneo sends its
+    /// intensity first and the rest as chunks otherwise).
+    fn enable_components(&self, client: &GvcpClient, confidence: bool) -> Result<()> {
         self.with_features(|n, p| {
-            n.set_enum(p, "ComponentSelector", "Confidence")?;
-            n.set_boolean(p, "ComponentEnable", true)?;
-            n.set_enum(p, "ComponentSelector", "Range")
+            if confidence {
+                let on = n
+                    .set_enum(p, "ComponentSelector", "Confidence")
+                    .and_then(|()| {
+                        if n.has("ComponentEnable") {
+                            n.set_boolean(p, "ComponentEnable", true)
+                        } else {
+                            Ok(())
+                        }
+                    });
+                if let Err(e) = on {
+                    tracing::warn!("confidence not available, streaming the range only: {e}");
+                }
+            }
+            n.set_enum(p, "ComponentSelector", "Range")?;
+            if n.has("ComponentEnable") {
+                n.set_boolean(p, "ComponentEnable", true)?;
+            }
+            Ok(())
         })?;
         client.write_reg(reg::GVSP_CONFIG, 0x4000_0000)?;
         client.write_reg(reg::SCCFG0, 0x40)
+    }
+
+    /// What a chunk-only payload's range chunk holds (Range's pixel format, size and id),
+    /// read before streaming; `None` when the camera has no Range component.
+    fn range_layout(&self) -> Result<Option<ChunkLayout>> {
+        self.with_features(|n, p| {
+            let has_range = n
+                .enum_entries("ComponentSelector")
+                .is_ok_and(|e| e.iter().any(|c| c == "Range"));
+            if !has_range {
+                return Ok(None);
+            }
+            n.set_enum(p, "ComponentSelector", "Range")?;
+            let id = if n.has("ComponentIDValue") {
+                Some(n.integer(p, "ComponentIDValue")?)
+            } else {
+                None
+            };
+            Ok(Some(ChunkLayout {
+                id: id.and_then(|i| u32::try_from(i).ok()),
+                pixel_format: u32::try_from(n.enum_value(p, "PixelFormat")?).map_err(|_| {
+                    GigeError::feature("PixelFormat", "the value is not a PFNC code")
+                })?,
+                width: u32::try_from(n.integer(p, "Width")?)
+                    .map_err(|_| GigeError::feature("Width", "out of range"))?,
+                height: u32::try_from(n.integer(p, "Height")?)
+                    .map_err(|_| GigeError::feature("Height", "out of range"))?,
+            }))
+        })
     }
 
     /// Capture and decode `frames` point clouds (metres, camera frame).
@@ -290,13 +337,115 @@ impl GigeCamera {
         frame_timeout: Duration,
     ) -> Result<(Vec<PointCloud>, CaptureStats)> {
         let scan3d = self.scan3d_blocking()?;
+        let layout = self.range_layout()?;
         let (raw, stats) = self.capture_raw_blocking(frames, frame_timeout)?;
         let clouds = raw
             .iter()
-            .map(|f| decode::decode(f, &scan3d))
+            .map(|f| {
+                if f.parts.iter().any(|(p, _)| p.data_type == PART_CHUNK) {
+                    decode::decode(&range_from_chunks(f, layout.as_ref())?, &scan3d)
+                } else {
+                    decode::decode(f, &scan3d)
+                }
+            })
             .collect::<Result<Vec<_>>>()?;
         Ok((clouds, stats))
     }
+}
+
+/// The output modes whose frames the driver turns into points: an organized XYZ grid, or a
+/// depth map with the published pinhole intrinsics.
+pub const SUPPORTED_OUTPUT_MODES: &[&str] = &["CalibratedABC_Grid", "CalibratedC", "RectifiedC"];
+
+/// Refuses an output mode whose frames would need the camera's per-pixel coordinate maps (or
+/// other data this driver does not read) to become points.
+pub fn check_output_mode(mode: &str) -> Result<()> {
+    if SUPPORTED_OUTPUT_MODES.contains(&mode) {
+        return Ok(());
+    }
+    Err(GigeError::feature(
+        "Scan3dOutputMode",
+        format!(
+            "is {mode}: its values become points only with the camera's coordinate maps (or \
+             disparity calibration), which this driver does not read; set Scan3dOutputMode to \
+             CalibratedABC_Grid (Coord3D_ABC32f), or CalibratedC/RectifiedC with a Coord3D_C \
+             format and Scan3dFocalLength"
+        ),
+    ))
+}
+
+/// Where the range component sits in a chunk-only payload.
+#[derive(Debug, Clone, PartialEq, Eq)]
+struct ChunkLayout {
+    /// `ComponentIDValue` of Range (the chunk id), when the camera has the feature.
+    id: Option<u32>,
+    pixel_format: u32,
+    width: u32,
+    height: u32,
+}
+
+/// Turns a chunk-only frame into one with a range part: the chunk whose id is Range's
+/// `ComponentIDValue`, else the only chunk of the range image's size.
+fn range_from_chunks(f: &Frame, layout: Option<&ChunkLayout>) -> Result<Frame> {
+    const W: &str = "chunk payload";
+    let layout = layout.ok_or_else(|| {
+        GigeError::malformed(W, "chunk data from a camera without a Range component")
+    })?;
+    let data = f
+        .parts
+        .iter()
+        .find(|(p, _)| p.data_type == PART_CHUNK)
+        .map(|(_, d)| d.as_slice())
+        .unwrap_or_default();
+    let chunks = split_chunks(data)?;
+    let bytes = image_bytes(layout.pixel_format, layout.width, layout.height, 0);
+    let by_id = layout
+        .id
+        .and_then(|id| chunks.iter().find(|(cid, _)| *cid == id));
+    let by_size: Vec<&(u32, &[u8])> = chunks
+        .iter()
+        .filter(|(_, d)| d.len() as u64 == bytes)
+        .collect();
+    let (id, range) = match (by_id, by_size.as_slice()) {
+        (Some(c), _) | (None, &[c]) => *c,
+        _ => {
+            return Err(GigeError::malformed(
+                W,
+                format!(
+                    "no chunk holds the range image ({} {}x{}, {bytes} bytes{}); chunks: {}",
+                    decode::pfnc::name(layout.pixel_format),
+                    layout.width,
+                    layout.height,
+                    layout
+                        .id
+                        .map_or_else(String::new, |i| format!(", ComponentIDValue {i}")),
+                    chunks
+                        .iter()
+                        .map(|(i, d)| format!("{i:#x} ({} bytes)", d.len()))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ))
+        }
+    };
+    let info = PartInfo {
+        data_type: PART_3D_IMAGE,
+        length: range.len() as u64,
+        pixel_format: layout.pixel_format,
+        purpose: u16::try_from(id).unwrap_or(0),
+        width: layout.width,
+        height: layout.height,
+        padding_x: 0,
+    };
+    Ok(Frame {
+        block_id: f.block_id,
+        timestamp: f.timestamp,
+        parts: vec![(info, range.to_vec())],
+        complete: f.complete,
+        resent_packets: f.resent_packets,
+        missing_packets: f.missing_packets,
+        received: f.received,
+    })
 }
 
 async fn blocking<T: Send + 'static>(

@@ -132,6 +132,33 @@ pub fn xml_text(bytes: &[u8]) -> Result<String> {
 /// hundred kB (ZIP: tens of kB), and each 536 bytes of device memory is one GVCP round trip.
 pub const MAX_XML_BYTES: usize = 16 << 20;
 
+/// Read the XML a URL names: `Local:` through `read_mem(address, length)` (the device's
+/// memory), `File:` from this host; unzipped when zipped. `http:` is refused with what to do.
+pub fn load_xml(
+    url: XmlUrl,
+    read_mem: impl FnOnce(u32, usize) -> Result<Vec<u8>>,
+) -> Result<String> {
+    match url {
+        XmlUrl::Local {
+            address, length, ..
+        } => xml_text(&read_mem(address, length as usize)?),
+        XmlUrl::File(path) => {
+            // The device names the file: never a FIFO or device, never unbounded.
+            handeye_hal::limits::check_regular_file(
+                std::path::Path::new(&path),
+                MAX_XML_BYTES as u64,
+            )
+            .and_then(|_| std::fs::read(&path))
+            .map_err(|e| GigeError::io(path, e))
+            .and_then(|bytes| xml_text(&bytes))
+        }
+        XmlUrl::Http(u) => Err(GigeError::malformed(
+            "XML URL",
+            format!("`{u}`: downloading the XML is not supported; save it and use a File: URL"),
+        )),
+    }
+}
+
 /// Read the XML of a device: first URL register, then the second one as fallback.
 pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
     let mut last_err = None;
@@ -139,27 +166,7 @@ pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
         let fetched = client
             .read_string(url_reg, 512)
             .and_then(|u| XmlUrl::parse(&u))
-            .and_then(|url| match url {
-                XmlUrl::Local {
-                    address, length, ..
-                } => xml_text(&client.read_mem(address, length as usize)?),
-                XmlUrl::File(path) => {
-                    // The device names the file: never a FIFO or device, never unbounded.
-                    handeye_hal::limits::check_regular_file(
-                        std::path::Path::new(&path),
-                        MAX_XML_BYTES as u64,
-                    )
-                    .and_then(|_| std::fs::read(&path))
-                    .map_err(|e| GigeError::io(path, e))
-                    .and_then(|bytes| xml_text(&bytes))
-                }
-                XmlUrl::Http(u) => Err(GigeError::malformed(
-                    "XML URL",
-                    format!(
-                        "`{u}`: downloading the XML is not supported; save it and use a File: URL"
-                    ),
-                )),
-            });
+            .and_then(|url| load_xml(url, |address, length| client.read_mem(address, length)));
         match fetched {
             Ok(x) => return Ok(x),
             // A device that does not answer (or stalls) will not answer the second URL either.
@@ -171,10 +178,14 @@ pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
 }
 
 /// Longest formula (`<Formula>`, `<FormulaTo>`, `<FormulaFrom>`, `<Expression>` text, as
-/// written in the XML) accepted; real ones are a few dozen characters.
-const MAX_FORMULA_CHARS: usize = 2048;
-/// Deepest parenthesis nesting in a formula.
-const MAX_FORMULA_DEPTH: usize = 32;
+/// written in the XML) accepted. Sized from real descriptions (tests/data/genicam-corpus):
+/// the longest is Nerian's SceneScan/Scarlet one, 6 243 characters.
+pub const MAX_FORMULA_CHARS: usize = 16_384;
+/// Deepest parenthesis nesting in a formula; the deepest real one (Euresys Coaxlink) is 54.
+pub const MAX_FORMULA_DEPTH: usize = 128;
+/// Most operator characters (`+-*/%&|^~<>=?:`, entities counted by their `&`) in a formula:
+/// each may add a level to the evaluator's recursion. The most in a real one (Nerian) is 582.
+pub const MAX_FORMULA_OPERATORS: usize = 2048;
 
 /// Refuses formulas long or nested enough to drive the node map's recursive formula parser
 /// and evaluator past the stack.
@@ -196,8 +207,19 @@ fn check_formulas(xml: &str) -> std::result::Result<(), String> {
             let formula = &body[..end];
             if formula.len() > MAX_FORMULA_CHARS {
                 return Err(format!(
-                    "a <{tag}> of {} characters (at most {MAX_FORMULA_CHARS})",
+                    "a <{tag}> of {} characters (at most {MAX_FORMULA_CHARS}, 2.6 times the \
+                     longest in real cameras' descriptions)",
                     formula.len()
+                ));
+            }
+            let operators = formula
+                .chars()
+                .filter(|c| "+-*/%&|^~<>=?:".contains(*c))
+                .count();
+            if operators > MAX_FORMULA_OPERATORS {
+                return Err(format!(
+                    "a <{tag}> with {operators} operators (at most {MAX_FORMULA_OPERATORS}, 3.5 \
+                     times the most in real cameras' descriptions)"
                 ));
             }
             let mut depth = 0usize;
@@ -207,7 +229,8 @@ fn check_formulas(xml: &str) -> std::result::Result<(), String> {
                         depth += 1;
                         if depth > MAX_FORMULA_DEPTH {
                             return Err(format!(
-                                "a <{tag}> nests parentheses more than {MAX_FORMULA_DEPTH} deep"
+                                "a <{tag}> nests parentheses more than {MAX_FORMULA_DEPTH} deep \
+                                 (real cameras' descriptions nest at most 54)"
                             ));
                         }
                     }
@@ -220,6 +243,10 @@ fn check_formulas(xml: &str) -> std::result::Result<(), String> {
     }
     Ok(())
 }
+
+/// Register access a [`NodeMap`] reads and writes features through: [`GvcpPort`] here, a
+/// GenTL producer's port in `handeye-gentl`.
+pub use cameleon_genapi::Device as RegisterPort;
 
 /// Register access for the node map over GVCP: 4-byte aligned accesses use READREG/WRITEREG
 /// (always supported), others READMEM/WRITEMEM.
@@ -258,10 +285,31 @@ impl cameleon_genapi::Device for GvcpPort {
     }
 }
 
+/// The GenApi interface of a feature, as [`NodeMap::kind`] reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FeatureKind {
+    /// IInteger (Integer, IntReg, MaskedIntReg, IntConverter, IntSwissKnife).
+    Integer,
+    /// IFloat (Float, FloatReg, Converter, SwissKnife).
+    Float,
+    /// IBoolean.
+    Boolean,
+    /// IEnumeration.
+    Enumeration,
+    /// ICommand.
+    Command,
+    /// IString (String, StringReg).
+    String,
+    /// Anything else (Category, Register, Port, ...).
+    Other,
+}
+
 /// A parsed node map (no register cache: every read goes to the device).
 pub struct NodeMap {
     store: DefaultNodeStore,
     cx: ValueCtxt<DefaultValueStore, CacheSink>,
+    vendor: String,
+    model: String,
 }
 
 impl std::fmt::Debug for NodeMap {
@@ -272,6 +320,30 @@ impl std::fmt::Debug for NodeMap {
 
 fn gerr(feature: &str, e: impl std::fmt::Display) -> GigeError {
     GigeError::feature(feature, e.to_string())
+}
+
+/// `Ok` when the feature may be read now.
+fn readable(feature: &str, r: cameleon_genapi::GenApiResult<bool>) -> Result<()> {
+    match r {
+        Ok(true) => Ok(()),
+        Ok(false) => Err(gerr(
+            feature,
+            "is not readable now (not implemented, not available, or write-only)",
+        )),
+        Err(e) => Err(gerr(feature, e)),
+    }
+}
+
+/// `Ok` when the feature may be written now.
+fn writable(feature: &str, r: cameleon_genapi::GenApiResult<bool>) -> Result<()> {
+    match r {
+        Ok(true) => Ok(()),
+        Ok(false) => Err(gerr(
+            feature,
+            "is not writable now (locked while streaming, not available, or read-only)",
+        )),
+        Err(e) => Err(gerr(feature, e)),
+    }
 }
 
 impl NodeMap {
@@ -293,12 +365,64 @@ impl NodeMap {
             .build(&xml)
         }));
         match built {
-            Ok(Ok((_, store, cx))) => Ok(Self { store, cx }),
+            Ok(Ok((desc, store, cx))) => Ok(Self {
+                store,
+                cx,
+                vendor: desc.vendor_name().to_owned(),
+                model: desc.model_name().to_owned(),
+            }),
             Ok(Err(e)) => Err(GigeError::malformed("GenICam XML", e.to_string())),
-            Err(_) => Err(GigeError::malformed(
-                "GenICam XML",
-                "the node map is inconsistent (parser aborted)",
+            Err(panic) => {
+                let why = panic
+                    .downcast_ref::<String>()
+                    .map(String::as_str)
+                    .or_else(|| panic.downcast_ref::<&str>().copied())
+                    .unwrap_or("no detail");
+                Err(GigeError::malformed(
+                    "GenICam XML",
+                    format!("the node map is inconsistent (parser aborted: {why})"),
+                ))
+            }
+        }
+    }
+
+    /// The GenApi interface of a feature (`None` when the camera has no such feature).
+    pub fn kind(&self, name: &str) -> Option<FeatureKind> {
+        let id = self.store.id_by_name(name)?;
+        let s = &self.store;
+        Some(if id.as_ienumeration_kind(s).is_some() {
+            FeatureKind::Enumeration
+        } else if id.as_iinteger_kind(s).is_some() {
+            FeatureKind::Integer
+        } else if id.as_ifloat_kind(s).is_some() {
+            FeatureKind::Float
+        } else if id.as_iboolean_kind(s).is_some() {
+            FeatureKind::Boolean
+        } else if id.as_icommand_kind(s).is_some() {
+            FeatureKind::Command
+        } else if id.as_istring_kind(s).is_some() {
+            FeatureKind::String
+        } else {
+            FeatureKind::Other
+        })
+    }
+
+    /// Write an on/off feature that cameras declare either as a Boolean or as an Integer
+    /// (SFNC's `TLParamsLocked` is an Integer; some Allied Vision cameras make it a Boolean).
+    pub fn set_switch(
+        &mut self,
+        dev: &mut impl cameleon_genapi::Device,
+        name: &str,
+        on: bool,
+    ) -> Result<()> {
+        match self.kind(name) {
+            Some(FeatureKind::Boolean) => self.set_boolean(dev, name, on),
+            Some(FeatureKind::Integer) => self.set_integer(dev, name, i64::from(on)),
+            Some(other) => Err(gerr(
+                name,
+                format!("is {other:?}, expected a Boolean or an Integer"),
             )),
+            None => Err(gerr(name, "the camera has no such feature")),
         }
     }
 
@@ -308,22 +432,36 @@ impl NodeMap {
             .ok_or_else(|| gerr(name, "the camera has no such feature"))
     }
 
+    /// `VendorName` of the description (its root element).
+    pub fn vendor_name(&self) -> &str {
+        &self.vendor
+    }
+
+    /// `ModelName` of the description (its root element).
+    pub fn model_name(&self) -> &str {
+        &self.model
+    }
+
     /// Whether the node exists.
     pub fn has(&self, name: &str) -> bool {
         self.store.id_by_name(name).is_some()
     }
 
     /// Read an integer feature (Integer, IntReg, MaskedIntReg, IntConverter, IntSwissKnife).
+    /// Like every read here, refused while the feature is not readable (not implemented, not
+    /// available or write-only), as the EMVA reference refuses it.
     pub fn integer(&mut self, dev: &mut impl cameleon_genapi::Device, name: &str) -> Result<i64> {
         let n = self
             .id(name)?
             .expect_iinteger_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
         n.value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
 
-    /// Write an integer feature.
+    /// Write an integer feature. Like every write here, refused while the feature is not
+    /// writable (locked, not available, read-only) or the value is out of its range.
     pub fn set_integer(
         &mut self,
         dev: &mut impl cameleon_genapi::Device,
@@ -334,6 +472,16 @@ impl NodeMap {
             .id(name)?
             .expect_iinteger_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
+        let lo = n
+            .min(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))?;
+        let hi = n
+            .max(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))?;
+        if v < lo || v > hi {
+            return Err(gerr(name, format!("{v} is outside {lo}..={hi}")));
+        }
         n.set_value(v, dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -344,6 +492,7 @@ impl NodeMap {
             .id(name)?
             .expect_ifloat_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
         n.value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -368,6 +517,16 @@ impl NodeMap {
             .id(name)?
             .expect_ifloat_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
+        let lo = n
+            .min(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))?;
+        let hi = n
+            .max(dev, &self.store, &mut self.cx)
+            .map_err(|e| gerr(name, e))?;
+        if !(v >= lo && v <= hi) {
+            return Err(gerr(name, format!("{v} is outside {lo}..={hi}")));
+        }
         n.set_value(v, dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -378,6 +537,7 @@ impl NodeMap {
             .id(name)?
             .expect_iboolean_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
         n.value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -393,6 +553,7 @@ impl NodeMap {
             .id(name)?
             .expect_iboolean_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
         n.set_value(v, dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -403,6 +564,7 @@ impl NodeMap {
             .id(name)?
             .expect_istring_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
         n.value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -413,10 +575,12 @@ impl NodeMap {
         dev: &mut impl cameleon_genapi::Device,
         name: &str,
     ) -> Result<String> {
+        self.some_entry_implemented(dev, name)?;
         let n = self
             .id(name)?
             .expect_ienumeration_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
         let e = n
             .current_entry(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))?;
@@ -432,10 +596,12 @@ impl NodeMap {
         dev: &mut impl cameleon_genapi::Device,
         name: &str,
     ) -> Result<i64> {
+        self.some_entry_implemented(dev, name)?;
         let n = self
             .id(name)?
             .expect_ienumeration_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
         n.current_value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -451,7 +617,7 @@ impl NodeMap {
             .id(name)?
             .expect_ienumeration_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        if n.entry_by_symbolic(symbol, &self.store).is_none() {
+        let Some(entry) = n.entry_by_symbolic(symbol, &self.store) else {
             return Err(gerr(
                 name,
                 format!(
@@ -459,9 +625,47 @@ impl NodeMap {
                     self.enum_entries(name)?.join(", ")
                 ),
             ));
+        };
+        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
+        let e = entry
+            .expect_enum_entry(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        let usable = e
+            .is_implemented(dev, &self.store, &mut self.cx)
+            .and_then(|i| Ok(i && e.is_available(dev, &self.store, &mut self.cx)?))
+            .map_err(|e| gerr(name, e))?;
+        if !usable {
+            return Err(gerr(
+                name,
+                format!("`{symbol}` is not available now (not implemented or not available)"),
+            ));
         }
         n.set_entry_by_symbolic(symbol, dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
+    }
+
+    /// An enumeration none of whose entries is implemented is itself not implemented (as the
+    /// EMVA reference has it: FLIR/Point Grey cameras report their pixel formats so).
+    fn some_entry_implemented(
+        &mut self,
+        dev: &mut impl cameleon_genapi::Device,
+        name: &str,
+    ) -> Result<()> {
+        let n = self
+            .id(name)?
+            .expect_ienumeration_kind(&self.store)
+            .map_err(|e| gerr(name, e))?;
+        for id in n.entries(&self.store) {
+            let e = id
+                .expect_enum_entry(&self.store)
+                .map_err(|e| gerr(name, e))?;
+            if e.is_implemented(dev, &self.store, &mut self.cx)
+                .map_err(|e| gerr(name, e))?
+            {
+                return Ok(());
+            }
+        }
+        Err(gerr(name, "is not implemented (none of its entries is)"))
     }
 
     /// Symbolic names and values of all entries of an enumeration.
@@ -495,6 +699,7 @@ impl NodeMap {
             .id(name)?
             .expect_icommand_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
+        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
         n.execute(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -606,6 +811,126 @@ mod tests {
                 .map(|_| ())
                 .map_err(|e| e.to_string())
         });
+    }
+
+    /// A port over zeroed registers (what the formulas below read).
+    struct Zeros;
+
+    impl cameleon_genapi::Device for Zeros {
+        fn read_mem(
+            &mut self,
+            _: i64,
+            buf: &mut [u8],
+        ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
+            buf.fill(0);
+            Ok(())
+        }
+
+        fn write_mem(
+            &mut self,
+            _: i64,
+            _: &[u8],
+        ) -> std::result::Result<(), Box<dyn std::error::Error + Send + Sync>> {
+            Ok(())
+        }
+    }
+
+    /// Issue 35: the formula guards are sized from real descriptions (Nerian's 6 243-character
+    /// formula, Euresys' 54-deep nesting); formulas at every limit at once parse and evaluate
+    /// on a 2 MiB thread stack (the size of tokio's and the test harness's threads), and one
+    /// past a limit is an error naming it.
+    #[test]
+    fn issue_35_formula_guards_fit_real_files_and_hold_at_their_limits() {
+        let real = include_str!("sim/camera.xml");
+        let formula = "<Formula>(HIGH &lt;&lt; 32) | LOW</Formula>";
+        let depth = MAX_FORMULA_DEPTH - 1;
+        // 2 * chain + 2 * depth + 4 characters, chain + 1 operators (each `+`, then `|`).
+        let chain = (MAX_FORMULA_OPERATORS - 1).min((MAX_FORMULA_CHARS - 2 * depth - 8) / 2);
+        let worst = [
+            format!(
+                "{}(HIGH{}){}|LOW",
+                "(".repeat(depth),
+                "+1".repeat(chain),
+                ")".repeat(depth)
+            ),
+            format!("{}LOW", "-".repeat(MAX_FORMULA_OPERATORS)),
+        ];
+        for (i, f) in worst.iter().enumerate() {
+            let xml = real.replace(formula, &format!("<Formula>{f}</Formula>"));
+            let value = std::thread::Builder::new()
+                .stack_size(2 << 20)
+                .spawn(move || {
+                    let mut nm = NodeMap::from_xml(&xml).map_err(|e| e.to_string())?;
+                    nm.integer(&mut Zeros, "GevTimestampTickFrequency")
+                        .map_err(|e| e.to_string())
+                })
+                .expect("thread")
+                .join()
+                .expect("no stack overflow");
+            assert_eq!(value, Ok(if i == 0 { chain as i64 } else { 0 }), "{i}");
+        }
+        for (bad, limit) in [
+            (
+                format!(
+                    "{}1{}",
+                    "(".repeat(MAX_FORMULA_DEPTH + 1),
+                    ")".repeat(MAX_FORMULA_DEPTH + 1)
+                ),
+                "128 deep",
+            ),
+            (
+                format!("{}1", " ".repeat(MAX_FORMULA_CHARS)),
+                "at most 16384",
+            ),
+            (
+                format!("{}LOW", "-".repeat(MAX_FORMULA_OPERATORS + 1)),
+                "at most 2048",
+            ),
+        ] {
+            let xml = real.replace(formula, &format!("<Formula>{bad}</Formula>"));
+            let e = NodeMap::from_xml(&xml)
+                .expect_err("past a limit")
+                .to_string();
+            assert!(e.contains(limit), "{e}");
+        }
+    }
+
+    /// Issue 35: legal GenApi that cameleon-genapi 0.1.14 aborted on (patched in
+    /// vendor/cameleon-genapi): float literals with an exponent, `ROUND(x, n)`, empty
+    /// elements, values padded with whitespace.
+    #[test]
+    fn issue_35_vendor_forms_load_and_evaluate() {
+        let real = include_str!("sim/camera.xml");
+        let formula = "<Formula>(HIGH &lt;&lt; 32) | LOW</Formula>";
+        for (f, want) in [
+            ("(LOW&lt;&gt;0)?(1e6/LOW):(2.5E3*2)", 5000),
+            ("ROUND(1234.5678 * 10, 0) + ROUND(0.25, 1)", 12346),
+            ("SGN(LOW - 3) * 7", -7),
+        ] {
+            let xml = real.replace(formula, &format!("<Formula>{f}</Formula>"));
+            let mut nm = NodeMap::from_xml(&xml).unwrap_or_else(|e| panic!("{f}: {e}"));
+            assert_eq!(
+                nm.integer(&mut Zeros, "GevTimestampTickFrequency")
+                    .expect(f),
+                want,
+                "{f}"
+            );
+        }
+        // `<Visibility>\n Beginner\n</Visibility>`, `<Streamable/>`.
+        let padded = real
+            .replacen(
+                "<Visibility>Invisible</Visibility>",
+                "<Visibility>\n    Invisible\n  </Visibility><Streamable/>",
+                1,
+            )
+            .replace("<Min>16</Min>", "<Min>\n 16 \n</Min>");
+        assert_ne!(padded, real);
+        let mut nm = NodeMap::from_xml(&padded).expect("padded values load");
+        assert!(nm.has("TLParamsLocked"));
+        assert!(
+            nm.set_integer(&mut Zeros, "Width", 15).is_err(),
+            "Min 16 still holds"
+        );
     }
 
     /// Issue 16: a device's XML nested tens of thousands of elements deep is an error, not a

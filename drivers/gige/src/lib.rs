@@ -3,7 +3,8 @@
 //!
 //! Layout: [`gvcp`] (control packets), [`client`] (control channel, discovery, heartbeat),
 //! [`genicam`] (XML fetch and node map), [`gvsp`] (stream packets and the frame receiver),
-//! [`decode`] (PFNC 3D formats to point clouds), [`camera`] (the `DepthCamera`), [`sim`]
+//! [`decode`] (PFNC 3D formats to point clouds), [`camera`] (the `DepthCamera`), [`describe`]
+//! (what the driver makes of a description, offline), [`sim`]
 //! (a simulated 3D camera that speaks the same protocols).
 #![deny(missing_docs)]
 
@@ -15,6 +16,7 @@ static ALLOC: handeye_hal::fuzz::TrackingAlloc = handeye_hal::fuzz::TrackingAllo
 pub mod camera;
 pub mod client;
 pub mod decode;
+pub mod describe;
 mod error;
 pub mod genicam;
 pub mod gvcp;

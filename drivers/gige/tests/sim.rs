@@ -2,7 +2,9 @@
 
 use std::time::{Duration, Instant};
 
-use handeye_gige::sim::{SceneSource, SimCamera, SimOptions};
+use handeye_gige::decode::pfnc;
+use handeye_gige::genicam::FeatureKind;
+use handeye_gige::sim::{SceneSource, SimCamera, SimOptions, VendorHabits};
 use handeye_gige::{discover, ControlConfig, GigeCamera, GigeError, GvcpClient};
 use handeye_hal::{CaptureSettings, DepthCamera};
 
@@ -223,4 +225,176 @@ fn issue_16_unusable_options_are_refused_at_start() {
         .expect_err("refused");
         assert!(matches!(e, GigeError::InvalidArgument(_)), "{e}");
     }
+}
+
+/// Issue 35: five Allied Vision cameras declare `TLParamsLocked` a Boolean. The driver wrote it
+/// as an Integer, and the capture aborted before `AcquisitionStart`.
+#[test]
+fn capture_with_a_boolean_tl_params_locked() {
+    let s = sim(SimOptions {
+        frame_rate: 50.0,
+        habits: VendorHabits {
+            tl_params_locked_boolean: true,
+            ..VendorHabits::default()
+        },
+        ..SimOptions::default()
+    });
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    cam.with_features(|n, _| {
+        assert_eq!(n.kind("TLParamsLocked"), Some(FeatureKind::Boolean));
+        Ok(())
+    })
+    .expect("features");
+    let (clouds, _) = cam
+        .capture_blocking(1, Duration::from_secs(2))
+        .expect("capture");
+    check_scene(&clouds, 64, 48, 1e-5);
+    assert!(!s.is_acquiring(), "acquisition stopped after capture");
+    assert!(
+        cam.with_features(|n, p| n.boolean(p, "TLParamsLocked"))
+            .is_ok_and(|locked| !locked),
+        "unlocked after the capture"
+    );
+}
+
+fn habits(h: VendorHabits) -> SimOptions {
+    SimOptions {
+        frame_rate: 50.0,
+        habits: h,
+        ..SimOptions::default()
+    }
+}
+
+/// Issue 35: Photoneo-like cameras send their intensity as the first part of a multi-part
+/// payload. The driver asked for multi-part only with `--confidence` and took the first part
+/// (Mono16: UnsupportedFormat); now it asks whenever Range is offered and picks the range part.
+#[test]
+fn intensity_first_multipart_is_decoded_from_its_range_part() {
+    let s = sim(habits(VendorHabits {
+        intensity_first: true,
+        ..VendorHabits::default()
+    }));
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    let (raw, _) = cam
+        .capture_raw_blocking(1, Duration::from_secs(2))
+        .expect("raw");
+    let kinds: Vec<u32> = raw[0].parts.iter().map(|(p, _)| p.pixel_format).collect();
+    assert_eq!(
+        kinds,
+        [pfnc::MONO16, pfnc::COORD3D_ABC32F],
+        "intensity first, then range"
+    );
+    let (clouds, _) = cam
+        .capture_blocking(2, Duration::from_secs(2))
+        .expect("capture");
+    check_scene(&clouds, 64, 48, 1e-5);
+    let intensity = clouds[0].intensity.as_ref().expect("intensity part");
+    assert_eq!(intensity.len(), 64 * 48);
+}
+
+/// Issue 35: a chunk-only payload (GVSP payload type 4, Photoneo's other mode) was counted as
+/// an incomplete frame; its range chunk is now found and decoded.
+#[test]
+fn chunk_only_payloads_are_decoded() {
+    for confidence in [false, true] {
+        let s = sim(habits(VendorHabits {
+            chunk_only: true,
+            intensity_first: true,
+            ..VendorHabits::default()
+        }));
+        let mut cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+        cam.options.confidence = confidence;
+        let (clouds, stats) = cam
+            .capture_blocking(2, Duration::from_secs(2))
+            .expect("capture");
+        assert_eq!(stats.incomplete, 0, "{stats:?}");
+        check_scene(&clouds, 64, 48, 1e-5);
+        // C16 depth in a chunk, with the scale of the (only) coordinate.
+        cam.with_features(|n, p| n.set_enum(p, "PixelFormat", "Coord3D_C16"))
+            .expect("C16");
+        let (clouds, _) = cam
+            .capture_blocking(1, Duration::from_secs(2))
+            .expect("capture C16");
+        check_scene(&clouds, 64, 48, 2e-4);
+    }
+}
+
+/// Issue 35: Nerian's description has no Scan3dCoordinateSelector and no Scan3dDistanceUnit.
+/// The scale was read only through the selector (a C16 depth map came out 10 times too far);
+/// the unit defaults to millimetres.
+#[test]
+fn scale_without_a_selector_and_no_distance_unit() {
+    let s = sim(habits(VendorHabits {
+        no_coordinate_selector: true,
+        no_distance_unit: true,
+        ..VendorHabits::default()
+    }));
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    cam.with_features(|n, p| {
+        assert!(!n.has("Scan3dCoordinateSelector") && !n.has("Scan3dDistanceUnit"));
+        n.set_enum(p, "PixelFormat", "Coord3D_C16")
+    })
+    .expect("C16");
+    let scan3d = cam.scan3d_blocking().expect("scan3d");
+    assert_eq!(scan3d.metres_per_unit, 0.001);
+    assert!((scan3d.scale[2] - 0.1).abs() < 1e-12, "{scan3d:?}");
+    let (clouds, _) = cam
+        .capture_blocking(1, Duration::from_secs(2))
+        .expect("capture");
+    check_scene(&clouds, 64, 48, 2e-4);
+}
+
+/// Issue 35: `Scan3dAspectRatio` (pixels taller than wide) was ignored: a depth map's y came
+/// out short by the ratio.
+#[test]
+fn aspect_ratio_of_depth_maps_is_honoured() {
+    let source = SceneSource::new(64, 48).with_aspect_ratio(1.25);
+    let truth = source.render();
+    let s = SimCamera::spawn(
+        "127.0.0.1:0".parse().expect("addr"),
+        Box::new(source),
+        habits(VendorHabits {
+            aspect_ratio: true,
+            ..VendorHabits::default()
+        }),
+    )
+    .expect("sim");
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    cam.with_features(|n, p| n.set_enum(p, "PixelFormat", "Coord3D_C16"))
+        .expect("C16");
+    assert_eq!(cam.scan3d_blocking().expect("scan3d").aspect_ratio, 1.25);
+    let (clouds, _) = cam
+        .capture_blocking(1, Duration::from_secs(2))
+        .expect("capture");
+    let mut compared = 0;
+    for (p, t) in clouds[0].points.iter().zip(&truth.points) {
+        if t.z.is_finite() && p.z.is_finite() {
+            assert!((p - t).norm() < 2e-4, "{p:?} vs {t:?}");
+            compared += 1;
+        }
+    }
+    assert!(compared > 64 * 48 / 2, "{compared}");
+}
+
+/// Issue 35: an output mode whose values need the camera's coordinate maps is a clear error
+/// naming Scan3dOutputMode, before anything streams.
+#[test]
+fn projected_c_is_a_clear_error() {
+    let s = sim(habits(VendorHabits {
+        projected_c: true,
+        ..VendorHabits::default()
+    }));
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    let e = cam
+        .capture_blocking(1, Duration::from_secs(2))
+        .expect_err("ProjectedC")
+        .to_string();
+    assert!(
+        e.contains("Scan3dOutputMode")
+            && e.contains("ProjectedC")
+            && e.contains("CalibratedABC_Grid"),
+        "{e}"
+    );
+    assert!(!s.is_acquiring());
+    assert_eq!(s.stats().frames, 0);
 }

@@ -17,12 +17,17 @@ pub const FORMAT_MULTIPART: u8 = 7;
 pub const PAYLOAD_IMAGE: u16 = 0x0001;
 /// Payload type: multi-part.
 pub const PAYLOAD_MULTIPART: u16 = 0x000A;
+/// Payload type: chunk data only (no image; Photoneo can stream its components so).
+pub const PAYLOAD_CHUNK: u16 = 0x0004;
 /// Multi-part data type: 2D image.
 pub const PART_2D_IMAGE: u16 = 0x0001;
 /// Multi-part data type: 3D image.
 pub const PART_3D_IMAGE: u16 = 0x0005;
 /// Multi-part data type: confidence map.
 pub const PART_CONFIDENCE: u16 = 0x0009;
+/// Multi-part data type: chunk data. A chunk-only payload arrives as one part of this type
+/// (split it with [`split_chunks`]).
+pub const PART_CHUNK: u16 = 0x000A;
 /// IP + UDP header bytes counted in SCPS.
 pub const IP_UDP_HEADERS: usize = 28;
 
@@ -283,6 +288,61 @@ pub fn encode_multipart_leader(out: &mut Vec<u8>, timestamp: u64, parts: &[PartI
     }
 }
 
+/// Encode a chunk-data leader body (payload type [`PAYLOAD_CHUNK`]: no geometry).
+pub fn encode_chunk_leader(out: &mut Vec<u8>, timestamp: u64) {
+    out.extend_from_slice(&[0, 0]);
+    out.extend_from_slice(&PAYLOAD_CHUNK.to_be_bytes());
+    out.extend_from_slice(&timestamp.to_be_bytes());
+}
+
+/// Most chunks in one payload (each takes at least its 8-byte tag, so a payload cannot hold
+/// more than a frame's bytes / 8; this bounds the list a hostile payload makes).
+pub const MAX_CHUNKS: usize = 1024;
+
+/// Split GenICam chunk data into `(chunk id, data)`, in payload order. Chunk data is a series
+/// of `[data][id: u32 BE][length: u32 BE]`, read from the end backwards.
+pub fn split_chunks(data: &[u8]) -> Result<Vec<(u32, &[u8])>> {
+    const W: &str = "chunk data";
+    let mut out = Vec::new();
+    let mut end = data.len();
+    while end > 0 {
+        if end < 8 {
+            return Err(GigeError::malformed(
+                W,
+                format!("{end} bytes left before a chunk, its tag needs 8"),
+            ));
+        }
+        if out.len() == MAX_CHUNKS {
+            return Err(GigeError::malformed(
+                W,
+                format!("more than {MAX_CHUNKS} chunks"),
+            ));
+        }
+        let id = be32(data, end - 8);
+        let len = be32(data, end - 4) as usize;
+        let start = (end - 8).checked_sub(len).ok_or_else(|| {
+            GigeError::malformed(
+                W,
+                format!(
+                    "chunk {id:#x} says {len} bytes but only {} precede its tag",
+                    end - 8
+                ),
+            )
+        })?;
+        out.push((id, &data[start..end - 8]));
+        end = start;
+    }
+    out.reverse();
+    Ok(out)
+}
+
+/// Append one chunk (`data`, then its id and length) to a chunk payload.
+pub fn push_chunk(out: &mut Vec<u8>, id: u32, data: &[u8]) {
+    out.extend_from_slice(data);
+    out.extend_from_slice(&id.to_be_bytes());
+    out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+}
+
 /// One block as a device sends it.
 #[derive(Debug, Clone)]
 pub struct Block {
@@ -344,7 +404,11 @@ pub fn packetize_into(
         let info = infos
             .first()
             .ok_or_else(|| GigeError::InvalidArgument("block without parts".into()))?;
-        encode_image_leader(p, block.timestamp, info);
+        if info.data_type == PART_CHUNK {
+            encode_chunk_leader(p, block.timestamp);
+        } else {
+            encode_image_leader(p, block.timestamp, info);
+        }
     }
     let mut pid = 1u32;
     for (idx, (_, data)) in block.parts.iter().enumerate() {
@@ -372,7 +436,12 @@ pub fn packetize_into(
     let t = next_packet(packets, &mut used, hl + 8);
     header(FORMAT_TRAILER, pid, 0).encode(t);
     t.extend_from_slice(&[0, 0]);
-    t.extend_from_slice(&(if mp { PAYLOAD_MULTIPART } else { PAYLOAD_IMAGE }).to_be_bytes());
+    let payload_type = match infos.first() {
+        _ if mp => PAYLOAD_MULTIPART,
+        Some(i) if i.data_type == PART_CHUNK => PAYLOAD_CHUNK,
+        _ => PAYLOAD_IMAGE,
+    };
+    t.extend_from_slice(&payload_type.to_be_bytes());
     t.extend_from_slice(&infos.first().map_or(0, |i| i.height).to_be_bytes());
     packets.truncate(used);
     Ok(())

@@ -573,6 +573,16 @@ impl StreamReceiver {
                     .collect();
                 (l.timestamp, parts)
             }
+            Some(l) if l.payload_type == PAYLOAD_CHUNK => {
+                // Chunk data only: one part holding the chunks, as long as what arrived.
+                let d = std::mem::take(&mut f.generic);
+                let info = PartInfo {
+                    data_type: PART_CHUNK,
+                    length: d.len() as u64,
+                    ..PartInfo::default()
+                };
+                (l.timestamp, vec![(info, d)])
+            }
             Some(l) => {
                 let mut d = std::mem::take(&mut f.generic);
                 let parts = l

@@ -241,3 +241,55 @@ fn issue_16_huge_fields_in_every_packet_position() {
     }
     assert!(t0.elapsed() < Duration::from_secs(10), "{:?}", t0.elapsed());
 }
+
+/// Issue 35: a chunk-only payload (payload type 4, no geometry in its leader) is a complete
+/// frame of one chunk-data part, which splits back into its chunks; bad chunk tags are errors.
+#[test]
+fn chunk_only_payloads_reassemble_and_split() {
+    let (a, b): (Vec<u8>, Vec<u8>) = ((0..3000).map(|i| i as u8).collect(), vec![7; 10]);
+    let mut payload = Vec::new();
+    push_chunk(&mut payload, 4, &a);
+    push_chunk(&mut payload, 1, &b);
+    let block = Block {
+        block_id: 9,
+        timestamp: 5,
+        parts: vec![(
+            PartInfo {
+                data_type: PART_CHUNK,
+                length: payload.len() as u64,
+                ..PartInfo::default()
+            },
+            payload.clone(),
+        )],
+        multipart: false,
+    };
+    for ext in [false, true] {
+        let mut r = receiver(ext, true);
+        let mut pk = packetize(&block, 400, ext).expect("packetize");
+        pk.swap(1, 3);
+        for p in &pk {
+            r.handle(p, Instant::now());
+        }
+        let f = r.ready.pop_front().expect("frame");
+        assert!(f.complete, "{ext}");
+        assert_eq!(f.parts.len(), 1);
+        assert_eq!(f.parts[0].0.data_type, PART_CHUNK);
+        assert_eq!(f.parts[0].1, payload);
+        let chunks = split_chunks(&f.parts[0].1).expect("chunks");
+        assert_eq!(chunks, vec![(4, a.as_slice()), (1, b.as_slice())]);
+    }
+    assert_eq!(split_chunks(&[]).expect("empty"), vec![]);
+    for bad in [
+        vec![1, 2, 3],
+        vec![0, 0, 0, 4, 0xFF, 0xFF, 0xFF, 0xFF],
+        [
+            vec![0; 4],
+            4u32.to_be_bytes().to_vec(),
+            5u32.to_be_bytes().to_vec(),
+        ]
+        .concat(),
+    ] {
+        let e = split_chunks(&bad).expect_err("malformed").to_string();
+        assert!(e.contains("chunk"), "{e}");
+    }
+}

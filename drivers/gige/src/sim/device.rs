@@ -38,7 +38,11 @@ const INVALID_FLAG: u32 = 0xA038;
 const COMPONENT_SELECTOR: u32 = 0xA03C;
 const COMPONENT_ENABLE: u32 = 0xA040;
 const COMPONENT_ID: u32 = 0xA044;
-const FLOAT_BASE: u32 = 0xA100; // 8-byte doubles: scale, offset, invalid, focal, pu, pv, (A130 unused), rate
+const FLOAT_BASE: u32 = 0xA100; // 8-byte doubles: scale, offset, invalid, focal, pu, pv, aspect ratio, rate
+/// `ComponentIDValue`s (the multi-part data purpose ids, and the chunk ids of a chunk payload).
+const ID_INTENSITY: u32 = 1;
+const ID_RANGE: u32 = 4;
+const ID_CONFIDENCE: u32 = 6;
 const C16_SCALE_MM: f64 = 0.1;
 
 /// Simulator settings.
@@ -60,6 +64,34 @@ pub struct SimOptions {
     pub bandwidth_bps: Option<f64>,
     /// Seed of the loss injection.
     pub seed: u64,
+    /// Describe and stream like a given vendor's camera does (default: by SFNC's letter).
+    pub habits: VendorHabits,
+}
+
+/// Ways real cameras describe themselves and stream that differ from SFNC's letter, which the
+/// simulated camera can imitate so the driver meets them on the wire.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct VendorHabits {
+    /// `TLParamsLocked` is a Boolean (five Allied Vision cameras do so) instead of an Integer.
+    pub tl_params_locked_boolean: bool,
+    /// Offers an Intensity component (Mono16, `ComponentIDValue` 1, enabled from power-on) and
+    /// sends it as the first part of a multi-part payload, before Range; without multi-part it
+    /// streams the intensity image alone (Photoneo sends its other components as chunks then,
+    /// which this simulator leaves out).
+    pub intensity_first: bool,
+    /// Streams chunk data only (GVSP payload type 0x0004): Range, and Intensity / Confidence
+    /// when enabled, each a chunk whose id is its `ComponentIDValue` (Photoneo's other mode).
+    pub chunk_only: bool,
+    /// No `Scan3dCoordinateSelector`: one `Scan3dCoordinateScale`/`Offset` for the camera
+    /// (Nerian's SceneScan/Scarlet description).
+    pub no_coordinate_selector: bool,
+    /// No `Scan3dDistanceUnit` (Nerian's description).
+    pub no_distance_unit: bool,
+    /// Publishes `Scan3dAspectRatio`, the frame source's
+    /// ([`FrameSource::aspect_ratio`](super::FrameSource::aspect_ratio)).
+    pub aspect_ratio: bool,
+    /// `Scan3dOutputMode` is `ProjectedC`: depth values that need the camera's coordinate maps.
+    pub projected_c: bool,
 }
 
 impl Default for SimOptions {
@@ -73,6 +105,7 @@ impl Default for SimOptions {
             frame_rate: 10.0,
             bandwidth_bps: None,
             seed: 1,
+            habits: VendorHabits::default(),
         }
     }
 }
@@ -136,6 +169,9 @@ struct State {
     last_heartbeat: Instant,
     acquiring: bool,
     confidence_enabled: bool,
+    intensity_enabled: bool,
+    habits: VendorHabits,
+    aspect_ratio: f64,
     history: VecDeque<(u64, Arc<Vec<Vec<u8>>>)>,
     /// PACKETRESEND answers waiting for the streamer (sent within the paced bandwidth).
     resends: VecDeque<(SocketAddr, Vec<u8>)>,
@@ -148,21 +184,40 @@ impl State {
         self.regs.get(&a).copied().unwrap_or(0)
     }
 
+    /// Multi-part payloads: enabled by the host (SCCFG multi-part, extended ids), unless the
+    /// camera streams chunk data only.
     fn multipart(&self) -> bool {
-        self.confidence_enabled
+        !self.habits.chunk_only
             && self.reg(reg::SCCFG0) & 0x40 != 0
             && self.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0
     }
 
+    /// Streams the intensity image alone (no multi-part, no chunks).
+    fn intensity_only(&self) -> bool {
+        self.habits.intensity_first
+            && self.intensity_enabled
+            && !self.multipart()
+            && !self.habits.chunk_only
+    }
+
     fn payload_size(&self) -> u32 {
         let (w, h) = (self.reg(WIDTH), self.reg(HEIGHT));
+        let plane = u64::from(w) * u64::from(h) * 2;
+        if self.intensity_only() {
+            return u32::try_from(plane).unwrap_or(u32::MAX);
+        }
         let main = gvsp::image_bytes(self.reg(PIXEL_FORMAT), w, h, 0);
-        let conf = if self.multipart() {
-            u64::from(w) * u64::from(h) * 2
+        let components = self.multipart() || self.habits.chunk_only;
+        let extra = [self.confidence_enabled, self.intensity_enabled]
+            .iter()
+            .filter(|&&on| on && components)
+            .count() as u64;
+        let chunks = if self.habits.chunk_only {
+            8 * (1 + extra)
         } else {
             0
         };
-        u32::try_from(main + conf).unwrap_or(u32::MAX)
+        u32::try_from(main + extra * plane + chunks).unwrap_or(u32::MAX)
     }
 
     fn float(&self, a: u32) -> Option<f64> {
@@ -170,7 +225,12 @@ impl State {
             return None;
         }
         let c16 = self.reg(PIXEL_FORMAT) == pfnc::COORD3D_C16;
-        let coord = self.reg(COORD_SELECTOR);
+        // Without a selector the one scale/offset pair is the depth's.
+        let coord = if self.habits.no_coordinate_selector {
+            2
+        } else {
+            self.reg(COORD_SELECTOR)
+        };
         let (f, pu, pv) = self.intrinsics;
         let (w, h) = (self.reg(WIDTH), self.reg(HEIGHT));
         // The ROI is centred in the sensor: shift the principal point.
@@ -195,6 +255,7 @@ impl State {
             3 => f,
             4 => pu - ox,
             5 => pv - oy,
+            6 => self.aspect_ratio,
             7 => self.frame_rate,
             _ => 0.0,
         })
@@ -227,16 +288,17 @@ impl State {
         }
         match a {
             PAYLOAD_SIZE => Some(self.payload_size()),
+            OUTPUT_MODE if self.habits.projected_c => Some(2),
             OUTPUT_MODE => Some(u32::from(self.reg(PIXEL_FORMAT) == pfnc::COORD3D_C16)),
-            COMPONENT_ENABLE => Some(if self.reg(COMPONENT_SELECTOR) == 0 {
-                1
-            } else {
-                u32::from(self.confidence_enabled)
+            COMPONENT_ENABLE => Some(match self.reg(COMPONENT_SELECTOR) {
+                0 => 1,
+                1 => u32::from(self.confidence_enabled),
+                _ => u32::from(self.intensity_enabled),
             }),
-            COMPONENT_ID => Some(if self.reg(COMPONENT_SELECTOR) == 0 {
-                4
-            } else {
-                6
+            COMPONENT_ID => Some(match self.reg(COMPONENT_SELECTOR) {
+                0 => ID_RANGE,
+                1 => ID_CONFIDENCE,
+                _ => ID_INTENSITY,
             }),
             _ => self.regs.get(&a).copied(),
         }
@@ -280,12 +342,15 @@ impl State {
                 return Ok(());
             }
             COORD_SELECTOR if v > 2 => return Err(0x8002),
-            COMPONENT_SELECTOR if v > 1 => return Err(0x8002),
+            COMPONENT_SELECTOR if v > 2 || (v == 2 && !self.habits.intensity_first) => {
+                return Err(0x8002)
+            }
             COMPONENT_ENABLE => {
-                if self.reg(COMPONENT_SELECTOR) == 0 {
-                    return if v == 1 { Ok(()) } else { Err(0x8002) };
+                match self.reg(COMPONENT_SELECTOR) {
+                    0 => return if v == 1 { Ok(()) } else { Err(0x8002) },
+                    1 => self.confidence_enabled = v != 0,
+                    _ => self.intensity_enabled = v != 0,
                 }
-                self.confidence_enabled = v != 0;
                 return Ok(());
             }
             TL_LOCKED | ACQ_MODE | COORD_SELECTOR | COMPONENT_SELECTOR => {}
@@ -346,10 +411,86 @@ fn xml_for(opts: &SimOptions) -> String {
             .replace('<', "&lt;")
             .replace('"', "&quot;")
     };
-    TEMPLATE
+    let mut xml = TEMPLATE
         .replace("@MODEL@", &esc(&opts.model))
-        .replace("@VENDOR@", &esc(&opts.vendor))
+        .replace("@VENDOR@", &esc(&opts.vendor));
+    let h = &opts.habits;
+    if h.intensity_first {
+        xml = xml.replace(
+            "<pValue>ComponentSelectorReg</pValue>",
+            r#"<EnumEntry Name="Intensity" NameSpace="Standard">
+      <Value>2</Value>
+    </EnumEntry>
+    <pValue>ComponentSelectorReg</pValue>"#,
+        );
+    }
+    if h.projected_c {
+        xml = xml.replace(
+            "<pValue>Scan3dOutputModeReg</pValue>",
+            r#"<EnumEntry Name="ProjectedC" NameSpace="Standard">
+      <Value>2</Value>
+    </EnumEntry>
+    <pValue>Scan3dOutputModeReg</pValue>"#,
+        );
+    }
+    if h.no_distance_unit {
+        xml = remove_feature(&xml, "Enumeration", "Scan3dDistanceUnit");
+    }
+    if h.no_coordinate_selector {
+        xml = remove_feature(&xml, "Enumeration", "Scan3dCoordinateSelector");
+    }
+    if h.aspect_ratio {
+        xml = xml
+            .replace(
+                "<pFeature>Scan3dPrincipalPointV</pFeature>",
+                "<pFeature>Scan3dPrincipalPointV</pFeature>\n    <pFeature>Scan3dAspectRatio</pFeature>",
+            )
+            .replace(
+                "</RegisterDescription>",
+                r#"  <FloatReg Name="Scan3dAspectRatio" NameSpace="Standard">
+    <Address>0xA130</Address>
+    <Length>8</Length>
+    <AccessMode>RO</AccessMode>
+    <pPort>Device</pPort>
+    <Endianess>BigEndian</Endianess>
+  </FloatReg>
+</RegisterDescription>"#,
+            );
+    }
+    if h.tl_params_locked_boolean {
+        xml = xml.replace(
+            TL_LOCKED_INTEGER,
+            r#"<Boolean Name="TLParamsLocked" NameSpace="Standard">
+    <Visibility>Invisible</Visibility>
+    <pValue>TLParamsLockedReg</pValue>
+    <OnValue>1</OnValue>
+    <OffValue>0</OffValue>
+  </Boolean>"#,
+        );
+    }
+    xml
 }
+
+/// `xml` without the `kind` node `name` and the references to it.
+fn remove_feature(xml: &str, kind: &str, name: &str) -> String {
+    let open = format!("<{kind} Name=\"{name}\"");
+    let close = format!("</{kind}>");
+    let mut out = xml.replace(&format!("<pFeature>{name}</pFeature>"), "");
+    if let Some(start) = out.find(&open) {
+        if let Some(len) = out[start..].find(&close) {
+            out.replace_range(start..start + len + close.len(), "");
+        }
+    }
+    out
+}
+
+/// SFNC's `TLParamsLocked` in the template (replaced by a vendor's habit).
+const TL_LOCKED_INTEGER: &str = r#"<Integer Name="TLParamsLocked" NameSpace="Standard">
+    <Visibility>Invisible</Visibility>
+    <pValue>TLParamsLockedReg</pValue>
+    <Min>0</Min>
+    <Max>1</Max>
+  </Integer>"#;
 
 impl SimCamera {
     /// The GenApi XML the simulator serves.
@@ -484,6 +625,9 @@ impl SimCamera {
             last_heartbeat: Instant::now(),
             acquiring: false,
             confidence_enabled: false,
+            intensity_enabled: opts.habits.intensity_first,
+            habits: opts.habits.clone(),
+            aspect_ratio: source.aspect_ratio(),
             history: VecDeque::new(),
             resends: VecDeque::new(),
             stats: SimStats::default(),
@@ -750,6 +894,13 @@ struct StreamSettings {
     scps: usize,
     ext: bool,
     mp: bool,
+    /// Chunk-only payload.
+    chunks: bool,
+    /// Components sent beside Range (in multi-part or chunk payloads).
+    confidence: bool,
+    intensity: bool,
+    /// The intensity image alone.
+    intensity_only: bool,
     w: u32,
     h: u32,
     pf: u32,
@@ -761,6 +912,11 @@ impl StreamSettings {
             scps: s.reg(reg::SCPS0) as usize,
             ext: s.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0,
             mp: s.multipart(),
+            chunks: s.habits.chunk_only,
+            confidence: s.confidence_enabled && (s.multipart() || s.habits.chunk_only),
+            intensity: s.intensity_enabled
+                && (s.multipart() || s.habits.chunk_only || s.intensity_only()),
+            intensity_only: s.intensity_only(),
             w: s.reg(WIDTH),
             h: s.reg(HEIGHT),
             pf: s.reg(PIXEL_FORMAT),
@@ -1086,7 +1242,17 @@ fn make_block(
     settings: &StreamSettings,
     (mut data, mut conf): (Vec<u8>, Vec<u8>),
 ) -> Block {
-    let StreamSettings { w, h, pf, mp, .. } = *settings;
+    let StreamSettings {
+        w,
+        h,
+        pf,
+        mp,
+        chunks,
+        confidence,
+        intensity,
+        intensity_only,
+        ..
+    } = *settings;
     let (cw, ch) = (cloud.width as usize, cloud.height as usize);
     let ox = cw.saturating_sub(w as usize) / 2;
     let oy = ch.saturating_sub(h as usize) / 2;
@@ -1095,7 +1261,8 @@ fn make_block(
     data.clear();
     data.reserve(n * if c16 { 2 } else { 12 });
     conf.clear();
-    conf.reserve(if mp { n * 2 } else { 0 });
+    conf.reserve(if confidence { n * 2 } else { 0 });
+    let mut gray = Vec::with_capacity(if intensity { n * 2 } else { 0 });
     for v in 0..h as usize {
         for u in 0..w as usize {
             let i = (oy + v) * cw + ox + u;
@@ -1118,7 +1285,15 @@ fn make_block(
                     data.extend_from_slice(&c.to_le_bytes());
                 }
             }
-            if mp {
+            if intensity {
+                // A grey level falling with distance (what a structured-light camera's
+                // intensity image roughly shows); 0 where nothing was measured.
+                let g = p
+                    .filter(|_| valid)
+                    .map_or(0, |p| (65535.0 / (1.0 + f64::from(p.z))).round() as u16);
+                gray.extend_from_slice(&g.to_le_bytes());
+            }
+            if confidence {
                 let c = cloud
                     .confidence
                     .as_ref()
@@ -1130,27 +1305,62 @@ fn make_block(
             }
         }
     }
-    let range = PartInfo {
-        data_type: gvsp::PART_3D_IMAGE,
-        length: data.len() as u64,
-        pixel_format: pf,
-        purpose: 4,
-        width: w,
-        height: h,
-        padding_x: 0,
-    };
-    let mut parts = vec![(range, data)];
-    if mp {
-        parts.push((
+    let part = |data_type, pixel_format, purpose: u32, data: Vec<u8>| {
+        (
             PartInfo {
-                data_type: gvsp::PART_CONFIDENCE,
-                length: conf.len() as u64,
-                pixel_format: pfnc::CONFIDENCE16,
-                purpose: 6,
+                data_type,
+                length: data.len() as u64,
+                pixel_format,
+                purpose: purpose as u16,
                 width: w,
                 height: h,
                 padding_x: 0,
             },
+            data,
+        )
+    };
+    if chunks {
+        // Range, then the other enabled components, each a chunk tagged with its id.
+        let mut payload = Vec::with_capacity(data.len() + conf.len() + gray.len() + 24);
+        gvsp::push_chunk(&mut payload, ID_RANGE, &data);
+        if intensity {
+            gvsp::push_chunk(&mut payload, ID_INTENSITY, &gray);
+        }
+        if confidence {
+            gvsp::push_chunk(&mut payload, ID_CONFIDENCE, &conf);
+        }
+        return Block {
+            block_id: 1,
+            timestamp,
+            parts: vec![(
+                PartInfo {
+                    data_type: gvsp::PART_CHUNK,
+                    length: payload.len() as u64,
+                    ..PartInfo::default()
+                },
+                payload,
+            )],
+            multipart: false,
+        };
+    }
+    if intensity_only {
+        return Block {
+            block_id: 1,
+            timestamp,
+            parts: vec![part(gvsp::PART_2D_IMAGE, pfnc::MONO16, ID_INTENSITY, gray)],
+            multipart: false,
+        };
+    }
+    let mut parts = Vec::new();
+    if intensity {
+        parts.push(part(gvsp::PART_2D_IMAGE, pfnc::MONO16, ID_INTENSITY, gray));
+    }
+    parts.push(part(gvsp::PART_3D_IMAGE, pf, ID_RANGE, data));
+    if confidence {
+        parts.push(part(
+            gvsp::PART_CONFIDENCE,
+            pfnc::CONFIDENCE16,
+            ID_CONFIDENCE,
             conf,
         ));
     }

@@ -10,7 +10,7 @@
 mod device;
 mod scene;
 
-pub use device::{SimCamera, SimOptions, SimStats};
+pub use device::{SimCamera, SimOptions, SimStats, VendorHabits};
 pub use scene::SceneSource;
 
 use handeye_hal::PointCloud;
@@ -30,5 +30,11 @@ pub trait FrameSource: Send + 'static {
     fn intrinsics(&self) -> (f64, f64, f64) {
         let (w, h) = self.size();
         (f64::from(w), f64::from(w) / 2.0, f64::from(h) / 2.0)
+    }
+    /// A pixel's height over its width (1 = square pixels): the vertical focal length is the
+    /// focal length divided by it. Published as `Scan3dAspectRatio` with
+    /// [`VendorHabits::aspect_ratio`].
+    fn aspect_ratio(&self) -> f64 {
+        1.0
     }
 }

@@ -13,6 +13,7 @@ pub struct SceneSource {
     width: u32,
     height: u32,
     focal: f64,
+    aspect: f64,
     cached: Option<PointCloud>,
 }
 
@@ -23,8 +24,17 @@ impl SceneSource {
             width,
             height,
             focal: 0.9 * f64::from(width),
+            aspect: 1.0,
             cached: None,
         }
+    }
+
+    /// The same camera with pixels `aspect` times taller than wide (rays spread `aspect` times
+    /// more vertically), as `Scan3dAspectRatio` describes.
+    pub fn with_aspect_ratio(mut self, aspect: f64) -> Self {
+        self.aspect = aspect;
+        self.cached = None;
+        self
     }
 
     /// Render the scene: sphere radius 0.15 m at (0.05, 0, 0.9) m; plane through (0, 0, 1.2) m
@@ -51,7 +61,7 @@ impl SceneSource {
                 }
                 let d = Vector3::new(
                     (u as f64 + 0.5 - cu) / self.focal,
-                    (v as f64 + 0.5 - cv) / self.focal,
+                    (v as f64 + 0.5 - cv) * self.aspect / self.focal,
                     1.0,
                 );
                 // Sphere: |t d - c|² = r².
@@ -102,6 +112,10 @@ impl FrameSource for SceneSource {
 
     fn size(&self) -> (u32, u32) {
         (self.width, self.height)
+    }
+
+    fn aspect_ratio(&self) -> f64 {
+        self.aspect
     }
 
     fn intrinsics(&self) -> (f64, f64, f64) {

@@ -516,24 +516,78 @@ impl UrRobot {
     /// The active TCP offset (`flange_from_tcp`) as the controller reports it.
     pub async fn tcp_offset(&self) -> Result<Isometry3<f64>, HalError> {
         let s = self.sample().await?;
-        let t = s.vec6("tcp_offset").ok_or_else(|| HalError::Protocol {
-            peer: "RTDE".into(),
-            detail: "no tcp_offset".into(),
-        })?;
-        Ok(UrPose(t).into())
+        Ok(pose_field(&s, "tcp_offset", MAX_TCP_OFFSET_M)?.into())
     }
 
     /// `actual_TCP_pose` (`base_from_tcp`).
     pub async fn tcp_pose(&self) -> Result<Isometry3<f64>, HalError> {
         let s = self.sample().await?;
-        let t = s
-            .vec6("actual_TCP_pose")
-            .ok_or_else(|| HalError::Protocol {
-                peer: "RTDE".into(),
-                detail: "no actual_TCP_pose".into(),
-            })?;
-        Ok(UrPose(t).into())
+        Ok(pose_field(&s, "actual_TCP_pose", MAX_POSE_DISTANCE_M)?.into())
     }
+}
+
+/// Farthest a pose the controller reports may lie from the base, m: a UR30 reaches 1.3 m, a
+/// TCP on a long tool a little more; beyond this the value is corrupt, not a pose.
+const MAX_POSE_DISTANCE_M: f64 = 10.0;
+/// Farthest a TCP offset (`flange_from_tcp`) may lie from the flange, m: the controller's own
+/// installation limit for a TCP is well inside it.
+const MAX_TCP_OFFSET_M: f64 = 2.0;
+/// Largest joint angle a controller can report, rad: UR joints turn ±360°; a little slack for
+/// rounding.
+const MAX_REPORTED_JOINT_RAD: f64 = handeye_hal::ur_limits::JOINT_POSITION_LIMIT_RAD + 1e-3;
+
+/// What the controller sent that cannot be a real value: an error naming the field, its
+/// values and what to check (nothing that reads it moves the arm or writes anything).
+fn corrupt(name: &str, values: &[f64], why: &str) -> HalError {
+    HalError::Protocol {
+        peer: "RTDE".into(),
+        detail: format!(
+            "the controller reported {name} = {values:?}, {why}; the controller or something \
+             between it and this PC sends corrupt data: check the controller's log and the \
+             network before calibrating"
+        ),
+    }
+}
+
+/// A pose field (`x, y, z` m, rotation vector rad) the controller must send: present,
+/// finite, within `max_m` of its frame's origin.
+fn pose_field(s: &Sample, name: &str, max_m: f64) -> Result<UrPose, HalError> {
+    let p = s.vec6(name).ok_or_else(|| HalError::Protocol {
+        peer: "RTDE".into(),
+        detail: format!("no {name} in the controller's data"),
+    })?;
+    if p.iter().any(|v| !v.is_finite()) {
+        return Err(corrupt(name, &p, "which is not a finite pose"));
+    }
+    let distance = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    if distance > max_m {
+        return Err(corrupt(
+            name,
+            &p,
+            &format!("{distance:.3} m from its frame's origin (at most {max_m} m is a real pose)"),
+        ));
+    }
+    Ok(UrPose(p))
+}
+
+/// The joint angles the controller must send (`actual_q`): present, finite, within a UR
+/// joint's ±360°.
+fn joints_field(s: &Sample) -> Result<[f64; 6], HalError> {
+    let q = s.vec6("actual_q").ok_or_else(|| HalError::Protocol {
+        peer: "RTDE".into(),
+        detail: "no actual_q in the controller's data".into(),
+    })?;
+    if q.iter().any(|v| !v.is_finite()) {
+        return Err(corrupt("actual_q", &q, "which are not finite angles"));
+    }
+    if q.iter().any(|v| v.abs() > MAX_REPORTED_JOINT_RAD) {
+        return Err(corrupt(
+            "actual_q",
+            &q,
+            "beyond the ±360° (±6.283 rad) a UR joint turns",
+        ));
+    }
+    Ok(q)
 }
 
 fn int_field(s: &Sample, name: &str) -> Result<i32, HalError> {
@@ -665,27 +719,15 @@ impl Robot for UrRobot {
 
     async fn joint_positions(&self) -> Result<Vec<f64>, HalError> {
         let s = self.sample().await?;
-        s.vec6("actual_q")
-            .map(|q| q.to_vec())
-            .ok_or_else(|| HalError::Protocol {
-                peer: "RTDE".into(),
-                detail: "no actual_q".into(),
-            })
+        Ok(joints_field(&s)?.to_vec())
     }
 
     async fn flange_pose(&self) -> Result<Isometry3<f64>, HalError> {
+        // Both from the same sample: the TCP pose is the flange's through this offset.
         let s = self.sample().await?;
-        let tcp = s.vec6("actual_TCP_pose");
-        let off = s.vec6("tcp_offset");
-        match (tcp, off) {
-            (Some(t), Some(o)) => {
-                Ok(Isometry3::from(UrPose(t)) * Isometry3::from(UrPose(o)).inverse())
-            }
-            _ => Err(HalError::Protocol {
-                peer: "RTDE".into(),
-                detail: "no actual_TCP_pose/tcp_offset".into(),
-            }),
-        }
+        let tcp = pose_field(&s, "actual_TCP_pose", MAX_POSE_DISTANCE_M)?;
+        let off = pose_field(&s, "tcp_offset", MAX_TCP_OFFSET_M)?;
+        Ok(Isometry3::from(tcp) * Isometry3::from(off).inverse())
     }
 
     async fn move_joints(&self, q: &[f64], limits: MotionLimits) -> Result<(), HalError> {

@@ -8,6 +8,7 @@
 
 mod control;
 mod dashboard;
+pub mod fault_proxy;
 mod motion;
 mod program;
 mod realtime;

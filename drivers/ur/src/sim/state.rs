@@ -36,13 +36,15 @@ pub(crate) fn max_payload(model: UrModel) -> f64 {
     }
 }
 
-/// ConfigurationData robot type (URCL's numbering; the e-Series variants share their CB3
-/// sibling's number, the newer arms have their own).
-fn robot_type(model: UrModel) -> i32 {
+/// ConfigurationData robot type, numbered as real controllers and URCL's `datatypes.h`
+/// (`RobotType`) do: UR5 = 1, UR10 = 2, UR3 = 3, UR16 = 4, UR20 = 7, UR30 = 8, UR15 = 9. The
+/// e-Series variants share their CB3 sibling's number (a URSim UR5e sends 1) and differ by the
+/// sub-type.
+pub(crate) fn robot_type(model: UrModel) -> i32 {
     match model {
-        UrModel::Ur3 | UrModel::Ur3e => 1,
-        UrModel::Ur5 | UrModel::Ur5e | UrModel::Ur7e => 2,
-        UrModel::Ur10 | UrModel::Ur10e | UrModel::Ur12e => 3,
+        UrModel::Ur5 | UrModel::Ur5e | UrModel::Ur7e => 1,
+        UrModel::Ur10 | UrModel::Ur10e | UrModel::Ur12e => 2,
+        UrModel::Ur3 | UrModel::Ur3e => 3,
         UrModel::Ur16e => 4,
         UrModel::Ur20 => 7,
         UrModel::Ur30 => 8,
@@ -592,5 +594,40 @@ mod tests {
         std::thread::sleep(Duration::from_millis(150));
         assert_eq!(s.check_rtde_watchdog(), None);
         assert!(s.rtde_watchdog.is_none());
+    }
+
+    /// Issue 35: the ConfigurationData robot type on the wire is numbered as real controllers
+    /// and URCL's `datatypes.h` do (a URSim UR5e sends 1); the simulator sent UR3 = 1, UR5 = 2,
+    /// UR10 = 3, so a URCL-based client took a simulated UR5e for a UR10.
+    #[test]
+    fn robot_types_are_numbered_as_real_controllers_do() {
+        use crate::primary::{encode_robot_state, split, PrimaryPackage};
+        let urcl = [
+            (UrModel::Ur5, 1),
+            (UrModel::Ur5e, 1),
+            (UrModel::Ur10, 2),
+            (UrModel::Ur10e, 2),
+            (UrModel::Ur3, 3),
+            (UrModel::Ur3e, 3),
+            (UrModel::Ur16e, 4),
+            (UrModel::Ur20, 7),
+            (UrModel::Ur30, 8),
+            (UrModel::Ur15, 9),
+        ];
+        for (model, number) in urcl {
+            let s = State::new(&SimConfig::new(model, [127, 0, 0, 1].into()));
+            let wire = encode_robot_state(&s.primary_state(Default::default(), model));
+            let Ok(Some((PrimaryPackage::RobotState { configuration, .. }, _))) = split(&wire)
+            else {
+                panic!("{model}: no robot state");
+            };
+            let c = configuration.expect("configuration data");
+            assert_eq!(c.robot_type, number, "{model}");
+            assert_eq!(
+                c.robot_sub_type,
+                if model.is_cb3() { 1 } else { 3 },
+                "{model}"
+            );
+        }
     }
 }
