@@ -127,9 +127,11 @@ pub fn keys() -> Vec<KeyDoc> {
         row("robot.kinematics", "string", format!("\"{kinematics}\""), "\"controller\", \"nominal\"", "pose the model by the controller's calibrated kinematics, or by the nominal URDF"),
         row("robot.calibration", "path", "—", "", "ur_calibration's kinematics file: poses the model when the controller publishes none"),
         // [camera]
-        row("camera.backend", "string", "required", "\"gige\", \"exec\", \"file\"", "how the camera is reached: GigE Vision, a capture command, or recorded files"),
+        row("camera.backend", "string", "required", "\"gige\", \"gentl\", \"exec\", \"file\"", "how the camera is reached: GigE Vision, a vendor's GenTL producer, a capture command, or recorded files"),
         row("camera.address", "string", "required with gige", "`IP` or `IP:PORT` (GVCP 3956 by default)", "the GigE Vision camera's address"),
         row("camera.command", "list of strings", "required with exec", "", "the capture command and its arguments (`{out}`, `{frame}`, `{config_dir}` replaced)"),
+        row("camera.producer", "path", "the first `*.cti` on `GENICAM_GENTL64_PATH`", "a `.cti` file", "gentl: the vendor's GenTL producer"),
+        row("camera.device", "string", "the first device", "serial number, model, GenTL id or index", "gentl: which of the producer's cameras (`handeye camera probe --gentl FILE.cti` lists them)"),
         number("camera.timeout_s", Some(defaults::EXEC_TIMEOUT_S), EXEC_TIMEOUT, "exec: one frame's time limit; the command is killed after it"),
         row("camera.files", "list of paths", "required with file", "PLY or PCD", "file: the recorded scans replayed, one per frame"),
         integer("camera.frames", Some(capture.frames.into()), FRAMES, "frames per view, fused by the solver"),
