@@ -143,7 +143,7 @@ fn the_alerting_rules_and_the_dashboard_pass_promtool() {
     }
     let dir = monitoring();
     let text = promtool_ok(&["check", "rules", "handeye.rules.yml"], &dir);
-    assert!(text.contains("SUCCESS: 6 rules found"), "{text}");
+    assert!(text.contains("SUCCESS: 8 rules found"), "{text}");
     let text = promtool_ok(&["test", "rules", "handeye.rules.test.yml"], &dir);
     assert!(text.contains("SUCCESS"), "{text}");
 

@@ -226,11 +226,14 @@ impl Open {
         scan3d: &Scan3d,
     ) -> Result<(Vec<PointCloud>, GentlStats)> {
         let (n, p) = (&mut self.nodes, &mut self.port);
-        if n.has("AcquisitionMode") {
+        // A producer may hold AcquisitionMode read-only at Continuous (viky does): only a
+        // different mode is written.
+        if n.has("AcquisitionMode") && n.enum_symbol(p, "AcquisitionMode")? != "Continuous" {
             n.set_enum(p, "AcquisitionMode", "Continuous")?;
         }
+        // Boolean or Integer, as the camera declares it.
         if n.has("TLParamsLocked") {
-            n.set_integer(p, "TLParamsLocked", 1)?;
+            n.set_switch(p, "TLParamsLocked", true)?;
         }
         n.execute(p, "AcquisitionStart")?;
         let mut stats = GentlStats::default();
@@ -271,7 +274,7 @@ impl Open {
         let (n, p) = (&mut self.nodes, &mut self.port);
         let remote = n.execute(p, "AcquisitionStop").and_then(|()| {
             if n.has("TLParamsLocked") {
-                n.set_integer(p, "TLParamsLocked", 0)
+                n.set_switch(p, "TLParamsLocked", false)
             } else {
                 Ok(())
             }
