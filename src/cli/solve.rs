@@ -225,7 +225,7 @@ fn check_capture(
             model,
             &view.joints,
             &(model_from_base * base_from_flange),
-            &capture.base_frame,
+            (&capture.base_frame, &model_from_base),
             capture
                 .controller_dh
                 .as_ref()
@@ -276,21 +276,21 @@ const MAX_SCANS: usize = 100;
 
 /// Refuses a reported flange pose (`model_from_flange`, `what` in messages) that cannot belong
 /// to `joints`: by the controller's DH when `dh` is the controller's own (it computed the
-/// pose), else by the nominal URDF ([`handeye::model::reported`]).
+/// pose), else by the nominal URDF ([`handeye::model::reported`]). `model_from_base` places
+/// `base_frame`, the frame the pose was reported in.
 fn check_flange_pose(
     model: &RobotModel,
     joints: &[f64],
     reported: &Isometry3<f64>,
-    base_frame: &str,
+    (base_frame, model_from_base): (&str, &Isometry3<f64>),
     dh: Option<&DhParams>,
     what: &str,
 ) -> anyhow::Result<()> {
     use handeye::model::reported::{check_reported_flange, FlangeReference};
-    let model_from_base = fixed_frame(model, base_frame)?;
     let reference = match dh {
         Some(dh) => FlangeReference::ControllerDh {
             dh,
-            model_from_base: &model_from_base,
+            model_from_base,
         },
         None => FlangeReference::Nominal,
     };
@@ -355,7 +355,7 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
                 &model,
                 &joints,
                 reported,
-                &base_frame,
+                (&base_frame, &model_from_base),
                 None,
                 "--flange-pose",
             )
