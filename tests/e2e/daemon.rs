@@ -93,17 +93,26 @@ pub(crate) fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &st
 
 /// One HTTP/1.0 request to `addr`; (status code, body).
 pub(crate) fn http(addr: &str, method: &str, path: &str, token: Option<&str>) -> (u16, String) {
-    let mut s = TcpStream::connect(addr).unwrap_or_else(|e| panic!("connect {addr}: {e}"));
-    s.set_read_timeout(Some(Duration::from_secs(10)))
-        .expect("timeout");
+    try_http(addr, method, path, token).unwrap_or_else(|e| panic!("{method} {addr}{path}: {e}"))
+}
+
+/// One HTTP/1.0 request to `addr`, its transport errors returned (a daemon over its
+/// connection limits resets new connections until it has seen the old ones close).
+pub(crate) fn try_http(
+    addr: &str,
+    method: &str,
+    path: &str,
+    token: Option<&str>,
+) -> std::io::Result<(u16, String)> {
+    let mut s = TcpStream::connect(addr)?;
+    s.set_read_timeout(Some(Duration::from_secs(10)))?;
     let auth = token.map_or(String::new(), |t| format!("Authorization: Bearer {t}\r\n"));
     write!(
         s,
         "{method} {path} HTTP/1.0\r\nHost: {addr}\r\n{auth}Content-Length: 0\r\n\r\n"
-    )
-    .expect("send");
+    )?;
     let mut text = String::new();
-    s.read_to_string(&mut text).expect("read");
+    s.read_to_string(&mut text)?;
     let code = text
         .split_whitespace()
         .nth(1)
@@ -111,7 +120,7 @@ pub(crate) fn http(addr: &str, method: &str, path: &str, token: Option<&str>) ->
         .unwrap_or(0);
     // HTTP/1.0: the body is not chunked and ends with the connection.
     let body = text.split_once("\r\n\r\n").map_or("", |(_, b)| b);
-    (code, body.to_string())
+    Ok((code, body.to_string()))
 }
 
 fn json(body: &str) -> serde_json::Value {
@@ -129,7 +138,7 @@ pub(crate) fn start_daemon(dir: &TempDir, name: &str, config: &Path) -> Daemon {
 }
 
 /// Polls `/api/status` until `done` holds for it (a daemon that has logged its start may not
-/// listen yet: a refused connection is tried again until `limit`).
+/// listen yet, one over its connection limits resets: either is tried again until `limit`).
 pub(crate) fn wait_status(
     api: &str,
     limit: Duration,
@@ -138,15 +147,14 @@ pub(crate) fn wait_status(
 ) -> serde_json::Value {
     let deadline = Instant::now() + limit;
     loop {
-        if TcpStream::connect(api).is_err() {
+        let Ok((code, body)) = try_http(api, "GET", "/api/status", None) else {
             assert!(
                 Instant::now() < deadline,
-                "{what}: no API at {api} within {limit:?}"
+                "{what}: no API answering at {api} within {limit:?}"
             );
             std::thread::sleep(Duration::from_millis(100));
             continue;
-        }
-        let (code, body) = http(api, "GET", "/api/status", None);
+        };
         if code == 200 {
             let st = json(&body);
             if done(&st) {
