@@ -26,28 +26,37 @@ pub(crate) fn parse_joints(s: &str) -> Result<JointList, String> {
     Ok(JointList(v))
 }
 
-/// Parses `offset,length,misalignment` — the 1σ of each joint's zero offset (mrad), link length
-/// (mm) and axis misalignment (mrad) of the real arm against its URDF.
+/// Parses `offset,length,misalignment[,housing_shift,housing_turn]` — the 1σ of each joint's
+/// zero offset (mrad), link length (mm) and axis misalignment (mrad) of the real arm against
+/// its URDF, and of each link housing's shift (mm) and turn (mrad) off its link's frame
+/// (default: a manufactured arm's 0.3 mm / 0.3 mrad).
 pub(crate) fn parse_kinematic_error(s: &str) -> Result<KinematicError, String> {
     let v = parse_numbers(s)?;
     // 1σ in mrad / mm: a real arm is within tenths of its model, and beyond this limit the
     // propagated uncertainty is meaningless (1e160 made it 0 and the result accepted).
     let max = MAX_KINEMATIC_SIGMA * 1e3;
+    let joints = |offset: f64, length: f64, misalignment: f64| KinematicError {
+        joint_offset_sigma_rad: offset * 1e-3,
+        link_length_sigma_m: length * 1e-3,
+        axis_misalignment_sigma_rad: misalignment * 1e-3,
+        ..KinematicError::default()
+    };
     match v[..] {
-        [offset, length, misalignment]
-            if v.iter().all(|x| (0.0..=max).contains(x)) =>
-        {
-            Ok(KinematicError {
-                joint_offset_sigma_rad: offset * 1e-3,
-                link_length_sigma_m: length * 1e-3,
-                axis_misalignment_sigma_rad: misalignment * 1e-3,
-            })
-        }
-        _ => Err(format!(
-            "expected 3 numbers from 0 to {max} offset_mrad,length_mm,misalignment_mrad (e.g. 0.3,0.3,0.3; 0,0,0 when the URDF is the controller's calibrated kinematics), got `{}`",
-            handeye_hal::limits::Quoted(s)
-        )),
+        _ if !v.iter().all(|x| (0.0..=max).contains(x)) => Err(()),
+        [offset, length, misalignment] => Ok(joints(offset, length, misalignment)),
+        [offset, length, misalignment, shift, turn] => Ok(KinematicError {
+            housing_translation_sigma_m: shift * 1e-3,
+            housing_rotation_sigma_rad: turn * 1e-3,
+            ..joints(offset, length, misalignment)
+        }),
+        _ => Err(()),
     }
+    .map_err(|()| {
+        format!(
+            "expected 3 or 5 numbers from 0 to {max}: offset_mrad,length_mm,misalignment_mrad[,housing_shift_mm,housing_turn_mrad] (e.g. 0.3,0.3,0.3; 0,0,0 when the URDF is the controller's calibrated kinematics; 0,0,0,0,0 for an arm exactly its model), got `{}`",
+            handeye_hal::limits::Quoted(s)
+        )
+    })
 }
 
 /// Farthest a camera mount (`flange_from_camera`) may be from the flange origin, metres: a
@@ -131,7 +140,7 @@ pub(crate) fn parse_max_uncertainty(s: &str) -> Result<(f64, f64), String> {
     }
 }
 
-fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
+pub(crate) fn parse_numbers(s: &str) -> Result<Vec<f64>, String> {
     s.split(',')
         .map(|t| {
             let t = t.trim();
@@ -284,12 +293,24 @@ mod tests {
         );
         assert_eq!(
             parse_kinematic_error("0,0,0").expect("valid"),
+            KinematicError {
+                housing_translation_sigma_m: 3e-4,
+                housing_rotation_sigma_rad: 3e-4,
+                ..KinematicError::none()
+            }
+        );
+        assert_eq!(
+            parse_kinematic_error("0,0,0,0,0").expect("valid"),
             KinematicError::none()
         );
+        let housed = parse_kinematic_error("0,0,0,0.5,0.2").expect("valid");
+        assert_eq!(housed.housing_translation_sigma_m, 0.5e-3);
+        assert_eq!(housed.housing_rotation_sigma_rad, 0.2e-3);
         for bad in [
             "0.3,0.3",
             "0.3,-0.3,0.1",
             "0.3,0.3,0.1,0",
+            "0.3,0.3,0.1,0,0,0",
             "a,b,c",
             "1e160,0.3,0.1",
             "0.3,51,0.1",

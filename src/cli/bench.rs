@@ -49,6 +49,12 @@ pub(crate) struct Args {
     /// arm's calibrated kinematics (as from the controller or a ur_calibration file).
     #[arg(long, default_value = "unknown", value_parser = kinematics_arg)]
     kinematics: BenchKinematics,
+    /// 1σ per axis of each link housing's shift (mm) and turn (mrad) off its kinematic frame,
+    /// the base's off joint 1's axis included: the arms are built so, and the solver is told
+    /// (its prior). Default: the settings' `[kinematic_error]` (a manufactured arm's 0.3,0.3);
+    /// `0,0` puts every housing exactly on its frame.
+    #[arg(long, value_name = "MM,MRAD", value_parser = housings_arg)]
+    housings: Option<(f64, f64)>,
     /// Write every trial and the summaries as JSON here.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -61,6 +67,18 @@ fn mount_arg(s: &str) -> Result<Mount, String> {
         "eye-to-hand" => Ok(Mount::EyeToHand),
         _ => Err(format!(
             "`{s}` is not a mount; use eye-in-hand or eye-to-hand"
+        )),
+    }
+}
+
+/// `--housings`: two non-negative numbers, millimetres and milliradians.
+fn housings_arg(s: &str) -> Result<(f64, f64), String> {
+    let max = handeye::model::MAX_KINEMATIC_SIGMA * 1e3;
+    match super::args::parse_numbers(s)?[..] {
+        [mm, mrad] if [mm, mrad].iter().all(|v| (0.0..=max).contains(v)) => Ok((mm, mrad)),
+        _ => Err(format!(
+            "expected SHIFT_MM,TURN_MRAD, each from 0 to {max} (e.g. 0.3,0.3; 0,0 for housings on their frames), got `{}`",
+            handeye_hal::limits::Quoted(s)
         )),
     }
 }
@@ -86,10 +104,14 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         args.scans_per_view
     );
     let intrinsics = Intrinsics::preset_or_error(&args.camera).map_err(anyhow::Error::msg)?;
-    let settings = match &args.settings {
+    let mut settings = match &args.settings {
         Some(p) => SimSettings::load(p)?,
         None => SimSettings::for_camera(&args.camera),
     };
+    if let Some((mm, mrad)) = args.housings {
+        settings.kinematic_error.housing_translation_sigma_m = mm * 1e-3;
+        settings.kinematic_error.housing_rotation_sigma_rad = mrad * 1e-3;
+    }
     let robots: Vec<PathBuf> = if args.robots == "all" {
         let dir = robots_dir().context("no robot directory; set HANDEYE_ROBOTS")?;
         handeye::model::find_urdfs(&dir)
@@ -99,9 +121,13 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             .map(|r| resolve_robot(r.trim()).map_err(anyhow::Error::msg))
             .collect::<Result<_, _>>()?
     };
-    let register = BenchConfig::new(args.mount)
+    let mut register = BenchConfig::new(args.mount)
         .tuned_for_camera(&args.camera)
         .register;
+    // The housings' tolerance is the arm's, as a cell's configuration would say it.
+    let built = settings.kinematic_error;
+    register.kinematic_error.housing_translation_sigma_m = built.housing_translation_sigma_m;
+    register.kinematic_error.housing_rotation_sigma_rad = built.housing_rotation_sigma_rad;
     let mut summaries = Vec::new();
     for (i, path) in robots.iter().enumerate() {
         let model = RobotModel::load(path)?;
@@ -126,7 +152,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         eprintln!();
         summaries.push(summary);
     }
-    print_table(&summaries, &args);
+    print_table(&summaries, &args, &settings.kinematic_error);
     if let Some(out) = &args.out {
         let doc = serde_json::json!({
             "camera": args.camera,
@@ -154,13 +180,13 @@ fn progress_mark(t: &Trial) -> char {
     }
 }
 
-fn print_table(summaries: &[RobotSummary], args: &Args) {
+fn print_table(summaries: &[RobotSummary], args: &Args, arm: &handeye::model::KinematicError) {
     println!(
-        "\nhandeye bench: {} views × {} scans per robot, {}, camera {}, no prior, realistic noise + CAD mismatch, factory-calibrated arms, kinematics {}",
+        "\nhandeye bench: {} views × {} scans per robot, {}, camera {}, no prior, realistic noise + CAD mismatch, factory-calibrated arms with housings {:.2} mm / {:.2} mrad off their frames, kinematics {}",
         args.views, args.scans_per_view, match args.mount {
             Mount::EyeInHand => "eye-in-hand (flange_from_camera)",
             Mount::EyeToHand => "eye-to-hand (base_from_camera)",
-        }, args.camera, match args.kinematics {
+        }, args.camera, arm.housing_translation_sigma_m * 1e3, arm.housing_rotation_sigma_rad * 1e3, match args.kinematics {
             BenchKinematics::Unknown => "unknown to the solver (nominal URDF)",
             BenchKinematics::Known => "given to the solver",
         }

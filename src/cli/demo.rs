@@ -9,6 +9,7 @@ use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use handeye::bench::{PASS_ROTATION_DEG, PASS_TRANSLATION_MM};
 use handeye::config::{self, RobotPorts, ViewTargets};
 use handeye::run::{pose_difference, Outcome, RunMode, RunRequest};
 use handeye::sim::{Intrinsics, SimSettings};
@@ -21,11 +22,6 @@ use tokio_util::sync::CancellationToken;
 
 use super::calibrate::{describe_pose, execute, summary};
 use super::sim_rig::{Rig, RigOptions, RobotFaults};
-
-/// The demo passes when the result is accepted and this close to the truth, mm.
-const PASS_TRANSLATION_MM: f64 = 0.5;
-/// The demo passes when the result is accepted and this close to the truth, degrees.
-const PASS_ROTATION_DEG: f64 = 0.1;
 
 /// Calibrate a simulated UR with a wrist camera through the real protocols.
 #[derive(Debug, Clone, clap::Args)]

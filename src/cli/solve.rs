@@ -69,12 +69,13 @@ pub(crate) struct Args {
     #[arg(long, allow_hyphen_values = true)]
     guess_base_from_camera: Option<String>,
     /// How the real arm differs from the URDF, per joint (1σ): zero offset (mrad), link length
-    /// (mm), axis misalignment (mrad); for UR arms the DH θ, d and a, α. The shoulder's and
-    /// upper arm's displacements are estimated with this as their prior and the reported
-    /// uncertainty carries what the scan cannot tell apart from them. Default: UR
-    /// factory-calibration deltas (0.3,0.3,0.3); `0,0,0` when the URDF is the arm's calibrated
-    /// kinematics. Not used when the model is posed by the controller's kinematics or a
-    /// calibration file.
+    /// (mm), axis misalignment (mrad); for UR arms the DH θ, d and a, α; optionally each link
+    /// housing's shift (mm) and turn (mrad) off its frame, the base's off joint 1's axis
+    /// included. The base's, shoulder's and upper arm's displacements are estimated with this
+    /// as their prior and the reported uncertainty carries what the scan cannot tell apart from
+    /// them. Default: a manufactured UR arm (0.3,0.3,0.3,0.3,0.3); `0,0,0` when the URDF is
+    /// the arm's calibrated kinematics (posed by the controller's kinematics or a calibration
+    /// file only the housings and each link's place along its axis remain).
     #[arg(long, value_parser = parse_kinematic_error)]
     kinematic_error: Option<KinematicError>,
     /// Eye-in-hand: the camera is at most this far from the flange origin, metres (default

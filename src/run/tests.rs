@@ -272,7 +272,10 @@ async fn an_accepted_run_writes_back_and_returns_to_the_start() {
     let est = estimate(&record);
     let (mm, deg) = pose_difference(&f.mount, &est);
     eprintln!("accepted run: error {mm:.3} mm {deg:.4} deg");
-    assert!(mm < 0.5 && deg < 0.1, "error {mm:.3} mm {deg:.4} deg");
+    assert!(
+        mm < crate::bench::PASS_TRANSLATION_MM && deg < crate::bench::PASS_ROTATION_DEG,
+        "error {mm:.3} mm {deg:.4} deg"
+    );
 
     // The record's `ur_pose` is the result, the same array a `UrPose` serializes to.
     let result = record.result.as_ref().expect("a result");
@@ -1233,11 +1236,15 @@ async fn without_the_controller_s_kinematics_the_calibration_file_poses_the_mode
          calibration file: {file_mm:.3} mm / {file_deg:.4}° (1σ {file_sigma:.3} mm)"
     );
     // One scan says little about which error is smaller (the bench compares them over many);
-    // what the file buys on every scan is that the arm's kinematic error is gone from what the
-    // run can promise, and both results stay within what they promise.
-    assert!(file_mm < 0.5, "{file_mm} mm with the calibration file");
+    // what the file buys on every scan is that the arm's joint error is gone from what the run
+    // can promise, and both results stay within what they promise.
     assert!(
-        file_sigma < 0.8 * nominal_sigma,
+        file_mm < crate::bench::PASS_TRANSLATION_MM,
+        "{file_mm} mm with the calibration file"
+    );
+    // The file takes the joints' error out of the promise; the housings' stays in both.
+    assert!(
+        file_sigma < 0.95 * nominal_sigma,
         "1σ {file_sigma} mm with the file vs {nominal_sigma} mm nominal"
     );
     assert!(nominal_mm < 3.0 * nominal_sigma && file_mm < 3.0 * file_sigma);

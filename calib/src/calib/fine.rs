@@ -320,12 +320,8 @@ impl Acc {
         let g = c.j * (c.w * c.r);
         self.h += h;
         self.g += g;
-        // Links deeper than the displaced ones stay where they are posed, like the base.
-        let slot = if (c.depth as usize) < self.by_depth.len() {
-            c.depth as usize
-        } else {
-            0
-        };
+        // Links deeper than the displaced ones stay where they are posed: the last slot.
+        let slot = (c.depth as usize).min(self.by_depth.len().saturating_sub(1));
         if let Some(d) = self.by_depth.get_mut(slot) {
             d.0 += h;
             d.1 += g;
@@ -359,7 +355,7 @@ struct Correspondence {
 
 /// Where a scan point stands against the model: not near the fitted links, near them but
 /// without a usable correspondence (`Err(depth)`), or a correspondence.
-/// `links[d − 1]` is the estimated displacement of the links at chain depth `d` (see
+/// `links[d]` is the estimated displacement of the links at chain depth `d` (see
 /// [`super::links`]); the model surface there is taken as moved by it (empty: as posed).
 /// `clear`: what the point's previous search found (see [`Clearance`]), updated.
 fn correspond(
@@ -391,7 +387,7 @@ fn correspond(
     }
     // The point against the link as posed: undo the link's displacement, and look again from
     // there (near an edge a millimetre decides the triangle).
-    let (s, on_posed) = match (s.depth as usize).checked_sub(1).and_then(|d| links.get(d)) {
+    let (s, on_posed) = match links.get(s.depth as usize) {
         Some(m) => {
             let back = m.inverse_transform_point(&x);
             match surface.nearest(&back, st.gate_m.max(0.01)) {
@@ -426,8 +422,8 @@ fn correspond(
 }
 
 /// The normal equations and fit statistics of `pts` at `t`, `depth`, the links displaced by
-/// `links` (see [`correspond`]); when `links` is not empty, also per chain depth `0..=links.len()`
-/// (deeper links with the base: they are not displaced).
+/// `links` (see [`correspond`]); when `links` is not empty, also per chain depth
+/// `0..links.len()` and one slot for deeper links (not displaced).
 /// `clear`: per point, what its previous search found ([`correspond`]).
 fn accumulate(
     pts: &[Oriented],
@@ -438,6 +434,7 @@ fn accumulate(
     links: &[Isometry3<f64>],
     clear: &mut [Clearance],
 ) -> Acc {
+    // One slot past the displaced depths for points the links do not move.
     let depths = if links.is_empty() { 0 } else { links.len() + 1 };
     let chunk = |(c, clear): (&[Oriented], &mut [Clearance])| {
         let mut a = Acc::new(depths);
@@ -521,9 +518,7 @@ fn patch_scores(
         );
         *patches.entry(key).or_insert_with(VecP::zeros) += c.j * (c.w * c.r);
         let along = nalgebra::RowVector2::new(o.p.x, o.p.y) * c.j[SCALE];
-        let d = Some(c.depth as usize)
-            .filter(|&d| d < gradients.len())
-            .unwrap_or(0);
+        let d = (c.depth as usize).min(gradients.len() - 1);
         gradients[d] += c.j * (c.w * along);
     }
     (
@@ -582,7 +577,7 @@ fn gradient_columns(by_depth: &[SMatrix<f64, NP, 2>], prior: &LinkPrior) -> DMat
     for (d, m) in by_depth.iter().enumerate() {
         let mut top = cols.view_mut((0, 0), (NP, 2));
         top += m;
-        if let Some(a) = d.checked_sub(1).and_then(|k| prior.a.get(k)) {
+        if let Some(a) = prior.a.get(d) {
             let mut rest = cols.view_mut((NP, 0), (p, 2));
             rest -= a.transpose() * m.fixed_view::<6, 2>(0, 0);
         }
@@ -602,7 +597,7 @@ pub(crate) fn icp(
 }
 
 /// The fitted links' displacements as parameters of the fit (see [`super::links`]): the
-/// displacement of depth `d` is `a[d − 1] · z` with `z ~ N(0, I)`, weighed against the scan's
+/// displacement of depth `d` (0: the base) is `a[d] · z` with `z ~ N(0, I)`, weighed against the scan's
 /// residuals as if their variance were `residual_var` (m²; the effective variance of the fit
 /// without them, which counts a patch's shared error once).
 #[derive(Debug, Clone)]
@@ -625,7 +620,7 @@ impl LinkPrior {
         self.a.first().map_or(0, |m| m.ncols())
     }
 
-    /// The displacements of depths `1..` at `z`, as isometries.
+    /// The displacements of depths `0..` at `z`, as isometries.
     fn displacements(&self, z: &DVector<f64>) -> Vec<Isometry3<f64>> {
         self.a
             .iter()
@@ -640,7 +635,7 @@ impl LinkPrior {
     }
 
     /// The normal equations of pose, depth and link parameters from the per-depth sums (the
-    /// residual's derivative by `z` at depth `d` is `−J₆ᵀ a[d − 1]`) and the prior at `z`.
+    /// residual's derivative by `z` at depth `d` is `−J₆ᵀ a[d]`) and the prior at `z`.
     fn normal_equations(
         &self,
         by_depth: &[(MatP, VecP)],
@@ -655,7 +650,7 @@ impl LinkPrior {
             hv += hd;
             let mut gv = g.rows_mut(0, NP);
             gv += gd;
-            let Some(a) = d.checked_sub(1).and_then(|k| self.a.get(k)) else {
+            let Some(a) = self.a.get(d) else {
                 continue;
             };
             // ∂r/∂z = −a ᵀ J₆: cross terms −H₈₆ a, link block aᵀ H₆₆ a, gradient −aᵀ g₆.
@@ -854,7 +849,7 @@ pub(crate) fn icp_with_links(
     for (d, psi) in &patches {
         let mut full = DVector::zeros(NP + p);
         full.rows_mut(0, NP).copy_from(psi);
-        if let Some(a) = (*d as usize).checked_sub(1).and_then(|k| prior.a.get(k)) {
+        if let Some(a) = prior.a.get(*d as usize) {
             let psi6 = psi.fixed_rows::<6>(0);
             full.rows_mut(NP, p).copy_from(&(-(a.transpose() * psi6)));
         }

@@ -20,8 +20,14 @@
 //!   [`DhParams::link_frames`](handeye_hal::ur_dh::DhParams::link_frames)): two parameters per
 //!   link, that link alone.
 //!
-//! Parameters `z ~ N(0, I)`: the links of chain depth `d` are displaced (model frame, a point
-//! `x` moves by `t + ω × x`) by `(t, ω) = A_d · z`.
+//! Both cases: what a camera sees of each fitted link, the base's included, is its housing,
+//! which sits off the link's kinematic frame by a small rigid error no controller knows (the
+//! base's off joint 1's axis); six parameters per fitted link. The base's are what make the
+//! fit weigh the base against the shoulder and upper arm, which turn on joint 1's axis, and
+//! what the scan cannot tell apart from the camera pose stays in the covariance.
+//!
+//! Parameters `z ~ N(0, I)`: the links of chain depth `d` (0: the base) are displaced (model
+//! frame, a point `x` moves by `t + ω × x`) by `(t, ω) = A_d · z`.
 
 use handeye_hal::ur_dh::PARALLEL_SINE;
 use nalgebra::{Matrix6xX, Point3, Vector3};
@@ -29,9 +35,9 @@ use nalgebra::{Matrix6xX, Point3, Vector3};
 use super::surface::PosedModel;
 use crate::model::KinematicError;
 
-/// `A_d` for the chain depths `1..=fit_depth` (entry `d − 1`), one column per kinematic
-/// parameter of the links' displacements, scaled by its prior 1σ; columns of parameters with
-/// σ = 0 are left out, so an arm known exactly has none.
+/// `A_d` for the chain depths `0..=fit_depth` (entry `d`; depth 0 is the base), one column per
+/// kinematic parameter of the links' displacements, scaled by its prior 1σ; columns of
+/// parameters with σ = 0 are left out, so an arm known exactly has none.
 pub(crate) fn link_error_model(
     model: &PosedModel,
     fit_depth: usize,
@@ -43,8 +49,23 @@ pub(crate) fn link_error_model(
     // A turn about the line through `p` along `u`: a point x moves by (p × u) + u × x.
     let turn = |p: &Point3<f64>, u: Vector3<f64>| twist(p.coords.cross(&u), u);
     let depths = match &model.link_axes {
+        Some(axes) => fit_depth.min(axes.len()),
+        None => fit_depth.min(model.joints.len()),
+    };
+    // Moves the links of depth `k` alone, or (`beyond`) every fitted depth past `k`.
+    let at = |k: usize, v: [f64; 6], beyond: bool| {
+        (0..=depths)
+            .map(|d| {
+                if d == k || (beyond && d > k) {
+                    v
+                } else {
+                    [0.0; 6]
+                }
+            })
+            .collect::<Vec<_>>()
+    };
+    match &model.link_axes {
         Some(axes) => {
-            let depths = fit_depth.min(axes.len());
             for k in 1..=depths {
                 let (p, u) = (Point3::from(axes[k - 1].point), axes[k - 1].direction);
                 // How far turned: the next axis' displacement over its lever when the axes
@@ -58,18 +79,14 @@ pub(crate) fn link_error_model(
                     }
                     _ => error.axis_misalignment_sigma_rad,
                 };
-                let only = |v: [f64; 6]| {
-                    (1..=depths)
-                        .map(|d| if d == k { v } else { [0.0; 6] })
-                        .collect::<Vec<_>>()
-                };
-                columns.push((only(turn(&p, u)), turn_sigma));
-                columns.push((only(twist(u, Vector3::zeros())), error.link_length_sigma_m));
+                columns.push((at(k, turn(&p, u), false), turn_sigma));
+                columns.push((
+                    at(k, twist(u, Vector3::zeros()), false),
+                    error.link_length_sigma_m,
+                ));
             }
-            depths
         }
         None => {
-            let depths = fit_depth.min(model.joints.len());
             for (k, joint) in model.joints.iter().enumerate().take(depths) {
                 let rotation = joint.model_from_joint.rotation;
                 let origin = Point3::from(joint.model_from_joint.translation.vector);
@@ -96,17 +113,34 @@ pub(crate) fn link_error_model(
                     ]);
                 }
                 for (v, s) in params {
-                    let per_depth = (1..=depths)
-                        .map(|d| if d > k { v } else { [0.0; 6] })
-                        .collect();
-                    columns.push((per_depth, s));
+                    // Joint k moves every link beyond it: depths k + 1 and on.
+                    columns.push((at(k + 1, v, true), s));
                 }
             }
-            depths
         }
-    };
+    }
+    // Each fitted link's housing off its frame, the base's included: a shift along and a turn
+    // about each axis through the link frame's origin (the root's for the base, the joint's
+    // that moves it for the others), as the simulators draw it
+    // (`RobotModel::with_housings`).
+    for d in 0..=depths {
+        let origin = match d.checked_sub(1).and_then(|k| model.joints.get(k)) {
+            Some(joint) => Point3::from(joint.model_from_joint.translation.vector),
+            None => Point3::origin(),
+        };
+        for e in [Vector3::x(), Vector3::y(), Vector3::z()] {
+            columns.push((
+                at(d, twist(e, Vector3::zeros()), false),
+                error.housing_translation_sigma_m,
+            ));
+            columns.push((
+                at(d, turn(&origin, e), false),
+                error.housing_rotation_sigma_rad,
+            ));
+        }
+    }
     columns.retain(|(_, s)| *s > 0.0);
-    (0..depths)
+    (0..=depths)
         .map(|d| {
             let mut a = Matrix6xX::zeros(columns.len());
             for (c, (per_depth, s)) in columns.iter().enumerate() {
@@ -138,6 +172,7 @@ mod tests {
     use crate::calib::testutil::toy_robot;
     use crate::testutil::shared_robot;
     use handeye_hal::ur_dh::PhysicalArm;
+    use rand::SeedableRng;
 
     /// Posed by a controller's DH, what is left of each fitted link's error is a turn about
     /// and a slide along its calibrated axis; over many physical arms their spread is what the
@@ -159,15 +194,16 @@ mod tests {
             let dh = arm.controller_dh();
             let posed = posed_model_with_controller_kinematics(&model, &q, &dh).expect("posed");
             if seed == 0 {
-                let a = link_error_model(&posed, 2, &error);
-                assert_eq!(a.len(), 2);
-                assert_eq!(a[0].ncols(), 4, "two per fitted link");
+                let a = link_error_model(&posed, 2, &error.without_housings());
+                assert_eq!(a.len(), 3, "the base and two moving links");
+                assert_eq!(a[0].ncols(), 4, "two per fitted moving link");
+                assert_eq!(a[0].norm(), 0.0, "the base is not on a moving axis");
                 // Column σ: the turn and slide of each link (only its own depth moves).
                 priors = (0..4)
                     .map(|c| {
-                        let depth = c / 2;
+                        let depth = c / 2 + 1;
                         let v = a[depth].column(c);
-                        assert!(a[1 - depth].column(c).norm() == 0.0);
+                        assert!(a[3 - depth].column(c).norm() == 0.0);
                         if c % 2 == 0 {
                             v.fixed_rows::<3>(3).norm()
                         } else {
@@ -222,9 +258,15 @@ mod tests {
         // Per-joint origin errors: the prior of the shoulder's displacement is
         // KinematicError::joint_covariance (joint frame) carried to the model frame.
         let posed = toy_robot(&[0.4, 0.0, 0.0]);
-        let error = KinematicError::default();
+        let error = KinematicError::default().without_housings();
         let a = link_error_model(&posed, 2, &error);
         let prior = prior_covariance(&a);
+        assert_eq!(
+            prior.view((0, 0), (6, 6)).norm(),
+            0.0,
+            "the base is not moved"
+        );
+        let prior = prior.view((6, 6), (12, 12));
         let j = &posed.joints[0];
         let r = j
             .model_from_joint
@@ -251,5 +293,60 @@ mod tests {
         }
         // The upper arm also carries the second joint's error: its prior is larger.
         assert!(prior[(8, 8)] + prior[(6, 6)] > prior[(2, 2)] + prior[(0, 0)]);
+    }
+
+    /// The housings' prior, the base's included, is the spread of the housings the simulators
+    /// draw: the displacement of every fitted link's surface over many drawn arms has the
+    /// covariance the fit assumes (the reported σ stands on it).
+    #[test]
+    fn the_housings_prior_matches_what_the_simulators_draw() {
+        let Some(model) = shared_robot("ur/ur5e/ur5e.urdf") else {
+            return;
+        };
+        let q = [0.4, -1.2, 1.1, -1.3, -1.5, 0.2];
+        let error = KinematicError {
+            housing_translation_sigma_m: 3e-4,
+            housing_rotation_sigma_rad: 2e-4,
+            ..KinematicError::none()
+        };
+        let posed = crate::calib::posed_model(&model, &q).expect("posed");
+        let prior = prior_covariance(&link_error_model(&posed, 2, &error));
+        assert_eq!(prior.nrows(), 18, "base, shoulder, upper arm");
+        let poses = model.link_poses(&q).expect("poses");
+        let links = ["base_link_inertia", "shoulder_link", "upper_arm_link"]
+            .map(|l| model.link_index(l).expect(l));
+        let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+        let n = 4000;
+        let mut cov = nalgebra::DMatrix::<f64>::zeros(18, 18);
+        for _ in 0..n {
+            let housed = model.with_housings(&poses, &error.sample_housings(&model, &mut rng));
+            let mut v = nalgebra::DVector::<f64>::zeros(18);
+            for (d, &l) in links.iter().enumerate() {
+                // The displacement as a twist: a point x moves by t + ω × x.
+                let m = housed[l] * poses[l].inverse();
+                let w = m.rotation.scaled_axis();
+                v.fixed_rows_mut::<3>(6 * d)
+                    .copy_from(&m.translation.vector);
+                v.fixed_rows_mut::<3>(6 * d + 3).copy_from(&w);
+            }
+            cov += &v * v.transpose() / n as f64;
+        }
+        for d in 0..3 {
+            for (k, sigma) in [(0, 3e-4), (3, 2e-4)] {
+                let block =
+                    |c: &nalgebra::DMatrix<f64>| c.view((6 * d + k, 6 * d + k), (3, 3)).trace();
+                let (want, got) = (block(&prior), block(&cov));
+                assert!(
+                    (got / want - 1.0).abs() < 0.08,
+                    "depth {d} {}: drawn {got:.3e}, prior {want:.3e}",
+                    if k == 0 { "shift" } else { "turn" }
+                );
+                if k == 3 {
+                    assert!((want / 3.0 - sigma * sigma).abs() < 1e-15);
+                }
+            }
+        }
+        // Independent links: no correlation between depths.
+        assert!(cov.view((0, 6), (6, 12)).amax() < 0.1 * 3e-4 * 3e-4);
     }
 }

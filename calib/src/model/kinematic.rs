@@ -17,6 +17,10 @@ use super::RobotModel;
 /// controller reports in (standard DH's base frame is joint 1's axis), so its error is only a
 /// zero offset and a displacement along its axis. For UR arms these are the sizes of
 /// [`PhysicalArm`](handeye_hal::ur_dh::PhysicalArm)'s joint errors.
+///
+/// Beyond the joints, each link's housing (what a camera sees: castings, covers) sits off the
+/// link's kinematic frame by a small rigid error, the base's off joint 1's axis included; no
+/// controller knows it, so it is carried by both paths (kinematics known or not).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct KinematicError {
@@ -27,16 +31,26 @@ pub struct KinematicError {
     pub link_length_sigma_m: f64,
     /// Standard deviation of each joint axis' misalignment about each perpendicular, radians.
     pub axis_misalignment_sigma_rad: f64,
+    /// Standard deviation of each link housing's displacement from the link's frame along each
+    /// axis, metres (the base's from joint 1's axis included).
+    pub housing_translation_sigma_m: f64,
+    /// Standard deviation of each link housing's rotation about each axis through the link
+    /// frame's origin, radians.
+    pub housing_rotation_sigma_rad: f64,
 }
 
 impl Default for KinematicError {
-    /// What a UR factory calibration finds: 0.3 mrad zero offsets, 0.3 mm joint displacements,
-    /// 0.3 mrad axis misalignments ([`JointErrorSizes::FACTORY`]).
+    /// A manufactured UR arm ([`JointErrorSizes::FACTORY`]): what a factory calibration finds
+    /// (0.3 mrad zero offsets, 0.3 mm joint displacements, 0.3 mrad axis misalignments) and
+    /// housings 0.3 mm / 0.3 mrad per axis off their links' frames.
     fn default() -> Self {
+        let f = JointErrorSizes::FACTORY;
         Self {
-            joint_offset_sigma_rad: 0.0003,
-            link_length_sigma_m: 0.0003,
-            axis_misalignment_sigma_rad: 0.0003,
+            joint_offset_sigma_rad: f.zero_offset_rad,
+            link_length_sigma_m: f.translation_m,
+            axis_misalignment_sigma_rad: f.misalignment_rad,
+            housing_translation_sigma_m: f.housing_translation_m,
+            housing_rotation_sigma_rad: f.housing_rotation_rad,
         }
     }
 }
@@ -77,6 +91,16 @@ impl KinematicError {
                 self.axis_misalignment_sigma_rad,
                 "rad",
             ),
+            (
+                "kinematic_error.housing_translation_sigma_m",
+                self.housing_translation_sigma_m,
+                "m",
+            ),
+            (
+                "kinematic_error.housing_rotation_sigma_rad",
+                self.housing_rotation_sigma_rad,
+                "rad",
+            ),
         ] {
             handeye_hal::limits::check_range(
                 key,
@@ -90,12 +114,24 @@ impl KinematicError {
         Ok(())
     }
 
-    /// The arm is exactly its nominal model.
+    /// The arm is exactly its nominal model, housings and all.
     pub fn none() -> Self {
         Self {
             joint_offset_sigma_rad: 0.0,
             link_length_sigma_m: 0.0,
             axis_misalignment_sigma_rad: 0.0,
+            housing_translation_sigma_m: 0.0,
+            housing_rotation_sigma_rad: 0.0,
+        }
+    }
+
+    /// These sizes with the housings on their links' frames (the arm as the simulators built
+    /// it before housings were modelled).
+    pub fn without_housings(self) -> Self {
+        Self {
+            housing_translation_sigma_m: 0.0,
+            housing_rotation_sigma_rad: 0.0,
+            ..self
         }
     }
 
@@ -105,7 +141,28 @@ impl KinematicError {
             zero_offset_rad: self.joint_offset_sigma_rad,
             translation_m: self.link_length_sigma_m,
             misalignment_rad: self.axis_misalignment_sigma_rad,
+            housing_translation_m: self.housing_translation_sigma_m,
+            housing_rotation_rad: self.housing_rotation_sigma_rad,
         }
+    }
+
+    /// One random draw of each link housing's offset from its link's frame (one isometry per
+    /// chain depth 0..=dof, in that link's frame, for [`RobotModel::with_housings`]).
+    pub fn sample_housings(&self, model: &RobotModel, rng: &mut impl Rng) -> Vec<Isometry3<f64>> {
+        let mut gauss = |s: f64| {
+            if s > 0.0 {
+                Normal::new(0.0, s).map_or(0.0, |d| d.sample(rng))
+            } else {
+                0.0
+            }
+        };
+        (0..=model.dof())
+            .map(|_| {
+                let t = Vector3::from_fn(|_, _| gauss(self.housing_translation_sigma_m));
+                let r = Vector3::from_fn(|_, _| gauss(self.housing_rotation_sigma_rad));
+                Isometry3::new(t, r)
+            })
+            .collect()
     }
 
     /// One random draw of per-joint origin errors (one isometry per chain joint, in the joint

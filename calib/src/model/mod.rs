@@ -994,6 +994,45 @@ impl RobotModel {
         frames
     }
 
+    /// The poses of every link's housing (what a camera sees) given every link's
+    /// `model_from_link` (in [`link_names`](Self::link_names) order) and `housings[d]`, the
+    /// offset of chain depth `d`'s housing in its link's own frame (depth 0: the root's; depth
+    /// `d ≥ 1`: the frame of the link chain joint `d − 1` moves): every link of depth `d` moves
+    /// with it. Depths beyond `housings` stay as posed.
+    ///
+    /// # Panics
+    /// If `link_poses` has fewer entries than the model has links.
+    pub fn with_housings(
+        &self,
+        link_poses: &[Isometry3<f64>],
+        housings: &[Isometry3<f64>],
+    ) -> Vec<Isometry3<f64>> {
+        let mut frames = vec![Isometry3::identity(); self.dof() + 1];
+        for (l, node) in self.links.iter().enumerate() {
+            if let Motion::Revolute {
+                q: QSource::Chain(i),
+                ..
+            }
+            | Motion::Prismatic {
+                q: QSource::Chain(i),
+                ..
+            } = node.motion
+            {
+                frames[i + 1] = link_poses[l];
+            }
+        }
+        let moves: Vec<Isometry3<f64>> = frames
+            .iter()
+            .zip(housings)
+            .map(|(f, h)| f * h * f.inverse())
+            .collect();
+        link_poses
+            .iter()
+            .zip(&self.links)
+            .map(|(pose, node)| moves.get(node.chain_depth).map_or(*pose, |m| m * pose))
+            .collect()
+    }
+
     /// The axis of each chain joint (unit vector in the joint frame), chain order.
     pub fn joint_axes(&self) -> Vec<Unit<Vector3<f64>>> {
         let mut axes = vec![Vector3::z_axis(); self.dof()];

@@ -133,6 +133,9 @@ pub struct GroundTruth {
     pub controller_dh: Option<DhParams>,
     /// A physical UR arm's joint errors (DH frame `k − 1`, [`PhysicalArm::joint_errors`]).
     pub arm_joint_errors: Option<[Isometry3<f64>; 6]>,
+    /// Each link housing's offset from its link's frame, per chain depth (see
+    /// [`RobotModel::with_housings`]): what the scan shows beyond the kinematics.
+    pub housings: Vec<Isometry3<f64>>,
 }
 
 /// A simulated scan with its truth.
@@ -160,6 +163,9 @@ pub enum SimError {
     Setting(String),
 }
 
+/// Mixed into a scan's seed for the draw of its arm's housings.
+const HOUSING_SEED: u64 = 0x686f_7573_696e_6773;
+
 /// Renders one scan.
 pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     req.noise.validate().map_err(SimError::Setting)?;
@@ -169,10 +175,21 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     let mut rng = rand::rngs::StdRng::seed_from_u64(req.seed);
     // Drawn even when unused, so the rest of the scan's draws do not depend on `controller_dh`.
     let errors = req.kinematic_error.sample(model, &mut rng);
-    let (true_poses, errors) = match &req.arm {
-        Some(arm) => (model.link_poses_of_arm(&req.joints, arm)?, Vec::new()),
-        None => (model.link_poses_with_errors(&req.joints, &errors)?, errors),
+    // The housings' own stream: the rest of the scan is drawn as without them.
+    let mut housing_rng = rand::rngs::StdRng::seed_from_u64(req.seed ^ HOUSING_SEED);
+    let (true_poses, errors, housings) = match &req.arm {
+        Some(arm) => (
+            model.link_poses_of_arm(&req.joints, arm)?,
+            Vec::new(),
+            arm.housings.to_vec(),
+        ),
+        None => (
+            model.link_poses_with_errors(&req.joints, &errors)?,
+            errors,
+            req.kinematic_error.sample_housings(model, &mut housing_rng),
+        ),
     };
+    let housing_poses = model.with_housings(&true_poses, &housings);
     let flange_index = model
         .link_names()
         .iter()
@@ -197,8 +214,7 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
         let Some(i) = model.link_names().iter().position(|l| *l == g.link) else {
             continue;
         };
-        let t = true_poses[i];
-        posed.push(g.mesh.transformed(&t));
+        posed.push(g.mesh.transformed(&housing_poses[i]));
         objects.push(format!("link:{}", g.link));
     }
     let base_radius = base_radius(model);
@@ -227,6 +243,7 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
             joint_origin_errors: errors,
             controller_dh: req.arm.as_ref().map(PhysicalArm::controller_dh),
             arm_joint_errors: req.arm.map(|a| a.joint_errors),
+            housings,
         },
     })
 }

@@ -279,14 +279,26 @@ pub struct JointErrorSizes {
     /// Rotation of each joint's axis about each of the two directions perpendicular to it,
     /// radians.
     pub misalignment_rad: f64,
+    /// Displacement of each link's housing (its casting and covers, what a camera sees) from
+    /// the link's kinematic frame along each of three axes, metres.
+    #[serde(default)]
+    pub housing_translation_m: f64,
+    /// Rotation of each link's housing about each of three axes through its frame's origin,
+    /// radians.
+    #[serde(default)]
+    pub housing_rotation_rad: f64,
 }
 
 impl JointErrorSizes {
-    /// What a UR arm's factory calibration finds: 0.3 mrad and 0.3 mm per joint and axis.
+    /// A manufactured UR arm: what its factory calibration finds (0.3 mrad and 0.3 mm per
+    /// joint and axis), and housings off their links' frames by the same sizes (castings
+    /// machined and covers assembled to a few tenths of a millimetre; no controller knows them).
     pub const FACTORY: JointErrorSizes = JointErrorSizes {
         zero_offset_rad: 3e-4,
         translation_m: 3e-4,
         misalignment_rad: 3e-4,
+        housing_translation_m: 3e-4,
+        housing_rotation_rad: 3e-4,
     };
 }
 
@@ -301,12 +313,21 @@ impl JointErrorSizes {
 /// The controller of such an arm publishes [`PhysicalArm::controller_dh`]: the exact standard
 /// DH set of its axes, whose forward kinematics are the physical flange; with nearly parallel
 /// joints 2–4 it has huge compensating `d` and `θ`, as every real UR's has.
+///
+/// What a camera sees of link `k` (chain depth `k`, 0 the base) is its housing, which sits off
+/// the link's kinematic frame by a small rigid `housings[k]`, expressed in the link's own frame
+/// (the robot description's link frame: its origin on the joint that moves it, the base's at
+/// the foot of joint 1's axis). The base housing off joint 1's axis is one of them. Neither the
+/// controller's DH nor its flange poses know these: they change what a scan shows, not what
+/// the controller reports.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PhysicalArm {
     /// The DH set the arm was built to.
     pub nominal: DhParams,
     /// `E_k` per joint, in DH frame `k − 1` (metres, radians).
     pub joint_errors: [Isometry3<f64>; 6],
+    /// `link_from_housing` per chain depth 0..=6 (base, the six moving links).
+    pub housings: [Isometry3<f64>; 7],
 }
 
 impl PhysicalArm {
@@ -315,6 +336,7 @@ impl PhysicalArm {
         Self {
             nominal,
             joint_errors: [Isometry3::identity(); 6],
+            housings: [Isometry3::identity(); 7],
         }
     }
 
@@ -346,9 +368,21 @@ impl PhysicalArm {
                 UnitQuaternion::from_scaled_axis(rotation),
             )
         });
+        // Their own stream: the joints (and so the controller's DH) of a seed stay what they
+        // were without housings.
+        let mut gauss = gaussian_stream(seed ^ HOUSING_SEED);
+        let housings = std::array::from_fn(|_| {
+            let mut g = [0.0; 6];
+            g.iter_mut().for_each(|v| *v = gauss());
+            Isometry3::new(
+                Vector3::new(g[0], g[1], g[2]) * sizes.housing_translation_m,
+                Vector3::new(g[3], g[4], g[5]) * sizes.housing_rotation_rad,
+            )
+        });
         Self {
             nominal,
             joint_errors,
+            housings,
         }
     }
 
@@ -392,6 +426,9 @@ impl PhysicalArm {
         DhParams::from_axes(&axes, &frames[6], &self.nominal)
     }
 }
+
+/// Mixed into a [`PhysicalArm::draw`] seed for its housings' draws.
+const HOUSING_SEED: u64 = 0x686f_7573_696e_6773;
 
 /// A directed line: a joint axis (metres; unit direction, the sense the joint turns about).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -708,6 +745,33 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn housings_are_drawn_apart_from_the_joints_at_their_sizes() {
+        let bare = JointErrorSizes {
+            housing_translation_m: 0.0,
+            housing_rotation_rad: 0.0,
+            ..JointErrorSizes::FACTORY
+        };
+        let (mut t2, mut r2, mut n) = (0.0, 0.0, 0.0);
+        for seed in 0..200 {
+            let arm = PhysicalArm::factory(UrModel::Ur5e, seed);
+            let without = PhysicalArm::draw(UrModel::Ur5e.dh(), &bare, seed);
+            // The housings change what a camera sees, not the joints or what the controller
+            // publishes.
+            assert_eq!(arm.joint_errors, without.joint_errors);
+            assert_eq!(arm.controller_dh(), without.controller_dh());
+            assert!(without.housings.iter().all(|h| *h == Isometry3::identity()));
+            for h in &arm.housings {
+                t2 += h.translation.vector.norm_squared();
+                r2 += h.rotation.scaled_axis().norm_squared();
+                n += 3.0;
+            }
+        }
+        let (t, r) = ((t2 / n).sqrt(), (r2 / n).sqrt());
+        assert!((t - 3e-4).abs() < 0.2e-4, "housing shift {t} m per axis");
+        assert!((r - 3e-4).abs() < 0.2e-4, "housing turn {r} rad per axis");
     }
 
     #[test]

@@ -576,6 +576,8 @@ async fn true_kinematics_deviation_shows_in_the_controller_pose() {
         zero_offset_rad: 2e-3,
         translation_m: 2e-3,
         misalignment_rad: 2e-3,
+        housing_translation_m: 0.0,
+        housing_rotation_rad: 0.0,
     };
     let arm = PhysicalArm::draw(UrModel::Ur5e.dh(), &sizes, 3);
     c.arm = Some(arm);

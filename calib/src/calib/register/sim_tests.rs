@@ -110,6 +110,7 @@ fn uncertainty_covers_the_arms_kinematic_error() {
         joint_offset_sigma_rad: 0.0015,
         link_length_sigma_m: 0.0015,
         axis_misalignment_sigma_rad: 0.0005,
+        ..KinematicError::none()
     };
     let (mut ratios, mut ratios_trusting) = (Vec::new(), Vec::new());
     let (mut errors, mut errors_trusting) = (Vec::new(), Vec::new());
@@ -286,7 +287,12 @@ fn a_depth_error_across_the_image_is_in_the_uncertainty() {
     };
     let mut settings = SimSettings::default();
     settings.noise.depth_gradient = [0.0, 0.03];
-    let plain = RegisterOptions::default();
+    // The camera's error alone: housings on their frames, and the fit told so.
+    settings.kinematic_error = settings.kinematic_error.without_housings();
+    let plain = RegisterOptions {
+        kinematic_error: settings.kinematic_error,
+        ..RegisterOptions::default()
+    };
     let covered = RegisterOptions {
         depth_gradient_error: 0.03,
         ..plain.clone()
@@ -336,8 +342,17 @@ fn time_of_flight_scans(
     let mut settings = SimSettings::for_camera("helios2");
     settings.noise.depth_offset_m = offset_m;
     settings.noise.multipath_m = multipath_m;
+    // The camera's errors alone: housings on their frames, and the fits told so.
+    settings.kinematic_error = settings.kinematic_error.without_housings();
     let intrinsics = Intrinsics::preset("helios2").expect("preset");
-    let tof = RegisterOptions::default().for_sensor(crate::geometry::SensorClass::TimeOfFlight);
+    let tof = RegisterOptions {
+        kinematic_error: settings.kinematic_error,
+        ..RegisterOptions::default().for_sensor(crate::geometry::SensorClass::TimeOfFlight)
+    };
+    let other = &RegisterOptions {
+        kinematic_error: settings.kinematic_error,
+        ..other.clone()
+    };
     Some(
         views
             .iter()
