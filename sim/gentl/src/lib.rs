@@ -63,14 +63,17 @@ fn scene_args() -> Res<SceneArgs> {
             format!("{ARGS_ENV}: unbalanced quotes in `{text}`"),
         )
     })?;
-    EnvArgs::try_parse_from(words)
-        .map(|a| a.scene)
-        .map_err(|e| {
-            Fail::new(
-                err::INVALID_PARAMETER,
-                format!("{ARGS_ENV}: {}", e.render()).trim_end().to_string(),
-            )
-        })
+    EnvArgs::try_parse_from(words).map(|a| a.scene).map_err(|e| {
+        let text = e.render().to_string();
+        let first = text.lines().next().unwrap_or_default();
+        Fail::new(
+            err::INVALID_PARAMETER,
+            format!(
+                "{ARGS_ENV}: {}; it takes the scene options of `handeye sim camera --help` (not --bind or --loss)",
+                first.trim_start_matches("error: ")
+            ),
+        )
+    })
 }
 
 /// What a handle stands for.
@@ -1703,5 +1706,17 @@ mod tests {
         assert_eq!(a.robot.as_deref(), Some("127.0.0.1"));
         let e = parse("--bind 127.0.0.1").expect_err("not a scene option");
         assert!(e.to_string().contains("--bind"), "{e}");
+        // The failure GCInitLib reports names the variable and what it takes.
+        std::env::set_var(ARGS_ENV, "--width 320 --loss 0.1");
+        let f = scene_args().expect_err("--loss is the GigE camera's");
+        std::env::remove_var(ARGS_ENV);
+        assert_eq!(f.code, err::INVALID_PARAMETER);
+        assert!(
+            f.text
+                .starts_with("HANDEYE_SIM_CAMERA_ARGS: unexpected argument '--loss'")
+                && f.text.contains("handeye sim camera --help"),
+            "{}",
+            f.text
+        );
     }
 }
