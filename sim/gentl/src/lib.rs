@@ -205,6 +205,9 @@ impl Producer {
         if let Some(h) = self.stream.take() {
             if let Some(Module::Stream(s)) = self.handles.remove(&h) {
                 let _ = s.stop();
+                // A thread still waiting for a new buffer (even without a timeout) returns.
+                lock(&s.state).killed = true;
+                s.cond.notify_all();
                 let st = lock(&s.state);
                 let mut gone: Vec<usize> = st.buffers.keys().copied().collect();
                 gone.extend(st.event);

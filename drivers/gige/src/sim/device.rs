@@ -1491,7 +1491,10 @@ impl SimDevice {
         }
         let mut s = lock(&self.state);
         for (i, c) in data.chunks_exact(4).enumerate() {
-            let a = u32::try_from(address + 4 * i as u64).map_err(|_| PortError::InvalidAddress)?;
+            let a = address
+                .checked_add(4 * i as u64)
+                .and_then(|a| u32::try_from(a).ok())
+                .ok_or(PortError::InvalidAddress)?;
             s.write_word(a, u32::from_be_bytes([c[0], c[1], c[2], c[3]]))
                 .map_err(|status| match status {
                     0x8004 => PortError::AccessDenied,
@@ -1558,6 +1561,15 @@ mod tests {
         assert_eq!(b, [0, 64]);
         assert_eq!(
             dev.write(0xDEAD_0000, &[0; 4]),
+            Err(PortError::InvalidAddress)
+        );
+        // Addresses at the end of the 64-bit space are refused, not wrapped.
+        assert_eq!(
+            dev.write(u64::MAX - 3, &[0; 8]),
+            Err(PortError::InvalidAddress)
+        );
+        assert_eq!(
+            dev.read(u64::MAX - 1, &mut [0; 4]),
             Err(PortError::InvalidAddress)
         );
         assert_eq!(
