@@ -12,7 +12,7 @@
 //! (millimetres, NaN where nothing was measured), then Confidence16 when
 //! `ComponentEnable[Confidence]` is set.
 //!
-//! Layout: [`abi`](crate) (error codes, `...GetInfo` conventions), `stream` (buffers, queues,
+//! Layout: `abi` (error codes, `...GetInfo` conventions), `stream` (buffers, queues,
 //! the acquisition thread), this file (the module handles and the exported C functions).
 #![allow(non_snake_case)] // the GenTL standard's function names
 

@@ -129,7 +129,7 @@ pub enum SceneJoints {
 }
 
 /// The joints a robot reports over RTDE, kept up to date by a follower thread
-/// ([`follow_robot`]) and read by the camera's streaming thread.
+/// (`follow_robot`) and read by the camera's streaming thread.
 #[derive(Clone)]
 pub struct LiveJoints {
     /// Controller address, for messages.
