@@ -1,17 +1,9 @@
 //! Parsers for values given on the command line.
 
 use handeye::model::{KinematicError, MAX_KINEMATIC_SIGMA};
-use handeye_hal::UrPose;
-use nalgebra::Isometry3;
-
-/// Clap value parser for a pose given as a [`UrPose`] (`x,y,z,rx,ry,rz` or `p[...]`: metres,
-/// rotation vector in radians); which frames it relates is the option's to say. Print one with
-/// `UrPose::from(&t)` (its `Display` is the same text).
-pub(crate) fn parse_pose(s: &str) -> Result<Isometry3<f64>, String> {
-    s.parse::<UrPose>()
-        .map(Isometry3::from)
-        .map_err(|e| e.to_string())
-}
+pub(crate) use handeye_sim_scene::{
+    check_mount, check_pose_distance, parse_pose, resolve_robot, robots_dir, MAX_MOUNT_DISTANCE_M,
+};
 
 /// Joint angles in radians from one command-line value (`q1,q2,...`).
 #[derive(Debug, Clone, PartialEq)]
@@ -59,34 +51,8 @@ pub(crate) fn parse_kinematic_error(s: &str) -> Result<KinematicError, String> {
     })
 }
 
-/// Farthest a camera mount (`flange_from_camera`) may be from the flange origin, metres: a
-/// bracket or a long tool, not a camera across the cell.
-pub(crate) const MAX_MOUNT_DISTANCE_M: f64 = 2.0;
 /// Farthest a camera fixed in the cell may be from the robot's root frame, metres.
 pub(crate) const MAX_CELL_CAMERA_DISTANCE_M: f64 = 20.0;
-
-/// Refuses a pose given by `flag` whose translation is farther than `max_m` metres.
-pub(crate) fn check_pose_distance(
-    flag: &str,
-    pose: &Isometry3<f64>,
-    max_m: f64,
-    what: &str,
-) -> Result<(), String> {
-    let d = pose.translation.vector.norm();
-    if d <= max_m {
-        Ok(())
-    } else {
-        Err(format!(
-            "{flag} is {d:.3} m from its origin: expected at most {max_m} m ({what}); poses are in metres"
-        ))
-    }
-}
-
-/// Refuses a camera mount (`flange_from_camera`, given by `flag`) beyond
-/// [`MAX_MOUNT_DISTANCE_M`] of the flange.
-pub(crate) fn check_mount(flag: &str, mount: &Isometry3<f64>) -> Result<(), String> {
-    check_pose_distance(flag, mount, MAX_MOUNT_DISTANCE_M, "a camera on the flange")
-}
 
 /// Refuses joint values (given by `flag`) outside the model's joint limits (with 1 mrad of
 /// slack for rounding; continuous joints take any finite angle); the message names the joint
@@ -176,17 +142,6 @@ pub(crate) fn error_text(e: &anyhow::Error) -> String {
     handeye_hal::limits::sanitize_message(&text)
 }
 
-/// Where the robot models are: `$HANDEYE_ROBOTS`, else `../shared/robots` from the current
-/// directory, else `../shared/robots` beside the source tree this binary was built from.
-pub(crate) fn robots_dir() -> Option<std::path::PathBuf> {
-    let candidates = [
-        std::env::var_os("HANDEYE_ROBOTS").map(std::path::PathBuf::from),
-        Some(std::path::PathBuf::from("../shared/robots")),
-        Some(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/robots")),
-    ];
-    candidates.into_iter().flatten().find(|p| p.is_dir())
-}
-
 /// [`robots_dir`] for a test: `None` after a SKIP line (written past the test harness's
 /// capture, so it shows when the test passes); a failure when env `CI` is set.
 #[cfg(test)]
@@ -206,25 +161,10 @@ pub(crate) fn robots_dir_or_skip(test: &str) -> Option<std::path::PathBuf> {
     dir
 }
 
-/// A robot given as a URDF path, or as a name (`ur5e`, `kuka_iiwa7`) looked up as
-/// `<name>.urdf` under [`robots_dir`].
-pub(crate) fn resolve_robot(name_or_path: &str) -> Result<std::path::PathBuf, String> {
-    let p = std::path::Path::new(name_or_path);
-    if p.extension().is_some_and(|e| e == "urdf") || p.is_file() {
-        return Ok(p.to_path_buf());
-    }
-    let dir = robots_dir().ok_or_else(|| {
-        format!("robot `{name_or_path}`: no robot directory found; set HANDEYE_ROBOTS or run from a checkout with ../shared/robots, or give a URDF path")
-    })?;
-    handeye::model::find_urdfs(&dir)
-        .into_iter()
-        .find(|u| u.file_stem().is_some_and(|s| s == name_or_path))
-        .ok_or_else(|| format!("robot `{name_or_path}` not found under {}", dir.display()))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use handeye_hal::UrPose;
 
     #[test]
     fn the_gate_limits_are_two_positive_numbers_in_range() {

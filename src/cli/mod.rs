@@ -12,7 +12,6 @@ pub(crate) mod daemon;
 pub(crate) mod demo;
 pub(crate) mod history;
 pub(crate) mod robot;
-pub(crate) mod scene;
 pub(crate) mod sim_camera;
 pub(crate) mod sim_rig;
 pub(crate) mod sim_robot;

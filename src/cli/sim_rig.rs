@@ -16,9 +16,9 @@ use handeye::sim::{Intrinsics, KinematicError, SimSettings};
 use handeye_gige::sim::{SimCamera, SimOptions};
 use handeye_gige::GvcpClient;
 
-use super::sim_camera::{MAX_PIXELS, MIN_PIXELS};
 use handeye_hal::ur_dh::{DhParams, UrModel};
 use handeye_hal::UrPose;
+use handeye_sim_scene::{MAX_PIXELS, MIN_PIXELS};
 use handeye_ur::sim::{SimConfig, SimHandle, Simulator};
 use handeye_ur::Ports;
 use nalgebra::Isometry3;
@@ -26,7 +26,7 @@ use rand::SeedableRng;
 use tokio_util::sync::CancellationToken;
 
 use super::args::{parse_pose, resolve_robot};
-use super::scene::{LiveJoints, RobotScene, SceneJoints, SceneMount, DEFAULT_MOUNT};
+use handeye_sim_scene::{LiveJoints, RobotScene, SceneJoints, SceneMount, DEFAULT_MOUNT};
 
 /// Everything that defines a rig.
 #[derive(Debug, Clone)]
@@ -218,10 +218,10 @@ pub(crate) struct Args {
     #[arg(long, value_name = "SERIAL", value_parser = super::sim_robot::parse_serial)]
     serial: Option<String>,
     /// Sensor width, pixels.
-    #[arg(long, default_value_t = super::sim_camera::DEFAULT_WIDTH)]
+    #[arg(long, default_value_t = handeye_sim_scene::DEFAULT_WIDTH)]
     width: u32,
     /// Sensor height, pixels.
-    #[arg(long, default_value_t = super::sim_camera::DEFAULT_HEIGHT)]
+    #[arg(long, default_value_t = handeye_sim_scene::DEFAULT_HEIGHT)]
     height: u32,
     /// Write the ground truth (mount, the arm's DH, addresses) to this JSON file.
     #[arg(long, value_name = "FILE")]

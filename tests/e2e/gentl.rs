@@ -1,12 +1,18 @@
 //! The GenTL backend against a producer we did not write: the EMVA reference producer
 //! `viky.cti` (shipped by PyPI `genicam`, installed into `$REPO/.venv` by
 //! `.ci/install.d/gentl.sh`), read point by point against harvesters, a GenTL consumer we did
-//! not write either (`tests/python/gentl_harvesters.py`). Without the venv the tests print SKIP,
-//! and fail when env `CI` is set.
+//! not write either (`tests/python/gentl_harvesters.py`). Then our own producer (`sim/gentl`,
+//! the simulated 3D camera as a `.cti`, built with these tests as a dev-dependency) driven by
+//! harvesters and by our consumer, and a calibration through it. Without the venv the tests
+//! print SKIP, and fail when env `CI` is set. Loopback address: 127.0.0.182 (the UR simulator
+//! the producer's scene follows).
 
 use std::path::{Path, PathBuf};
 
-use crate::support::{run, secs, skip, TempDir};
+use crate::support::{
+    iso, pose_arg, pose_error, rig_config, run, run_env, secs, shared, sim_robot, skip, true_mount,
+    TempDir, BIN,
+};
 
 /// The venv's python and viky.cti, or `None` (panics under CI).
 fn viky() -> Option<(PathBuf, PathBuf)> {
@@ -37,10 +43,21 @@ fn viky() -> Option<(PathBuf, PathBuf)> {
 }
 
 fn harvesters(py: &Path, args: &[&str]) -> std::process::Output {
+    harvesters_env(py, args, &[])
+}
+
+/// [`harvesters`] with more environment variables (our producer's scene).
+fn harvesters_env(py: &Path, args: &[&str], env: &[(&str, &str)]) -> std::process::Output {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/gentl_harvesters.py");
     let out = std::process::Command::new(py)
         .arg(script)
         .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .env(
+            "HANDEYE_ROBOTS",
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/robots"),
+        )
+        .envs(env.iter().copied())
         .output()
         .expect("run harvesters");
     assert!(
@@ -129,22 +146,11 @@ fn capture_equals_harvesters_point_by_point() {
             "1",
         ],
     );
-    let bytes = std::fs::read(&reference).expect("reference");
-    let word = |i: usize| [bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]];
-    let (w, h) = (u32::from_le_bytes(word(0)), u32::from_le_bytes(word(4)));
+    let ((w, h), theirs) = read_reference(&reference);
     assert_eq!((w, h), (400, 400));
-    let theirs: Vec<f32> = (0..(w * h * 3) as usize)
-        .map(|k| f32::from_le_bytes(word(8 + 4 * k)))
-        .collect();
-    assert_eq!(ours.points.len(), theirs.len() / 3);
+    assert_same_points(&ours, &theirs);
     let mut max = [0f32; 3];
-    for (i, p) in ours.points.iter().enumerate() {
-        let t = &theirs[3 * i..3 * i + 3];
-        assert_eq!(
-            [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()],
-            [t[0].to_bits(), t[1].to_bits(), t[2].to_bits()],
-            "point {i}: ours {p:?}, harvesters {t:?}"
-        );
+    for p in &ours.points {
         for k in 0..3 {
             max[k] = max[k].max(p[k]);
         }
@@ -155,4 +161,199 @@ fn capture_equals_harvesters_point_by_point() {
         "{max:?}"
     );
     assert!((0.04..0.042).contains(&max[2]), "{max:?}");
+}
+
+/// What `gentl_harvesters.py capture` wrote: (width, height) and x, y, z per point (m).
+fn read_reference(path: &Path) -> ((u32, u32), Vec<f32>) {
+    let bytes = std::fs::read(path).expect("reference");
+    let word = |i: usize| [bytes[i], bytes[i + 1], bytes[i + 2], bytes[i + 3]];
+    let (w, h) = (u32::from_le_bytes(word(0)), u32::from_le_bytes(word(4)));
+    let points = (0..(w * h * 3) as usize)
+        .map(|k| f32::from_le_bytes(word(8 + 4 * k)))
+        .collect();
+    ((w, h), points)
+}
+
+/// Every point of `ours` equals harvesters' to the bit (NaN where both have no measurement).
+fn assert_same_points(ours: &handeye_hal::PointCloud, theirs: &[f32]) {
+    assert_eq!(ours.points.len(), theirs.len() / 3);
+    for (i, p) in ours.points.iter().enumerate() {
+        let t = &theirs[3 * i..3 * i + 3];
+        assert_eq!(
+            [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()],
+            [t[0].to_bits(), t[1].to_bits(), t[2].to_bits()],
+            "point {i}: ours {p:?}, harvesters {t:?}"
+        );
+    }
+}
+
+/// Our producer, `libhandeye_gentl_sim.so` (built with these tests: a dev-dependency), linked
+/// into `dir` as `handeye-sim.cti`, the name GenTL consumers look for.
+fn our_producer(dir: &TempDir) -> PathBuf {
+    let bin_dir = Path::new(BIN).parent().expect("the binary's directory");
+    let so = [
+        bin_dir.join("deps/libhandeye_gentl_sim.so"),
+        bin_dir.join("libhandeye_gentl_sim.so"),
+    ]
+    .into_iter()
+    .find(|p| p.is_file())
+    .unwrap_or_else(|| {
+        panic!(
+            "libhandeye_gentl_sim.so is not in {}: cargo builds it with the e2e tests",
+            bin_dir.display()
+        )
+    });
+    let cti = dir.join("handeye-sim.cti");
+    std::os::unix::fs::symlink(&so, &cti).expect("link the .cti");
+    cti
+}
+
+/// harvesters loads our producer, lists its one device, captures a multi-part buffer (Range
+/// as Coord3D_ABC32f, and Confidence16 once enabled), and its points are, to the bit, what
+/// `handeye camera capture --gentl` reads through the same producer: the robot's base seen
+/// from a generated view (a perfect sensor, so every frame is the same).
+#[test]
+fn harvesters_and_our_consumer_read_the_same_points_from_our_producer() {
+    if shared("harvesters_and_our_consumer_read_the_same_points_from_our_producer").is_none() {
+        return;
+    }
+    let Some((py, _)) = viky() else { return };
+    let dir = TempDir::new("gentl-ours");
+    let cti = our_producer(&dir);
+    let cti_s = cti.to_str().expect("utf-8 path");
+    let scene = [(
+        "HANDEYE_SIM_CAMERA_ARGS",
+        "--model ur5e --width 320 --height 240 --ideal --serial SIMGENTL1",
+    )];
+
+    let theirs: serde_json::Value =
+        serde_json::from_slice(&harvesters_env(&py, &["probe", cti_s], &scene).stdout)
+            .expect("json");
+    assert_eq!(
+        theirs,
+        serde_json::json!([{"id": "SIMGENTL1", "vendor": "handeye", "model": "SimCam3D", "serial": "SIMGENTL1"}])
+    );
+    let ours = run_env(
+        &["camera", "probe", "--gentl", cti_s, "--json"],
+        &scene,
+        secs(60),
+    )
+    .success()
+    .json();
+    assert_eq!(ours[0]["devices"][0]["serial"], "SIMGENTL1", "{ours}");
+    assert_eq!(ours[0]["devices"][0]["model"], "SimCam3D", "{ours}");
+
+    let reference = dir.join("h.bin");
+    let out = harvesters_env(
+        &py,
+        &[
+            "capture",
+            cti_s,
+            reference.to_str().expect("utf-8 path"),
+            "0",
+            "--confidence",
+        ],
+        &scene,
+    );
+    let parts: serde_json::Value = serde_json::from_slice(
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .last()
+            .unwrap_or_default()
+            .as_bytes(),
+    )
+    .expect("parts JSON");
+    assert_eq!(
+        parts,
+        serde_json::json!([
+            {"format": "Coord3D_ABC32f", "width": 320, "height": 240},
+            {"format": "Confidence16", "width": 320, "height": 240},
+        ])
+    );
+    let ((w, h), theirs) = read_reference(&reference);
+    assert_eq!((w, h), (320, 240));
+
+    let ply = dir.join("o.ply");
+    let out = run_env(
+        &[
+            "camera",
+            "capture",
+            "--gentl",
+            cti_s,
+            "--device",
+            "SIMGENTL1",
+            "--json",
+            "--out",
+            ply.to_str().expect("utf-8 path"),
+        ],
+        &scene,
+        secs(120),
+    )
+    .success();
+    let j = out.json();
+    assert_eq!(
+        (j["width"].as_u64(), j["height"].as_u64()),
+        (Some(320), Some(240)),
+        "{out}"
+    );
+    let ours = handeye::cloud::read_cloud(&ply).expect("read the PLY");
+    assert_same_points(&ours, &theirs);
+    // Real 3D points of the robot, in metres, in front of the camera.
+    let valid: Vec<_> = ours
+        .points
+        .iter()
+        .filter(|p| p.coords.iter().all(|c| c.is_finite()))
+        .collect();
+    assert!(valid.len() > 5_000, "{} valid points", valid.len());
+    assert!(
+        valid.iter().all(|p| (0.05..3.0).contains(&p.z)),
+        "depths outside 0.05–3 m"
+    );
+}
+
+/// `handeye calibrate` with `camera.backend = "gentl"` and our producer: the scene follows a
+/// `handeye sim robot` over RTDE (set through `HANDEYE_SIM_CAMERA_ARGS`) as `sim rig`'s camera
+/// does, and the result is as close to the true mount as through GigE Vision.
+#[test]
+fn calibrates_through_our_gentl_producer_as_through_gige() {
+    if shared("calibrates_through_our_gentl_producer_as_through_gige").is_none() {
+        return;
+    }
+    let dir = TempDir::new("gentl-calibrate");
+    let cti = our_producer(&dir);
+    let robot_ip = "127.0.0.182";
+    let _robot = sim_robot(&dir, robot_ip, &["--powered", "--factory-calibration", "1"]);
+    let cfg = rig_config(&dir, robot_ip, "127.0.0.1", "frames = 3", "");
+    let text = std::fs::read_to_string(&cfg).expect("config");
+    let text = text.replace(
+        "backend = \"gige\"\naddress = \"127.0.0.1\"",
+        &format!(
+            "backend = \"gentl\"\nproducer = \"{}\"\ndevice = \"SIMGENTL2\"",
+            cti.display()
+        ),
+    );
+    assert!(text.contains("gentl"), "{text}");
+    std::fs::write(&cfg, text).expect("config");
+    let scene = format!(
+        "--robot {robot_ip} --mount {} --factory-calibration 1 --serial SIMGENTL2",
+        pose_arg(&true_mount())
+    );
+    let out = run_env(
+        &[
+            "calibrate",
+            "--config",
+            cfg.to_str().expect("utf-8"),
+            "--json",
+        ],
+        &[("HANDEYE_SIM_CAMERA_ARGS", &scene)],
+        secs(180),
+    );
+    assert_eq!(out.code(), 0, "{out}");
+    let record = out.json();
+    assert_eq!(record["outcome"], "accepted", "{out}");
+    let result = iso(&record["result"]["flange_from_camera"]);
+    let (mm, deg) = pose_error(&true_mount(), &result);
+    eprintln!("calibrate through GenTL: {mm:.3} mm / {deg:.4}° from the truth");
+    assert!(mm < 0.5 && deg < 0.1, "{mm:.3} mm / {deg:.4}° off\n{out}");
+    assert_eq!(record["returned_to_start"], true, "{out}");
 }

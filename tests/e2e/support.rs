@@ -120,7 +120,6 @@ fn cmdline(args: &[&str]) -> String {
     format!("handeye {}", args.join(" "))
 }
 
-/// Runs `handeye ARGS` to completion; kills it and panics after `limit`.
 /// `handeye history list --json` for the cell `config`: its runs, newest first.
 pub(crate) fn history(config: &Path) -> serde_json::Value {
     let out = run(
@@ -137,8 +136,15 @@ pub(crate) fn history(config: &Path) -> serde_json::Value {
     out.json()
 }
 
+/// Runs `handeye ARGS` to completion; kills it and panics after `limit`.
 pub(crate) fn run(args: &[&str], limit: Duration) -> Output {
+    run_env(args, &[], limit)
+}
+
+/// [`run`] with more environment variables.
+pub(crate) fn run_env(args: &[&str], env: &[(&str, &str)], limit: Duration) -> Output {
     let mut child = command(args)
+        .envs(env.iter().copied())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()

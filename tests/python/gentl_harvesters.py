@@ -1,14 +1,17 @@
 """GenTL reference reads with harvesters (a GenTL consumer we did not write), for the e2e tests.
 
   gentl_harvesters.py probe CTI            -> JSON list of the producer's devices
-  gentl_harvesters.py capture CTI OUT [N]  -> OUT: width, height (uint32 LE), then width*height
+  gentl_harvesters.py capture CTI OUT [N] [--confidence]
+                                          -> OUT: width, height (uint32 LE), then width*height
                                              points x, y, z as float32 LE in metres (NaN for
-                                             invalid), from device N (default 0)
+                                             invalid), from device N (default 0); stdout: JSON
+                                             list of the buffer's parts (data format, size)
 
-The capture enables the Range component (ComponentSelector = Range, ComponentEnable = True) and
-converts each coordinate as the handeye decoders document: in float64,
-(raw * Scan3dCoordinateScale + Scan3dCoordinateOffset) * metres per Scan3dDistanceUnit, then
-rounded once to float32.
+The capture enables the Range component (ComponentSelector = Range, ComponentEnable = True; with
+--confidence also Confidence) and converts each coordinate as the handeye decoders document: in
+float64, (raw * Scan3dCoordinateScale + Scan3dCoordinateOffset) * metres per Scan3dDistanceUnit,
+then rounded once to float32. Range may be planar (Coord3D_A32f/B32f/C32f parts, viky) or
+packed (one Coord3D_ABC32f part, handeye's producer).
 """
 import json
 import struct
@@ -32,7 +35,7 @@ def probe(cti):
     print(json.dumps(out))
 
 
-def capture(cti, out, index):
+def capture(cti, out, index, confidence):
     h = Harvester()
     h.add_file(cti)
     h.update()
@@ -41,6 +44,9 @@ def capture(cti, out, index):
         nm = ia.remote_device.node_map
         nm.ComponentSelector.value = "Range"
         nm.ComponentEnable.value = True
+        if confidence:
+            nm.ComponentSelector.value = "Confidence"
+            nm.ComponentEnable.value = True
         unit = UNIT_M[nm.Scan3dDistanceUnit.value]
         scale, offset = [], []
         for c in ("CoordinateA", "CoordinateB", "CoordinateC"):
@@ -49,13 +55,23 @@ def capture(cti, out, index):
             offset.append(nm.Scan3dCoordinateOffset.value)
         ia.start()
         with ia.fetch(timeout=10) as buf:
+            parts = [
+                {"format": c.data_format, "width": c.width, "height": c.height}
+                for c in buf.payload.components
+            ]
             planes = {c.data_format: c for c in buf.payload.components}
-            a, b, c = (planes[f] for f in ("Coord3D_A32f", "Coord3D_B32f", "Coord3D_C32f"))
-            w, hgt = a.width, a.height
+            if "Coord3D_ABC32f" in planes:
+                packed = planes["Coord3D_ABC32f"]
+                w, hgt = packed.width, packed.height
+                coords = packed.data.reshape(-1, 3).T
+            else:
+                a, b, c = (planes[f] for f in ("Coord3D_A32f", "Coord3D_B32f", "Coord3D_C32f"))
+                w, hgt = a.width, a.height
+                coords = [a.data, b.data, c.data]
             xyz = np.stack(
                 [
-                    ((p.data.astype(np.float64) * scale[k] + offset[k]) * unit).astype(np.float32)
-                    for k, p in enumerate((a, b, c))
+                    ((p.astype(np.float64) * scale[k] + offset[k]) * unit).astype(np.float32)
+                    for k, p in enumerate(coords)
                 ],
                 axis=1,
             )
@@ -66,10 +82,14 @@ def capture(cti, out, index):
     with open(out, "wb") as f:
         f.write(struct.pack("<II", w, hgt))
         f.write(xyz.astype("<f4").tobytes())
+    print(json.dumps(parts))
 
 
 if __name__ == "__main__":
     if sys.argv[1] == "probe":
         probe(sys.argv[2])
     else:
-        capture(sys.argv[2], sys.argv[3], int(sys.argv[4]) if len(sys.argv) > 4 else 0)
+        rest = sys.argv[4:]
+        confidence = "--confidence" in rest
+        rest = [a for a in rest if a != "--confidence"]
+        capture(sys.argv[2], sys.argv[3], int(rest[0]) if rest else 0, confidence)

@@ -177,6 +177,9 @@ struct State {
     resends: VecDeque<(SocketAddr, Vec<u8>)>,
     stats: SimStats,
     frame_rate: f64,
+    /// Served through a GenTL producer ([`SimDevice`](super::SimDevice)): the transport
+    /// delivers every enabled component as a multi-part buffer, no SCCFG switch needed.
+    gentl: bool,
 }
 
 impl State {
@@ -188,8 +191,9 @@ impl State {
     /// camera streams chunk data only.
     fn multipart(&self) -> bool {
         !self.habits.chunk_only
-            && self.reg(reg::SCCFG0) & 0x40 != 0
-            && self.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0
+            && (self.gentl
+                || (self.reg(reg::SCCFG0) & 0x40 != 0
+                    && self.reg(reg::GVSP_CONFIG) & 0x4000_0000 != 0))
     }
 
     /// Streams the intensity image alone (no multi-part, no chunks).
@@ -392,6 +396,129 @@ impl State {
     }
 }
 
+impl State {
+    /// The registers, strings and XML of a camera with a `sensor`-sized frame source of
+    /// `intrinsics` and `aspect_ratio`, at `ip` streaming from `stream_port`.
+    fn new(
+        opts: &SimOptions,
+        sensor: (u32, u32),
+        intrinsics: (f64, f64, f64),
+        aspect_ratio: f64,
+        ip: Ipv4Addr,
+        stream_port: u16,
+    ) -> Self {
+        let xml = xml_for(opts).into_bytes();
+        let mut regs = HashMap::new();
+        let mac = [
+            0x02,
+            0x00,
+            ip.octets()[0],
+            ip.octets()[1],
+            ip.octets()[2],
+            ip.octets()[3],
+        ];
+        let url = format!("Local:handeye-sim.xml;{XML_ADDRESS:x};{:x}", xml.len());
+        for (a, v) in [
+            (reg::VERSION, 0x0002_0001),
+            (reg::DEVICE_MODE, 0x8000_0001),
+            (
+                reg::MAC_HIGH,
+                u32::from(u16::from_be_bytes([mac[0], mac[1]])),
+            ),
+            (
+                reg::MAC_LOW,
+                u32::from_be_bytes([mac[2], mac[3], mac[4], mac[5]]),
+            ),
+            (reg::SUPPORTED_IP_CONFIG, 0x7),
+            (reg::CURRENT_IP_CONFIG, 0x1),
+            (reg::CURRENT_IP, u32::from(ip)),
+            (reg::SUBNET_MASK, 0xFF00_0000),
+            (reg::GATEWAY, 0),
+            (reg::NUM_INTERFACES, 1),
+            (reg::LINK_SPEED, 1000),
+            (reg::NUM_MESSAGE_CHANNELS, 0),
+            (reg::NUM_STREAM_CHANNELS, 1),
+            (reg::GVSP_CAPABILITY, 0xC000_0000),
+            (
+                reg::GVCP_CAPABILITY,
+                cap::USER_NAME
+                    | cap::SERIAL_NUMBER
+                    | cap::PACKET_RESEND
+                    | cap::WRITEMEM
+                    | cap::CONCATENATION,
+            ),
+            (reg::HEARTBEAT_TIMEOUT, 3000),
+            (reg::TICK_FREQ_HIGH, 0),
+            (reg::TICK_FREQ_LOW, 1_000_000_000),
+            (reg::TIMESTAMP_CONTROL, 0),
+            (reg::TIMESTAMP_HIGH, 0),
+            (reg::TIMESTAMP_LOW, 0),
+            (reg::GVCP_CONFIG, 0),
+            (reg::GVSP_CONFIG, 0),
+            (reg::CCP, 0),
+            (reg::SCP0, 0),
+            (reg::SCPS0, 1500),
+            (reg::SCPD0, 0),
+            (reg::SCDA0, 0),
+            (reg::SCSP0, u32::from(stream_port)),
+            (reg::SCC0, 0x40),
+            (reg::SCCFG0, 0),
+            (WIDTH, sensor.0),
+            (HEIGHT, sensor.1),
+            (PIXEL_FORMAT, pfnc::COORD3D_ABC32F),
+            (ACQ_MODE, 0),
+            (ACQ_START, 0),
+            (ACQ_STOP, 0),
+            (TL_LOCKED, 0),
+            (SENSOR_WIDTH, sensor.0),
+            (SENSOR_HEIGHT, sensor.1),
+            (DISTANCE_UNIT, 0),
+            (COORD_SYSTEM, 0),
+            (COORD_SELECTOR, 2),
+            (INVALID_FLAG, 1),
+            (COMPONENT_SELECTOR, 0),
+        ] {
+            regs.insert(a, v);
+        }
+        let s = |t: &str| t.as_bytes().to_vec();
+        let mut url_bytes = s(&url);
+        url_bytes.push(0);
+        let strings = vec![
+            (reg::MANUFACTURER, 32, s(&opts.vendor)),
+            (reg::MODEL, 32, s(&opts.model)),
+            (reg::DEVICE_VERSION, 32, s(&opts.version)),
+            (
+                reg::MANUFACTURER_INFO,
+                48,
+                s("simulated GigE Vision 3D camera"),
+            ),
+            (reg::SERIAL, 16, s(&opts.serial)),
+            (reg::USER_NAME, 16, s("")),
+            (reg::FIRST_URL, 512, url_bytes.clone()),
+            (reg::SECOND_URL, 512, url_bytes),
+        ];
+        State {
+            regs,
+            strings,
+            xml,
+            sensor,
+            intrinsics,
+            controller: None,
+            last_heartbeat: Instant::now(),
+            acquiring: false,
+            confidence_enabled: false,
+            intensity_enabled: opts.habits.intensity_first,
+            habits: opts.habits.clone(),
+            aspect_ratio,
+            history: VecDeque::new(),
+            resends: VecDeque::new(),
+            stats: SimStats::default(),
+            frame_rate: opts.frame_rate,
+            gentl: false,
+        }
+    }
+}
+
 /// A running simulated camera. Dropping it stops its threads.
 #[derive(Debug)]
 pub struct SimCamera {
@@ -525,114 +652,14 @@ impl SimCamera {
                 "frame source size {sensor:?} is below 16x16"
             )));
         }
-        let xml = xml_for(&opts).into_bytes();
-        let mut regs = HashMap::new();
-        let mac = [
-            0x02,
-            0x00,
-            ip.octets()[0],
-            ip.octets()[1],
-            ip.octets()[2],
-            ip.octets()[3],
-        ];
-        let url = format!("Local:handeye-sim.xml;{XML_ADDRESS:x};{:x}", xml.len());
-        for (a, v) in [
-            (reg::VERSION, 0x0002_0001),
-            (reg::DEVICE_MODE, 0x8000_0001),
-            (
-                reg::MAC_HIGH,
-                u32::from(u16::from_be_bytes([mac[0], mac[1]])),
-            ),
-            (
-                reg::MAC_LOW,
-                u32::from_be_bytes([mac[2], mac[3], mac[4], mac[5]]),
-            ),
-            (reg::SUPPORTED_IP_CONFIG, 0x7),
-            (reg::CURRENT_IP_CONFIG, 0x1),
-            (reg::CURRENT_IP, u32::from(ip)),
-            (reg::SUBNET_MASK, 0xFF00_0000),
-            (reg::GATEWAY, 0),
-            (reg::NUM_INTERFACES, 1),
-            (reg::LINK_SPEED, 1000),
-            (reg::NUM_MESSAGE_CHANNELS, 0),
-            (reg::NUM_STREAM_CHANNELS, 1),
-            (reg::GVSP_CAPABILITY, 0xC000_0000),
-            (
-                reg::GVCP_CAPABILITY,
-                cap::USER_NAME
-                    | cap::SERIAL_NUMBER
-                    | cap::PACKET_RESEND
-                    | cap::WRITEMEM
-                    | cap::CONCATENATION,
-            ),
-            (reg::HEARTBEAT_TIMEOUT, 3000),
-            (reg::TICK_FREQ_HIGH, 0),
-            (reg::TICK_FREQ_LOW, 1_000_000_000),
-            (reg::TIMESTAMP_CONTROL, 0),
-            (reg::TIMESTAMP_HIGH, 0),
-            (reg::TIMESTAMP_LOW, 0),
-            (reg::GVCP_CONFIG, 0),
-            (reg::GVSP_CONFIG, 0),
-            (reg::CCP, 0),
-            (reg::SCP0, 0),
-            (reg::SCPS0, 1500),
-            (reg::SCPD0, 0),
-            (reg::SCDA0, 0),
-            (reg::SCSP0, u32::from(stream_port)),
-            (reg::SCC0, 0x40),
-            (reg::SCCFG0, 0),
-            (WIDTH, sensor.0),
-            (HEIGHT, sensor.1),
-            (PIXEL_FORMAT, pfnc::COORD3D_ABC32F),
-            (ACQ_MODE, 0),
-            (ACQ_START, 0),
-            (ACQ_STOP, 0),
-            (TL_LOCKED, 0),
-            (SENSOR_WIDTH, sensor.0),
-            (SENSOR_HEIGHT, sensor.1),
-            (DISTANCE_UNIT, 0),
-            (COORD_SYSTEM, 0),
-            (COORD_SELECTOR, 2),
-            (INVALID_FLAG, 1),
-            (COMPONENT_SELECTOR, 0),
-        ] {
-            regs.insert(a, v);
-        }
-        let s = |t: &str| t.as_bytes().to_vec();
-        let mut url_bytes = s(&url);
-        url_bytes.push(0);
-        let strings = vec![
-            (reg::MANUFACTURER, 32, s(&opts.vendor)),
-            (reg::MODEL, 32, s(&opts.model)),
-            (reg::DEVICE_VERSION, 32, s(&opts.version)),
-            (
-                reg::MANUFACTURER_INFO,
-                48,
-                s("simulated GigE Vision 3D camera"),
-            ),
-            (reg::SERIAL, 16, s(&opts.serial)),
-            (reg::USER_NAME, 16, s("")),
-            (reg::FIRST_URL, 512, url_bytes.clone()),
-            (reg::SECOND_URL, 512, url_bytes),
-        ];
-        let state = Arc::new(Mutex::new(State {
-            regs,
-            strings,
-            xml,
+        let state = Arc::new(Mutex::new(State::new(
+            &opts,
             sensor,
-            intrinsics: source.intrinsics(),
-            controller: None,
-            last_heartbeat: Instant::now(),
-            acquiring: false,
-            confidence_enabled: false,
-            intensity_enabled: opts.habits.intensity_first,
-            habits: opts.habits.clone(),
-            aspect_ratio: source.aspect_ratio(),
-            history: VecDeque::new(),
-            resends: VecDeque::new(),
-            stats: SimStats::default(),
-            frame_rate: opts.frame_rate,
-        }));
+            source.intrinsics(),
+            source.aspect_ratio(),
+            ip,
+            stream_port,
+        )));
         let stop = Arc::new(AtomicBool::new(false));
         let t1 = {
             let (state, stop) = (state.clone(), stop.clone());
@@ -814,7 +841,7 @@ fn handle(cmd: &Command, from: SocketAddr, state: &Mutex<State>) -> Option<Ack> 
             if !may_write {
                 return Some(ack(0x8006, vec![0; 4]));
             }
-            if address % 4 != 0 || data.len() % 4 != 0 || data.is_empty() {
+            if !address.is_multiple_of(4) || !data.len().is_multiple_of(4) || data.is_empty() {
                 return Some(ack(0x8005, vec![0; 4]));
             }
             for (i, c) in data.chunks_exact(4).enumerate() {
@@ -1372,9 +1399,209 @@ fn make_block(
     }
 }
 
+/// The simulated camera's device side without a transport: the registers and GenApi XML
+/// [`SimCamera`] serves over GVCP, read and written as a GenTL producer's remote-device port
+/// reads and writes them, and frames encoded as the parts of a multi-part buffer (Range, then
+/// Confidence when `ComponentEnable[Confidence]` is set; Intensity first with
+/// [`VendorHabits::intensity_first`]). The GigE Vision bootstrap registers stay readable; no
+/// transport uses them.
+#[derive(Debug)]
+pub struct SimDevice {
+    state: Mutex<State>,
+    t0: Instant,
+}
+
+/// Why the simulated device refused a register access.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PortError {
+    /// No register at the address, or an access not aligned to 4 bytes.
+    #[error("no register at that address (or not a 4-byte aligned access)")]
+    InvalidAddress,
+    /// A read-only register, or one locked while acquiring / `TLParamsLocked`.
+    #[error("the register is read-only, or locked while acquiring")]
+    AccessDenied,
+    /// A value the register does not take.
+    #[error("the register does not take that value")]
+    InvalidValue,
+}
+
+impl SimDevice {
+    /// The device for frames of `source`'s size and lens (at least 16×16 pixels).
+    pub fn new(source: &dyn FrameSource, opts: &SimOptions) -> Result<Self> {
+        opts.check().map_err(GigeError::InvalidArgument)?;
+        let sensor = source.size();
+        if sensor.0 < 16 || sensor.1 < 16 {
+            return Err(GigeError::InvalidArgument(format!(
+                "frame source size {sensor:?} is below 16x16"
+            )));
+        }
+        let mut state = State::new(
+            opts,
+            sensor,
+            source.intrinsics(),
+            source.aspect_ratio(),
+            Ipv4Addr::LOCALHOST,
+            0,
+        );
+        state.gentl = true;
+        Ok(Self {
+            state: Mutex::new(state),
+            t0: Instant::now(),
+        })
+    }
+
+    /// Where the GenApi XML is: `Local:handeye-sim.xml;ADDRESS;LENGTH` (hex), readable with
+    /// [`read`](Self::read).
+    pub fn xml_url(&self) -> String {
+        let s = lock(&self.state);
+        format!("Local:handeye-sim.xml;{XML_ADDRESS:x};{:x}", s.xml.len())
+    }
+
+    /// Read `buf.len()` bytes from `address` (registers are big-endian 32-bit words; any
+    /// alignment and length inside them).
+    pub fn read(&self, address: u64, buf: &mut [u8]) -> std::result::Result<(), PortError> {
+        let end = address
+            .checked_add(buf.len() as u64)
+            .filter(|&e| e <= u64::from(u32::MAX))
+            .ok_or(PortError::InvalidAddress)?;
+        let s = lock(&self.state);
+        let mut word_at = address & !3;
+        while word_at < end {
+            let w = s
+                .read_word(word_at as u32)
+                .ok_or(PortError::InvalidAddress)?
+                .to_be_bytes();
+            for (k, b) in w.iter().enumerate() {
+                let a = word_at + k as u64;
+                if (address..end).contains(&a) {
+                    buf[(a - address) as usize] = *b;
+                }
+            }
+            word_at += 4;
+        }
+        Ok(())
+    }
+
+    /// Write `data` (whole big-endian 32-bit words) at `address`, word by word as GVCP
+    /// WRITEREG does; stops at the first refused word.
+    pub fn write(&self, address: u64, data: &[u8]) -> std::result::Result<(), PortError> {
+        if !address.is_multiple_of(4) || !data.len().is_multiple_of(4) || data.is_empty() {
+            return Err(PortError::InvalidAddress);
+        }
+        let mut s = lock(&self.state);
+        for (i, c) in data.chunks_exact(4).enumerate() {
+            let a = address
+                .checked_add(4 * i as u64)
+                .and_then(|a| u32::try_from(a).ok())
+                .ok_or(PortError::InvalidAddress)?;
+            s.write_word(a, u32::from_be_bytes([c[0], c[1], c[2], c[3]]))
+                .map_err(|status| match status {
+                    0x8004 => PortError::AccessDenied,
+                    0x8002 => PortError::InvalidValue,
+                    _ => PortError::InvalidAddress,
+                })?;
+        }
+        Ok(())
+    }
+
+    /// Bytes of one frame's parts under the current settings (the `PayloadSize` register).
+    pub fn payload_size(&self) -> u64 {
+        u64::from(lock(&self.state).payload_size())
+    }
+
+    /// Whether `AcquisitionStart` was executed (and neither `AcquisitionStop` nor a single
+    /// frame's delivery ended it).
+    pub fn is_acquiring(&self) -> bool {
+        lock(&self.state).acquiring
+    }
+
+    /// Frames per second while acquiring (`AcquisitionFrameRate`).
+    pub fn frame_rate(&self) -> f64 {
+        lock(&self.state).frame_rate
+    }
+
+    /// Encode `cloud` (the frame source's, metres) as the current settings ask (ROI, pixel
+    /// format, enabled components), timestamped in ns since the device was made, and count it
+    /// delivered: in `SingleFrame` mode acquisition ends with it.
+    pub fn encode(&self, cloud: &handeye_hal::PointCloud) -> Block {
+        let settings = StreamSettings::read(&lock(&self.state));
+        let ts = self.t0.elapsed().as_nanos() as u64;
+        let block = make_block(cloud, ts, &settings, (Vec::new(), Vec::new()));
+        let mut s = lock(&self.state);
+        s.stats.frames += 1;
+        if s.reg(ACQ_MODE) == 1 {
+            s.acquiring = false;
+        }
+        block
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The transport-free device a GenTL producer serves: the XML at its URL, registers at
+    /// any alignment, refusals as errors, and multi-part frames without any SCCFG switch.
+    #[test]
+    fn sim_device_serves_registers_and_multipart_frames_without_a_transport() {
+        let mut source = super::super::SceneSource::new(64, 48);
+        let dev = SimDevice::new(&source, &SimOptions::default()).expect("device");
+        let url = dev.xml_url();
+        let fields: Vec<&str> = url.split(';').collect();
+        let (addr, len) = (
+            u64::from_str_radix(fields[1], 16).expect("hex address"),
+            usize::from_str_radix(fields[2], 16).expect("hex length"),
+        );
+        let mut xml = vec![0u8; len];
+        dev.read(addr, &mut xml).expect("xml");
+        assert_eq!(xml, SimCamera::xml(&SimOptions::default()).into_bytes());
+        let mut b = [0u8; 2];
+        dev.read(u64::from(WIDTH) + 2, &mut b).expect("unaligned");
+        assert_eq!(b, [0, 64]);
+        assert_eq!(
+            dev.write(0xDEAD_0000, &[0; 4]),
+            Err(PortError::InvalidAddress)
+        );
+        // Addresses at the end of the 64-bit space are refused, not wrapped.
+        assert_eq!(
+            dev.write(u64::MAX - 3, &[0; 8]),
+            Err(PortError::InvalidAddress)
+        );
+        assert_eq!(
+            dev.read(u64::MAX - 1, &mut [0; 4]),
+            Err(PortError::InvalidAddress)
+        );
+        assert_eq!(
+            dev.write(u64::from(PIXEL_FORMAT), &7u32.to_be_bytes()),
+            Err(PortError::InvalidValue)
+        );
+        dev.write(u64::from(COMPONENT_SELECTOR), &1u32.to_be_bytes())
+            .expect("select Confidence");
+        dev.write(u64::from(COMPONENT_ENABLE), &1u32.to_be_bytes())
+            .expect("enable it");
+        assert_eq!(dev.payload_size(), 64 * 48 * (12 + 2));
+        dev.write(u64::from(ACQ_START), &1u32.to_be_bytes())
+            .expect("start");
+        assert!(dev.is_acquiring());
+        assert_eq!(
+            dev.write(u64::from(WIDTH), &32u32.to_be_bytes()),
+            Err(PortError::AccessDenied)
+        );
+        let block = dev.encode(&source.next_frame().expect("frame"));
+        let kinds: Vec<(u16, u32, u16, usize)> = block
+            .parts
+            .iter()
+            .map(|(i, d)| (i.data_type, i.pixel_format, i.purpose, d.len()))
+            .collect();
+        assert_eq!(
+            kinds,
+            [
+                (gvsp::PART_3D_IMAGE, pfnc::COORD3D_ABC32F, 4, 64 * 48 * 12),
+                (gvsp::PART_CONFIDENCE, pfnc::CONFIDENCE16, 6, 64 * 48 * 2),
+            ]
+        );
+    }
 
     #[test]
     fn repeated_source_failures_log_first_then_a_summary_per_interval() {

@@ -10,7 +10,7 @@
 mod device;
 mod scene;
 
-pub use device::{SimCamera, SimOptions, SimStats, VendorHabits};
+pub use device::{PortError, SimCamera, SimDevice, SimOptions, SimStats, VendorHabits};
 pub use scene::SceneSource;
 
 use handeye_hal::PointCloud;

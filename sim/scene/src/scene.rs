@@ -1,14 +1,13 @@
-//! The simulated camera's scene: the robot rendered by the scan simulator as a camera on its
-//! flange sees it, at fixed joints or following a (simulated) controller over RTDE. Used by
-//! `handeye sim camera` and `handeye sim rig`.
+//! The robot rendered by the scan simulator as a camera on its flange sees it, at fixed
+//! joints or following a (simulated) controller over RTDE.
 
 use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
 
-use handeye::model::RobotModel;
-use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
+use handeye_calib::model::RobotModel;
+use handeye_calib::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 use handeye_gige::sim::{FrameSource, SourceError};
 use handeye_hal::ur_dh::PhysicalArm;
 use handeye_hal::UrPose;
@@ -16,35 +15,63 @@ use handeye_ur::client::{RtdeClient, RtdeConfig};
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
-use super::args::parse_pose;
+use crate::args::{check_mount, parse_pose};
 
 /// The camera mount used when none is given: 8 cm off the tool axis, tilted 15° towards it.
-pub(crate) const DEFAULT_MOUNT: &str = "0,-0.08,0.04,-0.26,0,0";
+pub const DEFAULT_MOUNT: &str = "0,-0.08,0.04,-0.26,0,0";
 
 /// Frames rendered by the scan simulator: the robot seen from a camera on its flange, at fixed
 /// joints or at the joints a live robot measures, new sensor noise every frame.
-pub(crate) struct RobotScene {
-    pub(crate) model: Arc<RobotModel>,
-    pub(crate) joints: SceneJoints,
-    pub(crate) mount: SceneMount,
-    pub(crate) intrinsics: Intrinsics,
-    pub(crate) settings: SimSettings,
+pub struct RobotScene {
+    /// The rendered robot.
+    pub model: Arc<RobotModel>,
+    /// Its joints, fixed or followed.
+    pub joints: SceneJoints,
+    /// The camera on its flange (`flange_from_camera`).
+    pub mount: SceneMount,
+    /// The camera's sensor and lens.
+    pub intrinsics: Intrinsics,
+    /// Sensor noise, the cell around the robot, kinematic error.
+    pub settings: SimSettings,
     /// The physical arm when the controller is factory calibrated (the arm the UR simulator
     /// drives); `None`: the nominal URDF (plus `settings.kinematic_error`).
-    pub(crate) arm: Option<PhysicalArm>,
-    pub(crate) frame: u64,
+    pub arm: Option<PhysicalArm>,
+    /// Frames rendered so far (the seed of each frame's noise).
+    pub frame: u64,
+}
+
+/// A scene that follows a robot stops its RTDE follower when it goes away (a GenTL producer
+/// unloaded by its consumer leaves no thread or connection behind).
+impl Drop for RobotScene {
+    fn drop(&mut self) {
+        if let SceneJoints::Live(live) = &self.joints {
+            live.stop();
+        }
+    }
+}
+
+impl std::fmt::Debug for RobotScene {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RobotScene")
+            .field("model", &self.model.name())
+            .field("joints", &self.joints)
+            .field("mount", &self.mount)
+            .field("frame", &self.frame)
+            .finish_non_exhaustive()
+    }
 }
 
 /// The camera mount (`flange_from_camera`): fixed, or read from a file whenever the file
 /// changes (a simulator-only way for tests to move the camera on its bracket).
-pub(crate) struct SceneMount {
+#[derive(Debug)]
+pub struct SceneMount {
     current: Isometry3<f64>,
     file: Option<(PathBuf, Option<SystemTime>)>,
 }
 
 impl SceneMount {
     /// A mount that never changes.
-    pub(crate) fn fixed(mount: Isometry3<f64>) -> Self {
+    pub fn fixed(mount: Isometry3<f64>) -> Self {
         Self {
             current: mount,
             file: None,
@@ -53,7 +80,7 @@ impl SceneMount {
 
     /// A mount read from `path` (`x,y,z,rx,ry,rz`, m and rad) whenever its modification time
     /// changes; `initial` until the file exists and parses.
-    pub(crate) fn watched(initial: Isometry3<f64>, path: PathBuf) -> Self {
+    pub fn watched(initial: Isometry3<f64>, path: PathBuf) -> Self {
         Self {
             current: initial,
             file: Some((path, None)),
@@ -61,7 +88,7 @@ impl SceneMount {
     }
 
     /// The mount now.
-    pub(crate) fn get(&mut self) -> Isometry3<f64> {
+    pub fn get(&mut self) -> Isometry3<f64> {
         if let Some((path, seen)) = &mut self.file {
             let modified = std::fs::metadata(&*path).and_then(|m| m.modified()).ok();
             if modified.is_some() && modified != *seen {
@@ -71,7 +98,7 @@ impl SceneMount {
                 match handeye_hal::limits::read_text_file(path, MAX_MOUNT_FILE_BYTES)
                     .map_err(|e| e.to_string())
                     .and_then(|t| parse_pose(&t))
-                    .and_then(|m| super::args::check_mount("the mount file's pose", &m).map(|()| m))
+                    .and_then(|m| check_mount("the mount file's pose", &m).map(|()| m))
                 {
                     Ok(m) => {
                         eprintln!(
@@ -93,7 +120,8 @@ impl SceneMount {
 const MAX_MOUNT_FILE_BYTES: u64 = 4096;
 
 /// Where the rendered robot's joints come from.
-pub(crate) enum SceneJoints {
+#[derive(Debug)]
+pub enum SceneJoints {
     /// A generated view that looks at the base.
     Fixed(Vec<f64>),
     /// The latest `actual_q` of a robot followed over RTDE.
@@ -101,9 +129,9 @@ pub(crate) enum SceneJoints {
 }
 
 /// The joints a robot reports over RTDE, kept up to date by a follower thread
-/// ([`follow_robot`]) and read by the camera's streaming thread.
+/// (`follow_robot`) and read by the camera's streaming thread.
 #[derive(Clone)]
-pub(crate) struct LiveJoints {
+pub struct LiveJoints {
     /// Controller address, for messages.
     robot: SocketAddr,
     state: Arc<Mutex<FollowState>>,
@@ -111,6 +139,14 @@ pub(crate) struct LiveJoints {
     stop: CancellationToken,
     /// The follower thread, joined by [`LiveJoints::stop`].
     thread: Arc<Mutex<Option<std::thread::JoinHandle<()>>>>,
+}
+
+impl std::fmt::Debug for LiveJoints {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LiveJoints")
+            .field("robot", &self.robot)
+            .finish_non_exhaustive()
+    }
 }
 
 /// What the follower thread last saw.
@@ -131,7 +167,7 @@ const RECONNECT_AFTER: Duration = Duration::from_secs(5);
 
 impl LiveJoints {
     /// Joints of the robot at `robot`, kept fresh by a follower thread started here.
-    pub(crate) fn follow(robot: SocketAddr) -> std::io::Result<Self> {
+    pub fn follow(robot: SocketAddr) -> std::io::Result<Self> {
         let live = LiveJoints {
             robot,
             state: Arc::new(Mutex::new(FollowState::default())),
@@ -149,7 +185,7 @@ impl LiveJoints {
     }
 
     /// Stops following: the follower thread closes its RTDE connection and ends (joined).
-    pub(crate) fn stop(&self) {
+    pub fn stop(&self) {
         self.stop.cancel();
         let handle = self.thread.lock().ok().and_then(|mut t| t.take());
         if let Some(h) = handle {
@@ -296,7 +332,7 @@ async fn follow_loop(live: LiveJoints) {
 }
 
 /// `ADDR` or `ADDR:PORT` of a UR controller's RTDE interface (default port 30004).
-pub(crate) fn parse_robot_addr(s: &str) -> anyhow::Result<SocketAddr> {
+pub fn parse_robot_addr(s: &str) -> anyhow::Result<SocketAddr> {
     if let Ok(a) = s.parse::<SocketAddr>() {
         return Ok(a);
     }

@@ -1,0 +1,255 @@
+//! The options that choose the simulated camera's scene (`handeye sim camera`'s, read by the
+//! GenTL producer from `HANDEYE_SIM_CAMERA_ARGS`), and the parsers of poses and robots they
+//! share with the rest of the command line.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::Context as _;
+use handeye_calib::model::RobotModel;
+use handeye_calib::plan::{ViewConstraints, ViewPlanner};
+use handeye_calib::sim::{Intrinsics, KinematicError, SimSettings};
+use handeye_gige::sim::{FrameSource, SceneSource, SimOptions};
+use handeye_hal::limits;
+use handeye_hal::ur_dh::PhysicalArm;
+use handeye_hal::UrPose;
+use nalgebra::Isometry3;
+
+use crate::scene::{
+    parse_robot_addr, LiveJoints, RobotScene, SceneJoints, SceneMount, DEFAULT_MOUNT,
+};
+
+/// What the simulated camera shows, and how fast and under which serial number.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SceneArgs {
+    /// Follow this UR controller over RTDE (`IP` or `IP:PORT`, default port 30004; e.g. a
+    /// `handeye sim robot`) and render the robot at the joints it measures, seen from the
+    /// camera mount. Without it the robot stands still at a generated view of its base.
+    #[arg(long, value_name = "ROBOT_ADDR")]
+    pub robot: Option<String>,
+    /// Robot model of the rendered scene.
+    #[arg(long, default_value = "ur5e")]
+    pub model: String,
+    /// Camera mount `flange_from_camera` as `x,y,z,rx,ry,rz` (m, rotation vector rad)
+    /// [default: 0,-0.08,0.04,-0.26,0,0].
+    #[arg(long, value_name = "POSE", allow_hyphen_values = true)]
+    pub mount: Option<String>,
+    /// Sensor width in pixels.
+    #[arg(long, default_value_t = DEFAULT_WIDTH)]
+    pub width: u32,
+    /// Sensor height in pixels.
+    #[arg(long, default_value_t = DEFAULT_HEIGHT)]
+    pub height: u32,
+    /// Frames per second while acquiring.
+    #[arg(long, default_value_t = 10.0)]
+    pub frame_rate: f64,
+    /// Serve the built-in plane + sphere test pattern instead of the robot.
+    #[arg(long)]
+    pub test_pattern: bool,
+    /// TOML file with `[noise]`, `[cell]` and `[kinematic_error]` tables (see
+    /// config/simulator.example.toml). Default: realistic noise and cell; kinematic error only
+    /// without `--robot` (a followed robot's measured joints are rendered on the nominal model).
+    #[arg(long)]
+    pub settings: Option<PathBuf>,
+    /// A perfect sensor in empty space: no noise, no cell, no kinematic error.
+    #[arg(long, conflicts_with = "settings")]
+    pub ideal: bool,
+    /// Serial number to report.
+    #[arg(long, default_value = "SIM0001")]
+    pub serial: String,
+    /// Render the physical arm with this seed, the one `handeye sim robot
+    /// --factory-calibration SEED` drives.
+    #[arg(long, value_name = "SEED")]
+    pub factory_calibration: Option<u64>,
+    /// Read the mount from this file (`x,y,z,rx,ry,rz`) whenever it changes: a simulator-only
+    /// way to move the camera on its bracket while running (drift tests).
+    #[arg(long, value_name = "FILE")]
+    pub mount_file: Option<PathBuf>,
+}
+
+/// Frame rates the simulated camera serves, frames per second.
+const MIN_FRAME_RATE_HZ: f64 = 0.01;
+const MAX_FRAME_RATE_HZ: f64 = 120.0;
+/// Sensor sizes the simulated camera renders, pixels per side.
+pub const MIN_PIXELS: u32 = 16;
+/// The simulated camera's size unless `--width`/`--height` say otherwise, for `sim camera`
+/// and `sim rig` alike: the `compact` preset's 1280×960, what the demo and the benchmarks use.
+pub const DEFAULT_WIDTH: u32 = 1280;
+/// See [`DEFAULT_WIDTH`].
+pub const DEFAULT_HEIGHT: u32 = 960;
+/// See [`MIN_PIXELS`].
+pub const MAX_PIXELS: u32 = 8192;
+
+impl SceneArgs {
+    /// The camera options these arguments set (frame rate, serial), the rest default.
+    pub fn options(&self) -> SimOptions {
+        SimOptions {
+            frame_rate: self.frame_rate,
+            serial: self.serial.clone(),
+            ..SimOptions::default()
+        }
+    }
+
+    /// Checks the numbers, loads the robot, plans the view or starts following the robot
+    /// (blocking: meshes load, a thread connects over RTDE), and returns the frame source
+    /// with a sentence saying what it shows.
+    pub fn frame_source(&self) -> anyhow::Result<(Box<dyn FrameSource>, String)> {
+        limits::check_range(
+            "--frame-rate",
+            self.frame_rate,
+            MIN_FRAME_RATE_HZ,
+            MAX_FRAME_RATE_HZ,
+            "frames/s",
+            "",
+        )
+        .map_err(anyhow::Error::msg)?;
+        anyhow::ensure!(
+            (MIN_PIXELS..=MAX_PIXELS).contains(&self.width)
+                && (MIN_PIXELS..=MAX_PIXELS).contains(&self.height),
+            "--width {} --height {}: each must be {MIN_PIXELS}–{MAX_PIXELS} pixels",
+            self.width,
+            self.height
+        );
+        let robot = self.robot.as_deref().map(parse_robot_addr).transpose()?;
+        if robot.is_some() && self.test_pattern {
+            anyhow::bail!("--robot and --test-pattern exclude each other");
+        }
+        if self.test_pattern {
+            return Ok((
+                Box::new(SceneSource::new(self.width, self.height)),
+                "built-in plane + sphere test scene".into(),
+            ));
+        }
+        let mount = parse_pose(self.mount.as_deref().unwrap_or(DEFAULT_MOUNT))
+            .map_err(|e| anyhow::anyhow!("--mount: {e}"))?;
+        check_mount("--mount", &mount).map_err(anyhow::Error::msg)?;
+        let model = Arc::new(RobotModel::load(
+            &resolve_robot(&self.model).map_err(anyhow::Error::msg)?,
+        )?);
+        let settings = match (&self.settings, self.ideal) {
+            (_, true) => SimSettings::ideal(),
+            (Some(path), false) => SimSettings::load(path)?,
+            (None, false) if robot.is_some() => SimSettings {
+                kinematic_error: KinematicError::none(),
+                ..SimSettings::default()
+            },
+            (None, false) => SimSettings::default(),
+        };
+        let intrinsics = Intrinsics::from_fov(self.width, self.height, 60f64.to_radians());
+        let (joints, scene) = match robot {
+            Some(addr) => {
+                anyhow::ensure!(
+                    model.dof() == 6,
+                    "--model {} has {} joints; a UR controller reports 6",
+                    self.model,
+                    model.dof()
+                );
+                let live = LiveJoints::follow(addr).context("starting the RTDE follower")?;
+                (
+                    SceneJoints::Live(live),
+                    format!("{} following the robot at {addr} over RTDE", model.name()),
+                )
+            }
+            None => {
+                let planner =
+                    ViewPlanner::new(&model, mount, intrinsics, ViewConstraints::default());
+                let joints = planner.generate(1, 1)?.remove(0);
+                let scene = format!("{} at joints {:?} rad", model.name(), joints);
+                (SceneJoints::Fixed(joints), scene)
+            }
+        };
+        let arm = match self.factory_calibration {
+            Some(seed) => Some(factory_arm(&model, seed)?),
+            None => None,
+        };
+        let source = RobotScene {
+            model,
+            joints,
+            mount: match &self.mount_file {
+                Some(path) => SceneMount::watched(mount, path.clone()),
+                None => SceneMount::fixed(mount),
+            },
+            intrinsics,
+            settings,
+            arm,
+            frame: 0,
+        };
+        Ok((Box::new(source), scene))
+    }
+}
+
+/// The physical arm of a factory-calibrated `model` as the UR simulator started with
+/// `--factory-calibration seed` drives it.
+pub fn factory_arm(model: &RobotModel, seed: u64) -> anyhow::Result<PhysicalArm> {
+    let ur = model.ur_model().ok_or_else(|| {
+        anyhow::anyhow!(
+            "--factory-calibration needs a UR model; {} is not one",
+            model.name()
+        )
+    })?;
+    Ok(PhysicalArm::factory(ur, seed))
+}
+
+/// Clap value parser for a pose given as a [`UrPose`] (`x,y,z,rx,ry,rz` or `p[...]`: metres,
+/// rotation vector in radians); which frames it relates is the option's to say. Print one with
+/// `UrPose::from(&t)` (its `Display` is the same text).
+pub fn parse_pose(s: &str) -> Result<Isometry3<f64>, String> {
+    s.parse::<UrPose>()
+        .map(Isometry3::from)
+        .map_err(|e| e.to_string())
+}
+
+/// Farthest a camera mount (`flange_from_camera`) may be from the flange origin, metres: a
+/// bracket or a long tool, not a camera across the cell.
+pub const MAX_MOUNT_DISTANCE_M: f64 = 2.0;
+
+/// Refuses a pose given by `flag` whose translation is farther than `max_m` metres.
+pub fn check_pose_distance(
+    flag: &str,
+    pose: &Isometry3<f64>,
+    max_m: f64,
+    what: &str,
+) -> Result<(), String> {
+    let d = pose.translation.vector.norm();
+    if d <= max_m {
+        Ok(())
+    } else {
+        Err(format!(
+            "{flag} is {d:.3} m from its origin: expected at most {max_m} m ({what}); poses are in metres"
+        ))
+    }
+}
+
+/// Refuses a camera mount (`flange_from_camera`, given by `flag`) beyond
+/// [`MAX_MOUNT_DISTANCE_M`] of the flange.
+pub fn check_mount(flag: &str, mount: &Isometry3<f64>) -> Result<(), String> {
+    check_pose_distance(flag, mount, MAX_MOUNT_DISTANCE_M, "a camera on the flange")
+}
+
+/// Where the robot models are: `$HANDEYE_ROBOTS`, else `../shared/robots` from the current
+/// directory, else `../shared/robots` beside the source tree this was built from.
+pub fn robots_dir() -> Option<std::path::PathBuf> {
+    let candidates = [
+        std::env::var_os("HANDEYE_ROBOTS").map(std::path::PathBuf::from),
+        Some(std::path::PathBuf::from("../shared/robots")),
+        // This crate is `sim/scene` in the source tree.
+        Some(std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/robots")),
+    ];
+    candidates.into_iter().flatten().find(|p| p.is_dir())
+}
+
+/// A robot given as a URDF path, or as a name (`ur5e`, `kuka_iiwa7`) looked up as
+/// `<name>.urdf` under [`robots_dir`].
+pub fn resolve_robot(name_or_path: &str) -> Result<std::path::PathBuf, String> {
+    let p = std::path::Path::new(name_or_path);
+    if p.extension().is_some_and(|e| e == "urdf") || p.is_file() {
+        return Ok(p.to_path_buf());
+    }
+    let dir = robots_dir().ok_or_else(|| {
+        format!("robot `{name_or_path}`: no robot directory found; set HANDEYE_ROBOTS or run from a checkout with ../shared/robots, or give a URDF path")
+    })?;
+    handeye_calib::model::find_urdfs(&dir)
+        .into_iter()
+        .find(|u| u.file_stem().is_some_and(|s| s == name_or_path))
+        .ok_or_else(|| format!("robot `{name_or_path}` not found under {}", dir.display()))
+}
