@@ -509,7 +509,7 @@ fn issue_38_a_deliberate_remount_is_accepted_explicitly() {
 
 /// Remounts the camera of the rig started in `dir` 8 mm and 2° from [`true_mount`] (beyond
 /// gate.max_change_*: 5 mm / 1°).
-fn remount(dir: &TempDir) {
+pub(crate) fn remount(dir: &TempDir) {
     let remounted = true_mount()
         * Isometry3::new(
             Vector3::new(0.0, 0.008, 0.0),
