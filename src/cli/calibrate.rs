@@ -54,11 +54,9 @@ pub(crate) async fn calibrate(
 ) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
     let req = RunRequest {
-        mode: RunMode::Calibrate,
         dry_run: args.dry_run,
-        run_id: None,
-        program_handover: false,
         accept_change: args.accept_change.then(cli_user),
+        ..RunRequest::new(RunMode::Calibrate)
     };
     // A dry run moves nothing: it may run beside the daemon.
     let _arm = if args.dry_run {
@@ -164,13 +162,7 @@ pub(crate) async fn check(
     shutdown: CancellationToken,
 ) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
-    let req = RunRequest {
-        mode: RunMode::Check,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-        accept_change: None,
-    };
+    let req = RunRequest::new(RunMode::Check);
     let _arm = hold_the_arm(&cfg, &args.config, &req)?;
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }
