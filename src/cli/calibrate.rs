@@ -62,45 +62,43 @@ pub(crate) async fn calibrate(
     let _arm = if args.dry_run {
         None
     } else {
-        hold_the_arm(&cfg, &args.config, &req)?
+        hold_the_arm(&cfg, req.mode.name(), |holder| {
+            through_the_daemon(&cfg, &args.config, &req, holder)
+        })?
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }
 
-/// Takes the cell's lock (`<storage.dir>/daemon.lock`, [`DaemonLock`]) for a run that moves
-/// the arm, before anything is connected: one process moves a cell's arm, and a daemon that
-/// runs keeps its state (the drift alarm, the reference the next check compares with) in step
-/// only with the runs it makes itself. Beside a running daemon the command is refused, naming
-/// how to ask the daemon for the same run. `None` when the lock cannot be taken for another
-/// reason (a full or read-only storage; the run's own preflight says what) and no daemon
-/// answers on its control socket.
-fn hold_the_arm(
+/// Takes the cell's lock (`<storage.dir>/daemon.lock`, [`DaemonLock`]) for `command`
+/// (`calibrate`, `check`, `robot`) that moves the arm, before anything is connected: one
+/// process moves a cell's arm, and a daemon that runs keeps its state (the drift alarm, the
+/// reference the next check compares with) in step only with the runs it makes itself. Beside
+/// a running daemon the command is refused with `beside_daemon(holder)`, which names the way
+/// out. `None` when the lock cannot be taken for another reason (a full or read-only storage;
+/// a run's own preflight says what) and no daemon answers on its control socket.
+pub(crate) fn hold_the_arm(
     cfg: &Config,
-    config: &Path,
-    req: &RunRequest,
+    command: &str,
+    beside_daemon: impl FnOnce(&str) -> String,
 ) -> anyhow::Result<Option<DaemonLock>> {
-    match DaemonLock::acquire_for(&cfg.storage.dir, req.mode.name()) {
+    let storage = &cfg.storage.dir;
+    match DaemonLock::acquire_for(storage, command) {
         Ok(lock) => Ok(Some(lock)),
-        Err(LockError::Held { holder, .. }) => Err(anyhow::anyhow!(through_the_daemon(
-            cfg, config, req, &holder
-        ))),
+        Err(LockError::Held { holder, .. }) => Err(anyhow::anyhow!(beside_daemon(&holder))),
         Err(LockError::HeldByRun {
             command, holder, ..
         }) => anyhow::bail!(
             "another `handeye {command}` run ({holder}) moves this cell's arm (storage {}): one \
-             run at a time; run this again once it has ended",
-            cfg.storage.dir.display()
+             at a time; run this again once it has ended",
+            storage.display()
         ),
         Err(e) => {
-            let storage = &cfg.storage.dir;
             if handeye::daemon::control::request(storage, "status").is_ok() {
                 let holder = format!(
                     "answering on {}",
                     handeye::daemon::control::socket_path(storage).display()
                 );
-                return Err(anyhow::anyhow!(through_the_daemon(
-                    cfg, config, req, &holder
-                )));
+                return Err(anyhow::anyhow!(beside_daemon(&holder)));
             }
             tracing::warn!("{e}; no daemon answers on {}", storage.display());
             Ok(None)
@@ -108,8 +106,8 @@ fn hold_the_arm(
     }
 }
 
-/// The refusal of a run beside the running daemon (`holder`: `pid 1234`): what to ask the daemon instead
-/// (the page's button, the HTTP route), or how to run the command after all.
+/// The refusal of a run beside the running daemon (`holder`: `pid 1234`): what to ask the
+/// daemon instead (the page's button, the HTTP route), or how to run the command after all.
 fn through_the_daemon(cfg: &Config, config: &Path, req: &RunRequest, holder: &str) -> String {
     let (button, route) = match (req.mode, &req.accept_change) {
         (RunMode::Calibrate, Some(_)) => ("Accept remount", "/api/calibrate/accept-change"),
@@ -163,7 +161,9 @@ pub(crate) async fn check(
 ) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
     let req = RunRequest::new(RunMode::Check);
-    let _arm = hold_the_arm(&cfg, &args.config, &req)?;
+    let _arm = hold_the_arm(&cfg, req.mode.name(), |holder| {
+        through_the_daemon(&cfg, &args.config, &req, holder)
+    })?;
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }
 

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use nalgebra::{Isometry3, Vector3};
 
 use crate::support::{
-    history, iso, joints, max_change, pose_arg, pose_error, rig_config, run, secs, shared,
+    csv, history, iso, joints, max_change, pose_arg, pose_error, rig_config, run, secs, shared,
     start_rig, true_mount, Daemon, TempDir,
 };
 
@@ -575,6 +575,29 @@ fn issue_38_the_command_line_accepts_a_remount_but_never_beside_the_daemon() {
     let out = run(&["check", "--config", cfg_arg], secs(30));
     assert_eq!(out.code(), 2, "{out}");
     assert!(out.stderr.contains("POST /api/check"), "{out}");
+    // Nor does the arm move by hand on the cell's configuration.
+    let target: Vec<f64> = before.iter().map(|q| q + 0.05).collect();
+    let out = run(
+        &[
+            "robot",
+            "move",
+            "--config",
+            cfg_arg,
+            "--joints",
+            &csv(&target),
+        ],
+        secs(30),
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(
+        out.stderr.contains(&format!(
+            "handeye daemon (pid {}) runs this cell",
+            daemon.pid()
+        )) && out
+            .stderr
+            .contains("stop it (`systemctl stop handeye`) before moving the arm"),
+        "{out}"
+    );
     assert_eq!(history(&cfg), runs, "a refused command recorded a run");
     // A dry run moves nothing: it may run beside the daemon.
     let out = run(&["calibrate", "--config", cfg_arg, "--dry-run"], secs(60));
