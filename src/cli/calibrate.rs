@@ -128,9 +128,10 @@ fn through_the_daemon(cfg: &Config, config: &Path, req: &RunRequest, holder: &st
         ""
     };
     format!(
-        "handeye daemon ({holder}) runs this cell (storage {storage}) and moves its arm: this command does not \
-         move it beside the daemon, and the daemon would not learn of its result (its drift \
-         alarm, the calibration its checks compare with). Ask the daemon for the run: the \
+        "handeye daemon ({holder}) runs this cell (storage {storage}) and moves its arm: this \
+         command does not move it beside the daemon, and the daemon would not learn of its \
+         result (its drift alarm, the calibration its checks compare with). Ask the daemon for \
+         the run: the \
          {button} button on its page (http://{api}/), or POST {route} with the API token \
          (`curl -X POST -H \"Authorization: Bearer $(cat {token})\" http://{api}{route}`), \
          then `handeye status --config {cfg}`; or stop the daemon (`systemctl stop handeye`), \

@@ -1,6 +1,7 @@
 //! One process moves a cell's arm: `handeye daemon` holds an exclusive advisory lock (`flock`)
 //! on `<storage.dir>/daemon.lock` for as long as it lives, and `handeye calibrate` / `check`
-//! for as long as their run lasts, with the holder's pid and name in the file. A second daemon
+//! (and `robot move` / `set-tcp --config`) for as long as their run lasts, with the holder's
+//! pid and name in the file. A second daemon
 //! on the same storage (the same cell) refuses to start and names the holder; a command beside
 //! a running daemon refuses before it connects anything and names the way through the daemon.
 //! The operating system drops the lock of a process that dies, however it dies: a stale file
@@ -31,7 +32,7 @@ pub enum LockError {
         /// The storage directory.
         dir: PathBuf,
     },
-    /// A command's run (`handeye calibrate`, `check`) holds the lock.
+    /// A command's run (`handeye calibrate`, `check`, `robot`) holds the lock.
     #[error(
         "another `handeye {command}` run ({holder}) already holds the storage {}: it moves the \
          arm; wait until it has ended, then start the daemon",
@@ -74,8 +75,8 @@ impl DaemonLock {
     }
 
     /// Takes the lock on `storage` (created as needed) without waiting, and writes this
-    /// process's pid and `role` (`daemon`, `calibrate`, `check`) into it; [`LockError::Held`]
-    /// when another process holds it.
+    /// process's pid and `role` (`daemon`, `calibrate`, `check`, `robot`; one word) into it;
+    /// [`LockError::Held`] when a daemon holds it, [`LockError::HeldByRun`] a command.
     pub fn acquire_for(storage: &Path, role: &str) -> Result<DaemonLock, LockError> {
         let io = |action, path: &Path| {
             let path = path.to_path_buf();
@@ -123,7 +124,9 @@ const DAEMON: &str = "daemon";
 /// version wrote `pid 1234` alone): its pid (`pid 1234`), and the command when it is not a
 /// daemon.
 fn holder(text: &str) -> (String, Option<String>) {
+    // The file is the storage's, not ours to trust: cut, and control characters escaped.
     let text: String = text.trim().chars().take(80).collect();
+    let text = handeye_hal::limits::sanitize_message(&text);
     let mut words = text.split_whitespace();
     match (words.next(), words.next(), words.next()) {
         (None, ..) => ("pid not written yet".to_string(), None),
