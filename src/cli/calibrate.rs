@@ -3,12 +3,13 @@
 //! the hal traits.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use handeye::config::Config;
+use handeye::daemon::lock::{DaemonLock, LockError};
 use handeye::record::Trigger;
 use handeye::run::{Outcome, Progress, Recorder, RunMode, RunRecord, RunRequest, Stage};
 use nalgebra::Isometry3;
@@ -53,13 +54,93 @@ pub(crate) async fn calibrate(
 ) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
     let req = RunRequest {
-        mode: RunMode::Calibrate,
         dry_run: args.dry_run,
-        run_id: None,
-        program_handover: false,
         accept_change: args.accept_change.then(cli_user),
+        ..RunRequest::new(RunMode::Calibrate)
+    };
+    // A dry run moves nothing: it may run beside the daemon.
+    let _arm = if args.dry_run {
+        None
+    } else {
+        hold_the_arm(&cfg, req.mode.name(), |holder| {
+            through_the_daemon(&cfg, &args.config, &req, holder)
+        })?
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
+}
+
+/// Takes the cell's lock (`<storage.dir>/daemon.lock`, [`DaemonLock`]) for `command`
+/// (`calibrate`, `check`, `robot`) that moves the arm, before anything is connected: one
+/// process moves a cell's arm, and a daemon that runs keeps its state (the drift alarm, the
+/// reference the next check compares with) in step only with the runs it makes itself. Beside
+/// a running daemon the command is refused with `beside_daemon(holder)`, which names the way
+/// out. `None` when the lock cannot be taken for another reason (a full or read-only storage;
+/// a run's own preflight says what) and no daemon answers on its control socket.
+pub(crate) fn hold_the_arm(
+    cfg: &Config,
+    command: &str,
+    beside_daemon: impl FnOnce(&str) -> String,
+) -> anyhow::Result<Option<DaemonLock>> {
+    let storage = &cfg.storage.dir;
+    match DaemonLock::acquire_for(storage, command) {
+        Ok(lock) => Ok(Some(lock)),
+        Err(LockError::Held { holder, .. }) => Err(anyhow::anyhow!(beside_daemon(&holder))),
+        Err(LockError::HeldByRun {
+            command, holder, ..
+        }) => anyhow::bail!(
+            "another `handeye {command}` run ({holder}) moves this cell's arm (storage {}): one \
+             at a time; run this again once it has ended",
+            storage.display()
+        ),
+        Err(e) => {
+            if handeye::daemon::control::request(storage, "status").is_ok() {
+                let holder = format!(
+                    "answering on {}",
+                    handeye::daemon::control::socket_path(storage).display()
+                );
+                return Err(anyhow::anyhow!(beside_daemon(&holder)));
+            }
+            tracing::warn!("{e}; no daemon answers on {}", storage.display());
+            Ok(None)
+        }
+    }
+}
+
+/// The refusal of a run beside the running daemon (`holder`: `pid 1234`): what to ask the
+/// daemon instead (the page's button, the HTTP route), or how to run the command after all.
+fn through_the_daemon(cfg: &Config, config: &Path, req: &RunRequest, holder: &str) -> String {
+    let (button, route) = match (req.mode, &req.accept_change) {
+        (RunMode::Calibrate, Some(_)) => ("Accept remount", "/api/calibrate/accept-change"),
+        (RunMode::Calibrate, None) => ("Calibrate", "/api/calibrate"),
+        (RunMode::Check, _) => ("Check", "/api/check"),
+    };
+    let api = super::status::reachable(cfg.daemon.listen);
+    // The packaged unit hands the daemon /etc/handeye/token (LoadCredential=) when the
+    // configuration names no file.
+    let token = cfg
+        .daemon
+        .token_file
+        .as_deref()
+        .unwrap_or(Path::new("/etc/handeye/token"));
+    let flag = if req.accept_change.is_some() {
+        " --accept-change"
+    } else {
+        ""
+    };
+    format!(
+        "handeye daemon ({holder}) runs this cell (storage {storage}) and moves its arm: this \
+         command does not move it beside the daemon, and the daemon would not learn of its \
+         result (its drift alarm, the calibration its checks compare with). Ask the daemon for \
+         the run: the \
+         {button} button on its page (http://{api}/), or POST {route} with the API token \
+         (`curl -X POST -H \"Authorization: Bearer $(cat {token})\" http://{api}{route}`), \
+         then `handeye status --config {cfg}`; or stop the daemon (`systemctl stop handeye`), \
+         run `handeye {mode} --config {cfg}{flag}` again and start the daemon again",
+        storage = cfg.storage.dir.display(),
+        cfg = config.display(),
+        token = token.display(),
+        mode = req.mode,
+    )
 }
 
 /// Who runs this command, for the record of an accepted change: `cli (user alice)` (the user
@@ -80,13 +161,10 @@ pub(crate) async fn check(
     shutdown: CancellationToken,
 ) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
-    let req = RunRequest {
-        mode: RunMode::Check,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-        accept_change: None,
-    };
+    let req = RunRequest::new(RunMode::Check);
+    let _arm = hold_the_arm(&cfg, req.mode.name(), |holder| {
+        through_the_daemon(&cfg, &args.config, &req, holder)
+    })?;
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }
 

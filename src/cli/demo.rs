@@ -206,13 +206,7 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
             UrPose::from(&prior)
         );
     }
-    let req = RunRequest {
-        mode: RunMode::Calibrate,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-        accept_change: None,
-    };
+    let req = RunRequest::new(RunMode::Calibrate);
     let record = execute(&cfg, req, shutdown, args.json).await?;
     let estimate = record
         .result

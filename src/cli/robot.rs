@@ -133,6 +133,22 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         cfg.host, cfg.ports.dashboard, cfg.ports.rtde
     );
     let host = cfg.host;
+    // A move or a TCP beside the daemon of the configured cell would change what it holds
+    // behind its back: one process moves a cell's arm (a `--host` elsewhere is another arm).
+    let moves = matches!(args.command, Command::Move { .. } | Command::SetTcp { .. });
+    let _arm = match &config {
+        Some(c) if moves && c.robot.host == host => {
+            super::calibrate::hold_the_arm(c, "robot", |holder| {
+                format!(
+                    "handeye daemon ({holder}) runs this cell (storage {}) and moves its arm: \
+                     stop it (`systemctl stop handeye`) before moving the arm or setting the TCP \
+                     by hand, then start it again",
+                    c.storage.dir.display()
+                )
+            })?
+        }
+        _ => None,
+    };
     // Only `registers` reads and writes them: the others claim no RTDE input, so they work
     // beside a running daemon (or another client) that holds the registers.
     if !matches!(args.command, Command::Registers { .. }) {

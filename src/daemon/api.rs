@@ -219,7 +219,7 @@ fn read_token(path: &Path, check_mode: bool) -> anyhow::Result<String> {
     }
     if token.len() < MIN_TOKEN_CHARS {
         bail!(
-            "the API token in {shown} has {} characters; use at least {MIN_TOKEN_CHARS} random              ones, e.g. `openssl rand -hex 32 > {shown}; chmod 600 {shown}`",
+            "the API token in {shown} has {} characters; use at least {MIN_TOKEN_CHARS} random ones, e.g. `openssl rand -hex 32 > {shown}; chmod 600 {shown}`",
             token.len()
         );
     }
@@ -1560,7 +1560,7 @@ mod tests {
             Api::from_config_with(&cfg, None).expect_err("short")
         );
         assert!(
-            e.contains("at least 16") && e.contains("openssl rand"),
+            e.contains("at least 16 random ones, e.g.") && e.contains("openssl rand"),
             "{e}"
         );
         // Issue 23: a FIFO as token file is refused at once, not waited on.

@@ -1,7 +1,10 @@
-//! One daemon per storage: `handeye daemon` holds an exclusive advisory lock (`flock`) on
-//! `<storage.dir>/daemon.lock` for as long as it lives, with its pid in the file, so a second
-//! daemon on the same storage (the same cell) refuses to start and names the first. The
-//! operating system drops the lock of a process that dies, however it dies: a stale file
+//! One process moves a cell's arm: `handeye daemon` holds an exclusive advisory lock (`flock`)
+//! on `<storage.dir>/daemon.lock` for as long as it lives, and `handeye calibrate` / `check`
+//! (and `robot move` / `set-tcp --config`) for as long as their run lasts, with the holder's
+//! pid and name in the file. A second daemon
+//! on the same storage (the same cell) refuses to start and names the holder; a command beside
+//! a running daemon refuses before it connects anything and names the way through the daemon.
+//! The operating system drops the lock of a process that dies, however it dies: a stale file
 //! never blocks a restart.
 
 use std::fs::File;
@@ -24,6 +27,20 @@ pub enum LockError {
         dir.display()
     )]
     Held {
+        /// What the lock file says of its holder (`pid 1234`).
+        holder: String,
+        /// The storage directory.
+        dir: PathBuf,
+    },
+    /// A command's run (`handeye calibrate`, `check`, `robot`) holds the lock.
+    #[error(
+        "another `handeye {command}` run ({holder}) already holds the storage {}: it moves the \
+         arm; wait until it has ended, then start the daemon",
+        dir.display()
+    )]
+    HeldByRun {
+        /// The command (`calibrate`).
+        command: String,
         /// What the lock file says of its holder (`pid 1234`).
         holder: String,
         /// The storage directory.
@@ -52,9 +69,15 @@ pub struct DaemonLock {
 }
 
 impl DaemonLock {
-    /// Takes the lock on `storage` (created as needed) without waiting, and writes this
-    /// process's pid into it; [`LockError::Held`] when another process holds it.
+    /// Takes the lock on `storage` for a daemon: [`DaemonLock::acquire_for`] `"daemon"`.
     pub fn acquire(storage: &Path) -> Result<DaemonLock, LockError> {
+        DaemonLock::acquire_for(storage, DAEMON)
+    }
+
+    /// Takes the lock on `storage` (created as needed) without waiting, and writes this
+    /// process's pid and `role` (`daemon`, `calibrate`, `check`, `robot`; one word) into it;
+    /// [`LockError::Held`] when a daemon holds it, [`LockError::HeldByRun`] a command.
+    pub fn acquire_for(storage: &Path, role: &str) -> Result<DaemonLock, LockError> {
         let io = |action, path: &Path| {
             let path = path.to_path_buf();
             move |source| LockError::Io {
@@ -76,20 +99,42 @@ impl DaemonLock {
             let mut text = String::new();
             file.read_to_string(&mut text)
                 .map_err(io("read the lock file", &path))?;
-            let holder = match text.trim() {
-                "" => "pid not written yet".to_string(),
-                t => t.chars().take(80).collect(),
-            };
-            return Err(LockError::Held {
-                holder,
-                dir: storage.to_path_buf(),
+            let dir = storage.to_path_buf();
+            return Err(match holder(&text) {
+                (holder, None) => LockError::Held { holder, dir },
+                (holder, Some(command)) => LockError::HeldByRun {
+                    command,
+                    holder,
+                    dir,
+                },
             });
         }
         file.set_len(0)
             .and_then(|()| file.rewind())
-            .and_then(|()| writeln!(file, "pid {}", std::process::id()))
+            .and_then(|()| writeln!(file, "pid {} {role}", std::process::id()))
             .map_err(io("write the lock file", &path))?;
         Ok(DaemonLock { _file: file })
+    }
+}
+
+/// The role a daemon writes into the lock file.
+const DAEMON: &str = "daemon";
+
+/// Who holds the lock, from the file's text (`pid 1234 calibrate`; a daemon of an earlier
+/// version wrote `pid 1234` alone): its pid (`pid 1234`), and the command when it is not a
+/// daemon.
+fn holder(text: &str) -> (String, Option<String>) {
+    // The file is the storage's, not ours to trust: cut, and control characters escaped.
+    let text: String = text.trim().chars().take(80).collect();
+    let text = handeye_hal::limits::sanitize_message(&text);
+    let mut words = text.split_whitespace();
+    match (words.next(), words.next(), words.next()) {
+        (None, ..) => ("pid not written yet".to_string(), None),
+        (Some("pid"), Some(pid), role) => (
+            format!("pid {pid}"),
+            role.filter(|r| *r != DAEMON).map(str::to_string),
+        ),
+        _ => (text, None),
     }
 }
 
@@ -113,7 +158,18 @@ mod tests {
             "{e}"
         );
         drop(first);
-        let again = DaemonLock::acquire(&dir).expect("free again once dropped");
+        let again = DaemonLock::acquire_for(&dir, "calibrate").expect("free again once dropped");
+        let e = DaemonLock::acquire(&dir).expect_err("held by a run");
+        assert!(
+            matches!(&e, LockError::HeldByRun { holder, command, .. } if *holder == me && command == "calibrate"),
+            "{e}"
+        );
+        assert!(
+            e.to_string().starts_with(&format!(
+                "another `handeye calibrate` run ({me}) already holds the storage"
+            )),
+            "{e}"
+        );
         drop(again);
         let _ = std::fs::remove_dir_all(&dir);
     }

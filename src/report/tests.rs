@@ -263,13 +263,7 @@ async fn a_run_that_fails_still_writes_its_picture() {
         &camera,
         &model,
         &cfg,
-        RunRequest {
-            mode: RunMode::Check,
-            dry_run: false,
-            run_id: None,
-            program_handover: false,
-            accept_change: None,
-        },
+        RunRequest::new(RunMode::Check),
         &tokio_util::sync::CancellationToken::new(),
         &Silent,
     )

@@ -78,6 +78,20 @@ pub struct RunRequest {
     pub accept_change: Option<String>,
 }
 
+impl RunRequest {
+    /// A whole run of `mode` (not a dry run) with a new id, no program handing the arm over,
+    /// no change accepted: what a command or a test asks for; the fields say the rest.
+    pub fn new(mode: RunMode) -> RunRequest {
+        RunRequest {
+            mode,
+            dry_run: false,
+            run_id: None,
+            program_handover: false,
+            accept_change: None,
+        }
+    }
+}
+
 /// Progress of a run, as it happens: the stage entered and a one-line detail.
 pub trait Progress: Send + Sync {
     /// Called when a stage starts (and again with more detail within a stage).

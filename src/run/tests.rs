@@ -165,11 +165,8 @@ async fn start<R: Robot, C: DepthCamera>(
     dry_run: bool,
 ) -> RunRecord {
     let req = RunRequest {
-        mode,
         dry_run,
-        run_id: None,
-        program_handover: false,
-        accept_change: None,
+        ..RunRequest::new(mode)
     };
     run(
         robot,
@@ -201,13 +198,7 @@ async fn calibrate_cancelled<R: Robot, C: DepthCamera>(
     cancel: &CancellationToken,
     cancelled_at: impl Future<Output = Instant>,
 ) -> (RunRecord, Duration) {
-    let req = RunRequest {
-        mode: RunMode::Calibrate,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-        accept_change: None,
-    };
+    let req = RunRequest::new(RunMode::Calibrate);
     let record = run(robot, camera, &f.model, cfg, req, cancel, &Silent).await;
     let ended = Instant::now();
     (record, ended.saturating_duration_since(cancelled_at.await))
@@ -712,13 +703,7 @@ async fn a_run_cancelled_before_it_starts_moves_nothing() {
     let camera = FakeCamera::new(vec![f.scan.clone()]);
     let cancel = CancellationToken::new();
     cancel.cancel();
-    let req = RunRequest {
-        mode: RunMode::Calibrate,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-        accept_change: None,
-    };
+    let req = RunRequest::new(RunMode::Calibrate);
     let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &Silent).await;
     assert_eq!(record.outcome, Outcome::Aborted, "{:?}", record.reasons);
     assert!(
@@ -1393,13 +1378,7 @@ async fn issue_23_storage_filling_during_the_run_writes_nothing_to_the_controlle
             fs.fill();
         }
     });
-    let req = RunRequest {
-        mode: RunMode::Calibrate,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-        accept_change: None,
-    };
+    let req = RunRequest::new(RunMode::Calibrate);
     let cancel = CancellationToken::new();
     let record = run(&robot, &camera, &f.model, &cfg, req, &cancel, &fill_at_move).await;
     assert_eq!(record.outcome, Outcome::Error, "{:?}", record.reasons);
@@ -1456,13 +1435,7 @@ async fn issue_36_a_disk_filling_after_the_write_back_leaves_the_run_accepted() 
             fs.fill();
         }
     });
-    let req = RunRequest {
-        mode: RunMode::Calibrate,
-        dry_run: false,
-        run_id: None,
-        program_handover: false,
-        accept_change: None,
-    };
+    let req = RunRequest::new(RunMode::Calibrate);
     let cancel = CancellationToken::new();
     let record = super::Recorder::new(Arc::clone(&store), Trigger::Cli)
         .run(

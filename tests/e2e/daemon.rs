@@ -11,8 +11,8 @@ use std::time::{Duration, Instant};
 use nalgebra::{Isometry3, Vector3};
 
 use crate::support::{
-    history, iso, joints, pose_arg, pose_error, rig_config, run, secs, shared, start_rig,
-    true_mount, Daemon, TempDir,
+    csv, history, iso, joints, max_change, pose_arg, pose_error, rig_config, run, secs, shared,
+    start_rig, true_mount, Daemon, TempDir,
 };
 
 #[test]
@@ -413,12 +413,7 @@ fn issue_38_a_deliberate_remount_is_accepted_explicitly() {
     assert_eq!(run(&["status", "--config", cfg_arg], secs(15)).code(), 0);
 
     // The camera is remounted 8 mm and 2° away (beyond gate.max_change_*: 5 mm / 1°).
-    let remounted = true_mount()
-        * Isometry3::new(
-            Vector3::new(0.0, 0.008, 0.0),
-            Vector3::new(2f64.to_radians(), 0.0, 0.0),
-        );
-    std::fs::write(dir.join("mount.txt"), pose_arg(&remounted)).expect("mount file");
+    remount(&dir);
     let finished = |what: &str, run_id: &serde_json::Value| {
         wait_status(&api, secs(90), what, |s| {
             s["last"]["run_id"] == *run_id && s["state"] == "idle"
@@ -510,6 +505,153 @@ fn issue_38_a_deliberate_remount_is_accepted_explicitly() {
     daemon.signal(libc::SIGTERM);
     assert!(daemon.wait_exit(secs(20)).success(), "{}", daemon.log());
     assert_eq!(run(&["status", "--config", cfg_arg], secs(15)).code(), 2);
+}
+
+/// Remounts the camera of the rig started in `dir` 8 mm and 2° from [`true_mount`] (beyond
+/// gate.max_change_*: 5 mm / 1°).
+pub(crate) fn remount(dir: &TempDir) {
+    let remounted = true_mount()
+        * Isometry3::new(
+            Vector3::new(0.0, 0.008, 0.0),
+            Vector3::new(2f64.to_radians(), 0.0, 0.0),
+        );
+    std::fs::write(dir.join("mount.txt"), pose_arg(&remounted)).expect("mount file");
+}
+
+/// Issue 38: the command line's way to accept a remount, and one process moving the arm.
+/// `handeye calibrate --accept-change` beside a running daemon is refused before anything is
+/// connected, naming how to ask the daemon (the page's button, the HTTP route) or to stop it; a
+/// daemon cannot start while the command's run holds the cell; once the daemon is stopped the
+/// command accepts the remount, and the daemon started again has no alarm.
+#[test]
+fn issue_38_the_command_line_accepts_a_remount_but_never_beside_the_daemon() {
+    let Some(_) = shared("issue_38_the_command_line_accepts_a_remount_but_never_beside_the_daemon")
+    else {
+        return;
+    };
+    let dir = TempDir::new("remount-cli");
+    let (robot_ip, camera_ip) = ("127.0.0.162", "127.0.0.163");
+    let _rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let cfg = config(&dir, robot_ip, camera_ip, "");
+    let cfg_arg = cfg.to_str().expect("utf-8");
+    let api = format!("{robot_ip}:8650");
+    let out = run(&["calibrate", "--config", cfg_arg], secs(120));
+    assert_eq!(out.code(), 0, "{out}");
+
+    // The camera is remounted 8 mm and 2° away (beyond gate.max_change_*: 5 mm / 1°): the
+    // check drifts, an ordinary calibration is rejected naming the way out.
+    remount(&dir);
+    let out = run(&["check", "--config", cfg_arg], secs(120));
+    assert_eq!(out.code(), 1, "{out}");
+    let out = run(&["calibrate", "--config", cfg_arg], secs(120));
+    assert_eq!(out.code(), 1, "{out}");
+    assert!(
+        out.stdout.contains("from the previous calibration")
+            && out.stdout.contains("handeye calibrate --accept-change"),
+        "{out}"
+    );
+
+    // The daemon raises the alarm from the history; beside it the command refuses, moves
+    // nothing and records nothing, and says how to ask the daemon.
+    let mut daemon = start_daemon(&dir, "daemon-1", &cfg);
+    let st = wait_status(&api, secs(30), "the daemon's status", |_| true);
+    assert_eq!(st["drift_alarm"], true, "{st}");
+    let (before, runs) = (joints(robot_ip), history(&cfg));
+    let out = run(
+        &["calibrate", "--config", cfg_arg, "--accept-change"],
+        secs(30),
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    for needle in [
+        format!("handeye daemon (pid {}) runs this cell", daemon.pid()).as_str(),
+        "Accept remount button",
+        "POST /api/calibrate/accept-change with the API token",
+        &format!("http://{api}/api/calibrate/accept-change"),
+        "systemctl stop handeye",
+        &format!("`handeye calibrate --config {cfg_arg} --accept-change` again"),
+    ] {
+        assert!(out.stderr.contains(needle), "`{needle}` in\n{out}");
+    }
+    let out = run(&["check", "--config", cfg_arg], secs(30));
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(out.stderr.contains("POST /api/check"), "{out}");
+    // Nor does the arm move by hand on the cell's configuration.
+    let target: Vec<f64> = before.iter().map(|q| q + 0.05).collect();
+    let out = run(
+        &[
+            "robot",
+            "move",
+            "--config",
+            cfg_arg,
+            "--joints",
+            &csv(&target),
+        ],
+        secs(30),
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(
+        out.stderr.contains(&format!(
+            "handeye daemon (pid {}) runs this cell",
+            daemon.pid()
+        )) && out
+            .stderr
+            .contains("stop it (`systemctl stop handeye`) before moving the arm"),
+        "{out}"
+    );
+    assert_eq!(history(&cfg), runs, "a refused command recorded a run");
+    // A dry run moves nothing: it may run beside the daemon.
+    let out = run(&["calibrate", "--config", cfg_arg, "--dry-run"], secs(60));
+    assert_eq!(out.code(), 0, "{out}");
+    assert!(
+        max_change(&joints(robot_ip), &before) < 1e-9,
+        "the arm moved"
+    );
+    let st = wait_status(&api, secs(15), "the daemon's status", |_| true);
+    assert_eq!(st["drift_alarm"], true, "{st}");
+    daemon.signal(libc::SIGTERM);
+    assert!(daemon.wait_exit(secs(20)).success(), "{}", daemon.log());
+
+    // With the daemon stopped the command accepts the remount; while its run holds the cell a
+    // daemon refuses to start, naming it.
+    let mut cli = Daemon::start(
+        &dir,
+        "calibrate-accept-change",
+        &["calibrate", "--config", cfg_arg, "--accept-change"],
+    );
+    cli.wait_for_log("move", secs(60));
+    let second = run(&["daemon", "--config", cfg_arg], secs(20));
+    assert_eq!(second.code(), 2, "{second}");
+    assert!(
+        second.stderr.contains(&format!(
+            "another `handeye calibrate` run (pid {}) already holds the storage",
+            cli.pid()
+        )) && second.stderr.contains("wait until it has ended"),
+        "{second}"
+    );
+    let done = cli.wait_exit(secs(120));
+    assert!(done.success(), "{done}\n{}", cli.log());
+    let runs = history(&cfg);
+    let last = &runs[0];
+    assert_eq!(last["outcome"], "accepted", "{runs}");
+    let run_id = last["run_id"].as_str().expect("run id");
+    let show = run(&["history", "show", run_id, "--config", cfg_arg], secs(20)).success();
+    assert!(
+        show.stdout.contains("remount   accepted by cli ("),
+        "{show}"
+    );
+
+    // The daemon started again has no alarm, and compares with the new mount.
+    let _daemon = start_daemon(&dir, "daemon-2", &cfg);
+    let st = wait_status(&api, secs(30), "the daemon's status", |_| true);
+    assert_eq!(st["drift_alarm"], false, "{st}");
+    assert_eq!(run(&["status", "--config", cfg_arg], secs(15)).code(), 0);
+    let (code, body) = http(&api, "POST", "/api/check", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let id = json(&body)["run_id"].clone();
+    let st = wait_status(&api, secs(90), "the check after the remount", |s| {
+        s["last"]["run_id"] == id && s["state"] == "idle"
+    });
+    assert_eq!(st["last"]["verdict"], "within limits", "{st}");
 }
 
 #[test]

@@ -1,7 +1,8 @@
 //! The daemon's web page in a real browser: headless Chromium, driven through chromedriver's
 //! WebDriver HTTP protocol (a few JSON requests written by hand, see README "Dependencies and
-//! why"), against `handeye daemon` on `handeye sim rig` over loopback (127.0.0.140/141;
-//! chromedriver listens on a free port of 127.0.0.1 it picks itself).
+//! why"), against `handeye daemon` on `handeye sim rig` over loopback (127.0.0.140/141, issue
+//! 38's remount 127.0.0.164/165; chromedriver listens on a free port of 127.0.0.1 it picks
+//! itself).
 //!
 //! The page loads with the right state; Check without the token (or with a wrong one) is
 //! refused with the server's reason and nothing moves; Check with the token runs a check, whose
@@ -714,4 +715,132 @@ fn the_web_page_runs_a_check_with_the_token_and_refuses_without() {
     drop(b);
     drop(daemon);
     drop(rig);
+}
+
+/// Issue 38: the page's Accept remount asks in the page first (a dialog, screenshot
+/// `page-remount-confirm.png`); "Do not accept" sends nothing; accepting asks for the token,
+/// calibrates accepting the new mount, clears the drift alarm, and the record says the page
+/// accepted it. The daemon on 127.0.0.164/165.
+#[test]
+fn issue_38_the_page_accepts_a_remount_after_confirming() {
+    let test = "issue_38_the_page_accepts_a_remount_after_confirming";
+    let Some(_) = shared(test) else { return };
+    let Some((chromium, chromedriver)) = browser_tools(test) else {
+        return;
+    };
+    let dir = TempDir::new("web-remount");
+    let (robot_ip, camera_ip) = ("127.0.0.164", "127.0.0.165");
+    let _rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+    let cfg = crate::daemon::config(&dir, robot_ip, camera_ip, "startup = \"calibrate\"");
+    let daemon = crate::daemon::start_daemon(&dir, "daemon", &cfg);
+    let api_text = format!("{robot_ip}:8650");
+    let api: SocketAddr = api_text.parse().expect("addr");
+    let st = crate::daemon::wait_status(&api_text, secs(120), "the startup calibration", |s| {
+        s["last_calibration"]["trigger"] == "startup" && s["state"] == "idle"
+    });
+    assert_eq!(
+        st["last_calibration"]["outcome"],
+        "accepted",
+        "{st}\n{}",
+        daemon.log()
+    );
+    // Remounted beyond gate.max_change_*: a check raises the alarm.
+    crate::daemon::remount(&dir);
+    let (code, body) =
+        crate::daemon::http(&api_text, "POST", "/api/check", Some(crate::daemon::TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let check: Value = serde_json::from_str(&body).expect("JSON");
+    let st = crate::daemon::wait_status(&api_text, secs(120), "the check", |s| {
+        s["last"]["run_id"] == check["run_id"] && s["state"] == "idle"
+    });
+    assert_eq!(st["drift_alarm"], true, "{st}");
+    let runs = run_count(api);
+
+    let profile = dir.join("chromium-profile");
+    let b = Browser::start(&chromium, &chromedriver, &profile);
+    b.set_viewport(1366, 768);
+    b.goto(&format!("http://{api}/"));
+    b.wait("the drift alarm on the page", secs(20), |b| {
+        (b.visible("#chip-alarm") && b.text("#chip-daemon") == "daemon: idle").then_some(())
+    });
+    let dialog_open = |b: &Browser| {
+        b.js(
+            "return document.getElementById('remount-dialog').open;",
+            json!([]),
+        )
+    };
+
+    // The button asks in the page; "Do not accept" sends nothing.
+    b.click("#btn-remount");
+    b.wait("the confirmation", secs(5), |b| {
+        (dialog_open(b) == json!(true)).then_some(())
+    });
+    let asked = b.text("#remount-dialog");
+    assert!(
+        asked.contains("Accept a new camera mount?")
+            && asked.contains("remounted on purpose")
+            && asked.contains("gate.max_change_translation_mm"),
+        "{asked}"
+    );
+    assert_eq!(
+        b.screenshot(&shots().join("page-remount-confirm.png")),
+        (1366, 768)
+    );
+    b.click("#remount-no");
+    b.wait("the refusal to send", secs(5), |b| {
+        (dialog_open(b) == json!(false) && b.text("#message") == "Not sent. Nothing moved.")
+            .then_some(())
+    });
+    assert!(!b.visible("#token-box"), "the token was asked for");
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(
+        run_count(api),
+        runs,
+        "a run was recorded without the confirmation"
+    );
+
+    // Confirmed: the token is asked for, then the calibration accepting the mount runs.
+    b.click("#btn-remount");
+    b.wait("the confirmation", secs(5), |b| {
+        (dialog_open(b) == json!(true)).then_some(())
+    });
+    b.click("#remount-yes");
+    b.wait("the token is asked for", secs(5), |b| {
+        b.visible("#token-box").then_some(())
+    });
+    b.type_into("#token", crate::daemon::TOKEN);
+    b.click("#token-send");
+    let msg = b.wait("the calibration is accepted", secs(10), |b| {
+        let m = b.text("#message");
+        (!m.is_empty() && !m.starts_with("Sending")).then_some(m)
+    });
+    let run_id = msg
+        .strip_prefix("Calibration accepting the new mount accepted: run ")
+        .and_then(|s| s.strip_suffix('.'))
+        .unwrap_or_else(|| panic!("{msg}"))
+        .to_string();
+    b.wait(
+        "the accepted run in the history, the alarm off",
+        secs(120),
+        |b| {
+            let first = b.js(
+                "const r = document.querySelector('#history tbody tr'); \
+             return r ? [r.dataset.run, r.querySelector('td.outcome').textContent] : [];",
+                json!([]),
+            );
+            (first == json!([run_id.clone(), "accepted"]) && !b.visible("#chip-alarm"))
+                .then_some(())
+        },
+    );
+    b.screenshot(&shots().join("page-remount-accepted.png"));
+    let record = api_json(api, &format!("/api/runs/{run_id}"));
+    let accepted = &record["change_accepted"];
+    assert!(
+        accepted["by"]
+            .as_str()
+            .is_some_and(|by| by.starts_with("web page (127.")),
+        "{record}"
+    );
+    assert_eq!(accepted["beyond_limits"], true, "{record}");
+    assert_eq!(api_json(api, "/api/status")["drift_alarm"], false);
 }

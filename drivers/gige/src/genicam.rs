@@ -322,26 +322,19 @@ fn gerr(feature: &str, e: impl std::fmt::Display) -> GigeError {
     GigeError::feature(feature, e.to_string())
 }
 
-/// `Ok` when the feature may be read now.
-fn readable(feature: &str, r: cameleon_genapi::GenApiResult<bool>) -> Result<()> {
-    match r {
-        Ok(true) => Ok(()),
-        Ok(false) => Err(gerr(
-            feature,
-            "is not readable now (not implemented, not available, or write-only)",
-        )),
-        Err(e) => Err(gerr(feature, e)),
-    }
-}
+/// Why a feature that is not readable now cannot be read.
+const NOT_READABLE: &str = "is not readable now (not implemented, not available, or write-only)";
+/// Why a feature that is not writable now cannot be written.
+const NOT_WRITABLE: &str =
+    "is not writable now (locked while streaming, not available, or read-only)";
 
-/// `Ok` when the feature may be written now.
-fn writable(feature: &str, r: cameleon_genapi::GenApiResult<bool>) -> Result<()> {
+/// `Ok` when the node's access check `r` (`is_readable`, `is_writable`) says the feature may be
+/// used now; else the error names the feature and `refusal` ([`NOT_READABLE`],
+/// [`NOT_WRITABLE`]).
+fn usable(feature: &str, r: cameleon_genapi::GenApiResult<bool>, refusal: &str) -> Result<()> {
     match r {
         Ok(true) => Ok(()),
-        Ok(false) => Err(gerr(
-            feature,
-            "is not writable now (locked while streaming, not available, or read-only)",
-        )),
+        Ok(false) => Err(gerr(feature, refusal)),
         Err(e) => Err(gerr(feature, e)),
     }
 }
@@ -455,7 +448,11 @@ impl NodeMap {
             .id(name)?
             .expect_iinteger_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_readable(dev, &self.store, &mut self.cx),
+            NOT_READABLE,
+        )?;
         n.value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -472,7 +469,11 @@ impl NodeMap {
             .id(name)?
             .expect_iinteger_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_writable(dev, &self.store, &mut self.cx),
+            NOT_WRITABLE,
+        )?;
         let lo = n
             .min(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))?;
@@ -492,7 +493,11 @@ impl NodeMap {
             .id(name)?
             .expect_ifloat_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_readable(dev, &self.store, &mut self.cx),
+            NOT_READABLE,
+        )?;
         n.value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -517,7 +522,11 @@ impl NodeMap {
             .id(name)?
             .expect_ifloat_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_writable(dev, &self.store, &mut self.cx),
+            NOT_WRITABLE,
+        )?;
         let lo = n
             .min(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))?;
@@ -537,7 +546,11 @@ impl NodeMap {
             .id(name)?
             .expect_iboolean_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_readable(dev, &self.store, &mut self.cx),
+            NOT_READABLE,
+        )?;
         n.value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -553,7 +566,11 @@ impl NodeMap {
             .id(name)?
             .expect_iboolean_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_writable(dev, &self.store, &mut self.cx),
+            NOT_WRITABLE,
+        )?;
         n.set_value(v, dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -564,7 +581,11 @@ impl NodeMap {
             .id(name)?
             .expect_istring_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_readable(dev, &self.store, &mut self.cx),
+            NOT_READABLE,
+        )?;
         n.value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -580,7 +601,11 @@ impl NodeMap {
             .id(name)?
             .expect_ienumeration_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_readable(dev, &self.store, &mut self.cx),
+            NOT_READABLE,
+        )?;
         let e = n
             .current_entry(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))?;
@@ -601,7 +626,11 @@ impl NodeMap {
             .id(name)?
             .expect_ienumeration_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        readable(name, n.is_readable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_readable(dev, &self.store, &mut self.cx),
+            NOT_READABLE,
+        )?;
         n.current_value(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }
@@ -626,7 +655,11 @@ impl NodeMap {
                 ),
             ));
         };
-        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_writable(dev, &self.store, &mut self.cx),
+            NOT_WRITABLE,
+        )?;
         let e = entry
             .expect_enum_entry(&self.store)
             .map_err(|e| gerr(name, e))?;
@@ -699,7 +732,11 @@ impl NodeMap {
             .id(name)?
             .expect_icommand_kind(&self.store)
             .map_err(|e| gerr(name, e))?;
-        writable(name, n.is_writable(dev, &self.store, &mut self.cx))?;
+        usable(
+            name,
+            n.is_writable(dev, &self.store, &mut self.cx),
+            NOT_WRITABLE,
+        )?;
         n.execute(dev, &self.store, &mut self.cx)
             .map_err(|e| gerr(name, e))
     }

@@ -112,12 +112,15 @@ function wireActions() {
   $("btn-calibrate").addEventListener("click", () => act("calibrate"));
   $("btn-check").addEventListener("click", () => act("check"));
   $("btn-cancel").addEventListener("click", () => act("cancel"));
+  // Asked in the page, not with window.confirm: a kiosk browser may suppress native dialogs.
+  const remount = $("remount-dialog");
   $("btn-remount").addEventListener("click", () => {
-    const sure = window.confirm(
-      "Accept a new camera mount?\n\nOnly when the camera was remounted on purpose: the arm moves, "
-      + "and a result that moved beyond the gate's largest change (gate.max_change_*) is "
-      + "accepted and written back. Every other check still applies; the history records it.");
-    if (sure) act("remount");
+    remount.returnValue = "";
+    remount.showModal();
+  });
+  // Closed by either button, or by Escape (no value): only "accept" sends.
+  remount.addEventListener("close", () => {
+    if (remount.returnValue === "accept") act("remount");
     else message("Not sent. Nothing moved.", "");
   });
   $("token-box").addEventListener("submit", (ev) => {
