@@ -93,7 +93,7 @@ pub(crate) struct Args {
     /// corners, where multipath biases the range, are left out).
     #[arg(long, value_parser = parse_sensor)]
     sensor: Option<SensorClass>,
-    /// The gate's largest 1σ per frame, `mm,degrees` (default `1,0.2`; the position eye-to-hand
+    /// The gate's largest 1σ per frame, `mm,degrees` (default `1.5,0.2`; the position eye-to-hand
     /// at the robot base): as `max_uncertainty_translation_mm` / `max_uncertainty_rotation_deg`
     /// in a cell config's `[gate]`. Raise it when a camera's own depth errors keep its σ above
     /// the default and that accuracy is enough for the cell.

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use handeye::bench::{PASS_ROTATION_DEG, PASS_TRANSLATION_MM};
 use handeye_hal::ur_dh::DhParams;
 use nalgebra::{Isometry3, Vector3};
 
@@ -84,7 +85,10 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
     let result = iso(&record["result"]["flange_from_camera"]);
     let (mm, deg) = pose_error(&mount, &result);
     eprintln!("calibrate over the rig: {mm:.3} mm / {deg:.4}° from the truth");
-    assert!(mm < 0.5 && deg < 0.1, "{mm:.3} mm / {deg:.4}° off\n{out}");
+    assert!(
+        mm < PASS_TRANSLATION_MM && deg < PASS_ROTATION_DEG,
+        "{mm:.3} mm / {deg:.4}° off\n{out}"
+    );
     let written: Vec<&str> = record["written"]
         .as_array()
         .expect("written")
@@ -138,7 +142,10 @@ fn calibrate_writes_back_and_check_sees_the_mount_move() {
         mm < 3.0 * sigma && nominal_mm < 3.0 * nominal_sigma,
         "beyond 3σ: {mm} mm (1σ {sigma}), nominal {nominal_mm} mm (1σ {nominal_sigma})"
     );
-    assert!(nominal_mm < 0.5, "nominal URDF: {nominal_mm} mm");
+    assert!(
+        nominal_mm < PASS_TRANSLATION_MM,
+        "nominal URDF: {nominal_mm} mm"
+    );
 
     // Issue 23: a capture is input like any other. Tampered copies beside the original (the
     // same scans) are refused, each saying what is wrong, with exit 2 and nothing solved.

@@ -197,7 +197,10 @@ fn daemon_calibrates_at_startup_and_serves_the_api() {
     let result = iso(&record["result"]["flange_from_camera"]);
     let (mm, deg) = pose_error(&true_mount(), &result);
     eprintln!("daemon startup calibration: {mm:.3} mm / {deg:.4}° from the truth");
-    assert!(mm < 0.5 && deg < 0.1, "{mm} mm / {deg}°");
+    assert!(
+        mm < handeye::bench::PASS_TRANSLATION_MM && deg < handeye::bench::PASS_ROTATION_DEG,
+        "{mm} mm / {deg}°"
+    );
     let tcp = run(&["robot", "--host", robot_ip, "status", "--json"], secs(15)).success();
     let tcp: Vec<f64> = serde_json::from_value(tcp.json()["flange_from_tcp_ur_pose"].clone())
         .unwrap_or_else(|e| panic!("flange_from_tcp_ur_pose in robot status ({e})"));

@@ -24,7 +24,10 @@ fn demo_calibrates_the_simulated_rig_through_the_real_protocols() {
     assert_eq!(doc["outcome"], "accepted", "{out}");
     assert_eq!(doc["passed"], true, "{out}");
     let (mm, deg) = pose_error(&iso(&doc["ground_truth"]), &iso(&doc["flange_from_camera"]));
-    assert!(mm < 0.5 && deg < 0.1, "error {mm} mm / {deg}°\n{out}");
+    assert!(
+        mm < handeye::bench::PASS_TRANSLATION_MM && deg < handeye::bench::PASS_ROTATION_DEG,
+        "error {mm} mm / {deg}°\n{out}"
+    );
     // Posed by what the controller publishes: a real controller's DH, its nearly parallel
     // joints' common normals hundreds of metres away.
     let kinematics = &doc["record"]["preflight"]["kinematics"];

@@ -29,7 +29,9 @@ pub struct GateThresholds {
     /// Maximum 1-σ uncertainty of the camera position, per registration, mm: eye-in-hand at
     /// the camera origin, eye-to-hand at the robot base ([`super::Uncertainty::workspace`]),
     /// where the fixed camera looks (its origin, 1–2 m away, moves by the rotation σ times
-    /// that lever, which the rotation limit already bounds).
+    /// that lever, which the rotation limit already bounds). The σ includes what no view can
+    /// lower: a manufactured arm's housings off their frames leave about 0.6 mm (median) at a
+    /// wrist camera.
     pub max_uncertainty_translation_mm: f64,
     /// Maximum 1-σ uncertainty of the camera rotation, per registration, degrees.
     pub max_uncertainty_rotation_deg: f64,
@@ -63,7 +65,9 @@ impl Default for GateThresholds {
             max_free_space_violations: 0.03,
             max_rmse_mm: 1.5,
             min_inlier_fraction: 0.5,
-            max_uncertainty_translation_mm: 1.0,
+            // 1 mm beyond the housings' floor (bench: 97.5 % of 810 manufactured-arm scans
+            // accepted, 0 wrong; at 1 mm 94.7 %).
+            max_uncertainty_translation_mm: 1.5,
             max_uncertainty_rotation_deg: 0.2,
             max_residual_translation_mm: 1.0,
             max_residual_rotation_deg: 0.2,
