@@ -50,8 +50,10 @@ pub(crate) struct Args {
     /// Simulate a physical arm, as built: every joint off by a deterministic pseudo-random
     /// error of factory-calibration size (0.3 mm, 0.3 mrad 1σ) drawn from SEED; the controller
     /// publishes the arm's exact DH in the primary KinematicsInfo (its nearly parallel joints
-    /// 2–4 give d of hundreds of metres, as a real one's) and computes every pose from it
-    /// (default: an exactly nominal arm).
+    /// 2–4 give d of hundreds of metres, as a real one's) and computes every pose from it;
+    /// every link's housing sits off its frame by the same sizes, which only a camera
+    /// following this controller (`sim camera --robot`) shows (default: an exactly nominal
+    /// arm).
     #[arg(long, value_name = "SEED")]
     factory_calibration: Option<u64>,
     /// The arm's serial number, as dashboard `get serial number` answers it (default: one in

@@ -49,8 +49,9 @@ pub(crate) struct Args {
     /// Seed for every random draw.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// UR arms: the true arm is a physical arm (every joint off by a factory-size error drawn
-    /// from this seed, as `sim robot --factory-calibration SEED` simulates it) and the
+    /// UR arms: the true arm is a physical arm (every joint off by a factory-size error and
+    /// every link's housing off its frame, drawn from this seed, as `sim robot
+    /// --factory-calibration SEED` simulates it) and the
     /// controller reports its flange; the `[kinematic_error]` draw is not applied. The exact DH
     /// its controller publishes goes into the ground truth as `controller_dh`.
     #[arg(long, value_name = "SEED")]

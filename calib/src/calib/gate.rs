@@ -432,15 +432,15 @@ mod tests {
         let v = gate(std::slice::from_ref(&reg), &sol_wrist, None, &th);
         assert_eq!(
             v.reasons,
-            ["frame 0: uncertainty 1.60 mm / 0.050° (max 1.00 mm / 0.200°): show more of the base and first links"]
+            ["frame 0: uncertainty 1.60 mm / 0.050° (max 1.50 mm / 0.200°): show more of the base and first links"]
         );
         if let Some(w) = reg.uncertainty.workspace.as_mut() {
-            w.translation_mm = 1.3;
+            w.translation_mm = 1.7;
         }
         let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
         assert_eq!(
             v.reasons,
-            ["frame 0: uncertainty 1.30 mm at the robot base (1.62 m from the camera) / 0.050° (max 1.00 mm / 0.200°): show more of the base and first links"]
+            ["frame 0: uncertainty 1.70 mm at the robot base (1.62 m from the camera) / 0.050° (max 1.50 mm / 0.200°): show more of the base and first links"]
         );
     }
 
@@ -514,7 +514,7 @@ mod tests {
         let v = gate(std::slice::from_ref(&reg), &sol, None, &th);
         assert_eq!(v.reasons.len(), 1, "{v:?}");
         assert!(
-            v.reasons[0].starts_with("frame 0: uncertainty 3.40 mm / 0.450° (max 1.00 mm / 0.200°): the camera's own depth errors alone give 1.10 mm / 0.400°"),
+            v.reasons[0].starts_with("frame 0: uncertainty 3.40 mm / 0.450° (max 1.50 mm / 0.200°): the camera's own depth errors alone give 1.10 mm / 0.400°"),
             "{v:?}"
         );
         assert!(
