@@ -379,20 +379,27 @@ fn correspond(
         at: x,
         m: found.map_or(radius + CLEARANCE_SLACK_M, |(_, d)| d),
     };
-    let s = found.filter(|(_, d)| *d <= radius)?.0;
+    let (s, s_m) = found.filter(|(_, d)| *d <= radius)?;
     // Multipath: where the model faces other surface the scan's depths are biased; those
     // points are not used, as if they were not near the fitted links.
     if s.depth as usize > surface.fit_depth || s.biased {
         return None;
     }
     // The point against the link as posed: undo the link's displacement, and look again from
-    // there (near an edge a millimetre decides the triangle).
+    // there (near an edge a millimetre decides the triangle). The sample nearest `back` is no
+    // farther than `s` is from it, so the search needs no wider radius than that.
     let (s, on_posed) = match links.get(s.depth as usize) {
         Some(m) => {
             let back = m.inverse_transform_point(&x);
-            match surface.nearest(&back, st.gate_m.max(0.01)) {
-                Some(b) if b.depth == s.depth => (b, back),
-                _ => (s, back),
+            let moved = (back - x).norm();
+            if moved == 0.0 {
+                (s, back)
+            } else {
+                let r = (s_m + moved + 1e-6).min(st.gate_m.max(0.01));
+                match surface.nearest(&back, r) {
+                    Some(b) if b.depth == s.depth => (b, back),
+                    _ => (s, back),
+                }
             }
         }
         None => (s, x),
