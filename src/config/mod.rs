@@ -174,7 +174,9 @@ impl Config {
                 origin: origin.to_string(),
                 line: index.line_at(offset),
                 column: index.column_at(offset),
-                message: e.message().trim().replace('\n', "; "),
+                message: handeye_hal::limits::sanitize_message(
+                    &e.message().trim().replace('\n', "; "),
+                ),
             });
         }
         let raw: RawConfig = toml::from_str(text).map_err(|e| schema_error(&e, origin, &index))?;

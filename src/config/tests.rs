@@ -707,3 +707,19 @@ fn values_are_echoed_escaped_in_the_errors() {
         assert!(!msg.chars().any(char::is_control), "{msg:?}");
     }
 }
+
+/// A value the schema refuses is quoted back safe for a terminal (found by `fuzz_config`: a tab
+/// inside an unknown variant name came back raw).
+#[test]
+fn a_refused_value_is_echoed_without_control_characters() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config");
+    for text in [
+        "[robot]\nmodel=\"\"\nhost=\"\"\nkinematics=\"\t\"",
+        "[robot]\nmodel=\"ur5e\"\nhost=\"127.0.0.1\"\nkinematics=\"control\\u001b[31mler\"",
+    ] {
+        let e = Config::from_toml(text, "cell.toml", &dir).expect_err(text);
+        let msg = e.to_string();
+        assert!(msg.contains("robot.kinematics"), "{msg}");
+        assert!(!msg.chars().any(|c| c.is_control()), "{msg:?}");
+    }
+}

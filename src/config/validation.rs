@@ -149,7 +149,9 @@ pub(super) mod ranges {
 pub(super) fn schema_error(e: &toml::de::Error, origin: &str, index: &KeyIndex) -> ConfigError {
     let span = e.span().unwrap_or(0..0);
     let line = index.line_at(span.start);
-    let message = e.message().trim().replace('\n', "; ");
+    // serde's messages quote the file's own text ("unknown variant `…`"): made safe for a
+    // terminal (found by the config fuzz target: a tab inside a variant name).
+    let message = handeye_hal::limits::sanitize_message(&e.message().trim().replace('\n', "; "));
     let origin = origin.to_string();
     if let Some(rest) = message.strip_prefix("missing field `") {
         let field = rest.split('`').next().unwrap_or_default();
