@@ -66,6 +66,15 @@ pub(crate) fn perpendicular(axis: &Vector3<f64>) -> Vector3<f64> {
     .normalize()
 }
 
+/// One draw of a zero-mean normal of standard deviation `sigma` (0 for σ ≤ 0).
+fn normal(rng: &mut impl Rng, sigma: f64) -> f64 {
+    if sigma > 0.0 {
+        Normal::new(0.0, sigma).map_or(0.0, |d| d.sample(rng))
+    } else {
+        0.0
+    }
+}
+
 /// Largest 1σ of any kinematic error: 50 mrad (~3°) of joint offset or misalignment, 50 mm of
 /// link length. A robot that far from its model is not calibrated by registering its CAD.
 pub const MAX_KINEMATIC_SIGMA: f64 = 0.05;
@@ -149,13 +158,7 @@ impl KinematicError {
     /// One random draw of each link housing's offset from its link's frame (one isometry per
     /// chain depth 0..=dof, in that link's frame, for [`RobotModel::with_housings`]).
     pub fn sample_housings(&self, model: &RobotModel, rng: &mut impl Rng) -> Vec<Isometry3<f64>> {
-        let mut gauss = |s: f64| {
-            if s > 0.0 {
-                Normal::new(0.0, s).map_or(0.0, |d| d.sample(rng))
-            } else {
-                0.0
-            }
-        };
+        let mut gauss = |s: f64| normal(rng, s);
         (0..=model.dof())
             .map(|_| {
                 let t = Vector3::from_fn(|_, _| gauss(self.housing_translation_sigma_m));
@@ -168,13 +171,7 @@ impl KinematicError {
     /// One random draw of per-joint origin errors (one isometry per chain joint, in the joint
     /// frame, for [`RobotModel::link_poses_with_errors`]).
     pub fn sample(&self, model: &RobotModel, rng: &mut impl Rng) -> Vec<Isometry3<f64>> {
-        let mut gauss = |s: f64| {
-            if s > 0.0 {
-                Normal::new(0.0, s).map_or(0.0, |d| d.sample(rng))
-            } else {
-                0.0
-            }
-        };
+        let mut gauss = |s: f64| normal(rng, s);
         model
             .joint_axes()
             .iter()

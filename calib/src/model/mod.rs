@@ -208,6 +208,19 @@ enum Motion {
     },
 }
 
+impl Motion {
+    /// The chain joint this motion is (its index and axis), when a chain value drives it
+    /// directly; `None` for fixed, mimic and held joints.
+    fn chain_joint(self) -> Option<(usize, Unit<Vector3<f64>>)> {
+        match self {
+            Motion::Fixed => None,
+            Motion::Revolute { axis, q } | Motion::Prismatic { axis, q } => {
+                q.chain_index().map(|i| (i, axis))
+            }
+        }
+    }
+}
+
 /// Where a movable joint's value comes from.
 #[derive(Debug, Clone, Copy)]
 enum QSource {
@@ -942,15 +955,7 @@ impl RobotModel {
     pub fn joint_origins(&self) -> Vec<Isometry3<f64>> {
         let mut origins = vec![Isometry3::identity(); self.dof()];
         for node in &self.links {
-            if let Motion::Revolute {
-                q: QSource::Chain(i),
-                ..
-            }
-            | Motion::Prismatic {
-                q: QSource::Chain(i),
-                ..
-            } = node.motion
-            {
+            if let Some((i, _)) = node.motion.chain_joint() {
                 origins[i] = node.parent_from_joint;
             }
         }
@@ -976,18 +981,7 @@ impl RobotModel {
         let poses = link_poses;
         let mut frames = vec![Isometry3::identity(); self.dof()];
         for node in &self.links {
-            if let (
-                Some(p),
-                Motion::Revolute {
-                    q: QSource::Chain(i),
-                    ..
-                }
-                | Motion::Prismatic {
-                    q: QSource::Chain(i),
-                    ..
-                },
-            ) = (node.parent, node.motion)
-            {
+            if let (Some(p), Some((i, _))) = (node.parent, node.motion.chain_joint()) {
                 frames[i] = poses[p] * node.parent_from_joint;
             }
         }
@@ -1009,15 +1003,7 @@ impl RobotModel {
     ) -> Vec<Isometry3<f64>> {
         let mut frames = vec![Isometry3::identity(); self.dof() + 1];
         for (l, node) in self.links.iter().enumerate() {
-            if let Motion::Revolute {
-                q: QSource::Chain(i),
-                ..
-            }
-            | Motion::Prismatic {
-                q: QSource::Chain(i),
-                ..
-            } = node.motion
-            {
+            if let Some((i, _)) = node.motion.chain_joint() {
                 frames[i + 1] = link_poses[l];
             }
         }
@@ -1037,15 +1023,7 @@ impl RobotModel {
     pub fn joint_axes(&self) -> Vec<Unit<Vector3<f64>>> {
         let mut axes = vec![Vector3::z_axis(); self.dof()];
         for node in &self.links {
-            if let Motion::Revolute {
-                axis,
-                q: QSource::Chain(i),
-            }
-            | Motion::Prismatic {
-                axis,
-                q: QSource::Chain(i),
-            } = node.motion
-            {
+            if let Some((i, axis)) = node.motion.chain_joint() {
                 axes[i] = axis;
             }
         }

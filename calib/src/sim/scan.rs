@@ -163,9 +163,6 @@ pub enum SimError {
     Setting(String),
 }
 
-/// Mixed into a scan's seed for the draw of its arm's housings.
-const HOUSING_SEED: u64 = 0x686f_7573_696e_6773;
-
 /// Renders one scan.
 pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     req.noise.validate().map_err(SimError::Setting)?;
@@ -176,7 +173,8 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     // Drawn even when unused, so the rest of the scan's draws do not depend on `controller_dh`.
     let errors = req.kinematic_error.sample(model, &mut rng);
     // The housings' own stream: the rest of the scan is drawn as without them.
-    let mut housing_rng = rand::rngs::StdRng::seed_from_u64(req.seed ^ HOUSING_SEED);
+    let mut housing_rng =
+        rand::rngs::StdRng::seed_from_u64(req.seed ^ handeye_hal::ur_dh::HOUSING_SEED);
     let (true_poses, errors, housings) = match &req.arm {
         Some(arm) => (
             model.link_poses_of_arm(&req.joints, arm)?,

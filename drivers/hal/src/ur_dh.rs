@@ -427,8 +427,9 @@ impl PhysicalArm {
     }
 }
 
-/// Mixed into a [`PhysicalArm::draw`] seed for its housings' draws.
-const HOUSING_SEED: u64 = 0x686f_7573_696e_6773;
+/// Mixed into a seed for its housings' draws ([`PhysicalArm::draw`], the scan simulator's
+/// arms without a DH set), so a seed's other draws stay what they were without housings.
+pub const HOUSING_SEED: u64 = 0x686f_7573_696e_6773;
 
 /// A directed line: a joint axis (metres; unit direction, the sense the joint turns about).
 #[derive(Debug, Clone, Copy, PartialEq)]
