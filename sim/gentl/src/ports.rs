@@ -81,9 +81,9 @@ pub unsafe extern "C" fn GCWritePort(
 #[repr(C)]
 #[derive(Debug)]
 pub struct PortRegisterStackEntry {
-    address: u64,
-    buffer: *mut c_void,
-    size: usize,
+    pub(crate) address: u64,
+    pub(crate) buffer: *mut c_void,
+    pub(crate) size: usize,
 }
 
 /// # Safety
@@ -94,20 +94,12 @@ pub unsafe extern "C" fn GCReadPortStacked(
     entries: *mut PortRegisterStackEntry,
     n: *mut usize,
 ) -> GcError {
-    if entries.is_null() || n.is_null() {
-        return call(|_| Err(Fail::new(err::INVALID_PARAMETER, "NULL argument")));
+    // SAFETY: the caller's entries; each entry's buffer is writable for its size.
+    unsafe {
+        stacked(port, entries, n, |port, e, size| {
+            GCReadPort(port, e.address, e.buffer, size)
+        })
     }
-    // SAFETY: the caller's `*n` entries.
-    let list = unsafe { std::slice::from_raw_parts_mut(entries, *n) };
-    for e in list {
-        let mut size = e.size;
-        // SAFETY: the entry's buffer of `size` bytes.
-        let code = unsafe { GCReadPort(port, e.address, e.buffer, &mut size) };
-        if code != err::SUCCESS {
-            return code;
-        }
-    }
-    err::SUCCESS
 }
 
 /// # Safety
@@ -118,6 +110,24 @@ pub unsafe extern "C" fn GCWritePortStacked(
     entries: *mut PortRegisterStackEntry,
     n: *mut usize,
 ) -> GcError {
+    // SAFETY: the caller's entries; each entry's buffer is readable for its size.
+    unsafe {
+        stacked(port, entries, n, |port, e, size| {
+            GCWritePort(port, e.address, e.buffer, size)
+        })
+    }
+}
+
+/// `access` on each of the `*n` `entries` in order, stopping at the first error.
+///
+/// # Safety
+/// `entries` null or holding `*n` entries; `access` is sound for each entry's buffer.
+unsafe fn stacked(
+    port: *mut c_void,
+    entries: *mut PortRegisterStackEntry,
+    n: *mut usize,
+    access: impl Fn(*mut c_void, &PortRegisterStackEntry, *mut usize) -> GcError,
+) -> GcError {
     if entries.is_null() || n.is_null() {
         return call(|_| Err(Fail::new(err::INVALID_PARAMETER, "NULL argument")));
     }
@@ -125,8 +135,7 @@ pub unsafe extern "C" fn GCWritePortStacked(
     let list = unsafe { std::slice::from_raw_parts_mut(entries, *n) };
     for e in list {
         let mut size = e.size;
-        // SAFETY: the entry's buffer of `size` bytes.
-        let code = unsafe { GCWritePort(port, e.address, e.buffer, &mut size) };
+        let code = access(port, e, &mut size);
         if code != err::SUCCESS {
             return code;
         }

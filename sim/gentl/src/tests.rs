@@ -86,6 +86,27 @@ fn a_consumer_session_from_init_to_close() {
     let mut size = len;
     ok(unsafe { GCReadPort(port, addr, xml.as_mut_ptr().cast(), &mut size) });
     assert!(String::from_utf8_lossy(&xml).contains("<RegisterDescription"));
+    // Stacked reads are the single reads, entry by entry; a null list is refused.
+    let (mut head, mut tail) = ([0u8; 16], [0u8; 16]);
+    let mut entries = [
+        crate::ports::PortRegisterStackEntry {
+            address: addr,
+            buffer: head.as_mut_ptr().cast(),
+            size: 16,
+        },
+        crate::ports::PortRegisterStackEntry {
+            address: addr + 16,
+            buffer: tail.as_mut_ptr().cast(),
+            size: 16,
+        },
+    ];
+    let mut n = entries.len();
+    ok(unsafe { GCReadPortStacked(port, entries.as_mut_ptr(), &mut n) });
+    assert_eq!([&head[..], &tail[..]].concat(), xml[..32]);
+    assert_eq!(
+        unsafe { GCReadPortStacked(port, std::ptr::null_mut(), &mut n) },
+        err::INVALID_PARAMETER
+    );
     // The system module's port has no registers.
     let mut word = [0u8; 4];
     let mut size = 4;
