@@ -44,6 +44,10 @@ pub struct BenchConfig {
     pub views: usize,
     /// Scans per view (new sensor noise each).
     pub scans_per_view: usize,
+    /// Views per calibration run: 1, every scan is calibrated alone (each view a new arm);
+    /// `n > 1`, consecutive views are grouped `n` at a time into the runs of one arm, and a
+    /// trial calibrates from scan `s` of each view of the run together.
+    pub views_per_run: usize,
     /// The camera.
     pub intrinsics: Intrinsics,
     /// Simulator knobs (realistic defaults).
@@ -172,6 +176,7 @@ impl Default for BenchConfig {
         Self {
             views: 30,
             scans_per_view: 3,
+            views_per_run: 1,
             intrinsics: Intrinsics::compact_1280x960(),
             settings: SimSettings::default(),
             register: RegisterOptions::default(),
@@ -395,10 +400,19 @@ pub fn run_robot(
 ) -> Result<RobotSummary, PlanError> {
     let plan = plan_trials(model, cfg)?;
     let mut trials = Vec::new();
-    for (v, (q, seeds)) in plan.views.iter().zip(&plan.scan_seeds).enumerate() {
-        for (s, &seed) in seeds.iter().enumerate() {
-            let arm = cfg.true_arm(model, seeds[0]);
-            let t = run_trial(model, plan.mount, q, arm, cfg, seed, v, s);
+    let per_run = cfg.views_per_run.max(1);
+    for (run, seeds) in plan.scan_seeds.chunks(per_run).enumerate() {
+        let first = run * per_run;
+        // One arm per run: drawn from its first view's first scan (with one view per run,
+        // each view's arm as always).
+        let arm = cfg.true_arm(model, seeds[0][0]);
+        for s in 0..cfg.scans_per_view {
+            let views: Vec<(&[f64], u64)> = seeds
+                .iter()
+                .enumerate()
+                .map(|(k, view_seeds)| (plan.views[first + k].as_slice(), view_seeds[s]))
+                .collect();
+            let t = run_views_trial(model, plan.mount, &views, arm, cfg, first, s);
             progress(&t);
             trials.push(t);
         }
@@ -565,6 +579,21 @@ pub fn run_trial(
     view: usize,
     scan_index: usize,
 ) -> Trial {
+    run_views_trial(model, mount, &[(joints, seed)], arm, cfg, view, scan_index)
+}
+
+/// [`run_trial`] of a calibration run: one scan of each view (`(joints, seed)`) of the same
+/// arm, calibrated together; the trial is numbered by its first view. Timings are the sums
+/// over the scans, the uncertainty the fused result's.
+pub fn run_views_trial(
+    model: &RobotModel,
+    mount: Isometry3<f64>,
+    views: &[(&[f64], u64)],
+    arm: Option<PhysicalArm>,
+    cfg: &BenchConfig,
+    view: usize,
+    scan_index: usize,
+) -> Trial {
     let mut trial = Trial {
         view,
         scan: scan_index,
@@ -587,35 +616,37 @@ pub fn run_trial(
         quality: None,
     };
     let t0 = Instant::now();
-    let mut req = cfg.scan_request(model, joints, mount, seed);
-    if let Some(arm) = arm {
-        req = req.with_arm(arm);
-    }
-    let scan = match simulate_scan(&req) {
-        Ok(s) => s,
-        Err(e) => {
-            trial.reasons.push(format!("simulation failed: {e}"));
-            return trial;
+    let mut frames = Vec::with_capacity(views.len());
+    let mut controller_dh = None;
+    for (k, &(joints, seed)) in views.iter().enumerate() {
+        let mut req = cfg.scan_request(model, joints, mount, seed);
+        if let Some(arm) = arm {
+            req = req.with_arm(arm);
         }
-    };
+        let scan = match simulate_scan(&req) {
+            Ok(s) => s,
+            Err(e) => {
+                trial.reasons.push(format!("simulation failed: {e}"));
+                return trial;
+            }
+        };
+        controller_dh = scan.truth.controller_dh;
+        frames.push(Frame {
+            view: k,
+            cloud: scan.cloud,
+            joints: joints.to_vec(),
+            model_from_flange: Some(scan.truth.model_from_flange_reported),
+            source: format!("view {} scan {scan_index}", view + k),
+        });
+    }
     trial.simulate_ms = elapsed_ms(t0);
-    let frame = Frame {
-        view: 0,
-        cloud: scan.cloud,
-        joints: joints.to_vec(),
-        model_from_flange: Some(scan.truth.model_from_flange_reported),
-        source: format!("view {view} scan {scan_index}"),
-    };
     let opts = PipelineOptions {
         register: cfg.register.clone(),
         gate: cfg.gate,
-        controller_dh: scan
-            .truth
-            .controller_dh
-            .filter(|_| trial.calibrated_kinematics),
+        controller_dh: controller_dh.filter(|_| trial.calibrated_kinematics),
         ..PipelineOptions::new(cfg.mount)
     };
-    let calibration = match calibrate_frames(model, std::slice::from_ref(&frame), &opts) {
+    let calibration = match calibrate_frames(model, &frames, &opts) {
         Ok(c) => c,
         Err(e) => {
             trial.reasons.push(e.to_string());
@@ -623,15 +654,15 @@ pub fn run_trial(
         }
     };
     let reg = &calibration.registrations[0];
-    let tm = reg.timings_ms;
     trial.quality = Some(reg.quality);
-    (
-        trial.preprocess_ms,
-        trial.coarse_ms,
-        trial.fine_ms,
-        trial.verify_ms,
-        trial.register_ms,
-    ) = (tm.preprocess, tm.coarse, tm.fine, tm.verify, tm.total);
+    for r in &calibration.registrations {
+        let tm = r.timings_ms;
+        trial.preprocess_ms += tm.preprocess;
+        trial.coarse_ms += tm.coarse;
+        trial.fine_ms += tm.fine;
+        trial.verify_ms += tm.verify;
+        trial.register_ms += tm.total;
+    }
     trial.solve_ms = calibration.report.timings_ms.solve;
     let estimate = match cfg.mount {
         Mount::EyeInHand => calibration.solution.estimate,
@@ -640,7 +671,13 @@ pub fn run_trial(
         Mount::EyeToHand => calibration.base_from_camera,
     };
     let err = mount.inverse() * estimate;
-    let (sigma_mm, base_m) = reg.uncertainty.position_mm(cfg.mount);
+    // One scan: its registration's σ; a run: the fused result's.
+    let uncertainty = if views.len() == 1 {
+        reg.uncertainty
+    } else {
+        calibration.report.uncertainty
+    };
+    let (sigma_mm, base_m) = uncertainty.position_mm(cfg.mount);
     // Eye-to-hand: the true robot base in the camera frame, where the σ is measured.
     let at = match base_m {
         Some(_) => Point3::from(mount.inverse().translation.vector),
@@ -653,7 +690,7 @@ pub fn run_trial(
     trial.workspace_distance_m = base_m;
     trial.rotation_error_deg = err.rotation.angle().to_degrees();
     trial.uncertainty_translation_mm = sigma_mm;
-    trial.uncertainty_rotation_deg = reg.uncertainty.rotation_deg;
+    trial.uncertainty_rotation_deg = uncertainty.rotation_deg;
     trial.outcome = calibration.verdict.outcome;
     trial.reasons = calibration.verdict.reasons;
     trial

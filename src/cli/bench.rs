@@ -28,6 +28,11 @@ pub(crate) struct Args {
     /// Scans per view.
     #[arg(long, default_value_t = 3)]
     scans_per_view: usize,
+    /// Views per calibration run: 1, every scan is calibrated alone (each UR view a new
+    /// arm); N > 1, consecutive views are grouped N at a time into runs of one arm, each trial
+    /// calibrating from one scan of every view of its run together (`[views] count` of a cell).
+    #[arg(long, default_value_t = 1)]
+    views_per_run: usize,
     /// Camera preset: `compact` (1280×960) or `zivid2-m60` (2448×2048), structured light;
     /// `realsense-d435` (1280×720), active stereo; `helios2` (640×480), time of flight (the
     /// preset's sensor noise unless `--settings` gives one).
@@ -103,6 +108,12 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         "--scans-per-view = {}: expected 1 to {MAX_SCANS_PER_VIEW}",
         args.scans_per_view
     );
+    anyhow::ensure!(
+        (1..=args.views).contains(&args.views_per_run),
+        "--views-per-run = {}: expected 1 to --views ({})",
+        args.views_per_run,
+        args.views
+    );
     let intrinsics = Intrinsics::preset_or_error(&args.camera).map_err(anyhow::Error::msg)?;
     let mut settings = match &args.settings {
         Some(p) => SimSettings::load(p)?,
@@ -134,6 +145,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         let cfg = BenchConfig {
             views: args.views,
             scans_per_view: args.scans_per_view,
+            views_per_run: args.views_per_run,
             intrinsics,
             settings,
             seed: args.seed.wrapping_add(i as u64 * 7919),
@@ -158,6 +170,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             "camera": args.camera,
             "views": args.views,
             "scans_per_view": args.scans_per_view,
+            "views_per_run": args.views_per_run,
             "seed": args.seed,
             "kinematics": args.kinematics,
             "mount": args.mount,
@@ -182,8 +195,8 @@ fn progress_mark(t: &Trial) -> char {
 
 fn print_table(summaries: &[RobotSummary], args: &Args, arm: &handeye::model::KinematicError) {
     println!(
-        "\nhandeye bench: {} views × {} scans per robot, {}, camera {}, no prior, realistic noise + CAD mismatch, factory-calibrated arms with housings {:.2} mm / {:.2} mrad off their frames, kinematics {}",
-        args.views, args.scans_per_view, match args.mount {
+        "\nhandeye bench: {} views × {} scans per robot{}, {}, camera {}, no prior, realistic noise + CAD mismatch, factory-calibrated arms with housings {:.2} mm / {:.2} mrad off their frames, kinematics {}",
+        args.views, args.scans_per_view, if args.views_per_run > 1 { format!(", {} views per run (a trial: one run)", args.views_per_run) } else { String::new() }, match args.mount {
             Mount::EyeInHand => "eye-in-hand (flange_from_camera)",
             Mount::EyeToHand => "eye-to-hand (base_from_camera)",
         }, args.camera, arm.housing_translation_sigma_m * 1e3, arm.housing_rotation_sigma_rad * 1e3, match args.kinematics {

@@ -19,6 +19,7 @@ use nalgebra::{
 use rayon::prelude::*;
 
 use super::coarse::Oriented;
+use super::links::LinkParam;
 use super::surface::ModelSurface;
 
 /// Parameters of the fit before the links': the pose (ρ, φ), the depth scale κ and the range
@@ -610,7 +611,20 @@ pub(crate) fn icp(
 #[derive(Debug, Clone)]
 pub(crate) struct LinkPrior {
     pub(crate) a: Vec<Matrix6xX<f64>>,
+    /// What each column of `a` is.
+    pub(crate) params: Vec<LinkParam>,
     pub(crate) residual_var: f64,
+}
+
+/// The link parameters a fit estimated, with their joint covariance with the pose.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct LinkEstimate {
+    /// The parameters `z` (prior 1σ units), in the order of [`LinkPrior::params`].
+    pub(crate) z: DVector<f64>,
+    /// The cluster-robust covariance of the pose (model-frame left perturbation, as
+    /// [`IcpResult::cov6`]) and `z`, `6 + z.len()` square: the depth parameters marginalised
+    /// out, the links' prior in it.
+    pub(crate) covariance: DMatrix<f64>,
 }
 
 impl LinkPrior {
@@ -618,6 +632,7 @@ impl LinkPrior {
     pub(crate) fn none() -> Self {
         Self {
             a: Vec::new(),
+            params: Vec::new(),
             residual_var: 0.0,
         }
     }
@@ -682,8 +697,8 @@ impl LinkPrior {
 }
 
 /// [`icp`] with the fitted links' displacements estimated alongside (see [`LinkPrior`]);
-/// returns the fit and the link parameters `z`. The covariance is the pose block of the joint
-/// sandwich: what the links' prior leaves undetermined is in it.
+/// returns the fit and the link parameters with their covariance. The fit's covariance is the
+/// pose block of the joint sandwich: what the links' prior leaves undetermined is in it.
 pub(crate) fn icp_with_links(
     pts: &[Oriented],
     surface: &ModelSurface,
@@ -691,7 +706,7 @@ pub(crate) fn icp_with_links(
     depth0: DepthCorrection,
     stages: &[Stage],
     prior: &LinkPrior,
-) -> Option<(IcpResult, DVector<f64>)> {
+) -> Option<(IcpResult, LinkEstimate)> {
     let p = prior.params();
     let with_links = p > 0;
     let mut t = *init;
@@ -884,6 +899,16 @@ pub(crate) fn icp_with_links(
     let small_sample = patches.len() as f64 / (patches.len() as f64 - dof).max(1.0);
     let cov = &h_inv * meat_used * &h_inv * small_sample;
     let cov6: Matrix6<f64> = cov.fixed_view::<6, 6>(0, 0).into_owned();
+    // The pose and the link parameters (the depth parameters dropped: marginalised).
+    let pose_and_links: Vec<usize> = used
+        .iter()
+        .enumerate()
+        .filter(|&(_, &k)| !(6..NP).contains(&k))
+        .map(|(i, _)| i)
+        .collect();
+    let links_cov = cov
+        .select_rows(&pose_and_links)
+        .select_columns(&pose_and_links);
     // An error of a depth parameter the fit does not estimate shifts the gradient by its
     // column of H: the pose follows by −H⁻¹ of that column over the parameters in use.
     let pose_shift = |col: nalgebra::DVectorView<'_, f64>| {
@@ -938,6 +963,9 @@ pub(crate) fn icp_with_links(
                 0.0
             },
         },
-        z,
+        LinkEstimate {
+            z,
+            covariance: links_cov,
+        },
     ))
 }

@@ -4,7 +4,7 @@
 use nalgebra::Isometry3;
 
 use super::register::Registration;
-use super::solve::{distance, HandEyeSolution, Residual};
+use super::solve::{distance, HandEyeSolution, Residual, OUTLIER_SIGMAS};
 use super::Outcome;
 
 /// Thresholds of [`gate`]; units are in the names. `Default` is conservative.
@@ -239,20 +239,50 @@ pub fn gate(
         .workspace_point
         .map(|p| at_the_robot_base(p.coords.norm()))
         .unwrap_or_default();
+    // How far a used frame or view may be from the fused result. Views fitted together
+    // (`solution.uncertainty`): each view's own estimate carries its links' housings, which
+    // the joint fit separates from the mount, so it may be off by its σ — up to
+    // `OUTLIER_SIGMAS` of it, as the fusion keeps it.
+    let sigma_of = |frames: &mut dyn Iterator<Item = usize>| {
+        let s: Vec<(f64, f64)> = frames
+            .filter_map(|i| registrations.get(i))
+            .map(|r| {
+                (
+                    r.uncertainty.position_mm(solution.mount).0,
+                    r.uncertainty.rotation_deg,
+                )
+            })
+            .collect();
+        let n = s.len().max(1) as f64;
+        (
+            (s.iter().map(|x| x.0 * x.0).sum::<f64>() / n).sqrt(),
+            (s.iter().map(|x| x.1 * x.1).sum::<f64>() / n).sqrt(),
+        )
+    };
+    let limit = |(t, r): (f64, f64)| match solution.uncertainty {
+        Some(_) => (
+            th.max_residual_translation_mm.max(OUTLIER_SIGMAS * t),
+            th.max_residual_rotation_deg.max(OUTLIER_SIGMAS * r),
+        ),
+        None => (th.max_residual_translation_mm, th.max_residual_rotation_deg),
+    };
     for f in solution.frames.iter().filter(|f| f.used) {
-        if f.position_mm() > th.max_residual_translation_mm
-            || f.rotation_deg > th.max_residual_rotation_deg
-        {
+        let (max_t, max_r) = limit(sigma_of(&mut std::iter::once(f.index)));
+        if f.position_mm() > max_t || f.rotation_deg > max_r {
             reasons.push(format!(
-                "frame {}: disagrees with the fused result by {:.2} mm{at} / {:.3}° (max {:.2} mm / {:.3}°)",
-                f.index, f.position_mm(), f.rotation_deg, th.max_residual_translation_mm, th.max_residual_rotation_deg
+                "frame {}: disagrees with the fused result by {:.2} mm{at} / {:.3}° (max {max_t:.2} mm / {max_r:.3}°)",
+                f.index, f.position_mm(), f.rotation_deg
             ));
         }
     }
     for v in solution.views.iter().filter(|v| v.used) {
-        if v.position_mm() > th.max_residual_translation_mm
-            || v.rotation_deg > th.max_residual_rotation_deg
-        {
+        let mut members = solution
+            .frames
+            .iter()
+            .filter(|f| f.used && f.view == v.view)
+            .map(|f| f.index);
+        let (max_t, max_r) = limit(sigma_of(&mut members));
+        if v.position_mm() > max_t || v.rotation_deg > max_r {
             reasons.push(format!(
                 "view {}: disagrees with the fused result by {:.2} mm{at} / {:.3}°",
                 v.index,

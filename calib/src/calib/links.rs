@@ -30,21 +30,45 @@
 //! frame, a point `x` moves by `t + ω × x`) by `(t, ω) = A_d · z`.
 
 use handeye_hal::ur_dh::PARALLEL_SINE;
-use nalgebra::{Matrix6xX, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix6xX, Point3, Vector3};
 
 use super::surface::PosedModel;
 use crate::model::KinematicError;
 
-/// `A_d` for the chain depths `0..=fit_depth` (entry `d`; depth 0 is the base), one column per
-/// kinematic parameter of the links' displacements, scaled by its prior 1σ; columns of
-/// parameters with σ = 0 are left out, so an arm known exactly has none.
+/// Which of the arm's parameters a column of [`LinkModel::a`] is. Each is a constant of the
+/// arm, expressed in frames that move with it (a joint's axis or its parent link, a link's own
+/// frame), so the same parameter has the same value in every view of one arm: what lets the
+/// views of a run be fitted together ([`super::fuse`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub(crate) enum LinkParam {
+    /// Error `index` of chain joint `depth − 1`, which moves the link of chain depth `depth`
+    /// (and, posed by the nominal model, every link beyond it).
+    Joint { depth: usize, index: usize },
+    /// The housing of chain depth `depth` off its link's frame: a shift along (`index` even)
+    /// or a turn about (odd) the link frame's axis `index / 2`.
+    Housing { depth: usize, index: usize },
+}
+
+/// The links' displacements as linear functions of the arm's parameters.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct LinkModel {
+    /// `A_d` for the chain depths `0..=fit_depth` (entry `d`; depth 0 is the base), one column
+    /// per parameter, scaled by its prior 1σ.
+    pub(crate) a: Vec<Matrix6xX<f64>>,
+    /// What each column is.
+    pub(crate) params: Vec<LinkParam>,
+}
+
+/// The links' error model for the chain depths `0..=fit_depth`, one column per kinematic
+/// parameter of the links' displacements, scaled by its prior 1σ; columns of parameters with
+/// σ = 0 are left out, so an arm known exactly has none.
 pub(crate) fn link_error_model(
     model: &PosedModel,
     fit_depth: usize,
     error: &KinematicError,
-) -> Vec<Matrix6xX<f64>> {
-    // (6-vector per depth, σ) per parameter.
-    let mut columns: Vec<(Vec<[f64; 6]>, f64)> = Vec::new();
+) -> LinkModel {
+    // (6-vector per depth, σ, what it is) per parameter.
+    let mut columns: Vec<(Vec<[f64; 6]>, f64, LinkParam)> = Vec::new();
     let twist = |t: Vector3<f64>, w: Vector3<f64>| [t.x, t.y, t.z, w.x, w.y, w.z];
     // A turn about the line through `p` along `u`: a point x moves by (p × u) + u × x.
     let turn = |p: &Point3<f64>, u: Vector3<f64>| twist(p.coords.cross(&u), u);
@@ -79,10 +103,12 @@ pub(crate) fn link_error_model(
                     }
                     _ => error.axis_misalignment_sigma_rad,
                 };
-                columns.push((at(k, turn(&p, u), false), turn_sigma));
+                let param = |index| LinkParam::Joint { depth: k, index };
+                columns.push((at(k, turn(&p, u), false), turn_sigma, param(0)));
                 columns.push((
                     at(k, twist(u, Vector3::zeros()), false),
                     error.link_length_sigma_m,
+                    param(1),
                 ));
             }
         }
@@ -112,45 +138,65 @@ pub(crate) fn link_error_model(
                         (along(u2), error.link_length_sigma_m),
                     ]);
                 }
-                for (v, s) in params {
+                for (index, (v, s)) in params.into_iter().enumerate() {
                     // Joint k moves every link beyond it: depths k + 1 and on.
-                    columns.push((at(k + 1, v, true), s));
+                    let param = LinkParam::Joint {
+                        depth: k + 1,
+                        index,
+                    };
+                    columns.push((at(k + 1, v, true), s, param));
                 }
             }
         }
     }
     // Each fitted link's housing off its frame, the base's included: a shift along and a turn
-    // about each axis through the link frame's origin (the root's for the base, the joint's
-    // that moves it for the others), as the simulators draw it
+    // about each axis of the link's own frame through its origin (the root's for the base, the
+    // link's that its joint moves for the others), as the simulators draw it
     // (`RobotModel::with_housings`).
     for d in 0..=depths {
-        let origin = match d.checked_sub(1).and_then(|k| model.joints.get(k)) {
-            Some(joint) => Point3::from(joint.model_from_joint.translation.vector),
-            None => Point3::origin(),
-        };
-        for e in [Vector3::x(), Vector3::y(), Vector3::z()] {
+        // Without the links' frames (a model assembled by hand), the joint's origin and the
+        // model's axes.
+        let frame = model.chain_link_frames.get(d).copied().unwrap_or_else(|| {
+            match d.checked_sub(1).and_then(|k| model.joints.get(k)) {
+                Some(joint) => Isometry3::from(joint.model_from_joint.translation),
+                None => Isometry3::identity(),
+            }
+        });
+        let origin = Point3::from(frame.translation.vector);
+        for (axis, e) in [Vector3::x(), Vector3::y(), Vector3::z()]
+            .into_iter()
+            .enumerate()
+        {
+            let e = frame.rotation * e;
+            let param = |index| LinkParam::Housing { depth: d, index };
             columns.push((
                 at(d, twist(e, Vector3::zeros()), false),
                 error.housing_translation_sigma_m,
+                param(2 * axis),
             ));
             columns.push((
                 at(d, turn(&origin, e), false),
                 error.housing_rotation_sigma_rad,
+                param(2 * axis + 1),
             ));
         }
     }
-    columns.retain(|(_, s)| *s > 0.0);
-    (0..=depths)
+    columns.retain(|(_, s, _)| *s > 0.0);
+    let a = (0..=depths)
         .map(|d| {
             let mut a = Matrix6xX::zeros(columns.len());
-            for (c, (per_depth, s)) in columns.iter().enumerate() {
+            for (c, (per_depth, s, _)) in columns.iter().enumerate() {
                 for r in 0..6 {
                     a[(r, c)] = per_depth[d][r] * s;
                 }
             }
             a
         })
-        .collect()
+        .collect();
+    LinkModel {
+        a,
+        params: columns.into_iter().map(|(_, _, p)| p).collect(),
+    }
 }
 
 /// The prior covariance of the links' displacements, `A · Aᵀ` of every fitted depth stacked
@@ -194,7 +240,7 @@ mod tests {
             let dh = arm.controller_dh();
             let posed = posed_model_with_controller_kinematics(&model, &q, &dh).expect("posed");
             if seed == 0 {
-                let a = link_error_model(&posed, 2, &error.without_housings());
+                let a = link_error_model(&posed, 2, &error.without_housings()).a;
                 assert_eq!(a.len(), 3, "the base and two moving links");
                 assert_eq!(a[0].ncols(), 4, "two per fitted moving link");
                 assert_eq!(a[0].norm(), 0.0, "the base is not on a moving axis");
@@ -250,7 +296,8 @@ mod tests {
     fn an_arm_known_exactly_has_no_link_parameters() {
         let posed = toy_robot(&[0.3, -0.8, 0.5]);
         let a = link_error_model(&posed, 2, &KinematicError::none());
-        assert!(a.iter().all(|m| m.ncols() == 0));
+        assert!(a.params.is_empty());
+        assert!(a.a.iter().all(|m| m.ncols() == 0));
     }
 
     #[test]
@@ -259,7 +306,7 @@ mod tests {
         // KinematicError::joint_covariance (joint frame) carried to the model frame.
         let posed = toy_robot(&[0.4, 0.0, 0.0]);
         let error = KinematicError::default().without_housings();
-        let a = link_error_model(&posed, 2, &error);
+        let a = link_error_model(&posed, 2, &error).a;
         let prior = prior_covariance(&a);
         assert_eq!(
             prior.view((0, 0), (6, 6)).norm(),
@@ -310,7 +357,7 @@ mod tests {
             ..KinematicError::none()
         };
         let posed = crate::calib::posed_model(&model, &q).expect("posed");
-        let prior = prior_covariance(&link_error_model(&posed, 2, &error));
+        let prior = prior_covariance(&link_error_model(&posed, 2, &error).a);
         assert_eq!(prior.nrows(), 18, "base, shoulder, upper arm");
         let poses = model.link_poses(&q).expect("poses");
         let links = ["base_link_inertia", "shoulder_link", "upper_arm_link"]

@@ -15,6 +15,7 @@
 mod coarse;
 pub mod export;
 mod fine;
+mod fuse;
 pub mod gate;
 mod kdtree;
 mod links;
@@ -43,6 +44,7 @@ mod probe;
 #[cfg(test)]
 pub(crate) mod testutil;
 
+pub use fuse::LinkFit;
 pub use gate::{gate, GateThresholds, Verdict};
 pub use register::{
     posed_model, posed_model_with_controller_kinematics, posed_model_with_kinematics, register,

@@ -9,6 +9,7 @@ use handeye_hal::ur_dh::DhParams;
 use handeye_hal::PointCloud;
 use nalgebra::Isometry3;
 
+use crate::calib::fuse::fuse_solution;
 use crate::calib::{
     gate, posed_model, posed_model_with_controller_kinematics, register_posed, solve, CalibError,
     CalibrationReport, FrameInput, GateThresholds, HandEyeSolution, Mount, RegisterOptions,
@@ -176,7 +177,18 @@ pub fn calibrate_frames(
         registrations.push(reg);
     }
     let t_solve = Instant::now();
-    let solution = solve(opts.mount, &inputs, &opts.solve)?;
+    let mut solution = solve(opts.mount, &inputs, &opts.solve)?;
+    // The views of one arm fitted together: what one view cannot tell apart from the mount
+    // (its links' housings), several views can.
+    if let Some((estimate, uncertainty)) = fuse_solution(
+        &solution,
+        &inputs,
+        &registrations,
+        opts.register.model_accuracy,
+    ) {
+        solution.re_estimate(estimate, &inputs)?;
+        solution.uncertainty = Some(uncertainty);
+    }
     let verdict = gate(
         &registrations,
         &solution,

@@ -171,10 +171,11 @@ impl CalibrationReport {
             views_used: views_used.len(),
             views: solution.views.len(),
         };
-        // Fused uncertainty: mean registration variance over the used views (views are
-        // independent, frames of one view are not), plus the spread of the views; the part
-        // the camera's own depth errors give (`Registration::camera_error`) is shared by every
-        // view and is not divided.
+        // Fused uncertainty: the views' joint fit's when they were fitted together; else the
+        // mean registration variance over the used views (views are independent, frames of
+        // one view are not), plus the spread of the views; the part the camera's own depth
+        // errors give (`Registration::camera_error`) is shared by every view and is not
+        // divided.
         let n = views_used.len().max(1) as f64;
         let used_regs: Vec<&Registration> = registrations
             .iter()
@@ -209,13 +210,13 @@ impl CalibrationReport {
                 distance_m: p.coords.norm(),
             })
         });
-        let uncertainty = Uncertainty {
+        let uncertainty = solution.uncertainty.unwrap_or(Uncertainty {
             translation_mm: mean_var(&|u| Some(u.translation_mm))
                 .map_or(0.0, |var| fused(var, spread(&|v| v.translation_mm))),
             rotation_deg: mean_var(&|u| Some(u.rotation_deg))
                 .map_or(0.0, |var| fused(var, spread(&|v| v.rotation_deg))),
             workspace,
-        };
+        });
         let mut timings = ReportTimings {
             solve: solve_ms,
             total: total_ms,

@@ -18,7 +18,7 @@
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
-use super::CalibError;
+use super::{CalibError, Uncertainty};
 
 /// Where the camera is mounted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize)]
@@ -133,6 +133,9 @@ pub struct HandEyeSolution {
     pub frames: Vec<Residual>,
     /// Per-view residuals against `estimate` (ascending view id).
     pub views: Vec<Residual>,
+    /// The estimate's 1σ when the views were fitted together (eye-in-hand, two views or more
+    /// whose links were fitted; see the pipeline); `None`: the report combines the frames'.
+    pub uncertainty: Option<Uncertainty>,
 }
 
 impl HandEyeSolution {
@@ -163,23 +166,7 @@ pub fn solve(
     if frames.is_empty() {
         return Err(CalibError::NoFrames);
     }
-    let per_frame: Vec<Isometry3<f64>> = frames
-        .iter()
-        .enumerate()
-        .map(|(i, f)| {
-            let model_from_camera = f.camera_from_model.inverse();
-            match mount {
-                Mount::EyeToHand => Ok(model_from_camera),
-                Mount::EyeInHand => f
-                    .model_from_flange
-                    .map(|m| m.inverse() * model_from_camera)
-                    .ok_or(CalibError::BadFrame {
-                        frame: i,
-                        detail: "eye-in-hand needs the flange pose".into(),
-                    }),
-            }
-        })
-        .collect::<Result<_, _>>()?;
+    let per_frame = frame_estimates(mount, frames)?;
     let workspace_point = match mount {
         Mount::EyeInHand => None,
         Mount::EyeToHand => Some(median_point(
@@ -251,7 +238,68 @@ pub fn solve(
         workspace_point,
         frames: frames_out,
         views,
+        uncertainty: None,
     })
+}
+
+/// Each frame's estimate of the unknown.
+fn frame_estimates(mount: Mount, frames: &[FrameInput]) -> Result<Vec<Isometry3<f64>>, CalibError> {
+    frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let model_from_camera = f.camera_from_model.inverse();
+            match mount {
+                Mount::EyeToHand => Ok(model_from_camera),
+                Mount::EyeInHand => f
+                    .model_from_flange
+                    .map(|m| m.inverse() * model_from_camera)
+                    .ok_or(CalibError::BadFrame {
+                        frame: i,
+                        detail: "eye-in-hand needs the flange pose".into(),
+                    }),
+            }
+        })
+        .collect()
+}
+
+impl HandEyeSolution {
+    /// Replaces the estimate (by the views fitted together, [`super::fuse`]) and measures each
+    /// frame's and view's disagreement with it (a view's estimate: the mean of its used
+    /// frames); which frames and views were used stays.
+    pub(crate) fn re_estimate(
+        &mut self,
+        estimate: Isometry3<f64>,
+        frames: &[FrameInput],
+    ) -> Result<(), CalibError> {
+        let per_frame = frame_estimates(self.mount, frames)?;
+        let at = self.workspace_point;
+        let measure = |x: &Isometry3<f64>, r: &mut Residual| {
+            (r.translation_mm, r.rotation_deg) = distance(x, &estimate);
+            r.workspace_mm = at.map(|p| distance_at(x, &estimate, &p).0);
+        };
+        for (r, x) in self.frames.iter_mut().zip(&per_frame) {
+            measure(x, r);
+        }
+        for view in &mut self.views {
+            let members: Vec<usize> = (0..frames.len())
+                .filter(|&i| frames[i].view == view.view)
+                .collect();
+            let used: Vec<&Isometry3<f64>> = members
+                .iter()
+                .filter(|&&i| self.frames.get(i).is_some_and(|r| r.used))
+                .map(|&i| &per_frame[i])
+                .collect();
+            let mean_of = if used.is_empty() {
+                mean(members.iter().map(|&i| &per_frame[i]))
+            } else {
+                mean(used.into_iter())
+            };
+            measure(&mean_of, view);
+        }
+        self.estimate = estimate;
+        Ok(())
+    }
 }
 
 /// `(translation mm, rotation deg)` between two poses of the camera (`*_from_camera`), the

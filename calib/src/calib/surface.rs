@@ -41,6 +41,11 @@ pub struct PosedModel {
     /// registration estimates that. `None`: the links are posed by the nominal model, and
     /// per-joint origin errors at `joints` describe how they may be off.
     pub link_axes: Option<Vec<handeye_hal::ur_dh::Line>>,
+    /// `model_from_link` of each chain depth's link at the measured joints (entry 0 the root,
+    /// entry `d` the link chain joint `d − 1` moves, see
+    /// [`RobotModel::chain_link_frames`](crate::model::RobotModel::chain_link_frames)): the
+    /// frames a link's housing offset is fixed in, the same in every view of one arm.
+    pub chain_link_frames: Vec<Isometry3<f64>>,
 }
 
 /// A chain joint of the posed model.

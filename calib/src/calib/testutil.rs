@@ -145,6 +145,12 @@ pub(crate) fn toy_robot(q: &[f64]) -> PosedModel {
         ],
         model_from_flange: None,
         link_axes: None,
+        chain_link_frames: vec![
+            Isometry3::identity(),
+            model_from_shoulder,
+            model_from_upper,
+            model_from_fore,
+        ],
     }
 }
 
@@ -286,6 +292,7 @@ pub(crate) fn good_registration() -> Registration {
         depth_scale: Some(1.001),
         depth_offset_m: Some(0.001),
         timings_ms: StageTimings::default(),
+        link_fit: None,
     }
 }
 

@@ -988,6 +988,23 @@ impl RobotModel {
         frames
     }
 
+    /// The frame of each chain depth's link given every link's `model_from_link` (in
+    /// [`link_names`](Self::link_names) order): entry 0 the root's (identity), entry `d ≥ 1`
+    /// the link chain joint `d − 1` moves, after its motion. A housing's offset is fixed in
+    /// this frame ([`with_housings`](Self::with_housings)).
+    ///
+    /// # Panics
+    /// If `link_poses` has fewer entries than the model has links.
+    pub fn chain_link_frames(&self, link_poses: &[Isometry3<f64>]) -> Vec<Isometry3<f64>> {
+        let mut frames = vec![Isometry3::identity(); self.dof() + 1];
+        for (l, node) in self.links.iter().enumerate() {
+            if let Some((i, _)) = node.motion.chain_joint() {
+                frames[i + 1] = link_poses[l];
+            }
+        }
+        frames
+    }
+
     /// The poses of every link's housing (what a camera sees) given every link's
     /// `model_from_link` (in [`link_names`](Self::link_names) order) and `housings[d]`, the
     /// offset of chain depth `d`'s housing in its link's own frame (depth 0: the root's; depth
@@ -1001,12 +1018,7 @@ impl RobotModel {
         link_poses: &[Isometry3<f64>],
         housings: &[Isometry3<f64>],
     ) -> Vec<Isometry3<f64>> {
-        let mut frames = vec![Isometry3::identity(); self.dof() + 1];
-        for (l, node) in self.links.iter().enumerate() {
-            if let Some((i, _)) = node.motion.chain_joint() {
-                frames[i + 1] = link_poses[l];
-            }
-        }
+        let frames = self.chain_link_frames(link_poses);
         let moves: Vec<Isometry3<f64>> = frames
             .iter()
             .zip(housings)

@@ -5,6 +5,7 @@ use nalgebra::{Isometry3, Matrix3, Matrix3x6, Matrix6, Vector3, Vector6};
 
 use super::{RegisterOptions, Uncertainty, WorkspaceSigma};
 use crate::calib::fine::IcpResult;
+use crate::calib::fuse::adjoint;
 
 /// The residual spread ([`IcpResult::residual_spread_m`]) of the scans the registration was
 /// tuned on and the uncertainty checked against: the simulator's structured-light camera leaves
@@ -27,7 +28,7 @@ const SMOOTH_ERROR_SHARE: f64 = 0.6;
 /// correspondences' extent, about their centroid, in any direction. Zero for scans as clean as
 /// the structured-light camera's. With [`RegisterOptions::smooth_error_beyond_pixel_noise`] the
 /// excess is over the scan's per-pixel noise when that is larger.
-fn smooth_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6<f64> {
+pub(super) fn smooth_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6<f64> {
     // The per-pixel noise is in the spread too; where it is not shared, the residuals' patch
     // sums already count it.
     let own = if opts.smooth_error_beyond_pixel_noise {
@@ -115,12 +116,7 @@ pub(super) fn uncertainty(
     opts: &RegisterOptions,
 ) -> (Matrix6<f64>, Uncertainty, Uncertainty, Vec<Vector6<f64>>) {
     let r: Matrix3<f64> = camera_from_model.rotation.to_rotation_matrix().into_inner();
-    let t = camera_from_model.translation.vector;
-    let mut ad = Matrix6::zeros();
-    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(0, 3)
-        .copy_from(&(t.cross_matrix() * r));
-    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    let ad = adjoint(camera_from_model);
     let (floor_m, floor_rad) = opts.model_accuracy;
     let floor = isotropic(floor_m, floor_rad);
     let camera = ad * fixed_depth_error(estimate, opts) * ad.transpose();

@@ -9,12 +9,13 @@ use super::contenders::Judged;
 use super::prepare::Prepared;
 use super::RegisterOptions;
 use crate::calib::fine::{icp_with_links, IcpResult, LinkPrior, Stage};
+use crate::calib::fuse::LinkFit;
 use crate::calib::links::link_error_model;
 use crate::calib::surface::PosedModel;
 use crate::calib::CalibError;
 
-/// The judged winner refitted with the links' kinematic error: its `camera_from_model` and
-/// fit. The contenders were judged on the fit that trusts the posed links, and a refinement
+/// The judged winner refitted with the links' kinematic error: its `camera_from_model`, fit
+/// and link parameters (`None` when the links are trusted as posed). The contenders were judged on the fit that trusts the posed links, and a refinement
 /// that wanders off is not trusted: an error rather than a covariance that leaves the links'
 /// error out.
 pub(super) fn refine_with_links(
@@ -22,16 +23,18 @@ pub(super) fn refine_with_links(
     model: &PosedModel,
     judged: &Judged,
     opts: &RegisterOptions,
-) -> Result<(Isometry3<f64>, IcpResult), CalibError> {
+) -> Result<(Isometry3<f64>, IcpResult, Option<LinkFit>), CalibError> {
     let (fine, camera_from_model) = (&judged.fine, judged.pose);
     // The scan's residual variance that weighs the links' prior is the even fit's effective
     // one (its sandwich over its information).
+    let links = link_error_model(model, p.surface.fit_depth, &opts.kinematic_error);
     let link_prior = LinkPrior {
-        a: link_error_model(model, p.surface.fit_depth, &opts.kinematic_error),
+        a: links.a,
+        params: links.params,
         residual_var: (fine.cov6 * fine.info6).trace() / 6.0,
     };
     if link_prior.params() == 0 {
-        return Ok((camera_from_model, fine.clone()));
+        return Ok((camera_from_model, fine.clone(), None));
     }
     let pts = p.pool.select(
         &p.range,
@@ -56,7 +59,7 @@ pub(super) fn refine_with_links(
         &[stage],
         &link_prior,
     ) {
-        Some((r, z))
+        Some((r, links))
             if crate::calib::within(
                 &r.model_from_camera.inverse(),
                 &camera_from_model,
@@ -64,8 +67,14 @@ pub(super) fn refine_with_links(
                 2.0 * p.k,
             ) =>
         {
-            tracing::debug!(z = ?z.as_slice(), "link parameters (prior 1σ units)");
-            Ok((r.model_from_camera.inverse(), r))
+            tracing::debug!(z = ?links.z.as_slice(), "link parameters (prior 1σ units)");
+            let fit = LinkFit {
+                params: link_prior.params,
+                z: links.z,
+                covariance: links.covariance,
+                model_from_camera: r.model_from_camera,
+            };
+            Ok((r.model_from_camera.inverse(), r, Some(fit)))
         }
         other => Err(CalibError::RobotNotFound {
             detail: format!(

@@ -38,6 +38,7 @@ use handeye_hal::PointCloud;
 use nalgebra::{Isometry3, Matrix6, Vector6};
 use serde::Serialize;
 
+use super::fuse::LinkFit;
 use super::solve::Mount;
 use super::surface::{PosedJoint, PosedModel};
 use super::verify::{evidence_per_depth, Evidence};
@@ -400,6 +401,9 @@ pub struct Registration {
     pub depth_offset_m: Option<f64>,
     /// Time per stage.
     pub timings_ms: StageTimings,
+    /// The fitted links' parameters and their joint covariance with the pose, for fitting the
+    /// views of one arm together (`None` when the links were trusted as posed).
+    pub link_fit: Option<LinkFit>,
 }
 
 /// Registers `scan` (camera frame) against `model` posed at `joints` (radians, URDF order),
@@ -545,6 +549,7 @@ fn assemble_posed_model(
         joints: chain,
         model_from_flange: flange,
         link_axes: dh.and_then(|dh| model.dh_axes(joints, dh).ok()),
+        chain_link_frames: model.chain_link_frames(poses),
     }
 }
 
@@ -552,7 +557,7 @@ mod candidates;
 mod contenders;
 #[cfg(test)]
 mod controller_kinematics_tests;
-mod covariance;
+pub(crate) mod covariance;
 #[cfg(test)]
 mod issue_3_tests;
 mod link_fit;
@@ -588,7 +593,8 @@ pub fn register_posed(
         }
         judged => judged?,
     };
-    let (camera_from_model, mut estimate) = link_fit::refine_with_links(&p, model, &judged, opts)?;
+    let (camera_from_model, mut estimate, links) =
+        link_fit::refine_with_links(&p, model, &judged, opts)?;
     estimate.pixel_noise_m = p.noise_m.unwrap_or(0.0);
     tracing::debug!(
         depth = ?estimate.depth,
@@ -600,6 +606,12 @@ pub fn register_posed(
     let t3 = Instant::now();
     let (covariance_6x6, uncertainty, camera_error, degenerate_directions) =
         covariance::uncertainty(&estimate, &judged.fine, &camera_from_model, opts);
+    // The pose's own share of a smooth depth error is this view's, as in its covariance.
+    let link_fit = links.map(|mut fit| {
+        let mut pose = fit.covariance.view_mut((0, 0), (6, 6));
+        pose += covariance::smooth_depth_error(&estimate, opts);
+        fit
+    });
     timings.verify = elapsed_ms(t3);
     timings.total = elapsed_ms(t0);
     let e = &judged.e;
@@ -635,6 +647,7 @@ pub fn register_posed(
             .offset_estimated
             .then(|| estimate.depth.range_offset_m()),
         timings_ms: timings,
+        link_fit,
     })
 }
 
