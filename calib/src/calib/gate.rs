@@ -119,6 +119,21 @@ pub fn gate(
     th: &GateThresholds,
 ) -> Verdict {
     let mut reasons = Vec::new();
+    let over = |position_mm: f64, rotation_deg: f64| {
+        position_mm > th.max_uncertainty_translation_mm
+            || rotation_deg > th.max_uncertainty_rotation_deg
+    };
+    if let Some(u) = solution.uncertainty {
+        if over(u.translation_mm, u.rotation_deg) {
+            reasons.push(format!(
+                "the views fitted together: uncertainty {:.2} mm / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links in each view, or add views",
+                u.translation_mm,
+                u.rotation_deg,
+                th.max_uncertainty_translation_mm,
+                th.max_uncertainty_rotation_deg
+            ));
+        }
+    }
     for (i, r) in registrations.iter().enumerate() {
         let q = &r.quality;
         if q.coverage < th.min_coverage {
@@ -182,13 +197,12 @@ pub fn gate(
                 100.0 * th.min_inlier_fraction
             ));
         }
+        // Views fitted together are judged by the joint fit's σ (below): a view that alone
+        // leaves a direction loose, or is uncertain, adds what it knows.
+        let alone = solution.uncertainty.is_none();
         let (position_mm, base_m) = r.uncertainty.position_mm(solution.mount);
         let at = base_m.map(at_the_robot_base).unwrap_or_default();
-        let over = |position_mm: f64, rotation_deg: f64| {
-            position_mm > th.max_uncertainty_translation_mm
-                || rotation_deg > th.max_uncertainty_rotation_deg
-        };
-        if over(position_mm, r.uncertainty.rotation_deg) {
+        if alone && over(position_mm, r.uncertainty.rotation_deg) {
             let (camera_mm, _) = r.camera_error.position_mm(solution.mount);
             let what_to_do = if over(camera_mm, r.camera_error.rotation_deg) {
                 format!(
@@ -205,7 +219,7 @@ pub fn gate(
                 th.max_uncertainty_rotation_deg
             ));
         }
-        if !r.degenerate_directions.is_empty() {
+        if alone && !r.degenerate_directions.is_empty() {
             reasons.push(format!(
                 "frame {i}: the visible geometry leaves {} direction(s) unconstrained (e.g. yaw of a round base): show the shoulder and upper arm",
                 r.degenerate_directions.len()
@@ -339,6 +353,66 @@ mod tests {
     use crate::calib::solve::{solve, FrameInput, Mount, SolveOptions};
     use crate::calib::testutil::good_registration;
     use nalgebra::Vector3;
+
+    /// Views fitted together are judged by the joint fit's σ: a view whose own σ is over the
+    /// limit or that leaves a direction loose alone is kept (the others constrain it), the
+    /// joint σ over the limit is not; a view may be off the joint result by 3 of its own σ
+    /// (its housings), no more.
+    #[test]
+    fn views_fitted_together_are_judged_by_their_joint_sigma() {
+        let reg = good_registration();
+        let flange = |k: f64| Isometry3::new(Vector3::new(0.1 * k, 0.2, 0.5), Vector3::z() * k);
+        let mount = Isometry3::translation(0.0, -0.08, 0.03);
+        let frames: Vec<FrameInput> = (0..3)
+            .map(|v| FrameInput {
+                sigma: None,
+                view: v,
+                camera_from_model: (flange(v as f64) * mount).inverse(),
+                model_from_flange: Some(flange(v as f64)),
+            })
+            .collect();
+        let mut sol = solve(Mount::EyeInHand, &frames, &SolveOptions::default()).expect("solved");
+        let th = GateThresholds::default();
+        let mut weak = reg.clone();
+        weak.uncertainty.translation_mm = 2.5;
+        weak.degenerate_directions.push(nalgebra::Vector6::z());
+        let regs = [reg.clone(), weak, reg.clone()];
+        assert_eq!(gate(&regs, &sol, None, &th).reasons.len(), 2, "alone");
+        sol.uncertainty = Some(Uncertainty {
+            translation_mm: 0.08,
+            rotation_deg: 0.01,
+            workspace: None,
+        });
+        let v = gate(&regs, &sol, None, &th);
+        assert!(v.passed(), "{v:?}");
+        sol.uncertainty = Some(Uncertainty {
+            translation_mm: 1.6,
+            rotation_deg: 0.01,
+            workspace: None,
+        });
+        let v = gate(&regs, &sol, None, &th);
+        assert_eq!(v.reasons.len(), 1, "{v:?}");
+        assert!(v.reasons[0].starts_with("the views fitted together: uncertainty 1.60 mm"));
+        // A view 0.9 mm off (its σ 0.2 mm: 3σ is 0.6 mm, the fixed limit 1 mm) passes; 1.2 mm
+        // off does not; with a σ of 0.5 mm (3σ 1.5 mm) it does.
+        sol.uncertainty = Some(Uncertainty::default());
+        for (off_mm, sigma_mm, passes) in [(0.9, 0.2, true), (1.2, 0.2, false), (1.2, 0.5, true)] {
+            let mut sol = sol.clone();
+            let moved = Isometry3::translation(off_mm * 1e-3, 0.0, 0.0) * sol.estimate;
+            sol.re_estimate(moved, &frames).expect("re-estimated");
+            // Only view 1 is off: move the others with it.
+            for r in sol.frames.iter_mut().chain(sol.views.iter_mut()) {
+                if r.view != 1 {
+                    r.translation_mm = 0.0;
+                }
+            }
+            let mut regs = regs.clone();
+            regs[1].uncertainty.translation_mm = sigma_mm;
+            regs[1].degenerate_directions.clear();
+            let v = gate(&regs, &sol, None, &th);
+            assert_eq!(v.passed(), passes, "{off_mm} mm, σ {sigma_mm} mm: {v:?}");
+        }
+    }
 
     #[test]
     fn gate_passes_good_and_rejects_each_bad_property() {
