@@ -639,6 +639,17 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                         dh: Some(k.dh),
                     },
                     Ok(None) => fallback(Some("the controller publishes no kinematics".into())),
+                    // Values no arm has: no pose this controller reports is trusted.
+                    Err(e @ HalError::Protocol { .. }) => {
+                        return Err(Failure::error(
+                            stage,
+                            format!(
+                                "the controller's kinematics: {}; nothing moved and nothing was \
+                                 written",
+                                error_chain(&e)
+                            ),
+                        ))
+                    }
                     Err(e) => fallback(Some(format!(
                         "cannot read the controller's kinematics ({})",
                         error_chain(&e)
