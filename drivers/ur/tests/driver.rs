@@ -826,3 +826,70 @@ async fn a_client_claiming_no_register_works_beside_one_that_holds_them() {
         .expect_err("the registers are held");
     assert!(err.to_string().contains("handeye daemon"), "{err}");
 }
+
+/// Issue 36: an RTDE stream that freezes (the same package again and again) or reorders
+/// (packages swapped in pairs) while the arm moves fails the move within the frozen bound,
+/// naming what was wrong, and the arm is stopped short of its target (`stopj` goes out on the
+/// primary interface, which still works). Once healed, the stream is trusted again. Through
+/// the fault proxy at 127.0.0.233 in front of the simulator.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stream_that_freezes_or_reorders_during_a_move_fails_it_and_stops_the_arm() {
+    use handeye_ur::client::{MAX_FROZEN_TIMESTAMP, REORDERED_HOLD};
+    use handeye_ur::sim::fault_proxy::{FaultProxy, StreamMode};
+    let proxy_ip = IpAddr::V4(Ipv4Addr::new(127, 0, 0, 233));
+    let sim = Simulator::start(sim_config()).await.expect("sim starts");
+    let proxy = FaultProxy::start(proxy_ip, LOCAL, sim.ports())
+        .await
+        .expect("proxy starts");
+    let mut cfg = UrConfig::new(proxy_ip);
+    cfg.ports = sim.ports();
+    cfg.max_joint_speed_rad_s = 2.0;
+    cfg.max_joint_accel_rad_s2 = 8.0;
+    let robot = tokio::time::timeout(Duration::from_secs(10), UrRobot::connect(cfg))
+        .await
+        .expect("no hang")
+        .expect("connects");
+    for (mode, says) in [
+        (
+            StreamMode::Frozen,
+            "the controller's RTDE data stopped advancing",
+        ),
+        (
+            StreamMode::Reordered,
+            "the controller's RTDE data arrived out of order",
+        ),
+    ] {
+        // 1 rad at 0.5 rad/s: two seconds; the fault comes after half a second.
+        let target = target_from(sim.joint_positions(), 1.0);
+        let moving = robot.move_joints(&target, limits(0.5, 20));
+        let fault = async {
+            tokio::time::sleep(Duration::from_millis(500)).await;
+            proxy.stream(mode);
+            std::time::Instant::now()
+        };
+        let started = std::time::Instant::now();
+        let (moved, faulted_at) = tokio::join!(moving, fault);
+        let err = moved.expect_err("the move fails");
+        let failed_after = faulted_at.elapsed();
+        assert!(err.to_string().contains(says), "{mode:?}: {err}");
+        assert!(
+            failed_after < MAX_FROZEN_TIMESTAMP + Duration::from_millis(800),
+            "{mode:?}: failed {failed_after:?} after the fault ({:?} after the start)",
+            started.elapsed()
+        );
+        wait_until(|| !sim.program_running()).await;
+        let q = sim.joint_positions();
+        assert!(
+            (target[0] - q[0]).abs() > 0.2,
+            "{mode:?}: the arm was not stopped short of the target: {q:?} vs {target:?}"
+        );
+        proxy.stream(StreamMode::Live);
+        // Trusted again once it advances (frozen) or after the hold (reordered).
+        tokio::time::sleep(REORDERED_HOLD + Duration::from_millis(300)).await;
+        let now = robot.joint_positions().await.expect("healed");
+        assert!(
+            now.iter().zip(&q).all(|(a, b)| (a - b).abs() < 1e-3),
+            "{now:?} vs {q:?}"
+        );
+    }
+}
