@@ -619,6 +619,35 @@ mod tests {
         );
     }
 
+    /// Fuzz target `fault_proxy_primary`: mutated robot states are rewritten or left alone
+    /// (the "refused" count), never a panic; a rewritten one carries its own length and cuts
+    /// into whole sub-packages.
+    #[test]
+    fn fuzz_fault_proxy_primary() {
+        let (state, _) = robot_state();
+        let seeds = vec![state];
+        handeye_hal::fuzz::Target::new("fault_proxy_primary", seeds)
+            .allocation_cap(16, 1 << 16)
+            .run(|b| {
+                for c in [
+                    KinematicsCorruption::Nan,
+                    KinematicsCorruption::CalibrationStatus(9),
+                ] {
+                    let Some(out) = corrupted_robot_state(b, &c) else {
+                        return Err("no robot state with a kinematics info: passed on as it is");
+                    };
+                    let len = u32::from_be_bytes([out[0], out[1], out[2], out[3]]) as usize;
+                    assert_eq!(len, out.len());
+                    let mut rest = &out[5..];
+                    while !rest.is_empty() {
+                        let n = u32::from_be_bytes([rest[0], rest[1], rest[2], rest[3]]);
+                        rest = &rest[n as usize..];
+                    }
+                }
+                Ok(())
+            });
+    }
+
     #[test]
     fn stream_modes_freeze_and_swap_data_packages() {
         let mut s = StreamState::default();
