@@ -1605,7 +1605,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             Ok(q) => q,
             Err(e) => {
                 self.record.reasons.push(format!(
-                    "not moved back to the start: cannot read the joints: {}",
+                    "not moved back to the start: cannot read the joints: {}; the arm was left \
+                     where the failed step stopped it: check where on the pendant",
                     error_chain(&e)
                 ));
                 return;

@@ -827,20 +827,18 @@ async fn a_client_claiming_no_register_works_beside_one_that_holds_them() {
     assert!(err.to_string().contains("handeye daemon"), "{err}");
 }
 
-/// Issue 36: an RTDE stream that freezes (the same package again and again) or reorders
-/// (packages swapped in pairs) while the arm moves fails the move within the frozen bound,
-/// naming what was wrong, and the arm is stopped short of its target (`stopj` goes out on the
-/// primary interface, which still works). Once healed, the stream is trusted again. Through
-/// the fault proxy at 127.0.0.233 in front of the simulator.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_stream_that_freezes_or_reorders_during_a_move_fails_it_and_stops_the_arm() {
-    use handeye_ur::client::{MAX_FROZEN_TIMESTAMP, REORDERED_HOLD};
-    use handeye_ur::sim::fault_proxy::{FaultProxy, StreamMode};
-    let proxy_ip = IpAddr::V4(Ipv4Addr::new(127, 0, 0, 233));
+/// The simulator with the fault proxy at `proxy_ip` in front of it (the simulator's ports),
+/// `before_connect` applied to the proxy, and our driver connected through the proxy.
+async fn start_proxied(
+    proxy_ip: Ipv4Addr,
+    before_connect: impl FnOnce(&handeye_ur::sim::fault_proxy::FaultProxy),
+) -> (SimHandle, handeye_ur::sim::fault_proxy::FaultProxy, UrRobot) {
+    let proxy_ip = IpAddr::V4(proxy_ip);
     let sim = Simulator::start(sim_config()).await.expect("sim starts");
-    let proxy = FaultProxy::start(proxy_ip, LOCAL, sim.ports())
+    let proxy = handeye_ur::sim::fault_proxy::FaultProxy::start(proxy_ip, LOCAL, sim.ports())
         .await
         .expect("proxy starts");
+    before_connect(&proxy);
     let mut cfg = UrConfig::new(proxy_ip);
     cfg.ports = sim.ports();
     cfg.max_joint_speed_rad_s = 2.0;
@@ -849,6 +847,64 @@ async fn a_stream_that_freezes_or_reorders_during_a_move_fails_it_and_stops_the_
         .await
         .expect("no hang")
         .expect("connects");
+    (sim, proxy, robot)
+}
+
+/// Issue 36: kinematics info no arm has (NaN DH, a calibration status no controller has),
+/// corrupted on the primary interface by the fault proxy at 127.0.0.234, is a protocol error
+/// naming the value (the driver connects; a run refuses it), read again at the next ask: once
+/// the controller's own arrive, they are taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn kinematics_info_no_arm_has_is_an_error_until_sound_ones_arrive() {
+    use handeye_ur::sim::fault_proxy::KinematicsCorruption;
+    let (sim, proxy, robot) = start_proxied(Ipv4Addr::new(127, 0, 0, 234), |p| {
+        p.corrupt_kinematics(Some(KinematicsCorruption::Nan))
+    })
+    .await;
+    let err = robot.kinematics().await.expect_err("NaN DH");
+    assert!(
+        matches!(err, HalError::Protocol { .. })
+            && err.to_string().contains("published DH theta = [NaN"),
+        "{err}"
+    );
+    assert_eq!(
+        robot
+            .identity()
+            .await
+            .expect("identity")
+            .kinematics_checksum,
+        None
+    );
+    proxy.corrupt_kinematics(Some(KinematicsCorruption::CalibrationStatus(7)));
+    let err = robot.kinematics().await.expect_err("status 7");
+    assert!(err.to_string().contains("calibration_status = 7"), "{err}");
+    proxy.corrupt_kinematics(None);
+    let k = robot
+        .kinematics()
+        .await
+        .expect("healed")
+        .expect("published");
+    assert_eq!(k, sim.kinematics());
+    assert_eq!(
+        robot
+            .identity()
+            .await
+            .expect("identity")
+            .kinematics_checksum,
+        Some(k.checksum)
+    );
+}
+
+/// Issue 36: an RTDE stream that freezes (the same package again and again) or reorders
+/// (packages swapped in pairs) while the arm moves fails the move within the frozen bound,
+/// naming what was wrong, and the arm is stopped short of its target (`stopj` goes out on the
+/// primary interface, which still works). Once healed, the stream is trusted again. Through
+/// the fault proxy at 127.0.0.233 in front of the simulator.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stream_that_freezes_or_reorders_during_a_move_fails_it_and_stops_the_arm() {
+    use handeye_ur::client::{MAX_FROZEN_TIMESTAMP, REORDERED_HOLD};
+    use handeye_ur::sim::fault_proxy::StreamMode;
+    let (sim, proxy, robot) = start_proxied(Ipv4Addr::new(127, 0, 0, 233), |_| {}).await;
     for (mode, says) in [
         (
             StreamMode::Frozen,

@@ -105,9 +105,10 @@ struct Inner {
     rtde: RtdeClient,
     dashboard: Mutex<Option<DashboardClient>>,
     script: ScriptClient,
-    /// Read once from the primary interface on connect; `Err` (what was wrong) when the
-    /// controller published values no arm has.
-    kinematics: Result<Option<ControllerKinematics>, String>,
+    /// Read from the primary interface on connect; `Err` (what was wrong) when the
+    /// controller published values no arm has, and then read again at the next ask (a
+    /// transient fault does not refuse every later run).
+    kinematics: Mutex<Result<Option<ControllerKinematics>, String>>,
     /// The limits of the arm the kinematics are a calibration of (the hal's UR limits
     /// table); without kinematics, the most conservative of every model's.
     limits: UrLimits,
@@ -197,7 +198,7 @@ impl UrRobot {
                 dashboard: Mutex::new(Some(dash)),
                 script,
                 limits: arm_limits(kinematics.as_ref().ok().and_then(Option::as_ref)),
-                kinematics,
+                kinematics: Mutex::new(kinematics),
             }),
         };
         robot.sample().await?;
@@ -981,15 +982,17 @@ impl Robot for UrRobot {
     }
 
     /// The kinematics read on connect; a `Protocol` error naming the value when the
-    /// controller published kinematics no arm has.
+    /// controller published kinematics no arm has (read again at each ask until they are
+    /// sound; the driver's speed limits stay the conservative ones of an unknown arm).
     async fn kinematics(&self) -> Result<Option<ControllerKinematics>, HalError> {
-        self.inner
-            .kinematics
-            .clone()
-            .map_err(|detail| HalError::Protocol {
-                peer: "primary interface".into(),
-                detail,
-            })
+        let mut cached = self.inner.kinematics.lock().await;
+        if cached.is_err() {
+            *cached = read_kinematics(&self.inner.script).await;
+        }
+        cached.clone().map_err(|detail| HalError::Protocol {
+            peer: "primary interface".into(),
+            detail,
+        })
     }
 
     /// Dashboard `get serial number`, `get robot model` and `PolyScope version`; the
@@ -1005,6 +1008,8 @@ impl Robot for UrRobot {
             kinematics_checksum: self
                 .inner
                 .kinematics
+                .lock()
+                .await
                 .as_ref()
                 .ok()
                 .and_then(|k| k.map(|k| k.checksum)),
