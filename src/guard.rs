@@ -194,7 +194,11 @@ impl<R: Robot> Robot for MotionGuard<R> {
     }
 
     async fn move_joints(&self, q: &[f64], limits: MotionLimits) -> Result<(), HalError> {
-        let from = self.inner.joint_positions().await?;
+        let from = self
+            .inner
+            .joint_positions()
+            .await
+            .map_err(HalError::before_move)?;
         let cell = Arc::clone(&self.cell);
         let to = q.to_vec();
         let checked = tokio::task::spawn_blocking(move || cell.check_path(&from, &to))

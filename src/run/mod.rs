@@ -639,6 +639,17 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                         dh: Some(k.dh),
                     },
                     Ok(None) => fallback(Some("the controller publishes no kinematics".into())),
+                    // Values no arm has: no pose this controller reports is trusted.
+                    Err(e @ HalError::Protocol { .. }) => {
+                        return Err(Failure::error(
+                            stage,
+                            format!(
+                                "the controller's kinematics: {}; nothing moved and nothing was \
+                                 written",
+                                error_chain(&e)
+                            ),
+                        ))
+                    }
                     Err(e) => fallback(Some(format!(
                         "cannot read the controller's kinematics ({})",
                         error_chain(&e)
@@ -1594,7 +1605,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             Ok(q) => q,
             Err(e) => {
                 self.record.reasons.push(format!(
-                    "not moved back to the start: cannot read the joints: {}",
+                    "not moved back to the start: cannot read the joints: {}; the arm was left \
+                     where the failed step stopped it: check where on the pendant",
                     error_chain(&e)
                 ));
                 return;

@@ -11,7 +11,7 @@ use nalgebra::{Isometry3, Vector3};
 
 use crate::support::{
     csv, history, iso, joints, max_change, pose_arg, pose_error, python, rig_config, run, secs,
-    shared, start_rig, ur_pose, Output, TempDir,
+    shared, start_rig, ur_pose, Daemon, Output, TempDir,
 };
 
 /// A configuration for the rig at `robot_ip`/`camera_ip`: 3 frames per view, the result
@@ -657,6 +657,40 @@ fn controller_state(ip: &str) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     (tcp, inputs, q)
 }
 
+/// A simulated rig with the fault proxy at `proxy_ip` in front of its controller at
+/// `robot_ip`, and a configuration that names the proxy as the cell's controller. The proxy
+/// runs on its own runtime; dropping this stops the proxy, then the rig.
+struct ProxiedRig {
+    proxy: handeye_ur::sim::fault_proxy::FaultProxy,
+    _runtime: tokio::runtime::Runtime,
+    rig: Daemon,
+    cfg: PathBuf,
+    _dir: TempDir,
+}
+
+impl ProxiedRig {
+    fn start(name: &str, robot_ip: &str, camera_ip: &str, proxy_ip: &str) -> Self {
+        let dir = TempDir::new(name);
+        let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
+        let runtime = tokio::runtime::Runtime::new().expect("runtime");
+        let proxy = runtime
+            .block_on(handeye_ur::sim::fault_proxy::FaultProxy::start(
+                proxy_ip.parse().expect("ip"),
+                robot_ip.parse().expect("ip"),
+                handeye_ur::Ports::STANDARD,
+            ))
+            .expect("proxy starts");
+        let cfg = config(&dir, proxy_ip, camera_ip);
+        Self {
+            proxy,
+            _runtime: runtime,
+            rig,
+            cfg,
+            _dir: dir,
+        }
+    }
+}
+
 /// Issue 36: a controller (or anything between it and this PC) that reports values no arm can
 /// have — a NaN TCP pose, a flange a centimetre from its joints' forward kinematics, joints
 /// 0.3 rad from where the arm stands — gets nothing written and the arm is not moved; the
@@ -664,23 +698,19 @@ fn controller_state(ip: &str) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
 /// simulated controller; the same calibration through the proxy without faults passes.
 #[test]
 fn issue_36_corrupt_controller_values_get_nothing_written() {
-    use handeye_ur::sim::fault_proxy::{Corruption, FaultProxy};
+    use handeye_ur::sim::fault_proxy::Corruption;
     let Some(_) = shared("issue_36_corrupt_controller_values_get_nothing_written") else {
         return;
     };
-    let dir = TempDir::new("fault-proxy");
-    let (robot_ip, camera_ip, proxy_ip) = ("127.0.0.169", "127.0.0.170", "127.0.0.171");
-    let rig = start_rig(&dir, robot_ip, camera_ip, &[]);
-    let rt = tokio::runtime::Runtime::new().expect("runtime");
-    let proxy = rt
-        .block_on(FaultProxy::start(
-            proxy_ip.parse().expect("ip"),
-            robot_ip.parse().expect("ip"),
-            handeye_ur::Ports::STANDARD,
-        ))
-        .expect("proxy starts");
-    // The cell's configuration names the proxy as its controller.
-    let cfg = config(&dir, proxy_ip, camera_ip);
+    let robot_ip = "127.0.0.169";
+    // Every field bound: the runtime and the folder live to the end of the test.
+    let ProxiedRig {
+        proxy,
+        _runtime,
+        rig,
+        cfg,
+        _dir,
+    } = ProxiedRig::start("fault-proxy", robot_ip, "127.0.0.170", "127.0.0.171");
     let before = controller_state(robot_ip);
 
     for (field, corruption, says) in [
@@ -729,6 +759,156 @@ fn issue_36_corrupt_controller_values_get_nothing_written() {
     }
 
     // The proxy itself is transparent: without faults the calibration passes through it.
+    let out = handeye("calibrate", &cfg, &[]);
+    assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
+    assert_ne!(controller_state(robot_ip).0, before.0, "{out}");
+}
+
+/// Issue 36, the rest of "every value from the controller checked": through the fault proxy,
+/// the primary interface's kinematics info corrupted (NaN DH, another model's DH, a
+/// calibration status no controller has), the RTDE stream frozen (the same package again and
+/// again) or reordered (packages swapped in pairs), joint speeds NaN or faster than any UR
+/// joint, the speed slider outside 0..1. Each ends non-zero with a message naming what was
+/// wrong, nothing written and the arm where it stood. The same calibration through the
+/// healed proxy passes.
+#[test]
+fn issue_36_primary_kinematics_stale_streams_and_speeds_get_nothing_written() {
+    use handeye_hal::ur_dh::UrModel;
+    use handeye_ur::sim::fault_proxy::{Corruption, KinematicsCorruption, StreamMode};
+    let Some(_) = shared("issue_36_primary_kinematics_stale_streams_and_speeds") else {
+        return;
+    };
+    enum Fault {
+        Field(&'static str, Corruption),
+        Kinematics(KinematicsCorruption),
+        Stream(StreamMode),
+    }
+    let robot_ip = "127.0.0.230";
+    // Every field bound: the runtime and the folder live to the end of the test.
+    let ProxiedRig {
+        proxy,
+        _runtime,
+        rig,
+        cfg,
+        _dir,
+    } = ProxiedRig::start("fault-proxy-2", robot_ip, "127.0.0.231", "127.0.0.232");
+    let before = controller_state(robot_ip);
+
+    let cases = [
+        (
+            Fault::Kinematics(KinematicsCorruption::Nan),
+            "the controller published DH theta = [NaN",
+        ),
+        (
+            Fault::Kinematics(KinematicsCorruption::Dh(UrModel::Ur10e.dh())),
+            "the controller's kinematics are a ur10e",
+        ),
+        (
+            Fault::Kinematics(KinematicsCorruption::CalibrationStatus(7)),
+            "calibration_status = 7",
+        ),
+        (
+            Fault::Stream(StreamMode::Frozen),
+            "the controller's RTDE data stopped advancing (timestamp",
+        ),
+        (
+            Fault::Stream(StreamMode::Reordered),
+            "the controller's RTDE data arrived out of order",
+        ),
+        (
+            Fault::Field("actual_qd", Corruption::Nan),
+            "actual_qd = [NaN",
+        ),
+        (
+            Fault::Field("actual_qd", Corruption::Set(vec![0.0, 0.0, 50.0])),
+            "faster than the 9.42 rad/s a UR joint can turn",
+        ),
+        (
+            Fault::Field("target_speed_fraction", Corruption::Set(vec![3.0])),
+            "target_speed_fraction = [3.0]",
+        ),
+    ];
+    // Every case is judged on its own (from where the one before left the controller) and
+    // every failure is reported.
+    let mut failures = Vec::new();
+    for (fault, says) in cases {
+        let start = controller_state(robot_ip);
+        let what = match &fault {
+            Fault::Field(name, c) => {
+                proxy.corrupt(name, c.clone());
+                format!("{name} {c:?}")
+            }
+            Fault::Kinematics(c) => {
+                proxy.corrupt_kinematics(Some(c.clone()));
+                format!("kinematics {c:?}")
+            }
+            Fault::Stream(m) => {
+                proxy.stream(*m);
+                format!("stream {m:?}")
+            }
+        };
+        let out = handeye("calibrate", &cfg, &[]);
+        match &fault {
+            Fault::Field(name, _) => proxy.heal(name),
+            Fault::Kinematics(_) => proxy.corrupt_kinematics(None),
+            Fault::Stream(_) => proxy.stream(StreamMode::Live),
+        }
+        let text = format!("{}{}", out.stdout, out.stderr);
+        let record = serde_json::from_str::<serde_json::Value>(&out.stdout).ok();
+        let written = record
+            .as_ref()
+            .and_then(|doc| doc["written"].as_array().map(Vec::len));
+        // The end position alone would not tell an arm that went out and came back.
+        let stage = record
+            .as_ref()
+            .and_then(|doc| doc["failed_stage"].as_str().map(str::to_string));
+        let after = controller_state(robot_ip);
+        let mut wrong = Vec::new();
+        if out.code() == 0 {
+            wrong.push("exited 0".to_string());
+        }
+        if !text.contains(says) {
+            wrong.push(format!("does not say {says:?}"));
+        }
+        // A move refused before its program went out moved nothing.
+        if stage
+            .as_deref()
+            .is_some_and(|s| !matches!(s, "preflight" | "plan"))
+            && !text.contains("the move was not started")
+        {
+            wrong.push(format!("failed in stage {stage:?}, after moving"));
+        }
+        if written.is_some_and(|n| n > 0) {
+            wrong.push(format!("the record says {written:?} values were written"));
+        }
+        if after.0 != start.0 {
+            wrong.push(format!(
+                "the TCP changed from {:?} to {:?}",
+                start.0, after.0
+            ));
+        }
+        if after.1 != start.1 {
+            wrong.push(format!(
+                "the registers changed from {:?} to {:?}",
+                start.1, after.1
+            ));
+        }
+        if max_change(&after.2, &start.2) > 1e-6 {
+            wrong.push(format!("the arm moved from {:?} to {:?}", start.2, after.2));
+        }
+        if !wrong.is_empty() {
+            failures.push(format!("{what}: {}\n{out}", wrong.join("; ")));
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} of 8 faults were not refused cleanly:\n\n{}\n{}",
+        failures.len(),
+        failures.join("\n\n"),
+        rig.log()
+    );
+
+    // Healed, the proxy is transparent: the calibration passes through it.
     let out = handeye("calibrate", &cfg, &[]);
     assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
     assert_ne!(controller_state(robot_ip).0, before.0, "{out}");

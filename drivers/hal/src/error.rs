@@ -101,3 +101,19 @@ pub enum HalError {
         read: String,
     },
 }
+
+impl HalError {
+    /// This error, raised before a move was commanded, saying so: a protocol error (corrupt or
+    /// stale data from the device) gets "; the move was not started", so the operator knows
+    /// the arm stands where it stood. Other errors pass unchanged (they say it already, or
+    /// are not about data).
+    pub fn before_move(self) -> Self {
+        match self {
+            HalError::Protocol { peer, detail } => HalError::Protocol {
+                peer,
+                detail: format!("{detail}; the move was not started"),
+            },
+            other => other,
+        }
+    }
+}

@@ -61,6 +61,10 @@ pub enum UrError {
     /// A caller passed something the controller cannot do.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// The RTDE data stream as a whole cannot be trusted (the controller's timestamp stands
+    /// still or went back); nothing read from it now is used.
+    #[error("{0}; nothing read from it now is used: check the network between this PC and the controller (a switch, gateway or VPN that buffers, repeats or reorders packets)")]
+    Stream(crate::client::StreamFault),
 }
 
 impl UrError {
@@ -113,6 +117,10 @@ impl From<UrError> for HalError {
                 device: device.to_string(),
                 request,
                 reason,
+            },
+            e @ UrError::Stream(_) => HalError::Protocol {
+                peer: "RTDE".into(),
+                detail: e.to_string(),
             },
             e @ (UrError::Malformed { .. } | UrError::FieldNotFound { .. }) => HalError::Protocol {
                 peer: "UR controller".into(),

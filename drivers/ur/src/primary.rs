@@ -15,11 +15,13 @@ pub const MAX_PACKAGE: usize = 1 << 20;
 pub const ROBOT_STATE: u8 = 16;
 /// ROBOT_MESSAGE package type.
 pub const ROBOT_MESSAGE: u8 = 20;
+/// Kinematics info: the ROBOT_STATE sub-package type of [`KinematicsInfo`].
+pub const KINEMATICS_INFO: u8 = 5;
 
 /// Robot-message source used by the simulator (`-2` = controller in URCL's list).
 const SOURCE: i8 = -2;
 
-fn frame(kind: u8, body: &[u8]) -> Vec<u8> {
+pub(crate) fn frame(kind: u8, body: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(body.len() + 5);
     out.extend_from_slice(&((body.len() + 5) as i32).to_be_bytes());
     out.push(kind);
@@ -158,7 +160,7 @@ impl KinematicsInfo {
         }
     }
 
-    fn encode(&self, p: &mut Vec<u8>) {
+    pub(crate) fn encode(&self, p: &mut Vec<u8>) {
         for c in &self.checksum {
             p.extend_from_slice(&c.to_be_bytes());
         }
@@ -170,7 +172,7 @@ impl KinematicsInfo {
         p.extend_from_slice(&self.calibration_status.to_be_bytes());
     }
 
-    fn decode(r: &mut Reader<'_>) -> Result<Self, UrError> {
+    pub(crate) fn decode(r: &mut Reader<'_>) -> Result<Self, UrError> {
         let mut checksum = [0u32; 6];
         for c in &mut checksum {
             *c = r.u32()?;
@@ -547,7 +549,7 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
                     c.tool_pose.copy_from_slice(&v[..6]);
                     c.tcp_offset.copy_from_slice(&v[6..]);
                     cartesian = Some(c);
-                } else if t == 5 {
+                } else if t == KINEMATICS_INFO {
                     kinematics = Some(KinematicsInfo::decode(&mut s)?);
                 } else if t == 6 {
                     configuration = Some(ConfigurationData::decode(&mut s)?);

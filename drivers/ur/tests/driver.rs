@@ -826,3 +826,126 @@ async fn a_client_claiming_no_register_works_beside_one_that_holds_them() {
         .expect_err("the registers are held");
     assert!(err.to_string().contains("handeye daemon"), "{err}");
 }
+
+/// The simulator with the fault proxy at `proxy_ip` in front of it (the simulator's ports),
+/// `before_connect` applied to the proxy, and our driver connected through the proxy.
+async fn start_proxied(
+    proxy_ip: Ipv4Addr,
+    before_connect: impl FnOnce(&handeye_ur::sim::fault_proxy::FaultProxy),
+) -> (SimHandle, handeye_ur::sim::fault_proxy::FaultProxy, UrRobot) {
+    let proxy_ip = IpAddr::V4(proxy_ip);
+    let sim = Simulator::start(sim_config()).await.expect("sim starts");
+    let proxy = handeye_ur::sim::fault_proxy::FaultProxy::start(proxy_ip, LOCAL, sim.ports())
+        .await
+        .expect("proxy starts");
+    before_connect(&proxy);
+    let mut cfg = UrConfig::new(proxy_ip);
+    cfg.ports = sim.ports();
+    cfg.max_joint_speed_rad_s = 2.0;
+    cfg.max_joint_accel_rad_s2 = 8.0;
+    let robot = tokio::time::timeout(Duration::from_secs(10), UrRobot::connect(cfg))
+        .await
+        .expect("no hang")
+        .expect("connects");
+    (sim, proxy, robot)
+}
+
+/// Issue 36: kinematics info no arm has (NaN DH, a calibration status no controller has),
+/// corrupted on the primary interface by the fault proxy at 127.0.0.234, is a protocol error
+/// naming the value (the driver connects; a run refuses it), read again at the next ask: once
+/// the controller's own arrive, they are taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn kinematics_info_no_arm_has_is_an_error_until_sound_ones_arrive() {
+    use handeye_ur::sim::fault_proxy::KinematicsCorruption;
+    let (sim, proxy, robot) = start_proxied(Ipv4Addr::new(127, 0, 0, 234), |p| {
+        p.corrupt_kinematics(Some(KinematicsCorruption::Nan))
+    })
+    .await;
+    let err = robot.kinematics().await.expect_err("NaN DH");
+    assert!(
+        matches!(err, HalError::Protocol { .. })
+            && err.to_string().contains("published DH theta = [NaN"),
+        "{err}"
+    );
+    assert_eq!(
+        robot
+            .identity()
+            .await
+            .expect("identity")
+            .kinematics_checksum,
+        None
+    );
+    proxy.corrupt_kinematics(Some(KinematicsCorruption::CalibrationStatus(7)));
+    let err = robot.kinematics().await.expect_err("status 7");
+    assert!(err.to_string().contains("calibration_status = 7"), "{err}");
+    proxy.corrupt_kinematics(None);
+    let k = robot
+        .kinematics()
+        .await
+        .expect("healed")
+        .expect("published");
+    assert_eq!(k, sim.kinematics());
+    assert_eq!(
+        robot
+            .identity()
+            .await
+            .expect("identity")
+            .kinematics_checksum,
+        Some(k.checksum)
+    );
+}
+
+/// Issue 36: an RTDE stream that freezes (the same package again and again) or reorders
+/// (packages swapped in pairs) while the arm moves fails the move within the frozen bound,
+/// naming what was wrong, and the arm is stopped short of its target (`stopj` goes out on the
+/// primary interface, which still works). Once healed, the stream is trusted again. Through
+/// the fault proxy at 127.0.0.233 in front of the simulator.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stream_that_freezes_or_reorders_during_a_move_fails_it_and_stops_the_arm() {
+    use handeye_ur::client::{MAX_FROZEN_TIMESTAMP, REORDERED_HOLD};
+    use handeye_ur::sim::fault_proxy::StreamMode;
+    let (sim, proxy, robot) = start_proxied(Ipv4Addr::new(127, 0, 0, 233), |_| {}).await;
+    for (mode, says) in [
+        (
+            StreamMode::Frozen,
+            "the controller's RTDE data stopped advancing",
+        ),
+        (
+            StreamMode::Reordered,
+            "the controller's RTDE data arrived out of order",
+        ),
+    ] {
+        // 1 rad at 0.5 rad/s: two seconds; the fault comes after half a second.
+        let target = target_from(sim.joint_positions(), 1.0);
+        let moving = robot.move_joints(&target, limits(0.5, 20));
+        let fault = async {
+            tokio::time::sleep(Duration::from_millis(500)).await;
+            proxy.stream(mode);
+            std::time::Instant::now()
+        };
+        let started = std::time::Instant::now();
+        let (moved, faulted_at) = tokio::join!(moving, fault);
+        let err = moved.expect_err("the move fails");
+        let failed_after = faulted_at.elapsed();
+        assert!(err.to_string().contains(says), "{mode:?}: {err}");
+        assert!(
+            failed_after < MAX_FROZEN_TIMESTAMP + Duration::from_millis(800),
+            "{mode:?}: failed {failed_after:?} after the fault ({:?} after the start)",
+            started.elapsed()
+        );
+        wait_until(|| !sim.program_running()).await;
+        let q = sim.joint_positions();
+        assert!(
+            (target[0] - q[0]).abs() > 0.2,
+            "{mode:?}: the arm was not stopped short of the target: {q:?} vs {target:?}"
+        );
+        proxy.stream(StreamMode::Live);
+        // Trusted again once it advances (frozen) or after the hold (reordered).
+        tokio::time::sleep(REORDERED_HOLD + Duration::from_millis(300)).await;
+        let now = robot.joint_positions().await.expect("healed");
+        assert!(
+            now.iter().zip(&q).all(|(a, b)| (a - b).abs() < 1e-3),
+            "{now:?} vs {q:?}"
+        );
+    }
+}

@@ -18,6 +18,7 @@ use tokio::sync::Mutex;
 use super::rtde_client::{RtdeClient, RtdeConfig, Sample};
 use super::script::ScriptClient;
 use crate::dashboard::{robot_mode_from_code, safety_mode_from_code, DashboardClient};
+use crate::primary::{KinematicsInfo, CALIBRATION_LINEARISED};
 use crate::rtde::Value;
 use crate::{Ports, UrError, UrPose};
 
@@ -104,8 +105,10 @@ struct Inner {
     rtde: RtdeClient,
     dashboard: Mutex<Option<DashboardClient>>,
     script: ScriptClient,
-    /// Read once from the primary interface on connect.
-    kinematics: Option<ControllerKinematics>,
+    /// Read from the primary interface on connect; `Err` (what was wrong) when the
+    /// controller published values no arm has, and then read again at the next ask (a
+    /// transient fault does not refuse every later run).
+    kinematics: Mutex<Result<Option<ControllerKinematics>, String>>,
     /// The limits of the arm the kinematics are a calibration of (the hal's UR limits
     /// table); without kinematics, the most conservative of every model's.
     limits: UrLimits,
@@ -194,8 +197,8 @@ impl UrRobot {
                 rtde,
                 dashboard: Mutex::new(Some(dash)),
                 script,
-                kinematics,
-                limits: arm_limits(kinematics.as_ref()),
+                limits: arm_limits(kinematics.as_ref().ok().and_then(Option::as_ref)),
+                kinematics: Mutex::new(kinematics),
             }),
         };
         robot.sample().await?;
@@ -239,16 +242,41 @@ impl UrRobot {
         })
     }
 
+    /// The newest sample if it is fresh (else the next one); a sample of a faulty stream
+    /// (the controller's timestamp stands still or went back) is an error.
     async fn sample(&self) -> Result<Arc<Sample>, UrError> {
         if let Some(s) = self.inner.rtde.latest() {
             if s.received.elapsed() < STALE {
-                return Ok(s);
+                return s.trusted();
             }
         }
         self.inner
             .rtde
             .next_sample(Instant::now() - STALE, STALE.max(self.inner.cfg.timeout))
             .await
+    }
+
+    /// Waits for a sample whose controller `timestamp` is later than the newest one's now
+    /// (one package period): the stream is live before anything moves. A frozen stream ends
+    /// the wait with [`UrError::Stream`] once its timestamp has stood still for
+    /// [`super::MAX_FROZEN_TIMESTAMP`]; a recipe without `timestamp` does not wait.
+    async fn advancing(&self) -> Result<Arc<Sample>, UrError> {
+        let first = self.sample().await?;
+        let Some(t0) = first.f64("timestamp") else {
+            return Ok(first);
+        };
+        let mut last = first.received;
+        loop {
+            let s = self
+                .inner
+                .rtde
+                .next_sample(last, STALE.max(self.inner.cfg.timeout))
+                .await?;
+            if s.f64("timestamp").is_some_and(|t| t > t0) {
+                return Ok(s);
+            }
+            last = s.received;
+        }
     }
 
     /// Waits until RTDE reports `mode` (or RUNNING, which comes after every other mode on the
@@ -332,10 +360,18 @@ impl UrRobot {
         });
         let (v, a) = (capped.max_joint_speed_rad_s, capped.max_joint_accel_rad_s2);
         let during = "joint move";
-        let st = self.status().await?;
-        check_can_move(&st, during)?;
         let list: Vec<String> = q.iter().map(|x| format!("{x:.9}")).collect();
         let body = format!("  movej([{}], a={a:.6}, v={v:.6})\n", list.join(","));
+        let ready = async {
+            let st = self.status().await?;
+            check_can_move(&st, during)?;
+            // The data the move is followed by must be live, not a replay that has not yet
+            // stood still for the bound.
+            self.advancing().await?;
+            Ok::<(), HalError>(())
+        };
+        // Corrupt data before the program went out: say that the arm was not moved.
+        ready.await.map_err(HalError::before_move)?;
         let mut guard = StopGuard {
             robot: Some(self.clone()),
         };
@@ -381,8 +417,8 @@ impl UrRobot {
                     }
                     _ => {}
                 }
-                let aq = s.vec6("actual_q").unwrap_or([f64::NAN; 6]);
-                let qd = s.vec6("actual_qd").unwrap_or([f64::NAN; 6]);
+                let aq = joints_field(&s)?;
+                let qd = speeds_field(&s)?;
                 let playing = s.f64("runtime_state") == Some(2.0);
                 seen_playing |= playing;
                 let arrived = aq.iter().zip(&q).all(|(x, y)| (x - y).abs() < ARRIVED_RAD)
@@ -535,6 +571,10 @@ const MAX_TCP_OFFSET_M: f64 = 2.0;
 /// Largest joint angle a controller can report, rad: UR joints turn ±360°; a little slack for
 /// rounding.
 const MAX_REPORTED_JOINT_RAD: f64 = handeye_hal::ur_limits::JOINT_POSITION_LIMIT_RAD + 1e-3;
+/// Largest joint speed a controller can report, rad/s: no UR joint turns faster than 2π rad/s
+/// (the small arms' wrists); a measured speed overshoots its target a little, so half as much
+/// again. Beyond it the value is corrupt, not a speed.
+const MAX_REPORTED_JOINT_SPEED_RAD_S: f64 = 1.5 * std::f64::consts::TAU;
 
 /// What the controller sent that cannot be a real value: an error naming the field, its
 /// values and what to check (nothing that reads it moves the arm or writes anything).
@@ -590,6 +630,52 @@ fn joints_field(s: &Sample) -> Result<[f64; 6], HalError> {
     Ok(q)
 }
 
+/// The joint speeds the controller must send (`actual_qd`): present, finite, within
+/// [`MAX_REPORTED_JOINT_SPEED_RAD_S`].
+fn speeds_field(s: &Sample) -> Result<[f64; 6], HalError> {
+    let qd = s.vec6("actual_qd").ok_or_else(|| HalError::Protocol {
+        peer: "RTDE".into(),
+        detail: "no actual_qd in the controller's data".into(),
+    })?;
+    if qd.iter().any(|v| !v.is_finite()) {
+        return Err(corrupt(
+            "actual_qd",
+            &qd,
+            "which are not finite joint speeds",
+        ));
+    }
+    if qd.iter().any(|v| v.abs() > MAX_REPORTED_JOINT_SPEED_RAD_S) {
+        return Err(corrupt(
+            "actual_qd",
+            &qd,
+            &format!(
+                "faster than the {MAX_REPORTED_JOINT_SPEED_RAD_S:.2} rad/s a UR joint can turn \
+                 (2π rad/s and half as much again)"
+            ),
+        ));
+    }
+    Ok(qd)
+}
+
+/// The speed slider the controller must send (`target_speed_fraction`): present, within
+/// [0, 1].
+fn speed_fraction_field(s: &Sample) -> Result<f64, HalError> {
+    let f = s
+        .f64("target_speed_fraction")
+        .ok_or_else(|| HalError::Protocol {
+            peer: "RTDE".into(),
+            detail: "no target_speed_fraction in the controller's data".into(),
+        })?;
+    if !(0.0..=1.0).contains(&f) {
+        return Err(corrupt(
+            "target_speed_fraction",
+            &[f],
+            "outside the speed slider's 0..1",
+        ));
+    }
+    Ok(f)
+}
+
 fn int_field(s: &Sample, name: &str) -> Result<i32, HalError> {
     match s.get(name) {
         Some(Value::Int32(v)) => Ok(v),
@@ -603,36 +689,67 @@ fn int_field(s: &Sample, name: &str) -> Result<i32, HalError> {
     }
 }
 
-/// The controller's kinematics from the primary interface, or `None` (with a warning) when it
-/// sends none in time, cannot be reached, or sends values that are not finite.
-async fn read_kinematics(script: &ScriptClient) -> Option<ControllerKinematics> {
+/// What is wrong with the kinematics info a controller published, if anything: DH values
+/// that are not finite, a `calibration_status` that is none of the three a controller has.
+fn check_kinematics(k: &KinematicsInfo) -> Result<(), String> {
+    let dh = &k.dh;
+    for (name, values) in [
+        ("theta", &dh.theta),
+        ("a", &dh.a),
+        ("d", &dh.d),
+        ("alpha", &dh.alpha),
+    ] {
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(format!(
+                "the controller published DH {name} = {values:?} (primary interface, kinematics \
+                 info), which are not finite"
+            ));
+        }
+    }
+    if k.calibration_status > CALIBRATION_LINEARISED {
+        return Err(format!(
+            "the controller published calibration_status = {} (primary interface, kinematics \
+             info), none of the 0, 1, 2 a controller has",
+            k.calibration_status
+        ));
+    }
+    Ok(())
+}
+
+/// The controller's kinematics from the primary interface; `Ok(None)` (with a warning) when it
+/// sends none in time or cannot be reached; `Err` (what is wrong) when it sends values no arm
+/// has ([`check_kinematics`]): every run on this connection is refused, as no pose the
+/// controller reports can be trusted.
+async fn read_kinematics(script: &ScriptClient) -> Result<Option<ControllerKinematics>, String> {
     match script.kinematics().await {
         Ok(Some(k)) => {
-            let k = k.to_controller_kinematics();
-            if !k.is_finite() {
-                tracing::warn!(
-                    "the controller's kinematics info holds non-finite DH values; ignoring it"
+            if let Err(why) = check_kinematics(&k) {
+                let why = format!(
+                    "{why}; the controller or something between it and this PC sends corrupt \
+                     data: check the controller's log and the network before calibrating"
                 );
-                return None;
+                tracing::warn!("{why}");
+                return Err(why);
             }
+            let k = k.to_controller_kinematics();
             if !k.calibrated {
                 tracing::warn!(
                     "the controller says its arm is not factory calibrated (calibration_status)"
                 );
             }
             tracing::debug!(dh = ?k.dh, "controller kinematics");
-            Some(k)
+            Ok(Some(k))
         }
         Ok(None) => {
             tracing::warn!(
                 "the controller sent no kinematics info on the primary interface; \
                  its calibrated DH parameters are unknown"
             );
-            None
+            Ok(None)
         }
         Err(e) => {
             tracing::warn!("could not read the controller's kinematics: {e}");
-            None
+            Ok(None)
         }
     }
 }
@@ -708,17 +825,15 @@ impl Robot for UrRobot {
             safety_mode,
             remote_control,
             program_running: s.f64("runtime_state") == Some(2.0),
-            speed_fraction: s
-                .f64("target_speed_fraction")
-                .ok_or_else(|| HalError::Protocol {
-                    peer: "RTDE".into(),
-                    detail: "no target_speed_fraction".into(),
-                })?,
+            speed_fraction: speed_fraction_field(&s)?,
         })
     }
 
+    /// `actual_q`, from a sample whose joint speeds are real too (a sample with corrupt
+    /// speeds is corrupt as a whole).
     async fn joint_positions(&self) -> Result<Vec<f64>, HalError> {
         let s = self.sample().await?;
+        speeds_field(&s)?;
         Ok(joints_field(&s)?.to_vec())
     }
 
@@ -780,9 +895,7 @@ impl Robot for UrRobot {
             }
             let s = self.inner.rtde.next_sample(last, left.min(STALE)).await?;
             last = s.received;
-            let standing = s
-                .vec6("actual_qd")
-                .is_some_and(|qd| qd.iter().all(|v| v.abs() < 1e-3));
+            let standing = speeds_field(&s)?.iter().all(|v| v.abs() < 1e-3);
             if standing && s.f64("runtime_state") != Some(2.0) {
                 return Ok(());
             }
@@ -868,8 +981,18 @@ impl Robot for UrRobot {
         UrRobot::tcp_offset(self).await
     }
 
+    /// The kinematics read on connect; a `Protocol` error naming the value when the
+    /// controller published kinematics no arm has (read again at each ask until they are
+    /// sound; the driver's speed limits stay the conservative ones of an unknown arm).
     async fn kinematics(&self) -> Result<Option<ControllerKinematics>, HalError> {
-        Ok(self.inner.kinematics)
+        let mut cached = self.inner.kinematics.lock().await;
+        if cached.is_err() {
+            *cached = read_kinematics(&self.inner.script).await;
+        }
+        cached.clone().map_err(|detail| HalError::Protocol {
+            peer: "primary interface".into(),
+            detail,
+        })
     }
 
     /// Dashboard `get serial number`, `get robot model` and `PolyScope version`; the
@@ -882,7 +1005,14 @@ impl Robot for UrRobot {
             serial,
             model,
             software_version: Some(format!("{}.{}.{}.{}", v[0], v[1], v[2], v[3])),
-            kinematics_checksum: self.inner.kinematics.map(|k| k.checksum),
+            kinematics_checksum: self
+                .inner
+                .kinematics
+                .lock()
+                .await
+                .as_ref()
+                .ok()
+                .and_then(|k| k.map(|k| k.checksum)),
         })
     }
 
@@ -898,6 +1028,35 @@ mod tests {
     use std::f64::consts::{PI, TAU};
 
     use super::*;
+
+    #[test]
+    fn kinematics_no_arm_has_are_refused_naming_the_value() {
+        let good = KinematicsInfo::for_arm(UrModel::Ur5e.dh(), CALIBRATION_LINEARISED);
+        assert_eq!(check_kinematics(&good), Ok(()));
+        // A real UR10's huge compensating d values are finite: taken (the model check judges).
+        let mut huge = good;
+        huge.dh.d[1] = 439.0;
+        assert_eq!(check_kinematics(&huge), Ok(()));
+        for status in 0..=CALIBRATION_LINEARISED {
+            assert_eq!(
+                check_kinematics(&KinematicsInfo::for_arm(UrModel::Ur5e.dh(), status)),
+                Ok(())
+            );
+        }
+        let mut nan = good;
+        nan.dh.alpha[4] = f64::NAN;
+        let why = check_kinematics(&nan).expect_err("NaN");
+        assert!(why.contains("DH alpha = [") && why.contains("NaN"), "{why}");
+        let mut inf = good;
+        inf.dh.theta[0] = f64::NEG_INFINITY;
+        assert!(check_kinematics(&inf)
+            .expect_err("inf")
+            .contains("DH theta = [-inf"));
+        let status = KinematicsInfo::for_arm(UrModel::Ur5e.dh(), 7);
+        assert!(check_kinematics(&status)
+            .expect_err("status")
+            .contains("calibration_status = 7"));
+    }
 
     #[test]
     fn the_driver_caps_at_the_limits_of_the_arm_its_kinematics_say() {

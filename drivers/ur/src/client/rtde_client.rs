@@ -33,6 +33,118 @@ pub struct RtdeConfig {
     pub max_backoff: Duration,
 }
 
+/// Longest the controller's `timestamp` may stand still while its data packages keep
+/// arriving: 25 packages at 125 Hz. A controller's clock advances with every package (2 ms at
+/// 500 Hz, 8 ms at 125 Hz); packages that keep coming with the same time are replays of an
+/// old one (a device between the controller and this PC that buffers or repeats them), whose
+/// values are not the arm's now.
+pub const MAX_FROZEN_TIMESTAMP: Duration = Duration::from_millis(200);
+
+/// How long a step back of the controller's `timestamp` (a package older than the one before
+/// it) keeps the stream untrusted. TCP delivers bytes in order, so a step back means packages
+/// were reordered or replayed by something between the controller and this PC: every sample
+/// within this time after the last one is refused, not just the ones that arrived late.
+pub const REORDERED_HOLD: Duration = Duration::from_secs(2);
+
+/// What is wrong with the stream of data packages as a whole, judged by the controller's own
+/// `timestamp` in them (seconds since the controller started).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StreamFault {
+    /// Packages keep arriving but the controller's timestamp has stood at `timestamp_s` for
+    /// `for_s` seconds (longer than [`MAX_FROZEN_TIMESTAMP`]).
+    Frozen {
+        /// The timestamp that does not advance, s.
+        timestamp_s: f64,
+        /// How long it has not advanced, s.
+        for_s: f64,
+    },
+    /// A package's timestamp `to_s` was earlier than an earlier package's `from_s` (within
+    /// the last [`REORDERED_HOLD`]).
+    Backwards {
+        /// The latest timestamp seen before, s.
+        from_s: f64,
+        /// The earlier one that arrived after it, s.
+        to_s: f64,
+    },
+    /// The timestamp is not a finite number.
+    NotFinite {
+        /// What arrived.
+        timestamp_s: f64,
+    },
+}
+
+impl std::fmt::Display for StreamFault {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            StreamFault::Frozen { timestamp_s, for_s } => write!(
+                f,
+                "the controller's RTDE data stopped advancing (timestamp {timestamp_s:.3} s for \
+                 {for_s:.1} s): its packages keep arriving with the same time and values, so they \
+                 are not the arm's now"
+            ),
+            StreamFault::Backwards { from_s, to_s } => write!(
+                f,
+                "the controller's RTDE data arrived out of order (timestamp {to_s:.3} s after \
+                 {from_s:.3} s): its packages are reordered or replayed on the way"
+            ),
+            StreamFault::NotFinite { timestamp_s } => write!(
+                f,
+                "the controller's RTDE timestamp is {timestamp_s}, not a time"
+            ),
+        }
+    }
+}
+
+/// The controller's clock as the stream shows it: the newest `timestamp` and when it last
+/// advanced, and the last step back. Pure (the time of arrival is passed in), so the rules
+/// are tested without a network.
+#[derive(Debug, Clone, Default)]
+pub struct ControllerClock {
+    /// Newest timestamp seen (s) and when it arrived.
+    newest: Option<(f64, Instant)>,
+    /// When the last step back arrived, and the fault it was.
+    backwards: Option<(Instant, StreamFault)>,
+}
+
+impl ControllerClock {
+    /// Takes the timestamp of a package that arrived at `now`; returns what is wrong with the
+    /// stream as of this package, if anything.
+    pub fn observe(&mut self, timestamp_s: f64, now: Instant) -> Option<StreamFault> {
+        if !timestamp_s.is_finite() {
+            return Some(StreamFault::NotFinite { timestamp_s });
+        }
+        match self.newest {
+            Some((newest, _)) if timestamp_s < newest => {
+                let fault = StreamFault::Backwards {
+                    from_s: newest,
+                    to_s: timestamp_s,
+                };
+                self.backwards = Some((now, fault));
+            }
+            Some((newest, _)) if timestamp_s == newest => {}
+            _ => self.newest = Some((timestamp_s, now)),
+        }
+        if let Some((at, fault)) = self.backwards {
+            if now.saturating_duration_since(at) < REORDERED_HOLD {
+                return Some(fault);
+            }
+            self.backwards = None;
+        }
+        match self.newest {
+            Some((newest, since))
+                if timestamp_s == newest
+                    && now.saturating_duration_since(since) > MAX_FROZEN_TIMESTAMP =>
+            {
+                Some(StreamFault::Frozen {
+                    timestamp_s,
+                    for_s: now.saturating_duration_since(since).as_secs_f64(),
+                })
+            }
+            _ => None,
+        }
+    }
+}
+
 /// One output data package, decoded.
 #[derive(Debug, Clone)]
 pub struct Sample {
@@ -40,6 +152,9 @@ pub struct Sample {
     values: Vec<Value>,
     /// When it arrived.
     pub received: Instant,
+    /// What the controller's `timestamp` says about the stream at this package (when the
+    /// output recipe holds `timestamp`): a faulty sample's values are not the arm's now.
+    pub fault: Option<StreamFault>,
 }
 
 impl Sample {
@@ -59,6 +174,14 @@ impl Sample {
     /// A VECTOR6D field.
     pub fn vec6(&self, name: &str) -> Option<[f64; 6]> {
         self.get(name).and_then(|v| v.as_vec6())
+    }
+
+    /// This sample, unless the stream it came in is faulty ([`Sample::fault`]).
+    pub fn trusted(self: Arc<Self>) -> Result<Arc<Self>, UrError> {
+        match self.fault {
+            Some(fault) => Err(UrError::Stream(fault)),
+            None => Ok(self),
+        }
     }
 }
 
@@ -381,7 +504,9 @@ impl RtdeClient {
         self.latest.borrow().clone()
     }
 
-    /// Wait for a sample that arrived after `after` (at most `timeout`).
+    /// Wait for a sample that arrived after `after` (at most `timeout`); a sample whose
+    /// stream is faulty ([`Sample::fault`]: the controller's timestamp stands still or went
+    /// back) is an error, [`UrError::Stream`].
     pub async fn next_sample(
         &self,
         after: Instant,
@@ -392,7 +517,7 @@ impl RtdeClient {
             loop {
                 if let Some(s) = rx.borrow_and_update().clone() {
                     if s.received > after {
-                        return Ok(s);
+                        return s.trusted();
                     }
                 }
                 if rx.changed().await.is_err() {
@@ -458,6 +583,8 @@ async fn read_loop(
     silence: Duration,
 ) -> UrError {
     let mut r = BufReader::new(reader);
+    let timestamp = names.iter().position(|n| n == "timestamp");
+    let mut clock = ControllerClock::default();
     loop {
         let Ok(read) = tokio::time::timeout(silence, rtde::read_frame(&mut r)).await else {
             return UrError::Timeout {
@@ -487,10 +614,15 @@ async fn read_loop(
         match ServerPackage::decode(&f, proto) {
             Ok(ServerPackage::Data { body, .. }) => match rtde::decode_values(&types, &body) {
                 Ok(values) => {
+                    let received = Instant::now();
+                    let fault = timestamp
+                        .and_then(|i| values.get(i)?.as_f64())
+                        .and_then(|t| clock.observe(t, received));
                     latest.send_replace(Some(Arc::new(Sample {
                         names: names.clone(),
                         values,
-                        received: Instant::now(),
+                        received,
+                        fault,
                     })));
                 }
                 Err(e) => return e,
@@ -592,5 +724,99 @@ async fn run(
             }
         };
         tracing::warn!("RTDE link to {} lost: {err}; reconnecting", cfg.addr);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    /// A controller's clock at 125 Hz: every package 8 ms later than the one before.
+    #[test]
+    fn an_advancing_clock_is_no_fault() {
+        let t0 = Instant::now();
+        let mut clock = ControllerClock::default();
+        for i in 0..1000u32 {
+            let ts = 12.0 + f64::from(i) * 0.008;
+            assert_eq!(clock.observe(ts, t0 + 8 * MS * i), None, "package {i}");
+        }
+    }
+
+    #[test]
+    fn a_timestamp_standing_still_longer_than_the_bound_is_frozen() {
+        let t0 = Instant::now();
+        let mut clock = ControllerClock::default();
+        assert_eq!(clock.observe(5.0, t0), None);
+        // The same package again within the bound: a repeat is tolerated that long.
+        assert_eq!(clock.observe(5.0, t0 + MAX_FROZEN_TIMESTAMP), None);
+        let late = t0 + MAX_FROZEN_TIMESTAMP + 100 * MS;
+        let fault = clock.observe(5.0, late).expect("frozen");
+        let StreamFault::Frozen { timestamp_s, for_s } = fault else {
+            panic!("{fault:?}")
+        };
+        assert_eq!(timestamp_s, 5.0);
+        assert!((for_s - 0.3).abs() < 1e-6, "{for_s}");
+        let text = fault.to_string();
+        assert!(
+            text.contains("stopped advancing (timestamp 5.000 s for 0.3 s)"),
+            "{text}"
+        );
+        // Once the clock moves again, the stream is trusted again.
+        assert_eq!(clock.observe(5.008, late + 8 * MS), None);
+    }
+
+    #[test]
+    fn a_timestamp_going_back_taints_the_stream_for_the_hold() {
+        let t0 = Instant::now();
+        let mut clock = ControllerClock::default();
+        assert_eq!(clock.observe(1.008, t0), None);
+        let back = clock.observe(1.000, t0 + 8 * MS).expect("backwards");
+        assert_eq!(
+            back,
+            StreamFault::Backwards {
+                from_s: 1.008,
+                to_s: 1.0
+            }
+        );
+        assert!(
+            back.to_string()
+                .contains("out of order (timestamp 1.000 s after 1.008 s)"),
+            "{back}"
+        );
+        // The packages after it advance, but the stream stays untrusted for the hold.
+        assert_eq!(clock.observe(1.016, t0 + 16 * MS), Some(back));
+        assert_eq!(
+            clock.observe(1.5, t0 + 8 * MS + REORDERED_HOLD - MS),
+            Some(back)
+        );
+        assert_eq!(clock.observe(1.6, t0 + 8 * MS + REORDERED_HOLD), None);
+    }
+
+    /// Pairs swapped (what the fault proxy's `Reordered` does): every other package goes
+    /// back, so every sample from the first swap on is refused.
+    #[test]
+    fn pairs_swapped_are_refused_throughout() {
+        let t0 = Instant::now();
+        let mut clock = ControllerClock::default();
+        let mut faults = 0;
+        for pair in 0..100u32 {
+            for k in [1, 0] {
+                let i = 2 * pair + k;
+                let at = t0 + 8 * MS * (2 * pair + 1 - k);
+                faults += usize::from(clock.observe(f64::from(i) * 0.008, at).is_some());
+            }
+        }
+        // Only the very first package (1 before 0) is taken.
+        assert_eq!(faults, 199);
+    }
+
+    #[test]
+    fn a_timestamp_that_is_no_number_is_a_fault() {
+        let mut clock = ControllerClock::default();
+        let f = clock.observe(f64::NAN, Instant::now()).expect("NaN");
+        assert!(matches!(f, StreamFault::NotFinite { .. }), "{f:?}");
+        assert!(clock.observe(f64::INFINITY, Instant::now()).is_some());
     }
 }
