@@ -146,7 +146,7 @@ pub fn keys() -> Vec<KeyDoc> {
         // [views]
         row("views.mode", "string", "\"auto\"", "\"joints\", \"auto\"", "the configured joint targets, or generated views of the base"),
         row("views.joints", "list of [q1, …, q6]", "required with joints", format!("each {} rad; at most {MAX_VIEW_TARGETS} targets", JOINT.interval()), "joint targets (URDF order) from which the camera sees the base"),
-        integer("views.count", f(defaults::VIEW_COUNT), VIEW_COUNT, "auto: how many views to generate"),
+        integer("views.count", f(defaults::VIEW_COUNT), VIEW_COUNT, "auto: how many views to generate (3 or more: the run separates the arm's housings from the mount, see Benchmarks)"),
         number("views.min_distance_m", Some(defaults::MIN_DISTANCE_M), VIEW_DISTANCE, "auto: nearest camera-to-base distance"),
         number("views.max_distance_m", Some(defaults::MAX_DISTANCE_M), VIEW_DISTANCE, "auto: farthest camera-to-base distance"),
         integer("views.seed", Some(defaults::SEED as f64), SEED, "auto: the view generator's seed"),

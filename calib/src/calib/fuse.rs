@@ -251,16 +251,22 @@ mod tests {
         }
     }
 
+    /// A flange pose and a wrist camera's mount.
+    fn flange_and_mount() -> (Isometry3<f64>, Isometry3<f64>) {
+        (
+            Isometry3::new(Vector3::new(0.3, -0.2, 0.5), Vector3::new(0.4, -1.0, 0.3)),
+            Isometry3::new(
+                Vector3::new(0.0, -0.08, 0.03),
+                Vector3::new(-0.26, 0.0, 0.0),
+            ),
+        )
+    }
+
     /// One view alone gives back its own estimate and its pose covariance (carried to the
     /// flange frame): the prior is taken out and added back once.
     #[test]
     fn one_view_alone_is_its_own_estimate() {
-        let model_from_flange =
-            Isometry3::new(Vector3::new(0.3, -0.2, 0.5), Vector3::new(0.4, -1.0, 0.3));
-        let mount = Isometry3::new(
-            Vector3::new(0.0, -0.08, 0.03),
-            Vector3::new(-0.26, 0.0, 0.0),
-        );
+        let (model_from_flange, mount) = flange_and_mount();
         let f = fit(model_from_flange * mount, [0.3, -0.4]);
         let off = Isometry3::new(
             Vector3::new(2e-4, -1e-4, 3e-4),
@@ -295,12 +301,7 @@ mod tests {
     /// either alone.
     #[test]
     fn the_frames_of_one_view_count_once() {
-        let model_from_flange =
-            Isometry3::new(Vector3::new(0.3, -0.2, 0.5), Vector3::new(0.4, -1.0, 0.3));
-        let mount = Isometry3::new(
-            Vector3::new(0.0, -0.08, 0.03),
-            Vector3::new(-0.26, 0.0, 0.0),
-        );
+        let (model_from_flange, mount) = flange_and_mount();
         let f = fit(model_from_flange * mount, [0.3, -0.4]);
         let view = View {
             model_from_flange,
