@@ -110,6 +110,103 @@ fn at_the_robot_base(distance_m: f64) -> String {
     format!(" at the robot base ({distance_m:.2} m from the camera)")
 }
 
+/// The reasons a registration's quality gives against its result (index `i` in the
+/// messages): coverage, the links' support, seeing through the model, residuals, inliers,
+/// ambiguity and the depth corrections. Its σ is judged apart (alone, or the joint fit's).
+pub(crate) fn frame_quality_reasons(
+    i: usize,
+    r: &Registration,
+    th: &GateThresholds,
+) -> Vec<String> {
+    let mut reasons = Vec::new();
+    let q = &r.quality;
+    if q.coverage < th.min_coverage {
+        reasons.push(format!(
+            "frame {i}: only {:.0}% of the visible model surface is in the scan (min {:.0}%)",
+            100.0 * q.coverage,
+            100.0 * th.min_coverage
+        ));
+    }
+    for (k, c) in q.link_support.iter().enumerate() {
+        if let Some(c) = c.filter(|c| *c < th.min_link_support) {
+            reasons.push(format!(
+                "frame {i}: the fitted links disagree: the scan sees through the {} where the model puts it beside the others (only {:.0}% of what it measured there is its surface, min {:.0}%); the kinematics the model is posed by are not the arm's: check robot.model and the controller's or file's calibration",
+                match k {
+                    0 => "base",
+                    1 => "shoulder",
+                    _ => "upper arm",
+                },
+                100.0 * c,
+                100.0 * th.min_link_support
+            ));
+        }
+    }
+    // The residual limit for this scan's noise (see `GateThresholds::max_rmse_mm`).
+    let noise_scale = q.noise_scale();
+    let max_rmse_mm = th.max_rmse_mm * noise_scale;
+    if q.free_space_violations > th.max_free_space_violations {
+        // Residuals far above the pixel noise, of a fit within the residual limit for this
+        // scan's noise, are a camera's bent depth (a stereo camera a metre or more away
+        // bends it by centimetre-wide blobs), which lies behind the arm in places as seeing
+        // through it would. A scan as precise as the tuning never reads so.
+        let bent = match q.noise_mm {
+            Some(n) if q.rmse_mm - n > th.max_rmse_mm && q.rmse_mm <= max_rmse_mm => {
+                format!(
+                "; or the camera's depth bent behind the arm, as this scan's residuals ({:.2} mm RMS against {n:.2} mm of pixel noise) suggest, which this check cannot tell from seeing through it: if the report picture (solve --report) shows the model's outline on the arm, the camera's depth is the limit",
+                q.rmse_mm
+            )
+            }
+            _ => String::new(),
+        };
+        reasons.push(format!(
+            "frame {i}: the scan sees through {:.1}% of the posed model (max {:.1}%): wrong pose or wrong joints{bent}",
+            100.0 * q.free_space_violations,
+            100.0 * th.max_free_space_violations
+        ));
+    }
+    if q.rmse_mm > max_rmse_mm {
+        let noisy = match q.noise_mm {
+            Some(n) if noise_scale > 1.0 => format!(" for this scan's {n:.2} mm of noise"),
+            _ => String::new(),
+        };
+        reasons.push(format!(
+            "frame {i}: residual RMS {:.2} mm (max {max_rmse_mm:.2} mm{noisy})",
+            q.rmse_mm
+        ));
+    }
+    if q.inlier_fraction < th.min_inlier_fraction {
+        reasons.push(format!(
+            "frame {i}: only {:.0}% of scan points near the model fit it (min {:.0}%)",
+            100.0 * q.inlier_fraction,
+            100.0 * th.min_inlier_fraction
+        ));
+    }
+    if q.ambiguity > th.max_ambiguity {
+        reasons.push(format!(
+            "frame {i}: a different pose explains the scan almost as well ({:.0}% of the result's support, max {:.0}%): the visible base and shoulder look nearly symmetric; show more of the upper arm",
+            100.0 * q.ambiguity,
+            100.0 * th.max_ambiguity
+        ));
+    }
+    if let Some(s) = r.depth_scale {
+        if (s - 1.0).abs() > th.max_depth_scale_error {
+            reasons.push(format!(
+                "frame {i}: estimated depth scale {s:.4} is implausible (max error {:.1}%)",
+                100.0 * th.max_depth_scale_error
+            ));
+        }
+    }
+    if let Some(off_mm) = r.depth_offset_m.map(|m| m * 1e3) {
+        if off_mm.abs() > th.max_depth_offset_mm {
+            reasons.push(format!(
+                "frame {i}: estimated range offset {off_mm:+.1} mm is implausible (max {:.1} mm): a wrong pose, or a camera whose distances need their own calibration",
+                th.max_depth_offset_mm
+            ));
+        }
+    }
+    reasons
+}
+
 /// Checks every registration (index = frame index) and the fused solution; `previous` is the
 /// last accepted result in the same frame as `solution.estimate`.
 pub fn gate(
@@ -135,67 +232,11 @@ pub fn gate(
         }
     }
     for (i, r) in registrations.iter().enumerate() {
-        let q = &r.quality;
-        if q.coverage < th.min_coverage {
-            reasons.push(format!(
-                "frame {i}: only {:.0}% of the visible model surface is in the scan (min {:.0}%)",
-                100.0 * q.coverage,
-                100.0 * th.min_coverage
-            ));
-        }
-        for (k, c) in q.link_support.iter().enumerate() {
-            if let Some(c) = c.filter(|c| *c < th.min_link_support) {
-                reasons.push(format!(
-                    "frame {i}: the fitted links disagree: the scan sees through the {} where the model puts it beside the others (only {:.0}% of what it measured there is its surface, min {:.0}%); the kinematics the model is posed by are not the arm's: check robot.model and the controller's or file's calibration",
-                    match k {
-                        0 => "base",
-                        1 => "shoulder",
-                        _ => "upper arm",
-                    },
-                    100.0 * c,
-                    100.0 * th.min_link_support
-                ));
-            }
-        }
-        // The residual limit for this scan's noise (see `GateThresholds::max_rmse_mm`).
-        let noise_scale = q.noise_scale();
-        let max_rmse_mm = th.max_rmse_mm * noise_scale;
-        if q.free_space_violations > th.max_free_space_violations {
-            // Residuals far above the pixel noise, of a fit within the residual limit for this
-            // scan's noise, are a camera's bent depth (a stereo camera a metre or more away
-            // bends it by centimetre-wide blobs), which lies behind the arm in places as seeing
-            // through it would. A scan as precise as the tuning never reads so.
-            let bent = match q.noise_mm {
-                Some(n) if q.rmse_mm - n > th.max_rmse_mm && q.rmse_mm <= max_rmse_mm => {
-                    format!(
-                    "; or the camera's depth bent behind the arm, as this scan's residuals ({:.2} mm RMS against {n:.2} mm of pixel noise) suggest, which this check cannot tell from seeing through it: if the report picture (solve --report) shows the model's outline on the arm, the camera's depth is the limit",
-                    q.rmse_mm
-                )
-                }
-                _ => String::new(),
-            };
-            reasons.push(format!(
-                "frame {i}: the scan sees through {:.1}% of the posed model (max {:.1}%): wrong pose or wrong joints{bent}",
-                100.0 * q.free_space_violations,
-                100.0 * th.max_free_space_violations
-            ));
-        }
-        if q.rmse_mm > max_rmse_mm {
-            let noisy = match q.noise_mm {
-                Some(n) if noise_scale > 1.0 => format!(" for this scan's {n:.2} mm of noise"),
-                _ => String::new(),
-            };
-            reasons.push(format!(
-                "frame {i}: residual RMS {:.2} mm (max {max_rmse_mm:.2} mm{noisy})",
-                q.rmse_mm
-            ));
-        }
-        if q.inlier_fraction < th.min_inlier_fraction {
-            reasons.push(format!(
-                "frame {i}: only {:.0}% of scan points near the model fit it (min {:.0}%)",
-                100.0 * q.inlier_fraction,
-                100.0 * th.min_inlier_fraction
-            ));
+        // A frame the views fitted together set aside for its quality is not judged.
+        let set_aside =
+            solution.uncertainty.is_some() && solution.frames.get(i).is_some_and(|f| !f.used);
+        if !set_aside {
+            reasons.extend(frame_quality_reasons(i, r, th));
         }
         // Views fitted together are judged by the joint fit's σ (below): a view that alone
         // leaves a direction loose, or is uncertain, adds what it knows.
@@ -224,29 +265,6 @@ pub fn gate(
                 "frame {i}: the visible geometry leaves {} direction(s) unconstrained (e.g. yaw of a round base): show the shoulder and upper arm",
                 r.degenerate_directions.len()
             ));
-        }
-        if q.ambiguity > th.max_ambiguity {
-            reasons.push(format!(
-                "frame {i}: a different pose explains the scan almost as well ({:.0}% of the result's support, max {:.0}%): the visible base and shoulder look nearly symmetric; show more of the upper arm",
-                100.0 * q.ambiguity,
-                100.0 * th.max_ambiguity
-            ));
-        }
-        if let Some(s) = r.depth_scale {
-            if (s - 1.0).abs() > th.max_depth_scale_error {
-                reasons.push(format!(
-                    "frame {i}: estimated depth scale {s:.4} is implausible (max error {:.1}%)",
-                    100.0 * th.max_depth_scale_error
-                ));
-            }
-        }
-        if let Some(off_mm) = r.depth_offset_m.map(|m| m * 1e3) {
-            if off_mm.abs() > th.max_depth_offset_mm {
-                reasons.push(format!(
-                    "frame {i}: estimated range offset {off_mm:+.1} mm is implausible (max {:.1} mm): a wrong pose, or a camera whose distances need their own calibration",
-                    th.max_depth_offset_mm
-                ));
-            }
         }
     }
     let at = solution
@@ -384,6 +402,14 @@ mod tests {
             workspace: None,
         });
         let v = gate(&regs, &sol, None, &th);
+        assert!(v.passed(), "{v:?}");
+        // A frame the joint fit set aside (unused) is not judged for its quality; used, it is.
+        let mut poor = regs.clone();
+        poor[2].quality.coverage = 0.3;
+        assert!(!gate(&poor, &sol, None, &th).passed());
+        let mut aside = sol.clone();
+        aside.frames[2].used = false;
+        let v = gate(&poor, &aside, None, &th);
         assert!(v.passed(), "{v:?}");
         sol.uncertainty = Some(Uncertainty {
             translation_mm: 1.6,

@@ -10,8 +10,10 @@ use handeye_hal::PointCloud;
 use nalgebra::Isometry3;
 
 use crate::calib::fuse::fuse_solution;
+use crate::calib::gate::frame_quality_reasons;
+use crate::calib::solve::solve_setting_aside;
 use crate::calib::{
-    gate, posed_model, posed_model_with_controller_kinematics, register_posed, solve, CalibError,
+    gate, posed_model, posed_model_with_controller_kinematics, register_posed, CalibError,
     CalibrationReport, FrameInput, GateThresholds, HandEyeSolution, Mount, RegisterOptions,
     Registration, SolveOptions, Verdict,
 };
@@ -117,6 +119,50 @@ pub fn fixed_frame(model: &RobotModel, frame: &str) -> Result<Isometry3<f64>, Ca
     Ok(pose)
 }
 
+/// The frames a run of several views sets aside: a wrist camera's views are fitted together
+/// (`calib::fuse`), and a frame whose quality the gate refuses (too little of the model in
+/// view, seen through, …) is left out of the fit when at least three views were captured, two
+/// keep good frames and no more than the gate's share of frames
+/// ([`GateThresholds::max_dropped_fraction`]) goes; the gate then judges the rest. Otherwise
+/// none: every frame is judged as it is.
+fn frames_to_set_aside(
+    mount: Mount,
+    inputs: &[FrameInput],
+    registrations: &[Registration],
+    th: &GateThresholds,
+) -> Vec<bool> {
+    let none = vec![false; inputs.len()];
+    if mount != Mount::EyeInHand {
+        return none;
+    }
+    let faults: Vec<Vec<String>> = registrations
+        .iter()
+        .enumerate()
+        .map(|(i, r)| frame_quality_reasons(i, r, th))
+        .collect();
+    let views = |keep: &dyn Fn(usize) -> bool| {
+        let mut v: Vec<usize> = (0..inputs.len())
+            .filter(|&i| keep(i))
+            .map(|i| inputs[i].view)
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v.len()
+    };
+    let faulty = faults.iter().filter(|f| !f.is_empty()).count();
+    if faulty == 0
+        || views(&|_| true) < 3
+        || views(&|i| faults[i].is_empty()) < 2
+        || faulty as f64 > th.max_dropped_fraction * inputs.len() as f64
+    {
+        return none;
+    }
+    for reason in faults.iter().flatten() {
+        tracing::info!("set aside from the views fitted together: {reason}");
+    }
+    faults.iter().map(|f| !f.is_empty()).collect()
+}
+
 /// Registers every frame, solves, fuses and gates. Errors only when nothing can be computed
 /// (no frames, a joint count that does not match, a scan in which the robot is not found); a
 /// result the data does not support comes back with a failed verdict.
@@ -177,7 +223,8 @@ pub fn calibrate_frames(
         registrations.push(reg);
     }
     let t_solve = Instant::now();
-    let mut solution = solve(opts.mount, &inputs, &opts.solve)?;
+    let set_aside = frames_to_set_aside(opts.mount, &inputs, &registrations, &opts.gate);
+    let mut solution = solve_setting_aside(opts.mount, &inputs, &opts.solve, &set_aside)?;
     // The views of one arm fitted together: what one view cannot tell apart from the mount
     // (its links' housings), several views can.
     if let Some((estimate, uncertainty)) = fuse_solution(
@@ -219,4 +266,63 @@ pub fn calibrate_frames(
         base_from_camera,
         report,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::testutil::good_registration;
+    use nalgebra::Vector3;
+
+    /// Three views of a wrist camera, view 1's frame too little of the model: it is set aside
+    /// and reported unused, its disagreement measured; with two views, or a camera fixed in the
+    /// cell, or two of three frames bad, nothing is set aside (the gate judges them all).
+    #[test]
+    fn a_run_of_three_views_sets_a_poor_one_aside() {
+        let flange = |k: f64| Isometry3::new(Vector3::new(0.1 * k, 0.2, 0.5), Vector3::z() * k);
+        let mount = Isometry3::translation(0.0, -0.08, 0.03);
+        let inputs: Vec<FrameInput> = (0..3)
+            .map(|v| FrameInput {
+                sigma: None,
+                view: v,
+                camera_from_model: (Isometry3::translation(0.0005 * v as f64, 0.0, 0.0)
+                    * flange(v as f64)
+                    * mount)
+                    .inverse(),
+                model_from_flange: Some(flange(v as f64)),
+            })
+            .collect();
+        let mut regs = vec![good_registration(); 3];
+        regs[1].quality.coverage = 0.4;
+        let th = GateThresholds::default();
+        let aside = frames_to_set_aside(Mount::EyeInHand, &inputs, &regs, &th);
+        assert_eq!(aside, [false, true, false]);
+        let sol = solve_setting_aside(Mount::EyeInHand, &inputs, &SolveOptions::default(), &aside)
+            .expect("solved");
+        assert_eq!(
+            sol.frames.iter().map(|f| f.used).collect::<Vec<_>>(),
+            [true, false, true]
+        );
+        assert_eq!(sol.views.len(), 3);
+        assert!(!sol.views[1].used);
+        // View 1 is 0.5 mm from the mean of views 0 and 2 (0 and 1 mm off).
+        assert!(
+            (sol.frames[1].translation_mm - 0.5).abs() < 0.05,
+            "{:?}",
+            sol.frames[1]
+        );
+        assert_eq!(
+            frames_to_set_aside(Mount::EyeInHand, &inputs[..2], &regs[..2], &th),
+            [false, false]
+        );
+        assert_eq!(
+            frames_to_set_aside(Mount::EyeToHand, &inputs, &regs, &th),
+            [false; 3]
+        );
+        regs[2].quality.coverage = 0.4;
+        assert_eq!(
+            frames_to_set_aside(Mount::EyeInHand, &inputs, &regs, &th),
+            [false; 3]
+        );
+    }
 }

@@ -242,6 +242,62 @@ pub fn solve(
     })
 }
 
+/// [`solve`] without the frames `set_aside` marks (the views fitted together set aside a
+/// frame whose quality the gate refuses): they, and views left without frames, are reported
+/// unused, with their disagreement measured against the result.
+pub(crate) fn solve_setting_aside(
+    mount: Mount,
+    frames: &[FrameInput],
+    opts: &SolveOptions,
+    set_aside: &[bool],
+) -> Result<HandEyeSolution, CalibError> {
+    let kept: Vec<usize> = (0..frames.len())
+        .filter(|&i| !set_aside.get(i).copied().unwrap_or(false))
+        .collect();
+    if kept.len() == frames.len() {
+        return solve(mount, frames, opts);
+    }
+    let subset: Vec<FrameInput> = kept.iter().map(|&i| frames[i].clone()).collect();
+    let mut solution = solve(mount, &subset, opts)?;
+    let unused = |index: usize, view: usize| Residual {
+        index,
+        view,
+        translation_mm: 0.0,
+        workspace_mm: None,
+        rotation_deg: 0.0,
+        used: false,
+    };
+    let mut by_frame: Vec<Residual> = frames
+        .iter()
+        .enumerate()
+        .map(|(i, f)| unused(i, f.view))
+        .collect();
+    for (k, &i) in kept.iter().enumerate() {
+        by_frame[i] = Residual {
+            index: i,
+            ..solution.frames[k]
+        };
+    }
+    let mut view_ids: Vec<usize> = frames.iter().map(|f| f.view).collect();
+    view_ids.sort_unstable();
+    view_ids.dedup();
+    solution.views = view_ids
+        .iter()
+        .map(|&v| {
+            solution
+                .views
+                .iter()
+                .find(|r| r.view == v)
+                .copied()
+                .unwrap_or_else(|| unused(v, v))
+        })
+        .collect();
+    solution.frames = by_frame;
+    let estimate = solution.estimate;
+    solution.re_estimate(estimate, frames)?;
+    Ok(solution)
+}
+
 /// Each frame's estimate of the unknown.
 fn frame_estimates(mount: Mount, frames: &[FrameInput]) -> Result<Vec<Isometry3<f64>>, CalibError> {
     frames
