@@ -75,22 +75,10 @@ fn a_link_posed_where_the_arm_has_none_shows_in_its_support() {
     let Some((model, mount, mut views)) = super::sim_tests::ur5e_views(1, 21) else {
         return;
     };
-    let intrinsics = Intrinsics::compact_1280x960();
     let ur = model.ur_model().expect("UR");
     let q = views.remove(0);
     let arm = handeye_hal::ur_dh::PhysicalArm::factory(ur, 2);
-    let req = ScanRequest::new(
-        &model,
-        q.clone(),
-        Placement::EyeInHand {
-            flange_from_camera: mount,
-        },
-        intrinsics,
-        &SimSettings::default(),
-        7,
-    )
-    .with_arm(arm);
-    let scan = simulate_scan(&req).expect("simulated");
+    let scan = wrist_scan_of(&model, mount, &q, arm, 7);
     let truth = scan.truth.camera_from_model;
     let posed =
         posed_model_with_controller_kinematics(&model, &q, &arm.controller_dh()).expect("posed");
@@ -241,6 +229,29 @@ fn controller_kinematics_beat_the_nominal_model_on_a_calibrated_arm() {
 
 const SCANS: usize = 6;
 
+/// A 1280×960 scan from the wrist camera on `mount` at `q` of the physical `arm` (default
+/// noise and cell).
+fn wrist_scan_of(
+    model: &RobotModel,
+    mount: Isometry3<f64>,
+    q: &[f64],
+    arm: handeye_hal::ur_dh::PhysicalArm,
+    seed: u64,
+) -> crate::sim::SimulatedScan {
+    let req = ScanRequest::new(
+        model,
+        q.to_vec(),
+        Placement::EyeInHand {
+            flange_from_camera: mount,
+        },
+        Intrinsics::compact_1280x960(),
+        &SimSettings::default(),
+        seed,
+    )
+    .with_arm(arm);
+    simulate_scan(&req).expect("simulated")
+}
+
 /// Manufactured UR5e arms (joints off as a factory calibration finds, every link's housing off
 /// its frame by 0.3 mm / 0.3 mrad per axis, the base's off joint 1's axis included), posed by
 /// the DH their controllers publish: a fit that takes the base housing as exact (the model
@@ -252,7 +263,6 @@ fn a_manufactured_arms_housings_are_weighed_and_in_the_uncertainty() {
     let Some((model, mount, views)) = super::sim_tests::ur5e_views(SCANS, 21) else {
         return;
     };
-    let settings = SimSettings::default();
     let anchored = RegisterOptions {
         kinematic_error: KinematicError::default().without_housings(),
         ..RegisterOptions::default()
@@ -262,18 +272,7 @@ fn a_manufactured_arms_housings_are_weighed_and_in_the_uncertainty() {
         let arm =
             handeye_hal::ur_dh::PhysicalArm::factory(model.ur_model().expect("UR"), k as u64 + 1);
         assert!(arm.housings[0].translation.vector.norm() > 0.0);
-        let req = ScanRequest::new(
-            &model,
-            q.clone(),
-            Placement::EyeInHand {
-                flange_from_camera: mount,
-            },
-            Intrinsics::compact_1280x960(),
-            &settings,
-            100 + k as u64,
-        )
-        .with_arm(arm);
-        let scan = simulate_scan(&req).expect("simulated");
+        let scan = wrist_scan_of(&model, mount, q, arm, 100 + k as u64);
         let reported = scan.truth.model_from_flange_reported;
         let posed =
             posed_model_with_controller_kinematics(&model, q, &arm.controller_dh()).expect("posed");
@@ -329,25 +328,13 @@ fn the_views_of_one_arm_fitted_together_separate_its_housings_from_the_mount() {
     let Some((model, mount, views)) = super::sim_tests::ur5e_views(3, 5) else {
         return;
     };
-    let settings = SimSettings::default();
     for arm_seed in [3, 8] {
         let arm = handeye_hal::ur_dh::PhysicalArm::factory(model.ur_model().expect("UR"), arm_seed);
         let frames: Vec<Frame> = views
             .iter()
             .enumerate()
             .map(|(k, q)| {
-                let req = ScanRequest::new(
-                    &model,
-                    q.clone(),
-                    Placement::EyeInHand {
-                        flange_from_camera: mount,
-                    },
-                    Intrinsics::compact_1280x960(),
-                    &settings,
-                    200 + k as u64,
-                )
-                .with_arm(arm);
-                let scan = simulate_scan(&req).expect("simulated");
+                let scan = wrist_scan_of(&model, mount, q, arm, 200 + k as u64);
                 Frame {
                     view: k,
                     cloud: scan.cloud,
