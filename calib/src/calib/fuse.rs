@@ -162,8 +162,11 @@ pub(crate) fn adjoint(model_from_frame: &Isometry3<f64>) -> Matrix6<f64> {
 
 /// The mount of an eye-in-hand solution refitted from its used views together, and its 1σ:
 /// the joint fit's, the camera's own depth errors (shared by every view, the frames' mean)
-/// and the model's accuracy (`model_accuracy`: metres, radians) added. `None` unless two views
-/// or more were used and every used frame's links were fitted.
+/// and the model's accuracy (`model_accuracy`: metres, radians) over the square root of the
+/// views. A CAD surface off the real part by a rigid offset of the part is, to the scan, the
+/// offset of that link's housing, which the views fitted together separate from the mount;
+/// what is left moves each view's pose its own way. `None` unless two views or more were
+/// used and every used frame's links were fitted.
 pub(crate) fn fuse_solution(
     solution: &HandEyeSolution,
     inputs: &[FrameInput],
@@ -205,6 +208,7 @@ pub(crate) fn fuse_solution(
         .sqrt()
         .to_degrees();
     let n = used.len() as f64;
+    let floor = |sigma: f64| sigma.powi(2) / per_view.len() as f64;
     let camera = |pick: fn(&Uncertainty) -> f64| {
         used.iter()
             .map(|&i| pick(&registrations[i].camera_error).powi(2))
@@ -214,11 +218,11 @@ pub(crate) fn fuse_solution(
     let uncertainty = Uncertainty {
         translation_mm: (fit_mm.powi(2)
             + camera(|u| u.translation_mm)
-            + (model_accuracy.0 * 1e3).powi(2))
+            + floor(model_accuracy.0 * 1e3))
         .sqrt(),
         rotation_deg: (fit_deg.powi(2)
             + camera(|u| u.rotation_deg)
-            + model_accuracy.1.to_degrees().powi(2))
+            + floor(model_accuracy.1.to_degrees()))
         .sqrt(),
         workspace: None,
     };
