@@ -19,6 +19,7 @@ use nalgebra::{
 use rayon::prelude::*;
 
 use super::coarse::Oriented;
+use super::fuse::LinkFit;
 use super::links::LinkParam;
 use super::surface::ModelSurface;
 
@@ -616,17 +617,6 @@ pub(crate) struct LinkPrior {
     pub(crate) residual_var: f64,
 }
 
-/// The link parameters a fit estimated, with their joint covariance with the pose.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) struct LinkEstimate {
-    /// The parameters `z` (prior 1σ units), in the order of [`LinkPrior::params`].
-    pub(crate) z: DVector<f64>,
-    /// The cluster-robust covariance of the pose (model-frame left perturbation, as
-    /// [`IcpResult::cov6`]) and `z`, `6 + z.len()` square: the depth parameters marginalised
-    /// out, the links' prior in it.
-    pub(crate) covariance: DMatrix<f64>,
-}
-
 impl LinkPrior {
     /// No link parameters: the links are where the model is posed.
     pub(crate) fn none() -> Self {
@@ -706,7 +696,7 @@ pub(crate) fn icp_with_links(
     depth0: DepthCorrection,
     stages: &[Stage],
     prior: &LinkPrior,
-) -> Option<(IcpResult, LinkEstimate)> {
+) -> Option<(IcpResult, LinkFit)> {
     let p = prior.params();
     let with_links = p > 0;
     let mut t = *init;
@@ -963,9 +953,11 @@ pub(crate) fn icp_with_links(
                 0.0
             },
         },
-        LinkEstimate {
+        LinkFit {
+            params: prior.params.clone(),
             z,
             covariance: links_cov,
+            model_from_camera: t,
         },
     ))
 }

@@ -315,17 +315,7 @@ mod tests {
         );
         let prior = prior.view((6, 6), (12, 12));
         let j = &posed.joints[0];
-        let r = j
-            .model_from_joint
-            .rotation
-            .to_rotation_matrix()
-            .into_inner();
-        let o = j.model_from_joint.translation.vector;
-        let mut ad = nalgebra::Matrix6::zeros();
-        ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-        ad.fixed_view_mut::<3, 3>(0, 3)
-            .copy_from(&(o.cross_matrix() * r));
-        ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+        let ad = crate::calib::fuse::adjoint(&j.model_from_joint);
         let expected = ad * error.joint_covariance(&j.axis, true) * ad.transpose();
         let got = prior.view((0, 0), (6, 6));
         for r in 0..6 {

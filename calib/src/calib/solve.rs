@@ -110,6 +110,27 @@ pub struct Residual {
 }
 
 impl Residual {
+    /// Estimate `x`'s disagreement with `estimate`: at the camera origin, and eye-to-hand at
+    /// `workspace_point` too ([`HandEyeSolution::workspace_point`]).
+    fn of(
+        x: &Isometry3<f64>,
+        estimate: &Isometry3<f64>,
+        workspace_point: Option<Point3<f64>>,
+        index: usize,
+        view: usize,
+        used: bool,
+    ) -> Self {
+        let (translation_mm, rotation_deg) = distance(x, estimate);
+        Residual {
+            index,
+            view,
+            translation_mm,
+            workspace_mm: workspace_point.map(|p| distance_at(x, estimate, &p).0),
+            rotation_deg,
+            used,
+        }
+    }
+
     /// The position disagreement the fusion drops by and the gate judges, mm: at the robot
     /// base (eye-to-hand), else at the camera origin.
     pub fn position_mm(&self) -> f64 {
@@ -176,9 +197,7 @@ pub fn solve(
         )),
     };
     let at = workspace_point.unwrap_or_else(Point3::origin);
-    let mut view_ids: Vec<usize> = frames.iter().map(|f| f.view).collect();
-    view_ids.sort_unstable();
-    view_ids.dedup();
+    let view_ids = view_ids(frames);
     let mut frame_used = vec![false; frames.len()];
     let mut view_est = Vec::new();
     let mut view_tol = Vec::new();
@@ -209,15 +228,7 @@ pub fn solve(
     }
     let (estimate, view_used) = robust_mean(&view_est, &view_tol, &at);
     let residual = |x: &Isometry3<f64>, index: usize, view: usize, used: bool| {
-        let (translation_mm, rotation_deg) = distance(x, &estimate);
-        Residual {
-            index,
-            view,
-            translation_mm,
-            workspace_mm: workspace_point.map(|p| distance_at(x, &estimate, &p).0),
-            rotation_deg,
-            used,
-        }
+        Residual::of(x, &estimate, workspace_point, index, view, used)
     };
     let views = view_ids
         .iter()
@@ -278,10 +289,7 @@ pub(crate) fn solve_setting_aside(
             ..solution.frames[k]
         };
     }
-    let mut view_ids: Vec<usize> = frames.iter().map(|f| f.view).collect();
-    view_ids.sort_unstable();
-    view_ids.dedup();
-    solution.views = view_ids
+    solution.views = view_ids(frames)
         .iter()
         .map(|&v| {
             solution
@@ -296,6 +304,14 @@ pub(crate) fn solve_setting_aside(
     let estimate = solution.estimate;
     solution.re_estimate(estimate, frames)?;
     Ok(solution)
+}
+
+/// The frames' view ids, ascending, each once.
+fn view_ids(frames: &[FrameInput]) -> Vec<usize> {
+    let mut ids: Vec<usize> = frames.iter().map(|f| f.view).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    ids
 }
 
 /// Each frame's estimate of the unknown.
@@ -331,8 +347,7 @@ impl HandEyeSolution {
         let per_frame = frame_estimates(self.mount, frames)?;
         let at = self.workspace_point;
         let measure = |x: &Isometry3<f64>, r: &mut Residual| {
-            (r.translation_mm, r.rotation_deg) = distance(x, &estimate);
-            r.workspace_mm = at.map(|p| distance_at(x, &estimate, &p).0);
+            *r = Residual::of(x, &estimate, at, r.index, r.view, r.used);
         };
         for (r, x) in self.frames.iter_mut().zip(&per_frame) {
             measure(x, r);

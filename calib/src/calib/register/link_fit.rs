@@ -15,9 +15,9 @@ use crate::calib::surface::PosedModel;
 use crate::calib::CalibError;
 
 /// The judged winner refitted with the links' kinematic error: its `camera_from_model`, fit
-/// and link parameters (`None` when the links are trusted as posed). The contenders were judged on the fit that trusts the posed links, and a refinement
-/// that wanders off is not trusted: an error rather than a covariance that leaves the links'
-/// error out.
+/// and link parameters (`None` when the links are trusted as posed). The contenders were
+/// judged on the fit that trusts the posed links, and a refinement that wanders off is not
+/// trusted: an error rather than a covariance that leaves the links' error out.
 pub(super) fn refine_with_links(
     p: &Prepared<'_>,
     model: &PosedModel,
@@ -59,7 +59,7 @@ pub(super) fn refine_with_links(
         &[stage],
         &link_prior,
     ) {
-        Some((r, links))
+        Some((r, fit))
             if crate::calib::within(
                 &r.model_from_camera.inverse(),
                 &camera_from_model,
@@ -67,13 +67,7 @@ pub(super) fn refine_with_links(
                 2.0 * p.k,
             ) =>
         {
-            tracing::debug!(z = ?links.z.as_slice(), "link parameters (prior 1σ units)");
-            let fit = LinkFit {
-                params: link_prior.params,
-                z: links.z,
-                covariance: links.covariance,
-                model_from_camera: r.model_from_camera,
-            };
+            tracing::debug!(z = ?fit.z.as_slice(), "link parameters (prior 1σ units)");
             Ok((r.model_from_camera.inverse(), r, Some(fit)))
         }
         other => Err(CalibError::RobotNotFound {
