@@ -618,10 +618,16 @@ pub fn decode(kind: u8, body: &[u8]) -> Result<PrimaryPackage, UrError> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn state(mode: RobotModeData, q: [f64; 6], kinematics: KinematicsInfo) -> RobotStateData {
+    /// A robot state in `mode` at joints `q` with `kinematics` (the other sub-packages a
+    /// controller's), for the parsers' and the fault proxy's tests.
+    pub(crate) fn state(
+        mode: RobotModeData,
+        q: [f64; 6],
+        kinematics: KinematicsInfo,
+    ) -> RobotStateData {
         RobotStateData {
             mode,
             q_actual: q,

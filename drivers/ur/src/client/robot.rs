@@ -589,13 +589,38 @@ fn corrupt(name: &str, values: &[f64], why: &str) -> HalError {
     }
 }
 
+/// A field the controller must send is not in its data.
+fn missing(name: &str) -> HalError {
+    HalError::Protocol {
+        peer: "RTDE".into(),
+        detail: format!("no {name} in the controller's data"),
+    }
+}
+
+/// Six numbers the controller must send as `name`: present, finite (else "which are not
+/// finite `what`"), each within ±`max` (else `beyond()`, made only then: the move loop reads
+/// every sample).
+fn bounded_vec6(
+    s: &Sample,
+    name: &str,
+    what: &str,
+    max: f64,
+    beyond: impl FnOnce() -> String,
+) -> Result<[f64; 6], HalError> {
+    let v = s.vec6(name).ok_or_else(|| missing(name))?;
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(corrupt(name, &v, &format!("which are not finite {what}")));
+    }
+    if v.iter().any(|x| x.abs() > max) {
+        return Err(corrupt(name, &v, &beyond()));
+    }
+    Ok(v)
+}
+
 /// A pose field (`x, y, z` m, rotation vector rad) the controller must send: present,
 /// finite, within `max_m` of its frame's origin.
 fn pose_field(s: &Sample, name: &str, max_m: f64) -> Result<UrPose, HalError> {
-    let p = s.vec6(name).ok_or_else(|| HalError::Protocol {
-        peer: "RTDE".into(),
-        detail: format!("no {name} in the controller's data"),
-    })?;
+    let p = s.vec6(name).ok_or_else(|| missing(name))?;
     if p.iter().any(|v| !v.is_finite()) {
         return Err(corrupt(name, &p, "which is not a finite pose"));
     }
@@ -613,48 +638,26 @@ fn pose_field(s: &Sample, name: &str, max_m: f64) -> Result<UrPose, HalError> {
 /// The joint angles the controller must send (`actual_q`): present, finite, within a UR
 /// joint's ±360°.
 fn joints_field(s: &Sample) -> Result<[f64; 6], HalError> {
-    let q = s.vec6("actual_q").ok_or_else(|| HalError::Protocol {
-        peer: "RTDE".into(),
-        detail: "no actual_q in the controller's data".into(),
-    })?;
-    if q.iter().any(|v| !v.is_finite()) {
-        return Err(corrupt("actual_q", &q, "which are not finite angles"));
-    }
-    if q.iter().any(|v| v.abs() > MAX_REPORTED_JOINT_RAD) {
-        return Err(corrupt(
-            "actual_q",
-            &q,
-            "beyond the ±360° (±6.283 rad) a UR joint turns",
-        ));
-    }
-    Ok(q)
+    bounded_vec6(s, "actual_q", "angles", MAX_REPORTED_JOINT_RAD, || {
+        "beyond the ±360° (±6.283 rad) a UR joint turns".into()
+    })
 }
 
 /// The joint speeds the controller must send (`actual_qd`): present, finite, within
 /// [`MAX_REPORTED_JOINT_SPEED_RAD_S`].
 fn speeds_field(s: &Sample) -> Result<[f64; 6], HalError> {
-    let qd = s.vec6("actual_qd").ok_or_else(|| HalError::Protocol {
-        peer: "RTDE".into(),
-        detail: "no actual_qd in the controller's data".into(),
-    })?;
-    if qd.iter().any(|v| !v.is_finite()) {
-        return Err(corrupt(
-            "actual_qd",
-            &qd,
-            "which are not finite joint speeds",
-        ));
-    }
-    if qd.iter().any(|v| v.abs() > MAX_REPORTED_JOINT_SPEED_RAD_S) {
-        return Err(corrupt(
-            "actual_qd",
-            &qd,
-            &format!(
+    bounded_vec6(
+        s,
+        "actual_qd",
+        "joint speeds",
+        MAX_REPORTED_JOINT_SPEED_RAD_S,
+        || {
+            format!(
                 "faster than the {MAX_REPORTED_JOINT_SPEED_RAD_S:.2} rad/s a UR joint can turn \
                  (2π rad/s and half as much again)"
-            ),
-        ));
-    }
-    Ok(qd)
+            )
+        },
+    )
 }
 
 /// The speed slider the controller must send (`target_speed_fraction`): present, within
@@ -662,10 +665,7 @@ fn speeds_field(s: &Sample) -> Result<[f64; 6], HalError> {
 fn speed_fraction_field(s: &Sample) -> Result<f64, HalError> {
     let f = s
         .f64("target_speed_fraction")
-        .ok_or_else(|| HalError::Protocol {
-            peer: "RTDE".into(),
-            detail: "no target_speed_fraction in the controller's data".into(),
-        })?;
+        .ok_or_else(|| missing("target_speed_fraction"))?;
     if !(0.0..=1.0).contains(&f) {
         return Err(corrupt(
             "target_speed_fraction",

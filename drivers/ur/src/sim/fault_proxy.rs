@@ -498,43 +498,19 @@ mod tests {
     use handeye_hal::ur_dh::UrModel;
 
     use super::*;
+    use crate::primary::tests::state;
     use crate::primary::{
-        encode_robot_state, split, CartesianInfo, ConfigurationData, PrimaryPackage, RobotModeData,
-        RobotStateData, CALIBRATION_LINEARISED,
+        encode_robot_state, split, PrimaryPackage, RobotModeData, CALIBRATION_LINEARISED,
     };
 
     fn robot_state() -> (Vec<u8>, KinematicsInfo) {
         let kin = KinematicsInfo::for_arm(UrModel::Ur5e.dh(), CALIBRATION_LINEARISED);
-        let st = RobotStateData {
-            mode: RobotModeData {
-                timestamp_us: 7,
-                robot_mode: 7,
-                ..Default::default()
-            },
-            q_actual: [0.1; 6],
-            q_target: [0.1; 6],
-            qd_actual: [0.0; 6],
-            joint_mode: 253,
-            cartesian: CartesianInfo {
-                tool_pose: [0.1, -0.2, 0.3, 0.4, -0.5, 0.6],
-                tcp_offset: [0.0; 6],
-            },
-            kinematics: kin,
-            configuration: ConfigurationData {
-                joint_limits: [(-6.0, 6.0); 6],
-                joint_motion_limits: [(3.0, 40.0); 6],
-                defaults: [1.05, 1.4, 0.25, 1.2, 0.045],
-                dh: kin.dh,
-                masterboard_version: 3,
-                controller_box_type: 5,
-                robot_type: 2,
-                robot_sub_type: 3,
-            },
-            digital_outputs: 0,
-            analog_outputs: [0.0; 2],
-            safety_mode: 1,
+        let mode = RobotModeData {
+            timestamp_us: 7,
+            robot_mode: 7,
+            ..Default::default()
         };
-        (encode_robot_state(&st), kin)
+        (encode_robot_state(&state(mode, [0.1; 6], kin)), kin)
     }
 
     fn decoded(package: &[u8]) -> PrimaryPackage {
