@@ -15,7 +15,7 @@ use handeye::run::{Outcome, Progress, Recorder, RunMode, RunRecord, RunRequest, 
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
-use super::wiring::{connect_robot, history_path, load_model, AnyCamera};
+use super::wiring::{connect_robot, history_path, load_model, AnyCamera, Registers};
 
 /// Arguments of `calibrate`.
 #[derive(Debug, clap::Args)]
@@ -191,7 +191,13 @@ pub(crate) async fn execute(
     quiet: bool,
 ) -> anyhow::Result<RunRecord> {
     let model = load_model(cfg)?;
-    let robot = connect_robot(cfg, &model).await?;
+    // A dry run writes nothing: it claims no register (it runs beside a daemon that does).
+    let registers = if req.dry_run {
+        Registers::None
+    } else {
+        Registers::Configured
+    };
+    let robot = connect_robot(cfg, &model, registers).await?;
     let camera = AnyCamera::connect(cfg).await?;
     let recorder = recorder(cfg).await;
     let progress = Terminal::new(quiet);

@@ -17,7 +17,7 @@ use handeye::daemon::lock::DaemonLock;
 use handeye::daemon::DaemonHandle;
 use tokio_util::sync::CancellationToken;
 
-use super::wiring::{connect_robot, history_path, load_model, AnyCamera};
+use super::wiring::{connect_robot, history_path, load_model, AnyCamera, Registers};
 
 /// Arguments of this subcommand.
 #[derive(Debug, clap::Args)]
@@ -90,7 +90,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         let cfg = connect_cfg;
         let robot_at = format!("robot at {}", cfg.robot.host);
         let robot = with_backoff(&robot_at, &handle, &stop, || {
-            connect_robot(&cfg, &connect_model)
+            connect_robot(&cfg, &connect_model, Registers::Configured)
         })
         .await?;
         let camera = with_backoff("camera", &handle, &stop, || AnyCamera::connect(&cfg)).await?;

@@ -149,9 +149,14 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         }
         _ => None,
     };
-    // Only `registers` reads and writes them: the others claim no RTDE input, so they work
-    // beside a running daemon (or another client) that holds the registers.
-    if !matches!(args.command, Command::Registers { .. }) {
+    // Only `registers` reads and writes them (24–47 and the int registers 24–31, whatever
+    // the configuration writes): the others claim no RTDE input, so they work beside a
+    // running daemon (or another client) that holds the registers.
+    if matches!(args.command, Command::Registers { .. }) {
+        let all = UrConfig::new(host);
+        cfg.registers = all.registers;
+        cfg.int_registers = all.int_registers;
+    } else {
         cfg = cfg.without_registers();
     }
     let robot = tokio::select! {

@@ -138,21 +138,31 @@ pub(crate) fn ur_config(cfg: &Config) -> UrConfig {
     ur
 }
 
+/// Which RTDE input registers a connection claims.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Registers {
+    /// Those the configuration writes (write-back, the pendant handshake): a run that writes.
+    Configured,
+    /// None: a dry run, read-only, beside a daemon that holds them.
+    None,
+}
+
 /// Connects RTDE, dashboard and primary of the configured controller, every move guarded in
 /// the configured cell (joint limits, floor, self-collision, obstacles, speed caps).
 pub(crate) async fn connect_robot(
     cfg: &Config,
     model: &Arc<RobotModel>,
+    registers: Registers,
 ) -> anyhow::Result<MotionGuard<UrRobot>> {
     // Claim exactly the RTDE input registers the configuration writes (and the pendant
     // handshake's), no others: they stay free for the cell's own clients.
     let mut ur = ur_config(cfg);
     let mut ints: Vec<u32> = Vec::new();
-    if let Some(map) = cfg.write_back.registers {
+    if let (Some(map), Registers::Configured) = (cfg.write_back.registers, registers) {
         ur.registers = map.double_start..=map.double_start + 5;
         ints.push(map.sequence_int);
     }
-    if let Some(p) = cfg.daemon.pendant {
+    if let (Some(p), Registers::Configured) = (cfg.daemon.pendant, registers) {
         ints.extend([p.request_register, p.status_register]);
     }
     if let (Some(lo), Some(hi)) = (ints.iter().min(), ints.iter().max()) {

@@ -863,9 +863,9 @@ pub async fn run_with<R, C, F, Fut>(
             utc_text(due as f64)
         );
     }
-    let mut pendant = tokio::time::interval(pendant::POLL);
-    pendant.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut last_request = 0;
+    let mut pendant_poll = tokio::time::interval(pendant::POLL);
+    pendant_poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut pendant = cfg.daemon.pendant.map(pendant::Pendant::new);
     let mut health = tokio::time::interval(HEALTH_EVERY);
     health.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
@@ -893,12 +893,29 @@ pub async fn run_with<R, C, F, Fut>(
             _ = shutdown.cancelled() => break,
             _ = handle.shared.wake.notified() => {
                 let Some(job) = handle.next_job() else { continue };
-                let record = execute(&cfg, &model, &robot, &camera, &handle, &job).await;
+                // The pendant is served while the run goes: a request then is answered at once.
+                let record = {
+                    let run = execute(&cfg, &model, &robot, &camera, &handle, &job);
+                    let serve_pendant = async {
+                        match &mut pendant {
+                            Some(p) => loop {
+                                pendant_poll.tick().await;
+                                p.poll(&robot, &handle).await;
+                            },
+                            None => std::future::pending::<RunRecord>().await,
+                        }
+                    };
+                    tokio::select! {
+                        biased;
+                        record = run => record,
+                        never = serve_pendant => never,
+                    }
+                };
                 if let Some(n) = &notifier {
                     n.status(&format!("last run {}: {}", record.run_id, record.outcome));
                 }
-                if let (Trigger::Pendant, Some(p)) = (job.entry.trigger, cfg.daemon.pendant) {
-                    pendant::finished(&robot, p, record.outcome).await;
+                if let Some(p) = &mut pendant {
+                    p.finished(&robot, &record.run_id, record.outcome).await;
                 }
                 if job.entry.trigger == Trigger::Schedule
                     && record.drift_found() == Some(true)
@@ -910,9 +927,9 @@ pub async fn run_with<R, C, F, Fut>(
                     }
                 }
             }
-            _ = pendant.tick(), if cfg.daemon.pendant.is_some() => {
-                if let Some(p) = cfg.daemon.pendant {
-                    last_request = pendant::poll(&robot, &handle, p, last_request).await;
+            _ = pendant_poll.tick(), if pendant.is_some() => {
+                if let Some(p) = &mut pendant {
+                    p.poll(&robot, &handle).await;
                 }
             }
             _ = health.tick() => {
@@ -943,6 +960,9 @@ pub async fn run_with<R, C, F, Fut>(
     while let Some(job) = handle.next_job() {
         let record = execute(&cfg, &model, &robot, &camera, &handle, &job).await;
         tracing::info!(run_id = %record.run_id, "run accepted before the shutdown: {}", record.outcome);
+        if let Some(p) = &mut pendant {
+            p.finished(&robot, &record.run_id, record.outcome).await;
+        }
     }
     let _ = frontend_task.await;
     let _ = control_task.await;

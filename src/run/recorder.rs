@@ -65,13 +65,18 @@ impl Recorder {
         let mut record = RunRecord::starting(run_id, req.mode, req.dry_run, cfg.origin.clone());
         record.trigger = self.history.as_ref().map(|(_, trigger)| *trigger);
         let run_dir = storage::run_folder(&cfg.storage.dir, &record.run_id);
-        // A write-back interrupted by a crash is reconciled with the controller first.
-        let reconciled = super::journal::reconcile(
-            robot,
-            &cfg.storage.dir,
-            self.history.as_ref().map(|(s, _)| s.as_ref()),
-        )
-        .await;
+        // A write-back interrupted by a crash is reconciled with the controller first; a dry
+        // run writes nothing to the controller and leaves that to the next run that writes.
+        let reconciled = if req.dry_run {
+            Ok(None)
+        } else {
+            super::journal::reconcile(
+                robot,
+                &cfg.storage.dir,
+                self.history.as_ref().map(|(s, _)| s.as_ref()),
+            )
+            .await
+        };
         let ahead = match reconciled {
             Ok(_) => self.write_ahead(&record, &run_dir, cfg),
             Err(e) => Err(e.to_string()),

@@ -28,6 +28,17 @@ struct RobotState {
     /// Every TCP set, in order.
     tcp_history: Vec<Isometry3<f64>>,
     after_set_tcp: Option<Hook>,
+    /// Register reads (writes) time out, as over a link that is down.
+    fail_register_reads: bool,
+    fail_register_writes: bool,
+}
+
+/// What a register access over a link that is down ends in.
+fn register_timeout(what: String) -> HalError {
+    HalError::Timeout {
+        what,
+        timeout: std::time::Duration::from_millis(500),
+    }
 }
 
 /// A test's action run after a call (e.g. fill the disk once the controller took the TCP).
@@ -81,6 +92,8 @@ impl FakeRobot {
             output_int_registers: HashMap::new(),
             tcp_history: Vec::new(),
             after_set_tcp: None,
+            fail_register_reads: false,
+            fail_register_writes: false,
         };
         Self {
             model,
@@ -126,6 +139,22 @@ impl FakeRobot {
     /// move succeeds (the driver reconnected) and [`Robot::link_generation`] goes up by one.
     pub fn reconnect_at_move(&self, index: usize) {
         self.lock().reconnect_at_move = Some(index);
+    }
+
+    /// Make the connection drop and come back now: [`Robot::link_generation`] goes up by one.
+    pub fn reconnect(&self) {
+        self.lock().link_generation += 1;
+    }
+
+    /// Make every register read time out (`true`), as over a link that is down, or answer
+    /// again (`false`).
+    pub fn fail_register_reads(&self, fail: bool) {
+        self.lock().fail_register_reads = fail;
+    }
+
+    /// Make every register write time out (`true`), or be taken again (`false`).
+    pub fn fail_register_writes(&self, fail: bool) {
+        self.lock().fail_register_writes = fail;
     }
 
     /// Set an integer output register, as a program on the controller would.
@@ -255,7 +284,13 @@ impl Robot for FakeRobot {
     }
 
     async fn write_int_register(&self, index: u32, value: i32) -> Result<(), HalError> {
-        self.lock().int_registers.insert(index, value);
+        let mut s = self.lock();
+        if s.fail_register_writes {
+            return Err(register_timeout(format!(
+                "input_int_register_{index} write"
+            )));
+        }
+        s.int_registers.insert(index, value);
         Ok(())
     }
 
@@ -264,12 +299,13 @@ impl Robot for FakeRobot {
     }
 
     async fn read_output_int_register(&self, index: u32) -> Result<i32, HalError> {
-        Ok(self
-            .lock()
-            .output_int_registers
-            .get(&index)
-            .copied()
-            .unwrap_or(0))
+        let s = self.lock();
+        if s.fail_register_reads {
+            return Err(register_timeout(format!(
+                "output_int_register_{index} read"
+            )));
+        }
+        Ok(s.output_int_registers.get(&index).copied().unwrap_or(0))
     }
 
     async fn tcp_offset(&self) -> Result<Isometry3<f64>, HalError> {
