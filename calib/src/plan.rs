@@ -575,6 +575,59 @@ impl<'a> ViewPlanner<'a> {
     }
 }
 
+/// How far the other views of a run move each joint from its first view at most, radians
+/// ([`ViewPlanner::nearby`]): the base and the upper arm a little (the base stays in view, the
+/// moves stay short), the wrist far (what turns the flange, and so separates the mount from
+/// the base's housing).
+pub const NEARBY_SPAN_RAD: [f64; 6] = [0.5, 0.3, 0.3, 0.9, 0.9, 1.6];
+
+/// How far a run's first view moves each joint from where the arm stands at most, radians
+/// ([`ViewPlanner::nearby`]): the base a quarter turn, the rest anywhere within their limits.
+pub const FIRST_VIEW_SPAN_RAD: [f64; 6] = [std::f64::consts::FRAC_PI_2, PI, PI, PI, PI, PI];
+
+impl ViewPlanner<'_> {
+    /// Up to `want` views near `anchor` (joint `k` within `span_rad[k]` of it, uniformly,
+    /// seeded), each passing [`Self::check`]; gives up after `max_draws` draws.
+    pub fn nearby(
+        &self,
+        anchor: &[f64],
+        span_rad: &[f64],
+        want: usize,
+        max_draws: usize,
+        seed: u64,
+    ) -> Result<Vec<Vec<f64>>, PlanError> {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+        let mut found = Vec::new();
+        for _ in 0..max_draws {
+            if found.len() >= want {
+                break;
+            }
+            if self.is_cancelled() {
+                return Err(PlanError::Cancelled);
+            }
+            let q: Vec<f64> = anchor
+                .iter()
+                .enumerate()
+                .map(|(k, a)| {
+                    let span = span_rad.get(k).copied().unwrap_or(0.0);
+                    a + rng.random_range(-span..=span)
+                })
+                .collect();
+            if self.base_in_view(&q)?.is_ok() && self.check(&q)?.is_ok() {
+                found.push(q);
+            }
+        }
+        Ok(found)
+    }
+
+    /// The angle between the flange's orientations at joints `a` and `b`, radians.
+    pub fn flange_turn(&self, a: &[f64], b: &[f64]) -> Result<f64, ModelError> {
+        let fa = self.model.frame_pose(self.model.flange_link(), a)?;
+        let fb = self.model.frame_pose(self.model.flange_link(), b)?;
+        Ok(fa.rotation.angle_to(&fb.rotation))
+    }
+}
+
 /// A random joint configuration within `model`'s limits (each joint within ±π), one uniform
 /// draw per joint in chain order.
 pub fn random_joints(model: &RobotModel, rng: &mut impl Rng) -> Vec<f64> {

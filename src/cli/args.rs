@@ -236,12 +236,13 @@ mod tests {
             KinematicError {
                 housing_translation_sigma_m: 3e-4,
                 housing_rotation_sigma_rad: 3e-4,
-                ..KinematicError::none()
+                ..KinematicError::default().readings_only()
             }
         );
+        // The joints' and housings' errors; the readings' errors are the arm's class.
         assert_eq!(
             parse_kinematic_error("0,0,0,0,0").expect("valid"),
-            KinematicError::none()
+            KinematicError::default().readings_only()
         );
         let housed = parse_kinematic_error("0,0,0,0.5,0.2").expect("valid");
         assert_eq!(housed.housing_translation_sigma_m, 0.5e-3);

@@ -60,6 +60,12 @@ pub(crate) struct Args {
     /// `0,0` puts every housing exactly on its frame.
     #[arg(long, value_name = "MM,MRAD", value_parser = housings_arg)]
     housings: Option<(f64, f64)>,
+    /// 1σ of each joint reading's encoder error (mrad) and the unmodelled sag of the arm
+    /// stretched horizontally (mrad): the arms report their joints so, and the solver is told.
+    /// Default: the settings' `[kinematic_error]` (0.087,0.1: a UR's accuracy class);
+    /// `0,0` hands the solver exact joints.
+    #[arg(long, value_name = "MRAD,MRAD", value_parser = joint_reading_arg)]
+    joint_reading: Option<(f64, f64)>,
     /// Write every trial and the summaries as JSON here.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -83,6 +89,18 @@ fn housings_arg(s: &str) -> Result<(f64, f64), String> {
         [mm, mrad] if [mm, mrad].iter().all(|v| (0.0..=max).contains(v)) => Ok((mm, mrad)),
         _ => Err(format!(
             "expected SHIFT_MM,TURN_MRAD, each from 0 to {max} (e.g. 0.3,0.3; 0,0 for housings on their frames), got `{}`",
+            handeye_hal::limits::Quoted(s)
+        )),
+    }
+}
+
+/// `--joint-reading`: two non-negative numbers, milliradians.
+fn joint_reading_arg(s: &str) -> Result<(f64, f64), String> {
+    let max = handeye::model::MAX_KINEMATIC_SIGMA * 1e3;
+    match super::args::parse_numbers(s)?[..] {
+        [sigma, sag] if [sigma, sag].iter().all(|v| (0.0..=max).contains(v)) => Ok((sigma, sag)),
+        _ => Err(format!(
+            "expected ENCODER_MRAD,SAG_MRAD, each from 0 to {max} (e.g. 0.087,0.1; 0,0 for exact joint readings), got `{}`",
             handeye_hal::limits::Quoted(s)
         )),
     }
@@ -123,6 +141,10 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         settings.kinematic_error.housing_translation_sigma_m = mm * 1e-3;
         settings.kinematic_error.housing_rotation_sigma_rad = mrad * 1e-3;
     }
+    if let Some((sigma, sag)) = args.joint_reading {
+        settings.kinematic_error.joint_reading_sigma_rad = sigma * 1e-3;
+        settings.kinematic_error.deflection_rad = sag * 1e-3;
+    }
     let robots: Vec<PathBuf> = if args.robots == "all" {
         let dir = robots_dir().context("no robot directory; set HANDEYE_ROBOTS")?;
         handeye::model::find_urdfs(&dir)
@@ -139,6 +161,9 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let built = settings.kinematic_error;
     register.kinematic_error.housing_translation_sigma_m = built.housing_translation_sigma_m;
     register.kinematic_error.housing_rotation_sigma_rad = built.housing_rotation_sigma_rad;
+    // So are its joint readings' errors (a cell's configuration says its arm's class).
+    register.kinematic_error.joint_reading_sigma_rad = built.joint_reading_sigma_rad;
+    register.kinematic_error.deflection_rad = built.deflection_rad;
     let mut summaries = Vec::new();
     for (i, path) in robots.iter().enumerate() {
         let model = RobotModel::load(path)?;
@@ -195,11 +220,11 @@ fn progress_mark(t: &Trial) -> char {
 
 fn print_table(summaries: &[RobotSummary], args: &Args, arm: &handeye::model::KinematicError) {
     println!(
-        "\nhandeye bench: {} views × {} scans per robot{}, {}, camera {}, no prior, realistic noise + CAD mismatch, factory-calibrated arms with housings {:.2} mm / {:.2} mrad off their frames, kinematics {}",
+        "\nhandeye bench: {} views × {} scans per robot{}, {}, camera {}, no prior, realistic noise + CAD mismatch, factory-calibrated arms with housings {:.2} mm / {:.2} mrad off their frames, joint readings {:.3} mrad encoder error + {:.3} mrad sag, kinematics {}",
         args.views, args.scans_per_view, if args.views_per_run > 1 { format!(", {} views per run (a trial: one run)", args.views_per_run) } else { String::new() }, match args.mount {
             Mount::EyeInHand => "eye-in-hand (flange_from_camera)",
             Mount::EyeToHand => "eye-to-hand (base_from_camera)",
-        }, args.camera, arm.housing_translation_sigma_m * 1e3, arm.housing_rotation_sigma_rad * 1e3, match args.kinematics {
+        }, args.camera, arm.housing_translation_sigma_m * 1e3, arm.housing_rotation_sigma_rad * 1e3, arm.joint_reading_sigma_rad * 1e3, arm.deflection_rad * 1e3, match args.kinematics {
             BenchKinematics::Unknown => "unknown to the solver (nominal URDF)",
             BenchKinematics::Known => "given to the solver",
         }

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use handeye::frames::to_row_major;
 use handeye::model::RobotModel;
-use handeye::sim::{Intrinsics, KinematicError, SimSettings};
+use handeye::sim::{Intrinsics, SimSettings};
 use handeye_gige::sim::{SimCamera, SimOptions};
 use handeye_gige::GvcpClient;
 
@@ -129,8 +129,10 @@ impl Rig {
             },
             intrinsics,
             settings: SimSettings {
-                // The arm's kinematic error is the controller's calibration, rendered exactly.
-                kinematic_error: KinematicError::none(),
+                // The arm's kinematic error is the controller's calibration, rendered exactly;
+                // its joint readings are off as a real arm's are (the arm stands at its physical
+                // joints, the controller reports the joints it reads).
+                kinematic_error: opts.settings.kinematic_error.readings_only(),
                 ..opts.settings
             },
             arm: robot.arm(),

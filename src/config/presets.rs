@@ -15,7 +15,7 @@ use super::types::*;
 /// A ready-made configuration for the simulated rig (`handeye sim rig`, the demo): a UR5e at
 /// `host`/`ports` and the simulated GigE Vision camera at `camera_address`, mounted on the
 /// flange where the simulated camera's default mount puts it (`[0, -0.08, 0.04, -0.26, 0, 0]`),
-/// one automatically planned view, TCP and register (double 24..29, int 24) write-back, results
+/// three automatically planned views (fitted together), TCP and register (double 24..29, int 24) write-back, results
 /// in `storage_dir`. `config/sim-rig.example.toml` is the same as a file.
 pub fn sim_rig(
     host: IpAddr,
@@ -57,7 +57,7 @@ pub fn sim_rig(
         },
         views: ViewsConfig {
             targets: ViewTargets::Auto {
-                count: 1,
+                count: defaults::VIEW_COUNT,
                 min_distance_m: defaults::MIN_DISTANCE_M,
                 max_distance_m: defaults::MAX_DISTANCE_M,
                 seed: defaults::SEED,

@@ -197,7 +197,7 @@ fn defaults_fill_a_minimal_file() {
     assert_eq!(
         c.views.targets,
         ViewTargets::Auto {
-            count: 1,
+            count: 3,
             min_distance_m: 0.4,
             max_distance_m: 0.8,
             seed: 1

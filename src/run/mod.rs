@@ -40,7 +40,10 @@ use crate::config::{Config, KinematicsSource, ViewTargets};
 use crate::frames::to_row_major;
 use crate::guard::{self, PATH_STEP_RAD};
 use crate::model::RobotModel;
-use crate::plan::{CancelCheck, PlanError, ViewConstraints, ViewPlanner, ViewRejection};
+use crate::plan::{
+    CancelCheck, PlanError, ViewConstraints, ViewPlanner, ViewRejection, FIRST_VIEW_SPAN_RAD,
+    NEARBY_SPAN_RAD,
+};
 use crate::sim::Intrinsics;
 
 use crate::calendar::unix_now;
@@ -55,6 +58,13 @@ pub use recorder::{open_history, Recorder};
 
 /// Generated candidates tried per automatic view before the plan gives up.
 const AUTO_VIEW_TRIES: usize = 8;
+/// Of this many first views drawn within a quarter turn of the base, the one nearest to the
+/// start on a safe path.
+const FIRST_VIEW_CANDIDATES: usize = 4;
+/// Draws for them (most random poses do not see the base).
+const FIRST_VIEW_DRAWS: usize = 200_000;
+/// Candidates drawn near the first view for each further view.
+const NEARBY_CANDIDATES: usize = 6;
 /// The arm must not move more than this while the camera exposes, rad.
 const MAX_JOINT_CHANGE_DURING_CAPTURE_RAD: f64 = 1e-3;
 
@@ -454,7 +464,14 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         let (calibration, first_frame) = cancellable(self.cancel, Stage::Register, async move {
             let (calibration, first) = tokio::task::spawn_blocking(move || {
                 let calibration = calibrate_frames(&model, &frames, &opts);
-                (calibration, frames.into_iter().next())
+                // The frame the first registration is of (a frame without the robot may have
+                // been set aside).
+                let first = calibration
+                    .as_ref()
+                    .ok()
+                    .and_then(|c| c.frames.first().copied())
+                    .and_then(|i| frames.into_iter().nth(i));
+                (calibration, first)
             })
             .await
             .map_err(|e| Failure::error(Stage::Register, format!("registration panicked: {e}")))?;
@@ -785,9 +802,12 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         .with_cancel(CancelCheck::new(move || cancel.is_cancelled()))
     }
 
-    /// `count` generated views of the base, each reachable from the previous one (the first from
-    /// `start`) on a checked path and differing from the others by the planner's minimum
-    /// joint change; up to [`AUTO_VIEW_TRIES`] candidates per view.
+    /// A wrist camera's views, generated: the first, of a few that see the base and are
+    /// reached on a safe path, the one nearest to where the arm stands; the others near the
+    /// first ([`ViewPlanner::nearby`]: the base and upper arm turn a little, the wrist far),
+    /// each the one that turns the flange most from every view before it (what separates the
+    /// mount from the base's housing when the views are fitted together) among those reached
+    /// on a safe path from the view before. Short moves, the flange turned between views.
     fn auto_views(
         &self,
         planner: &ViewPlanner<'_>,
@@ -796,52 +816,116 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         seed: u64,
     ) -> Result<Vec<Vec<f64>>, Failure> {
         let stage = Stage::Plan;
+        let plan_error = |e: PlanError| match e {
+            PlanError::Cancelled => Failure::cancelled(stage),
+            e => Failure::error(
+                stage,
+                format!("{}; configure joint targets under [views]", error_chain(&e)),
+            ),
+        };
         let min_change = ViewConstraints::default().min_joint_change_rad;
-        let mut views: Vec<Vec<f64>> = Vec::new();
-        let mut from = start.to_vec();
-        let mut next_seed = seed;
+        let reach = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max)
+        };
         let mut last_refusal = None;
-        while views.len() < count {
-            let mut found = None;
-            for _ in 0..AUTO_VIEW_TRIES {
-                let q = planner
-                    .generate(1, next_seed)
-                    .map_err(|e| match e {
-                        PlanError::Cancelled => Failure::cancelled(stage),
-                        e => Failure::error(
-                            stage,
-                            format!("{}; configure joint targets under [views]", error_chain(&e)),
-                        ),
-                    })?
-                    .remove(0);
-                next_seed = next_seed.wrapping_add(1);
-                let distinct = views
-                    .iter()
-                    .all(|v| v.iter().zip(&q).any(|(a, b)| (a - b).abs() >= min_change));
-                if !distinct {
-                    continue;
+        // Whether the path from `from` to `to` is safe (a refusal is remembered for the error).
+        let mut safe = |from: &[f64], to: &[f64]| -> Result<bool, Failure> {
+            match planner.check_path(from, to, PATH_STEP_RAD) {
+                Ok(Ok(_)) => Ok(true),
+                Ok(Err(ViewRejection::Cancelled)) => Err(Failure::cancelled(stage)),
+                Ok(Err(r)) => {
+                    last_refusal = Some(r.to_string());
+                    Ok(false)
                 }
-                match planner.check_path(&from, &q, PATH_STEP_RAD) {
-                    Ok(Ok(_)) => {
-                        found = Some(q);
-                        break;
-                    }
-                    Ok(Err(ViewRejection::Cancelled)) => return Err(Failure::cancelled(stage)),
-                    Ok(Err(r)) => last_refusal = Some(r.to_string()),
-                    Err(e) => return Err(Failure::error(stage, error_chain(&e))),
+                Err(e) => Err(Failure::error(stage, error_chain(&e))),
+            }
+        };
+        let mut next_seed = seed;
+        // The first view: of a few within a quarter turn of the base, the nearest on a safe path.
+        let mut first: Option<Vec<f64>> = None;
+        for _ in 0..AUTO_VIEW_TRIES {
+            let mut candidates = planner
+                .nearby(
+                    start,
+                    &FIRST_VIEW_SPAN_RAD,
+                    FIRST_VIEW_CANDIDATES,
+                    FIRST_VIEW_DRAWS,
+                    next_seed,
+                )
+                .map_err(plan_error)?;
+            next_seed = next_seed.wrapping_add(1);
+            candidates.sort_by(|a, b| reach(start, a).total_cmp(&reach(start, b)));
+            for q in candidates {
+                if safe(start, &q)? {
+                    first = Some(q);
+                    break;
                 }
             }
-            let Some(q) = found else {
-                return Err(Failure::error(
-                    stage,
-                    format!(
-                        "no generated view {} of {count} is reachable on a safe path ({}); move the arm to a free start pose or configure joint targets",
-                        views.len() + 1,
-                        last_refusal.unwrap_or_else(|| "views too alike".into())
-                    ),
-                ));
+            if first.is_some() {
+                break;
+            }
+        }
+        let not_found = |n: usize, last_refusal: Option<String>| {
+            Failure::error(
+                stage,
+                format!(
+                    "no generated view {n} of {count} is reachable on a safe path ({}); move the arm to a free start pose or configure joint targets",
+                    last_refusal.unwrap_or_else(|| "views too alike".into())
+                ),
+            )
+        };
+        let Some(first) = first else {
+            return Err(not_found(1, last_refusal));
+        };
+        let mut views = vec![first];
+        while views.len() < count {
+            let mut picked = None;
+            for _ in 0..AUTO_VIEW_TRIES {
+                let candidates = planner
+                    .nearby(
+                        &views[0],
+                        &NEARBY_SPAN_RAD,
+                        NEARBY_CANDIDATES,
+                        20 * NEARBY_CANDIDATES,
+                        next_seed,
+                    )
+                    .map_err(plan_error)?;
+                next_seed = next_seed.wrapping_add(1);
+                let mut scored = Vec::new();
+                for q in candidates {
+                    let distinct = views
+                        .iter()
+                        .all(|v| v.iter().zip(&q).any(|(a, b)| (a - b).abs() >= min_change));
+                    if !distinct {
+                        continue;
+                    }
+                    let mut turn = f64::INFINITY;
+                    for v in &views {
+                        let t = planner
+                            .flange_turn(v, &q)
+                            .map_err(|e| Failure::error(stage, error_chain(&e)))?;
+                        turn = turn.min(t);
+                    }
+                    scored.push((turn, q));
+                }
+                scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+                let from = views.last().cloned().unwrap_or_default();
+                for (_, q) in scored {
+                    if safe(&from, &q)? {
+                        picked = Some(q);
+                        break;
+                    }
+                }
+                if picked.is_some() {
+                    break;
+                }
+            }
+            let Some(q) = picked else {
+                return Err(not_found(views.len() + 1, last_refusal));
             };
-            from = q.clone();
             views.push(q);
         }
         Ok(views)

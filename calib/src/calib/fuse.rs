@@ -60,6 +60,9 @@ pub(crate) struct View<'a> {
     pub(crate) fit: &'a LinkFit,
     /// How many frames the view has (each counts `1 / frames`).
     pub(crate) frames: usize,
+    /// The covariance of `model_from_flange` (a left perturbation in the model frame, its
+    /// joint readings' errors); `None`: exact.
+    pub(crate) flange_covariance: Option<Matrix6<f64>>,
 }
 
 /// Relinearisations of the joint fit (the views' estimates are within a millimetre of each
@@ -81,7 +84,13 @@ pub(crate) fn fuse_views(views: &[View<'_>], start: &Isometry3<f64>) -> Option<F
     // Each view's data information and information vector, in its own parameters.
     let data: Vec<(DMatrix<f64>, DVector<f64>)> = views
         .iter()
-        .map(|v| data_information(v.fit))
+        .map(|v| {
+            let (d, b) = data_information(v.fit)?;
+            Some(match &v.flange_covariance {
+                Some(f) => with_flange_error(&d, &b, f),
+                None => (d, b),
+            })
+        })
         .collect::<Option<_>>()?;
     let mut mount = *start;
     let mut covariance = Matrix6::zeros();
@@ -147,6 +156,29 @@ fn data_information(fit: &LinkFit) -> Option<(DMatrix<f64>, DVector<f64>)> {
     Some((d, b))
 }
 
+/// A view's data information `d` and information vector `b` when the flange pose it was
+/// predicted from is itself off by an error of covariance `flange` (a left perturbation in the
+/// model frame, which moves the predicted camera pose by as much): the pose block's covariance
+/// grows by `flange`, so the information about it shrinks (Woodbury, exact for a singular `d`):
+/// `d' = d − d G K Gᵀ d`, `b' = b − d G K Gᵀ b`, `K = F (I + Gᵀ d G F)⁻¹`, `G` the pose's rows.
+/// A direction the view alone pins to a micrometre is then worth what the flange pose is.
+fn with_flange_error(
+    d: &DMatrix<f64>,
+    b: &DVector<f64>,
+    flange: &Matrix6<f64>,
+) -> (DMatrix<f64>, DVector<f64>) {
+    let f = DMatrix::from_fn(6, 6, |r, c| flange[(r, c)]);
+    let dg = d.columns(0, 6).into_owned();
+    let gdg = dg.rows(0, 6).into_owned();
+    let Some(inner) = (DMatrix::identity(6, 6) + &gdg * &f).try_inverse() else {
+        return (d.clone(), b.clone());
+    };
+    let k = &f * inner;
+    let d_out = d - &dg * &k * dg.transpose();
+    let b_out = b - &dg * (&k * b.rows(0, 6));
+    ((&d_out + d_out.transpose()) / 2.0, b_out)
+}
+
 /// How a left perturbation `(α, β)` in the frame of `model_from_frame` moves things in the
 /// model frame: `ρ = R α + p × R β`, `φ = R β`.
 pub(crate) fn adjoint(model_from_frame: &Isometry3<f64>) -> Matrix6<f64> {
@@ -193,6 +225,7 @@ pub(crate) fn fuse_solution(
                 model_from_flange: inputs[i].model_from_flange?,
                 fit: registrations.get(i)?.link_fit.as_ref()?,
                 frames: per_view[&inputs[i].view],
+                flange_covariance: registrations.get(i)?.flange_covariance,
             })
         })
         .collect::<Option<Vec<_>>>()?;
@@ -281,6 +314,7 @@ mod tests {
                 model_from_flange,
                 fit: &f,
                 frames: 1,
+                flange_covariance: None,
             }],
             &(off * mount),
         )
@@ -301,6 +335,68 @@ mod tests {
         );
     }
 
+    /// Issue 43: a view predicted from a flange pose that is itself uncertain (its joint
+    /// readings) is worth no more than that pose: alone, the mount's covariance is the view's
+    /// plus the flange pose's; two views whose flange poses are off by far more than their
+    /// scans' σ no longer pin the mount to the scans' σ.
+    #[test]
+    fn issue_43_a_view_is_worth_no_more_than_its_flange_pose() {
+        let (model_from_flange, mount) = flange_and_mount();
+        let f = fit(model_from_flange * mount, [0.3, -0.4]);
+        let mut flange = Matrix6::<f64>::zeros();
+        for k in 0..6 {
+            flange[(k, k)] = if k < 3 { 1e-7 } else { 2e-7 };
+        }
+        flange[(0, 4)] = 1e-8;
+        flange[(4, 0)] = 1e-8;
+        let view = View {
+            model_from_flange,
+            fit: &f,
+            frames: 1,
+            flange_covariance: Some(flange),
+        };
+        let fused = fuse_views(&[view], &mount).expect("fused");
+        let inv = adjoint(&model_from_flange)
+            .try_inverse()
+            .expect("invertible");
+        let pose: Matrix6<f64> = f.covariance.fixed_view::<6, 6>(0, 0).into_owned();
+        let want = inv * (pose + flange) * inv.transpose();
+        assert!(
+            (fused.covariance - want).norm() < 1e-6 * want.norm(),
+            "{} vs {}",
+            fused.covariance,
+            want
+        );
+        // Two views whose flange poses are off by more than their scans' σ: the fused
+        // covariance keeps about half of one view's flange error.
+        let flange2 = Isometry3::new(Vector3::new(-0.2, 0.3, 0.4), Vector3::new(-0.6, 0.8, 1.0));
+        let f2 = fit(flange2 * mount, [0.2, -0.1]);
+        let second = View {
+            model_from_flange: flange2,
+            fit: &f2,
+            flange_covariance: Some(flange),
+            ..view
+        };
+        let honest = fuse_views(&[view, second], &mount).expect("fused");
+        let trusting = fuse_views(
+            &[
+                View {
+                    flange_covariance: None,
+                    ..view
+                },
+                View {
+                    flange_covariance: None,
+                    ..second
+                },
+            ],
+            &mount,
+        )
+        .expect("fused");
+        let position = |c: &Matrix6<f64>| c.fixed_view::<3, 3>(0, 0).trace();
+        assert!(position(&honest.covariance) > 1.5 * position(&trusting.covariance));
+        assert!(position(&honest.covariance) > 0.4 * 3.0 * 1e-7);
+    }
+
     /// Two frames of one view count as that view once: the same estimate and covariance as
     /// either alone.
     #[test]
@@ -311,6 +407,7 @@ mod tests {
             model_from_flange,
             fit: &f,
             frames: 2,
+            flange_covariance: None,
         };
         let two = fuse_views(&[view, view], &mount).expect("fused");
         let one = fuse_views(&[View { frames: 1, ..view }], &mount).expect("fused");

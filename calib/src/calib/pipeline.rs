@@ -7,17 +7,19 @@ use std::time::Instant;
 
 use handeye_hal::ur_dh::DhParams;
 use handeye_hal::PointCloud;
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Matrix6};
 
 use crate::calib::fuse::fuse_solution;
 use crate::calib::gate::frame_quality_reasons;
+use crate::calib::register::covariance::position_sigma_m;
 use crate::calib::solve::solve_setting_aside;
 use crate::calib::{
     gate, posed_model, posed_model_with_controller_kinematics, register_posed, CalibError,
     CalibrationReport, FrameInput, GateThresholds, HandEyeSolution, Mount, RegisterOptions,
     Registration, SolveOptions, Verdict,
 };
-use crate::model::RobotModel;
+use crate::model::reading::flange_covariance;
+use crate::model::{KinematicError, RobotModel};
 
 /// One captured frame, ready to register.
 #[derive(Debug, Clone)]
@@ -90,8 +92,11 @@ impl PipelineOptions {
 /// The result of [`calibrate_frames`].
 #[derive(Debug, Clone)]
 pub struct Calibration {
-    /// One per frame, input order.
+    /// One per frame used, input order (a run of views sets aside a frame in which the robot
+    /// is not found: see `frames`).
     pub registrations: Vec<Registration>,
+    /// The input frame each of `registrations` is of (its index in the frames given).
+    pub frames: Vec<usize>,
     /// The fused result.
     pub solution: HandEyeSolution,
     /// What the gate decided.
@@ -186,6 +191,8 @@ pub fn calibrate_frames(
     let register = opts.register.clone();
     let mut registrations = Vec::with_capacity(frames.len());
     let mut inputs = Vec::with_capacity(frames.len());
+    // Frames in which the robot is not found, and why.
+    let mut lost: Vec<(usize, CalibError)> = Vec::new();
     for (i, f) in frames.iter().enumerate() {
         if f.joints.len() != model.dof() {
             return Err(CalibError::JointCountMismatch {
@@ -210,7 +217,17 @@ pub fn calibrate_frames(
             Mount::EyeInHand => (model_from_flange * p).inverse(),
             Mount::EyeToHand => p.inverse(),
         });
-        let reg = register_posed(&f.cloud, &posed, prior, &register)?;
+        let mut reg = match register_posed(&f.cloud, &posed, prior, &register) {
+            Ok(reg) => reg,
+            Err(e @ CalibError::RobotNotFound { .. }) => {
+                lost.push((i, e));
+                continue;
+            }
+            Err(e) => return Err(e),
+        };
+        if opts.mount == Mount::EyeInHand {
+            carry_flange_error(&mut reg, model, &f.joints, &register.kinematic_error);
+        }
         inputs.push(FrameInput {
             view: f.view,
             camera_from_model: reg.camera_from_model,
@@ -222,6 +239,26 @@ pub fn calibrate_frames(
         });
         registrations.push(reg);
     }
+    // A run of views set aside a frame in which the robot is not found, as a poor one; a single
+    // view (or too many lost) ends with the error.
+    let lost_frames: Vec<usize> = lost.iter().map(|(i, _)| *i).collect();
+    if let Some((_, e)) = lost.into_iter().next() {
+        if !may_set_aside_lost(frames, &lost_frames, opts) {
+            return Err(e);
+        }
+        for &i in &lost_frames {
+            tracing::warn!(
+                "set aside from the views fitted together: {} (view {}) does not show the robot",
+                frames[i].source,
+                frames[i].view + 1
+            );
+        }
+    }
+    let frames_given = frames.len();
+    let frames: Vec<&Frame> = (0..frames.len())
+        .filter(|i| !lost_frames.contains(i))
+        .map(|i| &frames[i])
+        .collect();
     let t_solve = Instant::now();
     let set_aside = frames_to_set_aside(opts.mount, &inputs, &registrations, &opts.gate);
     let mut solution = solve_setting_aside(opts.mount, &inputs, &opts.solve, &set_aside)?;
@@ -260,12 +297,71 @@ pub fn calibrate_frames(
     );
     Ok(Calibration {
         registrations,
+        frames: (0..frames_given)
+            .filter(|i| !lost_frames.contains(i))
+            .collect(),
         solution,
         verdict,
         base_from_model,
         base_from_camera,
         report,
     })
+}
+
+/// Whether the frames whose scans do not show the robot (`lost`, of `frames`) may be set aside:
+/// a wrist camera's run of three views or more where at least two views keep a frame in which
+/// the robot is found and no more than the gate's share of frames goes
+/// ([`GateThresholds::max_dropped_fraction`]), as a poor frame is (`frames_to_set_aside`).
+fn may_set_aside_lost(frames: &[Frame], lost: &[usize], opts: &PipelineOptions) -> bool {
+    let views = |keep: &dyn Fn(usize) -> bool| {
+        let mut v: Vec<usize> = (0..frames.len())
+            .filter(|&i| keep(i))
+            .map(|i| frames[i].view)
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v.len()
+    };
+    opts.mount == Mount::EyeInHand
+        && views(&|_| true) >= 3
+        && views(&|i| !lost.contains(&i)) >= 2
+        && lost.len() as f64 <= opts.gate.max_dropped_fraction * frames.len() as f64
+}
+
+/// A wrist camera's registration with the error of the flange pose it was captured at: the
+/// joint readings' errors of `sizes` (encoder error and unmodelled sag at `joints`) carried
+/// through the arm's Jacobian ([`flange_covariance`]) into the registration's σ, where the
+/// mount of this view alone is off by as much, and kept for the views fitted together.
+fn carry_flange_error(
+    reg: &mut Registration,
+    model: &RobotModel,
+    joints: &[f64],
+    sizes: &KinematicError,
+) {
+    let Some(cov) = flange_covariance(
+        model,
+        joints,
+        sizes.joint_reading_sigma_rad,
+        sizes.deflection_rad,
+    ) else {
+        return;
+    };
+    if cov == Matrix6::zeros() {
+        return;
+    }
+    // Where the mount's σ is measured: the camera origin, in the model frame.
+    let origin = reg.camera_from_model.inverse().translation.vector;
+    let position_mm = position_sigma_m(&cov, &origin) * 1e3;
+    let rotation_deg = cov
+        .fixed_view::<3, 3>(3, 3)
+        .trace()
+        .max(0.0)
+        .sqrt()
+        .to_degrees();
+    let u = &mut reg.uncertainty;
+    u.translation_mm = u.translation_mm.hypot(position_mm);
+    u.rotation_deg = u.rotation_deg.hypot(rotation_deg);
+    reg.flange_covariance = Some(cov);
 }
 
 #[cfg(test)]

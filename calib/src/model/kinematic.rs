@@ -37,7 +37,27 @@ pub struct KinematicError {
     /// Standard deviation of each link housing's rotation about each axis through the link
     /// frame's origin, radians.
     pub housing_rotation_sigma_rad: f64,
+    /// Standard deviation of each joint reading's error, radians: the encoder's own error, a
+    /// periodic function of the joint's angle ([`super::reading::EncoderErrors`]), so every
+    /// pose of the arm reports its flange off by its own amount.
+    pub joint_reading_sigma_rad: f64,
+    /// The sag under gravity no controller's DH models, radians: how far the shoulder turns
+    /// down with the arm stretched horizontally; every joint turns in proportion to its moment
+    /// arm ([`super::reading::gravity_sag`]).
+    pub deflection_rad: f64,
 }
+
+/// Encoder error of a UR joint reading, 1σ: 0.005° (87 µrad). A joint 0.85 m from the flange
+/// moves it by 0.07 mm; the six together put the flange of a UR5e about 0.06 mm and 0.008° off
+/// (the size of UR's published pose repeatability class, ±0.03 mm e-Series to ±0.1 mm CB3;
+/// an error that repeats at the same angle does not show in repeatability, so the accuracy
+/// class is the bound, not the repeatability figure).
+pub const UR_JOINT_READING_SIGMA_RAD: f64 = 0.005 * std::f64::consts::PI / 180.0;
+
+/// Sag of a UR arm stretched horizontally that its controller's DH does not model: 0.1 mrad
+/// (0.085 mm at the flange of a UR5e). What a factory calibration absorbs (the mean of the
+/// gravity deflection over its poses) is not counted.
+pub const UR_DEFLECTION_RAD: f64 = 1e-4;
 
 impl Default for KinematicError {
     /// A manufactured UR arm ([`JointErrorSizes::FACTORY`]): what a factory calibration finds
@@ -51,6 +71,8 @@ impl Default for KinematicError {
             axis_misalignment_sigma_rad: f.misalignment_rad,
             housing_translation_sigma_m: f.housing_translation_m,
             housing_rotation_sigma_rad: f.housing_rotation_rad,
+            joint_reading_sigma_rad: UR_JOINT_READING_SIGMA_RAD,
+            deflection_rad: UR_DEFLECTION_RAD,
         }
     }
 }
@@ -110,6 +132,12 @@ impl KinematicError {
                 self.housing_rotation_sigma_rad,
                 "rad",
             ),
+            (
+                "kinematic_error.joint_reading_sigma_rad",
+                self.joint_reading_sigma_rad,
+                "rad",
+            ),
+            ("kinematic_error.deflection_rad", self.deflection_rad, "rad"),
         ] {
             handeye_hal::limits::check_range(
                 key,
@@ -131,6 +159,28 @@ impl KinematicError {
             axis_misalignment_sigma_rad: 0.0,
             housing_translation_sigma_m: 0.0,
             housing_rotation_sigma_rad: 0.0,
+            joint_reading_sigma_rad: 0.0,
+            deflection_rad: 0.0,
+        }
+    }
+
+    /// These sizes with joint readings that are exact (no encoder error, no sag): what every
+    /// simulator handed the solver before readings were modelled.
+    pub fn with_exact_readings(self) -> Self {
+        Self {
+            joint_reading_sigma_rad: 0.0,
+            deflection_rad: 0.0,
+            ..self
+        }
+    }
+
+    /// Only the readings' errors of these sizes: an arm whose kinematics and housings are
+    /// exactly what the solver is told (a simulated controller's own calibration).
+    pub fn readings_only(self) -> Self {
+        Self {
+            joint_reading_sigma_rad: self.joint_reading_sigma_rad,
+            deflection_rad: self.deflection_rad,
+            ..Self::none()
         }
     }
 

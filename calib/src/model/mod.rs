@@ -14,6 +14,7 @@ mod collada;
 pub(crate) mod kinematic;
 mod mesh;
 mod primitives;
+pub mod reading;
 pub mod reported;
 #[cfg(test)]
 mod tests;
@@ -29,7 +30,9 @@ use handeye_hal::ur_dh::{DhParams, Line, PhysicalArm, UrModel};
 use nalgebra::{Isometry3, Matrix4, Translation3, Unit, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
-pub use kinematic::{KinematicError, MAX_KINEMATIC_SIGMA};
+pub use kinematic::{
+    KinematicError, MAX_KINEMATIC_SIGMA, UR_DEFLECTION_RAD, UR_JOINT_READING_SIGMA_RAD,
+};
 pub use mesh::TriMesh;
 pub use ur_calibration::{
     ur_calibration_yaml, UrCalibration, UrCalibrationError, MAX_UR_CALIBRATION_BYTES,

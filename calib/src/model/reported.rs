@@ -22,12 +22,16 @@ pub struct FlangeTolerance {
 }
 
 /// By the controller's own DH: the controller computes its flange pose from its joints with
-/// exactly these parameters, so the two agree to rounding, and to the joints' motion between
-/// two samples of an arm standing still (micro-radians). 1 mm / 1 mrad leaves room for both
-/// and refuses any real error (a joint off by 0.06°, a flange 1 cm or 2° away).
+/// exactly these parameters, so the two agree to rounding (a capture keeps micrometres and
+/// microradians), and to the joints' motion between two samples of an arm standing still
+/// (micro-radians). 0.05 mm / 0.05 mrad leaves room for both and refuses any real error: a
+/// joint off by 0.003°, a flange pose of other joints, or poses in another frame than the
+/// controller's `base` (a ROS `world`, a URDF root: joint 1's axis 0.3 mm / 0.3 mrad off it
+/// moves the flange by more), which would put the mount off by as much while its σ could
+/// not say so.
 pub const EXACT_DH: FlangeTolerance = FlangeTolerance {
-    translation_m: 0.001,
-    rotation_rad: 0.001,
+    translation_m: 0.000_05,
+    rotation_rad: 0.000_05,
 };
 
 /// By the nominal URDF: a real arm's factory calibration moves its flange by millimetres and
@@ -164,10 +168,10 @@ mod tests {
                 .expect("the model poses the joints"),
             Ok(())
         );
-        // Half a millimetre and half a milliradian of sampling: still the same flange.
+        // Twenty micrometres and microradians of sampling and rounding: still the same flange.
         let near = exact
-            * Translation3::new(0.0005, 0.0, 0.0)
-            * UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0005, 0.0));
+            * Translation3::new(0.000_02, 0.0, 0.0)
+            * UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.000_02, 0.0));
         assert_eq!(
             check_reported_flange(&model, &Q, &near, reference)
                 .expect("the model poses the joints"),
@@ -187,6 +191,31 @@ mod tests {
                     .expect("the model poses the joints"),
                 Ok(())
             );
+        }
+    }
+
+    /// Issue 43: flange poses in a frame whose z is not joint 1's axis (0.3 mm / 0.3 mrad
+    /// off, a ROS `world` or a URDF root) are refused when the controller's DH is known.
+    #[test]
+    fn issue_43_poses_in_a_frame_off_joint_1_s_axis_are_refused() {
+        let Some(model) = ur5e() else { return };
+        let dh = UrModel::Ur5e.dh();
+        let model_from_base = crate::frames::ur_base_from_base_link().inverse();
+        let reference = FlangeReference::ControllerDh {
+            dh: &dh,
+            model_from_base: &model_from_base,
+        };
+        let frame_off = Isometry3::new(Vector3::new(3e-4, 0.0, 0.0), Vector3::new(0.0, 3e-4, 0.0));
+        for q in [
+            Q,
+            [1.2, -0.8, 0.6, -1.9, -1.5, 2.0],
+            [-0.4, -1.6, 1.9, -0.3, 1.4, -1.0],
+        ] {
+            let in_other_frame = model_from_base * frame_off * dh.forward(&q);
+            let e = check_reported_flange(&model, &q, &in_other_frame, reference)
+                .expect("the model poses the joints")
+                .expect_err("refused");
+            assert!(e.translation_m > 1e-4 || e.rotation_rad > 1e-4, "{e}");
         }
     }
 

@@ -13,6 +13,7 @@ use super::cell::{build_cell, CellOptions, CellPart};
 use super::SimSettings;
 use super::{Intrinsics, ScanNoise};
 use crate::geometry::raycast::{raycast, DepthImage, SceneMesh};
+use crate::model::reading::{physical_joints, EncoderErrors};
 use crate::model::{GeometryKind, KinematicError, ModelError, RobotModel, TriMesh};
 
 /// Where the camera is.
@@ -124,8 +125,12 @@ pub struct GroundTruth {
     pub model_from_flange_nominal: Isometry3<f64>,
     /// True camera mount (eye-in-hand only).
     pub flange_from_camera: Option<Isometry3<f64>>,
-    /// Joint angles, radians.
+    /// Joint angles the controller reports, radians.
     pub joints: Vec<f64>,
+    /// Where the physical arm's joints are, radians: the readings less their encoder error,
+    /// plus the sag under gravity ([`crate::model::reading::physical_joints`]); the arm in
+    /// the scan stands here.
+    pub physical_joints: Vec<f64>,
     /// Per-joint origin errors of the true arm (URDF joint frames); empty for a physical UR
     /// arm (whose errors are in DH frames, `arm_joint_errors`).
     pub joint_origin_errors: Vec<Isometry3<f64>>,
@@ -175,13 +180,33 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     // The housings' own stream: the rest of the scan is drawn as without them.
     let mut housing_rng =
         rand::rngs::StdRng::seed_from_u64(req.seed ^ handeye_hal::ur_dh::HOUSING_SEED);
-    let (true_poses, errors, housings) = match &req.arm {
+    // The joints read with error: the arm stands at its physical joints, the controller
+    // reports the flange of the joints it reads. The encoders are the arm's (the same error at
+    // the same angle in every scan of it).
+    let reading_seed = req
+        .arm
+        .as_ref()
+        .map_or_else(|| name_seed(model.name()), arm_seed);
+    let encoders = EncoderErrors::draw(
+        model.dof(),
+        req.kinematic_error.joint_reading_sigma_rad,
+        reading_seed,
+    );
+    let physical = physical_joints(
+        model,
+        &req.joints,
+        &encoders,
+        req.kinematic_error.deflection_rad,
+    );
+    let (true_poses, reported_poses, errors, housings) = match &req.arm {
         Some(arm) => (
+            model.link_poses_of_arm(&physical, arm)?,
             model.link_poses_of_arm(&req.joints, arm)?,
             Vec::new(),
             arm.housings.to_vec(),
         ),
         None => (
+            model.link_poses_with_errors(&physical, &errors)?,
             model.link_poses_with_errors(&req.joints, &errors)?,
             errors,
             req.kinematic_error.sample_housings(model, &mut housing_rng),
@@ -195,11 +220,11 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
         .ok_or_else(|| {
             SimError::Setting(format!("flange link {} not found", model.flange_link()))
         })?;
-    let model_from_flange_reported = true_poses[flange_index];
+    let model_from_flange_reported = reported_poses[flange_index];
     let model_from_flange_nominal = model.frame_pose(model.flange_link(), &req.joints)?;
     let (model_from_camera, flange_from_camera) = match req.placement {
         Placement::EyeInHand { flange_from_camera } => (
-            model_from_flange_reported * flange_from_camera,
+            true_poses[flange_index] * flange_from_camera,
             Some(flange_from_camera),
         ),
         Placement::EyeToHand { model_from_camera } => (model_from_camera, None),
@@ -238,11 +263,31 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
             model_from_flange_nominal,
             flange_from_camera,
             joints: req.joints.clone(),
+            physical_joints: physical,
             joint_origin_errors: errors,
             controller_dh: req.arm.as_ref().map(PhysicalArm::controller_dh),
             arm_joint_errors: req.arm.map(|a| a.joint_errors),
             housings,
         },
+    })
+}
+
+/// A stable seed for a physical arm's own random draws (its encoders): from its joint errors,
+/// so that every simulator that builds the same arm draws the same encoders.
+fn arm_seed(arm: &PhysicalArm) -> u64 {
+    arm.joint_errors
+        .iter()
+        .flat_map(|e| e.translation.vector.iter().chain(e.rotation.coords.iter()))
+        .fold(0xcbf2_9ce4_8422_2325_u64, |h, v| {
+            (h ^ v.to_bits()).wrapping_mul(0x0100_0000_01b3)
+        })
+}
+
+/// A stable seed from a model's name: the encoders of an arm simulated without a physical
+/// arm's draw are the same in every scan of that model.
+fn name_seed(name: &str) -> u64 {
+    name.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
     })
 }
 
@@ -633,7 +678,7 @@ mod tests {
             .zip(&b.cloud.points)
             .all(|(p, q)| p == q || (p.x.is_nan() && q.x.is_nan())));
         // with kinematic error, the controller's (true) flange differs from the nominal model by ~mm
-        req.kinematic_error = KinematicError::default();
+        req.kinematic_error = KinematicError::default().with_exact_readings();
         let c = simulate_scan(&req).expect("simulates");
         let off = (c.truth.model_from_flange_reported.translation.vector
             - nominal.translation.vector)
@@ -645,6 +690,30 @@ mod tests {
             .norm()
                 < 1e-12
         );
+        // Joints read with error (issue 43): the arm, and the camera on it, stand at the physical
+        // joints, a few hundredths of a millimetre from the flange the controller reports.
+        req.kinematic_error = KinematicError::default();
+        let d = simulate_scan(&req).expect("simulates");
+        assert_eq!(
+            d.truth.joints, req.joints,
+            "the readings are what was asked"
+        );
+        let reading = d
+            .truth
+            .joints
+            .iter()
+            .zip(&d.truth.physical_joints)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(reading > 1e-6 && reading < 1e-3, "{reading} rad");
+        let camera_off =
+            (d.truth.model_from_flange_reported * mount).inverse() * d.truth.model_from_camera;
+        let off = camera_off.translation.vector.norm();
+        assert!(
+            off > 1e-6 && off < 5e-4,
+            "reported vs physical camera: {off} m"
+        );
+        req.kinematic_error = KinematicError::default().with_exact_readings();
         // An exactly built arm is its URDF: the same scan as the exact arm.
         let dh = model.ur_model().expect("UR").dh();
         let exact = ScanRequest {

@@ -130,7 +130,8 @@ impl SceneArgs {
             (_, true) => SimSettings::ideal(),
             (Some(path), false) => SimSettings::load(path)?,
             (None, false) if robot.is_some() => SimSettings {
-                kinematic_error: KinematicError::none(),
+                // The controller's calibration is the arm's; its readings are off.
+                kinematic_error: KinematicError::default().readings_only(),
                 ..SimSettings::default()
             },
             (None, false) => SimSettings::default(),

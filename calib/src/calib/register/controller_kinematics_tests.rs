@@ -319,8 +319,9 @@ fn a_manufactured_arms_housings_are_weighed_and_in_the_uncertainty() {
 /// The views of one run see the same manufactured arm: fitted together (`calib::fuse`), the
 /// housings' offsets, fixed in their links' frames, come apart from the mount, fixed in the
 /// flange's, as the flange turns between views. Three views of each of two UR5e arms posed by
-/// their controllers' DH: the joint fit is several times closer than any view alone and than
-/// the views' mean, its σ is several times smaller and still covers its error.
+/// their controllers' DH, their joints read with a real arm's errors: the joint fit is several
+/// times closer than any view alone and than the views' mean, its σ is several times smaller
+/// and still covers its error.
 #[test]
 fn the_views_of_one_arm_fitted_together_separate_its_housings_from_the_mount() {
     use crate::calib::pipeline::{calibrate_frames, Frame, PipelineOptions};
@@ -376,7 +377,12 @@ fn the_views_of_one_arm_fitted_together_separate_its_housings_from_the_mount() {
             mm < 0.15 && mm < 0.5 * worst_alone,
             "{mm} mm vs alone {alone:?}"
         );
-        assert!(deg < 0.015, "{deg}°");
+        // Each view's flange pose is off by its joint readings' errors (~0.008°), which the
+        // fit cannot remove, only carry in its σ.
+        assert!(
+            deg < 0.03 && deg < 2.5 * sigma.rotation_deg,
+            "{deg}°, σ {sigma:?}"
+        );
         assert!(
             sigma.translation_mm < 0.5 * single.translation_mm
                 && sigma.rotation_deg < 0.5 * single.rotation_deg,

@@ -342,8 +342,12 @@ fn time_of_flight_scans(
     let mut settings = SimSettings::for_camera("helios2");
     settings.noise.depth_offset_m = offset_m;
     settings.noise.multipath_m = multipath_m;
-    // The camera's errors alone: housings on their frames, and the fits told so.
-    settings.kinematic_error = settings.kinematic_error.without_housings();
+    // The camera's errors alone: housings on their frames, joints read exactly, and the fits
+    // told so.
+    settings.kinematic_error = settings
+        .kinematic_error
+        .without_housings()
+        .with_exact_readings();
     let intrinsics = Intrinsics::preset("helios2").expect("preset");
     let tof = RegisterOptions {
         kinematic_error: settings.kinematic_error,
