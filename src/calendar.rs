@@ -38,6 +38,13 @@ pub fn utc_fields(unix_s: i64) -> (i64, u32, u32, i64, i64, i64) {
     (y, m, d, rem / 3600, rem % 3600 / 60, rem % 60)
 }
 
+/// `YYYYMMDDTHHMMSSZ` (ISO 8601 basic, UTC) of a unix time in whole seconds: the form in file
+/// and folder names (run ids, a history or a journal set aside).
+pub fn utc_stamp(unix_s: i64) -> String {
+    let (y, m, d, hh, mm, ss) = utc_fields(unix_s);
+    format!("{y:04}{m:02}{d:02}T{hh:02}{mm:02}{ss:02}Z")
+}
+
 /// `YYYY-MM-DDTHH:MM:SSZ` (ISO 8601, UTC) of a unix time, s: the one form every time a
 /// person reads takes (CLI, journal, report pictures, history exports); `?` when not finite.
 pub fn utc_text(unix_s: f64) -> String {
