@@ -30,6 +30,10 @@ pub fn civil_from_days(z: i64) -> (i64, u32, u32) {
     (yoe + era * 400 + i64::from(m <= 2), m, d)
 }
 
+/// How far a recorded run's start may lie after now, s (a clock set back a little since):
+/// a run dated later is not one (a planted or forged record, a row of the history).
+pub const MAX_CLOCK_AHEAD_S: f64 = 300.0;
+
 /// UTC date and time of a unix time in whole seconds: `(year, month, day, hour, minute,
 /// second)`.
 pub fn utc_fields(unix_s: i64) -> (i64, u32, u32, i64, i64, i64) {

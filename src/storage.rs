@@ -26,7 +26,8 @@ mod leftovers;
 
 pub use journal_file::JOURNAL_FILE;
 pub(crate) use journal_file::{
-    read_journal, remove_journal, set_aside_journal, write_journal, JournalLock,
+    journal_unrecorded, mark_journal_unrecorded, read_journal, remove_journal, set_aside_journal,
+    write_journal, JournalLock,
 };
 pub(crate) use leftovers::clean_staging;
 pub use leftovers::remove_temporary_files;
@@ -433,8 +434,7 @@ fn read_record_file(storage: &Path, run_id: &str) -> Result<RunRecord, String> {
     Ok(record)
 }
 
-/// How far a record's start may lie after now, s (a clock set back a little since).
-pub const MAX_CLOCK_AHEAD_S: f64 = 300.0;
+pub use crate::calendar::MAX_CLOCK_AHEAD_S;
 
 /// The records of every run folder under `storage` (`runs/<id>/record.json`), oldest first;
 /// a folder whose record is missing or does not read back is skipped with a warning.

@@ -745,7 +745,7 @@ impl Store {
     }
 
     /// The newest run, optionally of one mode and/or with one outcome; a row dated after now
-    /// (more than [`crate::storage::MAX_CLOCK_AHEAD_S`]) is not one (a planted or forged one).
+    /// (more than [`crate::calendar::MAX_CLOCK_AHEAD_S`]) is not one (a planted or forged one).
     pub fn latest(
         &self,
         mode: Option<RunMode>,
@@ -763,7 +763,7 @@ impl Store {
             params![
                 mode.map(RunMode::name),
                 outcome.map(Outcome::name),
-                unix_now() + crate::storage::MAX_CLOCK_AHEAD_S
+                unix_now() + crate::calendar::MAX_CLOCK_AHEAD_S
             ],
             summary_from_row,
         )

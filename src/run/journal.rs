@@ -198,6 +198,9 @@ pub struct ReconcileError {
     pub todo: &'static str,
 }
 
+/// Why a journal marked by a live process ([`storage::mark_journal_unrecorded`]) was left.
+const UNRECORDED_CAUSE: &str = "the storage was full or could not be written when the run ended";
+
 /// What to do when the controller did not answer the reconciliation.
 const TODO_CONTROLLER: &str = "check that the controller answers (its network cable, RTDE on port 30004), then start a run again";
 /// What to do when the storage directory did not take what the reconciliation writes.
@@ -345,8 +348,15 @@ pub async fn reconcile<R: Robot>(
             TODO_CONTROLLER,
         )
     })?;
+    // Why the run's end was not recorded: a kill, or (a live process said so) the storage.
+    let unrecorded = storage::journal_unrecorded(storage_dir);
+    let cause = if unrecorded {
+        UNRECORDED_CAUSE
+    } else {
+        "crash, power loss or kill"
+    };
     let record = match holds {
-        Holds::New => match complete(storage_dir, &run_dir, &intent) {
+        Holds::New => match complete(storage_dir, &run_dir, &intent, unrecorded) {
             Ok(record) => record,
             Err(why) => {
                 let undone = put_back(robot, &intent.previous())
@@ -355,14 +365,14 @@ pub async fn reconcile<R: Robot>(
                 rolled_back(
                     &intent,
                     format!(
-                        "interrupted after its result was written to the controller (crash, power loss or kill); at the next start it could not be completed ({why}), so it was rolled back: {undone}; check the TCP on the pendant"
+                        "interrupted after its result was written to the controller ({cause}); at the next start it could not be completed ({why}), so it was rolled back: {undone}; check the TCP on the pendant"
                     ),
                 )
             }
         },
         Holds::Previous => rolled_back(
             &intent,
-            "interrupted before its result was written to the controller (crash, power loss or kill); the controller and `current/` keep the previous calibration".into(),
+            format!("interrupted before its result was written to the controller ({cause}); the controller and `current/` keep the previous calibration"),
         ),
         Holds::Torn => {
             let undone = put_back(robot, &intent.previous()).await.map_err(|e| {
@@ -374,13 +384,13 @@ pub async fn reconcile<R: Robot>(
             rolled_back(
                 &intent,
                 format!(
-                    "interrupted while writing its result to the controller (crash, power loss or kill); at the next start the controller held part of it, so it was rolled back: {undone}; check the TCP on the pendant"
+                    "interrupted while writing its result to the controller ({cause}); at the next start the controller held part of it, so it was rolled back: {undone}; check the TCP on the pendant"
                 ),
             )
         }
         Holds::Other => rolled_back(
             &intent,
-            "interrupted while writing its result to the controller (crash, power loss or kill); at the next start the controller held neither the previous values nor the result (changed on the pendant since?), so nothing was written; check the TCP and the registers on the pendant".into(),
+            format!("interrupted while writing its result to the controller ({cause}); at the next start the controller held neither the previous values nor the result (changed on the pendant since?), so nothing was written; check the TCP and the registers on the pendant"),
         ),
     };
     storage::write_record(&run_dir, &record)
@@ -412,7 +422,12 @@ fn clean(storage_dir: &Path, keep: Option<&str>) {
 
 /// Completes an interrupted run whose result the controller holds: `current/` (from the
 /// run's folder, unless it already names the run) and its record. Returns the record.
-fn complete(storage_dir: &Path, run_dir: &Path, intent: &Intent) -> Result<RunRecord, String> {
+fn complete(
+    storage_dir: &Path,
+    run_dir: &Path,
+    intent: &Intent,
+    unrecorded: bool,
+) -> Result<RunRecord, String> {
     if !intent.current_files.is_empty()
         && storage::current_run_id(storage_dir).as_deref() != Some(&intent.run_id)
     {
@@ -437,10 +452,15 @@ fn complete(storage_dir: &Path, run_dir: &Path, intent: &Intent) -> Result<RunRe
     } else {
         "the arm was not moved back to the start: it stands where it stopped"
     };
+    let stopped = if unrecorded {
+        format!("the run's end could not be recorded after the result was written to the controller ({UNRECORDED_CAUSE})")
+    } else {
+        "the program stopped after the result was written to the controller (crash, power loss or kill)".into()
+    };
     record.reasons.insert(
         0,
         format!(
-            "the program stopped after the result was written to the controller (crash, power loss or kill); completed at the next start: the controller, `current/` and the history hold this result; {arm}"
+            "{stopped}; completed at the next start: the controller, `current/` and the history hold this result; {arm}"
         ),
     );
     Ok(record)
@@ -766,6 +786,41 @@ mod tests {
             assert!(matches!(reconcile(&robot, &d.0, MAP, None).await, Ok(None)));
         }
         assert_eq!(set_aside_files(&d.0).len(), 2);
+        assert!(!d.0.join(storage::JOURNAL_FILE).exists());
+    }
+
+    /// Issue 46: a journal a live run left because its end could not be recorded (the disk
+    /// full: the recorder marks it) is completed saying so, not as "crash, power loss or
+    /// kill"; the mark goes with the journal.
+    #[tokio::test]
+    async fn issue_46_a_run_whose_end_the_full_disk_kept_from_the_history_is_not_called_a_kill() {
+        let d = dir("unrecorded");
+        let id = "20261128T000000Z-0300";
+        let (robot, _) = prepared(&d.0, id).await;
+        robot
+            .set_tcp(&Isometry3::from(UrPose(NEW)))
+            .await
+            .expect("tcp");
+        for (k, v) in NEW.iter().enumerate() {
+            robot
+                .write_double_register(24 + k as u32, *v)
+                .await
+                .expect("reg");
+        }
+        robot.write_int_register(24, 4).await.expect("seq");
+        storage::mark_journal_unrecorded(&d.0).expect("mark");
+        assert!(storage::journal_unrecorded(&d.0));
+        let record = reconcile(&robot, &d.0, MAP, None)
+            .await
+            .expect("reconciled")
+            .expect("a run");
+        assert_eq!(record.outcome, Outcome::Accepted);
+        let why = &record.reasons[0];
+        assert!(
+            why.contains("the storage was full") && !why.contains("crash, power loss or kill"),
+            "{why}"
+        );
+        assert!(!storage::journal_unrecorded(&d.0), "the mark stays");
         assert!(!d.0.join(storage::JOURNAL_FILE).exists());
     }
 }

@@ -201,6 +201,10 @@ fn end_journal(storage_dir: &std::path::Path, record: &RunRecord, recorded: bool
             .iter()
             .any(|w| matches!(w.target, WriteTarget::Tcp | WriteTarget::Registers));
     if !recorded || controller_unrecorded {
+        // This process lives on: the next start must not take the journal for a kill's.
+        if let Err(e) = storage::mark_journal_unrecorded(storage_dir) {
+            tracing::warn!("cannot mark the write-back journal as left by a live run: {e}");
+        }
         tracing::error!(
             run_id = %record.run_id,
             "the write-back journal stays in {}: the next start reconciles the controller with this run's record",

@@ -33,6 +33,7 @@ pub(crate) fn read_journal(storage: &Path) -> Result<Option<String>, String> {
 
 /// Removes the journal durably (the folder flushed), once the run's end is recorded.
 pub(crate) fn remove_journal(storage: &Path) -> std::io::Result<()> {
+    remove_unrecorded_mark(storage);
     match std::fs::remove_file(storage.join(JOURNAL_FILE)) {
         Ok(()) => {}
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
@@ -63,6 +64,33 @@ impl JournalLock {
     }
 }
 
+/// Beside a journal, says that the process that wrote it lived on and left it because the
+/// run's end could not be recorded (a full disk), not because it was killed. Empty: it takes
+/// no data block, so a full disk still takes it.
+const UNRECORDED_FILE: &str = "writeback-journal.unrecorded";
+
+/// Marks the journal as left by a live process whose run's end could not be recorded
+/// ([`UNRECORDED_FILE`]). Blocking I/O.
+pub(crate) fn mark_journal_unrecorded(storage: &Path) -> std::io::Result<()> {
+    let path = storage.join(UNRECORDED_FILE);
+    if std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file()) {
+        return Ok(());
+    }
+    super::create_fresh(&path)?;
+    std::fs::File::open(storage)?.sync_all()
+}
+
+/// Whether the journal was left by a live process that could not record the run's end
+/// ([`mark_journal_unrecorded`]) rather than by a kill.
+pub(crate) fn journal_unrecorded(storage: &Path) -> bool {
+    std::fs::symlink_metadata(storage.join(UNRECORDED_FILE)).is_ok_and(|m| m.is_file())
+}
+
+/// Removes the mark of [`mark_journal_unrecorded`] (with the journal it marks).
+fn remove_unrecorded_mark(storage: &Path) {
+    let _ = std::fs::remove_file(storage.join(UNRECORDED_FILE));
+}
+
 /// Moves the journal aside — `writeback-journal.json.set-aside-<UTC time>` beside it (`-2`,
 /// `-3`, … when that name is taken), the folder flushed — so that no run reads it again and
 /// the operator still can. Returns where it is now. Blocking I/O.
@@ -76,6 +104,7 @@ pub(crate) fn set_aside_journal(storage: &Path) -> std::io::Result<PathBuf> {
         aside = storage.join(format!("{base}-{n}"));
     }
     std::fs::rename(storage.join(JOURNAL_FILE), &aside)?;
+    remove_unrecorded_mark(storage);
     std::fs::File::open(storage)?.sync_all()?;
     Ok(aside)
 }
