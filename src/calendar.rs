@@ -30,12 +30,23 @@ pub fn civil_from_days(z: i64) -> (i64, u32, u32) {
     (yoe + era * 400 + i64::from(m <= 2), m, d)
 }
 
+/// How far a recorded run's start may lie after now, s (a clock set back a little since):
+/// a run dated later is not one (a planted or forged record, a row of the history).
+pub const MAX_CLOCK_AHEAD_S: f64 = 300.0;
+
 /// UTC date and time of a unix time in whole seconds: `(year, month, day, hour, minute,
 /// second)`.
 pub fn utc_fields(unix_s: i64) -> (i64, u32, u32, i64, i64, i64) {
     let (days, rem) = (unix_s.div_euclid(86_400), unix_s.rem_euclid(86_400));
     let (y, m, d) = civil_from_days(days);
     (y, m, d, rem / 3600, rem % 3600 / 60, rem % 60)
+}
+
+/// `YYYYMMDDTHHMMSSZ` (ISO 8601 basic, UTC) of a unix time in whole seconds: the form in file
+/// and folder names (run ids, a history or a journal set aside).
+pub fn utc_stamp(unix_s: i64) -> String {
+    let (y, m, d, hh, mm, ss) = utc_fields(unix_s);
+    format!("{y:04}{m:02}{d:02}T{hh:02}{mm:02}{ss:02}Z")
 }
 
 /// `YYYY-MM-DDTHH:MM:SSZ` (ISO 8601, UTC) of a unix time, s: the one form every time a

@@ -8,6 +8,7 @@
 //! <storage>/runs/<run_id>/result.*           the exports of an accepted calibration
 //! <storage>/runs/<run_id>/report.png         the report picture (every run)
 //! <storage>/current/                         the exports of the last accepted calibration
+//! <storage>/writeback-journal.json           a write-back in progress (journal_file.rs)
 //! ```
 //!
 //! Every file goes through [`write_atomically`] (a temporary file, flushed to disk, renamed over
@@ -19,6 +20,17 @@ use std::path::{Path, PathBuf};
 use handeye_hal::PointCloud;
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
+
+mod journal_file;
+mod leftovers;
+
+pub use journal_file::JOURNAL_FILE;
+pub(crate) use journal_file::{
+    journal_unrecorded, mark_journal_unrecorded, read_journal, remove_journal, set_aside_journal,
+    write_journal, JournalLock,
+};
+pub(crate) use leftovers::clean_staging;
+pub use leftovers::remove_temporary_files;
 
 use crate::calib::export::{ExportMeta, Exports};
 use crate::calib::Mount;
@@ -91,9 +103,9 @@ pub fn new_run_id() -> String {
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap_or_default();
-    let (y, m, d, hh, mm, ss) = crate::calendar::utc_fields(now.as_secs() as i64);
+    let stamp = crate::calendar::utc_stamp(now.as_secs() as i64);
     let suffix = (now.subsec_nanos() ^ std::process::id().rotate_left(16)) & 0xffff;
-    format!("{y:04}{m:02}{d:02}T{hh:02}{mm:02}{ss:02}Z-{suffix:04x}")
+    format!("{stamp}-{suffix:04x}")
 }
 
 /// Whether `id` can be a run id, and so one folder name under `runs/`: 1–64 letters, digits,
@@ -422,8 +434,7 @@ fn read_record_file(storage: &Path, run_id: &str) -> Result<RunRecord, String> {
     Ok(record)
 }
 
-/// How far a record's start may lie after now, s (a clock set back a little since).
-pub const MAX_CLOCK_AHEAD_S: f64 = 300.0;
+pub use crate::calendar::MAX_CLOCK_AHEAD_S;
 
 /// The records of every run folder under `storage` (`runs/<id>/record.json`), oldest first;
 /// a folder whose record is missing or does not read back is skipped with a warning.
@@ -593,62 +604,6 @@ impl Drop for StagedResult {
     }
 }
 
-/// The write-back journal ([`crate::run::journal`]): what a run is about to write to the
-/// controller, kept until the run's end is recorded.
-pub const JOURNAL_FILE: &str = "writeback-journal.json";
-/// Held (`flock`) by the process whose write-back the journal describes, while it lives.
-const JOURNAL_LOCK_FILE: &str = "writeback.lock";
-/// Largest journal read back (it holds one run record: tens of kB).
-const MAX_JOURNAL_BYTES: u64 = 16 << 20;
-
-/// Writes the write-back journal durably (file and folder flushed) before the controller
-/// changes. Blocking I/O.
-pub(crate) fn write_journal(storage: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    write_atomically(&storage.join(JOURNAL_FILE), bytes)
-}
-
-/// The journal's text, when there is one (bounded, a regular file only).
-pub(crate) fn read_journal(storage: &Path) -> Result<Option<String>, String> {
-    let path = storage.join(JOURNAL_FILE);
-    match read_text_beneath(storage, Path::new(JOURNAL_FILE), MAX_JOURNAL_BYTES) {
-        Ok(text) => Ok(Some(text)),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(e) => Err(format!("cannot read {}: {e}", path.display())),
-    }
-}
-
-/// Removes the journal durably (the folder flushed), once the run's end is recorded.
-pub(crate) fn remove_journal(storage: &Path) -> std::io::Result<()> {
-    match std::fs::remove_file(storage.join(JOURNAL_FILE)) {
-        Ok(()) => {}
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-        Err(e) => return Err(e),
-    }
-    std::fs::File::open(storage)?.sync_all()
-}
-
-/// The lock a process holds while its write-back journal describes a live run: another
-/// process (`handeye calibrate` beside the daemon) never reconciles a journal whose writer
-/// lives. The operating system drops it when the process dies, however it dies.
-#[derive(Debug)]
-pub(crate) struct JournalLock(#[allow(dead_code)] std::fs::File);
-
-impl JournalLock {
-    /// Takes the lock without waiting; `Ok(None)` when another live process holds it.
-    pub(crate) fn try_acquire(storage: &Path) -> std::io::Result<Option<JournalLock>> {
-        std::fs::create_dir_all(storage)?;
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(storage.join(JOURNAL_LOCK_FILE))?;
-        Ok(
-            crate::store::flock(&file, crate::store::FlockMode::ExclusiveNow)?
-                .then_some(JournalLock(file)),
-        )
-    }
-}
-
 /// The run whose result `current/` holds (`current/calibration.json`'s `run_id`).
 pub fn current_run_id(storage: &Path) -> Option<String> {
     let rel = Path::new(CURRENT_DIR).join(CALIBRATION_FILE);
@@ -656,47 +611,6 @@ pub fn current_run_id(storage: &Path) -> Option<String> {
     serde_json::from_str::<CurrentCalibration>(&text)
         .ok()
         .map(|c| c.run_id)
-}
-
-/// Removes what a crash left of replacing `current/`: the staging folders
-/// (`.current.<id>`) and the set-aside previous ones (`.current.old.<id>`) — except run
-/// `keep`'s staging; when `current/` itself is missing (a crash between the two renames of
-/// [`StagedResult::commit`]) the set-aside one is put back first. Returns what was removed.
-pub(crate) fn clean_staging(storage: &Path, keep: Option<&str>) -> Vec<PathBuf> {
-    let Ok(entries) = std::fs::read_dir(storage) else {
-        return Vec::new();
-    };
-    let old_prefix = format!(".{CURRENT_DIR}.old.");
-    let staging_prefix = format!(".{CURRENT_DIR}.");
-    let mut removed = Vec::new();
-    let current = storage.join(CURRENT_DIR);
-    for entry in entries.flatten() {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        let id = if let Some(id) = name.strip_prefix(&old_prefix) {
-            if !current.exists() && is_run_id(id) && std::fs::rename(entry.path(), &current).is_ok()
-            {
-                tracing::warn!(
-                    "put the previous calibration back into {} from {name} (a crash while it was replaced)",
-                    current.display()
-                );
-                continue;
-            }
-            id
-        } else if let Some(id) = name.strip_prefix(&staging_prefix) {
-            if keep == Some(id) {
-                continue;
-            }
-            id
-        } else {
-            continue;
-        };
-        // Only our own folders (a run id, a real folder, not a link).
-        let is_dir = entry.file_type().is_ok_and(|t| t.is_dir());
-        if is_run_id(id) && is_dir && std::fs::remove_dir_all(entry.path()).is_ok() {
-            removed.push(entry.path());
-        }
-    }
-    removed
 }
 
 /// Makes the result files `names` of the run in `run_dir` current (copied into a staging
@@ -887,8 +801,8 @@ pub struct StorageError {
     pub source: std::io::Error,
 }
 
-/// Deletes the raw scans (`view*_frame*.ply`) of run `run_id`; its record, `capture.json`
-/// and results stay. A missing folder is nothing to do; an id that is not a run id is left
+/// Deletes the raw scans (`view*_frame*.ply`) of run `run_id`, and the temporary files
+/// (`*.tmp`) a kill left in its folder; its record, `capture.json` and results stay. A missing folder is nothing to do; an id that is not a run id is left
 /// alone (logged). Returns the files removed.
 pub fn remove_raw_captures(storage: &Path, run_id: &str) -> Result<Vec<PathBuf>, StorageError> {
     let Some(dir) = run_dir(storage, run_id) else {
@@ -923,7 +837,8 @@ pub fn remove_raw_captures(storage: &Path, run_id: &str) -> Result<Vec<PathBuf>,
     let mut removed = Vec::new();
     for entry in entries {
         let entry = entry.map_err(io("read the folder", &dir))?;
-        if !is_raw_capture(&entry.file_name().to_string_lossy())
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if !(is_raw_capture(&name) || leftovers::is_temporary(&name))
             || !entry.file_type().is_ok_and(|t| t.is_file())
         {
             continue;

@@ -420,6 +420,8 @@ pub struct Store {
     set_aside: Option<SetAside>,
     /// Whether this open created the tables (a new or empty file).
     created: bool,
+    /// Whether this open found no other writer alive (and so recovered interrupted runs).
+    sole_writer: bool,
 }
 
 impl Store {
@@ -451,6 +453,7 @@ impl Store {
             _writer_lock: None,
             set_aside,
             created,
+            sole_writer: lock.sole,
         };
         let file = if lock.sole {
             let n = store.recover_interrupted()?;
@@ -507,6 +510,7 @@ impl Store {
                 _writer_lock: None,
                 set_aside: None,
                 created: false,
+                sole_writer: false,
             }),
         }
     }
@@ -519,6 +523,12 @@ impl Store {
     /// The damaged file [`Store::open`] moved aside, if it did.
     pub fn set_aside(&self) -> Option<&SetAside> {
         self.set_aside.as_ref()
+    }
+
+    /// Whether [`Store::open`] found no other writer alive: no other process writes the
+    /// storage folder now, so what a killed one left there may go.
+    pub fn is_sole_writer(&self) -> bool {
+        self.sole_writer
     }
 
     /// Whether [`Store::open`] started this history (no file, an empty one, or a damaged one
@@ -735,7 +745,7 @@ impl Store {
     }
 
     /// The newest run, optionally of one mode and/or with one outcome; a row dated after now
-    /// (more than [`crate::storage::MAX_CLOCK_AHEAD_S`]) is not one (a planted or forged one).
+    /// (more than [`crate::calendar::MAX_CLOCK_AHEAD_S`]) is not one (a planted or forged one).
     pub fn latest(
         &self,
         mode: Option<RunMode>,
@@ -753,7 +763,7 @@ impl Store {
             params![
                 mode.map(RunMode::name),
                 outcome.map(Outcome::name),
-                unix_now() + crate::storage::MAX_CLOCK_AHEAD_S
+                unix_now() + crate::calendar::MAX_CLOCK_AHEAD_S
             ],
             summary_from_row,
         )
@@ -876,10 +886,10 @@ fn damage(path: &Path) -> Option<String> {
 /// Moves the damaged history at `path` (and its -wal and -shm files) to
 /// `<path>.damaged-<UTC time>`, logged, so a new one can start; nothing is deleted.
 fn set_aside(path: &Path, why: String) -> Result<SetAside, StoreError> {
-    let (y, m, d, hh, mm, ss) = crate::calendar::utc_fields(unix_now().floor() as i64);
     let mut aside = path.as_os_str().to_owned();
     aside.push(format!(
-        ".damaged-{y:04}{m:02}{d:02}T{hh:02}{mm:02}{ss:02}Z"
+        ".damaged-{}",
+        crate::calendar::utc_stamp(unix_now().floor() as i64)
     ));
     let aside = PathBuf::from(aside);
     let io = |source| StoreError::Io {

@@ -189,10 +189,16 @@ fn check_capture(
     path: &Path,
     model: &RobotModel,
 ) -> anyhow::Result<(Vec<Frame>, Option<Isometry3<f64>>)> {
-    // A frame name is printable: anything else would reach the terminal in every message.
-    if capture.base_frame.chars().any(char::is_control) {
+    // A capture holds the controller's flange poses, which are in its `base`: a label naming
+    // another frame (a ROS `world`, the URDF root) does not move them there, it only makes
+    // the result 180° off (quoted: the name reaches the terminal).
+    if capture.base_frame != "base" {
         bail!(
-            "the capture's base frame `{}` is not a frame name",
+            "the capture labels its flange poses in `{}`: a capture's flange poses must be in \
+             the controller's `base` frame (whose z is joint 1's axis; `base_link` turned by π \
+             about z), as `handeye calibrate` records them; give the poses the controller \
+             reports, or convert them (base_from_flange = base_from_<frame> · \
+             <frame>_from_flange), and set \"base_frame\": \"base\"",
             handeye_hal::limits::Quoted(&capture.base_frame)
         );
     }
@@ -776,6 +782,47 @@ mod tests {
             "{msg}"
         );
         assert!(!msg.chars().any(char::is_control), "{msg:?}");
+    }
+
+    /// Issue 46: a capture whose flange poses (the controller's, in `base`) are labelled in
+    /// another frame — `world`, the UR5e URDF's root, sits on `base_link`, π about z from
+    /// `base` — was solved 812 mm / 180° off; now it is refused, saying which frame the poses
+    /// must be in and how to get them there. The same capture labelled `base` passes that
+    /// check (its scan is missing, which is the next error).
+    #[test]
+    fn issue_46_a_capture_labelled_in_another_frame_than_base_is_refused() {
+        let Some(dir) = super::super::args::robots_dir_or_skip(
+            "issue_46_a_capture_labelled_in_another_frame_than_base_is_refused",
+        ) else {
+            return;
+        };
+        let model = RobotModel::load(&dir.join("ur/ur5e/ur5e.urdf")).expect("ur5e loads");
+        let q = [0.3, -1.2, 1.4, -1.6, -1.5, 0.2];
+        let base_from_flange = fixed_frame(&model, "base").expect("base").inverse()
+            * model.frame_pose(model.flange_link(), &q).expect("fk");
+        let capture = |frame: &str| {
+            let text = format!(
+                r#"{{"model":"ur5e","mount":"eye_in_hand","base_frame":"{frame}","views":[{{"view":0,
+                "joints":{q:?},"base_from_flange":{:?},
+                "unix_time_s":0,"joint_change_during_capture_rad":0,
+                "frames":[{{"path":"scan.ply","width":2,"height":2,"valid_points":4}}]}}]}}"#,
+                handeye::frames::to_row_major(&base_from_flange)
+            );
+            serde_json::from_str::<handeye::storage::CaptureFile>(&text).expect("parses")
+        };
+        let at = Path::new("/nowhere/capture.json");
+        for frame in ["world", "base_link", "Base", "base\\u0007"] {
+            let e = capture_frames(&capture(frame), at, &model).expect_err("refused");
+            let msg = format!("{e:#}");
+            assert!(
+                msg.contains("must be in the controller's `base` frame (whose z is joint 1's axis")
+                    && msg.contains("set \"base_frame\": \"base\""),
+                "{frame}: {msg}"
+            );
+            assert!(!msg.chars().any(char::is_control), "{msg:?}");
+        }
+        let e = capture_frames(&capture("base"), at, &model).expect_err("no scan");
+        assert!(format!("{e:#}").contains("scan.ply"), "{e:#}");
     }
 
     /// Fuzz target `capture` (hal::fuzz): mutations of capture files a run writes (eye-in-hand

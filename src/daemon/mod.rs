@@ -830,8 +830,13 @@ pub async fn run_with<R, C, F, Fut>(
         check_storage(&cfg, &handle).await;
     }
     // A write-back interrupted by the last stop is reconciled before anything else runs.
-    match crate::run::journal::reconcile(&robot, &cfg.storage.dir, Some(handle.store().as_ref()))
-        .await
+    match crate::run::journal::reconcile(
+        &robot,
+        &cfg.storage.dir,
+        cfg.write_back.registers,
+        Some(handle.store().as_ref()),
+    )
+    .await
     {
         Ok(Some(record)) => handle.reconciled(&record),
         Ok(None) => {}

@@ -18,9 +18,20 @@
 //! Completing needs the disk: when `current/` or the record cannot be written then, the
 //! controller is rolled back instead. When the controller cannot be reached, the journal stays
 //! and the next run (or start) tries again; no run starts before it is reconciled.
+//!
+//! The journal is evidence, not an order: before anything in it is used, its values are
+//! checked as values read from the controller are ([`doubt`]): every TCP within 2 m of the
+//! flange and every register set a pose within 10 m, all finite (the UR driver's bounds, one
+//! check: `handeye_hal::ur_limits::within_pose_bound`), its registers the configured ones
+//! (`[write_back.registers]`), its run not already complete in the history. A journal that
+//! fails (or cannot be read at all) is set aside — renamed
+//! `writeback-journal.json.set-aside-<UTC time>`, kept for the operator — with an `ALARM`
+//! error in the log that names what to check; nothing in it is written anywhere and runs go
+//! on.
 
 use std::path::Path;
 
+use handeye_hal::ur_limits::{within_pose_bound, MAX_POSE_DISTANCE_M, MAX_TCP_OFFSET_M};
 use handeye_hal::{HalError, Robot, UrPose};
 use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
@@ -29,7 +40,7 @@ use super::{error_chain, put_back, Previous};
 use crate::config::RegisterMap;
 use crate::record::{Outcome, RunRecord, Stage, WriteTarget};
 use crate::storage::{self, JournalLock};
-use crate::store::Store;
+use crate::store::{RunStatus, Store};
 
 /// A TCP or register value is the journal's when it is this close (m or rad): the controller
 /// keeps what it was sent to within a few ulps.
@@ -177,12 +188,103 @@ async fn controller_holds<R: Robot>(robot: &R, intent: &Intent) -> Result<Holds,
 
 /// Why a journal could not be reconciled (it stays for the next try).
 #[derive(Debug, thiserror::Error)]
-#[error("the write-back of run {run_id} was interrupted and cannot be reconciled yet: {why}; no run starts until it is (check that the controller answers)")]
+#[error("the write-back of run {run_id} was interrupted and cannot be reconciled yet: {why}; no run starts until it is: {todo}")]
 pub struct ReconcileError {
     /// The interrupted run.
     pub run_id: String,
     /// Why not.
     pub why: String,
+    /// What to do about it.
+    pub todo: &'static str,
+}
+
+/// Why a journal marked by a live process ([`storage::mark_journal_unrecorded`]) was left.
+const UNRECORDED_CAUSE: &str = "the storage was full or could not be written when the run ended";
+
+/// What to do when the controller did not answer the reconciliation.
+const TODO_CONTROLLER: &str = "check that the controller answers (its network cable, RTDE on port 30004), then start a run again";
+/// What to do when the storage directory did not take what the reconciliation writes.
+const TODO_STORAGE: &str = "free space in the storage directory (`[storage] dir`) and check that this user can write there, then start a run again";
+
+/// Why the journal `intent` is not to be used, checked as values read from the controller
+/// are (see the module docs): `registers` are the configured result registers, `store` the
+/// history. `None` when it can be used.
+fn doubt(intent: &Intent, registers: Option<RegisterMap>, store: Option<&Store>) -> Option<String> {
+    let run_id = &intent.run_id;
+    if !storage::is_run_id(run_id) || intent.record.run_id != *run_id {
+        return Some(format!(
+            "it names no valid run (run id `{run_id}`, its record's `{}`)",
+            intent.record.run_id
+        ));
+    }
+    if let Some(t) = &intent.tcp {
+        for (which, p) in [("previous", &t.previous), ("new", &t.new)] {
+            if let Err(why) = within_pose_bound(p, MAX_TCP_OFFSET_M) {
+                return Some(format!(
+                    "its {which} TCP p{p:?} (flange → TCP) is {why}, which no controller holds"
+                ));
+            }
+        }
+    }
+    if let Some(r) = &intent.registers {
+        if registers != Some(r.map()) {
+            let configured = match registers {
+                Some(m) => format!(
+                    "input_double_register_{}..{} and input_int_register_{}",
+                    m.double_start,
+                    m.double_start + 5,
+                    m.sequence_int
+                ),
+                None => "none".into(),
+            };
+            return Some(format!(
+                "it names input_double_register_{}..{} and input_int_register_{}, not the configured result registers (`[write_back.registers]`: {configured})",
+                r.double_start,
+                r.double_start + 5,
+                r.sequence_int
+            ));
+        }
+        for (which, p) in [("previous", &r.previous), ("new", &r.new)] {
+            if let Err(why) = within_pose_bound(p, MAX_POSE_DISTANCE_M) {
+                return Some(format!(
+                    "its {which} result registers {p:?} (x, y, z m, rx, ry, rz rad) are {why}, which no controller holds"
+                ));
+            }
+        }
+    }
+    let row = store.and_then(|s| s.summary(run_id).ok().flatten());
+    if let Some(row) = row.filter(|r| r.outcome == RunStatus::Ended(Outcome::Accepted)) {
+        return Some(format!(
+            "its run is already complete in the history (accepted, first reason {:?})",
+            row.reason.unwrap_or_default()
+        ));
+    }
+    None
+}
+
+/// Sets the journal aside (renamed beside it, kept for the operator) and says so in the log
+/// with what to check; nothing in it is used. Runs go on (`Ok(None)`) unless it cannot even
+/// be moved.
+fn set_aside(
+    storage_dir: &Path,
+    run_id: Option<&str>,
+    why: &str,
+) -> Result<Option<RunRecord>, ReconcileError> {
+    let path = storage_dir.join(storage::JOURNAL_FILE);
+    let of = run_id.map(|id| format!(" (run {id})")).unwrap_or_default();
+    let aside = storage::set_aside_journal(storage_dir).map_err(|e| ReconcileError {
+        run_id: run_id.unwrap_or("?").to_string(),
+        why: format!("{why}, and the journal cannot be set aside: {e}"),
+        todo: "move writeback-journal.json out of the storage directory by hand, then check the TCP and the result registers on the pendant",
+    })?;
+    let current = storage::current_run_id(storage_dir).unwrap_or_else(|| "none".into());
+    tracing::error!(
+        "ALARM: the write-back journal {}{of} cannot be reconciled: {why}; it was set aside as {} and nothing in it was written to the controller or the history. Check on the pendant that the TCP and the result registers hold the current calibration (`current/` holds run {current}), then remove the set-aside file",
+        path.display(),
+        aside.display()
+    );
+    clean(storage_dir, None);
+    Ok(None)
 }
 
 /// Reconciles a write-back journal left by a process that stopped (see the module docs):
@@ -192,6 +294,7 @@ pub struct ReconcileError {
 pub async fn reconcile<R: Robot>(
     robot: &R,
     storage_dir: &Path,
+    registers: Option<RegisterMap>,
     store: Option<&Store>,
 ) -> Result<Option<RunRecord>, ReconcileError> {
     let exists = std::fs::symlink_metadata(storage_dir.join(storage::JOURNAL_FILE)).is_ok();
@@ -206,6 +309,7 @@ pub async fn reconcile<R: Robot>(
             return Err(ReconcileError {
                 run_id: "?".into(),
                 why: format!("cannot lock the journal: {e}"),
+                todo: TODO_STORAGE,
             })
         }
     };
@@ -215,87 +319,93 @@ pub async fn reconcile<R: Robot>(
             clean(storage_dir, None);
             return Ok(None);
         }
-        Err(why) => {
-            return Err(ReconcileError {
-                run_id: "?".into(),
-                why,
-            })
-        }
+        // Not a regular file, too large, not readable: nothing to trust.
+        Err(why) => return set_aside(storage_dir, None, &why),
     };
     let intent: Intent = match serde_json::from_str(&text) {
         Ok(i) => i,
+        // Written atomically, so never torn: not ours.
         Err(e) => {
-            // Written atomically, so never torn: not ours. Set aside, not trusted.
-            let path = storage_dir.join(storage::JOURNAL_FILE);
-            let aside = path.with_extension("json.unreadable");
-            let _ = std::fs::rename(&path, &aside);
-            tracing::error!(
-                "{} is not a write-back journal ({e}); moved to {}",
-                path.display(),
-                aside.display()
-            );
-            return Ok(None);
+            let why = format!("it is not a write-back journal ({e})");
+            return set_aside(storage_dir, None, &why);
         }
     };
     let run_id = intent.run_id.clone();
-    let fail = |why: String| ReconcileError {
-        run_id: run_id.clone(),
-        why,
-    };
-    if !storage::is_run_id(&run_id) || intent.record.run_id != run_id {
-        return Err(fail("the journal names no valid run".into()));
+    if let Some(why) = doubt(&intent, registers, store) {
+        return set_aside(storage_dir, Some(&run_id), &why);
     }
     let Some(run_dir) = storage::run_dir(storage_dir, &run_id) else {
-        return Err(fail("the journal names no valid run".into()));
+        return set_aside(storage_dir, None, "it names no valid run");
     };
-    let holds = controller_holds(robot, &intent)
-        .await
-        .map_err(|e| fail(format!("reading the controller: {}", error_chain(&e))))?;
+    let fail = |why: String, todo: &'static str| ReconcileError {
+        run_id: run_id.clone(),
+        why,
+        todo,
+    };
+    let holds = controller_holds(robot, &intent).await.map_err(|e| {
+        fail(
+            format!("reading the controller: {}", error_chain(&e)),
+            TODO_CONTROLLER,
+        )
+    })?;
+    // Why the run's end was not recorded: a kill, or (a live process said so) the storage.
+    let unrecorded = storage::journal_unrecorded(storage_dir);
+    let cause = if unrecorded {
+        UNRECORDED_CAUSE
+    } else {
+        "crash, power loss or kill"
+    };
     let record = match holds {
-        Holds::New => match complete(storage_dir, &run_dir, &intent) {
+        Holds::New => match complete(storage_dir, &run_dir, &intent, unrecorded) {
             Ok(record) => record,
             Err(why) => {
                 let undone = put_back(robot, &intent.previous())
                     .await
-                    .map_err(|e| fail(format!("{why}; and {e}")))?;
+                    .map_err(|e| fail(format!("{why}; and {e}"), TODO_CONTROLLER))?;
                 rolled_back(
                     &intent,
                     format!(
-                        "interrupted after its result was written to the controller (crash, power loss or kill); at the next start it could not be completed ({why}), so it was rolled back: {undone}; check the TCP on the pendant"
+                        "interrupted after its result was written to the controller ({cause}); at the next start it could not be completed ({why}), so it was rolled back: {undone}; check the TCP on the pendant"
                     ),
                 )
             }
         },
         Holds::Previous => rolled_back(
             &intent,
-            "interrupted before its result was written to the controller (crash, power loss or kill); the controller and `current/` keep the previous calibration".into(),
+            format!("interrupted before its result was written to the controller ({cause}); the controller and `current/` keep the previous calibration"),
         ),
         Holds::Torn => {
-            let undone = put_back(robot, &intent.previous())
-                .await
-                .map_err(|e| fail(format!("the controller holds part of the result and {e}")))?;
+            let undone = put_back(robot, &intent.previous()).await.map_err(|e| {
+                fail(
+                    format!("the controller holds part of the result and {e}"),
+                    TODO_CONTROLLER,
+                )
+            })?;
             rolled_back(
                 &intent,
                 format!(
-                    "interrupted while writing its result to the controller (crash, power loss or kill); at the next start the controller held part of it, so it was rolled back: {undone}; check the TCP on the pendant"
+                    "interrupted while writing its result to the controller ({cause}); at the next start the controller held part of it, so it was rolled back: {undone}; check the TCP on the pendant"
                 ),
             )
         }
         Holds::Other => rolled_back(
             &intent,
-            "interrupted while writing its result to the controller (crash, power loss or kill); at the next start the controller held neither the previous values nor the result (changed on the pendant since?), so nothing was written; check the TCP and the registers on the pendant".into(),
+            format!("interrupted while writing its result to the controller ({cause}); at the next start the controller held neither the previous values nor the result (changed on the pendant since?), so nothing was written; check the TCP and the registers on the pendant"),
         ),
     };
     storage::write_record(&run_dir, &record)
-        .map_err(|e| fail(format!("cannot write the run record: {e}")))?;
+        .map_err(|e| fail(format!("cannot write the run record: {e}"), TODO_STORAGE))?;
     if let Some(store) = store {
         let trigger = record.trigger.unwrap_or(crate::record::Trigger::Cli);
-        store
-            .finish(trigger, &record)
-            .map_err(|e| fail(format!("cannot record it in the history: {e}")))?;
+        store.finish(trigger, &record).map_err(|e| {
+            fail(
+                format!("cannot record it in the history: {e}"),
+                TODO_STORAGE,
+            )
+        })?;
     }
     storage::remove_journal(storage_dir)
-        .map_err(|e| fail(format!("cannot remove the journal: {e}")))?;
+        .map_err(|e| fail(format!("cannot remove the journal: {e}"), TODO_STORAGE))?;
     clean(storage_dir, None);
     match holds {
         Holds::New => tracing::warn!(run_id = %run_id, "{}", record.reasons[0]),
@@ -312,7 +422,12 @@ fn clean(storage_dir: &Path, keep: Option<&str>) {
 
 /// Completes an interrupted run whose result the controller holds: `current/` (from the
 /// run's folder, unless it already names the run) and its record. Returns the record.
-fn complete(storage_dir: &Path, run_dir: &Path, intent: &Intent) -> Result<RunRecord, String> {
+fn complete(
+    storage_dir: &Path,
+    run_dir: &Path,
+    intent: &Intent,
+    unrecorded: bool,
+) -> Result<RunRecord, String> {
     if !intent.current_files.is_empty()
         && storage::current_run_id(storage_dir).as_deref() != Some(&intent.run_id)
     {
@@ -337,10 +452,15 @@ fn complete(storage_dir: &Path, run_dir: &Path, intent: &Intent) -> Result<RunRe
     } else {
         "the arm was not moved back to the start: it stands where it stopped"
     };
+    let stopped = if unrecorded {
+        format!("the run's end could not be recorded after the result was written to the controller ({UNRECORDED_CAUSE})")
+    } else {
+        "the program stopped after the result was written to the controller (crash, power loss or kill)".into()
+    };
     record.reasons.insert(
         0,
         format!(
-            "the program stopped after the result was written to the controller (crash, power loss or kill); completed at the next start: the controller, `current/` and the history hold this result; {arm}"
+            "{stopped}; completed at the next start: the controller, `current/` and the history hold this result; {arm}"
         ),
     );
     Ok(record)
@@ -386,6 +506,11 @@ mod tests {
     use handeye_hal::ur_dh::UrModel;
 
     const HOME: [f64; 6] = [0.0, -1.57, 1.57, -1.57, -1.57, 0.0];
+    /// The configured result registers: doubles 24..29, sequence 24.
+    const MAP: Option<RegisterMap> = Some(RegisterMap {
+        double_start: 24,
+        sequence_int: 24,
+    });
     const OLD: [f64; 6] = [0.0, -0.08, 0.04, -0.26, 0.0, 0.0];
     const NEW: [f64; 6] = [0.008, -0.074, 0.047, -0.22, 0.03, 0.02];
 
@@ -475,7 +600,7 @@ mod tests {
                 .await
                 .expect("reg");
         }
-        let record = reconcile(&robot, &d.0, None)
+        let record = reconcile(&robot, &d.0, MAP, None)
             .await
             .expect("reconciled")
             .expect("a run");
@@ -515,7 +640,7 @@ mod tests {
                 .expect("reg");
         }
         robot.write_int_register(24, 4).await.expect("seq");
-        let record = reconcile(&robot, &d.0, None)
+        let record = reconcile(&robot, &d.0, MAP, None)
             .await
             .expect("reconciled")
             .expect("a run");
@@ -538,15 +663,164 @@ mod tests {
         let held = storage::JournalLock::try_acquire(&d.0)
             .expect("lock")
             .expect("free");
-        assert!(reconcile(&robot, &d.0, None).await.expect("ok").is_none());
+        assert!(reconcile(&robot, &d.0, MAP, None)
+            .await
+            .expect("ok")
+            .is_none());
         assert!(d.0.join(storage::JOURNAL_FILE).exists());
         drop(held);
-        let record = reconcile(&robot, &d.0, None)
+        let record = reconcile(&robot, &d.0, MAP, None)
             .await
             .expect("reconciled")
             .expect("a run");
         assert_eq!(record.outcome, Outcome::Aborted);
         assert!(record.reasons[0].contains("before its result was written"));
         assert_eq!(registers(&robot).await, (OLD, 3), "untouched");
+    }
+
+    /// The journals set aside beside the journal (`writeback-journal.json.set-aside-*`).
+    fn set_aside_files(storage: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(storage)
+            .expect("storage")
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with("writeback-journal.json.set-aside-"))
+            .collect();
+        v.sort();
+        v
+    }
+
+    /// Issue 46: a journal is evidence, not an order. After a torn kill (the TCP new, the
+    /// registers previous), journals whose values no controller holds — a previous TCP 5 m or
+    /// 1e300 m from the flange, NaN result registers — or that name registers other than the
+    /// configured ones are set aside (kept, renamed): nothing is written to the controller,
+    /// no record is made up, and the next reconciliation finds nothing to block on.
+    #[tokio::test]
+    async fn issue_46_a_journal_with_values_no_controller_holds_is_set_aside() {
+        type Spoil = fn(&mut Intent);
+        let cases: [(&str, Spoil); 5] = [
+            ("previous TCP 5 m away", |i| {
+                i.tcp.as_mut().expect("tcp").previous[0] = 5.0
+            }),
+            ("previous TCP 1e300 m away", |i| {
+                i.tcp.as_mut().expect("tcp").previous[2] = 1e300
+            }),
+            ("NaN previous registers", |i| {
+                i.registers.as_mut().expect("registers").previous[3] = f64::NAN
+            }),
+            ("registers outside the configured range", |i| {
+                i.registers.as_mut().expect("registers").double_start = 40
+            }),
+            ("sequence register not the configured one", |i| {
+                i.registers.as_mut().expect("registers").sequence_int = 99
+            }),
+        ];
+        for (k, (what, spoil)) in cases.into_iter().enumerate() {
+            let d = dir(&format!("doubt{k}"));
+            let id = format!("20261128T000000Z-01{k:02}");
+            let (robot, mut intent) = prepared(&d.0, &id).await;
+            spoil(&mut intent);
+            intent.write(&d.0).expect("journal");
+            // Killed after the TCP: a torn write, which would be rolled back.
+            robot
+                .set_tcp(&Isometry3::from(UrPose(NEW)))
+                .await
+                .expect("tcp");
+            let tcp_writes = robot.tcp_history().len();
+            let reconciled = reconcile(&robot, &d.0, MAP, None).await;
+            assert!(matches!(reconciled, Ok(None)), "{what}: {reconciled:?}");
+            assert_eq!(
+                robot.tcp_history().len(),
+                tcp_writes,
+                "{what}: a TCP was set"
+            );
+            assert!(same(&UrPose::from(&robot.tcp()).values(), &NEW), "{what}");
+            assert_eq!(
+                registers(&robot).await,
+                (OLD, 3),
+                "{what}: registers written"
+            );
+            assert!(!d.0.join(storage::JOURNAL_FILE).exists(), "{what}");
+            assert_eq!(
+                set_aside_files(&d.0).len(),
+                1,
+                "{what}: kept for the operator"
+            );
+            assert!(
+                storage::read_run_record(&d.0, &id).is_none(),
+                "{what}: a record was made from it"
+            );
+            // Nothing is left to block the next run.
+            assert!(matches!(reconcile(&robot, &d.0, MAP, None).await, Ok(None)));
+        }
+    }
+
+    /// Issue 46: a journal naming a run the history holds as accepted (the current
+    /// calibration) is not applied: its history row stays `accepted` (before, a controller
+    /// holding the journal's "previous" values turned it `aborted`); the journal is set aside.
+    #[tokio::test]
+    async fn issue_46_a_journal_naming_a_completed_run_leaves_its_history_alone() {
+        use crate::record::Trigger;
+        let d = dir("completed");
+        let id = "20261128T000000Z-0200";
+        let (robot, intent) = prepared(&d.0, id).await;
+        let store = Store::open(&d.0.join(crate::store::HISTORY_FILE)).expect("history");
+        store.finish(Trigger::Api, &intent.record).expect("row");
+        let reconciled = reconcile(&robot, &d.0, MAP, Some(&store)).await;
+        assert!(matches!(reconciled, Ok(None)), "{reconciled:?}");
+        let row = store.summary(id).expect("read").expect("row");
+        assert_eq!(row.outcome, RunStatus::Ended(Outcome::Accepted), "{row:?}");
+        assert_eq!(registers(&robot).await, (OLD, 3));
+        assert!(!d.0.join(storage::JOURNAL_FILE).exists());
+        assert_eq!(set_aside_files(&d.0).len(), 1);
+    }
+
+    /// Issue 46: a journal that is no journal is set aside too (not read again, kept), and a
+    /// second one set aside in the same second gets its own name.
+    #[tokio::test]
+    async fn issue_46_unreadable_journals_are_each_kept_aside() {
+        let d = dir("unreadable");
+        let robot = FakeRobot::new(UrModel::Ur5e, HOME);
+        for text in ["{ not json", "[]"] {
+            storage::write_journal(&d.0, text.as_bytes()).expect("journal");
+            assert!(matches!(reconcile(&robot, &d.0, MAP, None).await, Ok(None)));
+        }
+        assert_eq!(set_aside_files(&d.0).len(), 2);
+        assert!(!d.0.join(storage::JOURNAL_FILE).exists());
+    }
+
+    /// Issue 46: a journal a live run left because its end could not be recorded (the disk
+    /// full: the recorder marks it) is completed saying so, not as "crash, power loss or
+    /// kill"; the mark goes with the journal.
+    #[tokio::test]
+    async fn issue_46_a_run_whose_end_the_full_disk_kept_from_the_history_is_not_called_a_kill() {
+        let d = dir("unrecorded");
+        let id = "20261128T000000Z-0300";
+        let (robot, _) = prepared(&d.0, id).await;
+        robot
+            .set_tcp(&Isometry3::from(UrPose(NEW)))
+            .await
+            .expect("tcp");
+        for (k, v) in NEW.iter().enumerate() {
+            robot
+                .write_double_register(24 + k as u32, *v)
+                .await
+                .expect("reg");
+        }
+        robot.write_int_register(24, 4).await.expect("seq");
+        storage::mark_journal_unrecorded(&d.0).expect("mark");
+        assert!(storage::journal_unrecorded(&d.0));
+        let record = reconcile(&robot, &d.0, MAP, None)
+            .await
+            .expect("reconciled")
+            .expect("a run");
+        assert_eq!(record.outcome, Outcome::Accepted);
+        let why = &record.reasons[0];
+        assert!(
+            why.contains("the storage was full") && !why.contains("crash, power loss or kill"),
+            "{why}"
+        );
+        assert!(!storage::journal_unrecorded(&d.0), "the mark stays");
+        assert!(!d.0.join(storage::JOURNAL_FILE).exists());
     }
 }

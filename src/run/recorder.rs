@@ -73,6 +73,7 @@ impl Recorder {
             super::journal::reconcile(
                 robot,
                 &cfg.storage.dir,
+                cfg.write_back.registers,
                 self.history.as_ref().map(|(s, _)| s.as_ref()),
             )
             .await
@@ -205,6 +206,10 @@ fn end_journal(storage_dir: &std::path::Path, record: &RunRecord, recorded: bool
             .iter()
             .any(|w| matches!(w.target, WriteTarget::Tcp | WriteTarget::Registers));
     if !recorded || controller_unrecorded {
+        // This process lives on: the next start must not take the journal for a kill's.
+        if let Err(e) = storage::mark_journal_unrecorded(storage_dir) {
+            tracing::warn!("cannot mark the write-back journal as left by a live run: {e}");
+        }
         tracing::error!(
             run_id = %record.run_id,
             "the write-back journal stays in {}: the next start reconciles the controller with this run's record",
@@ -220,11 +225,18 @@ fn end_journal(storage_dir: &std::path::Path, record: &RunRecord, recorded: bool
 /// Opens the history at `path` for writing ([`Store::open`]: a damaged file is set aside)
 /// and, when the history is new — no file, an empty one, or a damaged one set aside — adds
 /// the runs whose records are in the run folders beside it, so no run is lost from the list.
-/// Blocking I/O.
+/// When no other writer is alive, the temporary files (`*.tmp`) a kill left in the storage
+/// folder and the run folders are removed ([`storage::remove_temporary_files`]). Blocking I/O.
 pub fn open_history(path: &std::path::Path) -> Result<Store, StoreError> {
     let store = Store::open(path)?;
+    let storage_dir = path.parent().unwrap_or(std::path::Path::new("."));
+    // No other process writes there now: the temporary files a kill left go.
+    if store.is_sole_writer() {
+        for p in storage::remove_temporary_files(storage_dir) {
+            tracing::info!("removed {} (a temporary file left by a kill)", p.display());
+        }
+    }
     if store.is_new() {
-        let storage_dir = path.parent().unwrap_or(std::path::Path::new("."));
         let records = storage::run_records(storage_dir);
         if !records.is_empty() {
             let added = store.rebuild(&records)?;
@@ -250,8 +262,9 @@ pub enum PruneError {
     Storage(#[from] storage::StorageError),
 }
 
-/// Deletes the raw scans (`runs/<id>/view*_frame*.ply`) of the runs that are both beyond the
-/// newest `keep_runs` and started more than `keep_days` ago, and notes it in their rows;
+/// Deletes the raw scans (`runs/<id>/view*_frame*.ply`, and temporary files a kill left there)
+/// of the runs that are both beyond the newest `keep_runs` and started more than `keep_days`
+/// ago, and notes it in their rows;
 /// records, `capture.json` and results stay. Runs still running are never touched; run
 /// folders that are not in the history are left alone. Returns the files removed.
 pub fn prune_captures(

@@ -922,3 +922,59 @@ fn issue_36_primary_kinematics_stale_streams_and_speeds_get_nothing_written() {
     assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
     assert_ne!(controller_state(robot_ip).0, before.0, "{out}");
 }
+
+/// Issue 46: the controller's state watched through every move. Through the fault proxy, the
+/// safety mode turns 99 (no controller has it) or the speed slider 3.0 while the move program
+/// plays — mid-move, after a preflight that saw them normal. Before, the move went on and the
+/// run was accepted and written; now the move fails naming the value, the arm is stopped, and
+/// the run ends in its move with nothing written (TCP and registers 24..29 unchanged). Healed,
+/// the calibration through the proxy passes.
+#[test]
+fn issue_46_controller_state_changing_mid_move_gets_nothing_written() {
+    use handeye_ur::sim::fault_proxy::Corruption;
+    let Some(_) = shared("issue_46_controller_state_changing_mid_move") else {
+        return;
+    };
+    let robot_ip = "127.0.0.147";
+    // Every field bound: the runtime and the folder live to the end of the test.
+    let ProxiedRig {
+        proxy,
+        _runtime,
+        rig,
+        cfg,
+        _dir,
+    } = ProxiedRig::start("fault-proxy-46", robot_ip, "127.0.0.148", "127.0.0.149");
+    let before = controller_state(robot_ip);
+    for (field, value, says) in [
+        ("safety_mode", 99.0, "safety_mode = [99.0]"),
+        (
+            "target_speed_fraction",
+            3.0,
+            "target_speed_fraction = [3.0]",
+        ),
+    ] {
+        let start = controller_state(robot_ip);
+        proxy.corrupt_while_playing(field, Corruption::Set(vec![value]));
+        let out = handeye("calibrate", &cfg, &[]);
+        proxy.heal(field);
+        assert_ne!(out.code(), 0, "{field} {value}: {out}\n{}", rig.log());
+        let text = format!("{}{}", out.stdout, out.stderr);
+        assert!(text.contains(says), "{field} {value}: {out}");
+        let record = out.json();
+        assert_eq!(record["failed_stage"], "move", "{field} {value}: {out}");
+        assert_eq!(
+            record["written"].as_array().map(Vec::len),
+            Some(0),
+            "{field} {value}: {out}"
+        );
+        let after = controller_state(robot_ip);
+        assert_eq!(after.0, start.0, "{field} {value}: the TCP changed: {out}");
+        assert_eq!(
+            after.1, start.1,
+            "{field} {value}: registers changed: {out}"
+        );
+    }
+    let out = handeye("calibrate", &cfg, &[]);
+    assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
+    assert_ne!(controller_state(robot_ip).0, before.0, "{out}");
+}

@@ -99,16 +99,16 @@ impl Cell {
         }
     }
 
-    /// What the controller holds: the TCP (flange → TCP), the six result registers and the
-    /// sequence register, read over RTDE.
-    fn controller(&self) -> (Isometry3<f64>, [f64; 6], i64) {
+    /// What the controller holds: the TCP (flange → TCP, UR pose), the six result registers
+    /// and the sequence register, read over RTDE.
+    fn controller(&self) -> ([f64; 6], [f64; 6], i64) {
         let st = run(
             &["robot", "--host", self.robot_ip, "status", "--json"],
             secs(15),
         )
         .success()
         .json();
-        let tcp: Vec<f64> =
+        let tcp: [f64; 6] =
             serde_json::from_value(st["flange_from_tcp_ur_pose"].clone()).expect("tcp");
         let regs = run(
             &["robot", "--host", self.robot_ip, "registers", "--json"],
@@ -123,7 +123,7 @@ impl Cell {
         }
         assert_eq!(rows[0]["index"], 24);
         let seq = rows[0]["input_int"].as_i64().expect("sequence");
-        (ur_pose(&tcp), values, seq)
+        (tcp, values, seq)
     }
 
     /// `current/`'s run and pose.
@@ -157,7 +157,7 @@ impl Cell {
         // The running daemon holds the registers: read the controller once it has stopped.
         daemon.stop();
         let (tcp, regs, seq) = self.controller();
-        let (mm, deg) = pose_error(&tcp, &current_pose);
+        let (mm, deg) = pose_error(&ur_pose(&tcp), &current_pose);
         assert!(
             mm < 1e-3 && deg < 1e-4,
             "{step}: the controller's TCP is {mm} mm / {deg}° from current/ ({current_run})"
@@ -327,4 +327,174 @@ fn issue_36_fifty_random_kills_leave_controller_and_records_agreeing() {
     };
     let mut cell = Cell::new("kill-soak", "127.0.0.238", "127.0.0.239");
     kill_everywhere(&mut cell, 50, 0x2545_f491_4f6c_dd1d);
+}
+
+/// `handeye calibrate --config <cell> --json`, to its end.
+fn calibrate_cli(cell: &Cell) -> crate::support::Output {
+    run(
+        &[
+            "calibrate",
+            "--config",
+            cell.cfg.to_str().expect("utf-8"),
+            "--json",
+        ],
+        secs(120),
+    )
+}
+
+/// A write-back journal as a killed run leaves it, for run `run_id` with the record of the
+/// run in `record_of`'s folder: the TCP from `tcp` (previous, new), the registers 24..29
+/// (at `start`, sequence register `start` too) from `regs` (previous, new) with sequence
+/// numbers `seq` → `seq + 1`.
+fn plant_journal(
+    cell: &Cell,
+    run_id: &str,
+    record_of: &str,
+    tcp: ([f64; 6], [f64; 6]),
+    start: u32,
+    regs: ([f64; 6], [f64; 6]),
+    seq: i64,
+) {
+    let data = cell.dir.join("data");
+    let text = std::fs::read_to_string(data.join(format!("runs/{record_of}/record.json")))
+        .expect("record");
+    let mut record: serde_json::Value = serde_json::from_str(&text).expect("record json");
+    record["run_id"] = run_id.into();
+    let journal = serde_json::json!({
+        "run_id": run_id,
+        "written_unix_s": 0.0,
+        "tcp": {"previous": tcp.0, "new": tcp.1},
+        "registers": {
+            "double_start": start, "sequence_int": start,
+            "previous": regs.0, "previous_sequence": seq,
+            "new": regs.1, "sequence": seq + 1,
+        },
+        "current_files": [],
+        "record": record,
+    });
+    std::fs::create_dir_all(data.join(format!("runs/{run_id}"))).expect("run folder");
+    std::fs::write(
+        data.join("writeback-journal.json"),
+        serde_json::to_vec_pretty(&journal).expect("json"),
+    )
+    .expect("journal");
+}
+
+/// The journals set aside in the cell's storage.
+fn set_aside(cell: &Cell) -> usize {
+    std::fs::read_dir(cell.dir.join("data"))
+        .expect("data")
+        .flatten()
+        .filter(|e| {
+            e.file_name()
+                .to_string_lossy()
+                .starts_with("writeback-journal.json.set-aside-")
+        })
+        .count()
+}
+
+/// Issue 46: the write-back journal is evidence, not an order. Against the simulated rig,
+/// `handeye calibrate` finds journals that a kill could not have left — one naming the
+/// current, completed run (its history row stayed `accepted`, the controller holding the
+/// journal's "previous" values would have turned it `aborted`), a torn one whose previous
+/// TCP is 5 m from the flange (it was written back to the controller), one naming registers
+/// 40..45 where 24..29 are configured (every run was refused for good) — and sets each aside
+/// with an ALARM naming what to check: nothing from it reaches the controller or the
+/// history, and the run goes on.
+#[test]
+fn issue_46_journals_that_cannot_be_reconciled_are_set_aside_and_runs_go_on() {
+    let Some(_) = shared("issue_46_journals_that_cannot_be_reconciled") else {
+        return;
+    };
+    let cell = Cell::new("journal-doubt", "127.0.0.144", "127.0.0.145");
+    let out = calibrate_cli(&cell);
+    assert_eq!(out.code(), 0, "{out}");
+    let first = out.json()["run_id"].as_str().expect("run id").to_string();
+    let shifted = |v: [f64; 6]| {
+        let mut v = v;
+        v[0] += 0.01;
+        v
+    };
+    let far = [5.0, 0.0, 0.1, 0.0, 0.0, 0.0];
+    let cases: [(&str, &str, bool); 3] = [
+        ("the current run", "already complete in the history", false),
+        (
+            "a torn write-back",
+            "5.001 m from its frame's origin (at most 2 m",
+            true,
+        ),
+        (
+            "registers 40..45",
+            "not the configured result registers",
+            true,
+        ),
+    ];
+    for (k, (what, says, new_run)) in cases.into_iter().enumerate() {
+        let (tcp, regs, seq) = cell.controller();
+        let current = cell.current().expect("current/").0;
+        let id = if new_run {
+            format!("20261201T000000Z-46{k:02}")
+        } else {
+            current.clone()
+        };
+        match k {
+            // The controller holds the journal's "previous" values.
+            0 => plant_journal(
+                &cell,
+                &id,
+                &current,
+                (tcp, shifted(tcp)),
+                24,
+                (regs, shifted(regs)),
+                seq,
+            ),
+            // The TCP new, the registers previous: torn, rolled back to a 5 m TCP.
+            1 => plant_journal(
+                &cell,
+                &id,
+                &current,
+                (far, tcp),
+                24,
+                (regs, shifted(regs)),
+                seq,
+            ),
+            _ => plant_journal(
+                &cell,
+                &id,
+                &current,
+                (tcp, shifted(tcp)),
+                40,
+                (regs, shifted(regs)),
+                seq,
+            ),
+        }
+        let out = calibrate_cli(&cell);
+        assert_eq!(out.code(), 0, "{what}: {out}");
+        assert!(
+            out.stderr.contains("ALARM: the write-back journal")
+                && out.stderr.contains("Check on the pendant"),
+            "{what}: {out}"
+        );
+        assert!(out.stderr.contains(says), "{what}: {out}");
+        let run_id = out.json()["run_id"].as_str().expect("run id").to_string();
+        assert_eq!(out.json()["outcome"], "accepted", "{what}: {out}");
+        // The controller holds this run's result, never the journal's values.
+        let (now_tcp, now_regs, _) = cell.controller();
+        let (current_run, current_pose) = cell.current().expect("current/");
+        assert_eq!(current_run, run_id, "{what}");
+        let (mm, _) = pose_error(&ur_pose(&now_tcp), &current_pose);
+        assert!(mm < 1e-3, "{what}: the TCP is {now_tcp:?}");
+        let (mm, _) = pose_error(&ur_pose(&now_regs), &current_pose);
+        assert!(mm < 1e-3, "{what}: the registers are {now_regs:?}");
+        assert_eq!(history_outcome(&cell.cfg, &current), "accepted", "{what}");
+        if new_run {
+            assert_eq!(history_outcome(&cell.cfg, &id), "missing", "{what}");
+        }
+        assert!(
+            !cell.dir.join("data/writeback-journal.json").exists(),
+            "{what}"
+        );
+        assert_eq!(set_aside(&cell), k + 1, "{what}");
+    }
+    assert_eq!(history_outcome(&cell.cfg, &first), "accepted");
 }

@@ -34,6 +34,36 @@ pub const DRIVER_SPEED_CAP_RAD_S: f64 = 1.0;
 /// The UR driver's own acceleration cap when none is configured, rad/s².
 pub const DRIVER_ACCEL_CAP_RAD_S2: f64 = 2.0;
 
+/// Farthest a TCP (`flange_from_tcp`, UR `tcp_offset`) may lie from the flange, m: the
+/// controller's own installation limit for a TCP is well inside it; beyond it the value is
+/// corrupt, not a tool. The UR driver refuses a TCP beyond it when it reads one and before it
+/// sets one, and the write-back journal's TCPs are held to it ([`within_pose_bound`]).
+pub const MAX_TCP_OFFSET_M: f64 = 2.0;
+
+/// Farthest any other pose a UR controller reports or holds may lie from its frame's origin,
+/// m (`actual_TCP_pose` from `base`; a result pose in the result registers): a UR30 reaches
+/// 1.3 m, a camera fixed in a cell a few metres more; beyond it the value is corrupt, not a
+/// pose.
+pub const MAX_POSE_DISTANCE_M: f64 = 10.0;
+
+/// Whether `p` (UR `x, y, z` m, rotation vector rad) can be a pose within `max_m` of its
+/// frame's origin: `Err` says why not, in words the callers put after the value ("which is
+/// not a finite pose", "5.000 m from its frame's origin (at most 2 m is a real pose)"). The
+/// one check of the UR driver's reads ([`MAX_TCP_OFFSET_M`], [`MAX_POSE_DISTANCE_M`]), its
+/// `set_tcp`, and the write-back journal's values.
+pub fn within_pose_bound(p: &[f64; 6], max_m: f64) -> Result<(), String> {
+    if p.iter().any(|v| !v.is_finite()) {
+        return Err("which is not a finite pose".into());
+    }
+    let distance = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    if distance > max_m {
+        return Err(format!(
+            "{distance:.3} m from its frame's origin (at most {max_m} m is a real pose)"
+        ));
+    }
+    Ok(())
+}
+
 // The driver's own caps lie within what any configuration may ask for (checked when built).
 const _: () = assert!(DRIVER_ACCEL_CAP_RAD_S2 < MAX_JOINT_ACCEL_RAD_S2);
 const _: () = assert!(DRIVER_SPEED_CAP_RAD_S < MAX_JOINT_SPEED_CAP_RAD_S);
@@ -128,6 +158,26 @@ mod tests {
             assert!(l.move_speed_rad_s() <= MAX_JOINT_SPEED_CAP_RAD_S, "{m}");
             assert!(DRIVER_SPEED_CAP_RAD_S < l.move_speed_rad_s(), "{m}");
         }
+    }
+
+    #[test]
+    fn a_pose_is_finite_and_within_its_bound() {
+        let tool = [0.0, 0.0, 0.15, 0.0, 0.0, 0.1];
+        assert_eq!(within_pose_bound(&tool, MAX_TCP_OFFSET_M), Ok(()));
+        let far = [5.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        let why = within_pose_bound(&far, MAX_TCP_OFFSET_M).expect_err("5 m");
+        assert!(
+            why.contains("5.000 m") && why.contains("at most 2 m"),
+            "{why}"
+        );
+        assert_eq!(within_pose_bound(&far, MAX_POSE_DISTANCE_M), Ok(()));
+        let huge = [1e300, 0.0, 0.0, 0.0, 0.0, 0.0];
+        assert!(within_pose_bound(&huge, MAX_POSE_DISTANCE_M).is_err());
+        let nan = [0.0, 0.0, 0.0, f64::NAN, 0.0, 0.0];
+        assert_eq!(
+            within_pose_bound(&nan, MAX_POSE_DISTANCE_M),
+            Err("which is not a finite pose".into())
+        );
     }
 
     #[test]

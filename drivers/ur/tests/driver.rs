@@ -130,6 +130,31 @@ async fn set_tcp_is_confirmed_and_tcp_pose_follows() {
         .is_err());
 }
 
+/// Issue 46: a TCP the driver would refuse on read (farther than 2 m from the flange, or so
+/// far that it is not finite once squared) is refused by `set_tcp` too, saying so, before
+/// anything is sent: the controller keeps its TCP.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_46_set_tcp_refuses_a_tcp_the_driver_would_refuse_on_read() {
+    let (sim, robot) = start(sim_config()).await;
+    let before = sim.tcp_offset();
+    for x in [2.5, 5.0, 1e300] {
+        let far = Isometry3::from(UrPose([x, 0.0, 0.1, 0.0, 0.0, 0.0]));
+        let err = robot.set_tcp(&far).await.expect_err("beyond 2 m");
+        let text = err.to_string();
+        assert!(
+            matches!(err, HalError::InvalidArgument(_))
+                && text.contains("at most 2 m")
+                && text.contains("nothing was sent"),
+            "{x} m: {text}"
+        );
+        assert_eq!(sim.tcp_offset(), before, "{x} m: the TCP changed");
+        robot.tcp_offset().await.expect("the TCP still reads");
+    }
+    // Just inside the bound is a tool.
+    let long_tool = Isometry3::from(UrPose([0.0, 0.0, 1.9, 0.0, 0.0, 0.0]));
+    robot.set_tcp(&long_tool).await.expect("1.9 m");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn registers_round_trip_and_fieldbus_range_is_left_alone() {
     let (sim, robot) = start(sim_config().with_fieldbus_lower_range()).await;
@@ -948,4 +973,53 @@ async fn a_stream_that_freezes_or_reorders_during_a_move_fails_it_and_stops_the_
             "{now:?} vs {q:?}"
         );
     }
+}
+
+/// Issue 46: the controller's state watched on every RTDE sample of a move. Through the fault
+/// proxy at 127.0.0.146, while the move program plays: a safety mode no controller has (99),
+/// a safety mode other than the one the move started in (a safeguard stop, 5), a runtime
+/// state no controller has, the speed slider at 3.0. Each fails the move naming what changed,
+/// and the arm is stopped short of its target; healed, the same move arrives.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn issue_46_a_controller_state_change_during_a_move_fails_it_and_stops_the_arm() {
+    use handeye_ur::sim::fault_proxy::Corruption;
+    let (sim, proxy, robot) = start_proxied(Ipv4Addr::new(127, 0, 0, 146), |_| {}).await;
+    let cases = [
+        ("safety_mode", 99.0, "safety_mode = [99.0]"),
+        (
+            "safety_mode",
+            5.0,
+            "safety mode changed from Normal to SafeguardStop",
+        ),
+        ("runtime_state", 99.0, "runtime_state = [99.0]"),
+        (
+            "target_speed_fraction",
+            3.0,
+            "target_speed_fraction = [3.0]",
+        ),
+    ];
+    for (field, value, says) in cases {
+        // 1 rad at 0.5 rad/s: two seconds.
+        let start = sim.joint_positions();
+        let target = target_from(start, 1.0);
+        proxy.corrupt_while_playing(field, Corruption::Set(vec![value]));
+        let err = robot
+            .move_joints(&target, limits(0.5, 20))
+            .await
+            .err()
+            .unwrap_or_else(|| panic!("{field} {value}: the move arrived"));
+        assert!(err.to_string().contains(says), "{field} {value}: {err}");
+        wait_until(|| !sim.program_running()).await;
+        proxy.heal(field);
+        let q = sim.joint_positions();
+        assert!(
+            (target[0] - q[0]).abs() > 0.5,
+            "{field} {value}: the arm was not stopped short of the target: {q:?} vs {target:?}"
+        );
+    }
+    let target = target_from(sim.joint_positions(), 0.2);
+    robot
+        .move_joints(&target, limits(0.5, 20))
+        .await
+        .expect("healed, the move arrives");
 }

@@ -1,5 +1,6 @@
 //! Client side: RTDE, script sender and the [`UrRobot`] `Robot` implementation.
 
+mod checks;
 mod robot;
 mod rtde_client;
 mod script;

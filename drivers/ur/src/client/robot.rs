@@ -7,7 +7,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use handeye_hal::ur_dh::UrModel;
-use handeye_hal::ur_limits::{self, UrLimits};
+use handeye_hal::ur_limits::{self, within_pose_bound, UrLimits};
 use handeye_hal::{
     ControllerIdentity, ControllerKinematics, HalError, MotionLimits, Robot, RobotMode,
     RobotStatus, SafetyMode,
@@ -15,10 +15,13 @@ use handeye_hal::{
 use nalgebra::Isometry3;
 use tokio::sync::Mutex;
 
+use super::checks::{
+    check_can_move, check_kinematics, int_field, joints_field, pose_field, speed_fraction_field,
+    speeds_field, MoveWatch, MAX_POSE_DISTANCE_M, MAX_TCP_OFFSET_M, RUNTIME_PLAYING,
+};
 use super::rtde_client::{RtdeClient, RtdeConfig, Sample};
 use super::script::ScriptClient;
 use crate::dashboard::{robot_mode_from_code, safety_mode_from_code, DashboardClient};
-use crate::primary::{KinematicsInfo, CALIBRATION_LINEARISED};
 use crate::rtde::Value;
 use crate::{Ports, UrError, UrPose};
 
@@ -368,10 +371,10 @@ impl UrRobot {
             // The data the move is followed by must be live, not a replay that has not yet
             // stood still for the bound.
             self.advancing().await?;
-            Ok::<(), HalError>(())
+            Ok::<_, HalError>(MoveWatch::new(&st, during))
         };
         // Corrupt data before the program went out: say that the arm was not moved.
-        ready.await.map_err(HalError::before_move)?;
+        let watch = ready.await.map_err(HalError::before_move)?;
         let mut guard = StopGuard {
             robot: Some(self.clone()),
         };
@@ -404,22 +407,10 @@ impl UrRobot {
                         other => other.into(),
                     })?;
                 last = s.received;
-                match safety_mode_from_code(s.f64("safety_mode").unwrap_or(0.0) as i32) {
-                    SafetyMode::ProtectiveStop => {
-                        return Err(HalError::ProtectiveStop {
-                            during: during.into(),
-                        })
-                    }
-                    SafetyMode::RobotEmergencyStop | SafetyMode::SystemEmergencyStop => {
-                        return Err(HalError::EmergencyStop {
-                            during: during.into(),
-                        })
-                    }
-                    _ => {}
-                }
+                // Safety mode, runtime state and speed slider, on every sample.
+                let playing = watch.check(&s)?;
                 let aq = joints_field(&s)?;
                 let qd = speeds_field(&s)?;
-                let playing = s.f64("runtime_state") == Some(2.0);
                 seen_playing |= playing;
                 let arrived = aq.iter().zip(&q).all(|(x, y)| (x - y).abs() < ARRIVED_RAD)
                     && qd.iter().all(|v| v.abs() < 1e-3);
@@ -562,160 +553,6 @@ impl UrRobot {
     }
 }
 
-/// Farthest a pose the controller reports may lie from the base, m: a UR30 reaches 1.3 m, a
-/// TCP on a long tool a little more; beyond this the value is corrupt, not a pose.
-const MAX_POSE_DISTANCE_M: f64 = 10.0;
-/// Farthest a TCP offset (`flange_from_tcp`) may lie from the flange, m: the controller's own
-/// installation limit for a TCP is well inside it.
-const MAX_TCP_OFFSET_M: f64 = 2.0;
-/// Largest joint angle a controller can report, rad: UR joints turn ±360°; a little slack for
-/// rounding.
-const MAX_REPORTED_JOINT_RAD: f64 = handeye_hal::ur_limits::JOINT_POSITION_LIMIT_RAD + 1e-3;
-/// Largest joint speed a controller can report, rad/s: no UR joint turns faster than 2π rad/s
-/// (the small arms' wrists); a measured speed overshoots its target a little, so half as much
-/// again. Beyond it the value is corrupt, not a speed.
-const MAX_REPORTED_JOINT_SPEED_RAD_S: f64 = 1.5 * std::f64::consts::TAU;
-
-/// What the controller sent that cannot be a real value: an error naming the field, its
-/// values and what to check (nothing that reads it moves the arm or writes anything).
-fn corrupt(name: &str, values: &[f64], why: &str) -> HalError {
-    HalError::Protocol {
-        peer: "RTDE".into(),
-        detail: format!(
-            "the controller reported {name} = {values:?}, {why}; the controller or something \
-             between it and this PC sends corrupt data: check the controller's log and the \
-             network before calibrating"
-        ),
-    }
-}
-
-/// A field the controller must send is not in its data.
-fn missing(name: &str) -> HalError {
-    HalError::Protocol {
-        peer: "RTDE".into(),
-        detail: format!("no {name} in the controller's data"),
-    }
-}
-
-/// Six numbers the controller must send as `name`: present, finite (else "which are not
-/// finite `what`"), each within ±`max` (else `beyond()`, made only then: the move loop reads
-/// every sample).
-fn bounded_vec6(
-    s: &Sample,
-    name: &str,
-    what: &str,
-    max: f64,
-    beyond: impl FnOnce() -> String,
-) -> Result<[f64; 6], HalError> {
-    let v = s.vec6(name).ok_or_else(|| missing(name))?;
-    if v.iter().any(|x| !x.is_finite()) {
-        return Err(corrupt(name, &v, &format!("which are not finite {what}")));
-    }
-    if v.iter().any(|x| x.abs() > max) {
-        return Err(corrupt(name, &v, &beyond()));
-    }
-    Ok(v)
-}
-
-/// A pose field (`x, y, z` m, rotation vector rad) the controller must send: present,
-/// finite, within `max_m` of its frame's origin.
-fn pose_field(s: &Sample, name: &str, max_m: f64) -> Result<UrPose, HalError> {
-    let p = s.vec6(name).ok_or_else(|| missing(name))?;
-    if p.iter().any(|v| !v.is_finite()) {
-        return Err(corrupt(name, &p, "which is not a finite pose"));
-    }
-    let distance = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    if distance > max_m {
-        return Err(corrupt(
-            name,
-            &p,
-            &format!("{distance:.3} m from its frame's origin (at most {max_m} m is a real pose)"),
-        ));
-    }
-    Ok(UrPose(p))
-}
-
-/// The joint angles the controller must send (`actual_q`): present, finite, within a UR
-/// joint's ±360°.
-fn joints_field(s: &Sample) -> Result<[f64; 6], HalError> {
-    bounded_vec6(s, "actual_q", "angles", MAX_REPORTED_JOINT_RAD, || {
-        "beyond the ±360° (±6.283 rad) a UR joint turns".into()
-    })
-}
-
-/// The joint speeds the controller must send (`actual_qd`): present, finite, within
-/// [`MAX_REPORTED_JOINT_SPEED_RAD_S`].
-fn speeds_field(s: &Sample) -> Result<[f64; 6], HalError> {
-    bounded_vec6(
-        s,
-        "actual_qd",
-        "joint speeds",
-        MAX_REPORTED_JOINT_SPEED_RAD_S,
-        || {
-            format!(
-                "faster than the {MAX_REPORTED_JOINT_SPEED_RAD_S:.2} rad/s a UR joint can turn \
-                 (2π rad/s and half as much again)"
-            )
-        },
-    )
-}
-
-/// The speed slider the controller must send (`target_speed_fraction`): present, within
-/// [0, 1].
-fn speed_fraction_field(s: &Sample) -> Result<f64, HalError> {
-    let f = s
-        .f64("target_speed_fraction")
-        .ok_or_else(|| missing("target_speed_fraction"))?;
-    if !(0.0..=1.0).contains(&f) {
-        return Err(corrupt(
-            "target_speed_fraction",
-            &[f],
-            "outside the speed slider's 0..1",
-        ));
-    }
-    Ok(f)
-}
-
-fn int_field(s: &Sample, name: &str) -> Result<i32, HalError> {
-    match s.get(name) {
-        Some(Value::Int32(v)) => Ok(v),
-        Some(other) => Err(HalError::Protocol {
-            peer: "RTDE".into(),
-            detail: format!("{name} is {other:?}, expected INT32"),
-        }),
-        None => Err(HalError::InvalidArgument(format!(
-            "{name} not in the recipe"
-        ))),
-    }
-}
-
-/// What is wrong with the kinematics info a controller published, if anything: DH values
-/// that are not finite, a `calibration_status` that is none of the three a controller has.
-fn check_kinematics(k: &KinematicsInfo) -> Result<(), String> {
-    let dh = &k.dh;
-    for (name, values) in [
-        ("theta", &dh.theta),
-        ("a", &dh.a),
-        ("d", &dh.d),
-        ("alpha", &dh.alpha),
-    ] {
-        if values.iter().any(|v| !v.is_finite()) {
-            return Err(format!(
-                "the controller published DH {name} = {values:?} (primary interface, kinematics \
-                 info), which are not finite"
-            ));
-        }
-    }
-    if k.calibration_status > CALIBRATION_LINEARISED {
-        return Err(format!(
-            "the controller published calibration_status = {} (primary interface, kinematics \
-             info), none of the 0, 1, 2 a controller has",
-            k.calibration_status
-        ));
-    }
-    Ok(())
-}
-
 /// The controller's kinematics from the primary interface; `Ok(None)` (with a warning) when it
 /// sends none in time or cannot be reached; `Err` (what is wrong) when it sends values no arm
 /// has ([`check_kinematics`]): every run on this connection is refused, as no pose the
@@ -752,31 +589,6 @@ async fn read_kinematics(script: &ScriptClient) -> Result<Option<ControllerKinem
             Ok(None)
         }
     }
-}
-
-fn check_can_move(st: &RobotStatus, during: &str) -> Result<(), HalError> {
-    match st.safety_mode {
-        SafetyMode::ProtectiveStop => {
-            return Err(HalError::ProtectiveStop {
-                during: format!("{during} (before start)"),
-            })
-        }
-        SafetyMode::RobotEmergencyStop | SafetyMode::SystemEmergencyStop => {
-            return Err(HalError::EmergencyStop {
-                during: format!("{during} (before start)"),
-            })
-        }
-        _ => {}
-    }
-    if !st.remote_control {
-        return Err(HalError::NotInRemoteControl);
-    }
-    if !st.can_move() {
-        return Err(HalError::NotReady {
-            state: format!("{:?}, {:?}", st.robot_mode, st.safety_mode),
-        });
-    }
-    Ok(())
 }
 
 /// Stops the arm if a move future is dropped (cancelled) before it finished.
@@ -824,7 +636,7 @@ impl Robot for UrRobot {
             robot_mode,
             safety_mode,
             remote_control,
-            program_running: s.f64("runtime_state") == Some(2.0),
+            program_running: s.f64("runtime_state") == Some(RUNTIME_PLAYING),
             speed_fraction: speed_fraction_field(&s)?,
         })
     }
@@ -896,7 +708,7 @@ impl Robot for UrRobot {
             let s = self.inner.rtde.next_sample(last, left.min(STALE)).await?;
             last = s.received;
             let standing = speeds_field(&s)?.iter().all(|v| v.abs() < 1e-3);
-            if standing && s.f64("runtime_state") != Some(2.0) {
+            if standing && s.f64("runtime_state") != Some(RUNTIME_PLAYING) {
                 return Ok(());
             }
         }
@@ -904,9 +716,14 @@ impl Robot for UrRobot {
 
     async fn set_tcp(&self, flange_from_tcp: &Isometry3<f64>) -> Result<(), HalError> {
         let p = UrPose::from(flange_from_tcp);
-        if p.0.iter().any(|x| !x.is_finite()) {
-            return Err(HalError::InvalidArgument("TCP pose is not finite".into()));
-        }
+        // The TCP this driver would refuse on read is never sent.
+        within_pose_bound(&p.0, MAX_TCP_OFFSET_M).map_err(|why| {
+            HalError::InvalidArgument(format!(
+                "TCP p{:?} (flange → TCP), {why}: the controller would hold no real tool; \
+                 nothing was sent (check the calibration or the pose given)",
+                p.0
+            ))
+        })?;
         let body = format!("  set_tcp({})\n", p.to_script());
         let started = Instant::now();
         let readback = self.read_back(started, "TCP offset".into(), format!("{:?}", p.0), |s| {
@@ -1028,35 +845,6 @@ mod tests {
     use std::f64::consts::{PI, TAU};
 
     use super::*;
-
-    #[test]
-    fn kinematics_no_arm_has_are_refused_naming_the_value() {
-        let good = KinematicsInfo::for_arm(UrModel::Ur5e.dh(), CALIBRATION_LINEARISED);
-        assert_eq!(check_kinematics(&good), Ok(()));
-        // A real UR10's huge compensating d values are finite: taken (the model check judges).
-        let mut huge = good;
-        huge.dh.d[1] = 439.0;
-        assert_eq!(check_kinematics(&huge), Ok(()));
-        for status in 0..=CALIBRATION_LINEARISED {
-            assert_eq!(
-                check_kinematics(&KinematicsInfo::for_arm(UrModel::Ur5e.dh(), status)),
-                Ok(())
-            );
-        }
-        let mut nan = good;
-        nan.dh.alpha[4] = f64::NAN;
-        let why = check_kinematics(&nan).expect_err("NaN");
-        assert!(why.contains("DH alpha = [") && why.contains("NaN"), "{why}");
-        let mut inf = good;
-        inf.dh.theta[0] = f64::NEG_INFINITY;
-        assert!(check_kinematics(&inf)
-            .expect_err("inf")
-            .contains("DH theta = [-inf"));
-        let status = KinematicsInfo::for_arm(UrModel::Ur5e.dh(), 7);
-        assert!(check_kinematics(&status)
-            .expect_err("status")
-            .contains("calibration_status = 7"));
-    }
 
     #[test]
     fn the_driver_caps_at_the_limits_of_the_arm_its_kinematics_say() {

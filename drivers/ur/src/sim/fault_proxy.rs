@@ -1,7 +1,9 @@
 //! A man-in-the-middle between a UR client and a controller (ours or a real one) that corrupts
 //! what the controller reports:
 //!
-//! - RTDE output fields set to NaN, infinity or any value, or shifted ([`FaultProxy::corrupt`]);
+//! - RTDE output fields set to NaN, infinity or any value, or shifted ([`FaultProxy::corrupt`]),
+//!   in every data package or only while a program plays, e.g. during a move
+//!   ([`FaultProxy::corrupt_while_playing`]);
 //! - the RTDE data stream as a whole frozen (the same package again and again, the
 //!   controller's timestamp standing still) or reordered (packages swapped in pairs, the
 //!   timestamp going back) ([`FaultProxy::stream`]);
@@ -33,6 +35,7 @@ use crate::rtde::{
     decode_values, encode_values, read_frame, ClientPackage, FieldType, Frame, PackageType,
     Protocol, Reader, ServerPackage, Value,
 };
+use crate::sim::state::RUNTIME_PLAYING;
 use crate::{Ports, UrError};
 
 /// What to do to one RTDE output field's value.
@@ -108,6 +111,8 @@ impl KinematicsCorruption {
 #[derive(Debug, Default)]
 struct Faults {
     fields: HashMap<String, Corruption>,
+    /// Applied only to data packages whose `runtime_state` says a program plays.
+    while_playing: HashMap<String, Corruption>,
     stream: StreamMode,
     kinematics: Option<KinematicsCorruption>,
 }
@@ -181,9 +186,20 @@ impl FaultProxy {
         self.lock().fields.insert(field.to_string(), corruption);
     }
 
-    /// Stops corrupting `field`.
+    /// From the next data package on, `field` arrives corrupted in the packages whose
+    /// `runtime_state` is 2 (a program plays: the arm follows a move, or a stop), as the
+    /// controller's state changing mid-move. The client's recipe must hold `runtime_state`.
+    pub fn corrupt_while_playing(&self, field: &str, corruption: Corruption) {
+        self.lock()
+            .while_playing
+            .insert(field.to_string(), corruption);
+    }
+
+    /// Stops corrupting `field` (always or while playing).
     pub fn heal(&self, field: &str) {
-        self.lock().fields.remove(field);
+        let mut faults = self.lock();
+        faults.fields.remove(field);
+        faults.while_playing.remove(field);
     }
 
     /// From the next data package on, the RTDE stream is delivered as `mode` says
@@ -282,10 +298,13 @@ async fn rtde_connection(client: TcpStream, server: TcpStream, faults: SharedFau
                         frame.encode()
                     }
                     Ok(ServerPackage::Data { recipe_id, body }) => {
-                        let fields_faults = lock(&faults).fields.clone();
+                        let (always, playing) = {
+                            let f = lock(&faults);
+                            (f.fields.clone(), f.while_playing.clone())
+                        };
                         match r.outputs.get(&recipe_id.unwrap_or(0)) {
-                            Some(fields) if !fields_faults.is_empty() => {
-                                corrupted(fields, recipe_id, &body, &fields_faults)
+                            Some(fields) if !always.is_empty() || !playing.is_empty() => {
+                                corrupted(fields, recipe_id, &body, &always, &playing)
                                     .map_or_else(|_| frame.encode(), Ok)
                             }
                             _ => frame.encode(),
@@ -441,17 +460,26 @@ fn corrupted_robot_state(package: &[u8], c: &KinematicsCorruption) -> Option<Vec
     changed.then(|| primary::frame(primary::ROBOT_STATE, &body))
 }
 
-/// A data package with `faults` applied to its fields.
+/// A data package with `always` applied to its fields, and `while_playing` too when its
+/// `runtime_state` says a program plays.
 fn corrupted(
     fields: &[(String, FieldType)],
     recipe_id: Option<u8>,
     body: &[u8],
-    faults: &HashMap<String, Corruption>,
+    always: &HashMap<String, Corruption>,
+    while_playing: &HashMap<String, Corruption>,
 ) -> Result<Vec<u8>, UrError> {
     let types: Vec<FieldType> = fields.iter().map(|(_, t)| *t).collect();
     let mut values = decode_values(&types, body)?;
+    let playing = fields
+        .iter()
+        .zip(&values)
+        .any(|((name, _), v)| name == "runtime_state" && *v == Value::Uint32(RUNTIME_PLAYING));
     for ((name, _), value) in fields.iter().zip(&mut values) {
-        if let Some(c) = faults.get(name) {
+        let fault = always
+            .get(name)
+            .or_else(|| playing.then(|| while_playing.get(name)).flatten());
+        if let Some(c) = fault {
             *value = apply(value, c);
         }
     }
@@ -461,7 +489,8 @@ fn corrupted(
     Frame::new(PackageType::DataPackage, payload).encode()
 }
 
-/// `value` corrupted by `c` (numbers only; other types pass unchanged).
+/// `value` corrupted by `c` (doubles, vectors of doubles, 32-bit integers; other types pass
+/// unchanged).
 fn apply(value: &Value, c: &Corruption) -> Value {
     let change = |old: &[f64]| -> Vec<f64> {
         match c {
@@ -489,6 +518,9 @@ fn apply(value: &Value, c: &Corruption) -> Value {
             let n = change(v);
             Value::Vector3d([n[0], n[1], n[2]])
         }
+        // Integers (`safety_mode`, `runtime_state`) take the number cut to the type (NaN 0).
+        Value::Int32(v) => Value::Int32(change(&[f64::from(*v)])[0] as i32),
+        Value::Uint32(v) => Value::Uint32(change(&[f64::from(*v)])[0] as u32),
         other => *other,
     }
 }
