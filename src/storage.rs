@@ -14,6 +14,8 @@
 //! the name, the folder flushed too), so a crash or a power loss leaves the old file or the new
 //! one, never half of one; `current/` is replaced as a whole.
 
+pub mod owner;
+
 use std::path::{Path, PathBuf};
 
 use handeye_hal::PointCloud;
