@@ -66,7 +66,10 @@ fn fixture() -> Option<&'static Fixture> {
         .get_or_init(|| shared_robot("ur/ur5e/ur5e.urdf").map(build_fixture))
         .as_ref();
     if f.is_none() {
-        eprintln!("SKIP: ../shared/robots not found; the run tests need the UR5e model");
+        crate::skips::record(
+            "run::tests",
+            "../shared/robots not found; the run tests need the UR5e model",
+        );
     }
     f
 }
