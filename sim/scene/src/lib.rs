@@ -16,4 +16,7 @@ pub use args::{
     robots_dir_candidates, SceneArgs, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_MOUNT_DISTANCE_M,
     MAX_PIXELS, MIN_PIXELS, PACKAGED_ROBOTS,
 };
-pub use scene::{parse_robot_addr, LiveJoints, RobotScene, SceneJoints, SceneMount, DEFAULT_MOUNT};
+pub use scene::{
+    parse_robot_addr, read_mount_file, LiveJoints, RobotScene, SceneJoints, SceneMount,
+    DEFAULT_MOUNT,
+};
