@@ -61,6 +61,8 @@ pub mod guard;
 pub mod record;
 pub mod report;
 pub mod run;
+#[doc(hidden)]
+pub mod skips;
 pub mod storage;
 pub mod store;
 

@@ -15,6 +15,8 @@
 //! the name, the folder flushed too), so a crash or a power loss leaves the old file or the new
 //! one, never half of one; `current/` is replaced as a whole.
 
+pub mod owner;
+
 use std::path::{Path, PathBuf};
 
 use handeye_hal::PointCloud;
@@ -540,7 +542,8 @@ pub(crate) fn stage_result(
         outcome: record.outcome.name().to_string(),
         uncertainty_translation_mm: result.map_or(f64::NAN, |r| r.uncertainty.translation_mm),
         uncertainty_rotation_deg: result.map_or(f64::NAN, |r| r.uncertainty.rotation_deg),
-        timestamp: record.run_id.clone(),
+        // When the run started, ISO 8601 in UTC (the run id is beside it, in run_id).
+        timestamp: crate::calendar::utc_text(record.started_unix_s),
     };
     let exports = Exports::new(unknown, parent, child, meta);
     write_exports(run_dir, &exports)?;
@@ -1044,6 +1047,30 @@ mod tests {
         let ids: Vec<String> = run_records(&dir).into_iter().map(|r| r.run_id).collect();
         assert_eq!(ids, vec![good.run_id.clone()]);
         std::fs::remove_dir_all(&dir).expect("cleanup");
+    }
+
+    /// Issue 42 (item 7): `result.json`'s `timestamp` is when the run started, ISO 8601 in
+    /// UTC; it held the run id.
+    #[test]
+    fn issue_42_the_results_timestamp_is_an_iso_8601_time() {
+        let dir = temp_dir("timestamp");
+        let mut record = RunRecord::starting(
+            "20261128T090525Z-64c5".into(),
+            RunMode::Calibrate,
+            false,
+            "c.toml".into(),
+        );
+        record.started_unix_s = 1_795_857_925.4;
+        let run = dir.join("runs/20261128T090525Z-64c5");
+        let p = Isometry3::translation(0.0, -0.08, 0.04);
+        let staged = stage_result(&dir, &run, &p, Mount::EyeInHand, &record, None).expect("staged");
+        drop(staged);
+        let text = std::fs::read_to_string(run.join(crate::calib::export::RESULT_JSON))
+            .expect("result.json");
+        let doc: serde_json::Value = serde_json::from_str(&text).expect("json");
+        assert_eq!(doc["timestamp"], "2026-11-28T09:25:25Z", "{text}");
+        assert_eq!(doc["run_id"], "20261128T090525Z-64c5", "{text}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

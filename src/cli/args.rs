@@ -146,17 +146,13 @@ pub(crate) fn error_text(e: &anyhow::Error) -> String {
 /// capture, so it shows when the test passes); a failure when env `CI` is set.
 #[cfg(test)]
 pub(crate) fn robots_dir_or_skip(test: &str) -> Option<std::path::PathBuf> {
-    use std::io::Write as _;
     let dir = robots_dir();
     if dir.is_none() {
         assert!(
             std::env::var_os("CI").is_none(),
             "{test}: no robot models (../shared/robots or HANDEYE_ROBOTS) and CI is set"
         );
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIP {test}: no robot models (../shared/robots or HANDEYE_ROBOTS)"
-        );
+        handeye::skips::record(test, "no robot models (../shared/robots or HANDEYE_ROBOTS)");
     }
     dir
 }

@@ -82,6 +82,7 @@ pub(crate) fn hold_the_arm(
     beside_daemon: impl FnOnce(&str) -> String,
 ) -> anyhow::Result<Option<DaemonLock>> {
     let storage = &cfg.storage.dir;
+    storage_owner(cfg)?;
     match DaemonLock::acquire_for(storage, command) {
         Ok(lock) => Ok(Some(lock)),
         Err(LockError::Held { holder, .. }) => Err(anyhow::anyhow!(beside_daemon(&holder))),
@@ -104,6 +105,17 @@ pub(crate) fn hold_the_arm(
             Ok(None)
         }
     }
+}
+
+/// Stops a command that writes the storage (its lock, history and run folder) before it
+/// connects anything when another user owns the storage: one user owns it
+/// ([`handeye::storage::owner`]), and the message names this command under `sudo -u <owner>`.
+pub(crate) fn storage_owner(cfg: &Config) -> anyhow::Result<()> {
+    handeye::storage::owner::check_owner(
+        &cfg.storage.dir,
+        &handeye::storage::owner::this_command_line(),
+    )?;
+    Ok(())
 }
 
 /// The refusal of a run beside the running daemon (`holder`: `pid 1234`): what to ask the
@@ -190,6 +202,7 @@ pub(crate) async fn execute(
     shutdown: &CancellationToken,
     quiet: bool,
 ) -> anyhow::Result<RunRecord> {
+    storage_owner(cfg)?;
     let model = load_model(cfg)?;
     // A dry run writes nothing: it claims no register (it runs beside a daemon that does).
     let registers = if req.dry_run {

@@ -68,6 +68,9 @@ where
 pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
     let cfg = Config::load(&args.config)?;
     // Before anything else: a second daemon on the same cell stops here, naming the first.
+    // One user owns the storage: the daemon runs as that user, and can open every file in it.
+    super::calibrate::storage_owner(&cfg)?;
+    handeye::storage::owner::unopenable(&cfg.storage.dir)?;
     let _lock = DaemonLock::acquire(&cfg.storage.dir)?;
     raise_fd_limit();
     let model = load_model(&cfg)?;

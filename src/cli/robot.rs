@@ -81,6 +81,10 @@ enum Command {
         #[arg(long, allow_hyphen_values = true)]
         pose: UrPose,
     },
+    /// Which robot models this program finds, and where: the folders it looks in (in order),
+    /// then every UR model with its URDF or `missing`. Connects nothing. Exit 1 when the
+    /// configured `robot.model` (with `--config`) has no file, or no folder of models is found.
+    Models,
     /// Read or write RTDE double registers 24–47.
     Registers {
         /// Write `INDEX=VALUE` (repeatable) before reading.
@@ -104,6 +108,9 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     .map_err(anyhow::Error::msg)?;
     // Everything the user gave is checked before anything is connected or moved.
     let config = args.config.as_deref().map(Config::load).transpose()?;
+    if matches!(args.command, Command::Models) {
+        return models(config.as_ref());
+    }
     let checked_move = match &args.command {
         Command::Move {
             joints,
@@ -190,7 +197,89 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         Command::Registers { set, json } => {
             interruptible(&shutdown, registers(&robot, &set, json)).await
         }
+        Command::Models => models(config.as_ref()),
     }
+}
+
+/// `handeye robot models`: the folders the models are looked for in (in order, the first
+/// that exists is used), then every UR model with its URDF there or `missing`; the
+/// configuration's `robot.urdf` is named when it sets one. Exit 1 when the configured model
+/// has no file, or (without `--config`) when no folder of models is found.
+fn models(config: Option<&Config>) -> anyhow::Result<ExitCode> {
+    use handeye_sim_scene::robots_dir_candidates;
+    let mut out =
+        String::from("robot models are looked for in (the first folder found is used):\n");
+    let candidates = robots_dir_candidates();
+    let used = candidates.iter().position(|(p, _)| p.is_dir());
+    for (i, (path, whence)) in candidates.iter().enumerate() {
+        let state = match (used, path.is_dir()) {
+            (Some(u), true) if u == i => "used",
+            (_, true) => "found, not used",
+            (_, false) => "absent",
+        };
+        out.push_str(&format!("  {} ({whence}): {state}\n", path.display()));
+    }
+    let dir = used.map(|u| &candidates[u].0);
+    let urdfs = dir
+        .map(|d| handeye::model::find_urdfs(d))
+        .unwrap_or_default();
+    let mut missing = Vec::new();
+    out.push_str("UR models:\n");
+    for m in UrModel::ALL {
+        let found = urdfs
+            .iter()
+            .find(|u| u.file_stem().is_some_and(|s| s == m.name()));
+        match found {
+            Some(u) => out.push_str(&format!("  {:<6} {}\n", m.name(), u.display())),
+            None => {
+                out.push_str(&format!("  {:<6} missing\n", m.name()));
+                missing.push(m);
+            }
+        }
+    }
+    let failed = match config {
+        Some(c) => match &c.robot.urdf {
+            Some(u) => {
+                let there = u.is_file();
+                out.push_str(&format!(
+                    "{}: robot.model {} from robot.urdf = {} ({})\n",
+                    c.origin,
+                    c.robot.model.name(),
+                    u.display(),
+                    if there { "found" } else { "missing" }
+                ));
+                !there
+            }
+            None => {
+                let gone = missing.contains(&c.robot.model);
+                out.push_str(&format!(
+                    "{}: robot.model {} ({})\n",
+                    c.origin,
+                    c.robot.model.name(),
+                    if gone {
+                        "missing: set robot.urdf to the arm's URDF, with its meshes beside it"
+                    } else {
+                        "found"
+                    }
+                ));
+                gone
+            }
+        },
+        None => {
+            if !missing.is_empty() {
+                out.push_str(
+                    "a missing model can be given to a cell as robot.urdf (the arm's URDF, with its meshes)\n",
+                );
+            }
+            dir.is_none()
+        }
+    };
+    emit(&out)?;
+    Ok(if failed {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
 }
 
 /// The cell a `move` is checked in: the configuration's, else the arm the controller's

@@ -225,7 +225,8 @@ pub(crate) struct Args {
     /// Sensor height, pixels.
     #[arg(long, default_value_t = handeye_sim_scene::DEFAULT_HEIGHT)]
     height: u32,
-    /// Write the ground truth (mount, the arm's DH, addresses) to this JSON file.
+    /// Write the ground truth (mount, the arm's DH, addresses) to this JSON file, at start (the
+    /// mount: `--mount-file`'s when it holds one, else `--mount`).
     #[arg(long, value_name = "FILE")]
     truth: Option<PathBuf>,
     /// Simulator-only: re-read the mount from this file (`x,y,z,rx,ry,rz`) when it changes.
@@ -255,6 +256,13 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
         }
     };
     super::args::check_mount("--mount", &mount).map_err(anyhow::Error::msg)?;
+    // A mount file that holds a pose is the mount the camera renders from its first frame (it
+    // wins over --mount): the truth starts from it too.
+    let mount = match &args.mount_file {
+        Some(p) if p.exists() => handeye_sim_scene::read_mount_file(p)
+            .map_err(|e| anyhow::anyhow!("--mount-file {}: {e}", p.display()))?,
+        _ => mount,
+    };
     if let Some(f) = args.protective_stop_during_move {
         anyhow::ensure!(
             (0.0..=1.0).contains(&f),

@@ -27,7 +27,9 @@ pub(crate) fn history_path(cfg: &Config) -> PathBuf {
 pub(crate) fn load_model(cfg: &Config) -> anyhow::Result<Arc<RobotModel>> {
     let path = match &cfg.robot.urdf {
         Some(p) => p.clone(),
-        None => resolve_robot(cfg.robot.model.name()).map_err(anyhow::Error::msg)?,
+        None => resolve_robot(cfg.robot.model.name())
+            .map_err(anyhow::Error::msg)
+            .with_context(|| format!("robot.model in {}", cfg.origin))?,
     };
     let model = RobotModel::load(&path)
         .with_context(|| format!("loading the robot model {}", path.display()))?;

@@ -1008,7 +1008,10 @@ mod tests {
                 "{} is missing and CI is set",
                 path.display()
             );
-            eprintln!("SKIP: {} not found; the API tests need it", path.display());
+            crate::skips::record(
+                "daemon::api::tests",
+                &format!("{} not found; the API tests need it", path.display()),
+            );
         }
         m
     }

@@ -547,8 +547,7 @@ impl DaemonHandle {
                 run_id = %record.run_id,
                 drift_mm = f.drift.map_or(f64::NAN, |d| d.translation_mm),
                 drift_deg = f.drift.map_or(f64::NAN, |d| d.rotation_deg),
-                "ALARM: the camera has drifted from its calibration; recalibrate \
-                 (POST /api/calibrate, `handeye calibrate` or the pendant)"
+                "{ALARM} {RECALIBRATE}"
             );
         }
         st.apply(f, record.drift_found());
@@ -644,12 +643,23 @@ impl DaemonHandle {
             tracing::error!(
                 run_id = check,
                 "ALARM (from the history): the last check found the camera drifted and no \
-                 calibration was accepted since; recalibrate"
+                 calibration was accepted since; {RECALIBRATE}"
             );
         }
         Ok(())
     }
 }
+
+/// The drift alarm's log line, before [`RECALIBRATE`].
+pub const ALARM: &str = "ALARM: the camera has drifted from its calibration;";
+
+/// The way out of the drift alarm, as the daemon can take it: the daemon's own triggers (a
+/// command's `calibrate` is refused beside it, and its gate rejects a remount beyond
+/// `gate.max_change_*` unless it is accepted as one).
+pub const RECALIBRATE: &str = "recalibrate through the daemon: the Calibrate button on its \
+     page, POST /api/calibrate (with the API token) or the pendant's calibrate request; if the \
+     camera was remounted on purpose, the Accept remount button or POST \
+     /api/calibrate/accept-change";
 
 impl State {
     /// Why a run cannot start now: the daemon still waits for a device, or the last health

@@ -48,6 +48,7 @@ use crate::sim::Intrinsics;
 
 use crate::calendar::unix_now;
 pub use crate::calib::pipeline::{calibrate_frames, Calibration, Frame, PipelineOptions};
+use crate::record::Trigger;
 pub use crate::record::{
     CaptureRecord, ChangeAccepted, DriftRecord, FrameRecord, KinematicsOrigin, KinematicsUsed,
     Outcome, PlannedView, PreflightRecord, ResultRecord, RunMode, RunRecord, RunTimings, Stage,
@@ -86,6 +87,37 @@ pub struct RunRequest {
     /// calibration (the camera was remounted on purpose), naming who accepted it (`cli (user
     /// alice)`, `api client 127.0.0.1`). The record says who and how far it moved.
     pub accept_change: Option<String>,
+}
+
+/// A gate's reason with the way to accept a deliberate remount that works where the run was
+/// asked for, after the gate's [`crate::calib::gate::REMOUNT`]: the command line's flag for a
+/// command's run (`trigger` `Cli`, or none), the daemon's page and API for the daemon's (a
+/// command's `--accept-change` is refused beside the daemon, and the pendant cannot accept a
+/// remount). Other reasons are returned as they are.
+pub fn with_remount_way_out(reason: &str, trigger: Option<Trigger>, config: &str) -> String {
+    if !reason.ends_with(crate::calib::gate::REMOUNT) {
+        return reason.to_string();
+    }
+    match trigger {
+        None | Some(Trigger::Cli) => {
+            format!("{reason} with `handeye calibrate --config {config} --accept-change`")
+        }
+        Some(_) => format!(
+            "{reason} with the Accept remount button on the daemon's page or POST \
+             /api/calibrate/accept-change (with the API token); the pendant cannot accept a remount"
+        ),
+    }
+}
+
+/// How to calibrate from where a run was asked for: ` with \`handeye calibrate --config …\``
+/// for a command's run, the daemon's button, route and pendant for the daemon's.
+fn calibrate_way_out(trigger: Option<Trigger>, config: &str) -> String {
+    match trigger {
+        None | Some(Trigger::Cli) => format!(": `handeye calibrate --config {config}`"),
+        Some(_) => ": the Calibrate button on the daemon's page, POST /api/calibrate (with the \
+                   API token) or the pendant's calibrate request"
+            .to_string(),
+    }
 }
 
 impl RunRequest {
@@ -520,7 +552,13 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         });
         if !calibration.verdict.passed() {
             self.record.outcome = Outcome::Rejected;
-            self.record.reasons = calibration.verdict.reasons.clone();
+            let trigger = self.record.trigger;
+            self.record.reasons = calibration
+                .verdict
+                .reasons
+                .iter()
+                .map(|r| with_remount_way_out(r, trigger, &self.cfg.origin))
+                .collect();
             self.return_to_start().await;
             return Ok(());
         }
@@ -1388,8 +1426,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             self.record.outcome = Outcome::Error;
             self.record.failed_stage = Some(Stage::Solve);
             self.record.reasons.push(format!(
-                "nothing to compare with: no accepted calibration in {} and no camera TCP on the controller; run `handeye calibrate` first",
-                self.cfg.storage.dir.display()
+                "nothing to compare with: no accepted calibration in {} and no camera TCP on the controller; calibrate first{}",
+                self.cfg.storage.dir.display(),
+                calibrate_way_out(self.record.trigger, &self.cfg.origin),
             ));
             return;
         };

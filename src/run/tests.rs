@@ -66,7 +66,10 @@ fn fixture() -> Option<&'static Fixture> {
         .get_or_init(|| shared_robot("ur/ur5e/ur5e.urdf").map(build_fixture))
         .as_ref();
     if f.is_none() {
-        eprintln!("SKIP: ../shared/robots not found; the run tests need the UR5e model");
+        crate::skips::record(
+            "run::tests",
+            "../shared/robots not found; the run tests need the UR5e model",
+        );
     }
     f
 }
@@ -1462,4 +1465,50 @@ async fn issue_36_a_disk_filling_after_the_write_back_leaves_the_run_accepted() 
     let store = super::open_history(&db).expect("reopened");
     let row = store.summary(&record.run_id).expect("read").expect("row");
     assert_eq!(row.outcome, RunStatus::Ended(Outcome::Accepted), "{row:?}");
+}
+
+/// Issue 42: a message's way out works where it is printed. A command's run names the command
+/// line (with its configuration); the daemon's runs name the page, the API and the pendant,
+/// never `handeye calibrate`, which is refused beside the daemon.
+#[test]
+fn issue_42_the_way_out_works_where_the_run_was_asked_for() {
+    use crate::record::Trigger;
+    let moved = format!(
+        "the result moved 8.00 mm / 2.000° from the previous calibration (max 5.00 mm / 1.000°): check the camera mount; {}",
+        crate::calib::gate::REMOUNT
+    );
+    let cli = super::with_remount_way_out(&moved, Some(Trigger::Cli), "/etc/handeye/handeye.toml");
+    assert!(
+        cli.ends_with("accept the new mount with `handeye calibrate --config /etc/handeye/handeye.toml --accept-change`"),
+        "{cli}"
+    );
+    for t in [
+        Trigger::Api,
+        Trigger::Pendant,
+        Trigger::Schedule,
+        Trigger::Startup,
+        Trigger::Drift,
+    ] {
+        let daemon = super::with_remount_way_out(&moved, Some(t), "c.toml");
+        assert!(
+            daemon.contains("with the Accept remount button on the daemon's page or POST /api/calibrate/accept-change")
+                && !daemon.contains("handeye calibrate"),
+            "{t:?}: {daemon}"
+        );
+        let first = super::calibrate_way_out(Some(t), "c.toml");
+        assert!(
+            first.contains("the Calibrate button on the daemon's page, POST /api/calibrate")
+                && !first.contains("handeye calibrate"),
+            "{t:?}: {first}"
+        );
+    }
+    assert_eq!(
+        super::calibrate_way_out(Some(Trigger::Cli), "c.toml"),
+        ": `handeye calibrate --config c.toml`"
+    );
+    let other = "frame 0: only 40% of the visible model surface is in the scan (min 60%)";
+    assert_eq!(
+        super::with_remount_way_out(other, Some(Trigger::Api), "c"),
+        other
+    );
 }

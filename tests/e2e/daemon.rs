@@ -426,6 +426,20 @@ fn issue_38_a_deliberate_remount_is_accepted_explicitly() {
     assert_eq!(code, 202, "{body}");
     let st = finished("the check", &json(&body)["run_id"]);
     assert_eq!(st["drift_alarm"], true, "{st}");
+    // Issue 42: the alarm's way out is the daemon's own (a command's `calibrate` is refused
+    // beside it, and rejected for a remount).
+    let log = daemon.log();
+    let alarm = log
+        .lines()
+        .find(|l| l.contains("ALARM: the camera has drifted"))
+        .unwrap_or_else(|| panic!("no ALARM line: {log}"));
+    assert!(
+        alarm.contains(
+            "recalibrate through the daemon: the Calibrate button on its page, POST /api/calibrate"
+        ) && alarm.contains("the Accept remount button or POST /api/calibrate/accept-change")
+            && !alarm.contains("handeye calibrate"),
+        "{alarm}"
+    );
 
     // An ordinary calibration is rejected, naming the way out, and the alarm stays.
     let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
@@ -433,10 +447,11 @@ fn issue_38_a_deliberate_remount_is_accepted_explicitly() {
     let st = finished("the calibration", &json(&body)["run_id"]);
     assert_eq!(st["last"]["outcome"], "rejected", "{st}");
     let reasons = st["last"]["reasons"].to_string();
+    // Issue 42: the way out named is the daemon's (the command's flag is refused beside it).
     assert!(
         reasons.contains("from the previous calibration")
-            && reasons.contains("handeye calibrate --accept-change")
-            && reasons.contains("POST /api/calibrate/accept-change"),
+            && reasons.contains("with the Accept remount button on the daemon's page or POST /api/calibrate/accept-change")
+            && !reasons.contains("handeye calibrate"),
         "{reasons}"
     );
     assert_eq!(
@@ -548,9 +563,13 @@ fn issue_38_the_command_line_accepts_a_remount_but_never_beside_the_daemon() {
     assert_eq!(out.code(), 1, "{out}");
     let out = run(&["calibrate", "--config", cfg_arg], secs(120));
     assert_eq!(out.code(), 1, "{out}");
+    // Issue 42: the way out named is the command line's, with this configuration.
     assert!(
         out.stdout.contains("from the previous calibration")
-            && out.stdout.contains("handeye calibrate --accept-change"),
+            && out.stdout.contains(&format!(
+                "accept the new mount with `handeye calibrate --config {cfg_arg} --accept-change`"
+            ))
+            && !out.stdout.contains("Accept remount"),
         "{out}"
     );
 

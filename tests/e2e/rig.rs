@@ -268,3 +268,49 @@ fn sim_robot_refuses_motion_in_local_mode() {
         .fold(0.0, f64::max);
     assert!(moved < 1e-3, "the arm moved: {q:?}");
 }
+
+/// Issue 42 (item 7): `sim rig --truth` tells the mount the camera renders: with a mount file
+/// that holds a pose, the file's (it was `--mount`'s, which the camera never used). Addresses
+/// 127.0.0.195 (controller) and 127.0.0.196 (camera).
+#[test]
+fn issue_42_the_truth_is_the_mount_files_mount() {
+    let Some(_) = shared("issue_42_the_truth_is_the_mount_files_mount") else {
+        return;
+    };
+    let dir = TempDir::new("truth-mount-file");
+    let in_file = Isometry3::new(
+        Vector3::new(0.01, -0.07, 0.05),
+        Vector3::new(-0.2, 0.05, 0.1),
+    );
+    let mount_file = dir.join("mount.txt");
+    std::fs::write(&mount_file, crate::support::pose_arg(&in_file)).expect("mount file");
+    let truth = dir.join("truth.json");
+    let mut rig = Daemon::start(
+        &dir,
+        "rig",
+        &[
+            "sim",
+            "rig",
+            "--robot-bind",
+            "127.0.0.195",
+            "--camera-bind",
+            "127.0.0.196",
+            "--mount",
+            "0,-0.08,0.04,-0.26,0,0",
+            "--mount-file",
+            mount_file.to_str().expect("utf-8"),
+            "--truth",
+            truth.to_str().expect("utf-8"),
+        ],
+    );
+    rig.wait_for_log("simulated rig", secs(30));
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&truth).expect("truth")).expect("json");
+    let told = crate::support::iso(&doc["flange_from_camera"]);
+    let (mm, deg) = crate::support::pose_error(&told, &in_file);
+    assert!(
+        mm < 1e-3 && deg < 1e-3,
+        "the truth is not the file's mount: {doc}"
+    );
+    rig.stop();
+}

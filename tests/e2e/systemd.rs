@@ -138,3 +138,68 @@ fn unit_keeps_notify_watchdog_and_hardening() {
         }
     }
 }
+
+/// Issue 42 (item 6): `READY=1` comes as soon as the API serves, not once the robot and the
+/// camera answer (they are connected in the background; the status says what it waits for),
+/// and the unit's and the book's words say so. Nothing listens on 127.0.0.194.
+#[test]
+fn issue_42_ready_comes_when_the_api_serves_with_the_robot_unreachable() {
+    use std::os::unix::net::UnixDatagram;
+    use std::time::Duration;
+
+    let dir = TempDir::new("ready-unreachable");
+    let socket = dir.join("notify.sock");
+    let listener = UnixDatagram::bind(&socket).expect("bind the notify socket");
+    listener
+        .set_read_timeout(Some(Duration::from_secs(20)))
+        .expect("timeout");
+    let cfg = crate::support::rig_config(
+        &dir,
+        "127.0.0.194",
+        "127.0.0.194",
+        "",
+        "[daemon]\nlisten = \"127.0.0.194:8650\"\n",
+    );
+    let d = crate::support::Daemon::start_env(
+        &dir,
+        "daemon",
+        &["daemon", "--config", cfg.to_str().expect("utf-8")],
+        &[("NOTIFY_SOCKET", socket.to_str().expect("utf-8"))],
+    );
+    let mut buf = [0u8; 512];
+    let ready = loop {
+        let n = listener
+            .recv(&mut buf)
+            .unwrap_or_else(|e| panic!("no READY=1 within 20 s ({e}): {}", d.log()));
+        let msg = String::from_utf8_lossy(&buf[..n]).into_owned();
+        if msg.lines().any(|l| l == "READY=1") {
+            break msg;
+        }
+    };
+    assert!(ready.contains("READY=1"));
+    let status = crate::daemon::wait_status(
+        "127.0.0.194:8650",
+        crate::support::secs(20),
+        "waiting for the robot",
+        |s| !s["waiting"].is_null(),
+    );
+    assert_eq!(status["robot_connected"], false, "{status}");
+    d.stop();
+    // The unit and the book say it as it is.
+    let unit = unit_text();
+    assert!(
+        unit.contains("# The daemon sends READY=1 as soon as its HTTP API serves"),
+        "systemd/handeye.service"
+    );
+    let book =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/src/systemd.md"))
+            .expect("systemd.md");
+    assert!(
+        book.contains("the daemon sends `READY=1` as soon as its HTTP API serves"),
+        "docs/src/systemd.md"
+    );
+    assert!(
+        !book.contains("once it has connected to the robot"),
+        "docs/src/systemd.md"
+    );
+}

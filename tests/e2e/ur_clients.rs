@@ -168,7 +168,10 @@ fn python_with(module: &str, test: &str) -> Option<std::path::PathBuf> {
         "{test}: `{module}` is not installed in {} (CI is set): run .ci/install.d/ur-rtde.sh",
         py.display()
     );
-    eprintln!("SKIP {test}: `{module}` not installed in {}", py.display());
+    crate::support::skip(&format!(
+        "SKIP {test}: `{module}` not installed in {}",
+        py.display()
+    ));
     None
 }
 

@@ -82,10 +82,10 @@ impl Default for GateThresholds {
 }
 
 /// The way out named when a result moved beyond `max_change_*`: a camera remounted on purpose
-/// is accepted explicitly, never by the gate.
-pub const REMOUNT: &str = "if the camera was remounted on purpose, accept the new mount with \
-     `handeye calibrate --accept-change` (or the web page's Accept remount button, or \
-     POST /api/calibrate/accept-change)";
+/// is accepted explicitly, never by the gate. The reason ends with it; how to accept depends on
+/// where the run was asked for (the command line, or the daemon's page and API), which the
+/// service adds after it (`handeye::run::remount_way_out`).
+pub const REMOUNT: &str = "if the camera was remounted on purpose, accept the new mount";
 
 /// Outcome of [`gate`].
 #[derive(Debug, Clone, PartialEq, Eq)]

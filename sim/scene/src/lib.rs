@@ -13,6 +13,10 @@ pub mod scene;
 
 pub use args::{
     check_mount, check_pose_distance, factory_arm, parse_pose, resolve_robot, robots_dir,
-    SceneArgs, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_MOUNT_DISTANCE_M, MAX_PIXELS, MIN_PIXELS,
+    robots_dir_candidates, SceneArgs, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_MOUNT_DISTANCE_M,
+    MAX_PIXELS, MIN_PIXELS, PACKAGED_ROBOTS,
 };
-pub use scene::{parse_robot_addr, LiveJoints, RobotScene, SceneJoints, SceneMount, DEFAULT_MOUNT};
+pub use scene::{
+    parse_robot_addr, read_mount_file, LiveJoints, RobotScene, SceneJoints, SceneMount,
+    DEFAULT_MOUNT,
+};

@@ -95,11 +95,7 @@ impl SceneMount {
                 *seen = modified;
                 // Never a FIFO (the read would stall the streaming thread), never a huge file;
                 // a mount within reach of the flange.
-                match handeye_hal::limits::read_text_file(path, MAX_MOUNT_FILE_BYTES)
-                    .map_err(|e| e.to_string())
-                    .and_then(|t| parse_pose(&t))
-                    .and_then(|m| check_mount("the mount file's pose", &m).map(|()| m))
-                {
+                match read_mount_file(path) {
                     Ok(m) => {
                         eprintln!(
                             "sim camera: mount is now {} (from {})",
@@ -118,6 +114,16 @@ impl SceneMount {
 
 /// Largest mount file read (one `x,y,z,rx,ry,rz` line).
 const MAX_MOUNT_FILE_BYTES: u64 = 4096;
+
+/// The mount (`flange_from_camera`) a mount file holds (`x,y,z,rx,ry,rz`, m and rad): never a
+/// FIFO (the read would stall the streaming thread), never a huge file, a mount within reach
+/// of the flange.
+pub fn read_mount_file(path: &std::path::Path) -> Result<Isometry3<f64>, String> {
+    handeye_hal::limits::read_text_file(path, MAX_MOUNT_FILE_BYTES)
+        .map_err(|e| e.to_string())
+        .and_then(|t| parse_pose(&t))
+        .and_then(|m| check_mount("the mount file's pose", &m).map(|()| m))
+}
 
 /// Where the rendered robot's joints come from.
 #[derive(Debug)]
