@@ -10,7 +10,7 @@ use std::rc::Rc;
 use std::sync::mpsc;
 use std::time::Duration;
 
-use handeye_gige::decode::{decode_parts, Scan3d};
+use handeye_gige::decode::{decode_payload, ChunkLayout, Scan3d};
 use handeye_gige::genicam::NodeMap;
 use handeye_gige::gvsp::PartInfo;
 use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
@@ -204,6 +204,7 @@ impl Open {
     fn capture(&mut self, frames: u32, timeout: Duration) -> Result<(Vec<PointCloud>, GentlStats)> {
         self.select_components()?;
         let scan3d = Scan3d::read(&mut self.nodes, &mut self.port)?;
+        let layout = ChunkLayout::read(&mut self.nodes, &mut self.port)?;
         let payload = match self.stream.payload_size() {
             Some(s) => s,
             None => {
@@ -212,7 +213,7 @@ impl Open {
             }
         };
         let started = self.stream.start(payload, POOL_BUFFERS);
-        let result = started.and_then(|()| self.acquire(frames, timeout, &scan3d));
+        let result = started.and_then(|()| self.acquire(frames, timeout, &scan3d, layout.as_ref()));
         let stop = self.stop_acquisition();
         let out = result?;
         stop?;
@@ -224,6 +225,7 @@ impl Open {
         frames: u32,
         timeout: Duration,
         scan3d: &Scan3d,
+        layout: Option<&ChunkLayout>,
     ) -> Result<(Vec<PointCloud>, GentlStats)> {
         let (n, p) = (&mut self.nodes, &mut self.port);
         // A producer may hold AcquisitionMode read-only at Continuous (viky does): only a
@@ -261,7 +263,7 @@ impl Open {
                         .into_iter()
                         .map(part_info)
                         .collect::<Result<Vec<_>>>()?;
-                    clouds.push(decode_parts(&parts, scan3d)?);
+                    clouds.push(decode_payload(&parts, layout, scan3d)?);
                     stats.complete += 1;
                 }
             }
