@@ -13,7 +13,8 @@ use std::time::Duration;
 use handeye_gige::decode::{decode_payload, ChunkLayout, Scan3d};
 use handeye_gige::genicam::NodeMap;
 use handeye_gige::gvsp::PartInfo;
-use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
+use handeye_gige::trigger;
+use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud, Trigger};
 
 use crate::error::{GentlError, Result};
 use crate::producer::{Delivery, DeviceInfo, Interface, Lib, Part, RemotePort, Stream};
@@ -26,6 +27,8 @@ pub struct GentlOptions {
     pub device: Option<String>,
     /// Also enable the Confidence component when the camera offers it.
     pub confidence: bool,
+    /// How frames are started (`camera.trigger`).
+    pub trigger: Trigger,
 }
 
 /// Counters of one capture.
@@ -233,6 +236,8 @@ impl Open {
         if n.has("AcquisitionMode") && n.enum_symbol(p, "AcquisitionMode")? != "Continuous" {
             n.set_enum(p, "AcquisitionMode", "Continuous")?;
         }
+        let trig = self.options.trigger;
+        trigger::prepare(n, p, trig)?;
         // Boolean or Integer, as the camera declares it.
         if n.has("TLParamsLocked") {
             n.set_switch(p, "TLParamsLocked", true)?;
@@ -241,6 +246,7 @@ impl Open {
         let mut stats = GentlStats::default();
         let mut clouds = Vec::new();
         while clouds.len() < frames as usize {
+            trigger::fire(&mut self.nodes, &mut self.port, trig)?;
             match self.stream.wait(timeout)? {
                 None => {
                     return Err(GentlError::FrameTimeout {

@@ -4,7 +4,7 @@ use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
+use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud, Trigger};
 
 use crate::client::{ControlConfig, GvcpClient};
 use crate::decode::{self, ChunkLayout, Scan3d};
@@ -12,6 +12,7 @@ use crate::error::{GigeError, Result};
 use crate::genicam::{fetch_xml, GvcpPort, NodeMap};
 use crate::gvcp::{cap, reg};
 use crate::gvsp::{Frame, StreamConfig, StreamReceiver, StreamStats};
+use crate::trigger;
 
 /// Every GenICam feature the driver reads or writes (what `handeye camera xml` looks for, and
 /// what the corpus test checks against the EMVA reference GenApi).
@@ -53,6 +54,8 @@ pub struct StreamOptions {
     pub confidence: bool,
     /// Give up after this many incomplete frames in one capture.
     pub max_incomplete: u32,
+    /// How frames are started (`camera.trigger`).
+    pub trigger: Trigger,
     /// Receiver tuning (packet size, extended ids and resend are set from the fields above).
     pub receiver: StreamConfig,
 }
@@ -64,6 +67,7 @@ impl Default for StreamOptions {
             resend: true,
             confidence: false,
             max_incomplete: 5,
+            trigger: Trigger::Free,
             receiver: StreamConfig::default(),
         }
     }
@@ -220,6 +224,7 @@ impl GigeCamera {
             if n.has("AcquisitionMode") {
                 n.set_enum(p, "AcquisitionMode", "Continuous")?;
             }
+            trigger::prepare(n, p, o.trigger)?;
             if n.has("TLParamsLocked") {
                 n.set_switch(p, "TLParamsLocked", true)?;
             }
@@ -230,6 +235,7 @@ impl GigeCamera {
         let result = (|| {
             while out.len() < frames as usize {
                 control.check()?;
+                self.with_features(|n, p| trigger::fire(n, p, o.trigger))?;
                 let f = rx.next_frame(frame_timeout)?;
                 stats.resent_packets += u64::from(f.resent_packets);
                 if f.complete {

@@ -32,12 +32,25 @@ pub(super) const INVALID_FLAG: u32 = 0xA038;
 pub(super) const COMPONENT_SELECTOR: u32 = 0xA03C;
 pub(super) const COMPONENT_ENABLE: u32 = 0xA040;
 pub(super) const COMPONENT_ID: u32 = 0xA044;
-pub(super) const FLOAT_BASE: u32 = 0xA100; // 8-byte doubles: scale, offset, invalid, focal, pu, pv, aspect ratio, rate
+pub(super) const TRIGGER_MODE: u32 = 0xA048;
+pub(super) const TRIGGER_SOURCE: u32 = 0xA04C;
+pub(super) const TRIGGER_SOFTWARE: u32 = 0xA050;
+pub(super) const TRIGGER_SELECTOR: u32 = 0xA054;
+/// 8-byte doubles: scale, offset, invalid, focal, pu, pv, aspect ratio, rate, vertical focal.
+pub(super) const FLOAT_BASE: u32 = 0xA100;
+const FLOATS: u32 = 9;
 /// `ComponentIDValue`s (the multi-part data purpose ids, and the chunk ids of a chunk payload).
 pub(super) const ID_INTENSITY: u32 = 1;
 pub(super) const ID_RANGE: u32 = 4;
 pub(super) const ID_CONFIDENCE: u32 = 6;
-pub(super) const C16_SCALE_MM: f64 = 0.1;
+/// Chunk ids of the chunk-data part ([`VendorHabits::chunk_part`]): the frame counter and
+/// the intrinsics (f, cu, cv as big-endian f64), metadata the decoder does not need.
+pub(super) const CHUNK_FRAME_ID: u32 = 0x4000_0001;
+pub(super) const CHUNK_INTRINSICS: u32 = 0x4000_0002;
+/// Bytes of the chunk-data part: a u64 frame counter and three f64, each with its 8-byte tag.
+pub(super) const CHUNK_PART_BYTES: u64 = 8 + 8 + 24 + 8;
+/// Most software triggers a camera holds before it has sent their frames.
+const MAX_PENDING_TRIGGERS: u32 = 16;
 
 /// Simulator settings.
 #[derive(Debug, Clone, PartialEq)]
@@ -148,6 +161,8 @@ pub(super) struct State {
     /// Served through a GenTL producer ([`SimDevice`](super::SimDevice)): the transport
     /// delivers every enabled component as a multi-part buffer, no SCCFG switch needed.
     pub(super) gentl: bool,
+    /// Software triggers executed whose frames are not sent yet.
+    pub(super) pending_triggers: u32,
 }
 
 impl State {
@@ -186,51 +201,60 @@ impl State {
             .count() as u64;
         let chunks = if self.habits.chunk_only {
             8 * (1 + extra)
+        } else if self.habits.chunk_part && self.multipart() {
+            CHUNK_PART_BYTES
         } else {
             0
         };
         u32::try_from(main + extra * plane + chunks).unwrap_or(u32::MAX)
     }
 
-    pub(super) fn float(&self, a: u32) -> Option<f64> {
-        if !(FLOAT_BASE..FLOAT_BASE + 0x40).contains(&a) {
-            return None;
-        }
-        let c16 = self.reg(PIXEL_FORMAT) == pfnc::COORD3D_C16;
-        // Without a selector the one scale/offset pair is the depth's.
-        let coord = if self.habits.no_coordinate_selector {
+    /// The coordinate `Scan3dCoordinateSelector` selects (C without a selector).
+    fn coordinate(&self) -> usize {
+        if self.habits.no_coordinate_selector {
             2
         } else {
-            self.reg(COORD_SELECTOR)
-        };
+            (self.reg(COORD_SELECTOR) as usize).min(2)
+        }
+    }
+
+    /// The `index`-th double of the float block at `a`.
+    pub(super) fn float(&self, a: u32) -> Option<f64> {
+        if !(FLOAT_BASE..FLOAT_BASE + 8 * FLOATS).contains(&a) {
+            return None;
+        }
+        let coding = self.habits.coding(self.reg(PIXEL_FORMAT));
+        let k = self.coordinate();
         let (f, pu, pv) = self.intrinsics;
         let (w, h) = (self.reg(WIDTH), self.reg(HEIGHT));
         // The ROI is centred in the sensor: shift the principal point.
         let ox = f64::from((self.sensor.0 - w) / 2);
         let oy = f64::from((self.sensor.1 - h) / 2);
         Some(match (a - FLOAT_BASE) / 8 {
-            0 => {
-                if c16 && coord == 2 {
-                    C16_SCALE_MM
-                } else {
-                    1.0
-                }
-            }
-            1 => 0.0,
-            2 => {
-                if c16 {
-                    0.0
-                } else {
-                    f64::NAN
-                }
-            }
+            0 => coding.scale[k],
+            1 => coding.offset[k],
+            2 => coding.invalid[k].unwrap_or(0.0),
             3 => f,
             4 => pu - ox,
             5 => pv - oy,
             6 => self.aspect_ratio,
             7 => self.frame_rate,
+            8 => f * self.aspect_ratio,
             _ => 0.0,
         })
+    }
+
+    /// Whether a frame may be sent now: always with the trigger off; with it on, one per
+    /// executed `TriggerSoftware` (the trigger is used up).
+    pub(super) fn take_trigger(&mut self) -> bool {
+        if self.reg(TRIGGER_MODE) == 0 {
+            return true;
+        }
+        if self.reg(TRIGGER_SOURCE) == 0 && self.pending_triggers > 0 {
+            self.pending_triggers -= 1;
+            return true;
+        }
+        false
     }
 
     /// Read one big-endian 32-bit word.
@@ -260,6 +284,14 @@ impl State {
         }
         match a {
             PAYLOAD_SIZE => Some(self.payload_size()),
+            INVALID_FLAG => Some(u32::from(
+                self.habits.coding(self.reg(PIXEL_FORMAT)).invalid[self.coordinate()].is_some(),
+            )),
+            TRIGGER_MODE | TRIGGER_SOURCE | TRIGGER_SOFTWARE | TRIGGER_SELECTOR
+                if !self.habits.software_trigger =>
+            {
+                None
+            }
             OUTPUT_MODE if self.habits.projected_c => Some(2),
             OUTPUT_MODE => Some(u32::from(self.reg(PIXEL_FORMAT) == pfnc::COORD3D_C16)),
             COMPONENT_ENABLE => Some(match self.reg(COMPONENT_SELECTOR) {
@@ -297,7 +329,7 @@ impl State {
                 if locked {
                     return Err(0x8004);
                 }
-                if v != pfnc::COORD3D_ABC32F && v != pfnc::COORD3D_C16 {
+                if !self.habits.pixel_formats().contains(&v) {
                     return Err(0x8002);
                 }
             }
@@ -311,9 +343,27 @@ impl State {
             }
             ACQ_STOP => {
                 self.acquiring = false;
+                self.pending_triggers = 0;
                 return Ok(());
             }
-            COORD_SELECTOR if v > 2 => return Err(0x8002),
+            COORD_SELECTOR if v > 2 || (self.habits.only_coordinate_c && v != 2) => {
+                return Err(0x8002)
+            }
+            TRIGGER_MODE | TRIGGER_SOURCE if !self.habits.software_trigger => return Err(0x8003),
+            TRIGGER_MODE | TRIGGER_SOURCE if v > 1 => return Err(0x8002),
+            TRIGGER_SELECTOR if !self.habits.software_trigger => return Err(0x8003),
+            TRIGGER_SELECTOR if v != 0 => return Err(0x8002),
+            TRIGGER_SOFTWARE => {
+                if !self.habits.software_trigger {
+                    return Err(0x8003);
+                }
+                // Taken only while acquiring with the software trigger on, as a camera does.
+                if self.acquiring && self.reg(TRIGGER_MODE) == 1 && self.reg(TRIGGER_SOURCE) == 0 {
+                    self.pending_triggers = (self.pending_triggers + 1).min(MAX_PENDING_TRIGGERS);
+                }
+                return Ok(());
+            }
+            TRIGGER_MODE | TRIGGER_SOURCE | TRIGGER_SELECTOR => {}
             COMPONENT_SELECTOR if v > 2 || (v == 2 && !self.habits.intensity_first) => {
                 return Err(0x8002)
             }
@@ -433,7 +483,10 @@ impl State {
             (reg::SCCFG0, 0),
             (WIDTH, sensor.0),
             (HEIGHT, sensor.1),
-            (PIXEL_FORMAT, pfnc::COORD3D_ABC32F),
+            (PIXEL_FORMAT, opts.habits.pixel_formats()[0]),
+            (TRIGGER_MODE, u32::from(opts.habits.software_trigger)),
+            (TRIGGER_SOURCE, 0),
+            (TRIGGER_SELECTOR, 0),
             (ACQ_MODE, 0),
             (ACQ_START, 0),
             (ACQ_STOP, 0),
@@ -483,6 +536,7 @@ impl State {
             stats: SimStats::default(),
             frame_rate: opts.frame_rate,
             gentl: false,
+            pending_triggers: 0,
         }
     }
 }

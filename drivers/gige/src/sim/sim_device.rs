@@ -128,6 +128,12 @@ impl SimDevice {
         lock(&self.state).acquiring
     }
 
+    /// Whether a frame may be delivered now: always with the trigger off; with it on, one per
+    /// executed `TriggerSoftware` (used up by this call).
+    pub fn take_trigger(&self) -> bool {
+        lock(&self.state).take_trigger()
+    }
+
     /// Frames per second while acquiring (`AcquisitionFrameRate`).
     pub fn frame_rate(&self) -> f64 {
         lock(&self.state).frame_rate

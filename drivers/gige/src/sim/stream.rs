@@ -10,6 +10,7 @@ use rand::{Rng, SeedableRng};
 
 use super::device::{lock, SimOptions, State, ACQ_MODE, HEIGHT, PIXEL_FORMAT, WIDTH};
 use super::encode::make_block;
+use super::habits::Coding;
 use super::FrameSource;
 use crate::gvcp::reg;
 use crate::gvsp;
@@ -17,7 +18,7 @@ use crate::udp_batch::{send_all, SEND_BATCH};
 
 /// What the streamer needs to know about the device settings; a frame prepared under other
 /// settings is dropped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct StreamSettings {
     pub(super) scps: usize,
     pub(super) ext: bool,
@@ -32,6 +33,12 @@ pub(super) struct StreamSettings {
     pub(super) w: u32,
     pub(super) h: u32,
     pub(super) pf: u32,
+    /// How the pixel format's coordinates are coded.
+    pub(super) coding: Coding,
+    /// A chunk-data part after the components ([`VendorHabits::chunk_part`](crate::sim::VendorHabits::chunk_part)).
+    pub(super) chunk_part: bool,
+    /// Focal length and principal point (px) the chunk part carries.
+    pub(super) intrinsics: [f64; 3],
 }
 
 impl StreamSettings {
@@ -48,6 +55,9 @@ impl StreamSettings {
             w: s.reg(WIDTH),
             h: s.reg(HEIGHT),
             pf: s.reg(PIXEL_FORMAT),
+            coding: s.habits.coding(s.reg(PIXEL_FORMAT)),
+            chunk_part: s.habits.chunk_part && s.multipart(),
+            intrinsics: [s.intrinsics.0, s.intrinsics.1, s.intrinsics.2],
         }
     }
 }
@@ -142,6 +152,11 @@ fn generate(
         let now = Instant::now();
         if now < next {
             std::thread::sleep((next - now).min(Duration::from_millis(20)));
+            continue;
+        }
+        // With the trigger on, a frame per software trigger.
+        if !lock(&state).take_trigger() {
+            std::thread::sleep(Duration::from_millis(2));
             continue;
         }
         // Never fall further behind than one period (no bursts of stale frames).
