@@ -229,7 +229,11 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
                 });
                 (clouds, Some(stats))
             } else if let Some(producer) = gentl {
-                let options = handeye_gentl::GentlOptions { device, confidence };
+                let options = handeye_gentl::GentlOptions {
+                    device,
+                    confidence,
+                    ..Default::default()
+                };
                 let shown = producer.display().to_string();
                 let cam =
                     blocking(move || Ok(handeye_gentl::GentlCamera::connect(&producer, options)?))

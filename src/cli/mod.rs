@@ -19,3 +19,13 @@ pub(crate) mod simulate_scan;
 pub(crate) mod solve;
 pub(crate) mod status;
 pub(crate) mod wiring;
+
+/// Print to stdout; a closed pipe (`| head`) is not an error: the reader has what it wanted.
+pub(crate) fn emit(text: &str) -> anyhow::Result<()> {
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => Ok(r?),
+    }
+}

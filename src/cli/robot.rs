@@ -16,6 +16,7 @@ use handeye_hal::{limits, ControllerIdentity, MotionLimits, Robot};
 use handeye_ur::{UrConfig, UrPose, UrRobot};
 
 use super::args::resolve_robot;
+use super::emit;
 use super::wiring::load_model;
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
@@ -563,13 +564,4 @@ async fn status(robot: &UrRobot, json: bool, cfg: Option<&Config>) -> anyhow::Re
         emit(&t)?;
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// Print to stdout; a closed pipe (`| head`) is not an error.
-fn emit(text: &str) -> anyhow::Result<()> {
-    use std::io::Write as _;
-    match std::io::stdout().lock().write_all(text.as_bytes()) {
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
-        r => Ok(r?),
-    }
 }

@@ -75,12 +75,15 @@ impl AnyCamera {
                 })
                 .await?
                 .with_context(|| format!("connecting to the GigE Vision camera at {addr}"))?;
+                let mut camera = camera;
+                camera.options.trigger = cfg.camera.trigger;
                 AnyCamera::Gige(camera)
             }
             CameraBackend::Gentl { producer, device } => {
                 let producer = handeye_gentl::resolve_producer(producer.as_deref())?;
                 let options = GentlOptions {
                     device: device.clone(),
+                    trigger: cfg.camera.trigger,
                     ..GentlOptions::default()
                 };
                 let shown = producer.display().to_string();

@@ -47,6 +47,8 @@ pub fn capture() -> CaptureSettings {
 pub const SETTLE_S: f64 = 0.5;
 /// `camera.sensor`: the industrial structured-light cameras the registration was built on.
 pub const SENSOR: crate::geometry::SensorClass = crate::geometry::SensorClass::StructuredLight;
+/// `camera.trigger`: free running (a camera left in trigger mode is switched out of it).
+pub const TRIGGER: handeye_hal::Trigger = handeye_hal::Trigger::Free;
 /// `camera.timeout_s` (exec backend): vendor SDKs take seconds to connect.
 pub const EXEC_TIMEOUT_S: f64 = 30.0;
 /// `mount.type`.

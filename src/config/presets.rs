@@ -49,6 +49,7 @@ pub fn sim_rig(
             },
             settle: Duration::from_millis(200),
             sensor: defaults::SENSOR,
+            trigger: defaults::TRIGGER,
         },
         mount: MountConfig {
             mount: Mount::EyeInHand,

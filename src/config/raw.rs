@@ -99,6 +99,7 @@ pub(super) struct RawCamera {
     pub(super) exposure_us: Option<f64>,
     pub(super) settle_s: Option<f64>,
     pub(super) sensor: Option<crate::geometry::SensorClass>,
+    pub(super) trigger: Option<handeye_hal::Trigger>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]

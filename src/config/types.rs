@@ -175,6 +175,9 @@ pub struct CameraConfig {
     /// `"active-stereo"` for a RealSense D4xx class, `"time-of-flight"`): the registration is
     /// tuned for its errors ([`crate::calib::RegisterOptions::for_sensor`]).
     pub sensor: crate::geometry::SensorClass,
+    /// How frames are started (`trigger`: `"free"`, the default, clears a camera's
+    /// `TriggerMode`; `"software"` fires `TriggerSoftware` per frame); gige and gentl only.
+    pub trigger: handeye_hal::Trigger,
 }
 
 /// How the camera is reached (`backend`).

@@ -552,6 +552,7 @@ impl Ctx<'_> {
             }
             RawBackend::Exec => {
                 let why = "with backend = \"exec\"";
+                self.unused("camera.trigger", &c.trigger, why)?;
                 self.unused("camera.address", &c.address, why)?;
                 self.unused("camera.producer", &c.producer, why)?;
                 self.unused("camera.device", &c.device, why)?;
@@ -580,6 +581,7 @@ impl Ctx<'_> {
             }
             RawBackend::File => {
                 let why = "with backend = \"file\"";
+                self.unused("camera.trigger", &c.trigger, why)?;
                 self.unused("camera.address", &c.address, why)?;
                 self.unused("camera.producer", &c.producer, why)?;
                 self.unused("camera.device", &c.device, why)?;
@@ -634,6 +636,7 @@ impl Ctx<'_> {
                 ranges::SETTLE,
             )?,
             sensor: c.sensor.unwrap_or(defaults::SENSOR),
+            trigger: c.trigger.unwrap_or(defaults::TRIGGER),
         })
     }
 

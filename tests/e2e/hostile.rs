@@ -218,3 +218,41 @@ fn issue_36_files_planted_in_the_storage_are_never_followed() {
     let (code, body) = http(&api, "GET", "/api/latest", None);
     assert!(!body.contains(forged_id), "{code}: {body}");
 }
+
+/// Issue 44: `handeye camera xml --json F | head -1` panicked ("failed printing to stdout:
+/// Broken pipe") when the reader had gone before the report was written. The reader's end is
+/// closed before the report is written: the command ends quietly with success.
+#[test]
+fn issue_44_camera_xml_to_a_closed_pipe_exits_quietly() {
+    use std::io::Read as _;
+    use std::process::{Command, Stdio};
+    let xml = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("drivers/gige/tests/data/genicam-corpus/Nerian_remote.zip");
+    for json in [true, false] {
+        let mut args = vec!["camera", "xml"];
+        if json {
+            args.push("--json");
+        }
+        let mut child = Command::new(crate::support::BIN)
+            .args(&args)
+            .arg(&xml)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("spawn handeye");
+        drop(child.stdout.take());
+        let status = child.wait().expect("wait");
+        let mut stderr = String::new();
+        child
+            .stderr
+            .take()
+            .expect("stderr")
+            .read_to_string(&mut stderr)
+            .expect("stderr");
+        assert!(
+            status.success() && !stderr.contains("panicked"),
+            "json {json}: {status}\n{stderr}"
+        );
+    }
+}

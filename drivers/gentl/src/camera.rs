@@ -10,10 +10,11 @@ use std::rc::Rc;
 use std::sync::mpsc;
 use std::time::Duration;
 
-use handeye_gige::decode::{decode_parts, Scan3d};
+use handeye_gige::decode::{decode_payload, ChunkLayout, Scan3d};
 use handeye_gige::genicam::NodeMap;
 use handeye_gige::gvsp::PartInfo;
-use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
+use handeye_gige::trigger;
+use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud, Trigger};
 
 use crate::error::{GentlError, Result};
 use crate::producer::{Delivery, DeviceInfo, Interface, Lib, Part, RemotePort, Stream};
@@ -26,6 +27,8 @@ pub struct GentlOptions {
     pub device: Option<String>,
     /// Also enable the Confidence component when the camera offers it.
     pub confidence: bool,
+    /// How frames are started (`camera.trigger`).
+    pub trigger: Trigger,
 }
 
 /// Counters of one capture.
@@ -204,6 +207,7 @@ impl Open {
     fn capture(&mut self, frames: u32, timeout: Duration) -> Result<(Vec<PointCloud>, GentlStats)> {
         self.select_components()?;
         let scan3d = Scan3d::read(&mut self.nodes, &mut self.port)?;
+        let layout = ChunkLayout::read(&mut self.nodes, &mut self.port)?;
         let payload = match self.stream.payload_size() {
             Some(s) => s,
             None => {
@@ -212,7 +216,7 @@ impl Open {
             }
         };
         let started = self.stream.start(payload, POOL_BUFFERS);
-        let result = started.and_then(|()| self.acquire(frames, timeout, &scan3d));
+        let result = started.and_then(|()| self.acquire(frames, timeout, &scan3d, layout.as_ref()));
         let stop = self.stop_acquisition();
         let out = result?;
         stop?;
@@ -224,6 +228,7 @@ impl Open {
         frames: u32,
         timeout: Duration,
         scan3d: &Scan3d,
+        layout: Option<&ChunkLayout>,
     ) -> Result<(Vec<PointCloud>, GentlStats)> {
         let (n, p) = (&mut self.nodes, &mut self.port);
         // A producer may hold AcquisitionMode read-only at Continuous (viky does): only a
@@ -231,6 +236,8 @@ impl Open {
         if n.has("AcquisitionMode") && n.enum_symbol(p, "AcquisitionMode")? != "Continuous" {
             n.set_enum(p, "AcquisitionMode", "Continuous")?;
         }
+        let trig = self.options.trigger;
+        trigger::prepare(n, p, trig)?;
         // Boolean or Integer, as the camera declares it.
         if n.has("TLParamsLocked") {
             n.set_switch(p, "TLParamsLocked", true)?;
@@ -239,6 +246,7 @@ impl Open {
         let mut stats = GentlStats::default();
         let mut clouds = Vec::new();
         while clouds.len() < frames as usize {
+            trigger::fire(&mut self.nodes, &mut self.port, trig)?;
             match self.stream.wait(timeout)? {
                 None => {
                     return Err(GentlError::FrameTimeout {
@@ -261,7 +269,7 @@ impl Open {
                         .into_iter()
                         .map(part_info)
                         .collect::<Result<Vec<_>>>()?;
-                    clouds.push(decode_parts(&parts, scan3d)?);
+                    clouds.push(decode_payload(&parts, layout, scan3d)?);
                     stats.complete += 1;
                 }
             }

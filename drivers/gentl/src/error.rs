@@ -58,6 +58,9 @@ pub enum GentlError {
         /// What happened.
         detail: String,
     },
+    /// The producer delivers data of a kind this driver does not read (a GenDC container).
+    #[error("{0}")]
+    Unsupported(String),
     /// The camera's features or frames (GenApi node map, PFNC decoding).
     #[error(transparent)]
     Camera(#[from] GigeError),

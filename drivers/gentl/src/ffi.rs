@@ -123,7 +123,12 @@ pub(crate) mod part_info {
 pub(crate) mod payload_type {
     pub(crate) const CHUNK_ONLY: usize = 8;
     pub(crate) const MULTI_PART: usize = 10;
+    /// A GenDC container (GenICam Data Container).
+    pub(crate) const GENDC: usize = 11;
 }
+
+/// `PARTDATATYPE_CHUNKDATA`: a part (or a chunk-only buffer) of chunk data.
+pub(crate) const PART_DATATYPE_CHUNKDATA: u64 = 10;
 
 /// `URL_INFO_CMD`: `URL_INFO_URL` (STRING).
 pub(crate) const URL_INFO_URL: i32 = 0;

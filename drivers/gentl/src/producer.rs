@@ -864,10 +864,12 @@ impl Stream {
         let payload = self
             .buffer_number(h, ffi::buffer_info::PAYLOADTYPE)
             .unwrap_or(1) as usize;
-        if payload == ffi::payload_type::CHUNK_ONLY {
-            return Err(GentlError::garbage(
-                "DSGetBufferInfo",
-                "a chunk-only payload (no image); turn ChunkModeActive off or enable the Range component",
+        if payload == ffi::payload_type::GENDC {
+            return Err(GentlError::Unsupported(
+                "the producer delivers a GenDC container (GenTL payload type 11), which this \
+                 driver does not read; set GenDCStreamingMode to Off (or the producer's \
+                 equivalent) so that the camera sends multi-part buffers"
+                    .into(),
             ));
         }
         let mut parts = Vec::new();
@@ -902,6 +904,19 @@ impl Stream {
                     format!("image offset {offset} past the {filled} bytes filled"),
                 )
             })?;
+            if payload == ffi::payload_type::CHUNK_ONLY {
+                // Chunk data only: one chunk part; the decoder finds the range chunk.
+                parts.push(Part {
+                    data_type: ffi::PART_DATATYPE_CHUNKDATA,
+                    pixel_format: 0,
+                    width: 0,
+                    height: 0,
+                    padding_x: 0,
+                    purpose: 0,
+                    data: self.copy_out(index, "DSGetBufferInfo", base, filled)?,
+                });
+                return Ok(Delivery::Complete(parts));
+            }
             parts.push(Part {
                 data_type: 1,
                 pixel_format: num(ffi::buffer_info::PIXELFORMAT)?,

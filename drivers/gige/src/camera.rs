@@ -4,17 +4,15 @@ use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud};
+use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud, Trigger};
 
 use crate::client::{ControlConfig, GvcpClient};
-use crate::decode::{self, Scan3d};
+use crate::decode::{self, ChunkLayout, Scan3d};
 use crate::error::{GigeError, Result};
 use crate::genicam::{fetch_xml, GvcpPort, NodeMap};
 use crate::gvcp::{cap, reg};
-use crate::gvsp::{
-    image_bytes, split_chunks, Frame, PartInfo, StreamConfig, StreamReceiver, StreamStats,
-    PART_3D_IMAGE, PART_CHUNK,
-};
+use crate::gvsp::{Frame, StreamConfig, StreamReceiver, StreamStats};
+use crate::trigger;
 
 /// Every GenICam feature the driver reads or writes (what `handeye camera xml` looks for, and
 /// what the corpus test checks against the EMVA reference GenApi).
@@ -56,6 +54,8 @@ pub struct StreamOptions {
     pub confidence: bool,
     /// Give up after this many incomplete frames in one capture.
     pub max_incomplete: u32,
+    /// How frames are started (`camera.trigger`).
+    pub trigger: Trigger,
     /// Receiver tuning (packet size, extended ids and resend are set from the fields above).
     pub receiver: StreamConfig,
 }
@@ -67,6 +67,7 @@ impl Default for StreamOptions {
             resend: true,
             confidence: false,
             max_incomplete: 5,
+            trigger: Trigger::Free,
             receiver: StreamConfig::default(),
         }
     }
@@ -223,6 +224,7 @@ impl GigeCamera {
             if n.has("AcquisitionMode") {
                 n.set_enum(p, "AcquisitionMode", "Continuous")?;
             }
+            trigger::prepare(n, p, o.trigger)?;
             if n.has("TLParamsLocked") {
                 n.set_switch(p, "TLParamsLocked", true)?;
             }
@@ -233,6 +235,7 @@ impl GigeCamera {
         let result = (|| {
             while out.len() < frames as usize {
                 control.check()?;
+                self.with_features(|n, p| trigger::fire(n, p, o.trigger))?;
                 let f = rx.next_frame(frame_timeout)?;
                 stats.resent_packets += u64::from(f.resent_packets);
                 if f.complete {
@@ -301,35 +304,6 @@ impl GigeCamera {
         client.write_reg(reg::SCCFG0, 0x40)
     }
 
-    /// What a chunk-only payload's range chunk holds (Range's pixel format, size and id),
-    /// read before streaming; `None` when the camera has no Range component.
-    fn range_layout(&self) -> Result<Option<ChunkLayout>> {
-        self.with_features(|n, p| {
-            let has_range = n
-                .enum_entries("ComponentSelector")
-                .is_ok_and(|e| e.iter().any(|c| c == "Range"));
-            if !has_range {
-                return Ok(None);
-            }
-            n.set_enum(p, "ComponentSelector", "Range")?;
-            let id = if n.has("ComponentIDValue") {
-                Some(n.integer(p, "ComponentIDValue")?)
-            } else {
-                None
-            };
-            Ok(Some(ChunkLayout {
-                id: id.and_then(|i| u32::try_from(i).ok()),
-                pixel_format: u32::try_from(n.enum_value(p, "PixelFormat")?).map_err(|_| {
-                    GigeError::feature("PixelFormat", "the value is not a PFNC code")
-                })?,
-                width: u32::try_from(n.integer(p, "Width")?)
-                    .map_err(|_| GigeError::feature("Width", "out of range"))?,
-                height: u32::try_from(n.integer(p, "Height")?)
-                    .map_err(|_| GigeError::feature("Height", "out of range"))?,
-            }))
-        })
-    }
-
     /// Capture and decode `frames` point clouds (metres, camera frame).
     pub fn capture_blocking(
         &self,
@@ -337,94 +311,14 @@ impl GigeCamera {
         frame_timeout: Duration,
     ) -> Result<(Vec<PointCloud>, CaptureStats)> {
         let scan3d = self.scan3d_blocking()?;
-        let layout = self.range_layout()?;
+        let layout = self.with_features(ChunkLayout::read)?;
         let (raw, stats) = self.capture_raw_blocking(frames, frame_timeout)?;
         let clouds = raw
             .iter()
-            .map(|f| {
-                if f.parts.iter().any(|(p, _)| p.data_type == PART_CHUNK) {
-                    decode::decode(&range_from_chunks(f, layout.as_ref())?, &scan3d)
-                } else {
-                    decode::decode(f, &scan3d)
-                }
-            })
+            .map(|f| decode::decode_payload(&f.parts, layout.as_ref(), &scan3d))
             .collect::<Result<Vec<_>>>()?;
         Ok((clouds, stats))
     }
-}
-
-/// Where the range component sits in a chunk-only payload.
-#[derive(Debug, Clone, PartialEq, Eq)]
-struct ChunkLayout {
-    /// `ComponentIDValue` of Range (the chunk id), when the camera has the feature.
-    id: Option<u32>,
-    pixel_format: u32,
-    width: u32,
-    height: u32,
-}
-
-/// Turns a chunk-only frame into one with a range part: the chunk whose id is Range's
-/// `ComponentIDValue`, else the only chunk of the range image's size.
-fn range_from_chunks(f: &Frame, layout: Option<&ChunkLayout>) -> Result<Frame> {
-    const W: &str = "chunk payload";
-    let layout = layout.ok_or_else(|| {
-        GigeError::malformed(W, "chunk data from a camera without a Range component")
-    })?;
-    let data = f
-        .parts
-        .iter()
-        .find(|(p, _)| p.data_type == PART_CHUNK)
-        .map(|(_, d)| d.as_slice())
-        .unwrap_or_default();
-    let chunks = split_chunks(data)?;
-    let bytes = image_bytes(layout.pixel_format, layout.width, layout.height, 0);
-    let by_id = layout
-        .id
-        .and_then(|id| chunks.iter().find(|(cid, _)| *cid == id));
-    let by_size: Vec<&(u32, &[u8])> = chunks
-        .iter()
-        .filter(|(_, d)| d.len() as u64 == bytes)
-        .collect();
-    let (id, range) = match (by_id, by_size.as_slice()) {
-        (Some(c), _) | (None, &[c]) => *c,
-        _ => {
-            return Err(GigeError::malformed(
-                W,
-                format!(
-                    "no chunk holds the range image ({} {}x{}, {bytes} bytes{}); chunks: {}",
-                    decode::pfnc::name(layout.pixel_format),
-                    layout.width,
-                    layout.height,
-                    layout
-                        .id
-                        .map_or_else(String::new, |i| format!(", ComponentIDValue {i}")),
-                    chunks
-                        .iter()
-                        .map(|(i, d)| format!("{i:#x} ({} bytes)", d.len()))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            ))
-        }
-    };
-    let info = PartInfo {
-        data_type: PART_3D_IMAGE,
-        length: range.len() as u64,
-        pixel_format: layout.pixel_format,
-        purpose: u16::try_from(id).unwrap_or(0),
-        width: layout.width,
-        height: layout.height,
-        padding_x: 0,
-    };
-    Ok(Frame {
-        block_id: f.block_id,
-        timestamp: f.timestamp,
-        parts: vec![(info, range.to_vec())],
-        complete: f.complete,
-        resent_packets: f.resent_packets,
-        missing_packets: f.missing_packets,
-        received: f.received,
-    })
 }
 
 async fn blocking<T: Send + 'static>(

@@ -87,7 +87,7 @@ pub enum GigeError {
         detail: String,
     },
     /// The camera streams a pixel format this driver cannot turn into points.
-    #[error("pixel format 0x{format:08x} ({name}) is not a supported 3D format; select Coord3D_ABC32f or Coord3D_C16 in the camera")]
+    #[error("pixel format 0x{format:08x} ({name}) is not a 3D format this driver reads; select a Coord3D_ABC or Coord3D_C pixel format in the camera (`handeye camera xml` lists the ones the driver reads)")]
     UnsupportedFormat {
         /// PFNC code.
         format: u32,

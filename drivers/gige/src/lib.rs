@@ -4,7 +4,7 @@
 //! Layout: [`gvcp`] (control packets), [`client`] (control channel, discovery, heartbeat),
 //! [`genicam`] (XML fetch and node map), [`gvsp`] (stream packets and the frame receiver),
 //! [`decode`] (PFNC 3D formats to point clouds), [`camera`] (the `DepthCamera`), [`describe`]
-//! (what the driver makes of a description, offline), [`sim`]
+//! (what the driver makes of a description, offline), [`trigger`] (how frames are started), [`sim`]
 //! (a simulated 3D camera that speaks the same protocols).
 #![deny(missing_docs)]
 
@@ -22,6 +22,7 @@ pub mod genicam;
 pub mod gvcp;
 pub mod gvsp;
 pub mod sim;
+pub mod trigger;
 mod udp_batch;
 
 pub use camera::{CaptureStats, GigeCamera, StreamOptions};

@@ -2,11 +2,11 @@
 
 use std::time::{Duration, Instant};
 
-use handeye_gige::decode::pfnc;
+use handeye_gige::decode::{pfnc, Scan3d};
 use handeye_gige::genicam::FeatureKind;
 use handeye_gige::sim::{SceneSource, SimCamera, SimOptions, VendorHabits};
 use handeye_gige::{discover, ControlConfig, GigeCamera, GigeError, GvcpClient};
-use handeye_hal::{CaptureSettings, DepthCamera};
+use handeye_hal::{CaptureSettings, DepthCamera, PointCloud};
 
 fn sim(opts: SimOptions) -> SimCamera {
     SimCamera::spawn(
@@ -376,8 +376,8 @@ fn aspect_ratio_of_depth_maps_is_honoured() {
     assert!(compared > 64 * 48 / 2, "{compared}");
 }
 
-/// Issue 35: an output mode whose values need the camera's coordinate maps is a clear error
-/// naming Scan3dOutputMode, before anything streams.
+/// Issue 35: an output mode its pixel format does not carry (ProjectedC, a depth map's mode,
+/// with Coord3D_ABC32f) is a clear error naming the setting, before anything streams.
 #[test]
 fn projected_c_is_a_clear_error() {
     let s = sim(habits(VendorHabits {
@@ -397,4 +397,253 @@ fn projected_c_is_a_clear_error() {
     );
     assert!(!s.is_acquiring());
     assert_eq!(s.stats().frames, 0);
+}
+
+/// A capture of `source`'s scene through the plain path: the simulated camera by SFNC's
+/// letter, Coord3D_ABC32f in millimetres.
+fn plain_capture(source: SceneSource) -> handeye_hal::PointCloud {
+    let s = SimCamera::spawn(
+        "127.0.0.1:0".parse().expect("addr"),
+        Box::new(source),
+        habits(VendorHabits::default()),
+    )
+    .expect("sim");
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    let (mut clouds, _) = cam
+        .capture_blocking(1, Duration::from_secs(2))
+        .expect("plain capture");
+    clouds.remove(0)
+}
+
+/// `got` holds the points of `plain` (same validity) within the quantisation of the format
+/// `s` describes: half a step per coordinate for 16-bit XYZ, half a depth step carried along
+/// the pixel's ray for 16-bit depth maps, f32 rounding for float formats.
+fn assert_same_points(
+    got: &handeye_hal::PointCloud,
+    plain: &handeye_hal::PointCloud,
+    s: &Scan3d,
+    format: &str,
+) -> usize {
+    assert_eq!((got.width, got.height), (plain.width, plain.height));
+    let m = s.metres_per_unit;
+    let mut compared = 0;
+    for v in 0..got.height as usize {
+        for u in 0..got.width as usize {
+            let i = v * got.width as usize + u;
+            let (g, p) = (got.points[i], plain.points[i]);
+            assert_eq!(g.z.is_nan(), p.z.is_nan(), "{format}: validity at {u},{v}");
+            if p.z.is_nan() {
+                continue;
+            }
+            let bound: [f64; 3] = match format {
+                "Coord3D_ABC16" | "Coord3D_ABCY16" => std::array::from_fn(|k| s.scale[k] / 2.0 * m),
+                "Coord3D_C16" => {
+                    let dz = s.scale[2] / 2.0 * m;
+                    let (cu, cv) = s.principal_point;
+                    [
+                        dz * (u as f64 - cu).abs() / s.focal_length,
+                        dz * (v as f64 - cv).abs() / (s.focal_length * s.aspect_ratio),
+                        dz,
+                    ]
+                }
+                _ => [0.0; 3],
+            };
+            for k in 0..3 {
+                let d = f64::from((g[k] - p[k]).abs());
+                assert!(
+                    d <= bound[k] + 1e-6,
+                    "{format}: coordinate {k} at {u},{v} off by {d} m (bound {} m): {g:?} vs {p:?}",
+                    bound[k]
+                );
+            }
+            compared += 1;
+        }
+    }
+    assert!(compared > got.points.len() / 2, "{format}: {compared}");
+    compared
+}
+
+/// Capture one frame in `format` and compare it with the plain path.
+fn capture_in(cam: &GigeCamera, format: &str, plain: &handeye_hal::PointCloud) -> PointCloud {
+    cam.with_features(|n, p| n.set_enum(p, "PixelFormat", format))
+        .expect(format);
+    let s = cam.scan3d_blocking().expect("scan3d");
+    let (mut clouds, stats) = cam
+        .capture_blocking(1, Duration::from_secs(2))
+        .unwrap_or_else(|e| panic!("{format}: {e}"));
+    assert_eq!(stats.incomplete, 0);
+    let cloud = clouds.remove(0);
+    assert_same_points(&cloud, plain, &s, format);
+    cloud
+}
+
+/// Issue 44: Photoneo sends n components as n + 1 parts, the last chunk data. Any chunk part
+/// sent the whole frame to the chunk-only path, which looked for the range among the chunks:
+/// "malformed chunk payload: no chunk holds the range image", on every frame.
+#[test]
+fn issue_44_multipart_with_a_chunk_part_is_decoded_from_its_image_parts() {
+    let plain = plain_capture(SceneSource::new(64, 48));
+    let s = sim(habits(VendorHabits {
+        intensity_first: true,
+        chunk_part: true,
+        ..VendorHabits::default()
+    }));
+    let mut cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    cam.options.confidence = true;
+    let (raw, _) = cam
+        .capture_raw_blocking(1, Duration::from_secs(2))
+        .expect("raw");
+    let kinds: Vec<u16> = raw[0].parts.iter().map(|(p, _)| p.data_type).collect();
+    assert_eq!(
+        kinds,
+        [1, 5, 9, 10],
+        "intensity, range, confidence, chunk data"
+    );
+    let cloud = capture_in(&cam, "Coord3D_ABC32f", &plain);
+    assert!(cloud.intensity.is_some() && cloud.confidence.is_some());
+    capture_in(&cam, "Coord3D_C16", &plain);
+}
+
+/// Issue 44: Basler's blaze selects the invalid value per coordinate and flags only C (0);
+/// the driver read it once, at C, and dropped every valid point whose X or Y is 0 (a source
+/// of odd size has a column at x = 0 and a row at y = 0).
+#[test]
+fn issue_44_invalid_value_is_read_per_coordinate() {
+    let plain = plain_capture(SceneSource::new(63, 47));
+    let s = SimCamera::spawn(
+        "127.0.0.1:0".parse().expect("addr"),
+        Box::new(SceneSource::new(63, 47)),
+        habits(VendorHabits {
+            per_coordinate_invalid: true,
+            ..VendorHabits::default()
+        }),
+    )
+    .expect("sim");
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    let s3 = cam.scan3d_blocking().expect("scan3d");
+    assert_eq!(s3.invalid_value, [None, None, Some(0.0)]);
+    let on_axis = plain
+        .points
+        .iter()
+        .filter(|p| p.x == 0.0 || p.y == 0.0)
+        .count();
+    assert!(
+        on_axis > 50,
+        "{on_axis} points with x or y = 0 in the scene"
+    );
+    capture_in(&cam, "Coord3D_ABC32f", &plain);
+    capture_in(&cam, "Coord3D_C16", &plain);
+}
+
+/// Issue 44: Lucid's Helios2 streams Coord3D_ABCY16 (or ABC16, C16; 0.25 mm steps, 65535
+/// invalid per coordinate) and publishes its intrinsics as CalibFocalLengthX/Y and
+/// CalibOpticalCenterX/Y: "not a supported 3D format".
+#[test]
+fn issue_44_lucid_abcy16_abc16_and_calib_intrinsics() {
+    let source = || SceneSource::new(64, 48).with_aspect_ratio(1.25);
+    let plain = plain_capture(source());
+    let s = SimCamera::spawn(
+        "127.0.0.1:0".parse().expect("addr"),
+        Box::new(source()),
+        habits(VendorHabits {
+            lucid: true,
+            ..VendorHabits::default()
+        }),
+    )
+    .expect("sim");
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    cam.with_features(|n, _| {
+        assert!(!n.has("Scan3dFocalLength") && n.has("CalibFocalLengthY"));
+        Ok(())
+    })
+    .expect("features");
+    let abcy = capture_in(&cam, "Coord3D_ABCY16", &plain);
+    let y = abcy.intensity.expect("Y as intensity");
+    assert_eq!(y.len(), 64 * 48);
+    assert!(y.iter().any(|&g| g > 0.3) && y.contains(&0.0));
+    assert!(capture_in(&cam, "Coord3D_ABC16", &plain)
+        .intensity
+        .is_none());
+    let s3 = cam.scan3d_blocking().expect("scan3d");
+    assert_eq!(s3.invalid_value, [Some(65535.0); 3]);
+    capture_in(&cam, "Coord3D_C16", &plain);
+    let s3 = cam.scan3d_blocking().expect("scan3d");
+    assert!((s3.aspect_ratio - 1.25).abs() < 1e-12, "{s3:?}");
+}
+
+/// Issue 44: SICK's Visionary sends Coord3D_C16 depth maps in ProjectedC, with
+/// Scan3dFocalLength, principal point and aspect ratio, a selector that lists only
+/// CoordinateC, and chunk data: refused by the output-mode check, and "has no entry
+/// CoordinateA" once past it.
+#[test]
+fn issue_44_projected_c_depth_maps_with_only_coordinate_c() {
+    let source = || SceneSource::new(64, 48).with_aspect_ratio(1.25);
+    let plain = plain_capture(source());
+    let s = SimCamera::spawn(
+        "127.0.0.1:0".parse().expect("addr"),
+        Box::new(source()),
+        habits(VendorHabits {
+            projected_c: true,
+            only_coordinate_c: true,
+            aspect_ratio: true,
+            chunk_part: true,
+            intensity_first: true,
+            ..VendorHabits::default()
+        }),
+    )
+    .expect("sim");
+    let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    let cloud = capture_in(&cam, "Coord3D_C16", &plain);
+    assert!(cloud.intensity.is_some());
+    assert_eq!(
+        cam.with_features(|n, p| n.enum_symbol(p, "Scan3dOutputMode"))
+            .expect("mode"),
+        "ProjectedC"
+    );
+}
+
+/// Issue 44: Photoneo's examples leave TriggerMode = On, TriggerSource = Software; the driver
+/// never cleared it nor sent TriggerSoftware: "no complete frame within …". Free clears it;
+/// software sends one TriggerSoftware per frame.
+#[test]
+fn issue_44_trigger_mode_left_on_is_cleared_or_used() {
+    let s = sim(habits(VendorHabits {
+        software_trigger: true,
+        ..VendorHabits::default()
+    }));
+    let mut cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    assert_eq!(
+        cam.with_features(|n, p| n.enum_symbol(p, "TriggerMode"))
+            .expect("mode"),
+        "On"
+    );
+    let (clouds, _) = cam
+        .capture_blocking(2, Duration::from_secs(2))
+        .expect("free");
+    check_scene(&clouds, 64, 48, 1e-5);
+    assert_eq!(
+        cam.with_features(|n, p| n.enum_symbol(p, "TriggerMode"))
+            .expect("mode"),
+        "Off"
+    );
+    cam.options.trigger = handeye_hal::Trigger::Software;
+    let before = s.stats().frames;
+    let (clouds, _) = cam
+        .capture_blocking(3, Duration::from_secs(2))
+        .expect("software");
+    check_scene(&clouds, 64, 48, 1e-5);
+    assert_eq!(
+        s.stats().frames - before,
+        3,
+        "one frame per TriggerSoftware"
+    );
+    // A camera without trigger features cannot do software triggering: said so.
+    let plain = sim(habits(VendorHabits::default()));
+    let mut cam = GigeCamera::connect(plain.addr(), fast()).expect("connect");
+    cam.options.trigger = handeye_hal::Trigger::Software;
+    let e = cam
+        .capture_blocking(1, Duration::from_secs(2))
+        .expect_err("no trigger")
+        .to_string();
+    assert!(e.contains("camera.trigger = \"free\""), "{e}");
 }

@@ -43,6 +43,29 @@ impl Default for CaptureSettings {
     }
 }
 
+/// How frames are started (`camera.trigger`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Trigger {
+    /// The camera runs free: the driver turns `TriggerMode` off where the camera has it (a
+    /// camera left in trigger mode would send nothing).
+    #[default]
+    Free,
+    /// `TriggerMode = On`, `TriggerSource = Software`, and `TriggerSoftware` executed once
+    /// per frame wanted.
+    Software,
+}
+
+impl Trigger {
+    /// The name in the configuration.
+    pub fn name(self) -> &'static str {
+        match self {
+            Trigger::Free => "free",
+            Trigger::Software => "software",
+        }
+    }
+}
+
 /// A 3D camera that delivers point clouds in its own frame (metres, OpenCV axes).
 ///
 /// Capture is blocking I/O in most backends; implementations run it off the async runtime.

@@ -21,7 +21,7 @@ mod robot;
 pub mod ur_dh;
 pub mod ur_limits;
 
-pub use camera::{CameraInfo, CaptureSettings, DepthCamera};
+pub use camera::{CameraInfo, CaptureSettings, DepthCamera, Trigger};
 pub use cloud::PointCloud;
 pub use error::HalError;
 pub use pose::{UrPose, UrPoseParseError};

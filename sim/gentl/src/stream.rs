@@ -244,6 +244,11 @@ fn acquire(stream: &Arc<Stream>) {
             std::thread::sleep((next - now).min(Duration::from_millis(20)));
             continue;
         }
+        // With the trigger on, a frame per software trigger.
+        if !cam.device.take_trigger() {
+            std::thread::sleep(Duration::from_millis(2));
+            continue;
+        }
         let period = Duration::from_secs_f64(1.0 / cam.device.frame_rate().max(0.01));
         next = (next + period).max(now);
         let handle = {

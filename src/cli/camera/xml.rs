@@ -34,6 +34,7 @@ pub(super) fn text(d: &Description) -> String {
     let _ = writeln!(s, "description:   {} {} (loads)", d.vendor, d.model);
     let _ = writeln!(s, "pixel formats: {}", list(&d.pixel_formats));
     let _ = writeln!(s, "3D formats:    {}", list(&d.range_formats));
+    let _ = writeln!(s, "usable:        {}", list(&d.usable));
     let _ = writeln!(s, "components:    {}", list(&d.components));
     if d.multipart {
         let _ = writeln!(
@@ -54,6 +55,9 @@ pub(super) fn text(d: &Description) -> String {
     for (name, effect) in &d.missing {
         let _ = writeln!(s, "missing {name}: {effect}");
     }
+    for setting in &d.settings {
+        let _ = writeln!(s, "to do: {setting}");
+    }
     match &d.verdict {
         Ok(()) => {
             let _ = writeln!(s, "verdict: the driver can stream points from this camera");
@@ -69,10 +73,11 @@ pub(super) fn text(d: &Description) -> String {
 /// (exit 2) with the reason when it does not.
 pub(super) fn run(path: &Path, json: bool) -> anyhow::Result<ExitCode> {
     let d = check(path)?;
+    // `| head -1` closes the pipe early: not an error (println! would panic).
     if json {
-        println!("{}", serde_json::to_string_pretty(&d)?);
+        super::super::emit(&(serde_json::to_string_pretty(&d)? + "\n"))?;
     } else {
-        print!("{}", text(&d));
+        super::super::emit(&text(&d))?;
     }
     Ok(ExitCode::SUCCESS)
 }

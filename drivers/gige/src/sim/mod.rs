@@ -8,10 +8,18 @@
 //! injected; lost packets are served again on PACKETRESEND.
 
 mod device;
+mod encode;
+mod gvcp_server;
+mod habits;
 mod scene;
+mod sim_device;
+mod stream;
 
-pub use device::{PortError, SimCamera, SimDevice, SimOptions, SimStats, VendorHabits};
+pub use device::{SimOptions, SimStats};
+pub use gvcp_server::SimCamera;
+pub use habits::VendorHabits;
 pub use scene::SceneSource;
+pub use sim_device::{PortError, SimDevice};
 
 use handeye_hal::PointCloud;
 
@@ -31,8 +39,8 @@ pub trait FrameSource: Send + 'static {
         let (w, h) = self.size();
         (f64::from(w), f64::from(w) / 2.0, f64::from(h) / 2.0)
     }
-    /// A pixel's height over its width (1 = square pixels): the vertical focal length is the
-    /// focal length divided by it. Published as `Scan3dAspectRatio` with
+    /// The vertical focal length over the horizontal one (1 = square pixels), SFNC's
+    /// `Scan3dAspectRatio`. Published as `Scan3dAspectRatio` with
     /// [`VendorHabits::aspect_ratio`].
     fn aspect_ratio(&self) -> f64 {
         1.0

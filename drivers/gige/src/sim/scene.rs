@@ -29,8 +29,9 @@ impl SceneSource {
         }
     }
 
-    /// The same camera with pixels `aspect` times taller than wide (rays spread `aspect` times
-    /// more vertically), as `Scan3dAspectRatio` describes.
+    /// The same camera with a vertical focal length `aspect` times the horizontal one (rays
+    /// spread `1 / aspect` times as much vertically), as `Scan3dAspectRatio` describes it
+    /// (see [`crate::decode::Scan3d`]).
     pub fn with_aspect_ratio(mut self, aspect: f64) -> Self {
         self.aspect = aspect;
         self.cached = None;
@@ -61,7 +62,7 @@ impl SceneSource {
                 }
                 let d = Vector3::new(
                     (u as f64 + 0.5 - cu) / self.focal,
-                    (v as f64 + 0.5 - cv) * self.aspect / self.focal,
+                    (v as f64 + 0.5 - cv) / (self.focal * self.aspect),
                     1.0,
                 );
                 // Sphere: |t d - c|² = r².
