@@ -570,7 +570,7 @@ fn write_report(
     };
     let caption = format!(
         "view {}, frame 1 of {}: {}",
-        frame.view,
+        frame.view + 1,
         inputs.frames.len(),
         frame.source
     );
@@ -581,12 +581,13 @@ fn write_report(
         &frame.cloud,
         registration,
         &caption,
+        1,
     )?;
     let name = Path::new(&frame.source)
         .file_name()
         .map_or(frame.source.clone(), |n| n.to_string_lossy().into_owned());
     let summary = handeye::report::Summary::from_report(&calibration.report, &name);
-    let png = handeye::report::render(&summary, Some(&view))?;
+    let png = handeye::report::render(&summary, std::slice::from_ref(&view))?;
     std::fs::write(path, png)
         .with_context(|| format!("writing the report picture {}", path.display()))?;
     eprintln!(

@@ -36,6 +36,8 @@ pub const REPORT_HEIGHT: usize = 720;
 /// Largest scan picture inside the report, px.
 const SCAN_W: usize = 640;
 const SCAN_H: usize = 480;
+/// Pixels between the panels of several views' scans.
+const PANEL_GAP: usize = 4;
 /// The distance colour scale ends here, mm; farther points are grey.
 const SCALE_MM: f32 = 5.0;
 /// The scan's colours change in steps of this, mm (bands read like contour lines).
@@ -242,21 +244,43 @@ pub fn scan_view(
     cloud: &PointCloud,
     registration: &Registration,
     caption: &str,
+    panels: usize,
 ) -> Result<ScanView, ReportError> {
     let posed = match controller_dh {
         Some(dh) => posed_model_with_controller_kinematics(model, joints, dh)?,
         None => posed_model(model, joints)?,
     };
+    let (w, h) = panel_size(panels);
     Ok(ScanView::new(
         cloud,
         &posed,
         &registration.camera_from_model,
         registration.depth_scale,
         FIT_DEPTH,
-        SCAN_W,
-        SCAN_H,
+        w,
+        h,
         caption,
     )?)
+}
+
+/// Columns and rows of the scan area's grid for `panels` scans: one fills it, two to four
+/// share it two by two, more three by three (at most nine are drawn).
+fn grid(panels: usize) -> (usize, usize) {
+    match panels {
+        0 | 1 => (1, 1),
+        2 => (2, 1),
+        3 | 4 => (2, 2),
+        _ => (3, 3),
+    }
+}
+
+/// The size of one panel of the scan area for `panels` scans ([`grid`]), pixels.
+fn panel_size(panels: usize) -> (usize, usize) {
+    let (cols, rows) = grid(panels);
+    (
+        (SCAN_W - (cols - 1) * PANEL_GAP) / cols,
+        (SCAN_H - (rows - 1) * PANEL_GAP) / rows,
+    )
 }
 
 /// The distance colour: blue (on the surface) through cyan, green, yellow to red at
@@ -328,9 +352,10 @@ fn heading(c: &mut Canvas, x: i64, y: i64, w: i64, text: &str) -> i64 {
     y + 24
 }
 
-/// The report picture of one calibration: `scan` (when a scan was registered) and `summary`.
-/// [`REPORT_WIDTH`]×[`REPORT_HEIGHT`] RGB PNG.
-pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, ReportError> {
+/// The report picture of one calibration: `scans` (one per view that was registered, in view
+/// order, each made by [`scan_view`] for `scans.len()` panels; up to nine drawn, in a grid)
+/// and `summary`. [`REPORT_WIDTH`]×[`REPORT_HEIGHT`] RGB PNG.
+pub fn render(summary: &Summary, scans: &[ScanView]) -> Result<Vec<u8>, ReportError> {
     let (w, h) = (REPORT_WIDTH as i64, REPORT_HEIGHT as i64);
     let mut c = Canvas::new(REPORT_WIDTH, REPORT_HEIGHT, WHITE);
     let verdict = summary.colour();
@@ -352,12 +377,40 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
     // Left: the scan.
     let (sx, sy) = (16i64, 80i64);
     c.fill_rect(sx, sy, SCAN_W as i64, SCAN_H as i64, SCAN_BG);
-    match scan {
-        Some(view) => {
-            let pic = scan_canvas(view);
-            let ox = sx + (SCAN_W as i64 - view.width as i64) / 2;
-            let oy = sy + (SCAN_H as i64 - view.height as i64) / 2;
-            c.blit(ox, oy, &pic);
+    let (cols, rows) = grid(scans.len());
+    let (pw, ph) = panel_size(scans.len());
+    match scans.first() {
+        Some(_) => {
+            for (k, view) in scans.iter().take(cols * rows).enumerate() {
+                let (px, py) = (
+                    sx + ((k % cols) * (pw + PANEL_GAP)) as i64,
+                    sy + ((k / cols) * (ph + PANEL_GAP)) as i64,
+                );
+                let pic = scan_canvas(view);
+                let ox = px + (pw as i64 - view.width as i64) / 2;
+                let oy = py + (ph as i64 - view.height as i64) / 2;
+                c.blit(ox, oy, &pic);
+                if scans.len() > 1 {
+                    // Each panel says which view it is, as the run's lines number them.
+                    let label = truncate(&view.caption, pw / 9);
+                    c.fill_rect(
+                        px,
+                        py,
+                        Canvas::text_width(&label, Size::Small) + 8,
+                        20,
+                        SCAN_BG,
+                    );
+                    c.text(px + 4, py + 2, &label, Size::Small, true, WHITE);
+                }
+            }
+            for k in 1..cols {
+                let x = sx + (k * (pw + PANEL_GAP)) as i64 - PANEL_GAP as i64 / 2 - 1;
+                c.fill_rect(x, sy, 2, SCAN_H as i64, WHITE);
+            }
+            for k in 1..rows {
+                let y = sy + (k * (ph + PANEL_GAP)) as i64 - PANEL_GAP as i64 / 2 - 1;
+                c.fill_rect(sx, y, SCAN_W as i64, 2, WHITE);
+            }
         }
         None => {
             let msg = "no scan registered in this run";
@@ -373,16 +426,13 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
         }
     }
     c.stroke_rect(sx - 1, sy - 1, SCAN_W as i64 + 2, SCAN_H as i64 + 2, RULE);
-    if let Some(view) = scan {
+    if let Some(view) = scans.first() {
         let y = sy + SCAN_H as i64 + 8;
-        c.text(
-            sx,
-            y,
-            &truncate(&view.caption, 80),
-            Size::Small,
-            false,
-            MUTED,
-        );
+        let caption = match scans.len() {
+            1 => view.caption.clone(),
+            n => format!("views 1 to {n}: one frame of each, registered"),
+        };
+        c.text(sx, y, &truncate(&caption, 80), Size::Small, false, MUTED);
         legend(&mut c, sx, y + 24);
     }
 
@@ -566,8 +616,8 @@ pub fn render(summary: &Summary, scan: Option<&ScanView>) -> Result<Vec<u8>, Rep
 
     // Bottom right: the histogram.
     let hy = (y + 16).max(h - 300).min(h - 140);
-    if let Some(view) = scan {
-        histogram(&mut c, rx, hy, rw, h - hy - 16, view, summary);
+    if !scans.is_empty() {
+        histogram(&mut c, rx, hy, rw, h - hy - 16, scans, summary);
     }
     Ok(c.png()?)
 }
@@ -623,9 +673,18 @@ fn legend(c: &mut Canvas, x: i64, y: i64) {
 }
 
 /// Histogram of the scan points' distances to the model (those within [`HIST_MM`]).
-fn histogram(c: &mut Canvas, x: i64, y: i64, w: i64, h: i64, view: &ScanView, summary: &Summary) {
-    let d = view.distances(HIST_MM);
-    let valid = view.valid().max(1);
+/// The residuals' histogram of every view's scan shown.
+fn histogram(
+    c: &mut Canvas,
+    x: i64,
+    y: i64,
+    w: i64,
+    h: i64,
+    scans: &[ScanView],
+    summary: &Summary,
+) {
+    let d: Vec<f32> = scans.iter().flat_map(|v| v.distances(HIST_MM)).collect();
+    let valid = scans.iter().map(ScanView::valid).sum::<usize>().max(1);
     let within1 = d.iter().filter(|v| **v <= 1.0).count();
     let title =
         format!(

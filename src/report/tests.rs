@@ -87,11 +87,12 @@ fn a_right_fit_looks_right_and_a_wrong_one_wrong() {
         None,
         &sim.cloud,
         &calibration.registrations[0],
-        "view 0, frame 0: simulated UR5e scan",
+        "view 1 of 1, frame 1 of 1: simulated UR5e scan",
+        1,
     )
     .expect("scan view");
     let summary = Summary::from_report(&calibration.report, "simulated UR5e scan");
-    let png_right = render(&summary, Some(&right)).expect("renders");
+    let png_right = render(&summary, std::slice::from_ref(&right)).expect("renders");
     eprintln!(
         "report: scan view + render {:.0} ms, {} bytes",
         t.elapsed().as_secs_f64() * 1e3,
@@ -108,7 +109,8 @@ fn a_right_fit_looks_right_and_a_wrong_one_wrong() {
         None,
         &sim.cloud,
         &misplaced,
-        "view 0, frame 0: the model misplaced by 2 cm / 8°",
+        "view 1 of 1, frame 1 of 1: the model misplaced by 2 cm / 8°",
+        1,
     )
     .expect("scan view");
     // The right fit: the robot's points hug the model; the misplaced one: they do not.
@@ -135,7 +137,7 @@ fn a_right_fit_looks_right_and_a_wrong_one_wrong() {
         drift: None,
         notes: Vec::new(),
     };
-    let png_wrong = render(&misplaced_summary, Some(&wrong)).expect("renders");
+    let png_wrong = render(&misplaced_summary, std::slice::from_ref(&wrong)).expect("renders");
     let dir = out_dir();
     std::fs::write(dir.join("right.png"), &png_right).expect("write");
     std::fs::write(dir.join("wrong.png"), &png_wrong).expect("write");
@@ -181,7 +183,7 @@ fn a_run_without_a_scan_still_gets_a_picture() {
         drift: None,
         notes: vec!["failed at stage: preflight".into()],
     };
-    let png = render(&summary, None).expect("renders");
+    let png = render(&summary, &[]).expect("renders");
     let img = decode(&png);
     assert_eq!((img.0, img.1), (REPORT_WIDTH as u32, REPORT_HEIGHT as u32));
     assert_eq!(pixel(&img, 5, 61), BAD);

@@ -347,8 +347,8 @@ struct Context<'a, R, C> {
     run_dir: PathBuf,
     /// Whether a move was commanded (the arm may have moved even if the move failed).
     moved: bool,
-    /// The scan the report picture shows, once registered.
-    picture: Option<PictureScan>,
+    /// The scans the report picture shows (the first registered frame of each view).
+    pictures: Vec<PictureScan>,
     /// The robot's and the camera's link generations when the run started.
     links: (u64, u64),
     /// The current calibration was made on another arm, or on other kinematics of this one
@@ -361,8 +361,8 @@ struct Context<'a, R, C> {
     journal: Option<storage::JournalLock>,
 }
 
-/// The scan a run's report picture shows: its first frame, that frame's registration and the
-/// kinematics the model was posed with.
+/// A scan a run's report picture shows: a view's first registered frame, that frame's
+/// registration and the kinematics the model was posed with.
 #[derive(Debug)]
 struct PictureScan {
     frame: Frame,
@@ -389,7 +389,7 @@ pub async fn run<R: Robot, C: DepthCamera>(
 }
 
 /// The run's steps from preflight to the return move, filling `record` (as
-/// [`RunRecord::starting`] made it); files go into `run_dir`. Returns the record and the scan
+/// [`RunRecord::starting`] made it); files go into `run_dir`. Returns the record and the scans
 /// its report picture shows.
 #[allow(clippy::too_many_arguments)]
 async fn execute<R: Robot, C: DepthCamera>(
@@ -402,7 +402,7 @@ async fn execute<R: Robot, C: DepthCamera>(
     run_dir: PathBuf,
     cancel: &CancellationToken,
     progress: &dyn Progress,
-) -> (RunRecord, Option<PictureScan>, Option<storage::JournalLock>) {
+) -> (RunRecord, Vec<PictureScan>, Option<storage::JournalLock>) {
     let t0 = Instant::now();
     let run_id = record.run_id.clone();
     let model_from_base = guard::model_from_base(model);
@@ -418,7 +418,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         record,
         run_dir,
         moved: false,
-        picture: None,
+        pictures: Vec::new(),
         links: (robot.link_generation(), camera.link_generation()),
         other_arm: false,
         previous: None,
@@ -442,7 +442,7 @@ async fn execute<R: Robot, C: DepthCamera>(
         }
     }
     cx.record.timings_ms.total = elapsed_ms(t0);
-    (cx.record, cx.picture, cx.journal)
+    (cx.record, cx.pictures, cx.journal)
 }
 
 impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
@@ -492,33 +492,44 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         let opts = self.pipeline_options(controller_dh, reference.as_ref());
         let picture_dh = opts.controller_dh;
         let model = self.model.clone();
-        // The first frame comes back for the report picture (no copy of the scan is made).
-        let (calibration, first_frame) = cancellable(self.cancel, Stage::Register, async move {
-            let (calibration, first) = tokio::task::spawn_blocking(move || {
+        // The first registered frame of each view comes back for the report picture, with its
+        // registration's index (no copy of a scan is made).
+        let (calibration, shown) = cancellable(self.cancel, Stage::Register, async move {
+            let (calibration, shown) = tokio::task::spawn_blocking(move || {
                 let calibration = calibrate_frames(&model, &frames, &opts);
-                // The frame the first registration is of (a frame without the robot may have
-                // been set aside).
-                let first = calibration
-                    .as_ref()
-                    .ok()
-                    .and_then(|c| c.frames.first().copied())
-                    .and_then(|i| frames.into_iter().nth(i));
-                (calibration, first)
+                let mut frames: Vec<Option<Frame>> = frames.into_iter().map(Some).collect();
+                let mut views = Vec::new();
+                let mut shown = Vec::new();
+                if let Ok(c) = &calibration {
+                    for (r, &i) in c.frames.iter().enumerate() {
+                        let Some(frame) = frames.get_mut(i).and_then(Option::take) else {
+                            continue;
+                        };
+                        if !views.contains(&frame.view) {
+                            views.push(frame.view);
+                            shown.push((frame, r));
+                        }
+                    }
+                }
+                (calibration, shown)
             })
             .await
             .map_err(|e| Failure::error(Stage::Register, format!("registration panicked: {e}")))?;
             let calibration =
                 calibration.map_err(|e| Failure::error(Stage::Register, error_chain(&e)))?;
-            Ok((calibration, first))
+            Ok((calibration, shown))
         })
         .await?;
-        self.picture = first_frame
-            .zip(calibration.registrations.first().cloned())
-            .map(|(frame, registration)| PictureScan {
-                frame,
-                registration,
-                controller_dh: picture_dh,
-            });
+        self.pictures = shown
+            .into_iter()
+            .filter_map(|(frame, r)| {
+                Some(PictureScan {
+                    frame,
+                    registration: calibration.registrations.get(r)?.clone(),
+                    controller_dh: picture_dh,
+                })
+            })
+            .collect();
         let reg_ms: f64 = calibration
             .registrations
             .iter()

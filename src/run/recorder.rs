@@ -97,7 +97,7 @@ impl Recorder {
             let _ = std::fs::remove_dir(&run_dir);
             return record;
         }
-        let (mut record, picture, journal) = execute(
+        let (mut record, pictures, journal) = execute(
             robot,
             camera,
             model,
@@ -123,7 +123,7 @@ impl Recorder {
                 .push(format!("the run record could not be written: {e}"));
         }
         // The picture comes after the record: whatever happens to it, the run is kept.
-        write_picture(run_dir, &record, model, picture).await;
+        write_picture(run_dir, &record, model, pictures).await;
         let mut recorded = true;
         if let Some((store, trigger)) = &self.history {
             let mut finished = store.finish(*trigger, &record);
@@ -281,18 +281,18 @@ pub fn prune_captures(
     Ok(removed)
 }
 
-/// Renders the run's report picture (a few hundred ms with a scan, on a blocking thread) and
+/// Renders the run's report picture (a few hundred ms a scan, on a blocking thread) and
 /// writes it into `run_dir`. Never fails the run: what goes wrong is logged.
 async fn write_picture(
     run_dir: PathBuf,
     record: &RunRecord,
     model: &Arc<RobotModel>,
-    scan: Option<PictureScan>,
+    scans: Vec<PictureScan>,
 ) {
     let (record, model) = (record.clone(), Arc::clone(model));
     let written = tokio::task::spawn_blocking(move || {
         let t = std::time::Instant::now();
-        let png = render_picture(&record, &model, scan.as_ref())?;
+        let png = render_picture(&record, &model, &scans)?;
         storage::write_report_picture(&run_dir, &png).map_err(|e| {
             format!(
                 "cannot write the report picture into {}: {e}",
@@ -313,38 +313,52 @@ async fn write_picture(
     }
 }
 
-/// The report picture of `record`, with the scan when there is one.
+/// The report picture of `record`, with a panel for each view's scan (numbered from 1, as the
+/// run's lines number the views).
 fn render_picture(
     record: &RunRecord,
     model: &RobotModel,
-    scan: Option<&PictureScan>,
+    scans: &[PictureScan],
 ) -> Result<Vec<u8>, String> {
-    let view = scan.and_then(|s| {
-        let frames = record
-            .captures
-            .iter()
-            .map(|c| c.frames.len())
-            .sum::<usize>();
-        let caption = format!(
-            "view {}, frame 1 of {frames}: {}",
-            s.frame.view, s.frame.source
-        );
-        match crate::report::scan_view(
-            model,
-            &s.frame.joints,
-            s.controller_dh.as_ref(),
-            &s.frame.cloud,
-            &s.registration,
-            &caption,
-        ) {
-            Ok(v) => Some(v),
-            Err(e) => {
-                tracing::warn!("report picture without the scan: {e}");
-                None
+    let frames = record
+        .captures
+        .iter()
+        .map(|c| c.frames.len())
+        .sum::<usize>();
+    let views = record.views.len().max(scans.len());
+    let shown: Vec<crate::report::ScanView> = scans
+        .iter()
+        .filter_map(|s| {
+            let caption = if scans.len() == 1 {
+                format!(
+                    "view {} of {views}, frame 1 of {frames}: {}",
+                    s.frame.view + 1,
+                    s.frame.source
+                )
+            } else {
+                format!("view {} of {views}", s.frame.view + 1)
+            };
+            match crate::report::scan_view(
+                model,
+                &s.frame.joints,
+                s.controller_dh.as_ref(),
+                &s.frame.cloud,
+                &s.registration,
+                &caption,
+                scans.len(),
+            ) {
+                Ok(v) => Some(v),
+                Err(e) => {
+                    tracing::warn!(
+                        "report picture without the scan of view {}: {e}",
+                        s.frame.view + 1
+                    );
+                    None
+                }
             }
-        }
-    });
+        })
+        .collect();
     let summary = crate::report::Summary::from_run(record);
-    crate::report::render(&summary, view.as_ref())
+    crate::report::render(&summary, &shown)
         .map_err(|e| format!("cannot render the report picture: {e}"))
 }
