@@ -302,6 +302,33 @@ pub struct PlannedView {
     pub distance_to_base_m: Option<f64>,
     /// How the path from the previous position was checked.
     pub path: PathCheck,
+    /// Why the camera at the mount prior would not see the base from here (eye-in-hand with a
+    /// prior; a taught view the planner would not have chosen), `None` when it would.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub not_seeing_base: Option<String>,
+}
+
+/// What a dry run expects of the run it planned: the σ of the views simulated at the mount
+/// prior, and the run's time at the configured speeds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Forecast {
+    /// The result's 1σ, mm, from scans simulated at the planned views (the camera at the mount
+    /// prior, a manufactured arm, the structured-light camera preset); `None` when they could
+    /// not be registered.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty_translation_mm: Option<f64>,
+    /// The same, degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty_rotation_deg: Option<f64>,
+    /// Why there is no σ.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub uncertainty_note: Option<String>,
+    /// The moves out, between the views and back at the configured speed and acceleration
+    /// caps, s.
+    pub moves_s: f64,
+    /// The whole run: the moves, settling, capture and registration at about 0.9 s a frame
+    /// and 1 s for the rest (the simulated rig's order, a 1280×960 structured-light scan), s.
+    pub run_s: f64,
 }
 
 /// One captured frame.
@@ -477,6 +504,9 @@ pub struct RunRecord {
     pub preflight: Option<PreflightRecord>,
     /// The checked plan.
     pub views: Vec<PlannedView>,
+    /// A dry run's forecast of the planned run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub forecast: Option<Forecast>,
     /// What was recorded at each view.
     pub captures: Vec<CaptureRecord>,
     /// Where the raw captures were kept (replay with `handeye solve --capture`).
@@ -517,6 +547,7 @@ impl RunRecord {
             failed_stage: None,
             preflight: None,
             views: Vec::new(),
+            forecast: None,
             captures: Vec::new(),
             capture_file: None,
             result: None,

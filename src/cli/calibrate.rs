@@ -343,8 +343,28 @@ pub(crate) fn summary(r: &RunRecord) -> String {
             v.joints,
             v.path.samples,
             v.path.max_step_rad,
-            v.distance_to_base_m
-                .map_or(String::new(), |d| format!("; base at {d:.2} m"))
+            match (&v.distance_to_base_m, &v.not_seeing_base) {
+                (Some(d), _) => format!("; base at {d:.2} m"),
+                (None, Some(why)) => format!("; the camera at the mount prior would not see the base: {why}"),
+                (None, None) => String::new(),
+            }
+        );
+    }
+    if let Some(f) = &r.forecast {
+        let sigma = match (
+            f.uncertainty_translation_mm,
+            f.uncertainty_rotation_deg,
+            &f.uncertainty_note,
+        ) {
+            (Some(t), Some(d), _) => {
+                format!("1σ about {t:.2} mm / {d:.3}° (the views simulated at the mount prior)")
+            }
+            (_, _, Some(note)) => format!("no σ: {note}"),
+            _ => "no σ".to_string(),
+        };
+        s += &format!(
+            "  forecast: {sigma}; the run about {:.0} s (moves {:.1} s at the configured caps)\n",
+            f.run_s, f.moves_s
         );
     }
     if let Some(res) = &r.result {

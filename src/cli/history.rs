@@ -433,6 +433,7 @@ mod tests {
             failed_stage: (!accepted).then_some(Stage::Solve),
             preflight: None,
             views: vec![],
+            forecast: None,
             captures: vec![],
             capture_file: Some(format!("/var/lib/handeye/runs/{run_id}/capture.json")),
             result: Some(ResultRecord {

@@ -18,6 +18,7 @@
 //! nothing but its own record. The [`Recorder`] keeps it: the history row, the record and the
 //! report picture in the run's folder (`crate::storage`), pruning.
 
+mod forecast;
 pub mod journal;
 pub mod recorder;
 #[cfg(test)]
@@ -478,6 +479,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         self.plan()?;
         self.record.timings_ms.plan = elapsed_ms(t);
         if self.req.dry_run {
+            self.forecast().await?;
             self.record.outcome = Outcome::Planned;
             return Ok(());
         }
@@ -1016,14 +1018,15 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                         ),
                     ),
                 })?;
-            let distance_to_base_m = match (self.cfg.mount.mount, self.cfg.mount.prior) {
-                (Mount::EyeInHand, Some(_)) => planner.check(q).map_err(fk)?.ok(),
+            let seen = match (self.cfg.mount.mount, self.cfg.mount.prior) {
+                (Mount::EyeInHand, Some(_)) => Some(planner.check(q).map_err(fk)?),
                 _ => None,
             };
             views.push(PlannedView {
                 joints: q.clone(),
-                distance_to_base_m,
+                distance_to_base_m: seen.as_ref().and_then(|s| s.as_ref().ok().copied()),
                 path,
+                not_seeing_base: seen.and_then(|s| s.err()).map(|r| r.to_string()),
             });
             from = q.clone();
         }
@@ -1047,6 +1050,47 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             ),
         );
         self.record.views = views;
+        Ok(())
+    }
+
+    /// A dry run's forecast of the run it planned ([`forecast`]): the σ of its views simulated
+    /// at the mount prior (a wrist camera) and its time at the configured caps.
+    async fn forecast(&mut self) -> Result<(), Failure> {
+        let start = self
+            .record
+            .preflight
+            .as_ref()
+            .map(|p| p.start_joints.clone())
+            .unwrap_or_default();
+        let views: Vec<Vec<f64>> = self.record.views.iter().map(|v| v.joints.clone()).collect();
+        let model = Arc::clone(self.model);
+        let cfg = self.cfg;
+        let (limits, settle, frames, back, sensor) = (
+            cfg.robot.limits,
+            cfg.camera.settle.as_secs_f64(),
+            cfg.camera.capture.frames as usize,
+            cfg.views.return_to_start,
+            cfg.camera.sensor,
+        );
+        let prior = match cfg.mount.mount {
+            Mount::EyeInHand => cfg.mount.prior,
+            Mount::EyeToHand => None,
+        };
+        self.progress.stage(
+            Stage::Plan,
+            "forecast: the views simulated at the mount prior, the moves timed",
+        );
+        let f = cancellable(self.cancel, Stage::Plan, async move {
+            tokio::task::spawn_blocking(move || {
+                forecast::forecast(
+                    &model, &start, &views, back, &limits, settle, frames, prior, sensor,
+                )
+            })
+            .await
+            .map_err(|e| Failure::error(Stage::Plan, format!("the forecast panicked: {e}")))
+        })
+        .await?;
+        self.record.forecast = Some(f);
         Ok(())
     }
 

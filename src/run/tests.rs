@@ -695,6 +695,21 @@ async fn a_dry_run_plans_and_moves_nothing() {
     assert_eq!(camera.captures(), 0);
     assert!(record.captures.is_empty() && record.result.is_none());
     assert_nothing_written(&record, &robot, &storage.0).await;
+    // Issue 43: the dry run says whether the view sees the base, the σ to expect and the
+    // run's time.
+    assert!(
+        record.views[0].distance_to_base_m.is_some(),
+        "{:?}",
+        record.views[0]
+    );
+    assert_eq!(record.views[0].not_seeing_base, None);
+    let forecast = record.forecast.as_ref().expect("a forecast");
+    let sigma = forecast.uncertainty_translation_mm.expect("a σ");
+    assert!(sigma > 0.01 && sigma < 2.0, "{forecast:?}");
+    assert!(
+        forecast.moves_s > 0.0 && forecast.run_s > forecast.moves_s,
+        "{forecast:?}"
+    );
 }
 
 #[tokio::test]

@@ -79,6 +79,7 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
         failed_stage: (!accepted).then_some(Stage::Solve),
         preflight: None,
         views: vec![],
+        forecast: None,
         captures: vec![],
         capture_file: Some(format!("/var/lib/handeye/runs/{run_id}/capture.json")),
         result: Some(ResultRecord {
