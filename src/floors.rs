@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 /// The floors, lowest first; every top-level module of the library is on exactly one.
 const FLOORS: &[&[&str]] = &[
-    &["frames"],
+    &["frames", "skips"],
     &["model", "cloud"],
     // The pinhole model and the ray caster.
     &["geometry"],
