@@ -166,6 +166,52 @@ fn a_right_fit_looks_right_and_a_wrong_one_wrong() {
         blue_right > 3 * blue_wrong,
         "blue pixels: right {blue_right}, wrong {blue_wrong}"
     );
+
+    // Issue 42: a run of three views shows each view's scan, a panel each, numbered from 1.
+    let panels: Vec<ScanView> = (1..=3)
+        .map(|k| {
+            scan_view(
+                &model,
+                &q,
+                None,
+                &sim.cloud,
+                &calibration.registrations[0],
+                &format!("view {k} of 3"),
+                3,
+            )
+            .expect("scan view")
+        })
+        .collect();
+    assert!(
+        panels[0].width <= 318 && panels[0].height <= 238,
+        "a quarter of the area"
+    );
+    let png_three = render(&summary, &panels).expect("renders");
+    std::fs::write(dir.join("three.png"), &png_three).expect("write");
+    let three = decode(&png_three);
+    // Scan pixels (blue, on the model) in the three panels, none in the fourth.
+    let blue_in = |x0: u32, y0: u32| {
+        let mut n = 0;
+        for y in y0..y0 + 238 {
+            for x in x0..x0 + 318 {
+                let p = pixel(&three, x, y);
+                if p[2] > 120 && u16::from(p[2]) > u16::from(p[0]) + 60 && p[2] > p[1] {
+                    n += 1;
+                }
+            }
+        }
+        n
+    };
+    let quadrants = [
+        blue_in(16, 80),
+        blue_in(16 + 322, 80),
+        blue_in(16, 80 + 242),
+        blue_in(16 + 322, 80 + 242),
+    ];
+    assert!(
+        quadrants[..3].iter().all(|n| *n > 1000) && quadrants[3] == 0,
+        "blue pixels per panel: {quadrants:?}"
+    );
 }
 
 #[test]
