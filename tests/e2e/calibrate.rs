@@ -526,9 +526,40 @@ fn dry_run_plans_and_moves_nothing() {
     assert_eq!(out.code(), 0, "{out}\n{}", rig.log());
     let doc = out.json();
     assert_eq!(doc["outcome"], "planned", "{out}");
+    // Issue 43: a configuration that names no views plans three, each seeing the base, with
+    // short moves (the base turns less than a quarter turn over the whole run), and the dry run
+    // forecasts the σ and the time.
     let views = doc["views"].as_array().expect("views");
-    assert_eq!(views.len(), 1, "{out}");
+    assert_eq!(views.len(), 3, "{out}");
     assert!(views[0]["path"]["samples"].as_u64().expect("samples") > 1);
+    assert!(
+        views.iter().all(|v| v["distance_to_base_m"].is_number()),
+        "{out}"
+    );
+    let base = |q: &serde_json::Value| q[0].as_f64().expect("joint 1");
+    let start = doc["preflight"]["start_joints"].clone();
+    let bases: Vec<f64> = std::iter::once(base(&start))
+        .chain(views.iter().map(|v| base(&v["joints"])))
+        .collect();
+    let swing = bases.iter().copied().fold(f64::MIN, f64::max)
+        - bases.iter().copied().fold(f64::MAX, f64::min);
+    assert!(
+        swing <= std::f64::consts::FRAC_PI_2 + 1e-9,
+        "base swing {swing} rad: {out}"
+    );
+    let forecast = &doc["forecast"];
+    assert!(
+        forecast["uncertainty_translation_mm"]
+            .as_f64()
+            .is_some_and(|s| s > 0.0 && s < 1.0),
+        "{out}"
+    );
+    assert!(
+        forecast["run_s"]
+            .as_f64()
+            .is_some_and(|t| t > 3.0 && t < 20.0),
+        "{out}"
+    );
     assert!(doc["captures"].as_array().is_some_and(Vec::is_empty));
     std::thread::sleep(Duration::from_millis(200));
     assert!(
