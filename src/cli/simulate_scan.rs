@@ -192,6 +192,9 @@ pub(crate) fn ground_truth_json(
         "camera_from_base": to_row_major(&t.camera_from_model),
         "base_from_flange_reported": to_row_major(&t.model_from_flange_reported),
         "base_from_flange_nominal": to_row_major(&t.model_from_flange_nominal),
+        // Where the flange really is: the joints are read with error (the camera hangs here).
+        "base_from_flange_physical": to_row_major(&t.model_from_flange_physical),
+        "physical_joints_rad": t.physical_joints,
         // The same as `solve --flange-pose` takes it (in `base_frame`, the URDF root).
         "flange_pose": UrPose::from(&t.model_from_flange_reported).to_string(),
         "flange_from_camera": t.flange_from_camera.as_ref().map(to_row_major),

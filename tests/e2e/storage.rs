@@ -61,7 +61,7 @@ fn issue_23_calibrate_on_a_full_disk_moves_and_writes_nothing() {
     let Some(_) = shared("issue_23_calibrate_on_a_full_disk_moves_and_writes_nothing") else {
         return;
     };
-    let Some(fs) = SmallFs::mount("e2e-calibrate", 32 << 20) else {
+    let Some(fs) = SmallFs::mount("e2e-calibrate", 128 << 20) else {
         return;
     };
     let dir = TempDir::new("storage-full-cli");
@@ -114,7 +114,7 @@ fn issue_23_the_daemon_refuses_runs_while_the_disk_is_full() {
     let Some(_) = shared("issue_23_the_daemon_refuses_runs_while_the_disk_is_full") else {
         return;
     };
-    let Some(fs) = SmallFs::mount("e2e-daemon", 32 << 20) else {
+    let Some(fs) = SmallFs::mount("e2e-daemon", 128 << 20) else {
         return;
     };
     let dir = TempDir::new("storage-full-daemon");

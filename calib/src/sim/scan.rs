@@ -123,6 +123,9 @@ pub struct GroundTruth {
     pub model_from_flange_reported: Isometry3<f64>,
     /// The flange pose of the nominal model at the same joints.
     pub model_from_flange_nominal: Isometry3<f64>,
+    /// Where the physical flange is: the arm's true kinematics at its physical joints (the
+    /// joints read with error, see `physical_joints`); a wrist camera hangs off it.
+    pub model_from_flange_physical: Isometry3<f64>,
     /// True camera mount (eye-in-hand only).
     pub flange_from_camera: Option<Isometry3<f64>>,
     /// Joint angles the controller reports, radians.
@@ -261,6 +264,7 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
             camera_from_model,
             model_from_flange_reported,
             model_from_flange_nominal,
+            model_from_flange_physical: true_poses[flange_index],
             flange_from_camera,
             joints: req.joints.clone(),
             physical_joints: physical,
