@@ -231,6 +231,8 @@ impl Open {
         layout: Option<&ChunkLayout>,
     ) -> Result<(Vec<PointCloud>, GentlStats)> {
         let (n, p) = (&mut self.nodes, &mut self.port);
+        // A camera a killed capture left locked is stopped and unlocked first (issue 46).
+        n.take_over(p)?;
         // A producer may hold AcquisitionMode read-only at Continuous (viky does): only a
         // different mode is written.
         if n.has("AcquisitionMode") && n.enum_symbol(p, "AcquisitionMode")? != "Continuous" {

@@ -193,6 +193,7 @@ impl GigeCamera {
         let o = &self.options;
         let client = self.client();
         let control = client.take_control()?;
+        self.with_features(|n, p| n.take_over(p))?;
         let caps = client.read_reg(reg::GVCP_CAPABILITY)?;
         client.write_reg(reg::SCPS0, o.packet_size & 0xFFFF)?;
         let packet_size = (client.read_reg(reg::SCPS0)? & 0xFFFF) as usize;

@@ -419,6 +419,30 @@ impl NodeMap {
         }
     }
 
+    /// Takes over a camera a killed capture left streaming: its heartbeat expired and control
+    /// came back, but it still streams or keeps its transport parameters locked
+    /// (`TLParamsLocked` on, which makes `AcquisitionMode`, the image size and the pixel format
+    /// read-only). It is stopped (`AcquisitionStop`) and unlocked before anything is
+    /// configured; a camera that is not locked is left alone.
+    pub fn take_over(&mut self, dev: &mut impl cameleon_genapi::Device) -> Result<()> {
+        let locked = match self.kind("TLParamsLocked") {
+            Some(FeatureKind::Boolean) => self.boolean(dev, "TLParamsLocked")?,
+            Some(FeatureKind::Integer) => self.integer(dev, "TLParamsLocked")? != 0,
+            _ => false,
+        };
+        if locked {
+            tracing::warn!(
+                "the camera was left streaming with its transport parameters locked (a capture \
+                 that was killed?): stopping it and unlocking them before configuring"
+            );
+            if self.has("AcquisitionStop") {
+                self.execute(dev, "AcquisitionStop")?;
+            }
+            self.set_switch(dev, "TLParamsLocked", false)?;
+        }
+        Ok(())
+    }
+
     fn id(&self, name: &str) -> Result<cameleon_genapi::NodeId> {
         self.store
             .id_by_name(name)

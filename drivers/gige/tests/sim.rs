@@ -647,3 +647,51 @@ fn issue_44_trigger_mode_left_on_is_cleared_or_used() {
         .to_string();
     assert!(e.contains("camera.trigger = \"free\""), "{e}");
 }
+
+/// Issue 46: a capture killed mid-stream leaves the camera streaming with `TLParamsLocked = 1`
+/// after its heartbeat expires; the next capture takes it over (stops it, unlocks it), then
+/// configures and captures.
+#[test]
+fn issue_46_a_camera_left_streaming_and_locked_is_taken_over() {
+    use handeye_gige::gvcp::{ccp, reg};
+    let s = sim(SimOptions {
+        frame_rate: 50.0,
+        ..SimOptions::default()
+    });
+    let killed = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    // Control without a heartbeat: what a killed process leaves behind.
+    killed
+        .client()
+        .write_reg(reg::CCP, ccp::CONTROL)
+        .expect("control");
+    killed
+        .with_features(|n, p| {
+            n.set_switch(p, "TLParamsLocked", true)?;
+            n.execute(p, "AcquisitionStart")
+        })
+        .expect("streaming");
+    drop(killed);
+    // The camera lets go of the dead controller when its heartbeat expires.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let next = loop {
+        let cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+        if cam.client().take_control().is_ok() {
+            break cam;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the camera never released control"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert!(
+        next.with_features(|n, p| n.integer(p, "TLParamsLocked"))
+            .is_ok_and(|v| v == 1),
+        "still locked after the heartbeat expired"
+    );
+    let (clouds, _) = next
+        .capture_blocking(1, Duration::from_secs(2))
+        .expect("the next capture takes the camera over");
+    check_scene(&clouds, 64, 48, 1e-5);
+    assert!(!s.is_acquiring(), "acquisition stopped after capture");
+}
