@@ -312,11 +312,7 @@ impl<'a> ViewPlanner<'a> {
         to: &[f64],
         max_step_rad: f64,
     ) -> Result<Result<PathCheck, ViewRejection>, ModelError> {
-        let span = from
-            .iter()
-            .zip(to)
-            .map(|(a, b)| (b - a).abs())
-            .fold(0.0, f64::max);
+        let span = joint_span(from, to);
         let steps = ((span / max_step_rad.max(1e-3)).ceil() as usize).clamp(1, 10_000);
         for k in 0..=steps {
             let t = k as f64 / steps as f64;
@@ -636,6 +632,15 @@ pub fn random_joints(model: &RobotModel, rng: &mut impl Rng) -> Vec<f64> {
         .iter()
         .map(|l| rng.random_range(l.lower.max(-PI)..=l.upper.min(PI)))
         .collect()
+}
+
+/// The largest joint change between `a` and `b`, radians: what a `movej`'s duration and its
+/// path's sampling follow (every joint arrives together).
+pub fn joint_span(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (y - x).abs())
+        .fold(0.0, f64::max)
 }
 
 /// Whether `q` differs from each of `views` by at least `min_change_rad` in some joint.

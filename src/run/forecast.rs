@@ -11,6 +11,7 @@ use crate::calib::pipeline::{calibrate_frames, Frame, PipelineOptions};
 use crate::calib::Mount;
 use crate::geometry::SensorClass;
 use crate::model::RobotModel;
+use crate::plan::joint_span;
 use crate::record::Forecast;
 use crate::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 
@@ -24,11 +25,7 @@ const FIXED_S: f64 = 1.0;
 /// together, so the largest change decides (a trapezoid of speed, or a triangle when the
 /// change is too short to reach the cap).
 pub(super) fn move_s(a: &[f64], b: &[f64], limits: &MotionLimits) -> f64 {
-    let d = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max);
+    let d = joint_span(a, b);
     let (v, acc) = (
         limits.max_joint_speed_rad_s.max(1e-6),
         limits.max_joint_accel_rad_s2.max(1e-6),

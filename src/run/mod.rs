@@ -42,8 +42,8 @@ use crate::frames::to_row_major;
 use crate::guard::{self, PATH_STEP_RAD};
 use crate::model::RobotModel;
 use crate::plan::{
-    CancelCheck, PlanError, ViewConstraints, ViewPlanner, ViewRejection, FIRST_VIEW_SPAN_RAD,
-    NEARBY_SPAN_RAD,
+    differs_from_all, joint_span, CancelCheck, PlanError, ViewConstraints, ViewPlanner,
+    ViewRejection, FIRST_VIEW_SPAN_RAD, NEARBY_SPAN_RAD,
 };
 use crate::sim::Intrinsics;
 
@@ -875,12 +875,6 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             ),
         };
         let min_change = ViewConstraints::default().min_joint_change_rad;
-        let reach = |a: &[f64], b: &[f64]| {
-            a.iter()
-                .zip(b)
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0, f64::max)
-        };
         let mut last_refusal = None;
         // Whether the path from `from` to `to` is safe (a refusal is remembered for the error).
         let mut safe = |from: &[f64], to: &[f64]| -> Result<bool, Failure> {
@@ -908,7 +902,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 )
                 .map_err(plan_error)?;
             next_seed = next_seed.wrapping_add(1);
-            candidates.sort_by(|a, b| reach(start, a).total_cmp(&reach(start, b)));
+            candidates.sort_by(|a, b| joint_span(start, a).total_cmp(&joint_span(start, b)));
             for q in candidates {
                 if safe(start, &q)? {
                     first = Some(q);
@@ -947,9 +941,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 next_seed = next_seed.wrapping_add(1);
                 let mut scored = Vec::new();
                 for q in candidates {
-                    let distinct = views
-                        .iter()
-                        .all(|v| v.iter().zip(&q).any(|(a, b)| (a - b).abs() >= min_change));
+                    let distinct = differs_from_all(&views, &q, min_change);
                     if !distinct {
                         continue;
                     }

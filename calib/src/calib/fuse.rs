@@ -21,7 +21,7 @@ use std::collections::BTreeMap;
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion};
 
 use super::links::LinkParam;
-use super::register::covariance::position_sigma_m;
+use super::register::covariance::{position_sigma_m, rotation_sigma_deg};
 use super::{FrameInput, HandEyeSolution, Mount, Registration, Uncertainty};
 
 /// A registration's link parameters and their joint covariance with its camera pose: what
@@ -233,13 +233,7 @@ pub(crate) fn fuse_solution(
     // The camera origin in the flange frame, where the position σ is measured.
     let origin = fused.flange_from_camera.translation.vector;
     let fit_mm = position_sigma_m(&fused.covariance, &origin) * 1e3;
-    let fit_deg = fused
-        .covariance
-        .fixed_view::<3, 3>(3, 3)
-        .trace()
-        .max(0.0)
-        .sqrt()
-        .to_degrees();
+    let fit_deg = rotation_sigma_deg(&fused.covariance);
     let n = used.len() as f64;
     let floor = |sigma: f64| sigma.powi(2) / per_view.len() as f64;
     let camera = |pick: fn(&Uncertainty) -> f64| {

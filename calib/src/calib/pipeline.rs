@@ -11,7 +11,7 @@ use nalgebra::{Isometry3, Matrix6};
 
 use crate::calib::fuse::fuse_solution;
 use crate::calib::gate::frame_quality_reasons;
-use crate::calib::register::covariance::position_sigma_m;
+use crate::calib::register::covariance::{position_sigma_m, rotation_sigma_deg};
 use crate::calib::solve::solve_setting_aside;
 use crate::calib::{
     gate, posed_model, posed_model_with_controller_kinematics, register_posed, CalibError,
@@ -145,27 +145,15 @@ fn frames_to_set_aside(
         .enumerate()
         .map(|(i, r)| frame_quality_reasons(i, r, th))
         .collect();
-    let views = |keep: &dyn Fn(usize) -> bool| {
-        let mut v: Vec<usize> = (0..inputs.len())
-            .filter(|&i| keep(i))
-            .map(|i| inputs[i].view)
-            .collect();
-        v.sort_unstable();
-        v.dedup();
-        v.len()
-    };
-    let faulty = faults.iter().filter(|f| !f.is_empty()).count();
-    if faulty == 0
-        || views(&|_| true) < 3
-        || views(&|i| faults[i].is_empty()) < 2
-        || faulty as f64 > th.max_dropped_fraction * inputs.len() as f64
-    {
+    let aside: Vec<bool> = faults.iter().map(|f| !f.is_empty()).collect();
+    let views: Vec<usize> = inputs.iter().map(|f| f.view).collect();
+    if !aside.contains(&true) || !may_set_aside(mount, &views, &aside, th) {
         return none;
     }
     for reason in faults.iter().flatten() {
         tracing::info!("set aside from the views fitted together: {reason}");
     }
-    faults.iter().map(|f| !f.is_empty()).collect()
+    aside
 }
 
 /// Registers every frame, solves, fuses and gates. Errors only when nothing can be computed
@@ -241,24 +229,30 @@ pub fn calibrate_frames(
     }
     // A run of views set aside a frame in which the robot is not found, as a poor one; a single
     // view (or too many lost) ends with the error.
-    let lost_frames: Vec<usize> = lost.iter().map(|(i, _)| *i).collect();
+    let aside: Vec<bool> = (0..frames.len())
+        .map(|i| lost.iter().any(|(j, _)| *j == i))
+        .collect();
     if let Some((_, e)) = lost.into_iter().next() {
-        if !may_set_aside_lost(frames, &lost_frames, opts) {
+        let views: Vec<usize> = frames.iter().map(|f| f.view).collect();
+        if !may_set_aside(opts.mount, &views, &aside, &opts.gate) {
             return Err(e);
         }
-        for &i in &lost_frames {
+        for f in frames
+            .iter()
+            .zip(&aside)
+            .filter(|(_, a)| **a)
+            .map(|(f, _)| f)
+        {
             tracing::warn!(
                 "set aside from the views fitted together: {} (view {}) does not show the robot",
-                frames[i].source,
-                frames[i].view + 1
+                f.source,
+                f.view + 1
             );
         }
     }
-    let frames_given = frames.len();
-    let frames: Vec<&Frame> = (0..frames.len())
-        .filter(|i| !lost_frames.contains(i))
-        .map(|i| &frames[i])
-        .collect();
+    // The frames registered: the input index of each, and the frame.
+    let kept: Vec<usize> = (0..frames.len()).filter(|&i| !aside[i]).collect();
+    let frames: Vec<&Frame> = kept.iter().map(|&i| &frames[i]).collect();
     let t_solve = Instant::now();
     let set_aside = frames_to_set_aside(opts.mount, &inputs, &registrations, &opts.gate);
     let mut solution = solve_setting_aside(opts.mount, &inputs, &opts.solve, &set_aside)?;
@@ -297,9 +291,7 @@ pub fn calibrate_frames(
     );
     Ok(Calibration {
         registrations,
-        frames: (0..frames_given)
-            .filter(|i| !lost_frames.contains(i))
-            .collect(),
+        frames: kept,
         solution,
         verdict,
         base_from_model,
@@ -308,24 +300,26 @@ pub fn calibrate_frames(
     })
 }
 
-/// Whether the frames whose scans do not show the robot (`lost`, of `frames`) may be set aside:
-/// a wrist camera's run of three views or more where at least two views keep a frame in which
-/// the robot is found and no more than the gate's share of frames goes
-/// ([`GateThresholds::max_dropped_fraction`]), as a poor frame is (`frames_to_set_aside`).
-fn may_set_aside_lost(frames: &[Frame], lost: &[usize], opts: &PipelineOptions) -> bool {
-    let views = |keep: &dyn Fn(usize) -> bool| {
-        let mut v: Vec<usize> = (0..frames.len())
+/// Whether a run may set aside the frames marked in `aside` (frame `i` captured at view
+/// `views[i]`) and fit the rest together: a wrist camera's run of three views or more where at
+/// least two views keep a frame and no more than the gate's share of frames
+/// ([`GateThresholds::max_dropped_fraction`]) goes. Poor frames (`frames_to_set_aside`) and
+/// frames in which the robot is not found follow this one rule.
+fn may_set_aside(mount: Mount, views: &[usize], aside: &[bool], th: &GateThresholds) -> bool {
+    let count = |keep: &dyn Fn(usize) -> bool| {
+        let mut v: Vec<usize> = (0..views.len())
             .filter(|&i| keep(i))
-            .map(|i| frames[i].view)
+            .map(|i| views[i])
             .collect();
         v.sort_unstable();
         v.dedup();
         v.len()
     };
-    opts.mount == Mount::EyeInHand
-        && views(&|_| true) >= 3
-        && views(&|i| !lost.contains(&i)) >= 2
-        && lost.len() as f64 <= opts.gate.max_dropped_fraction * frames.len() as f64
+    let gone = aside.iter().filter(|a| **a).count();
+    mount == Mount::EyeInHand
+        && count(&|_| true) >= 3
+        && count(&|i| !aside[i]) >= 2
+        && gone as f64 <= th.max_dropped_fraction * views.len() as f64
 }
 
 /// A wrist camera's registration with the error of the flange pose it was captured at: the
@@ -352,12 +346,7 @@ fn carry_flange_error(
     // Where the mount's σ is measured: the camera origin, in the model frame.
     let origin = reg.camera_from_model.inverse().translation.vector;
     let position_mm = position_sigma_m(&cov, &origin) * 1e3;
-    let rotation_deg = cov
-        .fixed_view::<3, 3>(3, 3)
-        .trace()
-        .max(0.0)
-        .sqrt()
-        .to_degrees();
+    let rotation_deg = rotation_sigma_deg(&cov);
     let u = &mut reg.uncertainty;
     u.translation_mm = u.translation_mm.hypot(position_mm);
     u.rotation_deg = u.rotation_deg.hypot(rotation_deg);

@@ -279,19 +279,24 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
 /// A stable seed for a physical arm's own random draws (its encoders): from its joint errors,
 /// so that every simulator that builds the same arm draws the same encoders.
 fn arm_seed(arm: &PhysicalArm) -> u64 {
-    arm.joint_errors
-        .iter()
-        .flat_map(|e| e.translation.vector.iter().chain(e.rotation.coords.iter()))
-        .fold(0xcbf2_9ce4_8422_2325_u64, |h, v| {
-            (h ^ v.to_bits()).wrapping_mul(0x0100_0000_01b3)
-        })
+    fnv1a(
+        arm.joint_errors
+            .iter()
+            .flat_map(|e| e.translation.vector.iter().chain(e.rotation.coords.iter()))
+            .map(|v| v.to_bits()),
+    )
 }
 
 /// A stable seed from a model's name: the encoders of an arm simulated without a physical
 /// arm's draw are the same in every scan of that model.
 fn name_seed(name: &str) -> u64 {
-    name.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    fnv1a(name.bytes().map(u64::from))
+}
+
+/// FNV-1a over `words`.
+fn fnv1a(words: impl IntoIterator<Item = u64>) -> u64 {
+    words.into_iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, w| {
+        (h ^ w).wrapping_mul(0x0100_0000_01b3)
     })
 }
 

@@ -82,6 +82,14 @@ pub(crate) fn position_sigma_m(cov: &Matrix6<f64>, p: &Vector3<f64>) -> f64 {
     rss(&(j * cov * j.transpose())).sqrt()
 }
 
+/// The 1σ of a pose covariance's rotation (a left perturbation `(ρ, φ)`, rad²): the
+/// root-sum-square of its rotation block, degrees.
+pub(crate) fn rotation_sigma_deg(cov: &Matrix6<f64>) -> f64 {
+    rss(&cov.fixed_view::<3, 3>(3, 3).into_owned())
+        .sqrt()
+        .to_degrees()
+}
+
 /// Trace of a 3×3 covariance (the root-sum-square variance), clamped at 0.
 fn rss(cov: &Matrix3<f64>) -> f64 {
     cov.trace().max(0.0)
@@ -92,9 +100,7 @@ fn rss(cov: &Matrix3<f64>) -> f64 {
 fn summary(cov: &Matrix6<f64>, base: &Vector3<f64>) -> Uncertainty {
     Uncertainty {
         translation_mm: position_sigma_m(cov, &Vector3::zeros()) * 1000.0,
-        rotation_deg: rss(&cov.fixed_view::<3, 3>(3, 3).into_owned())
-            .sqrt()
-            .to_degrees(),
+        rotation_deg: rotation_sigma_deg(cov),
         workspace: Some(WorkspaceSigma {
             translation_mm: position_sigma_m(cov, base) * 1000.0,
             distance_m: base.norm(),
