@@ -18,6 +18,7 @@ pub mod fuzz;
 pub mod limits;
 mod pose;
 mod robot;
+pub mod skips;
 pub mod ur_dh;
 pub mod ur_limits;
 

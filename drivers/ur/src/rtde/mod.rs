@@ -945,22 +945,11 @@ pub(crate) mod tests {
                 "{} missing in CI",
                 path.display()
             );
-            // Counted by .ci/run's skip summary (handeye::skips), shown past the capture.
-            let line = format!(
-                "SKIP rtde::tests::table_matches_the_shared_reference_when_present: {} not found\n",
-                path.display()
+            // Counted by .ci/run's skip summary, shown past the capture.
+            handeye_hal::skips::record(
+                "rtde::tests::table_matches_the_shared_reference_when_present",
+                &format!("{} not found", path.display()),
             );
-            use std::io::Write as _;
-            let _ = std::io::stderr().write_all(line.as_bytes());
-            let registry = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../../target/test-skips.txt");
-            if let Ok(mut f) = std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(registry)
-            {
-                let _ = f.write_all(line.as_bytes());
-            }
             return;
         };
         let map: std::collections::BTreeMap<String, String> =

@@ -23,28 +23,14 @@ pub fn python() -> Option<PathBuf> {
     None
 }
 
-/// Records a skipped peer test where `.ci/run` counts skips (`handeye::skips`: one line in
-/// `<workspace>/target/test-skips.txt`) and shows it past the harness's capture. A copy: the
-/// drivers do not depend on the core.
+/// Records a skipped peer test where `.ci/run` counts skips ([`handeye_hal::skips`]), named
+/// by its thread (the test's name).
 pub fn record_skip(reason: &str) {
-    use std::io::Write as _;
     let test = std::thread::current()
         .name()
         .unwrap_or("handeye-ur peer test")
         .to_string();
-    let line = format!("SKIP {test}: {reason}\n");
-    let _ = std::io::stderr().write_all(line.as_bytes());
-    let path = std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../target"))
-        .join("test-skips.txt");
-    if let Ok(mut f) = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(path)
-    {
-        let _ = f.write_all(line.as_bytes());
-    }
+    handeye_hal::skips::record(&test, reason);
 }
 
 /// Run `tests/python/<script> <host>` (20 s limit) and parse its last stdout line as JSON.
