@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 
+use handeye::bench::drift::{self, CheckLimits};
 use handeye::bench::{run_robot, BenchConfig, BenchKinematics, RobotSummary, Stats, Trial};
 use handeye::calib::{Mount, Outcome};
 use handeye::model::RobotModel;
@@ -58,7 +59,7 @@ pub(crate) struct Args {
     /// the base's off joint 1's axis included: the arms are built so, and the solver is told
     /// (its prior). Default: the settings' `[kinematic_error]` (a manufactured arm's 0.3,0.3);
     /// `0,0` puts every housing exactly on its frame.
-    #[arg(long, value_name = "MM,MRAD", value_parser = housings_arg)]
+    #[arg(long, value_name = "MM,MRAD", value_parser = shift_turn_arg)]
     housings: Option<(f64, f64)>,
     /// 1σ of each joint reading's encoder error (mrad) and the unmodelled sag of the arm
     /// stretched horizontally (mrad): the arms report their joints so, and the solver is told.
@@ -66,6 +67,11 @@ pub(crate) struct Args {
     /// `0,0` hands the solver exact joints.
     #[arg(long, value_name = "MRAD,MRAD", value_parser = joint_reading_arg)]
     joint_reading: Option<(f64, f64)>,
+    /// 1σ per axis of the shift (mm) and turn (mrad) of the frame the flange poses are handed
+    /// in off the controller's `base` (a ROS `world`, a URDF root whose z is not joint 1's
+    /// axis), drawn once per calibration run. Default `0,0`: the poses are in `base`.
+    #[arg(long, value_name = "MM,MRAD", value_parser = shift_turn_arg, default_value = "0,0")]
+    pose_frame: (f64, f64),
     /// Write every trial and the summaries as JSON here.
     #[arg(long)]
     out: Option<PathBuf>,
@@ -82,13 +88,13 @@ fn mount_arg(s: &str) -> Result<Mount, String> {
     }
 }
 
-/// `--housings`: two non-negative numbers, millimetres and milliradians.
-fn housings_arg(s: &str) -> Result<(f64, f64), String> {
+/// `--housings`, `--pose-frame`: two non-negative numbers, millimetres and milliradians.
+fn shift_turn_arg(s: &str) -> Result<(f64, f64), String> {
     let max = handeye::model::MAX_KINEMATIC_SIGMA * 1e3;
     match super::args::parse_numbers(s)?[..] {
         [mm, mrad] if [mm, mrad].iter().all(|v| (0.0..=max).contains(v)) => Ok((mm, mrad)),
         _ => Err(format!(
-            "expected SHIFT_MM,TURN_MRAD, each from 0 to {max} (e.g. 0.3,0.3; 0,0 for housings on their frames), got `{}`",
+            "expected SHIFT_MM,TURN_MRAD, each from 0 to {max} (e.g. 0.3,0.3; 0,0 for none), got `{}`",
             handeye_hal::limits::Quoted(s)
         )),
     }
@@ -154,16 +160,13 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             .map(|r| resolve_robot(r.trim()).map_err(anyhow::Error::msg))
             .collect::<Result<_, _>>()?
     };
-    let mut register = BenchConfig::new(args.mount)
-        .tuned_for_camera(&args.camera)
-        .register;
-    // The housings' tolerance is the arm's, as a cell's configuration would say it.
-    let built = settings.kinematic_error;
-    register.kinematic_error.housing_translation_sigma_m = built.housing_translation_sigma_m;
-    register.kinematic_error.housing_rotation_sigma_rad = built.housing_rotation_sigma_rad;
-    // So are its joint readings' errors (a cell's configuration says its arm's class).
-    register.kinematic_error.joint_reading_sigma_rad = built.joint_reading_sigma_rad;
-    register.kinematic_error.deflection_rad = built.deflection_rad;
+    let register = BenchConfig {
+        settings,
+        ..BenchConfig::new(args.mount)
+    }
+    .tuned_for_camera(&args.camera)
+    .solver_told_the_arm()
+    .register;
     let mut summaries = Vec::new();
     for (i, path) in robots.iter().enumerate() {
         let model = RobotModel::load(path)?;
@@ -175,6 +178,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             settings,
             seed: args.seed.wrapping_add(i as u64 * 7919),
             kinematics: args.kinematics,
+            pose_frame: (args.pose_frame.0 * 1e-3, args.pose_frame.1 * 1e-3),
             register: register.clone(),
             ..BenchConfig::new(args.mount)
         };
@@ -190,6 +194,22 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         summaries.push(summary);
     }
     print_table(&summaries, &args, &settings.kinematic_error);
+    // The trials of one run are a calibration and checks of an unmoved camera at the same
+    // views: what a drift check at the `[check]` defaults can tell.
+    let checks = (args.views_per_run > 1 && args.scans_per_view > 1)
+        .then(|| {
+            drift::study(
+                &summaries,
+                CheckLimits {
+                    translation_mm: handeye::config::defaults::MAX_DRIFT_TRANSLATION_MM,
+                    rotation_deg: handeye::config::defaults::MAX_DRIFT_ROTATION_DEG,
+                },
+            )
+        })
+        .flatten();
+    if let Some(d) = &checks {
+        print_drift(d);
+    }
     if let Some(out) = &args.out {
         let doc = serde_json::json!({
             "camera": args.camera,
@@ -200,6 +220,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             "kinematics": args.kinematics,
             "mount": args.mount,
             "settings": settings,
+            "drift_checks": checks,
             "robots": summaries,
         });
         std::fs::write(out, serde_json::to_string_pretty(&doc)?)
@@ -207,6 +228,27 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
         println!("wrote {}", out.display());
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The drift checks' table ([`drift::study`]).
+fn print_drift(d: &drift::DriftStudy) {
+    println!(
+        "\ndrift checks at the [check] defaults ({} mm / {}°): {} checks of an unmoved camera ({} runs' trials paired; {} trials not accepted)",
+        d.limits.translation_mm, d.limits.rotation_deg, d.checks, d.runs, d.not_accepted
+    );
+    let (t, r) = (&d.unmoved_translation_mm, &d.unmoved_rotation_deg);
+    println!(
+        "  unmoved camera, check − calibration: median {:.3} mm / {:.4}°, p95 {:.3} mm / {:.4}°, p99.9 {:.3} mm / {:.4}°, largest {:.3} mm / {:.4}°",
+        t.median, r.median, t.p95, r.p95, d.unmoved_p999.0, d.unmoved_p999.1, t.max, r.max
+    );
+    println!(
+        "  false alarms: {} of {}; smallest bump detected in ≥ {:.0} % of checks: shift {:.2} mm, turn {:.3}°",
+        d.false_alarms,
+        d.checks,
+        100.0 * drift::DETECTED_SHARE,
+        d.detected_shift_mm,
+        d.detected_turn_deg
+    );
 }
 
 fn progress_mark(t: &Trial) -> char {

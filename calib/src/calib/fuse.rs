@@ -70,8 +70,14 @@ pub(crate) struct View<'a> {
 const ROUNDS: usize = 3;
 
 /// The mount and link parameters that best explain every view (see the module docs), started
-/// at `start`; `None` when a view's covariance cannot be inverted.
-pub(crate) fn fuse_views(views: &[View<'_>], start: &Isometry3<f64>) -> Option<Fused> {
+/// at `start`; `None` when a view's covariance cannot be inverted. `pose_frame`: the flange
+/// poses are in a frame known only to within this 1σ per axis (shift m, turn rad) of the
+/// model's own, which the views estimate together with the mount (see [`fuse_solution`]).
+pub(crate) fn fuse_views(
+    views: &[View<'_>],
+    start: &Isometry3<f64>,
+    pose_frame: Option<(f64, f64)>,
+) -> Option<Fused> {
     let mut index: BTreeMap<LinkParam, usize> = BTreeMap::new();
     for v in views {
         for p in &v.fit.params {
@@ -80,7 +86,10 @@ pub(crate) fn fuse_views(views: &[View<'_>], start: &Isometry3<f64>) -> Option<F
         }
     }
     let q = index.len();
-    let n = 6 + q;
+    // The poses' frame off the model's: a left perturbation in the model frame shared by every
+    // view, its prior 1σ per axis.
+    let frame_columns = if pose_frame.is_some() { 6 } else { 0 };
+    let n = 6 + q + frame_columns;
     // Each view's data information and information vector, in its own parameters.
     let data: Vec<(DMatrix<f64>, DVector<f64>)> = views
         .iter()
@@ -106,6 +115,12 @@ pub(crate) fn fuse_views(views: &[View<'_>], start: &Isometry3<f64>) -> Option<F
                 .copy_from(&adjoint(&v.model_from_flange));
             for (k, param) in v.fit.params.iter().enumerate() {
                 j[(6 + k, 6 + index[param])] = 1.0;
+            }
+            if let Some((shift_m, turn_rad)) = pose_frame {
+                for a in 0..3 {
+                    j[(a, 6 + q + a)] = shift_m;
+                    j[(3 + a, 6 + q + 3 + a)] = turn_rad;
+                }
             }
             let predicted = v.model_from_flange * mount;
             let step = predicted * v.fit.model_from_camera.inverse();
@@ -199,11 +214,19 @@ pub(crate) fn adjoint(model_from_frame: &Isometry3<f64>) -> Matrix6<f64> {
 /// offset of that link's housing, which the views fitted together separate from the mount;
 /// what is left moves each view's pose its own way. `None` unless two views or more were
 /// used and every used frame's links were fitted.
+///
+/// `pose_frame` (1σ per axis, m and rad): how well the frame the flange poses are in is known
+/// to be the model's. With the controller's DH the poses are checked against the joints to a
+/// micrometre ([`crate::model::reported`]), so `None`; with the nominal URDF nothing ties the
+/// two closer than the arm's build (its housings' tolerance), and poses in a frame that far
+/// off (a ROS `world`, a URDF root whose z is not joint 1's axis) would otherwise move the
+/// mount by as much while its σ could not say so: the views estimate that frame with the mount.
 pub(crate) fn fuse_solution(
     solution: &HandEyeSolution,
     inputs: &[FrameInput],
     registrations: &[Registration],
     model_accuracy: (f64, f64),
+    pose_frame: Option<(f64, f64)>,
 ) -> Option<(Isometry3<f64>, Uncertainty)> {
     if solution.mount != Mount::EyeInHand {
         return None;
@@ -229,7 +252,7 @@ pub(crate) fn fuse_solution(
             })
         })
         .collect::<Option<Vec<_>>>()?;
-    let fused = fuse_views(&views, &solution.estimate)?;
+    let fused = fuse_views(&views, &solution.estimate, pose_frame)?;
     // The camera origin in the flange frame, where the position σ is measured.
     let origin = fused.flange_from_camera.translation.vector;
     let fit_mm = position_sigma_m(&fused.covariance, &origin) * 1e3;
@@ -311,6 +334,7 @@ mod tests {
                 flange_covariance: None,
             }],
             &(off * mount),
+            None,
         )
         .expect("fused");
         let d = fused.flange_from_camera.inverse() * mount;
@@ -349,7 +373,7 @@ mod tests {
             frames: 1,
             flange_covariance: Some(flange),
         };
-        let fused = fuse_views(&[view], &mount).expect("fused");
+        let fused = fuse_views(&[view], &mount, None).expect("fused");
         let inv = adjoint(&model_from_flange)
             .try_inverse()
             .expect("invertible");
@@ -371,7 +395,7 @@ mod tests {
             flange_covariance: Some(flange),
             ..view
         };
-        let honest = fuse_views(&[view, second], &mount).expect("fused");
+        let honest = fuse_views(&[view, second], &mount, None).expect("fused");
         let trusting = fuse_views(
             &[
                 View {
@@ -384,6 +408,7 @@ mod tests {
                 },
             ],
             &mount,
+            None,
         )
         .expect("fused");
         let position = |c: &Matrix6<f64>| c.fixed_view::<3, 3>(0, 0).trace();
@@ -403,8 +428,8 @@ mod tests {
             frames: 2,
             flange_covariance: None,
         };
-        let two = fuse_views(&[view, view], &mount).expect("fused");
-        let one = fuse_views(&[View { frames: 1, ..view }], &mount).expect("fused");
+        let two = fuse_views(&[view, view], &mount, None).expect("fused");
+        let one = fuse_views(&[View { frames: 1, ..view }], &mount, None).expect("fused");
         assert!((two.covariance - one.covariance).norm() < 1e-9 * one.covariance.norm());
     }
 }

@@ -258,11 +258,17 @@ pub fn calibrate_frames(
     let mut solution = solve_setting_aside(opts.mount, &inputs, &opts.solve, &set_aside)?;
     // The views of one arm fitted together: what one view cannot tell apart from the mount
     // (its links' housings), several views can.
+    let arm = &opts.register.kinematic_error;
+    let pose_frame = opts.controller_dh.is_none().then_some((
+        arm.housing_translation_sigma_m,
+        arm.housing_rotation_sigma_rad,
+    ));
     if let Some((estimate, uncertainty)) = fuse_solution(
         &solution,
         &inputs,
         &registrations,
         opts.register.model_accuracy,
+        pose_frame,
     ) {
         solution.re_estimate(estimate, &inputs)?;
         solution.uncertainty = Some(uncertainty);
