@@ -42,8 +42,11 @@ impl Backoff {
 
 /// A camera connected anew after it failed: a failed request drops the connection and the
 /// next request connects again with `connect` (at most once per [`Backoff`] pause), so a
-/// camera that was restarted or re-cabled comes back without restarting the daemon. Each new
-/// connection raises the link generation, which makes a run in progress abort.
+/// camera that was restarted or re-cabled comes back without restarting the daemon. Each lost
+/// connection raises the link generation when it is lost (a run in progress then aborts; the
+/// next run, which connects again in its preflight, starts with the raised generation), and
+/// so does each loss the camera reports itself (its own link generation: the GenTL camera's
+/// replaced host process).
 pub struct ReconnectingCamera<C, F> {
     connect: F,
     link: tokio::sync::Mutex<Link<C>>,
@@ -61,6 +64,8 @@ impl<C, F> std::fmt::Debug for ReconnectingCamera<C, F> {
 #[derive(Debug)]
 struct Link<C> {
     camera: Option<Arc<C>>,
+    /// The connected camera's own link generation when it was connected or last seen.
+    seen: u64,
     next_attempt: Instant,
     backoff: Backoff,
 }
@@ -76,6 +81,7 @@ where
         Self {
             connect,
             link: tokio::sync::Mutex::new(Link {
+                seen: camera.link_generation(),
                 camera: Some(Arc::new(camera)),
                 next_attempt: Instant::now(),
                 backoff: Backoff::new(),
@@ -100,9 +106,9 @@ where
         match (self.connect)().await {
             Ok(c) => {
                 let c = Arc::new(c);
+                link.seen = c.link_generation();
                 link.camera = Some(c.clone());
                 link.backoff.connected();
-                self.generation.fetch_add(1, Ordering::Relaxed);
                 tracing::info!("camera connected again");
                 Ok(c)
             }
@@ -115,12 +121,23 @@ where
         }
     }
 
-    /// Forgets `failed` (unless it was replaced already): the next request connects again.
-    async fn drop_link(&self, failed: &Arc<C>, e: &HalError) {
+    /// After a request of `camera`: a failure forgets it (unless it was replaced already; the
+    /// next request connects again), and the losses it reports itself raise the generation.
+    async fn after_request(&self, camera: &Arc<C>, result: Result<(), &HalError>) {
         let mut link = self.link.lock().await;
-        if link.camera.as_ref().is_some_and(|c| Arc::ptr_eq(c, failed)) {
+        if !link.camera.as_ref().is_some_and(|c| Arc::ptr_eq(c, camera)) {
+            return;
+        }
+        let own = camera.link_generation();
+        if own > link.seen {
+            self.generation
+                .fetch_add(own - link.seen, Ordering::Relaxed);
+            link.seen = own;
+        }
+        if let Err(e) = result {
             tracing::warn!("camera request failed ({e}); reconnecting at the next request");
             link.camera = None;
+            self.generation.fetch_add(1, Ordering::Relaxed);
         }
     }
 }
@@ -141,18 +158,14 @@ where
     async fn info(&self) -> Result<CameraInfo, HalError> {
         let camera = self.connected().await?;
         let r = camera.info().await;
-        if let Err(e) = &r {
-            self.drop_link(&camera, e).await;
-        }
+        self.after_request(&camera, r.as_ref().map(drop)).await;
         r
     }
 
     async fn capture(&self, settings: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
         let camera = self.connected().await?;
         let r = camera.capture(settings).await;
-        if let Err(e) = &r {
-            self.drop_link(&camera, e).await;
-        }
+        self.after_request(&camera, r.as_ref().map(drop)).await;
         r
     }
 
@@ -189,8 +202,11 @@ mod tests {
         });
         let settings = CaptureSettings::default();
         assert!(camera.capture(&settings).await.is_ok());
-        assert!(camera.capture(&settings).await.is_err(), "stops answering");
         assert_eq!(camera.link_generation(), 0);
+        assert!(camera.capture(&settings).await.is_err(), "stops answering");
+        // Raised when the link is lost, not when the next run connects again in its
+        // preflight (which then aborted that run as "re-established during the run").
+        assert_eq!(camera.link_generation(), 1);
         // The first attempt fails; the next waits out its pause.
         let e = camera.info().await.expect_err("cannot connect");
         assert!(matches!(e, HalError::Connection { .. }), "{e}");
@@ -203,7 +219,7 @@ mod tests {
         assert_eq!(attempts.load(Ordering::Relaxed), 1);
         camera.link.lock().await.next_attempt = Instant::now();
         assert!(camera.capture(&settings).await.is_ok(), "connected anew");
-        assert_eq!(camera.link_generation(), 1);
+        assert_eq!(camera.link_generation(), 1, "unchanged by the reconnection");
         assert_eq!(attempts.load(Ordering::Relaxed), 2);
     }
 

@@ -18,9 +18,10 @@ use handeye_gige::genicam::{load_xml, RegisterPort, XmlUrl};
 
 use crate::error::{GentlError, Result};
 use crate::ffi::{self, err, info_type, Api, GcError, Handle};
+use crate::host::watched;
 
-/// Longest string accepted from a producer (ids, names, URLs), bytes.
-const MAX_STRING: usize = 64 << 10;
+/// Longest string accepted from a producer (ids, names, URLs), bytes: a path's length limit.
+const MAX_STRING: usize = 4096;
 /// How long the producer may take to update its interface and device lists.
 const LIST_TIMEOUT: Duration = Duration::from_secs(2);
 
@@ -58,10 +59,12 @@ impl Lib {
         {
             return Ok(lib);
         }
-        let api = Api::load(&path)?;
+        let api = watched("dlopen (the producer's initialisers)", None, || {
+            Api::load(&path)
+        })?;
         // SAFETY: GCInitLib takes no arguments; the function pointer comes from the loaded
         // library, which `api` keeps loaded.
-        let code = unsafe { (api.gc_init_lib)() };
+        let code = watched("GCInitLib", None, || unsafe { (api.gc_init_lib)() });
         if code != err::SUCCESS {
             // Not initialised: no Lib (whose drop runs GCCloseLib) is made.
             return Err(api_error(&api, "GCInitLib", code));
@@ -96,7 +99,9 @@ impl Lib {
         }
         let mut handle: Handle = std::ptr::null_mut();
         // SAFETY: `handle` is a valid out-pointer for one handle.
-        let code = unsafe { (self.api.tl_open)(&mut handle) };
+        let code = watched("TLOpen", None, || unsafe {
+            (self.api.tl_open)(&mut handle)
+        });
         self.check("TLOpen", code)?;
         non_null("TLOpen", handle)?;
         let s = Arc::new(System {
@@ -306,7 +311,7 @@ impl Drop for System {
 }
 
 /// What an interface tells about one of its devices.
-#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct DeviceInfo {
     /// The producer's device id (unique within the interface).
     pub id: String,
@@ -333,13 +338,13 @@ impl System {
         let api = &self.lib.api;
         let mut changed = 0u8;
         // SAFETY: a valid system handle and an out-pointer for one bool8.
-        let code = unsafe {
+        let code = watched("TLUpdateInterfaceList", None, || unsafe {
             (api.tl_update_interface_list)(
                 self.handle,
                 &mut changed,
                 LIST_TIMEOUT.as_millis() as u64,
             )
-        };
+        });
         self.lib.check("TLUpdateInterfaceList", code)?;
         // SAFETY: a valid system handle and an out-pointer for one u32.
         let n = query_count(&self.lib, "TLGetNumInterfaces", MAX_ITEMS, |n| unsafe {
@@ -360,8 +365,9 @@ impl System {
         let cid = c_id("TLOpenInterface", id)?;
         let mut handle: Handle = std::ptr::null_mut();
         // SAFETY: a valid system handle, a NUL-terminated id and an out-pointer for a handle.
-        let code =
-            unsafe { (self.lib.api.tl_open_interface)(self.handle, cid.as_ptr(), &mut handle) };
+        let code = watched("TLOpenInterface", None, || unsafe {
+            (self.lib.api.tl_open_interface)(self.handle, cid.as_ptr(), &mut handle)
+        });
         self.lib.check("TLOpenInterface", code)?;
         Ok(Interface {
             system: Arc::clone(self),
@@ -392,20 +398,31 @@ impl Interface {
         &self.system.lib
     }
 
-    /// The interface's devices (after `IFUpdateDeviceList`), with what it tells about them.
-    pub(crate) fn devices(&self) -> Result<Vec<DeviceInfo>> {
+    /// The interface's devices (after `IFUpdateDeviceList`), with what it tells about them; at
+    /// most `limit` (what is left of the bound on all interfaces' devices together).
+    pub(crate) fn devices(&self, limit: usize) -> Result<Vec<DeviceInfo>> {
         let lib = self.lib();
         let api = &lib.api;
         let mut changed = 0u8;
         // SAFETY: a valid interface handle and an out-pointer for one bool8.
-        let code = unsafe {
+        let code = watched("IFUpdateDeviceList", None, || unsafe {
             (api.if_update_device_list)(self.handle, &mut changed, LIST_TIMEOUT.as_millis() as u64)
-        };
+        });
         lib.check("IFUpdateDeviceList", code)?;
         // SAFETY: a valid interface handle and an out-pointer for one u32.
         let n = query_count(lib, "IFGetNumDevices", MAX_ITEMS, |n| unsafe {
             (api.if_get_num_devices)(self.handle, n)
         })?;
+        if n as usize > limit {
+            return Err(GentlError::garbage(
+                "IFGetNumDevices",
+                format!(
+                    "{n} more devices, over the {} accepted from one producer in all \
+                     interfaces together",
+                    crate::device::MAX_DEVICES
+                ),
+            ));
+        }
         let mut out = Vec::new();
         for i in 0..n {
             let id = query_id(lib, "IFGetDeviceID", |buf, size| {
@@ -443,14 +460,14 @@ impl Interface {
         let api = &self.lib().api;
         let mut handle: Handle = std::ptr::null_mut();
         // SAFETY: a valid interface handle, a NUL-terminated id and an out-pointer.
-        let code = unsafe {
+        let code = watched("IFOpenDevice", None, || unsafe {
             (api.if_open_device)(
                 self.handle,
                 cid.as_ptr(),
                 ffi::DEVICE_ACCESS_CONTROL,
                 &mut handle,
             )
-        };
+        });
         self.lib().check("IFOpenDevice", code)?;
         let handle = non_null("IFOpenDevice", handle)?;
         let mut dev = Device {
@@ -498,8 +515,9 @@ impl Device {
         }
     }
 
-    /// The remote device's GenICam XML, from the first of its port's URLs that loads.
-    pub(crate) fn remote_xml(self: &Rc<Self>) -> Result<String> {
+    /// The remote device's GenICam XML, from the first of its port's URLs that loads (a
+    /// relative `File:` path is relative to `base`, the producer's directory).
+    pub(crate) fn remote_xml(self: &Rc<Self>, base: Option<&Path>) -> Result<String> {
         let lib = self.lib();
         let api = &lib.api;
         // SAFETY: a valid port handle and an out-pointer for one u32.
@@ -515,15 +533,17 @@ impl Device {
                     (api.gc_get_port_url_info)(self.port, i, ffi::URL_INFO_URL, ty, buf, size)
                 }
             })?;
-            let loaded = XmlUrl::parse(&url).and_then(|u| {
-                load_xml(u, |address, length| {
-                    let mut buf = vec![0u8; length];
-                    port.read_mem(i64::from(address), &mut buf).map_err(|e| {
-                        handeye_gige::GigeError::InvalidArgument(format!(
-                            "reading the XML at 0x{address:x}: {e}"
-                        ))
-                    })?;
-                    Ok(buf)
+            let loaded = watched("reading the remote device's XML (GCReadPort)", None, || {
+                XmlUrl::parse(&url).and_then(|u| {
+                    load_xml(u, base, |address, length| {
+                        let mut buf = vec![0u8; length];
+                        port.read_mem(i64::from(address), &mut buf).map_err(|e| {
+                            handeye_gige::GigeError::InvalidArgument(format!(
+                                "reading the XML at 0x{address:x}: {e}"
+                            ))
+                        })?;
+                        Ok(buf)
+                    })
                 })
             });
             match loaded {
@@ -755,13 +775,13 @@ impl Stream {
             self.lib().check("DSQueueBuffer", code)?;
         }
         // SAFETY: a valid stream handle with queued buffers.
-        let code = unsafe {
+        let code = watched("DSStartAcquisition", None, || unsafe {
             (api.ds_start_acquisition)(
                 self.handle,
                 ffi::ACQ_START_FLAGS_DEFAULT,
                 ffi::GENTL_INFINITE,
             )
-        };
+        });
         self.lib().check("DSStartAcquisition", code)
     }
 
@@ -775,14 +795,15 @@ impl Stream {
         };
         let mut size = std::mem::size_of::<ffi::EventNewBufferData>();
         // SAFETY: a valid event handle; `data` is writable for `size` bytes.
-        let code = unsafe {
+        let budget = timeout + crate::camera::FRAME_GRACE;
+        let code = watched("EventGetData", Some(budget), || unsafe {
             (api.event_get_data)(
                 self.event,
                 (&raw mut data).cast(),
                 &mut size,
                 timeout.as_millis().min(u128::from(u64::MAX - 1)) as u64,
             )
-        };
+        });
         if code == err::TIMEOUT {
             return Ok(None);
         }
@@ -833,6 +854,19 @@ impl Stream {
         ptr: u64,
         len: u64,
     ) -> Result<Vec<u8>> {
+        let (o, len) = self.range_in(index, function, ptr, len)?;
+        Ok(self.buffers[index].memory[o..o + len].to_vec())
+    }
+
+    /// The offset and length in buffer `index` of `len` bytes at the producer's pointer
+    /// `ptr`, refusing a range outside the memory we announced.
+    fn range_in(
+        &self,
+        index: usize,
+        function: &'static str,
+        ptr: u64,
+        len: u64,
+    ) -> Result<(usize, usize)> {
         let mem = &self.buffers[index].memory;
         let start = mem.as_ptr() as u64;
         let offset = ptr.checked_sub(start).filter(|o| {
@@ -841,7 +875,7 @@ impl Stream {
         });
         match offset {
             // Both fit in usize: within `mem`.
-            Some(o) => Ok(mem[o as usize..(o + len) as usize].to_vec()),
+            Some(o) => Ok((o as usize, len as usize)),
             None => Err(GentlError::garbage(
                 function,
                 format!(
@@ -879,10 +913,19 @@ impl Stream {
             let n = query_count(self.lib(), "DSGetNumBufferParts", 64, |n| unsafe {
                 (api.ds_get_num_buffer_parts)(self.handle, h, n)
             })?;
+            // Where each part lies, checked all together before anything is copied: inside
+            // the buffer and not overlapping, so the copies are at most the buffer's size.
+            let mut ranges = Vec::with_capacity(n as usize);
             for i in 0..n {
                 let num = |cmd| self.part_number(h, i, cmd);
                 let base = num(ffi::part_info::BASE)?;
                 let size = num(ffi::part_info::DATA_SIZE)?;
+                ranges.push(self.range_in(index, "DSGetBufferPartInfo", base, size)?);
+            }
+            check_disjoint(&ranges)?;
+            let mem = &self.buffers[index].memory;
+            for (i, &(start, len)) in (0..n).zip(&ranges) {
+                let num = |cmd| self.part_number(h, i, cmd);
                 parts.push(Part {
                     data_type: num(ffi::part_info::DATA_TYPE)?,
                     pixel_format: num(ffi::part_info::DATA_FORMAT)?,
@@ -890,7 +933,7 @@ impl Stream {
                     height: num(ffi::part_info::HEIGHT)?,
                     padding_x: num(ffi::part_info::XPADDING).unwrap_or(0),
                     purpose: num(ffi::part_info::DATA_PURPOSE_ID).unwrap_or(0),
-                    data: self.copy_out(index, "DSGetBufferPartInfo", base, size)?,
+                    data: mem[start..start + len].to_vec(),
                 });
             }
         } else {
@@ -934,9 +977,13 @@ impl Stream {
     pub(crate) fn stop(&mut self) -> Result<()> {
         let api = &self.lib().api;
         // SAFETY: a valid stream handle.
-        let stop = unsafe { (api.ds_stop_acquisition)(self.handle, ffi::ACQ_STOP_FLAGS_KILL) };
+        let stop = watched("DSStopAcquisition", None, || unsafe {
+            (api.ds_stop_acquisition)(self.handle, ffi::ACQ_STOP_FLAGS_KILL)
+        });
         // SAFETY: a valid stream handle.
-        let flush = unsafe { (api.ds_flush_queue)(self.handle, ffi::ACQ_QUEUE_ALL_DISCARD) };
+        let flush = watched("DSFlushQueue", None, || unsafe {
+            (api.ds_flush_queue)(self.handle, ffi::ACQ_QUEUE_ALL_DISCARD)
+        });
         // SAFETY: a valid event handle.
         let events = unsafe { (api.event_flush)(self.event) };
         let revoke = self.revoke();
@@ -988,5 +1035,48 @@ impl Drop for Stream {
         if code != err::SUCCESS {
             tracing::warn!(code, "DSClose failed");
         }
+    }
+}
+
+/// Parts of one buffer must not overlap (ranges are offset and length): a producer whose 64
+/// parts each cover the whole buffer would otherwise have it copied 64 times.
+fn check_disjoint(ranges: &[(usize, usize)]) -> Result<()> {
+    let mut sorted: Vec<(usize, usize)> = ranges.iter().copied().filter(|r| r.1 > 0).collect();
+    sorted.sort_unstable();
+    for w in sorted.windows(2) {
+        let ((a, a_len), (b, b_len)) = (w[0], w[1]);
+        if a + a_len > b {
+            return Err(GentlError::garbage(
+                "DSGetBufferPartInfo",
+                format!(
+                    "parts that overlap: {a_len} bytes at offset {a} and {b_len} bytes at \
+                     offset {b} of the buffer"
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 46: parts must not overlap (64 parts each covering the whole buffer are
+    /// refused, not copied 64 times); adjacent and empty parts pass.
+    #[test]
+    fn issue_46_overlapping_parts_are_refused() {
+        assert!(check_disjoint(&[(0, 10), (10, 5), (15, 0), (15, 1)]).is_ok());
+        assert!(check_disjoint(&[(20, 4), (0, 20)]).is_ok(), "any order");
+        let whole = vec![(0, 1 << 20); 64];
+        let e = check_disjoint(&whole).expect_err("64 whole").to_string();
+        assert!(
+            e.contains("parts that overlap: 1048576 bytes at offset 0"),
+            "{e}"
+        );
+        let e = check_disjoint(&[(0, 10), (9, 2)])
+            .expect_err("one byte")
+            .to_string();
+        assert!(e.contains("offset 9"), "{e}");
     }
 }

@@ -30,7 +30,8 @@ pub enum XmlUrl {
         /// Length in bytes.
         length: u32,
     },
-    /// A file on the host.
+    /// A file on the host: its path, percent-decoded (RFC 8089: `File:///abs/x.xml` and
+    /// `File:/abs/x.xml` are absolute, `File:x.xml` is relative to the producer's directory).
     File(String),
     /// A web address (not fetched by this driver).
     Http(String),
@@ -85,7 +86,9 @@ impl XmlUrl {
                     length,
                 })
             }
-            "file" => Ok(Self::File(rest.trim_start_matches("///").to_owned())),
+            "file" => file_path(rest)
+                .map(Self::File)
+                .map_err(|e| GigeError::malformed(W, format!("`{s}`: {e}"))),
             "http" | "https" => Ok(Self::Http(s.to_owned())),
             other => Err(GigeError::malformed(
                 W,
@@ -93,6 +96,43 @@ impl XmlUrl {
             )),
         }
     }
+}
+
+/// The path of a `file:` URL after its scheme (RFC 8089): `//host/path` with an empty host or
+/// `localhost`, or a path (absolute with a leading `/`, else relative); percent-decoded.
+fn file_path(rest: &str) -> std::result::Result<String, String> {
+    let path = match rest.strip_prefix("//") {
+        Some(after) => {
+            let (host, path) = after.split_at(after.find('/').unwrap_or(after.len()));
+            if !(host.is_empty() || host.eq_ignore_ascii_case("localhost")) {
+                return Err(format!("a file on another host (`{host}`) cannot be read"));
+            }
+            path
+        }
+        None => rest,
+    };
+    let b = path.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = b
+                .get(i + 1..i + 3)
+                .and_then(|h| std::str::from_utf8(h).ok())
+                .and_then(|h| u8::from_str_radix(h, 16).ok())
+                .ok_or_else(|| format!("a bad percent escape at byte {i}"))?;
+            out.push(hex);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    let path = String::from_utf8(out).map_err(|_| "a path that is not UTF-8".to_owned())?;
+    if path.is_empty() || path.contains('\0') {
+        return Err("no file name".into());
+    }
+    Ok(path)
 }
 
 /// Largest unzipped GenICam XML, bytes.
@@ -133,9 +173,11 @@ pub fn xml_text(bytes: &[u8]) -> Result<String> {
 pub const MAX_XML_BYTES: usize = 16 << 20;
 
 /// Read the XML a URL names: `Local:` through `read_mem(address, length)` (the device's
-/// memory), `File:` from this host; unzipped when zipped. `http:` is refused with what to do.
+/// memory), `File:` from this host (a relative path from `base`, the GenTL producer's
+/// directory; refused without one); unzipped when zipped. `http:` is refused with what to do.
 pub fn load_xml(
     url: XmlUrl,
+    base: Option<&std::path::Path>,
     read_mem: impl FnOnce(u32, usize) -> Result<Vec<u8>>,
 ) -> Result<String> {
     match url {
@@ -143,14 +185,27 @@ pub fn load_xml(
             address, length, ..
         } => xml_text(&read_mem(address, length as usize)?),
         XmlUrl::File(path) => {
+            let given = std::path::Path::new(&path);
+            let file = match base {
+                _ if given.is_absolute() => given.to_owned(),
+                Some(dir) => dir.join(given),
+                None => {
+                    return Err(GigeError::malformed(
+                        "XML URL",
+                        format!("`File:{path}` is relative, and this device has no directory to read it from; give the file's absolute path"),
+                    ))
+                }
+            };
             // The device names the file: never a FIFO or device, never unbounded.
-            handeye_hal::limits::check_regular_file(
-                std::path::Path::new(&path),
-                MAX_XML_BYTES as u64,
-            )
-            .and_then(|_| std::fs::read(&path))
-            .map_err(|e| GigeError::io(path, e))
-            .and_then(|bytes| xml_text(&bytes))
+            handeye_hal::limits::check_regular_file(&file, MAX_XML_BYTES as u64)
+                .and_then(|_| std::fs::read(&file))
+                .map_err(|e| {
+                    GigeError::malformed(
+                        "XML URL",
+                        format!("cannot read the device's XML file {}: {e}", file.display()),
+                    )
+                })
+                .and_then(|bytes| xml_text(&bytes))
         }
         XmlUrl::Http(u) => Err(GigeError::malformed(
             "XML URL",
@@ -166,7 +221,11 @@ pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
         let fetched = client
             .read_string(url_reg, 512)
             .and_then(|u| XmlUrl::parse(&u))
-            .and_then(|url| load_xml(url, |address, length| client.read_mem(address, length)));
+            .and_then(|url| {
+                load_xml(url, None, |address, length| {
+                    client.read_mem(address, length)
+                })
+            });
         match fetched {
             Ok(x) => return Ok(x),
             // A device that does not answer (or stalls) will not answer the second URL either.
@@ -791,6 +850,8 @@ mod tests {
         );
         for bad in [
             "",
+            "File://camera.local/x.xml",
+            "File:///x%2",
             "Local:x;zz;10",
             "Local:x;10",
             "Local:x;10;0",
@@ -799,6 +860,53 @@ mod tests {
         ] {
             assert!(XmlUrl::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    /// Issue 46: `File:` URLs as RFC 8089 says: `File:///abs` and `file://localhost/abs` are
+    /// absolute (they were read relative to the working directory, and the failure was called
+    /// a network error), a relative path is read from the producer's directory.
+    #[test]
+    fn issue_46_file_urls_are_absolute_or_relative_to_the_producer() {
+        let dir = std::env::temp_dir().join(format!("handeye-file-url-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("sub dir")).expect("dir");
+        let xml = dir.join("sub dir/cam.xml");
+        std::fs::write(&xml, "<RegisterDescription/>").expect("xml");
+        let abs = xml.display().to_string().replace(' ', "%20");
+        let no_mem = |_, _| -> Result<Vec<u8>> { panic!("not a Local: URL") };
+        for url in [
+            format!("File://{abs}"),
+            format!("file://localhost{abs}"),
+            format!("File:{abs}?SchemaVersion=1.0.0"),
+        ] {
+            let parsed = XmlUrl::parse(&url).expect("url");
+            assert_eq!(parsed, XmlUrl::File(xml.display().to_string()), "{url}");
+            assert_eq!(
+                load_xml(parsed, Some(std::path::Path::new("/nonexistent")), no_mem).expect(&url),
+                "<RegisterDescription/>"
+            );
+        }
+        let rel = XmlUrl::parse("File:sub%20dir/cam.xml").expect("relative");
+        assert_eq!(
+            load_xml(rel.clone(), Some(&dir), no_mem).expect("from the producer's dir"),
+            "<RegisterDescription/>"
+        );
+        let e = load_xml(rel, None, no_mem)
+            .expect_err("no base")
+            .to_string();
+        assert!(e.contains("is relative"), "{e}");
+        let e = load_xml(
+            XmlUrl::parse("File:///nonexistent/x.xml").expect("url"),
+            None,
+            no_mem,
+        )
+        .expect_err("missing")
+        .to_string();
+        assert!(
+            e.contains("cannot read the device's XML file /nonexistent/x.xml"),
+            "{e}"
+        );
+        assert!(!e.contains("network"), "{e}");
+        std::fs::remove_dir_all(&dir).expect("cleanup");
     }
 
     #[test]
