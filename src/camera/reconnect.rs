@@ -51,6 +51,8 @@ pub struct ReconnectingCamera<C, F> {
     connect: F,
     link: tokio::sync::Mutex<Link<C>>,
     generation: AtomicU64,
+    /// The largest generation reported (it never goes back).
+    reported: AtomicU64,
 }
 
 impl<C, F> std::fmt::Debug for ReconnectingCamera<C, F> {
@@ -87,6 +89,7 @@ where
                 backoff: Backoff::new(),
             }),
             generation: AtomicU64::new(0),
+            reported: AtomicU64::new(0),
         }
     }
 
@@ -169,8 +172,19 @@ where
         r
     }
 
+    /// Connections lost, including the losses the camera reports itself as they happen (the
+    /// GenTL camera's host process killed past a deadline raises it before the next run
+    /// starts, even when the run that asked gave up waiting).
     fn link_generation(&self) -> u64 {
-        self.generation.load(Ordering::Relaxed)
+        let own = match self.link.try_lock() {
+            Ok(link) => link
+                .camera
+                .as_ref()
+                .map_or(0, |c| c.link_generation().saturating_sub(link.seen)),
+            Err(_) => 0,
+        };
+        let now = self.generation.load(Ordering::Relaxed) + own;
+        self.reported.fetch_max(now, Ordering::Relaxed).max(now)
     }
 }
 
@@ -221,6 +235,43 @@ mod tests {
         assert!(camera.capture(&settings).await.is_ok(), "connected anew");
         assert_eq!(camera.link_generation(), 1, "unchanged by the reconnection");
         assert_eq!(attempts.load(Ordering::Relaxed), 2);
+    }
+
+    /// A camera that counts its own lost links (as the GenTL camera counts its replaced host
+    /// processes).
+    struct Lossy(Arc<AtomicU64>);
+
+    impl DepthCamera for Lossy {
+        async fn info(&self) -> Result<CameraInfo, HalError> {
+            Ok(CameraInfo::default())
+        }
+        async fn capture(&self, _: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
+            Ok(Vec::new())
+        }
+        fn link_generation(&self) -> u64 {
+            self.0.load(Ordering::Relaxed)
+        }
+    }
+
+    /// Issue 46: a loss the camera reports itself (a GenTL host killed past its deadline after
+    /// the run that asked gave up) raises the generation at once, before the next run records
+    /// it, and never goes back.
+    #[tokio::test]
+    async fn issue_46_the_cameras_own_losses_raise_the_generation_at_once() {
+        let lost = Arc::new(AtomicU64::new(0));
+        let inner = Arc::clone(&lost);
+        let camera = ReconnectingCamera::new(Lossy(Arc::clone(&lost)), move || {
+            let inner = Arc::clone(&inner);
+            async move { Ok(Lossy(inner)) }
+        });
+        assert_eq!(camera.link_generation(), 0);
+        lost.store(1, Ordering::Relaxed);
+        assert_eq!(camera.link_generation(), 1, "before any request");
+        assert!(camera.info().await.is_ok());
+        assert_eq!(camera.link_generation(), 1, "counted once");
+        lost.store(3, Ordering::Relaxed);
+        assert!(camera.capture(&CaptureSettings::default()).await.is_ok());
+        assert_eq!(camera.link_generation(), 3);
     }
 
     #[test]

@@ -247,14 +247,7 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
                     call_timeout: call_timeout(call_timeout_s)?,
                     ..Default::default()
                 };
-                let cam = handeye_gentl::GentlCamera::connect(&producer, options)
-                    .await
-                    .with_context(|| {
-                        format!(
-                            "opening the camera through the GenTL producer {}",
-                            producer.display()
-                        )
-                    })?;
+                let cam = super::wiring::connect_gentl(&producer, options).await?;
                 let settings = handeye_hal::CaptureSettings {
                     frames,
                     frame_timeout,

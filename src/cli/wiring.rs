@@ -91,15 +91,7 @@ impl AnyCamera {
                     call_timeout: *call_timeout,
                     ..GentlOptions::default()
                 };
-                let camera = GentlCamera::connect(&producer, options)
-                    .await
-                    .with_context(|| {
-                        format!(
-                            "opening the camera through the GenTL producer {}",
-                            producer.display()
-                        )
-                    })?;
-                AnyCamera::Gentl(camera)
+                AnyCamera::Gentl(connect_gentl(&producer, options).await?)
             }
             CameraBackend::Exec { command, timeout } => {
                 AnyCamera::Exec(ExecCamera::new(command.clone(), *timeout)?)
@@ -107,6 +99,21 @@ impl AnyCamera {
             CameraBackend::File { paths } => AnyCamera::File(FileCamera::new(paths.clone())?),
         })
     }
+}
+
+/// The camera behind a GenTL producer (its host process started, the device open).
+pub(crate) async fn connect_gentl(
+    producer: &std::path::Path,
+    options: GentlOptions,
+) -> anyhow::Result<GentlCamera> {
+    GentlCamera::connect(producer, options)
+        .await
+        .with_context(|| {
+            format!(
+                "opening the camera through the GenTL producer {}",
+                producer.display()
+            )
+        })
 }
 
 impl DepthCamera for AnyCamera {

@@ -280,7 +280,9 @@ fn issue_46_sigterm_ends_camera_xml_within_a_second() {
          <Category Name=\"Root\"><pFeature>N0</pFeature></Category>\n",
     );
     for i in 0..300_000 {
-        text.push_str(&format!("<Integer Name=\"N{i}\"><Value>1</Value></Integer>\n"));
+        text.push_str(&format!(
+            "<Integer Name=\"N{i}\"><Value>1</Value></Integer>\n"
+        ));
     }
     text.push_str("</RegisterDescription>\n");
     std::fs::write(&xml, text).expect("xml");

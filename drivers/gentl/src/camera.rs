@@ -200,7 +200,9 @@ impl Host {
                 }
                 Message::Answer(a) => return Ok(a),
                 Message::Cloud(_) => return Err(self.broken("a cloud without a capture")),
-                Message::Begin { .. } | Message::End => unreachable!("handled by next"),
+                Message::Begin { .. } | Message::End => {
+                    return Err(self.broken("a call announced out of turn"))
+                }
             }
         }
     }

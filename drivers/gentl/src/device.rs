@@ -295,6 +295,12 @@ fn check_format(parts: &[(PartInfo, Vec<u8>)], remote: Option<u32>) -> Result<()
     let Some(remote) = remote.filter(|f| range_format(*f).is_some()) else {
         return Ok(());
     };
+    let has = |f: u32| parts.iter().any(|(p, _)| p.pixel_format == f);
+    if has(pfnc::COORD3D_A32F) && has(pfnc::COORD3D_B32F) && has(pfnc::COORD3D_C32F) {
+        // Separate A, B and C planes: an ABC format sent as three parts (viky.cti announces
+        // Coord3D_ABC32f_Planar and sends them so).
+        return Ok(());
+    }
     let range = parts
         .iter()
         .map(|(p, _)| p.pixel_format)
@@ -482,6 +488,12 @@ mod tests {
         let abc = pfnc::COORD3D_ABC32F;
         assert!(check_format(&[p(abc)], Some(abc)).is_ok());
         assert!(check_format(&[p(abc)], None).is_ok());
+        let planes = [
+            p(pfnc::COORD3D_A32F),
+            p(pfnc::COORD3D_B32F),
+            p(pfnc::COORD3D_C32F),
+        ];
+        assert!(check_format(&planes, Some(pfnc::COORD3D_ABC32F_PLANAR)).is_ok());
         let e = check_format(&[p(pfnc::COORD3D_C16)], Some(abc))
             .expect_err("lies")
             .to_string();
