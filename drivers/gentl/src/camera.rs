@@ -190,19 +190,15 @@ impl Host {
         if let Err(e) = sent {
             return Err(self.ended(doing, &format!("its input: {e}")).await);
         }
-        loop {
-            match self.next(doing).await? {
-                Message::Answer(Answer::Failed(f)) => {
-                    return Err(GentlError::Host {
-                        message: f.message,
-                        class: f.class,
-                    })
-                }
-                Message::Answer(a) => return Ok(a),
-                Message::Cloud(_) => return Err(self.broken("a cloud without a capture")),
-                Message::Begin { .. } | Message::End => {
-                    return Err(self.broken("a call announced out of turn"))
-                }
+        match self.next(doing).await? {
+            Message::Answer(Answer::Failed(f)) => Err(GentlError::Host {
+                message: f.message,
+                class: f.class,
+            }),
+            Message::Answer(a) => Ok(a),
+            Message::Cloud(_) => Err(self.broken("a cloud without a capture")),
+            Message::Begin { .. } | Message::End => {
+                Err(self.broken("a call announced out of turn"))
             }
         }
     }

@@ -284,7 +284,7 @@ mod tests {
         let Message::Cloud(back) = decode_message(tag, &body).expect("cloud") else {
             panic!("a cloud")
         };
-        assert_eq!(back.points[0].y.is_nan(), true);
+        assert!(back.points[0].y.is_nan());
         assert_eq!(
             (back.width, back.points[1], &back.confidence),
             (2, cloud.points[1], &cloud.confidence)

@@ -156,8 +156,7 @@ impl Scan3d {
     /// Refuses values no camera can mean: a scale that is not positive and finite (0 puts
     /// every point at the offset), an offset beyond [`MAX_COORDINATE_M`] (1e30 mm).
     pub fn check(&self) -> Result<()> {
-        for k in 0..3 {
-            let name = COORDINATE_NAMES[k];
+        for (k, name) in COORDINATE_NAMES.iter().enumerate() {
             let scale = self.scale[k];
             if !(scale.is_finite() && scale > 0.0) {
                 return Err(GigeError::feature(
