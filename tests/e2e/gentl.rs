@@ -425,6 +425,24 @@ fn issue_46_a_hostile_producer_ends_each_capture_in_a_clear_error_within_its_dea
     }
     let out = run_env(&args, &[("HANDEYE_SIM_CAMERA_ARGS", SMALL_SCENE)], secs(30)).success();
     assert_eq!(out.json()["complete"], 1, "{out}");
+    // Enumeration is bounded over all interfaces together (before: 1 024 x 1 024 devices
+    // were listed, 647 MB and 25 s).
+    let out = run_env(
+        &["camera", "probe", "--gentl", cti_s, "--call-timeout-s", "2"],
+        &[
+            ("HANDEYE_SIM_CAMERA_ARGS", SMALL_SCENE),
+            ("HANDEYE_SIM_GENTL_FAULT", "many-devices"),
+        ],
+        secs(30),
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(
+        out.stderr.contains(
+            "returned garbage from IFGetNumDevices: 1024 more devices, over the 1024 accepted \
+             from one producer in all interfaces together"
+        ),
+        "{out}"
+    );
 }
 
 /// Issue 46, in the daemon: a producer whose constructor calls `exit(0)` does not end the

@@ -15,6 +15,7 @@
 //! | `zero-width` | every part's width is 0 |
 //! | `scale-zero` | `Scan3dCoordinateScale` reads 0 |
 //! | `offset-1e30` | `Scan3dCoordinateOffset` reads 1e30 (mm) |
+//! | `many-devices` | 2 interfaces (the same one) of 1 024 devices each (the same one) |
 
 /// The environment variable.
 pub(crate) const ENV: &str = "HANDEYE_SIM_GENTL_FAULT";
