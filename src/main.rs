@@ -60,6 +60,10 @@ enum Command {
     /// Run protocol simulators (a UR controller, a GigE Vision 3D camera).
     #[command(subcommand)]
     Sim(SimCommand),
+    /// The process that loads a GenTL producer for the `gentl` camera (started by handeye
+    /// itself, speaking a pipe protocol on stdin/stdout; see handeye_gentl::host).
+    #[command(name = "gentl-host", hide = true)]
+    GentlHost,
 }
 
 #[derive(Debug, Subcommand)]
@@ -103,8 +107,9 @@ where
     result
 }
 
-/// How long blocking tasks may still run after the command has returned.
-const BLOCKING_GRACE: Duration = Duration::from_secs(2);
+/// How long blocking tasks may still run after the command has returned: a signal ends every
+/// command within a second (issue 46: `camera xml` parsing a large description).
+const BLOCKING_GRACE: Duration = Duration::from_millis(500);
 
 /// Resolves on Ctrl-C or SIGTERM (systemd's stop). A signal we cannot listen for keeps its
 /// default action (the process ends without a clean stop), so say so.
@@ -231,6 +236,8 @@ fn main() -> ExitCode {
             with_runtime(|shutdown| cli::sim_camera::run(a, shutdown))
         }
         Command::Sim(SimCommand::Rig(a)) => with_runtime(|shutdown| cli::sim_rig::run(a, shutdown)),
+        // Its own exit code: it ends when its input closes.
+        Command::GentlHost => return handeye_gentl::host::serve(),
     };
     match result {
         Ok(code) => code,
@@ -275,6 +282,13 @@ mod tests {
         fn flush(&mut self) -> std::io::Result<()> {
             Ok(())
         }
+    }
+
+    /// The GenTL camera starts this binary as its host under the name the driver uses.
+    #[test]
+    fn the_gentl_host_subcommand_is_the_drivers() {
+        let cli = Cli::try_parse_from(["handeye", handeye_gentl::HOST_SUBCOMMAND]).expect("parse");
+        assert!(matches!(cli.command, Command::GentlHost));
     }
 
     /// Issue 38: the GenApi interpreter's own ERROR lines (duplicates of the errors it returns

@@ -42,12 +42,17 @@ impl Backoff {
 
 /// A camera connected anew after it failed: a failed request drops the connection and the
 /// next request connects again with `connect` (at most once per [`Backoff`] pause), so a
-/// camera that was restarted or re-cabled comes back without restarting the daemon. Each new
-/// connection raises the link generation, which makes a run in progress abort.
+/// camera that was restarted or re-cabled comes back without restarting the daemon. Each lost
+/// connection raises the link generation when it is lost (a run in progress then aborts; the
+/// next run, which connects again in its preflight, starts with the raised generation), and
+/// so does each loss the camera reports itself (its own link generation: the GenTL camera's
+/// replaced host process).
 pub struct ReconnectingCamera<C, F> {
     connect: F,
     link: tokio::sync::Mutex<Link<C>>,
     generation: AtomicU64,
+    /// The largest generation reported (it never goes back).
+    reported: AtomicU64,
 }
 
 impl<C, F> std::fmt::Debug for ReconnectingCamera<C, F> {
@@ -61,6 +66,8 @@ impl<C, F> std::fmt::Debug for ReconnectingCamera<C, F> {
 #[derive(Debug)]
 struct Link<C> {
     camera: Option<Arc<C>>,
+    /// The connected camera's own link generation when it was connected or last seen.
+    seen: u64,
     next_attempt: Instant,
     backoff: Backoff,
 }
@@ -76,11 +83,13 @@ where
         Self {
             connect,
             link: tokio::sync::Mutex::new(Link {
+                seen: camera.link_generation(),
                 camera: Some(Arc::new(camera)),
                 next_attempt: Instant::now(),
                 backoff: Backoff::new(),
             }),
             generation: AtomicU64::new(0),
+            reported: AtomicU64::new(0),
         }
     }
 
@@ -100,9 +109,9 @@ where
         match (self.connect)().await {
             Ok(c) => {
                 let c = Arc::new(c);
+                link.seen = c.link_generation();
                 link.camera = Some(c.clone());
                 link.backoff.connected();
-                self.generation.fetch_add(1, Ordering::Relaxed);
                 tracing::info!("camera connected again");
                 Ok(c)
             }
@@ -115,12 +124,23 @@ where
         }
     }
 
-    /// Forgets `failed` (unless it was replaced already): the next request connects again.
-    async fn drop_link(&self, failed: &Arc<C>, e: &HalError) {
+    /// After a request of `camera`: a failure forgets it (unless it was replaced already; the
+    /// next request connects again), and the losses it reports itself raise the generation.
+    async fn after_request(&self, camera: &Arc<C>, result: Result<(), &HalError>) {
         let mut link = self.link.lock().await;
-        if link.camera.as_ref().is_some_and(|c| Arc::ptr_eq(c, failed)) {
+        if !link.camera.as_ref().is_some_and(|c| Arc::ptr_eq(c, camera)) {
+            return;
+        }
+        let own = camera.link_generation();
+        if own > link.seen {
+            self.generation
+                .fetch_add(own - link.seen, Ordering::Relaxed);
+            link.seen = own;
+        }
+        if let Err(e) = result {
             tracing::warn!("camera request failed ({e}); reconnecting at the next request");
             link.camera = None;
+            self.generation.fetch_add(1, Ordering::Relaxed);
         }
     }
 }
@@ -141,23 +161,30 @@ where
     async fn info(&self) -> Result<CameraInfo, HalError> {
         let camera = self.connected().await?;
         let r = camera.info().await;
-        if let Err(e) = &r {
-            self.drop_link(&camera, e).await;
-        }
+        self.after_request(&camera, r.as_ref().map(drop)).await;
         r
     }
 
     async fn capture(&self, settings: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
         let camera = self.connected().await?;
         let r = camera.capture(settings).await;
-        if let Err(e) = &r {
-            self.drop_link(&camera, e).await;
-        }
+        self.after_request(&camera, r.as_ref().map(drop)).await;
         r
     }
 
+    /// Connections lost, including the losses the camera reports itself as they happen (the
+    /// GenTL camera's host process killed past a deadline raises it before the next run
+    /// starts, even when the run that asked gave up waiting).
     fn link_generation(&self) -> u64 {
-        self.generation.load(Ordering::Relaxed)
+        let own = match self.link.try_lock() {
+            Ok(link) => link
+                .camera
+                .as_ref()
+                .map_or(0, |c| c.link_generation().saturating_sub(link.seen)),
+            Err(_) => 0,
+        };
+        let now = self.generation.load(Ordering::Relaxed) + own;
+        self.reported.fetch_max(now, Ordering::Relaxed).max(now)
     }
 }
 
@@ -189,8 +216,11 @@ mod tests {
         });
         let settings = CaptureSettings::default();
         assert!(camera.capture(&settings).await.is_ok());
-        assert!(camera.capture(&settings).await.is_err(), "stops answering");
         assert_eq!(camera.link_generation(), 0);
+        assert!(camera.capture(&settings).await.is_err(), "stops answering");
+        // Raised when the link is lost, not when the next run connects again in its
+        // preflight (which then aborted that run as "re-established during the run").
+        assert_eq!(camera.link_generation(), 1);
         // The first attempt fails; the next waits out its pause.
         let e = camera.info().await.expect_err("cannot connect");
         assert!(matches!(e, HalError::Connection { .. }), "{e}");
@@ -203,8 +233,45 @@ mod tests {
         assert_eq!(attempts.load(Ordering::Relaxed), 1);
         camera.link.lock().await.next_attempt = Instant::now();
         assert!(camera.capture(&settings).await.is_ok(), "connected anew");
-        assert_eq!(camera.link_generation(), 1);
+        assert_eq!(camera.link_generation(), 1, "unchanged by the reconnection");
         assert_eq!(attempts.load(Ordering::Relaxed), 2);
+    }
+
+    /// A camera that counts its own lost links (as the GenTL camera counts its replaced host
+    /// processes).
+    struct Lossy(Arc<AtomicU64>);
+
+    impl DepthCamera for Lossy {
+        async fn info(&self) -> Result<CameraInfo, HalError> {
+            Ok(CameraInfo::default())
+        }
+        async fn capture(&self, _: &CaptureSettings) -> Result<Vec<PointCloud>, HalError> {
+            Ok(Vec::new())
+        }
+        fn link_generation(&self) -> u64 {
+            self.0.load(Ordering::Relaxed)
+        }
+    }
+
+    /// Issue 46: a loss the camera reports itself (a GenTL host killed past its deadline after
+    /// the run that asked gave up) raises the generation at once, before the next run records
+    /// it, and never goes back.
+    #[tokio::test]
+    async fn issue_46_the_cameras_own_losses_raise_the_generation_at_once() {
+        let lost = Arc::new(AtomicU64::new(0));
+        let inner = Arc::clone(&lost);
+        let camera = ReconnectingCamera::new(Lossy(Arc::clone(&lost)), move || {
+            let inner = Arc::clone(&inner);
+            async move { Ok(Lossy(inner)) }
+        });
+        assert_eq!(camera.link_generation(), 0);
+        lost.store(1, Ordering::Relaxed);
+        assert_eq!(camera.link_generation(), 1, "before any request");
+        assert!(camera.info().await.is_ok());
+        assert_eq!(camera.link_generation(), 1, "counted once");
+        lost.store(3, Ordering::Relaxed);
+        assert!(camera.capture(&CaptureSettings::default()).await.is_ok());
+        assert_eq!(camera.link_generation(), 3);
     }
 
     #[test]

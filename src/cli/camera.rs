@@ -29,6 +29,9 @@ enum CameraCommand {
         /// A GenTL producer (the vendor's `.cti`): list its interfaces and devices.
         #[arg(long, value_name = "FILE.cti")]
         gentl: Option<PathBuf>,
+        /// With --gentl: each producer call's deadline (camera.call_timeout_s).
+        #[arg(long, default_value_t = 10.0, value_name = "SECONDS")]
+        call_timeout_s: f64,
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
@@ -78,6 +81,10 @@ enum CameraCommand {
         /// GigE and GenTL: also stream the confidence component when the camera has one.
         #[arg(long)]
         confidence: bool,
+        /// With --gentl: each producer call's deadline (EventGetData: the frame timeout + 1 s);
+        /// past it the producer's process is killed and the capture fails naming the call.
+        #[arg(long, default_value_t = 10.0, value_name = "SECONDS")]
+        call_timeout_s: f64,
     },
     /// Check a camera's GenICam description offline (the .xml or .zip it serves, or a vendor's
     /// download): pixel formats, 3D components, Scan3d features, what is missing, and whether
@@ -122,17 +129,21 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
 
 async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
     match command {
-        CameraCommand::Xml { file, json } => xml::run(&file, json),
+        // On the blocking pool: a shutdown signal ends the command at once (issue 46).
+        CameraCommand::Xml { file, json } => blocking(move || xml::run(&file, json)).await,
         CameraCommand::Probe {
             gentl: Some(producer),
             json,
+            call_timeout_s,
             ..
         } => {
-            let list = blocking(move || {
-                handeye_gentl::list_devices(&producer)
-                    .with_context(|| format!("probing the GenTL producer {}", producer.display()))
-            })
-            .await?;
+            let options = handeye_gentl::GentlOptions {
+                call_timeout: call_timeout(call_timeout_s)?,
+                ..Default::default()
+            };
+            let list = handeye_gentl::list_devices(&producer, &options)
+                .await
+                .with_context(|| format!("probing the GenTL producer {}", producer.display()))?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&list)?);
             } else {
@@ -185,6 +196,7 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
             packet_size,
             frame_timeout_ms,
             confidence,
+            call_timeout_s,
         } => {
             if device.is_some() && gentl.is_none() {
                 anyhow::bail!(
@@ -232,15 +244,10 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
                 let options = handeye_gentl::GentlOptions {
                     device,
                     confidence,
+                    call_timeout: call_timeout(call_timeout_s)?,
                     ..Default::default()
                 };
-                let shown = producer.display().to_string();
-                let cam =
-                    blocking(move || Ok(handeye_gentl::GentlCamera::connect(&producer, options)?))
-                        .await
-                        .with_context(|| {
-                            format!("opening the camera through the GenTL producer {shown}")
-                        })?;
+                let cam = super::wiring::connect_gentl(&producer, options).await?;
                 let settings = handeye_hal::CaptureSettings {
                     frames,
                     frame_timeout,
@@ -262,6 +269,12 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
 }
 
 /// Runs blocking camera I/O on tokio's blocking pool, off the runtime's workers.
+/// `--call-timeout-s` checked as `camera.call_timeout_s` is.
+fn call_timeout(seconds: f64) -> anyhow::Result<std::time::Duration> {
+    limits::duration_from_secs("--call-timeout-s", seconds, 0.001, 600.0)
+        .map_err(anyhow::Error::msg)
+}
+
 async fn blocking<T: Send + 'static>(
     f: impl FnOnce() -> anyhow::Result<T> + Send + 'static,
 ) -> anyhow::Result<T> {

@@ -79,21 +79,19 @@ impl AnyCamera {
                 camera.options.trigger = cfg.camera.trigger;
                 AnyCamera::Gige(camera)
             }
-            CameraBackend::Gentl { producer, device } => {
+            CameraBackend::Gentl {
+                producer,
+                device,
+                call_timeout,
+            } => {
                 let producer = handeye_gentl::resolve_producer(producer.as_deref())?;
                 let options = GentlOptions {
                     device: device.clone(),
                     trigger: cfg.camera.trigger,
+                    call_timeout: *call_timeout,
                     ..GentlOptions::default()
                 };
-                let shown = producer.display().to_string();
-                let camera =
-                    tokio::task::spawn_blocking(move || GentlCamera::connect(&producer, options))
-                        .await?
-                        .with_context(|| {
-                            format!("opening the camera through the GenTL producer {shown}")
-                        })?;
-                AnyCamera::Gentl(camera)
+                AnyCamera::Gentl(connect_gentl(&producer, options).await?)
             }
             CameraBackend::Exec { command, timeout } => {
                 AnyCamera::Exec(ExecCamera::new(command.clone(), *timeout)?)
@@ -101,6 +99,21 @@ impl AnyCamera {
             CameraBackend::File { paths } => AnyCamera::File(FileCamera::new(paths.clone())?),
         })
     }
+}
+
+/// The camera behind a GenTL producer (its host process started, the device open).
+pub(crate) async fn connect_gentl(
+    producer: &std::path::Path,
+    options: GentlOptions,
+) -> anyhow::Result<GentlCamera> {
+    GentlCamera::connect(producer, options)
+        .await
+        .with_context(|| {
+            format!(
+                "opening the camera through the GenTL producer {}",
+                producer.display()
+            )
+        })
 }
 
 impl DepthCamera for AnyCamera {
@@ -122,6 +135,15 @@ impl DepthCamera for AnyCamera {
             AnyCamera::Gentl(c) => c.capture(settings).await,
             AnyCamera::Exec(c) => c.capture(settings).await,
             AnyCamera::File(c) => c.capture(settings).await,
+        }
+    }
+
+    fn link_generation(&self) -> u64 {
+        match self {
+            AnyCamera::Gige(c) => c.link_generation(),
+            AnyCamera::Gentl(c) => c.link_generation(),
+            AnyCamera::Exec(c) => c.link_generation(),
+            AnyCamera::File(c) => c.link_generation(),
         }
     }
 }

@@ -49,6 +49,9 @@ pub const SETTLE_S: f64 = 0.5;
 pub const SENSOR: crate::geometry::SensorClass = crate::geometry::SensorClass::StructuredLight;
 /// `camera.trigger`: free running (a camera left in trigger mode is switched out of it).
 pub const TRIGGER: handeye_hal::Trigger = handeye_hal::Trigger::Free;
+/// `camera.call_timeout_s` (gentl backend): a producer call that has not returned by then is
+/// abandoned (its host process killed).
+pub const CALL_TIMEOUT_S: f64 = 10.0;
 /// `camera.timeout_s` (exec backend): vendor SDKs take seconds to connect.
 pub const EXEC_TIMEOUT_S: f64 = 30.0;
 /// `mount.type`.

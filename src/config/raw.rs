@@ -91,6 +91,7 @@ pub(super) struct RawCamera {
     pub(super) address: Option<String>,
     pub(super) producer: Option<String>,
     pub(super) device: Option<String>,
+    pub(super) call_timeout_s: Option<f64>,
     pub(super) command: Option<Vec<String>>,
     pub(super) timeout_s: Option<f64>,
     pub(super) files: Option<Vec<String>>,

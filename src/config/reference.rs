@@ -132,6 +132,7 @@ pub fn keys() -> Vec<KeyDoc> {
         row("camera.command", "list of strings", "required with exec", "", "the capture command and its arguments (`{out}`, `{frame}`, `{config_dir}` replaced)"),
         row("camera.producer", "path", "the first `*.cti` on `GENICAM_GENTL64_PATH`", "a `.cti` file", "gentl: the vendor's GenTL producer"),
         row("camera.device", "string", "the first device", "serial number, model, GenTL id or index", "gentl: which of the producer's cameras (`handeye camera probe --gentl FILE.cti` lists them)"),
+        number("camera.call_timeout_s", Some(defaults::CALL_TIMEOUT_S), CALL_TIMEOUT, "gentl: each producer call's deadline (EventGetData: the frame timeout + 1 s); past it the producer's host process is killed and replaced, and the request fails naming the call"),
         number("camera.timeout_s", Some(defaults::EXEC_TIMEOUT_S), EXEC_TIMEOUT, "exec: one frame's time limit; the command is killed after it"),
         row("camera.files", "list of paths", "required with file", "PLY or PCD", "file: the recorded scans replayed, one per frame"),
         integer("camera.frames", Some(capture.frames.into()), FRAMES, "frames per view, fused by the solver"),

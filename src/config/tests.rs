@@ -514,17 +514,35 @@ fn camera_backends_need_their_keys_and_refuse_the_others() {
         )
     };
     let c = parse(&gentl("producer = \"zivid.cti\"\ndevice = \" 2024A \"")).expect("gentl");
-    let CameraBackend::Gentl { producer, device } = c.camera.backend else {
+    let CameraBackend::Gentl {
+        producer,
+        device,
+        call_timeout,
+    } = c.camera.backend
+    else {
         panic!("gentl backend");
     };
     assert!(producer.is_some_and(|p| p.ends_with("zivid.cti") && p.is_absolute()));
     assert_eq!(device.as_deref(), Some("2024A"));
+    assert_eq!(call_timeout, std::time::Duration::from_secs(10));
     assert_eq!(
         parse(&gentl("")).expect("defaults").camera.backend,
         CameraBackend::Gentl {
             producer: None,
-            device: None
+            device: None,
+            call_timeout: std::time::Duration::from_secs(10),
         }
+    );
+    let c = parse(&gentl("call_timeout_s = 2.5")).expect("call timeout");
+    assert!(matches!(
+        c.camera.backend,
+        CameraBackend::Gentl { call_timeout, .. } if call_timeout == std::time::Duration::from_millis(2500)
+    ));
+    let text = gentl("call_timeout_s = 0");
+    refused(
+        &text,
+        "camera.call_timeout_s",
+        line_of(&text, "call_timeout_s"),
     );
     let text = gentl("address = \"192.168.1.50\"");
     refused(&text, "camera.address", line_of(&text, "address"));

@@ -198,6 +198,9 @@ pub enum CameraBackend {
         /// Which of the producer's devices (serial number, model, producer id or index); the
         /// first one when `None`.
         device: Option<String>,
+        /// Deadline of each producer call (`call_timeout_s`): past it the producer's host
+        /// process is killed and replaced, and the request fails naming the call.
+        call_timeout: Duration,
     },
     /// An external command that captures one frame to a file (`backend = "exec"`,
     /// `command = [...]`, `timeout_s`); see [`crate::camera::ExecCamera`]. `{config_dir}`

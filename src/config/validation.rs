@@ -121,6 +121,7 @@ pub(super) mod ranges {
     pub(in crate::config) const EXPOSURE: Range = above(0.0, 10_000_000.0, "µs");
     pub(in crate::config) const SETTLE: Range = within(0.0, 60.0, "s");
     pub(in crate::config) const EXEC_TIMEOUT: Range = above(0.0, 3600.0, "s");
+    pub(in crate::config) const CALL_TIMEOUT: Range = above(0.0, 600.0, "s");
     pub(in crate::config) const PRIOR_TRANSLATION: Range = within(-5.0, 5.0, "m");
     pub(in crate::config) const PRIOR_ROTATION: Range = within(-2.0 * PI, 2.0 * PI, "rad");
     pub(in crate::config) const CAMERA_FLANGE_DISTANCE: Range = above(0.0, 2.0, "m");
@@ -508,6 +509,7 @@ impl Ctx<'_> {
                 let why = "with backend = \"gige\"";
                 self.unused("camera.producer", &c.producer, why)?;
                 self.unused("camera.device", &c.device, why)?;
+                self.unused("camera.call_timeout_s", &c.call_timeout_s, why)?;
                 self.unused("camera.command", &c.command, why)?;
                 self.unused("camera.timeout_s", &c.timeout_s, why)?;
                 self.unused("camera.files", &c.files, why)?;
@@ -548,6 +550,12 @@ impl Ctx<'_> {
                         .map(|p| self.path("camera.producer", p))
                         .transpose()?,
                     device: c.device.map(|d| d.trim().to_owned()),
+                    call_timeout: self.seconds(
+                        "camera.call_timeout_s",
+                        c.call_timeout_s,
+                        Duration::from_secs_f64(defaults::CALL_TIMEOUT_S),
+                        ranges::CALL_TIMEOUT,
+                    )?,
                 }
             }
             RawBackend::Exec => {
@@ -556,6 +564,7 @@ impl Ctx<'_> {
                 self.unused("camera.address", &c.address, why)?;
                 self.unused("camera.producer", &c.producer, why)?;
                 self.unused("camera.device", &c.device, why)?;
+                self.unused("camera.call_timeout_s", &c.call_timeout_s, why)?;
                 self.unused("camera.files", &c.files, why)?;
                 let command = c.command.unwrap_or_default();
                 if command.first().is_none_or(|p| p.trim().is_empty()) {
@@ -585,6 +594,7 @@ impl Ctx<'_> {
                 self.unused("camera.address", &c.address, why)?;
                 self.unused("camera.producer", &c.producer, why)?;
                 self.unused("camera.device", &c.device, why)?;
+                self.unused("camera.call_timeout_s", &c.call_timeout_s, why)?;
                 self.unused("camera.command", &c.command, why)?;
                 self.unused("camera.timeout_s", &c.timeout_s, why)?;
                 let files = c.files.unwrap_or_default();

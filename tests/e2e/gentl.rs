@@ -360,3 +360,176 @@ fn calibrates_through_our_gentl_producer_as_through_gige() {
     );
     assert_eq!(record["returned_to_start"], true, "{out}");
 }
+
+/// The scene of the hostile-producer tests: small, a perfect sensor, standing still.
+const SMALL_SCENE: &str = "--model ur5e --width 64 --height 48 --ideal --serial HOSTILE1";
+
+/// Issue 46: our producer made hostile (`HANDEYE_SIM_GENTL_FAULT`, see sim/gentl's `faults`):
+/// a call that never returns, an abort, an `exit(0)` in the library's constructor, parts and
+/// values that lie. Each `camera capture` ends within its deadline (the call timeout of 2 s,
+/// EventGetData's frame timeout + 1 s) with exit 2 and a message naming the call or the value
+/// (before: a hang past SIGTERM, a 64-fold copy, exit 0 with nothing captured or with garbage
+/// points); the same capture without the fault then works.
+#[test]
+fn issue_46_a_hostile_producer_ends_each_capture_in_a_clear_error_within_its_deadline() {
+    if shared("issue_46_a_hostile_producer_ends_each_capture_in_a_clear_error_within_its_deadline")
+        .is_none()
+    {
+        return;
+    }
+    let dir = TempDir::new("gentl-hostile");
+    let cti = our_producer(&dir);
+    let cti_s = cti.to_str().expect("utf-8 path");
+    let args = [
+        "camera",
+        "capture",
+        "--gentl",
+        cti_s,
+        "--call-timeout-s",
+        "2",
+        "--frame-timeout-ms",
+        "1000",
+        "--json",
+    ];
+    let cases = [
+        ("block:EventGetData", "did not return from EventGetData within 2s"),
+        ("block:DSStartAcquisition", "did not return from DSStartAcquisition within 2s"),
+        ("block:AcquisitionStart", "did not return from AcquisitionStart (GCWritePort) within 2s"),
+        ("block:DSStopAcquisition", "did not return from DSStopAcquisition within 2s"),
+        ("block:load", "did not return from dlopen (the producer's initialisers) within 2s"),
+        ("abort:EventGetData", "ended its host process during EventGetData (it was killed by signal 6 (SIGABRT))"),
+        ("exit:load", "ended its host process during dlopen (the producer's initialisers) (it exited with code 0)"),
+        ("exit:DSStartAcquisition", "ended its host process during DSStartAcquisition (it exited with code 0)"),
+        ("overlapping-parts", "parts that overlap: 36864 bytes at offset 0 and 36864 bytes at offset 0"),
+        ("lying-format", "36864 bytes for a 64 x 48 Coord3D_C16 image (6144 expected"),
+        ("short-part", "36860 bytes for a 64 x 48 Coord3D_ABC32f image (36864 expected"),
+        ("zero-width", "an empty 0 x 48 image"),
+        ("scale-zero", "`Scan3dCoordinateScale`: 0 for CoordinateA"),
+        ("offset-1e30", "`Scan3dCoordinateOffset`: 1000000000000000000000000000000 for CoordinateA"),
+    ];
+    for (fault, message) in cases {
+        let t = std::time::Instant::now();
+        let out = run_env(
+            &args,
+            &[
+                ("HANDEYE_SIM_CAMERA_ARGS", SMALL_SCENE),
+                ("HANDEYE_SIM_GENTL_FAULT", fault),
+            ],
+            secs(30),
+        );
+        let took = t.elapsed();
+        assert_eq!(out.code(), 2, "{fault}: {out}");
+        assert!(out.stderr.contains(message), "{fault}: {out}");
+        assert!(took < secs(6), "{fault}: {took:?}\n{out}");
+        eprintln!("{fault}: exit 2 after {took:.2?}");
+    }
+    let out = run_env(&args, &[("HANDEYE_SIM_CAMERA_ARGS", SMALL_SCENE)], secs(30)).success();
+    assert_eq!(out.json()["complete"], 1, "{out}");
+    // Enumeration is bounded over all interfaces together (before: 1 024 x 1 024 devices
+    // were listed, 647 MB and 25 s).
+    let out = run_env(
+        &["camera", "probe", "--gentl", cti_s, "--call-timeout-s", "2"],
+        &[
+            ("HANDEYE_SIM_CAMERA_ARGS", SMALL_SCENE),
+            ("HANDEYE_SIM_GENTL_FAULT", "many-devices"),
+        ],
+        secs(30),
+    );
+    assert_eq!(out.code(), 2, "{out}");
+    assert!(
+        out.stderr.contains(
+            "returned garbage from IFGetNumDevices: 1024 more devices, over the 1024 accepted \
+             from one producer in all interfaces together"
+        ),
+        "{out}"
+    );
+}
+
+/// Issue 46, in the daemon: a producer whose constructor calls `exit(0)` does not end the
+/// daemon (it kept retrying, named the call, and became ready once the producer behaved);
+/// then a run whose `EventGetData` never returns ends in an error naming the call within its
+/// deadline, the status counts the camera's reconnection, and the next run is accepted
+/// (before: the next run hung in preflight with no limit). Loopback: 127.0.0.60.
+#[test]
+fn issue_46_a_blocking_producer_fails_one_run_and_the_next_run_works() {
+    if shared("issue_46_a_blocking_producer_fails_one_run_and_the_next_run_works").is_none() {
+        return;
+    }
+    use crate::daemon::{http, wait_status, TOKEN};
+    let dir = TempDir::new("gentl-daemon-hostile");
+    let cti = our_producer(&dir);
+    let robot_ip = "127.0.0.60";
+    let _robot = sim_robot(&dir, robot_ip, &["--powered", "--factory-calibration", "1"]);
+    let cfg = crate::daemon::config(&dir, robot_ip, "127.0.0.1", "");
+    let text = std::fs::read_to_string(&cfg).expect("config");
+    let text = text.replace(
+        "backend = \"gige\"\naddress = \"127.0.0.1\"",
+        &format!(
+            "backend = \"gentl\"\nproducer = \"{}\"\ncall_timeout_s = 2\nframe_timeout_s = 2",
+            cti.display()
+        ),
+    );
+    assert!(text.contains("call_timeout_s"), "{text}");
+    std::fs::write(&cfg, text).expect("config");
+    let faults = dir.join("faults");
+    std::fs::write(&faults, "exit:load").expect("faults");
+    let scene = format!(
+        "--robot {robot_ip} --mount {} --factory-calibration 1 --serial SIMGENTL3",
+        pose_arg(&true_mount())
+    );
+    let faults_s = faults.to_str().expect("utf-8").to_owned();
+    let mut daemon = crate::support::Daemon::start_env(
+        &dir,
+        "daemon",
+        &["daemon", "--config", cfg.to_str().expect("utf-8")],
+        &[
+            ("HANDEYE_SIM_CAMERA_ARGS", &scene),
+            ("HANDEYE_SIM_GENTL_FAULT", &faults_s),
+        ],
+    );
+    daemon.wait_for_log(
+        "ended its host process during dlopen (the producer's initialisers) (it exited with code 0)",
+        secs(60),
+    );
+    std::fs::write(&faults, "block:EventGetData").expect("faults");
+    daemon.wait_for_log("handeye daemon ready", secs(90));
+    let api = format!("{robot_ip}:8650");
+
+    let t = std::time::Instant::now();
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let st = wait_status(
+        &api,
+        secs(120),
+        "the run with a blocking producer ends",
+        |s| s["last"]["outcome"].is_string(),
+    );
+    eprintln!("the blocked run ended after {:.1?}", t.elapsed());
+    assert_ne!(st["last"]["outcome"], "accepted", "{st}");
+    let run_id = st["last"]["run_id"].as_str().expect("run id").to_owned();
+    let (_, record) = http(&api, "GET", &format!("/api/runs/{run_id}"), None);
+    assert!(
+        record.contains("did not return from EventGetData within 3s"),
+        "{record}\n{}",
+        daemon.log()
+    );
+    wait_status(
+        &api,
+        secs(60),
+        "the status counts the camera's reconnection",
+        |s| s["camera_reconnects"].as_u64() >= Some(1),
+    );
+
+    std::fs::write(&faults, "").expect("faults");
+    let t = std::time::Instant::now();
+    let (code, body) = http(&api, "POST", "/api/calibrate", Some(TOKEN));
+    assert_eq!(code, 202, "{body}");
+    let st = wait_status(&api, secs(240), "the next run ends", |s| {
+        s["last"]["run_id"].as_str().is_some_and(|r| r != run_id)
+    });
+    eprintln!("the next run ended after {:.1?}", t.elapsed());
+    assert_eq!(st["last"]["outcome"], "accepted", "{st}\n{}", daemon.log());
+    let log = daemon.log();
+    assert!(log.contains("was lost; starting a new one"), "{log}");
+    assert!(log.contains("reconnecting at the next request"), "{log}");
+}

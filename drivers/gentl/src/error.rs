@@ -6,6 +6,8 @@ use std::time::Duration;
 use handeye_gige::GigeError;
 use handeye_hal::HalError;
 
+use crate::wire::FailureClass;
+
 /// Everything that can go wrong with a GenTL producer. Messages tell the operator what to do.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -64,9 +66,37 @@ pub enum GentlError {
     /// The camera's features or frames (GenApi node map, PFNC decoding).
     #[error(transparent)]
     Camera(#[from] GigeError),
-    /// The thread that owns the producer's handles is gone.
-    #[error("the GenTL camera thread stopped ({0}); reconnect the camera")]
+    /// The camera's host process is gone or cannot be reached.
+    #[error("the GenTL camera's host process is not available ({0}); reconnect the camera")]
     Closed(String),
+    /// A producer call did not return within its deadline: its host process was killed.
+    #[error("the GenTL producer {} did not return from {call} within {deadline:?}; its host process was killed and a new one opens the camera for the next request; check the camera and its producer (the vendor's log), or raise camera.call_timeout_s if the camera is that slow", producer.display())]
+    Deadline {
+        /// The call (or the step of the host between calls).
+        call: String,
+        /// The producer file.
+        producer: PathBuf,
+        /// The deadline passed.
+        deadline: Duration,
+    },
+    /// The producer ended its host process (it aborted, crashed or called `exit()`).
+    #[error("the GenTL producer {} ended its host process during {call} ({status}); a new one opens the camera for the next request; check the producer (the vendor's log) and the camera", producer.display())]
+    HostEnded {
+        /// The call (or the step of the host) in progress.
+        call: String,
+        /// The producer file.
+        producer: PathBuf,
+        /// How the process ended.
+        status: String,
+    },
+    /// An error the host process reported.
+    #[error("{message}")]
+    Host {
+        /// Its text.
+        message: String,
+        /// What it becomes for the daemon.
+        class: FailureClass,
+    },
 }
 
 impl GentlError {
@@ -87,7 +117,21 @@ impl From<GentlError> for HalError {
                 what: format!("GenTL camera frame ({detail})"),
                 timeout,
             },
-            other @ (GentlError::Closed(_) | GentlError::Call { .. }) => HalError::Connection {
+            GentlError::Host {
+                message,
+                class: FailureClass::FrameTimeout { timeout_ms },
+            } => HalError::Timeout {
+                what: format!("GenTL camera frame ({message})"),
+                timeout: Duration::from_millis(timeout_ms),
+            },
+            other @ (GentlError::Closed(_)
+            | GentlError::Call { .. }
+            | GentlError::Deadline { .. }
+            | GentlError::HostEnded { .. }
+            | GentlError::Host {
+                class: FailureClass::Connection,
+                ..
+            }) => HalError::Connection {
                 peer: "GenTL camera".into(),
                 source: std::io::Error::other(other.to_string()),
             },

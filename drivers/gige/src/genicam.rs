@@ -1,12 +1,11 @@
-//! GenICam: fetch the device's XML (first/second URL register, `Local:` plain or zipped) and
-//! evaluate its node map.
+//! GenICam: fetch the device's XML (first/second URL register, `Local:` plain or zipped, see
+//! `url`) and evaluate its node map.
 //!
 //! Node-map evaluation (Integer, Float, Enumeration, Command, Boolean, String, the register
 //! nodes, Converter/IntConverter/SwissKnife/IntSwissKnife formulas, selectors, pValue/pMin/pMax
 //! indirections, endianness) is done by the `cameleon-genapi` crate; this module adds the
 //! transport, URL parsing, unzipping and a small typed facade with clear errors.
 
-use std::io::Read;
 use std::panic::AssertUnwindSafe;
 
 use cameleon_genapi::builder::GenApiBuilder;
@@ -16,166 +15,10 @@ use cameleon_genapi::ValueCtxt;
 
 use crate::client::GvcpClient;
 use crate::error::{GigeError, Result};
-use crate::gvcp::reg;
 
-/// Where a device keeps its XML.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum XmlUrl {
-    /// In device memory.
-    Local {
-        /// File name (ends in `.zip` when compressed).
-        file: String,
-        /// Start address.
-        address: u32,
-        /// Length in bytes.
-        length: u32,
-    },
-    /// A file on the host.
-    File(String),
-    /// A web address (not fetched by this driver).
-    Http(String),
-}
+mod url;
 
-impl XmlUrl {
-    /// Parse the URL register text (`Local:name.xml;10000;3e67`, `local:///name;0x10000;3e67`,
-    /// optional `?SchemaVersion=…`).
-    pub fn parse(s: &str) -> Result<Self> {
-        const W: &str = "XML URL";
-        let s = s.trim_matches(|c: char| c == '\0' || c.is_whitespace());
-        let s = s.split('?').next().unwrap_or(s);
-        let (scheme, rest) = s
-            .split_once(':')
-            .ok_or_else(|| GigeError::malformed(W, format!("`{s}` has no scheme")))?;
-        match scheme.to_ascii_lowercase().as_str() {
-            "local" => {
-                let rest = rest.trim_start_matches('/');
-                let parts: Vec<&str> = rest.split(';').collect();
-                if parts.len() != 3 {
-                    return Err(GigeError::malformed(
-                        W,
-                        format!("`{s}`: expected Local:name;address;length"),
-                    ));
-                }
-                let hex = |t: &str| {
-                    let t = t.trim();
-                    let t = t
-                        .strip_prefix("0x")
-                        .or_else(|| t.strip_prefix("0X"))
-                        .unwrap_or(t);
-                    u64::from_str_radix(t, 16)
-                        .ok()
-                        .and_then(|v| u32::try_from(v).ok())
-                        .ok_or_else(|| {
-                            GigeError::malformed(
-                                W,
-                                format!("`{s}`: `{t}` is not a 32-bit hex number"),
-                            )
-                        })
-                };
-                let (address, length) = (hex(parts[1])?, hex(parts[2])?);
-                if length == 0 || length as usize > MAX_XML_BYTES {
-                    return Err(GigeError::malformed(
-                        W,
-                        format!("`{s}`: absurd XML length {length}"),
-                    ));
-                }
-                Ok(Self::Local {
-                    file: parts[0].trim().to_owned(),
-                    address,
-                    length,
-                })
-            }
-            "file" => Ok(Self::File(rest.trim_start_matches("///").to_owned())),
-            "http" | "https" => Ok(Self::Http(s.to_owned())),
-            other => Err(GigeError::malformed(
-                W,
-                format!("`{s}`: unknown scheme `{other}`"),
-            )),
-        }
-    }
-}
-
-/// Largest unzipped GenICam XML, bytes.
-const MAX_UNZIPPED_XML_BYTES: u64 = 32 << 20;
-
-/// Unzip `bytes` when they are a ZIP archive (first entry), else return them; then UTF-8.
-pub fn xml_text(bytes: &[u8]) -> Result<String> {
-    const W: &str = "GenICam XML";
-    let data = if bytes.starts_with(b"PK\x03\x04") {
-        let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes))
-            .map_err(|e| GigeError::malformed(W, format!("bad ZIP archive: {e}")))?;
-        let mut entry = zip
-            .by_index(0)
-            .map_err(|e| GigeError::malformed(W, format!("ZIP archive without a file: {e}")))?;
-        let mut out = Vec::new();
-        entry
-            .by_ref()
-            .take(MAX_UNZIPPED_XML_BYTES + 1)
-            .read_to_end(&mut out)
-            .map_err(|e| GigeError::malformed(W, format!("cannot unzip: {e}")))?;
-        if out.len() as u64 > MAX_UNZIPPED_XML_BYTES {
-            return Err(GigeError::malformed(
-                W,
-                format!("the ZIP archive unzips to more than {MAX_UNZIPPED_XML_BYTES} bytes"),
-            ));
-        }
-        out
-    } else {
-        bytes.to_vec()
-    };
-    let end = data.iter().rposition(|&c| c != 0).map_or(0, |i| i + 1);
-    String::from_utf8(data[..end].to_vec())
-        .map_err(|e| GigeError::malformed(W, format!("not UTF-8: {e}")))
-}
-
-/// Largest GenICam XML (or ZIP of it) read from a device or file, bytes; real ones are a few
-/// hundred kB (ZIP: tens of kB), and each 536 bytes of device memory is one GVCP round trip.
-pub const MAX_XML_BYTES: usize = 16 << 20;
-
-/// Read the XML a URL names: `Local:` through `read_mem(address, length)` (the device's
-/// memory), `File:` from this host; unzipped when zipped. `http:` is refused with what to do.
-pub fn load_xml(
-    url: XmlUrl,
-    read_mem: impl FnOnce(u32, usize) -> Result<Vec<u8>>,
-) -> Result<String> {
-    match url {
-        XmlUrl::Local {
-            address, length, ..
-        } => xml_text(&read_mem(address, length as usize)?),
-        XmlUrl::File(path) => {
-            // The device names the file: never a FIFO or device, never unbounded.
-            handeye_hal::limits::check_regular_file(
-                std::path::Path::new(&path),
-                MAX_XML_BYTES as u64,
-            )
-            .and_then(|_| std::fs::read(&path))
-            .map_err(|e| GigeError::io(path, e))
-            .and_then(|bytes| xml_text(&bytes))
-        }
-        XmlUrl::Http(u) => Err(GigeError::malformed(
-            "XML URL",
-            format!("`{u}`: downloading the XML is not supported; save it and use a File: URL"),
-        )),
-    }
-}
-
-/// Read the XML of a device: first URL register, then the second one as fallback.
-pub fn fetch_xml(client: &GvcpClient) -> Result<String> {
-    let mut last_err = None;
-    for url_reg in [reg::FIRST_URL, reg::SECOND_URL] {
-        let fetched = client
-            .read_string(url_reg, 512)
-            .and_then(|u| XmlUrl::parse(&u))
-            .and_then(|url| load_xml(url, |address, length| client.read_mem(address, length)));
-        match fetched {
-            Ok(x) => return Ok(x),
-            // A device that does not answer (or stalls) will not answer the second URL either.
-            Err(e @ (GigeError::Timeout { .. } | GigeError::Stalled { .. })) => return Err(e),
-            Err(e) => last_err = Some(e),
-        }
-    }
-    Err(last_err.unwrap_or_else(|| GigeError::malformed("XML URL", "no URL register")))
-}
+pub use url::{fetch_xml, load_xml, xml_text, XmlUrl, MAX_XML_BYTES};
 
 /// Longest formula (`<Formula>`, `<FormulaTo>`, `<FormulaFrom>`, `<Expression>` text, as
 /// written in the XML) accepted. Sized from real descriptions (tests/data/genicam-corpus):
@@ -791,6 +634,8 @@ mod tests {
         );
         for bad in [
             "",
+            "File://camera.local/x.xml",
+            "File:///x%2",
             "Local:x;zz;10",
             "Local:x;10",
             "Local:x;10;0",
@@ -799,6 +644,53 @@ mod tests {
         ] {
             assert!(XmlUrl::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    /// Issue 46: `File:` URLs as RFC 8089 says: `File:///abs` and `file://localhost/abs` are
+    /// absolute (they were read relative to the working directory, and the failure was called
+    /// a network error), a relative path is read from the producer's directory.
+    #[test]
+    fn issue_46_file_urls_are_absolute_or_relative_to_the_producer() {
+        let dir = std::env::temp_dir().join(format!("handeye-file-url-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("sub dir")).expect("dir");
+        let xml = dir.join("sub dir/cam.xml");
+        std::fs::write(&xml, "<RegisterDescription/>").expect("xml");
+        let abs = xml.display().to_string().replace(' ', "%20");
+        let no_mem = |_, _| -> Result<Vec<u8>> { panic!("not a Local: URL") };
+        for url in [
+            format!("File://{abs}"),
+            format!("file://localhost{abs}"),
+            format!("File:{abs}?SchemaVersion=1.0.0"),
+        ] {
+            let parsed = XmlUrl::parse(&url).expect("url");
+            assert_eq!(parsed, XmlUrl::File(xml.display().to_string()), "{url}");
+            assert_eq!(
+                load_xml(parsed, Some(std::path::Path::new("/nonexistent")), no_mem).expect(&url),
+                "<RegisterDescription/>"
+            );
+        }
+        let rel = XmlUrl::parse("File:sub%20dir/cam.xml").expect("relative");
+        assert_eq!(
+            load_xml(rel.clone(), Some(&dir), no_mem).expect("from the producer's dir"),
+            "<RegisterDescription/>"
+        );
+        let e = load_xml(rel, None, no_mem)
+            .expect_err("no base")
+            .to_string();
+        assert!(e.contains("is relative"), "{e}");
+        let e = load_xml(
+            XmlUrl::parse("File:///nonexistent/x.xml").expect("url"),
+            None,
+            no_mem,
+        )
+        .expect_err("missing")
+        .to_string();
+        assert!(
+            e.contains("cannot read the device's XML file /nonexistent/x.xml"),
+            "{e}"
+        );
+        assert!(!e.contains("network"), "{e}");
+        std::fs::remove_dir_all(&dir).expect("cleanup");
     }
 
     #[test]

@@ -90,6 +90,7 @@ pub unsafe extern "C" fn EventGetData(
     size: *mut usize,
     timeout_ms: u64,
 ) -> GcError {
+    crate::faults::at("EventGetData");
     call_unlocked(|| {
         let s = event_stream(event)?;
         let need = std::mem::size_of::<NewBufferData>();
@@ -416,11 +417,13 @@ pub extern "C" fn DSFlushQueue(ds: *mut c_void, operation: i32) -> GcError {
 
 #[no_mangle]
 pub extern "C" fn DSStartAcquisition(ds: *mut c_void, _flags: i32, count: u64) -> GcError {
+    crate::faults::at("DSStartAcquisition");
     call(|p| p.stream(ds)?.start(count))
 }
 
 #[no_mangle]
 pub extern "C" fn DSStopAcquisition(ds: *mut c_void, _flags: i32) -> GcError {
+    crate::faults::at("DSStopAcquisition");
     // The stream is looked up under the lock; waiting for its thread is not.
     let mut stream = None;
     let code = call(|p| {
@@ -552,7 +555,10 @@ pub unsafe extern "C" fn DSGetNumBufferParts(
     n: *mut u32,
 ) -> GcError {
     call(|p| {
-        let parts = with_slot(p, ds, handle, |slot, _| Ok(filled(slot)?.parts.len()))?;
+        let mut parts = with_slot(p, ds, handle, |slot, _| Ok(filled(slot)?.parts.len()))?;
+        if crate::faults::on("overlapping-parts") {
+            parts = 64;
+        }
         // SAFETY: the caller's out-pointer.
         unsafe { out(n, parts as u32, "piNumParts") }
     })
@@ -572,16 +578,30 @@ pub unsafe extern "C" fn DSGetBufferPartInfo(
 ) -> GcError {
     call(|p| {
         let info = with_slot(p, ds, handle, |slot, _| {
-            let part = *filled(slot)?
-                .parts
-                .get(index as usize)
+            let all = &filled(slot)?.parts;
+            let overlapping = crate::faults::on("overlapping-parts");
+            let at = if overlapping {
+                index as usize % all.len().max(1)
+            } else {
+                index as usize
+            };
+            let part = *all
+                .get(at)
                 .ok_or_else(|| Fail::new(err::INVALID_INDEX, format!("no part {index}")))?;
+            let range = part.format == u64::from(handeye_gige::decode::pfnc::COORD3D_ABC32F);
             Ok(match cmd {
+                0 if overlapping => Info::Ptr(slot.base),
                 0 => Info::Ptr(slot.base + part.offset),
+                1 if overlapping => Info::SizeT(slot.size),
+                1 if range && crate::faults::on("short-part") => Info::SizeT(part.size - 4),
                 1 => Info::SizeT(part.size),
                 2 => Info::SizeT(part.data_type as usize),
+                3 if range && crate::faults::on("lying-format") => {
+                    Info::U64(u64::from(handeye_gige::decode::pfnc::COORD3D_C16))
+                }
                 3 => Info::U64(part.format),
                 4 => Info::U64(abi::PIXELFORMAT_NAMESPACE_PFNC_32BIT),
+                5 if crate::faults::on("zero-width") => Info::SizeT(0),
                 5 => Info::SizeT(part.width as usize),
                 6 | 11 => Info::SizeT(part.height as usize),
                 7..=9 => Info::SizeT(0),

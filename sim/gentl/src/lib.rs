@@ -12,6 +12,9 @@
 //! (millimetres, NaN where nothing was measured), then Confidence16 when
 //! `ComponentEnable[Confidence]` is set.
 //!
+//! `HANDEYE_SIM_GENTL_FAULT` makes it a hostile producer for tests (`faults`: calls that
+//! block, abort or exit, parts and values that lie).
+//!
 //! Layout: `abi` (error codes, `...GetInfo` conventions), this file (the library's state, the
 //! handles, `GCInitLib`/`GCCloseLib`/`GCGetInfo`/`GCGetLastError`), `modules` (system,
 //! interface, device), `ports` (the remote device's registers and XML), `datastream` (its C
@@ -20,6 +23,7 @@
 
 mod abi;
 mod datastream;
+mod faults;
 mod modules;
 mod ports;
 mod stream;

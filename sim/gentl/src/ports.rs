@@ -47,7 +47,17 @@ pub unsafe extern "C" fn GCReadPort(
         p.camera()?
             .device
             .read(address, dst)
-            .map_err(|e| port_error(e, address))
+            .map_err(|e| port_error(e, address))?;
+        // camera.xml's Scan3dCoordinateScale and Scan3dCoordinateOffset (f64, big-endian).
+        for (reg, fault, value) in [
+            (0xA100, "scale-zero", 0.0f64),
+            (0xA108, "offset-1e30", 1e30),
+        ] {
+            if address == reg && dst.len() == 8 && crate::faults::on(fault) {
+                dst.copy_from_slice(&value.to_be_bytes());
+            }
+        }
+        Ok(())
     })
 }
 
@@ -70,6 +80,10 @@ pub unsafe extern "C" fn GCWritePort(
         }
         // SAFETY: the caller's buffer of `*size` bytes (GenTL contract).
         let src = unsafe { std::slice::from_raw_parts(buf.cast::<u8>(), *size) };
+        // camera.xml's AcquisitionStartReg.
+        if address == 0xA014 {
+            crate::faults::at("AcquisitionStart");
+        }
         p.camera()?
             .device
             .write(address, src)

@@ -21,7 +21,7 @@ pub use formats::{
     DEPTH_OUTPUT_MODES, INTENSITY_FORMATS, POINT_OUTPUT_MODES, RANGE_FORMATS,
 };
 pub use points::decode_range;
-pub use scan3d::Scan3d;
+pub use scan3d::{Scan3d, MAX_COORDINATE_M};
 
 pub(crate) fn f32_le(b: &[u8], i: usize) -> f32 {
     f32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]])
@@ -254,6 +254,59 @@ mod tests {
         assert!((c.points[0].x - 0.1).abs() < 1e-6 && (c.points[0].z - 1.0).abs() < 1e-6);
         assert!(c.points[1].x.is_nan());
         assert_eq!(c.valid_count(), 1);
+    }
+
+    /// Issue 46: a scale of 0 (every point at the origin) or an offset of 1e30 mm is refused;
+    /// a decoded coordinate beyond the working range (or infinite) is an invalid point, not
+    /// a valid one.
+    #[test]
+    fn issue_46_scale_offset_and_coordinates_are_bounded() {
+        let e = Scan3d {
+            scale: [1.0, 1.0, 0.0],
+            ..Scan3d::default()
+        }
+        .check()
+        .expect_err("scale 0")
+        .to_string();
+        assert!(
+            e.contains("Scan3dCoordinateScale") && e.contains("0 for C"),
+            "{e}"
+        );
+        let e = Scan3d {
+            offset: [1e30, 0.0, 0.0],
+            ..Scan3d::default()
+        }
+        .check()
+        .expect_err("offset")
+        .to_string();
+        assert!(
+            e.contains("Scan3dCoordinateOffset") && e.contains("beyond the 100 m"),
+            "{e}"
+        );
+        assert!(Scan3d::default().check().is_ok());
+        let mut d = Vec::new();
+        for v in [
+            1e30f32,
+            0.0,
+            1000.0,
+            f32::INFINITY,
+            0.0,
+            1.0,
+            0.0,
+            0.0,
+            99_000.0,
+        ] {
+            d.extend_from_slice(&v.to_le_bytes());
+        }
+        let c = decode_range(&part(pfnc::COORD3D_ABC32F, 3, 1), &d, &Scan3d::default())
+            .expect("decode");
+        assert!(
+            c.points[0].x.is_nan() && c.points[1].x.is_nan(),
+            "{:?}",
+            c.points
+        );
+        assert_eq!(c.valid_count(), 1);
+        assert!((c.points[2].z - 99.0).abs() < 1e-4);
     }
 
     #[test]

@@ -29,7 +29,10 @@ fn abc_points(
                 continue;
             }
             let c: [f64; 3] = std::array::from_fn(|k| (r[k] * s.scale[k] + s.offset[k]) * m);
-            points.push(Point3::new(c[0] as f32, c[1] as f32, c[2] as f32));
+            points.push(match Scan3d::bounded(c) {
+                Some(c) => Point3::new(c[0] as f32, c[1] as f32, c[2] as f32),
+                None => NAN,
+            });
         }
     }
     points
@@ -112,7 +115,10 @@ fn depth_points(
             let z = (raw * s.scale[2] + s.offset[2]) * m;
             let x = (u as f64 - cu) * z / fx;
             let y = (v as f64 - cv) * z / fy;
-            points.push(Point3::new(x as f32, y as f32, z as f32));
+            points.push(match Scan3d::bounded([x, y, z]) {
+                Some(_) => Point3::new(x as f32, y as f32, z as f32),
+                None => NAN,
+            });
         }
     }
     Ok(points)

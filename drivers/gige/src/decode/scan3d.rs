@@ -149,9 +149,48 @@ impl Scan3d {
             s.invalid_value = [read_invalid(n, p, &mut flag_warned)?; 3];
         }
         read_intrinsics(n, p, &mut s)?;
+        s.check()?;
         Ok(s)
     }
+
+    /// Refuses values no camera can mean: a scale that is not positive and finite (0 puts
+    /// every point at the offset), an offset beyond [`MAX_COORDINATE_M`] (1e30 mm).
+    pub fn check(&self) -> Result<()> {
+        for (k, name) in COORDINATE_NAMES.iter().enumerate() {
+            let scale = self.scale[k];
+            if !(scale.is_finite() && scale > 0.0) {
+                return Err(GigeError::feature(
+                    "Scan3dCoordinateScale",
+                    format!("{scale} for {name}: a scale must be positive and finite; check the camera's calibration"),
+                ));
+            }
+            let offset_m = self.offset[k] * self.metres_per_unit;
+            if !(offset_m.is_finite() && offset_m.abs() <= MAX_COORDINATE_M) {
+                return Err(GigeError::feature(
+                    "Scan3dCoordinateOffset",
+                    format!(
+                        "{} for {name} ({offset_m:e} m): beyond the {MAX_COORDINATE_M} m any 3D camera measures; check the camera's calibration",
+                        self.offset[k]
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// A point in metres as the decoders keep it: NaN (invalid) when a coordinate is not
+    /// finite or beyond [`MAX_COORDINATE_M`].
+    pub(crate) fn bounded(c: [f64; 3]) -> Option<[f64; 3]> {
+        c.iter()
+            .all(|v| v.is_finite() && v.abs() <= MAX_COORDINATE_M)
+            .then_some(c)
+    }
 }
+
+/// The working range: a coordinate farther than this from the camera (metres) is not a
+/// measurement (the longest-range structured-light and time-of-flight cameras reach tens of
+/// metres). Offsets beyond it are refused; decoded points beyond it are invalid (NaN).
+pub const MAX_COORDINATE_M: f64 = 100.0;
 
 fn read_unit(n: &mut NodeMap, p: &mut impl RegisterPort) -> Result<f64> {
     if !n.has("Scan3dDistanceUnit") {
