@@ -31,6 +31,7 @@ use rusqlite::{params, Connection, ErrorCode, OpenFlags, OptionalExtension, Tran
 use serde::{Deserialize, Serialize};
 
 use crate::calendar::unix_now;
+use crate::lockfile::{flock, open_lock_file, FlockMode};
 use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger, WriteTarget};
 
 #[cfg(test)]
@@ -1109,12 +1110,7 @@ impl WriterLock {
     /// Exclusive when no other writer holds the lock, shared otherwise.
     fn acquire(db: &Path) -> Result<WriterLock, StoreError> {
         let path = Self::lock_path(db);
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(&path)
-            .map_err(|source| StoreError::Io {
+        let file = open_lock_file(&path).map_err(|source| StoreError::Io {
                 action: "open the lock file",
                 path: path.clone(),
                 source,
@@ -1144,40 +1140,6 @@ impl WriterLock {
         })?;
         Ok(self.file)
     }
-}
-
-pub(crate) enum FlockMode {
-    /// Exclusive without waiting; `Ok(false)` when another process holds the lock.
-    ExclusiveNow,
-    /// Shared, waiting for an exclusive holder.
-    Shared,
-}
-
-#[cfg(unix)]
-pub(crate) fn flock(file: &File, mode: FlockMode) -> std::io::Result<bool> {
-    use std::os::fd::AsRawFd;
-    let op = match mode {
-        FlockMode::ExclusiveNow => libc::LOCK_EX | libc::LOCK_NB,
-        FlockMode::Shared => libc::LOCK_SH,
-    };
-    loop {
-        // SAFETY: flock on a file descriptor this `File` owns for the duration of the call.
-        if unsafe { libc::flock(file.as_raw_fd(), op) } == 0 {
-            return Ok(true);
-        }
-        let e = std::io::Error::last_os_error();
-        match e.raw_os_error() {
-            Some(libc::EINTR) => continue,
-            Some(libc::EWOULDBLOCK) => return Ok(false),
-            _ => return Err(e),
-        }
-    }
-}
-
-/// Without `flock`, every writer recovers: run one writer at a time.
-#[cfg(not(unix))]
-pub(crate) fn flock(_file: &File, _mode: FlockMode) -> std::io::Result<bool> {
-    Ok(true)
 }
 
 /// Maps SQLite's errors to the ones an operator can act on.

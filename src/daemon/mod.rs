@@ -16,6 +16,7 @@
 //! with devices at hand call [`run`].
 
 pub mod api;
+pub mod arm;
 pub mod control;
 pub mod listener;
 pub mod lock;

@@ -52,13 +52,9 @@ impl JournalLock {
     /// Takes the lock without waiting; `Ok(None)` when another live process holds it.
     pub(crate) fn try_acquire(storage: &Path) -> std::io::Result<Option<JournalLock>> {
         std::fs::create_dir_all(storage)?;
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(storage.join(JOURNAL_LOCK_FILE))?;
+        let file = crate::lockfile::open_lock_file(&storage.join(JOURNAL_LOCK_FILE))?;
         Ok(
-            crate::store::flock(&file, crate::store::FlockMode::ExclusiveNow)?
+            crate::lockfile::flock(&file, crate::lockfile::FlockMode::ExclusiveNow)?
                 .then_some(JournalLock(file)),
         )
     }

@@ -792,3 +792,19 @@ fn issue_23_one_bad_row_does_not_fail_the_list() {
     assert_eq!(listed, ["good2", "good1"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 46: `history.sqlite-lock` is never opened through a link (an outside file was
+/// created or locked): the history refuses to open, saying so, and the link's target is not
+/// made.
+#[cfg(unix)]
+#[test]
+fn issue_46_the_writers_lock_is_never_opened_through_a_link() {
+    let dir = temp_dir("lock-link");
+    let db = dir.join(HISTORY_FILE);
+    let outside = dir.join("outside");
+    std::os::unix::fs::symlink(&outside, dir.join("history.sqlite-lock")).expect("link");
+    let e = Store::open(&db).err().expect("a link in the lock's place");
+    assert!(e.to_string().contains("is a symbolic link"), "{e}");
+    assert!(!outside.exists(), "the link's target was created");
+    let _ = std::fs::remove_dir_all(&dir);
+}
