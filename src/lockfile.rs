@@ -230,9 +230,7 @@ fn describe(pid: u32) -> Holder {
     #[cfg(unix)]
     let user = {
         use std::os::unix::fs::MetadataExt as _;
-        std::fs::metadata(&dir)
-            .ok()
-            .map(|m| user_name(m.uid()))
+        std::fs::metadata(&dir).ok().map(|m| user_name(m.uid()))
     };
     #[cfg(not(unix))]
     let user = None;

@@ -42,6 +42,10 @@ pub const HISTORY_FILE: &str = "history.sqlite";
 /// Why a run that was still `running` when the store was opened again is `aborted`.
 pub const INTERRUPTED_REASON: &str =
     "interrupted: the program stopped during the run (crash, power loss or kill)";
+/// Why a run still `running` at the next open is `aborted` when the process that ran it lived
+/// on and could not record its end.
+pub const UNRECORDED_REASON: &str = "its end could not be recorded: the storage was full or \
+     could not be written when the run ended (the program lived on; its log has the outcome)";
 /// The schema version this program writes and reads.
 pub const SCHEMA_VERSION: i64 = 1;
 /// How long a statement waits for another process's write lock before giving up.
@@ -648,7 +652,9 @@ impl Store {
     }
 
     /// Up to `limit` runs, newest first; with `before_unix_s`, only runs started before it
-    /// (pass the last one's `started_unix_s` to page on).
+    /// (pass the last one's `started_unix_s` to page on). Newest by the history's sequence
+    /// (the rowid: rows are only ever added, in the order runs begin, and the table is never
+    /// vacuumed), not by the clock, which may have been set wrong or stepped since.
     pub fn list(
         &self,
         limit: usize,
@@ -658,7 +664,7 @@ impl Store {
         let conn = self.lock();
         let sql = format!(
             "SELECT {SUMMARY_COLUMNS} FROM runs WHERE (?2 IS NULL OR started_unix_s < ?2)
-             ORDER BY started_unix_s DESC, run_id DESC LIMIT ?1"
+             ORDER BY rowid DESC LIMIT ?1"
         );
         let run = || -> rusqlite::Result<Vec<RunSummary>> {
             let mut stmt = conn.prepare_cached(&sql)?;
@@ -745,8 +751,9 @@ impl Store {
         }
     }
 
-    /// The newest run, optionally of one mode and/or with one outcome; a row dated after now
-    /// (more than [`crate::calendar::MAX_CLOCK_AHEAD_S`]) is not one (a planted or forged one).
+    /// The newest run by the history's sequence (see [`Store::list`]), optionally of one mode
+    /// and/or with one outcome. Its dates do not decide: a run made while the clock was a day
+    /// or ten years wrong is the latest until a later one is begun.
     pub fn latest(
         &self,
         mode: Option<RunMode>,
@@ -756,16 +763,11 @@ impl Store {
         let sql = format!(
             "SELECT {SUMMARY_COLUMNS} FROM runs
              WHERE (?1 IS NULL OR mode = ?1) AND (?2 IS NULL OR outcome = ?2)
-               AND started_unix_s <= ?3
-             ORDER BY started_unix_s DESC, run_id DESC LIMIT 1"
+             ORDER BY rowid DESC LIMIT 1"
         );
         conn.query_row(
             &sql,
-            params![
-                mode.map(RunMode::name),
-                outcome.map(Outcome::name),
-                unix_now() + crate::calendar::MAX_CLOCK_AHEAD_S
-            ],
+            params![mode.map(RunMode::name), outcome.map(Outcome::name)],
             summary_from_row,
         )
         .optional()
@@ -790,7 +792,7 @@ impl Store {
         let run = || -> rusqlite::Result<Vec<String>> {
             let mut stmt = conn.prepare(
                 "SELECT run_id, started_unix_s, outcome, captures_pruned_unix_s FROM runs
-                 ORDER BY started_unix_s DESC, run_id DESC",
+                 ORDER BY rowid DESC",
             )?;
             let rows = stmt.query_map([], |r| {
                 Ok((
@@ -823,14 +825,29 @@ impl Store {
         Ok(())
     }
 
-    /// Marks every run still `running` as `aborted`; returns how many.
+    /// Marks every run still `running` as `aborted`, with [`UNRECORDED_REASON`] when its
+    /// process lived on ([`crate::storage::run_unrecorded`]), else [`INTERRUPTED_REASON`];
+    /// returns how many.
     fn recover_interrupted(&self) -> Result<usize, StoreError> {
-        self.writable()?
-            .execute(
-                "UPDATE runs SET outcome = 'aborted', reason = ?1 WHERE outcome = 'running'",
-                [INTERRUPTED_REASON],
-            )
-            .map_err(|e| sql_error(&self.path, "recover interrupted runs", e))
+        let storage = self.path.parent().unwrap_or(Path::new("."));
+        let conn = self.writable()?;
+        let run = || -> rusqlite::Result<usize> {
+            let mut stmt = conn.prepare("SELECT run_id FROM runs WHERE outcome = 'running'")?;
+            let ids = stmt.query_map([], |r| r.get::<_, String>(0))?;
+            let ids = ids.collect::<rusqlite::Result<Vec<String>>>()?;
+            for id in &ids {
+                let why = match crate::storage::run_unrecorded(storage, id) {
+                    true => UNRECORDED_REASON,
+                    false => INTERRUPTED_REASON,
+                };
+                conn.execute(
+                    "UPDATE runs SET outcome = 'aborted', reason = ?2 WHERE run_id = ?1",
+                    params![id, why],
+                )?;
+            }
+            Ok(ids.len())
+        };
+        run().map_err(|e| sql_error(&self.path, "recover interrupted runs", e))
     }
 
     fn lock(&self) -> MutexGuard<'_, Connection> {
@@ -1111,10 +1128,10 @@ impl WriterLock {
     fn acquire(db: &Path) -> Result<WriterLock, StoreError> {
         let path = Self::lock_path(db);
         let file = open_lock_file(&path).map_err(|source| StoreError::Io {
-                action: "open the lock file",
-                path: path.clone(),
-                source,
-            })?;
+            action: "open the lock file",
+            path: path.clone(),
+            source,
+        })?;
         let sole = flock(&file, FlockMode::ExclusiveNow).map_err(|source| StoreError::Io {
             action: "lock",
             path: path.clone(),

@@ -159,7 +159,10 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     };
     // Whatever the configuration: an arm another process holds is not moved by hand.
     let _claim = match moves && _arm.is_none() {
-        true => Some(handeye::daemon::arm::ArmClaim::take(host, cfg.ports.dashboard)?),
+        true => Some(handeye::daemon::arm::ArmClaim::take(
+            host,
+            cfg.ports.dashboard,
+        )?),
         false => None,
     };
     // Only `registers` reads and writes them (24–47 and the int registers 24–31, whatever

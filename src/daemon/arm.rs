@@ -144,17 +144,18 @@ fn storage_of(holder: &Holder) -> Option<PathBuf> {
 mod tests {
     use super::*;
     use std::net::Ipv4Addr;
+    use std::os::unix::process::CommandExt as _;
 
     /// Issue 46: an arm is claimed once, whatever the storage: a second claim of the same
-    /// address is refused naming the holder (its pid and its storage, from the kernel), another
-    /// address is another arm, and the claim goes with its holder.
+    /// address is refused naming the holder (its pid and, from its open `daemon.lock`, its
+    /// storage: here `flock(1)` holding a storage's lock and the claim), another address is
+    /// another arm, and the claim goes with its holder.
     #[test]
     fn issue_46_one_arm_is_claimed_once_naming_the_holder_and_its_storage() {
         let dir = std::env::temp_dir().join(format!("handeye-arm-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("dir");
         let storage = dir.join("storage-a");
-        let _storage_lock = super::super::lock::DaemonLock::acquire(&storage).expect("storage");
+        std::fs::create_dir_all(&storage).expect("dir");
         let host = IpAddr::V4(Ipv4Addr::new(127, 0, 0, 71));
         let first = ArmClaim::take_in(&dir, host, 29999).expect("first");
         let e = ArmClaim::take_in(&dir, host, 29999).expect_err("second");
@@ -166,18 +167,53 @@ mod tests {
             )),
             "{text}"
         );
-        assert!(
-            text.contains(&format!("storage {}", storage.display())),
-            "{text}"
-        );
         let other = ArmClaim::take_in(&dir, host, 30000).expect("another arm");
         drop((first, other));
-        let again = ArmClaim::take_in(&dir, host, 29999).expect("free once dropped");
+        // Another process holds a storage's lock and the claim.
+        let claim = dir.join(file_name(host, 29999));
+        let mut holder = std::process::Command::new("flock")
+            .arg("-x")
+            .arg(storage.join(super::super::lock::LOCK_FILE))
+            .args(["flock", "-x"])
+            .arg(&claim)
+            .args(["sleep", "30"])
+            .process_group(0)
+            .spawn()
+            .expect("flock(1)");
+        let mut refused = None;
+        for _ in 0..100 {
+            match ArmClaim::take_in(&dir, host, 29999) {
+                Ok(c) => drop(c),
+                Err(e) => {
+                    refused = Some(e.to_string());
+                    break;
+                }
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        // The whole group: the inner flock(1) holds the claim.
+        // SAFETY: kill(2) on the process group this test made.
+        unsafe { libc::kill(-(holder.id() as i32), libc::SIGKILL) };
+        let _ = holder.wait();
+        let text = refused.expect("flock(1) never held the claim");
+        assert!(
+            text.contains(&format!("`flock -x {}", claim.display()))
+                && text.contains(&format!("storage {}", storage.display())),
+            "{text}"
+        );
+        let mut again = None;
+        for _ in 0..100 {
+            if let Ok(c) = ArmClaim::take_in(&dir, host, 29999) {
+                again = Some(c);
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+        assert!(again.is_some(), "the claim stayed after its holder died");
         drop(again);
         // A link in the claim's place is refused, never followed.
-        let path = dir.join(file_name(host, 29999));
-        std::fs::remove_file(&path).expect("rm");
-        std::os::unix::fs::symlink(dir.join("elsewhere"), &path).expect("link");
+        std::fs::remove_file(&claim).expect("rm");
+        std::os::unix::fs::symlink(dir.join("elsewhere"), &claim).expect("link");
         let e = ArmClaim::take_in(&dir, host, 29999).expect_err("a link");
         assert!(e.to_string().contains("is a symbolic link"), "{e}");
         assert!(!dir.join("elsewhere").exists());

@@ -188,10 +188,7 @@ mod tests {
             run_command(&holder("/usr/bin/handeye calibrate --config c.toml")),
             Some("calibrate")
         );
-        assert_eq!(
-            run_command(&holder("handeye daemon --config check")),
-            None
-        );
+        assert_eq!(run_command(&holder("handeye daemon --config check")), None);
         assert_eq!(run_command(&holder("flock -x f sleep 9")), None);
     }
 }

@@ -808,3 +808,29 @@ fn issue_46_the_writers_lock_is_never_opened_through_a_link() {
     assert!(!outside.exists(), "the link's target was created");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 46: a run whose process lived on but could not record its end (a full disk) is not
+/// called "crash, power loss or kill" at the next open (it was); one without the mark still is.
+#[test]
+fn issue_46_a_run_ended_unrecorded_is_not_called_killed() {
+    let dir = temp_dir("unrecorded");
+    let db = dir.join(HISTORY_FILE);
+    let (full, killed) = ("20261124T100000Z-00a1", "20261124T100100Z-00a2");
+    {
+        let store = Store::open(&db).expect("store");
+        for id in [full, killed] {
+            let r = record(id, RunMode::Check, Outcome::Accepted, 1_700_000_000.0);
+            store
+                .begin(&RunStart::new(&r, Trigger::Api, String::new()))
+                .expect("begin");
+        }
+        let run_dir = crate::storage::run_folder(&dir, full);
+        std::fs::create_dir_all(&run_dir).expect("run folder");
+        crate::storage::mark_run_unrecorded(&run_dir).expect("mark");
+    }
+    let store = Store::open(&db).expect("opens again");
+    let reason = |id| store.summary(id).expect("summary").expect("row").reason;
+    assert_eq!(reason(full).as_deref(), Some(UNRECORDED_REASON));
+    assert_eq!(reason(killed).as_deref(), Some(INTERRUPTED_REASON));
+    let _ = std::fs::remove_dir_all(&dir);
+}

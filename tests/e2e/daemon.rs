@@ -58,7 +58,7 @@ fn the_api_answers_while_the_robot_is_unreachable_and_a_second_daemon_refuses() 
     assert_eq!(second.code(), 2, "{second}");
     assert!(
         second.stderr.contains(&format!(
-            "another handeye daemon (pid {}) already runs on the storage",
+            "another handeye daemon (pid {}, user ",
             first.pid()
         )),
         "{second}"
@@ -645,7 +645,7 @@ fn issue_38_the_command_line_accepts_a_remount_but_never_beside_the_daemon() {
     assert_eq!(second.code(), 2, "{second}");
     assert!(
         second.stderr.contains(&format!(
-            "another `handeye calibrate` run (pid {}) already holds the storage",
+            "another `handeye calibrate` run (pid {}, user ",
             cli.pid()
         )) && second.stderr.contains("wait until it has ended"),
         "{second}"
