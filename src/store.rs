@@ -31,11 +31,13 @@ use rusqlite::{params, Connection, ErrorCode, OpenFlags, OptionalExtension, Tran
 use serde::{Deserialize, Serialize};
 
 use crate::calendar::unix_now;
-use crate::lockfile::{flock, open_lock_file, FlockMode};
 use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger, WriteTarget};
 
 #[cfg(test)]
 mod tests;
+mod writer_lock;
+
+use writer_lock::{no_links, WriterLock};
 
 /// File name of the history database in the storage directory.
 pub const HISTORY_FILE: &str = "history.sqlite";
@@ -442,6 +444,7 @@ impl Store {
             })?;
         }
         let lock = WriterLock::acquire(path)?;
+        no_links(path)?;
         // Only the sole writer may move the file: another one is using it.
         let set_aside = match damage(path).filter(|_| lock.sole) {
             Some(why) => Some(set_aside(path, why)?),
@@ -490,6 +493,7 @@ impl Store {
                 path: path.to_path_buf(),
             });
         }
+        no_links(path)?;
         let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
         let conn =
             Connection::open_with_flags(path, flags).map_err(|e| sql_error(path, "open", e))?;
@@ -1108,55 +1112,6 @@ fn migrate(conn: &mut Connection, path: &Path) -> Result<(), StoreError> {
     }
     tx.commit()
         .map_err(|e| sql_error(path, "commit the migration", e))
-}
-
-/// The advisory lock writers hold on `<db>-lock` (see the module docs).
-struct WriterLock {
-    file: File,
-    /// No other writer was alive: interrupted runs are ours to recover.
-    sole: bool,
-}
-
-impl WriterLock {
-    fn lock_path(db: &Path) -> PathBuf {
-        let mut name = db.as_os_str().to_owned();
-        name.push("-lock");
-        PathBuf::from(name)
-    }
-
-    /// Exclusive when no other writer holds the lock, shared otherwise.
-    fn acquire(db: &Path) -> Result<WriterLock, StoreError> {
-        let path = Self::lock_path(db);
-        let file = open_lock_file(&path).map_err(|source| StoreError::Io {
-            action: "open the lock file",
-            path: path.clone(),
-            source,
-        })?;
-        let sole = flock(&file, FlockMode::ExclusiveNow).map_err(|source| StoreError::Io {
-            action: "lock",
-            path: path.clone(),
-            source,
-        })?;
-        if !sole {
-            // Blocks only while another writer is between its exclusive check and sharing.
-            flock(&file, FlockMode::Shared).map_err(|source| StoreError::Io {
-                action: "lock",
-                path,
-                source,
-            })?;
-        }
-        Ok(WriterLock { file, sole })
-    }
-
-    /// Turns the exclusive lock into a shared one, once recovery is done.
-    fn share(self, db: &Path) -> Result<File, StoreError> {
-        flock(&self.file, FlockMode::Shared).map_err(|source| StoreError::Io {
-            action: "lock",
-            path: Self::lock_path(db),
-            source,
-        })?;
-        Ok(self.file)
-    }
 }
 
 /// Maps SQLite's errors to the ones an operator can act on.

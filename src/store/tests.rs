@@ -793,9 +793,9 @@ fn issue_23_one_bad_row_does_not_fail_the_list() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Issue 46: `history.sqlite-lock` is never opened through a link (an outside file was
-/// created or locked): the history refuses to open, saying so, and the link's target is not
-/// made.
+/// Issue 46: `history.sqlite-lock` (and the database, and its `-wal`) are never opened
+/// through a link (an outside file was created or locked): the history refuses to open,
+/// saying so, and the link's target is not made.
 #[cfg(unix)]
 #[test]
 fn issue_46_the_writers_lock_is_never_opened_through_a_link() {
@@ -806,6 +806,23 @@ fn issue_46_the_writers_lock_is_never_opened_through_a_link() {
     let e = Store::open(&db).err().expect("a link in the lock's place");
     assert!(e.to_string().contains("is a symbolic link"), "{e}");
     assert!(!outside.exists(), "the link's target was created");
+    std::fs::remove_file(dir.join("history.sqlite-lock")).expect("rm");
+    // … nor the database or the files SQLite keeps beside it.
+    for name in [HISTORY_FILE, "history.sqlite-wal"] {
+        std::os::unix::fs::symlink(&outside, dir.join(name)).expect("link");
+        let e = Store::open(&db)
+            .err()
+            .expect("a link in the history's place");
+        assert!(e.to_string().contains("a symbolic link"), "{name}: {e}");
+        assert!(!outside.exists(), "{name}: the link's target was created");
+        std::fs::remove_file(dir.join(name)).expect("rm");
+    }
+    // A storage reached through a linked folder is no link in the history's place.
+    let real = dir.join("real");
+    std::fs::create_dir_all(&real).expect("real");
+    std::os::unix::fs::symlink(&real, dir.join("via")).expect("folder link");
+    let store = Store::open(&dir.join("via").join(HISTORY_FILE)).expect("through a folder link");
+    drop(store);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

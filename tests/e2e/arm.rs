@@ -2,27 +2,12 @@
 //! first runs, the second refuses to start naming the first (pid, user, storage); a command on
 //! a third storage refuses too; the arm moves for the first alone. Addresses 127.0.0.70–73.
 
-use crate::daemon::{http, wait_status, TOKEN};
-use crate::support::{
-    joints, max_change, rig_config, run, secs, shared, start_rig, Daemon, TempDir,
-};
+use crate::daemon::{config_listening, http, wait_status, TOKEN};
+use crate::support::{joints, max_change, run, secs, shared, start_rig, Daemon, TempDir};
 
 /// A daemon's configuration in `dir` for the rig at 127.0.0.70/71, its API on `listen`.
 fn config(dir: &TempDir, listen: &str) -> std::path::PathBuf {
-    let token = dir.join("token");
-    std::fs::write(&token, format!("{TOKEN}\n")).expect("token");
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&token, std::fs::Permissions::from_mode(0o600)).expect("chmod");
-    }
-    rig_config(
-        dir,
-        "127.0.0.70",
-        "127.0.0.71",
-        "",
-        &format!("[daemon]\nlisten = \"{listen}\"\ntoken_file = \"token\"\n"),
-    )
+    config_listening(dir, "127.0.0.70", "127.0.0.71", listen, "")
 }
 
 #[test]
