@@ -111,6 +111,12 @@ pub enum StoreError {
         #[source]
         source: std::io::Error,
     },
+    /// A link stands where the history, or a file SQLite keeps beside it, belongs.
+    #[error("{} is a symbolic link; the history is never opened through one (a write would land elsewhere): remove the link", .path.display())]
+    Link {
+        /// The link.
+        path: PathBuf,
+    },
     /// SQLite cannot open the file.
     #[error("cannot open the history database {}: {source}; check the permissions of the file and its folder (SQLite also needs to create {}-wal and -shm beside it)", .path.display(), .path.display())]
     Open {

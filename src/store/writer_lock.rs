@@ -67,12 +67,7 @@ pub(super) fn no_links(db: &Path) -> Result<(), StoreError> {
         name.push(suffix);
         let path = PathBuf::from(name);
         if std::fs::symlink_metadata(&path).is_ok_and(|m| m.file_type().is_symlink()) {
-            let why = "a symbolic link; the history is never opened through one: remove the link";
-            return Err(StoreError::Io {
-                action: "open",
-                source: std::io::Error::new(std::io::ErrorKind::InvalidInput, why),
-                path,
-            });
+            return Err(StoreError::Link { path });
         }
     }
     Ok(())
