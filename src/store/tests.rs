@@ -803,16 +803,14 @@ fn issue_46_the_writers_lock_is_never_opened_through_a_link() {
     let db = dir.join(HISTORY_FILE);
     let outside = dir.join("outside");
     std::os::unix::fs::symlink(&outside, dir.join("history.sqlite-lock")).expect("link");
-    let e = Store::open(&db).err().expect("a link in the lock's place");
+    let e = Store::open(&db).expect_err("a link in the lock's place");
     assert!(e.to_string().contains("is a symbolic link"), "{e}");
     assert!(!outside.exists(), "the link's target was created");
     std::fs::remove_file(dir.join("history.sqlite-lock")).expect("rm");
     // … nor the database or the files SQLite keeps beside it.
     for name in [HISTORY_FILE, "history.sqlite-wal"] {
         std::os::unix::fs::symlink(&outside, dir.join(name)).expect("link");
-        let e = Store::open(&db)
-            .err()
-            .expect("a link in the history's place");
+        let e = Store::open(&db).expect_err("a link in the history's place");
         assert!(
             e.to_string()
                 .contains("is a symbolic link; the history is never opened"),
