@@ -79,7 +79,7 @@ impl ArmClaim {
     pub fn take(host: IpAddr, port: u16) -> Result<ArmClaim, ClaimError> {
         let shared = ArmClaim::take_in(Path::new(CLAIM_DIR), host, port);
         match shared {
-            Err(ClaimError::Io { path, source, .. }) => {
+            Err(ClaimError::Io { path, source, .. }) if folder_unusable(&path, &source) => {
                 let fallback = std::env::temp_dir();
                 tracing::warn!(
                     "cannot claim the arm in {}: {source}; claiming it in {} instead, which \
@@ -120,6 +120,21 @@ impl ArmClaim {
         tracing::info!("claimed the arm at {arm} ({})", path.display());
         Ok(ArmClaim { _file: file, path })
     }
+}
+
+/// Whether `error`, met opening the claim `path`, says that its folder cannot hold claims
+/// (absent, read-only, not writable for this user): then the temporary folder serves. A claim
+/// file that is there but cannot be opened (another user's, unreadable) is no such case: it
+/// may be held, so the claim fails.
+fn folder_unusable(path: &Path, error: &std::io::Error) -> bool {
+    let absent = std::fs::symlink_metadata(path).is_err();
+    #[cfg(unix)]
+    let read_only = error.raw_os_error() == Some(libc::EROFS);
+    #[cfg(not(unix))]
+    let read_only = false;
+    read_only
+        || !path.parent().is_some_and(Path::is_dir)
+        || (absent && error.kind() == std::io::ErrorKind::PermissionDenied)
 }
 
 /// The claim's file name for the arm at `host`, dashboard `port`: letters, digits, `.`, `-`
@@ -217,6 +232,25 @@ mod tests {
         let e = ArmClaim::take_in(&dir, host, 29999).expect_err("a link");
         assert!(e.to_string().contains("is a symbolic link"), "{e}");
         assert!(!dir.join("elsewhere").exists());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The temporary folder serves only when the shared one cannot hold claims, never when a
+    /// claim file there cannot be opened (it may be held: two processes would drive the arm).
+    #[test]
+    fn the_fallback_is_for_an_unusable_folder_not_an_unopenable_claim() {
+        let denied = std::io::Error::from(std::io::ErrorKind::PermissionDenied);
+        let dir = std::env::temp_dir().join(format!("handeye-arm-fb-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("dir");
+        let claim = dir.join("handeye-arm-x.lock");
+        assert!(folder_unusable(&claim, &denied), "no file, no write access");
+        assert!(
+            folder_unusable(&dir.join("none/x.lock"), &denied),
+            "no folder"
+        );
+        std::fs::write(&claim, "").expect("claim");
+        assert!(!folder_unusable(&claim, &denied), "another user's claim");
         let _ = std::fs::remove_dir_all(&dir);
     }
 
