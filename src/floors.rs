@@ -17,7 +17,7 @@ const FLOORS: &[&[&str]] = &[
     &["sim"],
     &["calib", "plan", "bench"],
     // Above the calibration core (the crate `handeye-calib`): the service.
-    &["camera"],
+    &["camera", "lockfile"],
     &["record", "calendar"],
     &["config"],
     &["report", "guard"],

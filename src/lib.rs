@@ -12,7 +12,7 @@
 //!         report, guard       the report picture and the drift chart | every move checked
 //!           config            the cell's TOML, validated
 //!             record, calendar        the run record, its words | dates, times, schedules
-//!               camera                the camera backends without a protocol
+//!               camera, lockfile      the camera backends without a protocol | lock files and their holders
 //! handeye-calib (the calibration core, its own crate: no tokio, rusqlite or axum)
 //!                 calib, plan, bench    registration, solve, gate, pipeline | views | benchmark
 //!                   sim                 the scan simulator
@@ -31,6 +31,8 @@
 //!   [`sim`], [`plan`], [`calib`], [`mod@bench`].
 //! - [`camera`]: camera backends without a network protocol (file replay, external command)
 //!   and the reconnecting decorator for any camera.
+//! - [`lockfile`]: lock files opened without following links, `flock`, and the holder of a
+//!   lock named from the kernel's table.
 //! - [`record`]: the record of a run and the words for it (mode, trigger, stage, outcome,
 //!   drift, what a mount solves for).
 //! - [`calendar`]: the wall clock, civil dates, UTC text and the calendar times of checks.
@@ -58,6 +60,7 @@ pub mod camera;
 pub mod config;
 pub mod daemon;
 pub mod guard;
+pub mod lockfile;
 pub mod record;
 pub mod report;
 pub mod run;

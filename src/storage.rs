@@ -26,11 +26,11 @@ use serde::{Deserialize, Serialize};
 mod journal_file;
 mod leftovers;
 
-pub use journal_file::JOURNAL_FILE;
 pub(crate) use journal_file::{
-    journal_unrecorded, mark_journal_unrecorded, read_journal, remove_journal, set_aside_journal,
-    write_journal, JournalLock,
+    journal_unrecorded, mark_journal_unrecorded, mark_run_unrecorded, read_journal, remove_journal,
+    set_aside_journal, write_journal, JournalLock,
 };
+pub use journal_file::{run_unrecorded, JOURNAL_FILE};
 pub(crate) use leftovers::clean_staging;
 pub use leftovers::remove_temporary_files;
 

@@ -35,12 +35,19 @@ use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger, WriteTarget};
 
 #[cfg(test)]
 mod tests;
+mod writer_lock;
+
+use writer_lock::{no_links, WriterLock};
 
 /// File name of the history database in the storage directory.
 pub const HISTORY_FILE: &str = "history.sqlite";
 /// Why a run that was still `running` when the store was opened again is `aborted`.
 pub const INTERRUPTED_REASON: &str =
     "interrupted: the program stopped during the run (crash, power loss or kill)";
+/// Why a run still `running` at the next open is `aborted` when the process that ran it lived
+/// on and could not record its end.
+pub const UNRECORDED_REASON: &str = "its end could not be recorded: the storage was full or \
+     could not be written when the run ended (the program lived on; its log has the outcome)";
 /// The schema version this program writes and reads.
 pub const SCHEMA_VERSION: i64 = 1;
 /// How long a statement waits for another process's write lock before giving up.
@@ -103,6 +110,12 @@ pub enum StoreError {
         /// The operating system's error.
         #[source]
         source: std::io::Error,
+    },
+    /// A link stands where the history, or a file SQLite keeps beside it, belongs.
+    #[error("{} is a symbolic link; the history is never opened through one (a write would land elsewhere): remove the link", .path.display())]
+    Link {
+        /// The link.
+        path: PathBuf,
     },
     /// SQLite cannot open the file.
     #[error("cannot open the history database {}: {source}; check the permissions of the file and its folder (SQLite also needs to create {}-wal and -shm beside it)", .path.display(), .path.display())]
@@ -437,6 +450,7 @@ impl Store {
             })?;
         }
         let lock = WriterLock::acquire(path)?;
+        no_links(path)?;
         // Only the sole writer may move the file: another one is using it.
         let set_aside = match damage(path).filter(|_| lock.sole) {
             Some(why) => Some(set_aside(path, why)?),
@@ -485,6 +499,7 @@ impl Store {
                 path: path.to_path_buf(),
             });
         }
+        no_links(path)?;
         let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
         let conn =
             Connection::open_with_flags(path, flags).map_err(|e| sql_error(path, "open", e))?;
@@ -647,7 +662,9 @@ impl Store {
     }
 
     /// Up to `limit` runs, newest first; with `before_unix_s`, only runs started before it
-    /// (pass the last one's `started_unix_s` to page on).
+    /// (pass the last one's `started_unix_s` to page on). Newest by the history's sequence
+    /// (the rowid: rows are only ever added, in the order runs begin, and the table is never
+    /// vacuumed), not by the clock, which may have been set wrong or stepped since.
     pub fn list(
         &self,
         limit: usize,
@@ -657,7 +674,7 @@ impl Store {
         let conn = self.lock();
         let sql = format!(
             "SELECT {SUMMARY_COLUMNS} FROM runs WHERE (?2 IS NULL OR started_unix_s < ?2)
-             ORDER BY started_unix_s DESC, run_id DESC LIMIT ?1"
+             ORDER BY rowid DESC LIMIT ?1"
         );
         let run = || -> rusqlite::Result<Vec<RunSummary>> {
             let mut stmt = conn.prepare_cached(&sql)?;
@@ -744,8 +761,9 @@ impl Store {
         }
     }
 
-    /// The newest run, optionally of one mode and/or with one outcome; a row dated after now
-    /// (more than [`crate::calendar::MAX_CLOCK_AHEAD_S`]) is not one (a planted or forged one).
+    /// The newest run by the history's sequence (see [`Store::list`]), optionally of one mode
+    /// and/or with one outcome. Its dates do not decide: a run made while the clock was a day
+    /// or ten years wrong is the latest until a later one is begun.
     pub fn latest(
         &self,
         mode: Option<RunMode>,
@@ -755,16 +773,11 @@ impl Store {
         let sql = format!(
             "SELECT {SUMMARY_COLUMNS} FROM runs
              WHERE (?1 IS NULL OR mode = ?1) AND (?2 IS NULL OR outcome = ?2)
-               AND started_unix_s <= ?3
-             ORDER BY started_unix_s DESC, run_id DESC LIMIT 1"
+             ORDER BY rowid DESC LIMIT 1"
         );
         conn.query_row(
             &sql,
-            params![
-                mode.map(RunMode::name),
-                outcome.map(Outcome::name),
-                unix_now() + crate::calendar::MAX_CLOCK_AHEAD_S
-            ],
+            params![mode.map(RunMode::name), outcome.map(Outcome::name)],
             summary_from_row,
         )
         .optional()
@@ -789,7 +802,7 @@ impl Store {
         let run = || -> rusqlite::Result<Vec<String>> {
             let mut stmt = conn.prepare(
                 "SELECT run_id, started_unix_s, outcome, captures_pruned_unix_s FROM runs
-                 ORDER BY started_unix_s DESC, run_id DESC",
+                 ORDER BY rowid DESC",
             )?;
             let rows = stmt.query_map([], |r| {
                 Ok((
@@ -822,14 +835,29 @@ impl Store {
         Ok(())
     }
 
-    /// Marks every run still `running` as `aborted`; returns how many.
+    /// Marks every run still `running` as `aborted`, with [`UNRECORDED_REASON`] when its
+    /// process lived on ([`crate::storage::run_unrecorded`]), else [`INTERRUPTED_REASON`];
+    /// returns how many.
     fn recover_interrupted(&self) -> Result<usize, StoreError> {
-        self.writable()?
-            .execute(
-                "UPDATE runs SET outcome = 'aborted', reason = ?1 WHERE outcome = 'running'",
-                [INTERRUPTED_REASON],
-            )
-            .map_err(|e| sql_error(&self.path, "recover interrupted runs", e))
+        let storage = self.path.parent().unwrap_or(Path::new("."));
+        let conn = self.writable()?;
+        let run = || -> rusqlite::Result<usize> {
+            let mut stmt = conn.prepare("SELECT run_id FROM runs WHERE outcome = 'running'")?;
+            let ids = stmt.query_map([], |r| r.get::<_, String>(0))?;
+            let ids = ids.collect::<rusqlite::Result<Vec<String>>>()?;
+            for id in &ids {
+                let why = match crate::storage::run_unrecorded(storage, id) {
+                    true => UNRECORDED_REASON,
+                    false => INTERRUPTED_REASON,
+                };
+                conn.execute(
+                    "UPDATE runs SET outcome = 'aborted', reason = ?2 WHERE run_id = ?1",
+                    params![id, why],
+                )?;
+            }
+            Ok(ids.len())
+        };
+        run().map_err(|e| sql_error(&self.path, "recover interrupted runs", e))
     }
 
     fn lock(&self) -> MutexGuard<'_, Connection> {
@@ -1090,94 +1118,6 @@ fn migrate(conn: &mut Connection, path: &Path) -> Result<(), StoreError> {
     }
     tx.commit()
         .map_err(|e| sql_error(path, "commit the migration", e))
-}
-
-/// The advisory lock writers hold on `<db>-lock` (see the module docs).
-struct WriterLock {
-    file: File,
-    /// No other writer was alive: interrupted runs are ours to recover.
-    sole: bool,
-}
-
-impl WriterLock {
-    fn lock_path(db: &Path) -> PathBuf {
-        let mut name = db.as_os_str().to_owned();
-        name.push("-lock");
-        PathBuf::from(name)
-    }
-
-    /// Exclusive when no other writer holds the lock, shared otherwise.
-    fn acquire(db: &Path) -> Result<WriterLock, StoreError> {
-        let path = Self::lock_path(db);
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(&path)
-            .map_err(|source| StoreError::Io {
-                action: "open the lock file",
-                path: path.clone(),
-                source,
-            })?;
-        let sole = flock(&file, FlockMode::ExclusiveNow).map_err(|source| StoreError::Io {
-            action: "lock",
-            path: path.clone(),
-            source,
-        })?;
-        if !sole {
-            // Blocks only while another writer is between its exclusive check and sharing.
-            flock(&file, FlockMode::Shared).map_err(|source| StoreError::Io {
-                action: "lock",
-                path,
-                source,
-            })?;
-        }
-        Ok(WriterLock { file, sole })
-    }
-
-    /// Turns the exclusive lock into a shared one, once recovery is done.
-    fn share(self, db: &Path) -> Result<File, StoreError> {
-        flock(&self.file, FlockMode::Shared).map_err(|source| StoreError::Io {
-            action: "lock",
-            path: Self::lock_path(db),
-            source,
-        })?;
-        Ok(self.file)
-    }
-}
-
-pub(crate) enum FlockMode {
-    /// Exclusive without waiting; `Ok(false)` when another process holds the lock.
-    ExclusiveNow,
-    /// Shared, waiting for an exclusive holder.
-    Shared,
-}
-
-#[cfg(unix)]
-pub(crate) fn flock(file: &File, mode: FlockMode) -> std::io::Result<bool> {
-    use std::os::fd::AsRawFd;
-    let op = match mode {
-        FlockMode::ExclusiveNow => libc::LOCK_EX | libc::LOCK_NB,
-        FlockMode::Shared => libc::LOCK_SH,
-    };
-    loop {
-        // SAFETY: flock on a file descriptor this `File` owns for the duration of the call.
-        if unsafe { libc::flock(file.as_raw_fd(), op) } == 0 {
-            return Ok(true);
-        }
-        let e = std::io::Error::last_os_error();
-        match e.raw_os_error() {
-            Some(libc::EINTR) => continue,
-            Some(libc::EWOULDBLOCK) => return Ok(false),
-            _ => return Err(e),
-        }
-    }
-}
-
-/// Without `flock`, every writer recovers: run one writer at a time.
-#[cfg(not(unix))]
-pub(crate) fn flock(_file: &File, _mode: FlockMode) -> std::io::Result<bool> {
-    Ok(true)
 }
 
 /// Maps SQLite's errors to the ones an operator can act on.

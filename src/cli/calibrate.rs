@@ -9,6 +9,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use handeye::config::Config;
+use handeye::daemon::arm::ArmClaim;
 use handeye::daemon::lock::{DaemonLock, LockError};
 use handeye::record::Trigger;
 use handeye::run::{Outcome, Progress, Recorder, RunMode, RunRecord, RunRequest, Stage};
@@ -62,30 +63,41 @@ pub(crate) async fn calibrate(
     let _arm = if args.dry_run {
         None
     } else {
-        hold_the_arm(&cfg, req.mode.name(), |holder| {
+        Some(hold_the_arm(&cfg, req.mode.name(), |holder| {
             through_the_daemon(&cfg, &args.config, &req, holder)
-        })?
+        })?)
     };
     finish(execute(&cfg, req, &shutdown, args.json).await?, args.json)
 }
 
+/// What a command that moves the arm holds while it runs: the cell's lock (`None` when it
+/// could not be taken for another reason than a holder, see [`hold_the_arm`]) and the arm's
+/// claim ([`ArmClaim`]). Dropped at the end of the run.
+#[derive(Debug)]
+pub(crate) struct ArmHold {
+    _storage: Option<DaemonLock>,
+    _arm: ArmClaim,
+}
+
 /// Takes the cell's lock (`<storage.dir>/daemon.lock`, [`DaemonLock`]) for `command`
-/// (`calibrate`, `check`, `robot`) that moves the arm, before anything is connected: one
-/// process moves a cell's arm, and a daemon that runs keeps its state (the drift alarm, the
+/// (`calibrate`, `check`, `robot`) that moves the arm, then the arm's claim ([`ArmClaim`]: a
+/// daemon or a command on another storage that holds the arm), before anything is connected:
+/// one process moves an arm, and a daemon that runs keeps its state (the drift alarm, the
 /// reference the next check compares with) in step only with the runs it makes itself. Beside
 /// a running daemon the command is refused with `beside_daemon(holder)`, which names the way
-/// out. `None` when the lock cannot be taken for another reason (a full or read-only storage;
-/// a run's own preflight says what) and no daemon answers on its control socket.
+/// out. The cell's lock is left out when it cannot be taken for another reason (a full or
+/// read-only storage; a run's own preflight says what) and no daemon answers on its control
+/// socket; the arm's claim never is.
 pub(crate) fn hold_the_arm(
     cfg: &Config,
     command: &str,
     beside_daemon: impl FnOnce(&str) -> String,
-) -> anyhow::Result<Option<DaemonLock>> {
+) -> anyhow::Result<ArmHold> {
     let storage = &cfg.storage.dir;
     storage_owner(cfg)?;
-    match DaemonLock::acquire_for(storage, command) {
-        Ok(lock) => Ok(Some(lock)),
-        Err(LockError::Held { holder, .. }) => Err(anyhow::anyhow!(beside_daemon(&holder))),
+    let lock = match DaemonLock::acquire_for(storage, command) {
+        Ok(lock) => Some(lock),
+        Err(LockError::Held { holder, .. }) => return Err(anyhow::anyhow!(beside_daemon(&holder))),
         Err(LockError::HeldByRun {
             command, holder, ..
         }) => anyhow::bail!(
@@ -102,9 +114,13 @@ pub(crate) fn hold_the_arm(
                 return Err(anyhow::anyhow!(beside_daemon(&holder)));
             }
             tracing::warn!("{e}; no daemon answers on {}", storage.display());
-            Ok(None)
+            None
         }
-    }
+    };
+    Ok(ArmHold {
+        _storage: lock,
+        _arm: ArmClaim::take(cfg.robot.host, cfg.robot.ports.dashboard)?,
+    })
 }
 
 /// Stops a command that writes the storage (its lock, history and run folder) before it

@@ -1,6 +1,7 @@
 //! `handeye daemon --config FILE`: the service on a cell PC. Loads and checks the
 //! configuration (a bad one refuses to start, naming key and line), takes the storage's
-//! daemon lock (a second daemon on the same storage refuses to start, naming the first), opens
+//! daemon lock (a second daemon on the same storage refuses to start, naming the first) and
+//! the arm's claim (a daemon on another storage that drives the same arm: the same), opens
 //! the history, and runs `handeye::daemon::run_with` with the HTTP API as its frontend (up
 //! from the first second) and a `connect` that reaches the robot and the camera (retrying with
 //! backoff, shown in the status) until SIGTERM/Ctrl-C.
@@ -13,6 +14,7 @@ use anyhow::Context;
 use handeye::camera::{Backoff, ReconnectingCamera};
 use handeye::config::Config;
 use handeye::daemon::api::Api;
+use handeye::daemon::arm::ArmClaim;
 use handeye::daemon::lock::DaemonLock;
 use handeye::daemon::DaemonHandle;
 use tokio_util::sync::CancellationToken;
@@ -72,6 +74,8 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     super::calibrate::storage_owner(&cfg)?;
     handeye::storage::owner::unopenable(&cfg.storage.dir)?;
     let _lock = DaemonLock::acquire(&cfg.storage.dir)?;
+    // … and a daemon (or a command) on another storage that holds this arm, naming it.
+    let _arm = ArmClaim::take(cfg.robot.host, cfg.robot.ports.dashboard)?;
     raise_fd_limit();
     let model = load_model(&cfg)?;
     let path = history_path(&cfg);

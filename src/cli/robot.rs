@@ -146,16 +146,24 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
     let moves = matches!(args.command, Command::Move { .. } | Command::SetTcp { .. });
     let _arm = match &config {
         Some(c) if moves && c.robot.host == host => {
-            super::calibrate::hold_the_arm(c, "robot", |holder| {
+            Some(super::calibrate::hold_the_arm(c, "robot", |holder| {
                 format!(
                     "handeye daemon ({holder}) runs this cell (storage {}) and moves its arm: \
                      stop it (`systemctl stop handeye`) before moving the arm or setting the TCP \
                      by hand, then start it again",
                     c.storage.dir.display()
                 )
-            })?
+            })?)
         }
         _ => None,
+    };
+    // Whatever the configuration: an arm another process holds is not moved by hand.
+    let _claim = match moves && _arm.is_none() {
+        true => Some(handeye::daemon::arm::ArmClaim::take(
+            host,
+            cfg.ports.dashboard,
+        )?),
+        false => None,
     };
     // Only `registers` reads and writes them (24–47 and the int registers 24–31, whatever
     // the configuration writes): the others claim no RTDE input, so they work beside a

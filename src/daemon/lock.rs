@@ -1,17 +1,19 @@
 //! One process moves a cell's arm: `handeye daemon` holds an exclusive advisory lock (`flock`)
 //! on `<storage.dir>/daemon.lock` for as long as it lives, and `handeye calibrate` / `check`
-//! (and `robot move` / `set-tcp --config`) for as long as their run lasts, with the holder's
-//! pid and name in the file. A second daemon
+//! (and `robot move` / `set-tcp --config`) for as long as their run lasts. A second daemon
 //! on the same storage (the same cell) refuses to start and names the holder; a command beside
 //! a running daemon refuses before it connects anything and names the way through the daemon.
-//! The operating system drops the lock of a process that dies, however it dies: a stale file
-//! never blocks a restart.
+//! The holder is named from the kernel's table of locks ([`crate::lockfile::holder`]: its pid,
+//! user and command line), never from the file, which anyone who can write the storage can
+//! fill with anything. The file is opened without following a link in its place. The
+//! operating system drops the lock of a process that dies, however it dies: a stale file
+//! never blocks a restart. The arm itself is claimed apart from the storage:
+//! [`super::arm`].
 
 use std::fs::File;
-use std::io::{Read as _, Seek as _, Write as _};
 use std::path::{Path, PathBuf};
 
-use crate::store::{flock, FlockMode};
+use crate::lockfile::{flock, open_lock_file, FlockMode, Holder};
 
 /// File name of the lock in the storage directory.
 pub const LOCK_FILE: &str = "daemon.lock";
@@ -27,7 +29,7 @@ pub enum LockError {
         dir.display()
     )]
     Held {
-        /// What the lock file says of its holder (`pid 1234`).
+        /// The holder as the kernel names it (`pid 1234, user handeye, …`).
         holder: String,
         /// The storage directory.
         dir: PathBuf,
@@ -41,7 +43,7 @@ pub enum LockError {
     HeldByRun {
         /// The command (`calibrate`).
         command: String,
-        /// What the lock file says of its holder (`pid 1234`).
+        /// The holder as the kernel names it (`pid 1234, user handeye, …`).
         holder: String,
         /// The storage directory.
         dir: PathBuf,
@@ -74,9 +76,10 @@ impl DaemonLock {
         DaemonLock::acquire_for(storage, DAEMON)
     }
 
-    /// Takes the lock on `storage` (created as needed) without waiting, and writes this
-    /// process's pid and `role` (`daemon`, `calibrate`, `check`, `robot`; one word) into it;
-    /// [`LockError::Held`] when a daemon holds it, [`LockError::HeldByRun`] a command.
+    /// Takes the lock on `storage` (created as needed) without waiting, for `role` (`daemon`,
+    /// `calibrate`, `check`, `robot`: the holder's subcommand, which a refused process reads
+    /// from the holder's command line); [`LockError::Held`] when a daemon (or a process that
+    /// cannot be told) holds it, [`LockError::HeldByRun`] a command.
     pub fn acquire_for(storage: &Path, role: &str) -> Result<DaemonLock, LockError> {
         let io = |action, path: &Path| {
             let path = path.to_path_buf();
@@ -88,89 +91,104 @@ impl DaemonLock {
         };
         std::fs::create_dir_all(storage).map_err(io("create the folder", storage))?;
         let path = storage.join(LOCK_FILE);
-        let mut file = std::fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .read(true)
-            .write(true)
-            .open(&path)
-            .map_err(io("open the lock file", &path))?;
+        let file = open_lock_file(&path).map_err(io("open the lock file", &path))?;
         if !flock(&file, FlockMode::ExclusiveNow).map_err(io("lock", &path))? {
-            let mut text = String::new();
-            file.read_to_string(&mut text)
-                .map_err(io("read the lock file", &path))?;
             let dir = storage.to_path_buf();
-            return Err(match holder(&text) {
-                (holder, None) => LockError::Held { holder, dir },
-                (holder, Some(command)) => LockError::HeldByRun {
-                    command,
-                    holder,
+            let holder = crate::lockfile::holder(&file);
+            return Err(match holder.as_ref().and_then(run_command) {
+                Some(command) => LockError::HeldByRun {
+                    command: command.to_string(),
+                    holder: named(holder.as_ref()),
+                    dir,
+                },
+                None => LockError::Held {
+                    holder: named(holder.as_ref()),
                     dir,
                 },
             });
         }
-        file.set_len(0)
-            .and_then(|()| file.rewind())
-            .and_then(|()| writeln!(file, "pid {} {role}", std::process::id()))
-            .map_err(io("write the lock file", &path))?;
+        tracing::debug!(role, "took {}", path.display());
         Ok(DaemonLock { _file: file })
     }
 }
 
-/// The role a daemon writes into the lock file.
+/// The role a daemon takes the lock for.
 const DAEMON: &str = "daemon";
 
-/// Who holds the lock, from the file's text (`pid 1234 calibrate`; a daemon of an earlier
-/// version wrote `pid 1234` alone): its pid (`pid 1234`), and the command when it is not a
-/// daemon.
-fn holder(text: &str) -> (String, Option<String>) {
-    // The file is the storage's, not ours to trust: cut, and control characters escaped.
-    let text: String = text.trim().chars().take(80).collect();
-    let text = handeye_hal::limits::sanitize_message(&text);
-    let mut words = text.split_whitespace();
-    match (words.next(), words.next(), words.next()) {
-        (None, ..) => ("pid not written yet".to_string(), None),
-        (Some("pid"), Some(pid), role) => (
-            format!("pid {pid}"),
-            role.filter(|r| *r != DAEMON).map(str::to_string),
-        ),
-        _ => (text, None),
+/// The commands that take the lock for a run, as their first word on the command line.
+const RUN_COMMANDS: [&str; 3] = ["calibrate", "check", "robot"];
+
+/// The `handeye` command `holder` runs when it is one that takes the lock for a run (not a
+/// daemon): the first of its command line's words that names one.
+fn run_command(holder: &Holder) -> Option<&'static str> {
+    let words = holder.command.as_deref()?.split(' ').skip(1);
+    for w in words {
+        if w == DAEMON {
+            return None;
+        }
+        if let Some(c) = RUN_COMMANDS.iter().find(|c| **c == w) {
+            return Some(c);
+        }
     }
+    None
 }
 
-#[cfg(all(test, unix))]
+/// The holder in words: what the kernel tells, or that it could not tell.
+pub(crate) fn named(holder: Option<&Holder>) -> String {
+    holder.map_or_else(
+        || "a process this one cannot name: /proc/locks does not show it".to_string(),
+        Holder::to_string,
+    )
+}
+
+#[cfg(all(test, target_os = "linux"))]
 mod tests {
     use super::*;
 
+    /// Issue 46: the holder is named from the kernel's table, not from the file: a file
+    /// saying `pid 1 calibrate` does not make the refusal name pid 1 or a `calibrate` run.
     #[test]
-    fn a_second_holder_is_refused_naming_the_first_until_the_first_lets_go() {
+    fn issue_46_the_holder_is_named_from_the_kernel_not_the_file() {
         let dir = std::env::temp_dir().join(format!("handeye-lock-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let first = DaemonLock::acquire(&dir).expect("first");
+        std::fs::write(dir.join(LOCK_FILE), "pid 1 calibrate\n").expect("forge");
         let e = DaemonLock::acquire(&dir).expect_err("second");
-        let me = format!("pid {}", std::process::id());
+        let me = format!("pid {}, user ", std::process::id());
         assert!(
-            matches!(&e, LockError::Held { holder, .. } if *holder == me),
+            matches!(&e, LockError::Held { holder, .. } if holder.starts_with(&me)),
             "{e}"
         );
         assert!(
             e.to_string().contains("another handeye daemon (pid "),
             "{e}"
         );
+        assert!(!e.to_string().contains("pid 1,"), "{e}");
         drop(first);
         let again = DaemonLock::acquire_for(&dir, "calibrate").expect("free again once dropped");
-        let e = DaemonLock::acquire(&dir).expect_err("held by a run");
-        assert!(
-            matches!(&e, LockError::HeldByRun { holder, command, .. } if *holder == me && command == "calibrate"),
-            "{e}"
-        );
-        assert!(
-            e.to_string().starts_with(&format!(
-                "another `handeye calibrate` run ({me}) already holds the storage"
-            )),
-            "{e}"
-        );
         drop(again);
+        // A link in the lock file's place is refused, and its target never created.
+        std::fs::remove_file(dir.join(LOCK_FILE)).expect("rm");
+        let outside = dir.join("outside");
+        std::os::unix::fs::symlink(&outside, dir.join(LOCK_FILE)).expect("link");
+        let e = DaemonLock::acquire(&dir).expect_err("a link");
+        assert!(e.to_string().contains("is a symbolic link"), "{e}");
+        assert!(!outside.exists());
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_run_command_is_read_from_the_holder_s_command_line() {
+        let holder = |c: &str| Holder {
+            pid: 7,
+            user: None,
+            command: Some(c.to_string()),
+        };
+        assert_eq!(
+            run_command(&holder("/usr/bin/handeye calibrate --config c.toml")),
+            Some("calibrate")
+        );
+        assert_eq!(run_command(&holder("handeye daemon --config check")), None);
+        assert_eq!(run_command(&holder("flock -x f sleep 9")), None);
     }
 }

@@ -16,6 +16,7 @@
 //! with devices at hand call [`run`].
 
 pub mod api;
+pub mod arm;
 pub mod control;
 pub mod listener;
 pub mod lock;
@@ -581,15 +582,15 @@ impl DaemonHandle {
         &self,
         storage: &std::path::Path,
     ) -> Result<(), crate::store::StoreError> {
-        const PAGE: usize = 200;
+        // Newest first by the history's sequence, not the clock: more of it until both the
+        // last calibration and the last check are in.
         let store = self.store();
         let mut newest_first = Vec::new();
-        let mut before = None;
-        loop {
-            let page = store.list(PAGE, before)?;
-            let done = page.len() < PAGE;
-            before = page.last().map(|r| r.started_unix_s);
-            newest_first.extend(page.into_iter().filter(|r| r.outcome.outcome().is_some()));
+        for limit in [200, 20_000, usize::MAX] {
+            let page = store.list(limit, None)?;
+            let done = page.len() < limit;
+            newest_first = page;
+            newest_first.retain(|r| r.outcome.outcome().is_some());
             let calibration = newest_first.iter().any(|r| {
                 r.mode == RunMode::Calibrate && r.outcome.outcome() == Some(Outcome::Accepted)
             });
@@ -1100,133 +1101,4 @@ async fn execute<R: Robot, C: DepthCamera>(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn store(tag: &str) -> (Arc<Store>, std::path::PathBuf) {
-        let dir = std::env::temp_dir().join(format!("handeye-daemon-{}-{tag}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("dir");
-        let s = Store::open(&dir.join("history.sqlite")).expect("store");
-        (Arc::new(s), dir)
-    }
-
-    #[test]
-    fn a_busy_daemon_refuses_or_queues_as_configured() {
-        let (s, dir) = store("refuse");
-        let h = handle(s, WhenBusy::Refuse, CancellationToken::new());
-        let first = h
-            .request(RunMode::Check, Trigger::Api)
-            .expect("idle: accepted");
-        let e = h
-            .request(RunMode::Calibrate, Trigger::Pendant)
-            .expect_err("busy");
-        assert!(
-            matches!(&e, Refusal::Busy { run_id, .. } if *run_id == first),
-            "{e}"
-        );
-        assert!(e.to_string().starts_with("busy: check run "), "{e}");
-        // Since when, in ISO 8601 UTC: `since 2026-11-26T19:40:00Z; cancel it`.
-        let text = e.to_string();
-        let since = text.split("since ").nth(1).unwrap_or("");
-        assert!(
-            since.len() > 20
-                && since.as_bytes()[10] == b'T'
-                && since[19..].starts_with("Z; cancel it"),
-            "{e}"
-        );
-        let _ = std::fs::remove_dir_all(dir);
-
-        let (s, dir) = store("queue");
-        let h = handle(s, WhenBusy::Queue, CancellationToken::new());
-        let running = h
-            .request(RunMode::Calibrate, Trigger::Api)
-            .expect("accepted");
-        let queued: Vec<String> = (0..QUEUE_LIMIT)
-            .map(|_| {
-                h.request(RunMode::Check, Trigger::Schedule)
-                    .expect("queued")
-            })
-            .collect();
-        let e = h
-            .request(RunMode::Check, Trigger::Api)
-            .expect_err("queue full");
-        assert!(
-            matches!(
-                e,
-                Refusal::QueueFull {
-                    queued: QUEUE_LIMIT,
-                    ..
-                }
-            ),
-            "{e}"
-        );
-        let st = h.status();
-        assert_eq!(st.current.as_ref().map(|c| &c.run_id), Some(&running));
-        let ids: Vec<&String> = st.queued.iter().map(|c| &c.run_id).collect();
-        assert_eq!(ids, queued.iter().collect::<Vec<_>>());
-
-        // The worker takes the first; once it is finished, the next is the current one.
-        let job = h.next_job().expect("running job");
-        assert_eq!(job.entry.run_id, running);
-        assert_eq!(h.next_job().map(|j| j.entry.run_id), Some(running.clone()));
-        let mut record =
-            RunRecord::starting(running.clone(), RunMode::Calibrate, false, "test".into());
-        record.outcome = Outcome::Rejected;
-        h.finished(&job, &record);
-        let st = h.status();
-        assert_eq!(st.current.as_ref().map(|c| &c.run_id), Some(&queued[0]));
-        assert_eq!(st.queued.len(), QUEUE_LIMIT - 1);
-
-        assert_eq!(
-            h.next_job().map(|j| j.entry.run_id),
-            Some(queued[0].clone())
-        );
-
-        // Cancel stops the running one and every queued one.
-        let waiting: Vec<Job> = h.lock().runs.iter().cloned().collect();
-        assert_eq!(waiting.len(), QUEUE_LIMIT);
-        assert!(waiting.iter().all(|j| !j.cancel.is_cancelled()));
-        assert!(h.cancel());
-        assert!(waiting.iter().all(|j| j.cancel.is_cancelled()));
-        let _ = std::fs::remove_dir_all(dir);
-    }
-
-    /// Issue 24: a check's warning (the calibration was made on another arm) is in the status,
-    /// and still there after a restart: the history keeps no warnings, the run's record does.
-    #[test]
-    fn a_check_s_warning_survives_a_restart() {
-        let (s, dir) = store("warnings");
-        let run_id = "20261124T142300Z-3f9a";
-        let mut record = RunRecord::starting(run_id.into(), RunMode::Check, false, "test".into());
-        record.outcome = Outcome::Accepted;
-        record.drift = Some(crate::record::DriftRecord {
-            reference: "result of run X".into(),
-            reference_pose: crate::frames::to_row_major(&nalgebra::Isometry3::identity()),
-            translation_mm: 0.1,
-            rotation_deg: 0.01,
-            max_translation_mm: 1.0,
-            max_rotation_deg: 0.2,
-            drifted: false,
-        });
-        let warning = "the current calibration was made on arm 20205500001; this controller is \
-                       20205500002: recalibrate";
-        record.warnings.push(warning.into());
-        s.rebuild(std::slice::from_ref(&record)).expect("history");
-        let run_dir = crate::storage::run_dir(&dir, run_id).expect("a run id");
-        std::fs::create_dir_all(&run_dir).expect("run folder");
-        crate::storage::write_record(&run_dir, &record).expect("record.json");
-
-        let restarted = handle(s, WhenBusy::Refuse, CancellationToken::new());
-        restarted.restore_from_history(&dir).expect("restored");
-        let st = restarted.status();
-        let check = st.last_check.as_ref().expect("the last check");
-        assert_eq!(check.run_id, run_id);
-        assert_eq!(check.warnings, [warning]);
-        assert_eq!(
-            st.last.as_ref().map(|f| f.warnings.clone()),
-            Some(vec![warning.to_string()])
-        );
-        let _ = std::fs::remove_dir_all(dir);
-    }
-}
+mod tests;

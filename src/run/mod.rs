@@ -18,6 +18,7 @@
 //! nothing but its own record. The [`Recorder`] keeps it: the history row, the record and the
 //! report picture in the run's folder (`crate::storage`), pruning.
 
+mod clock;
 mod forecast;
 pub mod journal;
 pub mod recorder;

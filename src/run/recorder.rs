@@ -113,6 +113,7 @@ impl Recorder {
         if kept.is_err() && storage::release_reserve(&cfg.storage.dir) {
             kept = storage::write_record(&run_dir, &record);
         }
+        let record_kept = kept.is_ok();
         if let Err(e) = kept {
             tracing::error!(
                 "cannot write the run record into {}: {e}",
@@ -123,7 +124,7 @@ impl Recorder {
                 .push(format!("the run record could not be written: {e}"));
         }
         // The picture comes after the record: whatever happens to it, the run is kept.
-        write_picture(run_dir, &record, model, pictures).await;
+        write_picture(run_dir.clone(), &record, model, pictures).await;
         let mut recorded = true;
         if let Some((store, trigger)) = &self.history {
             let mut finished = store.finish(*trigger, &record);
@@ -133,6 +134,12 @@ impl Recorder {
             if let Err(e) = finished {
                 recorded = false;
                 tracing::error!("cannot record the end of run {}: {e}", record.run_id);
+            }
+        }
+        if !recorded || !record_kept {
+            // This process lives on: the next start must not call the run killed.
+            if let Err(e) = storage::mark_run_unrecorded(&run_dir) {
+                tracing::warn!("cannot mark run {} as ended unrecorded: {e}", record.run_id);
             }
         }
         if journal.is_some() {
@@ -176,6 +183,10 @@ impl Recorder {
                 cfg.storage.dir.display()
             );
         }
+        super::clock::watch(
+            self.history.as_ref().map(|(s, _)| s.as_ref()),
+            record.started_unix_s,
+        );
         if let Some((store, trigger)) = &self.history {
             let start = RunStart::new(record, *trigger, config_digest(&format!("{cfg:?}")));
             store

@@ -52,13 +52,9 @@ impl JournalLock {
     /// Takes the lock without waiting; `Ok(None)` when another live process holds it.
     pub(crate) fn try_acquire(storage: &Path) -> std::io::Result<Option<JournalLock>> {
         std::fs::create_dir_all(storage)?;
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .truncate(false)
-            .write(true)
-            .open(storage.join(JOURNAL_LOCK_FILE))?;
+        let file = crate::lockfile::open_lock_file(&storage.join(JOURNAL_LOCK_FILE))?;
         Ok(
-            crate::store::flock(&file, crate::store::FlockMode::ExclusiveNow)?
+            crate::lockfile::flock(&file, crate::lockfile::FlockMode::ExclusiveNow)?
                 .then_some(JournalLock(file)),
         )
     }
@@ -72,12 +68,35 @@ const UNRECORDED_FILE: &str = "writeback-journal.unrecorded";
 /// Marks the journal as left by a live process whose run's end could not be recorded
 /// ([`UNRECORDED_FILE`]). Blocking I/O.
 pub(crate) fn mark_journal_unrecorded(storage: &Path) -> std::io::Result<()> {
-    let path = storage.join(UNRECORDED_FILE);
+    mark(storage, UNRECORDED_FILE)
+}
+
+/// In a run's folder, says that the process that ran it lived on and could not record the
+/// run's end (a full disk), so the next start does not call it killed. Empty, as
+/// [`UNRECORDED_FILE`].
+const RUN_UNRECORDED_FILE: &str = "end.unrecorded";
+
+/// Marks the run in `run_dir` as ended by a live process that could not record its end
+/// ([`RUN_UNRECORDED_FILE`]). Blocking I/O.
+pub(crate) fn mark_run_unrecorded(run_dir: &Path) -> std::io::Result<()> {
+    mark(run_dir, RUN_UNRECORDED_FILE)
+}
+
+/// Whether run `run_id` of `storage` was marked by [`mark_run_unrecorded`].
+pub fn run_unrecorded(storage: &Path, run_id: &str) -> bool {
+    super::run_dir(storage, run_id).is_some_and(|d| {
+        std::fs::symlink_metadata(d.join(RUN_UNRECORDED_FILE)).is_ok_and(|m| m.is_file())
+    })
+}
+
+/// Creates the empty file `name` in `dir` (durably) unless it is there.
+fn mark(dir: &Path, name: &str) -> std::io::Result<()> {
+    let path = dir.join(name);
     if std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file()) {
         return Ok(());
     }
     super::create_fresh(&path)?;
-    std::fs::File::open(storage)?.sync_all()
+    std::fs::File::open(dir)?.sync_all()
 }
 
 /// Whether the journal was left by a live process that could not record the run's end

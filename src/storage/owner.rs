@@ -206,23 +206,8 @@ pub fn unopenable(_dir: &Path) -> Result<(), OwnerError> {
     Ok(())
 }
 
-/// The name of user `uid` (`uid 1234` when it has none: a user removed since).
 #[cfg(unix)]
-pub fn user_name(uid: u32) -> String {
-    let mut buf = vec![0 as libc::c_char; 4096];
-    // SAFETY: zeroed passwd is a valid out-parameter for getpwuid_r.
-    let mut pwd: libc::passwd = unsafe { std::mem::zeroed() };
-    let mut result: *mut libc::passwd = std::ptr::null_mut();
-    // SAFETY: every pointer is valid for the call; buf outlives the use of pwd's fields.
-    let r = unsafe { libc::getpwuid_r(uid, &mut pwd, buf.as_mut_ptr(), buf.len(), &mut result) };
-    if r != 0 || result.is_null() || pwd.pw_name.is_null() {
-        return format!("uid {uid}");
-    }
-    // SAFETY: getpwuid_r succeeded: pw_name points at a NUL-terminated string inside buf.
-    unsafe { std::ffi::CStr::from_ptr(pwd.pw_name) }
-        .to_string_lossy()
-        .into_owned()
-}
+pub use crate::lockfile::user_name;
 
 #[cfg(test)]
 mod tests {

@@ -792,3 +792,64 @@ fn issue_23_one_bad_row_does_not_fail_the_list() {
     assert_eq!(listed, ["good2", "good1"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 46: `history.sqlite-lock` (and the database, and its `-wal`) are never opened
+/// through a link (an outside file was created or locked): the history refuses to open,
+/// saying so, and the link's target is not made.
+#[cfg(unix)]
+#[test]
+fn issue_46_the_writers_lock_is_never_opened_through_a_link() {
+    let dir = temp_dir("lock-link");
+    let db = dir.join(HISTORY_FILE);
+    let outside = dir.join("outside");
+    std::os::unix::fs::symlink(&outside, dir.join("history.sqlite-lock")).expect("link");
+    let e = Store::open(&db).expect_err("a link in the lock's place");
+    assert!(e.to_string().contains("is a symbolic link"), "{e}");
+    assert!(!outside.exists(), "the link's target was created");
+    std::fs::remove_file(dir.join("history.sqlite-lock")).expect("rm");
+    // … nor the database or the files SQLite keeps beside it.
+    for name in [HISTORY_FILE, "history.sqlite-wal"] {
+        std::os::unix::fs::symlink(&outside, dir.join(name)).expect("link");
+        let e = Store::open(&db).expect_err("a link in the history's place");
+        assert!(
+            e.to_string()
+                .contains("is a symbolic link; the history is never opened"),
+            "{name}: {e}"
+        );
+        assert!(!outside.exists(), "{name}: the link's target was created");
+        std::fs::remove_file(dir.join(name)).expect("rm");
+    }
+    // A storage reached through a linked folder is no link in the history's place.
+    let real = dir.join("real");
+    std::fs::create_dir_all(&real).expect("real");
+    std::os::unix::fs::symlink(&real, dir.join("via")).expect("folder link");
+    let store = Store::open(&dir.join("via").join(HISTORY_FILE)).expect("through a folder link");
+    drop(store);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Issue 46: a run whose process lived on but could not record its end (a full disk) is not
+/// called "crash, power loss or kill" at the next open (it was); one without the mark still is.
+#[test]
+fn issue_46_a_run_ended_unrecorded_is_not_called_killed() {
+    let dir = temp_dir("unrecorded");
+    let db = dir.join(HISTORY_FILE);
+    let (full, killed) = ("20261124T100000Z-00a1", "20261124T100100Z-00a2");
+    {
+        let store = Store::open(&db).expect("store");
+        for id in [full, killed] {
+            let r = record(id, RunMode::Check, Outcome::Accepted, 1_700_000_000.0);
+            store
+                .begin(&RunStart::new(&r, Trigger::Api, String::new()))
+                .expect("begin");
+        }
+        let run_dir = crate::storage::run_folder(&dir, full);
+        std::fs::create_dir_all(&run_dir).expect("run folder");
+        crate::storage::mark_run_unrecorded(&run_dir).expect("mark");
+    }
+    let store = Store::open(&db).expect("opens again");
+    let reason = |id| store.summary(id).expect("summary").expect("row").reason;
+    assert_eq!(reason(full).as_deref(), Some(UNRECORDED_REASON));
+    assert_eq!(reason(killed).as_deref(), Some(INTERRUPTED_REASON));
+    let _ = std::fs::remove_dir_all(&dir);
+}

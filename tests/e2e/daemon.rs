@@ -58,7 +58,7 @@ fn the_api_answers_while_the_robot_is_unreachable_and_a_second_daemon_refuses() 
     assert_eq!(second.code(), 2, "{second}");
     assert!(
         second.stderr.contains(&format!(
-            "another handeye daemon (pid {}) already runs on the storage",
+            "another handeye daemon (pid {}, user ",
             first.pid()
         )),
         "{second}"
@@ -75,6 +75,18 @@ pub(crate) const TOKEN: &str = "e2e-secret-token";
 /// A daemon configuration for the rig; `daemon` is the `[daemon]` table's body (more tables
 /// may follow it).
 pub(crate) fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &str) -> PathBuf {
+    let listen = format!("{robot_ip}:8650");
+    config_listening(dir, robot_ip, camera_ip, &listen, daemon)
+}
+
+/// [`config`] with the API on `listen`.
+pub(crate) fn config_listening(
+    dir: &TempDir,
+    robot_ip: &str,
+    camera_ip: &str,
+    listen: &str,
+    daemon: &str,
+) -> PathBuf {
     let token = dir.join("token");
     std::fs::write(&token, format!("{TOKEN}\n")).expect("token");
     #[cfg(unix)]
@@ -87,7 +99,7 @@ pub(crate) fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, daemon: &st
         robot_ip,
         camera_ip,
         "",
-        &format!("[daemon]\nlisten = \"{robot_ip}:8650\"\ntoken_file = \"token\"\n{daemon}"),
+        &format!("[daemon]\nlisten = \"{listen}\"\ntoken_file = \"token\"\n{daemon}"),
     )
 }
 
@@ -585,7 +597,8 @@ fn issue_38_the_command_line_accepts_a_remount_but_never_beside_the_daemon() {
     );
     assert_eq!(out.code(), 2, "{out}");
     for needle in [
-        format!("handeye daemon (pid {}) runs this cell", daemon.pid()).as_str(),
+        format!("handeye daemon (pid {}, user ", daemon.pid()).as_str(),
+        "`) runs this cell",
         "Accept remount button",
         "POST /api/calibrate/accept-change with the API token",
         &format!("http://{api}/api/calibrate/accept-change"),
@@ -612,12 +625,11 @@ fn issue_38_the_command_line_accepts_a_remount_but_never_beside_the_daemon() {
     );
     assert_eq!(out.code(), 2, "{out}");
     assert!(
-        out.stderr.contains(&format!(
-            "handeye daemon (pid {}) runs this cell",
-            daemon.pid()
-        )) && out
-            .stderr
-            .contains("stop it (`systemctl stop handeye`) before moving the arm"),
+        out.stderr
+            .contains(&format!("handeye daemon (pid {}, user ", daemon.pid()))
+            && out
+                .stderr
+                .contains("stop it (`systemctl stop handeye`) before moving the arm"),
         "{out}"
     );
     assert_eq!(history(&cfg), runs, "a refused command recorded a run");
@@ -645,7 +657,7 @@ fn issue_38_the_command_line_accepts_a_remount_but_never_beside_the_daemon() {
     assert_eq!(second.code(), 2, "{second}");
     assert!(
         second.stderr.contains(&format!(
-            "another `handeye calibrate` run (pid {}) already holds the storage",
+            "another `handeye calibrate` run (pid {}, user ",
             cli.pid()
         )) && second.stderr.contains("wait until it has ended"),
         "{second}"

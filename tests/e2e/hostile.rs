@@ -44,9 +44,12 @@ fn issue_36_cancel_stops_a_moving_run_while_local_connections_fill_the_api() {
     assert_eq!(out.code(), 0, "{out}");
     assert!(out.json()["state"].is_string(), "{out}");
 
-    // Without the control socket, the HTTP API is over its limits: the error says so, not
-    // "no daemon".
+    // Without the control socket (a folder with a file in it stands in its place, which the
+    // daemon cannot remove to make it again), the HTTP API is over its limits: the error says
+    // so, not "no daemon".
     std::fs::remove_file(dir.join("data/daemon.sock")).expect("socket file");
+    std::fs::create_dir(dir.join("data/daemon.sock")).expect("a folder in its place");
+    std::fs::write(dir.join("data/daemon.sock/x"), "x").expect("a file in it");
     let out = run(&["cancel", "--config", config_arg], secs(30));
     assert_eq!(out.code(), 2, "{out}");
     assert!(

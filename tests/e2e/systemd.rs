@@ -97,6 +97,7 @@ fn unit_keeps_notify_watchdog_and_hardening() {
         "LoadCredential=token:/etc/handeye/token",
         "StateDirectory=handeye",
         "ConfigurationDirectory=handeye",
+        "ReadWritePaths=-/run/lock",
         "UMask=0077",
         "NoNewPrivileges=yes",
         "ProtectSystem=strict",
