@@ -77,6 +77,7 @@ impl AnyCamera {
                 .with_context(|| format!("connecting to the GigE Vision camera at {addr}"))?;
                 let mut camera = camera;
                 camera.options.trigger = cfg.camera.trigger;
+                camera.options.settings = cfg.camera.settings.clone();
                 AnyCamera::Gige(camera)
             }
             CameraBackend::Gentl { producer, device } => {
@@ -84,6 +85,7 @@ impl AnyCamera {
                 let options = GentlOptions {
                     device: device.clone(),
                     trigger: cfg.camera.trigger,
+                    settings: cfg.camera.settings.clone(),
                     ..GentlOptions::default()
                 };
                 let shown = producer.display().to_string();

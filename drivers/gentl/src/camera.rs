@@ -29,6 +29,9 @@ pub struct GentlOptions {
     pub confidence: bool,
     /// How frames are started (`camera.trigger`).
     pub trigger: Trigger,
+    /// The user set and features written before every capture (`camera.user_set`,
+    /// `[camera.features]`).
+    pub settings: handeye_hal::CameraSettings,
 }
 
 /// Counters of one capture.
@@ -205,6 +208,10 @@ impl Open {
 
     /// Capture `frames` complete buffers and decode them.
     fn capture(&mut self, frames: u32, timeout: Duration) -> Result<(Vec<PointCloud>, GentlStats)> {
+        // The user set and [camera.features] before anything is read: they may change the
+        // format (a camera left locked is taken over first).
+        self.nodes.take_over(&mut self.port)?;
+        handeye_gige::settings::apply(&mut self.nodes, &mut self.port, &self.options.settings)?;
         self.select_components()?;
         let scan3d = Scan3d::read(&mut self.nodes, &mut self.port)?;
         let layout = ChunkLayout::read(&mut self.nodes, &mut self.port)?;

@@ -18,6 +18,9 @@ use crate::client::GvcpClient;
 use crate::error::{GigeError, Result};
 use crate::gvcp::reg;
 
+mod settable;
+pub use settable::FeatureState;
+
 /// Where a device keeps its XML.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum XmlUrl {
