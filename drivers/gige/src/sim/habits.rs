@@ -79,7 +79,56 @@ pub(super) const C16_SCALE_MM: f64 = 0.1;
 const LUCID_SCALE_MM: f64 = 0.25;
 const LUCID_OFFSET_MM: f64 = -8192.0;
 
+/// The vendors the simulated camera imitates as a whole (`handeye sim camera --imitate`),
+/// each with what it imitates (imitated from the vendors' public documentation and examples,
+/// not measured on their cameras).
+pub const IMITATIONS: &[(&str, &str)] = &[
+    (
+        "photoneo",
+        "Photoneo: intensity first, chunk data as a last part, TriggerMode On with a software source",
+    ),
+    (
+        "lucid",
+        "Lucid Helios2: Coord3D_ABCY16 (also ABC16, C16) with CalibFocalLength*/CalibOpticalCenter*",
+    ),
+    (
+        "sick",
+        "SICK Visionary: Coord3D_C16 in ProjectedC, only CoordinateC, aspect ratio, chunk data",
+    ),
+    (
+        "blaze",
+        "Basler blaze: Scan3dInvalidDataFlag/Value per coordinate (only C flagged)",
+    ),
+];
+
 impl VendorHabits {
+    /// The habits of one of the [`IMITATIONS`] (`None` for another name).
+    pub fn imitating(vendor: &str) -> Option<Self> {
+        let d = Self::default();
+        Some(match vendor {
+            "photoneo" => Self {
+                intensity_first: true,
+                chunk_part: true,
+                software_trigger: true,
+                ..d
+            },
+            "lucid" => Self { lucid: true, ..d },
+            "sick" => Self {
+                projected_c: true,
+                only_coordinate_c: true,
+                aspect_ratio: true,
+                chunk_part: true,
+                intensity_first: true,
+                ..d
+            },
+            "blaze" => Self {
+                per_coordinate_invalid: true,
+                ..d
+            },
+            _ => return None,
+        })
+    }
+
     /// The `PixelFormat` entries (PFNC codes), the power-on one first.
     pub(super) fn pixel_formats(&self) -> &'static [u32] {
         if self.lucid {
