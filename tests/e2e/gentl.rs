@@ -360,3 +360,54 @@ fn calibrates_through_our_gentl_producer_as_through_gige() {
     );
     assert_eq!(record["returned_to_start"], true, "{out}");
 }
+
+/// Issue 44: our producer's system, interface, device and data stream modules had empty node
+/// maps (harvesters: "Feature not present" for every SFNC GenTL feature). harvesters now reads
+/// TLVendorName, DeviceAccessStatus, StreamAnnouncedBufferCount …, sets
+/// StreamBufferHandlingMode (OldestFirst, the one mode the producer does; NewestOnly is not an
+/// entry) and captures.
+#[test]
+fn issue_44_harvesters_reads_our_producers_module_node_maps_and_sets_buffer_handling() {
+    if shared("issue_44_harvesters_reads_our_producers_module_node_maps").is_none() {
+        return;
+    }
+    let Some((py, _)) = viky() else { return };
+    let dir = TempDir::new("gentl-modules");
+    let cti = our_producer(&dir);
+    let cti_s = cti.to_str().expect("utf-8 path");
+    let scene = [(
+        "HANDEYE_SIM_CAMERA_ARGS",
+        "--model ur5e --width 64 --height 48 --ideal --serial SIMGENTL2",
+    )];
+    let out = harvesters_env(&py, &["modules", cti_s], &scene);
+    let got: serde_json::Value = serde_json::from_slice(
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .last()
+            .unwrap_or("")
+            .as_bytes(),
+    )
+    .expect("json");
+    assert_eq!(got["system"]["TLVendorName"], "handeye", "{got}");
+    assert_eq!(got["system"]["TLID"], "handeye-sim", "{got}");
+    assert_eq!(got["system"]["TLType"], "Custom", "{got}");
+    assert_eq!(
+        got["interface"]["DeviceAccessStatus"], "OpenReadWrite",
+        "{got}"
+    );
+    assert_eq!(got["device"]["DeviceSerialNumber"], "SIMGENTL2", "{got}");
+    assert_eq!(got["device"]["DeviceModelName"], "SimCam3D", "{got}");
+    assert_eq!(
+        got["device"]["DeviceAccessStatus"], "OpenReadWrite",
+        "{got}"
+    );
+    assert_eq!(got["stream"]["StreamID"], "Stream0", "{got}");
+    assert_eq!(
+        got["stream"]["StreamBufferHandlingMode"], "OldestFirst",
+        "{got}"
+    );
+    assert_eq!(got["set"], "OldestFirst", "{got}");
+    assert_ne!(got["newest_only"], "accepted", "{got}");
+    assert!(got["announced"].as_i64().is_some_and(|n| n >= 1), "{got}");
+    assert_eq!(got["parts"][0], "Coord3D_ABC32f", "{got}");
+}
