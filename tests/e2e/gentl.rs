@@ -411,3 +411,34 @@ fn issue_44_harvesters_reads_our_producers_module_node_maps_and_sets_buffer_hand
     assert!(got["announced"].as_i64().is_some_and(|n| n >= 1), "{got}");
     assert_eq!(got["parts"][0], "Coord3D_ABC32f", "{got}");
 }
+
+/// Issue 44: a producer that delivers GenDC containers (GenTL payload type 11: our producer
+/// with `--imitate gendc`, its camera in GenDCStreamingMode On) is refused by name, with the
+/// setting that makes it send multi-part buffers, not read as garbage.
+#[test]
+fn issue_44_a_gendc_payload_is_refused_by_name() {
+    if shared("issue_44_a_gendc_payload_is_refused_by_name").is_none() {
+        return;
+    }
+    let dir = TempDir::new("gentl-gendc");
+    let cti = our_producer(&dir);
+    let cti_s = cti.to_str().expect("utf-8 path");
+    let scene = [(
+        "HANDEYE_SIM_CAMERA_ARGS",
+        "--test-pattern --width 32 --height 24 --imitate gendc",
+    )];
+    let out = run_env(&["camera", "capture", "--gentl", cti_s], &scene, secs(60));
+    assert_ne!(out.code(), 0, "{out}");
+    let text = out.to_string();
+    assert!(
+        text.contains("GenDC container (GenTL payload type 11)")
+            && text.contains("set GenDCStreamingMode to Off"),
+        "{text}"
+    );
+    // The same producer without the habit captures.
+    let plain = [(
+        "HANDEYE_SIM_CAMERA_ARGS",
+        "--test-pattern --width 32 --height 24",
+    )];
+    run_env(&["camera", "capture", "--gentl", cti_s], &plain, secs(60)).success();
+}
