@@ -69,8 +69,11 @@ pub fn apply(n: &mut NodeMap, p: &mut impl RegisterPort, settings: &CameraSettin
             });
         }
         n.write_value(p, name, value).map_err(|e| {
+            let e = e.to_string();
+            // What the feature accepts, unless the refusal says it already.
             let accepts = n
                 .allowed(p, name)
+                .filter(|a| !e.contains(a.trim_start_matches("one of ")))
                 .map(|a| format!("; it accepts {a}"))
                 .unwrap_or_default();
             GigeError::Setting {
