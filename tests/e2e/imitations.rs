@@ -2,43 +2,15 @@
 //! (the camera describes itself and streams as the vendor's does), with the settings the book
 //! gives for that vendor, agrees with the plain path (SFNC's letter) on the same scene.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use crate::support::{iso, pose_error, run, secs, shared, start_rig, Daemon, TempDir};
+use crate::support::{iso, pose_error, rig_config, run, secs, shared, start_rig, Daemon, TempDir};
 
-/// One view (a generated view of the base for this rig's mount), fast moves: the comparison
-/// is of the camera path, not of the plan.
-fn config(dir: &TempDir, robot_ip: &str, camera_ip: &str, camera_extra: &str) -> PathBuf {
-    let text = format!(
-        r#"
-[robot]
-model = "ur5e"
-host = "{robot_ip}"
-max_joint_speed_rad_s = 3.0
-max_joint_accel_rad_s2 = 10.0
-
-[camera]
-backend = "gige"
-address = "{camera_ip}"
-settle_s = 0.2
-{camera_extra}
-
-[mount]
-type = "eye-in-hand"
-prior = [0.0, -0.08, 0.04, -0.26, 0.0, 0.0]
-
-[views]
-mode = "joints"
-joints = [[-1.03929, -1.99940, 1.14467, -0.44434, -1.59194, 0.19013]]
-
-[storage]
-dir = "data"
-"#
-    );
-    let path = dir.join("handeye.toml");
-    std::fs::write(&path, text).expect("config");
-    path
-}
+/// One view (a generated view of the base for this rig's mount): the comparison is of the
+/// camera path, not of the plan.
+const ONE_VIEW: &str = "[views]
+mode = \"joints\"
+joints = [[-1.03929, -1.99940, 1.14467, -0.44434, -1.59194, 0.19013]]";
 
 /// Calibrates through a rig whose camera imitates `vendor` (plain when `None`), configured
 /// with `camera_extra`; returns the result and what `camera probe` says of the camera.
@@ -59,7 +31,7 @@ fn calibrate(
         secs(30),
     )
     .success();
-    let cfg = config(&dir, robot_ip, camera_ip, camera_extra);
+    let cfg = rig_config(&dir, robot_ip, camera_ip, camera_extra, ONE_VIEW);
     let out = run(&["calibrate", "--config", path(&cfg), "--json"], secs(120));
     assert_eq!(out.code(), 0, "{name}: {out}\n{}", rig.log());
     let record = out.json();
@@ -96,7 +68,14 @@ fn issue_44_calibrate_through_each_vendor_imitation_agrees_with_the_plain_path()
     }
     let (plain, probe) = calibrate("plain", None, "", ("127.0.0.80", "127.0.0.81"));
     assert_eq!(feature(&probe, "PixelFormat"), "Coord3D_ABC32f");
-    let cases: [(&str, &str, (&str, &str), (&str, &str)); 4] = [
+    // (imitation, configuration, robot and camera addresses, a feature that shows the habit)
+    type Case = (
+        &'static str,
+        &'static str,
+        (&'static str, &'static str),
+        (&'static str, &'static str),
+    );
+    let cases: [Case; 4] = [
         // As Photoneo's examples run it: one TriggerSoftware per frame.
         (
             "photoneo",

@@ -3,9 +3,10 @@
 //! always runs; the reference's verdicts on the same descriptions are checked too when
 //! `$REPO/.venv` has `genicam` (required when env `CI` is set).
 
+mod common;
+use common::reference_python;
+
 use std::collections::HashMap;
-use std::io::Write as _;
-use std::path::Path;
 use std::process::Command;
 
 use handeye_gige::genicam::NodeMap;
@@ -209,25 +210,9 @@ print(json.dumps(out))
 /// The expectations above are the reference's: its bounds and refusals on the same files.
 #[test]
 fn issue_44_the_expectations_are_the_references() {
-    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
-    let has = python.exists()
-        && Command::new(&python)
-            .args(["-c", "import genicam.genapi"])
-            .status()
-            .is_ok_and(|s| s.success());
-    if !has {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "no genicam in {}; run .ci/install.d/aravis.sh",
-            python.display()
-        );
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIP: no `genicam` in {}",
-            python.display()
-        );
+    let Some(python) = reference_python() else {
         return;
-    }
+    };
     let dir = std::env::temp_dir().join(format!("handeye-genapi-bounds-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("tmp");
     let (a, b) = (dir.join("conv.xml"), dir.join("avail.xml"));

@@ -89,7 +89,9 @@ fn issue_44_features_are_written_in_order_before_the_capture() {
 fn issue_44_a_refused_feature_names_itself_its_range_and_the_camera() {
     let s = sim(VendorHabits::default());
     let mut cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
-    let cases: [(Vec<(String, FeatureValue)>, &[&str]); 5] = [
+    // (the configured features, what the refusal must say)
+    type Case = (Vec<(String, FeatureValue)>, &'static [&'static str]);
+    let cases: [Case; 5] = [
         (
             vec![("Width".into(), FeatureValue::Int(100_000))],
             &["camera.features.Width = 100000", "SimCam3D", "16..=64"],

@@ -307,6 +307,26 @@ fn not_found(name: &str, dir: &std::path::Path, urdfs: &[std::path::PathBuf]) ->
     )
 }
 
+/// `--imitate`: one of the simulated camera's imitations.
+pub fn parse_imitation(s: &str) -> Result<String, String> {
+    match VendorHabits::imitating(s) {
+        Some(_) => Ok(s.to_owned()),
+        None => Err(format!(
+            "no imitation `{s}`; the simulated camera imitates {}",
+            IMITATIONS
+                .iter()
+                .map(|(n, what)| format!("{n} ({what})"))
+                .collect::<Vec<_>>()
+                .join("; ")
+        )),
+    }
+}
+
+/// The habits of `--imitate` (checked by [`parse_imitation`]); SFNC's letter without it.
+pub fn imitation(vendor: Option<&str>) -> VendorHabits {
+    vendor.and_then(VendorHabits::imitating).unwrap_or_default()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -357,24 +377,4 @@ mod tests {
         }
         resolve_robot("ur5e").expect("ur5e has its model");
     }
-}
-
-/// `--imitate`: one of the simulated camera's imitations.
-pub fn parse_imitation(s: &str) -> Result<String, String> {
-    match VendorHabits::imitating(s) {
-        Some(_) => Ok(s.to_owned()),
-        None => Err(format!(
-            "no imitation `{s}`; the simulated camera imitates {}",
-            IMITATIONS
-                .iter()
-                .map(|(n, what)| format!("{n} ({what})"))
-                .collect::<Vec<_>>()
-                .join("; ")
-        )),
-    }
-}
-
-/// The habits of `--imitate` (checked by [`parse_imitation`]); SFNC's letter without it.
-pub fn imitation(vendor: Option<&str>) -> VendorHabits {
-    vendor.and_then(VendorHabits::imitating).unwrap_or_default()
 }
