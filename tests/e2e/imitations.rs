@@ -31,6 +31,29 @@ fn calibrate(
         secs(30),
     )
     .success();
+    if vendor == Some("sick") {
+        // A setting the camera's description cannot take is refused in preflight, before
+        // the arm moves (a format the camera does not offer).
+        let cfg = rig_config(
+            &dir,
+            robot_ip,
+            camera_ip,
+            "[camera.features]\nPixelFormat = \"Coord3D_C32f\"",
+            ONE_VIEW,
+        );
+        let out = run(&["calibrate", "--config", path(&cfg), "--json"], secs(120));
+        assert_ne!(out.code(), 0, "{out}");
+        let record = out.json();
+        let why = record["reasons"].to_string();
+        assert!(
+            why.contains("the camera refuses")
+                && why.contains("camera.features.PixelFormat")
+                && why.contains("entries: Coord3D_ABC32f, Coord3D_C16"),
+            "{why}"
+        );
+        let moves = record["timings_ms"]["moves"].as_f64().unwrap_or(0.0);
+        assert_eq!(moves, 0.0, "{out}");
+    }
     let cfg = rig_config(&dir, robot_ip, camera_ip, camera_extra, ONE_VIEW);
     let out = run(&["calibrate", "--config", path(&cfg), "--json"], secs(120));
     assert_eq!(out.code(), 0, "{name}: {out}\n{}", rig.log());

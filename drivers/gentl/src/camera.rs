@@ -182,6 +182,8 @@ impl Open {
     }
 
     fn camera_info(&mut self) -> Result<CameraInfo> {
+        // Configured settings the camera cannot take are found in preflight (issue 44).
+        handeye_gige::settings::check(&self.nodes, &self.options.settings)?;
         let (n, p) = (&mut self.nodes, &mut self.port);
         let width = n.integer(p, "Width")?;
         let height = n.integer(p, "Height")?;

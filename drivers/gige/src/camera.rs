@@ -156,7 +156,8 @@ impl GigeCamera {
             .clone()
     }
 
-    /// Identify the camera (bootstrap strings, size, pixel formats).
+    /// Identify the camera (bootstrap strings, size, pixel formats); an error when the
+    /// configured settings do not fit its description ([`crate::settings::check`]).
     pub fn info_blocking(&self) -> Result<CameraInfo> {
         let c = self.client();
         let vendor = c.read_string(reg::MANUFACTURER, 32)?;
@@ -164,6 +165,9 @@ impl GigeCamera {
         let firmware = c.read_string(reg::DEVICE_VERSION, 32)?;
         let serial = c.read_string(reg::SERIAL, 16)?;
         self.with_features(|n, p| {
+            // A configured setting the camera cannot take is found here, in preflight, before
+            // the arm moves.
+            crate::settings::check(n, &self.options.settings)?;
             let width = n.integer(p, "Width")?;
             let height = n.integer(p, "Height")?;
             let pixel_formats = n.enum_entries("PixelFormat")?;

@@ -19,7 +19,7 @@ use crate::error::{GigeError, Result};
 use crate::gvcp::reg;
 
 mod settable;
-pub use settable::FeatureState;
+pub use settable::{takes, FeatureState};
 
 /// Where a device keeps its XML.
 #[derive(Debug, Clone, PartialEq, Eq)]

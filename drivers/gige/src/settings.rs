@@ -2,10 +2,10 @@
 //! before every capture, and the features `handeye camera probe` lists as the ones a user would
 //! set. Shared by the GigE Vision and GenTL backends.
 
-use handeye_hal::{set_by_handeye, CameraSettings};
+use handeye_hal::{set_by_handeye, CameraSettings, FeatureValue};
 
 use crate::error::{GigeError, Result};
-use crate::genicam::{FeatureState, NodeMap, RegisterPort};
+use crate::genicam::{takes, FeatureKind, FeatureState, NodeMap, RegisterPort};
 
 /// Features a user of a 3D camera sets (SFNC's, then the operating modes of the vendors whose
 /// habits the simulator imitates), in the order `handeye camera probe` lists those the camera
@@ -44,10 +44,77 @@ fn camera_name(n: &NodeMap) -> String {
         .to_owned()
 }
 
+/// What can be checked of the settings from the description alone, without the camera's
+/// registers (so before the arm moves: the drivers' `info`, which preflight calls, runs it):
+/// the user set is a `UserSetSelector` entry and `UserSetLoad` exists; each feature exists,
+/// is none handeye sets itself, takes a value of the configured kind and, for an enumeration,
+/// has the entry. Ranges and access are checked when writing ([`apply`]).
+pub fn check(n: &NodeMap, settings: &CameraSettings) -> Result<()> {
+    let camera = camera_name(n);
+    let refuse = |setting: String, detail: String| GigeError::Setting {
+        setting,
+        camera: camera.clone(),
+        detail,
+    };
+    if let Some(set) = &settings.user_set {
+        let setting = format!("camera.user_set = \"{set}\"");
+        let entries = n
+            .enum_entries("UserSetSelector")
+            .map_err(|_| refuse(setting.clone(), "the camera has no UserSetSelector".into()))?;
+        if !entries.iter().any(|e| e == set) {
+            return Err(refuse(
+                setting,
+                format!(
+                    "UserSetSelector has no entry `{set}`; entries: {}",
+                    entries.join(", ")
+                ),
+            ));
+        }
+        if !n.has("UserSetLoad") {
+            return Err(refuse(setting, "the camera has no UserSetLoad".into()));
+        }
+    }
+    for (name, value) in &settings.features {
+        let setting = format!("camera.features.{name} = {value}");
+        if let Some(why) = set_by_handeye(name) {
+            return Err(refuse(
+                setting,
+                format!("handeye sets {name} itself ({why})"),
+            ));
+        }
+        let Some(kind) = n.kind(name) else {
+            return Err(refuse(setting, "the camera has no such feature".into()));
+        };
+        if let Err(wants) = takes(kind, value) {
+            let entries = match kind {
+                FeatureKind::Enumeration => {
+                    format!(": one of {}", n.enum_entries(name)?.join(", "))
+                }
+                _ => String::new(),
+            };
+            return Err(refuse(
+                setting,
+                format!("{name} is {kind:?} and takes {wants}{entries}"),
+            ));
+        }
+        if let (FeatureKind::Enumeration, FeatureValue::Text(t)) = (kind, value) {
+            let entries = n.enum_entries(name)?;
+            if !entries.iter().any(|e| e == t) {
+                return Err(refuse(
+                    setting,
+                    format!("{name} has no entry `{t}`; entries: {}", entries.join(", ")),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Load the user set, then write each feature in the configured order, through the GenApi's
 /// ranges and access checks. The first refusal stops it, with an error naming the setting,
 /// the camera and what the feature accepts.
 pub fn apply(n: &mut NodeMap, p: &mut impl RegisterPort, settings: &CameraSettings) -> Result<()> {
+    check(n, settings)?;
     let camera = camera_name(n);
     if let Some(set) = &settings.user_set {
         n.set_enum(p, "UserSetSelector", set)
@@ -61,13 +128,6 @@ pub fn apply(n: &mut NodeMap, p: &mut impl RegisterPort, settings: &CameraSettin
     }
     for (name, value) in &settings.features {
         let setting = format!("camera.features.{name} = {value}");
-        if let Some(why) = set_by_handeye(name) {
-            return Err(GigeError::Setting {
-                setting,
-                camera,
-                detail: format!("handeye sets {name} itself ({why})"),
-            });
-        }
         n.write_value(p, name, value).map_err(|e| {
             let e = e.to_string();
             // What the feature accepts, unless the refusal says it already.

@@ -182,3 +182,55 @@ fn issue_44_probe_lists_the_settable_features() {
     assert_eq!(get("UserSetSelector").value.as_deref(), Some("Default"));
     assert!(list.iter().all(|f| f.name != "Width"), "not a 3D setting");
 }
+
+/// Issue 44: what the description alone refuses (an entry the enumeration lacks, a feature the
+/// camera lacks or handeye sets itself, a value of the wrong kind, a user set that is no
+/// entry) is found by `info`, which the run's preflight calls before the arm moves.
+#[test]
+fn issue_44_settings_the_description_refuses_fail_in_info_before_a_capture() {
+    let s = sim(VendorHabits::default());
+    let mut cam = GigeCamera::connect(s.addr(), fast()).expect("connect");
+    cam.info_blocking().expect("no settings: info");
+    let cases: [(CameraSettings, &str); 5] = [
+        (
+            CameraSettings {
+                user_set: None,
+                features: vec![text("PixelFormat", "Mono8")],
+            },
+            "PixelFormat has no entry `Mono8`; entries: Coord3D_ABC32f, Coord3D_C16",
+        ),
+        (
+            CameraSettings {
+                user_set: None,
+                features: vec![("Gain".into(), FeatureValue::Float(2.0))],
+            },
+            "camera.features.Gain = 2: the camera handeye SimCam3D refuses it: the camera has no such feature",
+        ),
+        (
+            CameraSettings {
+                user_set: None,
+                features: vec![("TriggerMode".into(), FeatureValue::Text("On".into()))],
+            },
+            "handeye sets TriggerMode itself (camera.trigger)",
+        ),
+        (
+            CameraSettings {
+                user_set: None,
+                features: vec![("Width".into(), FeatureValue::Text("wide".into()))],
+            },
+            "Width is Integer and takes a whole number",
+        ),
+        (
+            CameraSettings {
+                user_set: Some("UserSet7".into()),
+                features: Vec::new(),
+            },
+            "UserSetSelector has no entry `UserSet7`; entries: Default, UserSet1",
+        ),
+    ];
+    for (settings, wanted) in cases {
+        cam.options.settings = settings;
+        let e = cam.info_blocking().expect_err("refused").to_string();
+        assert!(e.contains(wanted), "{wanted:?} not in: {e}");
+    }
+}

@@ -212,6 +212,16 @@ impl NodeMap {
         let Some(kind) = self.kind(name) else {
             return Err(gerr(name, "the camera has no such feature"));
         };
+        if let Err(wants) = takes(kind, value) {
+            let allowed = self
+                .allowed(dev, name)
+                .map(|a| format!(" ({a})"))
+                .unwrap_or_default();
+            return Err(gerr(
+                name,
+                format!("is {kind:?} and takes {wants}{allowed}, not {value}"),
+            ));
+        }
         match (kind, value) {
             (FeatureKind::Enumeration, V::Text(t)) => self.set_enum(dev, name, t),
             (FeatureKind::Integer, V::Int(i)) => self.set_integer(dev, name, *i),
@@ -219,26 +229,28 @@ impl NodeMap {
             (FeatureKind::Float, V::Float(x)) => self.set_float(dev, name, *x),
             (FeatureKind::Boolean, V::Bool(b)) => self.set_boolean(dev, name, *b),
             (FeatureKind::String, V::Text(t)) => self.set_string(dev, name, t),
-            (FeatureKind::Command, V::Bool(true)) => self.execute(dev, name),
-            (kind, v) => {
-                let wants = match kind {
-                    FeatureKind::Enumeration => "an entry's name in quotes",
-                    FeatureKind::Integer => "a whole number",
-                    FeatureKind::Float => "a number",
-                    FeatureKind::Boolean => "true or false",
-                    FeatureKind::String => "text in quotes",
-                    FeatureKind::Command => "true (to execute it)",
-                    FeatureKind::Other => "nothing: it is not a value",
-                };
-                let allowed = self
-                    .allowed(dev, name)
-                    .map(|a| format!(" ({a})"))
-                    .unwrap_or_default();
-                Err(gerr(
-                    name,
-                    format!("is {kind:?} and takes {wants}{allowed}, not {v}"),
-                ))
-            }
+            _ => self.execute(dev, name),
         }
+    }
+}
+
+/// `Ok` when a feature of `kind` takes `value` (an entry's name for an enumeration, a whole
+/// number for an integer, a number for a float, true/false for a boolean, text for a string,
+/// `true` to execute a command); else what it takes.
+pub fn takes(kind: FeatureKind, value: &FeatureValue) -> std::result::Result<(), &'static str> {
+    use FeatureValue as V;
+    match (kind, value) {
+        (FeatureKind::Enumeration | FeatureKind::String, V::Text(_))
+        | (FeatureKind::Integer, V::Int(_))
+        | (FeatureKind::Float, V::Int(_) | V::Float(_))
+        | (FeatureKind::Boolean, V::Bool(_))
+        | (FeatureKind::Command, V::Bool(true)) => Ok(()),
+        (FeatureKind::Enumeration, _) => Err("an entry's name in quotes"),
+        (FeatureKind::Integer, _) => Err("a whole number"),
+        (FeatureKind::Float, _) => Err("a number"),
+        (FeatureKind::Boolean, _) => Err("true or false"),
+        (FeatureKind::String, _) => Err("text in quotes"),
+        (FeatureKind::Command, _) => Err("true (to execute it)"),
+        (FeatureKind::Other, _) => Err("nothing: it is not a value"),
     }
 }
