@@ -166,20 +166,21 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
         }
         CameraCommand::Probe { gige, json, .. } => {
             let gige = gige.context("--gige or --gentl is required")?;
-            let info = blocking(move || {
+            let (info, features) = blocking(move || {
                 let cam = connect(&gige)?;
-                Ok(cam.info_blocking()?)
+                Ok((cam.info_blocking()?, cam.user_features_blocking()?))
             })
             .await?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&info)?);
+                #[derive(serde::Serialize)]
+                struct Probe {
+                    #[serde(flatten)]
+                    info: handeye_hal::CameraInfo,
+                    features: Vec<handeye_gige::genicam::FeatureState>,
+                }
+                super::emit(&(serde_json::to_string_pretty(&Probe { info, features })? + "\n"))?;
             } else {
-                println!("vendor:        {}", info.vendor);
-                println!("model:         {}", info.model);
-                println!("serial:        {}", info.serial);
-                println!("firmware:      {}", info.firmware);
-                println!("size:          {} x {}", info.width, info.height);
-                println!("pixel formats: {}", info.pixel_formats.join(", "));
+                super::emit(&probe_text(&info, &features))?;
             }
             Ok(ExitCode::SUCCESS)
         }
@@ -266,6 +267,41 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `camera probe --gige`'s text: what the camera is, then the features a user would set
+/// (`[camera.features]`, `camera.user_set`) with their value, range or entries and access.
+fn probe_text(
+    info: &handeye_hal::CameraInfo,
+    features: &[handeye_gige::genicam::FeatureState],
+) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(s, "vendor:        {}", info.vendor);
+    let _ = writeln!(s, "model:         {}", info.model);
+    let _ = writeln!(s, "serial:        {}", info.serial);
+    let _ = writeln!(s, "firmware:      {}", info.firmware);
+    let _ = writeln!(s, "size:          {} x {}", info.width, info.height);
+    let _ = writeln!(s, "pixel formats: {}", info.pixel_formats.join(", "));
+    let _ = writeln!(s, "settings ([camera.features], camera.user_set):");
+    for f in features {
+        let by = handeye_hal::set_by_handeye(&f.name)
+            .map(|k| format!("; set by handeye: {k}"))
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "  {} = {} ({}, {}{}{by})",
+            f.name,
+            f.value.as_deref().unwrap_or("?"),
+            f.kind,
+            f.access,
+            f.allowed
+                .as_deref()
+                .map(|a| format!(", {a}"))
+                .unwrap_or_default()
+        );
+    }
+    s
 }
 
 /// Runs blocking camera I/O on tokio's blocking pool, off the runtime's workers.

@@ -163,6 +163,7 @@ async fn once(args: &Args, seed: u64, shutdown: &CancellationToken) -> anyhow::R
         intrinsics,
         settings: SimSettings::for_camera(&args.camera),
         mount_file: None,
+        habits: Default::default(),
         robot: RobotFaults::default(),
     })
     .await?;

@@ -51,6 +51,8 @@ pub(crate) struct RigOptions {
     pub(crate) settings: SimSettings,
     /// Simulator-only: re-read the mount from this file when it changes.
     pub(crate) mount_file: Option<PathBuf>,
+    /// The vendor habits the camera imitates (`--imitate`).
+    pub(crate) habits: handeye_gige::sim::VendorHabits,
     /// Fault flags and start state of the controller.
     pub(crate) robot: RobotFaults,
 }
@@ -143,6 +145,7 @@ impl Rig {
             Box::new(scene),
             SimOptions {
                 serial: "SIMRIG01".into(),
+                habits: opts.habits.clone(),
                 ..SimOptions::default()
             },
         )
@@ -244,6 +247,10 @@ pub(crate) struct Args {
     /// A perfect sensor in empty space: no noise, no cell.
     #[arg(long)]
     ideal: bool,
+    /// The camera describes itself and streams as this vendor's does (photoneo, lucid, sick,
+    /// blaze); default: by SFNC's letter.
+    #[arg(long, value_name = "VENDOR", value_parser = handeye_sim_scene::parse_imitation)]
+    imitate: Option<String>,
 }
 
 pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Result<ExitCode> {
@@ -289,6 +296,7 @@ pub(crate) async fn run(args: Args, shutdown: CancellationToken) -> anyhow::Resu
             SimSettings::default()
         },
         mount_file: args.mount_file,
+        habits: handeye_sim_scene::imitation(args.imitate.as_deref()),
         robot: RobotFaults {
             powered_off: args.powered_off,
             local_control: args.local_control,

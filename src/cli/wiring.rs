@@ -77,6 +77,7 @@ impl AnyCamera {
                 .with_context(|| format!("connecting to the GigE Vision camera at {addr}"))?;
                 let mut camera = camera;
                 camera.options.trigger = cfg.camera.trigger;
+                camera.options.settings = cfg.camera.settings.clone();
                 AnyCamera::Gige(camera)
             }
             CameraBackend::Gentl {
@@ -89,6 +90,7 @@ impl AnyCamera {
                     device: device.clone(),
                     trigger: cfg.camera.trigger,
                     call_timeout: *call_timeout,
+                    settings: cfg.camera.settings.clone(),
                     ..GentlOptions::default()
                 };
                 AnyCamera::Gentl(connect_gentl(&producer, options).await?)

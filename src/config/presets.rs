@@ -50,6 +50,7 @@ pub fn sim_rig(
             settle: Duration::from_millis(200),
             sensor: defaults::SENSOR,
             trigger: defaults::TRIGGER,
+            settings: handeye_hal::CameraSettings::default(),
         },
         mount: MountConfig {
             mount: Mount::EyeInHand,

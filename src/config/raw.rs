@@ -101,6 +101,50 @@ pub(super) struct RawCamera {
     pub(super) settle_s: Option<f64>,
     pub(super) sensor: Option<crate::geometry::SensorClass>,
     pub(super) trigger: Option<handeye_hal::Trigger>,
+    pub(super) user_set: Option<String>,
+    pub(super) features: Option<RawFeatures>,
+}
+
+/// `[camera.features]`: name = value, in the order written (a map would sort them; the order
+/// matters: a selector before the feature it selects).
+#[derive(Debug, Default)]
+pub(super) struct RawFeatures(pub(super) Vec<(String, handeye_hal::FeatureValue)>);
+
+impl<'de> Deserialize<'de> for RawFeatures {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Ordered;
+        impl<'de> serde::de::Visitor<'de> for Ordered {
+            type Value = RawFeatures;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a table of camera feature = value")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut m: A,
+            ) -> Result<RawFeatures, A::Error> {
+                use handeye_hal::FeatureValue as V;
+                let mut out = Vec::new();
+                while let Some(name) = m.next_key::<String>()? {
+                    let value = match m.next_value::<toml::Value>()? {
+                        toml::Value::Boolean(b) => V::Bool(b),
+                        toml::Value::Integer(i) => V::Int(i),
+                        toml::Value::Float(x) => V::Float(x),
+                        toml::Value::String(t) => V::Text(t),
+                        other => {
+                            return Err(serde::de::Error::custom(format!(
+                                "camera.features.{name}: a {} is not a feature value; write an \
+                                 entry's name or text in quotes, a number, or true/false",
+                                other.type_str()
+                            )))
+                        }
+                    };
+                    out.push((name, value));
+                }
+                Ok(RawFeatures(out))
+            }
+        }
+        d.deserialize_map(Ordered)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]

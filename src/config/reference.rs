@@ -141,6 +141,8 @@ pub fn keys() -> Vec<KeyDoc> {
         number("camera.settle_s", Some(defaults::SETTLE_S), SETTLE, "wait after the arm stops before capturing"),
         row("camera.sensor", "string", format!("\"{sensor}\""), "\"structured-light\", \"active-stereo\", \"time-of-flight\"", "how the camera measures depth; tunes the registration"),
         row("camera.trigger", "string", format!("\"{}\"", defaults::TRIGGER.name()), "\"free\", \"software\"", "gige, gentl: free running (TriggerMode set Off), or one TriggerSoftware per frame"),
+        row("camera.user_set", "string", "—", "a `UserSetSelector` entry", "gige, gentl: loaded (UserSetSelector, UserSetLoad) before every capture, before `[camera.features]`"),
+        row("camera.features", "table of name = value", "—", "the feature's own range or entries (`handeye camera probe`)", "gige, gentl: GenICam features written in the order given before every capture (e.g. `PixelFormat = \"Coord3D_C16\"`); not the ones handeye sets itself"),
         // [mount]
         row("mount.type", "string", format!("\"{mount}\""), "\"eye-in-hand\", \"eye-to-hand\"", "camera on the flange, or fixed in the cell"),
         row("mount.prior", "[x, y, z, rx, ry, rz]", "—", format!("x, y, z {} m; rx, ry, rz {} rad", PRIOR_TRANSLATION.interval(), PRIOR_ROTATION.interval()), "a guess of flange_from_camera (UR pose: m, rotation vector); needed by views.mode = \"auto\""),

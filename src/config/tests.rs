@@ -743,3 +743,50 @@ fn a_refused_value_is_echoed_without_control_characters() {
         assert!(!msg.chars().any(|c| c.is_control()), "{msg:?}");
     }
 }
+
+/// Issue 44: `camera.user_set` and `[camera.features]` (in the order written: a map would sort
+/// them, and a selector must come before what it selects); the features handeye sets itself
+/// and values that are no feature value are refused, naming the key.
+#[test]
+fn issue_44_camera_features_in_order_and_user_set() {
+    use handeye_hal::FeatureValue as V;
+    let text = format!(
+        "{MINIMAL}\n[camera.features]\nScan3dCoordinateSelector = \"CoordinateC\"\nScan3dInvalidDataValue = 0.5\nDepthMax = 1500\nComponentEnable = true\nAnother = \"x\"\n"
+    )
+    .replacen("[camera]\n", "[camera]\nuser_set = \"UserSet1\"\n", 1);
+    let c = parse(&text).expect("loads").camera.settings;
+    assert_eq!(c.user_set.as_deref(), Some("UserSet1"));
+    assert_eq!(
+        c.features,
+        [
+            (
+                "Scan3dCoordinateSelector".into(),
+                V::Text("CoordinateC".into())
+            ),
+            ("Scan3dInvalidDataValue".into(), V::Float(0.5)),
+            ("DepthMax".into(), V::Int(1500)),
+            ("ComponentEnable".into(), V::Bool(true)),
+            ("Another".into(), V::Text("x".into())),
+        ]
+    );
+    let t = format!("{MINIMAL}\n[camera.features]\nTriggerMode = \"On\"\n");
+    let e = refused(&t, "camera.features", line_of(&t, "[camera.features]")).to_string();
+    assert!(e.contains("camera.trigger"), "{e}");
+    let t = format!("{MINIMAL}\n[camera.features]\nWidth = [1, 2]\n");
+    let e = parse(&t).expect_err("an array").to_string();
+    assert!(
+        e.contains("camera.features.Width") && e.contains("array"),
+        "{e}"
+    );
+    let t = with("camera", "user_set = \" \"");
+    refused(&t, "camera.user_set", line_of(&t, "user_set"));
+    let t = MINIMAL.replace(
+        "backend = \"gige\"\naddress = \"192.168.1.50\"",
+        "backend = \"file\"\nfiles = [\"a.ply\"]",
+    ) + "\n[camera.features]\nWidth = 3\n";
+    let e = parse(&t).expect_err("file backend").to_string();
+    assert!(
+        e.contains("camera.features is not used with backend = \"file\""),
+        "{e}"
+    );
+}

@@ -178,6 +178,9 @@ pub struct CameraConfig {
     /// How frames are started (`trigger`: `"free"`, the default, clears a camera's
     /// `TriggerMode`; `"software"` fires `TriggerSoftware` per frame); gige and gentl only.
     pub trigger: handeye_hal::Trigger,
+    /// The camera's user set to load and the features to write before every capture
+    /// (`user_set`, `[camera.features]` in the order written); gige and gentl only.
+    pub settings: handeye_hal::CameraSettings,
 }
 
 /// How the camera is reached (`backend`).

@@ -17,6 +17,8 @@ use super::raw::*;
 use super::types::*;
 use super::{defaults, ConfigError};
 
+mod camera_settings;
+
 // Ranges: every number's allowed interval, with its unit, stated once.
 
 #[derive(Debug, Clone, Copy)]
@@ -561,6 +563,8 @@ impl Ctx<'_> {
             RawBackend::Exec => {
                 let why = "with backend = \"exec\"";
                 self.unused("camera.trigger", &c.trigger, why)?;
+                self.unused("camera.user_set", &c.user_set, why)?;
+                self.unused("camera.features", &c.features, why)?;
                 self.unused("camera.address", &c.address, why)?;
                 self.unused("camera.producer", &c.producer, why)?;
                 self.unused("camera.device", &c.device, why)?;
@@ -591,6 +595,8 @@ impl Ctx<'_> {
             RawBackend::File => {
                 let why = "with backend = \"file\"";
                 self.unused("camera.trigger", &c.trigger, why)?;
+                self.unused("camera.user_set", &c.user_set, why)?;
+                self.unused("camera.features", &c.features, why)?;
                 self.unused("camera.address", &c.address, why)?;
                 self.unused("camera.producer", &c.producer, why)?;
                 self.unused("camera.device", &c.device, why)?;
@@ -614,6 +620,7 @@ impl Ctx<'_> {
                 }
             }
         };
+        let settings = self.camera_settings(c.user_set, c.features)?;
         let dc = defaults::capture();
         let frames = match c.frames {
             // FRAMES fits in u32.
@@ -647,6 +654,7 @@ impl Ctx<'_> {
             )?,
             sensor: c.sensor.unwrap_or(defaults::SENSOR),
             trigger: c.trigger.unwrap_or(defaults::TRIGGER),
+            settings,
         })
     }
 

@@ -752,13 +752,18 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         );
         let camera_info = cancellable(self.cancel, stage, async {
             camera.info().await.map_err(|e| {
-                Failure::error(
-                    stage,
-                    format!(
+                let what = match e {
+                    // It answered, and refuses what was asked (a configured setting its
+                    // description cannot take, issue 44): the message says what to change.
+                    handeye_hal::HalError::Refused { .. } => {
+                        format!("the camera refuses: {}", error_chain(&e))
+                    }
+                    _ => format!(
                         "the camera does not answer: {}; check its power, cable and address",
                         error_chain(&e)
                     ),
-                )
+                };
+                Failure::error(stage, what)
             })
         })
         .await;

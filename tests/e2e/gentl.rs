@@ -533,3 +533,85 @@ fn issue_46_a_blocking_producer_fails_one_run_and_the_next_run_works() {
     assert!(log.contains("was lost; starting a new one"), "{log}");
     assert!(log.contains("reconnecting at the next request"), "{log}");
 }
+
+/// Issue 44: our producer's system, interface, device and data stream modules had empty node
+/// maps (harvesters: "Feature not present" for every SFNC GenTL feature). harvesters now reads
+/// TLVendorName, DeviceAccessStatus, StreamAnnouncedBufferCount …, sets
+/// StreamBufferHandlingMode (OldestFirst, the one mode the producer does; NewestOnly is not an
+/// entry) and captures.
+#[test]
+fn issue_44_harvesters_reads_our_producers_module_node_maps_and_sets_buffer_handling() {
+    if shared("issue_44_harvesters_reads_our_producers_module_node_maps").is_none() {
+        return;
+    }
+    let Some((py, _)) = viky() else { return };
+    let dir = TempDir::new("gentl-modules");
+    let cti = our_producer(&dir);
+    let cti_s = cti.to_str().expect("utf-8 path");
+    let scene = [(
+        "HANDEYE_SIM_CAMERA_ARGS",
+        "--model ur5e --width 64 --height 48 --ideal --serial SIMGENTL2",
+    )];
+    let out = harvesters_env(&py, &["modules", cti_s], &scene);
+    let got: serde_json::Value = serde_json::from_slice(
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .last()
+            .unwrap_or("")
+            .as_bytes(),
+    )
+    .expect("json");
+    assert_eq!(got["system"]["TLVendorName"], "handeye", "{got}");
+    assert_eq!(got["system"]["TLID"], "handeye-sim", "{got}");
+    assert_eq!(got["system"]["TLType"], "Custom", "{got}");
+    assert_eq!(
+        got["interface"]["DeviceAccessStatus"], "OpenReadWrite",
+        "{got}"
+    );
+    assert_eq!(got["device"]["DeviceSerialNumber"], "SIMGENTL2", "{got}");
+    assert_eq!(got["device"]["DeviceModelName"], "SimCam3D", "{got}");
+    assert_eq!(
+        got["device"]["DeviceAccessStatus"], "OpenReadWrite",
+        "{got}"
+    );
+    assert_eq!(got["stream"]["StreamID"], "Stream0", "{got}");
+    assert_eq!(
+        got["stream"]["StreamBufferHandlingMode"], "OldestFirst",
+        "{got}"
+    );
+    assert_eq!(got["set"], "OldestFirst", "{got}");
+    assert_ne!(got["newest_only"], "accepted", "{got}");
+    assert!(got["announced"].as_i64().is_some_and(|n| n >= 1), "{got}");
+    assert_eq!(got["parts"][0], "Coord3D_ABC32f", "{got}");
+}
+
+/// Issue 44: a producer that delivers GenDC containers (GenTL payload type 11: our producer
+/// with `--imitate gendc`, its camera in GenDCStreamingMode On) is refused by name, with the
+/// setting that makes it send multi-part buffers, not read as garbage.
+#[test]
+fn issue_44_a_gendc_payload_is_refused_by_name() {
+    if shared("issue_44_a_gendc_payload_is_refused_by_name").is_none() {
+        return;
+    }
+    let dir = TempDir::new("gentl-gendc");
+    let cti = our_producer(&dir);
+    let cti_s = cti.to_str().expect("utf-8 path");
+    let scene = [(
+        "HANDEYE_SIM_CAMERA_ARGS",
+        "--test-pattern --width 32 --height 24 --imitate gendc",
+    )];
+    let out = run_env(&["camera", "capture", "--gentl", cti_s], &scene, secs(60));
+    assert_ne!(out.code(), 0, "{out}");
+    let text = out.to_string();
+    assert!(
+        text.contains("GenDC container (GenTL payload type 11)")
+            && text.contains("set GenDCStreamingMode to Off"),
+        "{text}"
+    );
+    // The same producer without the habit captures.
+    let plain = [(
+        "HANDEYE_SIM_CAMERA_ARGS",
+        "--test-pattern --width 32 --height 24",
+    )];
+    run_env(&["camera", "capture", "--gentl", cti_s], &plain, secs(60)).success();
+}

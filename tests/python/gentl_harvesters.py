@@ -1,6 +1,10 @@
 """GenTL reference reads with harvesters (a GenTL consumer we did not write), for the e2e tests.
 
   gentl_harvesters.py probe CTI            -> JSON list of the producer's devices
+  gentl_harvesters.py modules CTI         -> JSON: the system, interface, device and data stream
+                                             node maps' SFNC features as harvesters reads them,
+                                             after setting StreamBufferHandlingMode, and the
+                                             parts of one buffer captured then
   gentl_harvesters.py capture CTI OUT [N] [--confidence]
                                           -> OUT: width, height (uint32 LE), then width*height
                                              points x, y, z as float32 LE in metres (NaN for
@@ -85,9 +89,50 @@ def capture(cti, out, index, confidence):
     print(json.dumps(parts))
 
 
+def modules(cti):
+    h = Harvester()
+    h.add_file(cti)
+    h.update()
+    ia = h.create(0)
+    out = {}
+    try:
+        wanted = {
+            "system": (ia.system, ["TLVendorName", "TLModelName", "TLID", "TLVersion", "TLType"]),
+            "interface": (ia.interface, ["InterfaceID", "InterfaceType", "DeviceAccessStatus"]),
+            "device": (ia.device, ["DeviceID", "DeviceVendorName", "DeviceModelName",
+                                   "DeviceSerialNumber", "DeviceAccessStatus"]),
+            "stream": (ia.data_streams[0], ["StreamID", "StreamType", "StreamBufferHandlingMode",
+                                            "StreamAnnounceBufferMinimum"]),
+        }
+        for module, (m, names) in wanted.items():
+            out[module] = {n: getattr(m.node_map, n).value for n in names}
+        ds = ia.data_streams[0].node_map
+        ds.StreamBufferHandlingMode.value = "OldestFirst"
+        out["set"] = ds.StreamBufferHandlingMode.value
+        try:
+            ds.StreamBufferHandlingMode.value = "NewestOnly"
+            out["newest_only"] = "accepted"
+        except Exception as e:
+            out["newest_only"] = type(e).__name__
+        nm = ia.remote_device.node_map
+        nm.ComponentSelector.value = "Range"
+        nm.ComponentEnable.value = True
+        ia.start()
+        out["announced"] = ds.StreamAnnouncedBufferCount.value
+        with ia.fetch(timeout=10) as buf:
+            out["parts"] = [c.data_format for c in buf.payload.components]
+        ia.stop()
+    finally:
+        ia.destroy()
+        h.reset()
+    print(json.dumps(out))
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "probe":
         probe(sys.argv[2])
+    elif sys.argv[1] == "modules":
+        modules(sys.argv[2])
     else:
         rest = sys.argv[4:]
         confidence = "--confidence" in rest

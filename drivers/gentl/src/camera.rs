@@ -47,6 +47,9 @@ pub struct GentlOptions {
     pub call_timeout: Duration,
     /// The program run as the host with [`HOST_SUBCOMMAND`]; this executable when `None`.
     pub host: Option<PathBuf>,
+    /// The user set and features written before every capture (`camera.user_set`,
+    /// `[camera.features]`).
+    pub settings: handeye_hal::CameraSettings,
 }
 
 impl Default for GentlOptions {
@@ -57,6 +60,7 @@ impl Default for GentlOptions {
             trigger: Trigger::default(),
             call_timeout: DEFAULT_CALL_TIMEOUT,
             host: None,
+            settings: handeye_hal::CameraSettings::default(),
         }
     }
 }
@@ -416,6 +420,7 @@ async fn open_host(producer: &Path, options: &GentlOptions) -> Result<Host> {
         device: options.device.clone(),
         confidence: options.confidence,
         trigger: options.trigger,
+        settings: options.settings.clone(),
         call_timeout_ms: millis(options.call_timeout),
     };
     match host

@@ -153,6 +153,8 @@ impl Open {
     }
 
     pub(crate) fn camera_info(&mut self) -> Result<CameraInfo> {
+        // Configured settings the camera cannot take are found in preflight (issue 44).
+        handeye_gige::settings::check(&self.nodes, &self.options.settings)?;
         let (n, p) = (&mut self.nodes, &mut self.port);
         let width = n.integer(p, "Width")?;
         let height = n.integer(p, "Height")?;
@@ -183,6 +185,10 @@ impl Open {
         frames: u32,
         timeout: Duration,
     ) -> Result<(Vec<PointCloud>, GentlStats)> {
+        // The user set and [camera.features] before anything is read: they may change the
+        // format (a camera left locked is taken over first).
+        self.nodes.take_over(&mut self.port)?;
+        handeye_gige::settings::apply(&mut self.nodes, &mut self.port, &self.options.settings)?;
         self.select_components()?;
         let scan3d = Scan3d::read(&mut self.nodes, &mut self.port)?;
         let layout = ChunkLayout::read(&mut self.nodes, &mut self.port)?;

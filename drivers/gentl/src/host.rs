@@ -129,6 +129,7 @@ pub fn serve() -> std::process::ExitCode {
                 device,
                 confidence,
                 trigger,
+                settings,
                 call_timeout_ms,
             } => {
                 CALL_BUDGET_MS.store(call_timeout_ms, Ordering::Relaxed);
@@ -137,6 +138,7 @@ pub fn serve() -> std::process::ExitCode {
                     device,
                     confidence,
                     trigger,
+                    settings,
                     ..GentlOptions::default()
                 };
                 answer(&match device::open(Path::new(&producer), options) {

@@ -35,6 +35,7 @@ pub(crate) enum Request {
         device: Option<String>,
         confidence: bool,
         trigger: Trigger,
+        settings: handeye_hal::CameraSettings,
         call_timeout_ms: u64,
     },
     /// The device's identity and size.

@@ -4,7 +4,9 @@ use std::net::{IpAddr, Ipv4Addr, SocketAddr, UdpSocket};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use handeye_hal::{CameraInfo, CaptureSettings, DepthCamera, HalError, PointCloud, Trigger};
+use handeye_hal::{
+    CameraInfo, CameraSettings, CaptureSettings, DepthCamera, HalError, PointCloud, Trigger,
+};
 
 use crate::client::{ControlConfig, GvcpClient};
 use crate::decode::{self, ChunkLayout, Scan3d};
@@ -56,6 +58,9 @@ pub struct StreamOptions {
     pub max_incomplete: u32,
     /// How frames are started (`camera.trigger`).
     pub trigger: Trigger,
+    /// The user set to load and the features to write before every capture
+    /// (`camera.user_set`, `[camera.features]`).
+    pub settings: CameraSettings,
     /// Receiver tuning (packet size, extended ids and resend are set from the fields above).
     pub receiver: StreamConfig,
 }
@@ -68,6 +73,7 @@ impl Default for StreamOptions {
             confidence: false,
             max_incomplete: 5,
             trigger: Trigger::Free,
+            settings: CameraSettings::default(),
             receiver: StreamConfig::default(),
         }
     }
@@ -150,7 +156,8 @@ impl GigeCamera {
             .clone()
     }
 
-    /// Identify the camera (bootstrap strings, size, pixel formats).
+    /// Identify the camera (bootstrap strings, size, pixel formats); an error when the
+    /// configured settings do not fit its description ([`crate::settings::check`]).
     pub fn info_blocking(&self) -> Result<CameraInfo> {
         let c = self.client();
         let vendor = c.read_string(reg::MANUFACTURER, 32)?;
@@ -158,6 +165,9 @@ impl GigeCamera {
         let firmware = c.read_string(reg::DEVICE_VERSION, 32)?;
         let serial = c.read_string(reg::SERIAL, 16)?;
         self.with_features(|n, p| {
+            // A configured setting the camera cannot take is found here, in preflight, before
+            // the arm moves.
+            crate::settings::check(n, &self.options.settings)?;
             let width = n.integer(p, "Width")?;
             let height = n.integer(p, "Height")?;
             let pixel_formats = n.enum_entries("PixelFormat")?;
@@ -171,6 +181,12 @@ impl GigeCamera {
                 pixel_formats,
             })
         })
+    }
+
+    /// The features a user would set ([`crate::settings::USER_FEATURES`]) the camera has, with
+    /// their value, range or entries and access now (`handeye camera probe`).
+    pub fn user_features_blocking(&self) -> Result<Vec<crate::genicam::FeatureState>> {
+        self.with_features(|n, p| Ok(crate::settings::probe(n, p)))
     }
 
     /// Read the Scan3d conversion parameters (defaults where the camera lacks a feature):
@@ -190,10 +206,26 @@ impl GigeCamera {
         frames: u32,
         frame_timeout: Duration,
     ) -> Result<(Vec<Frame>, CaptureStats)> {
+        self.capture_configured(frames, frame_timeout, |_, _| Ok(()))
+            .map(|(f, s, ())| (f, s))
+    }
+
+    /// [`Self::capture_raw_blocking`], running `configured` once the camera is configured
+    /// (settings applied, components enabled) and before it streams: what it reads is what the
+    /// frames are made with.
+    fn capture_configured<T>(
+        &self,
+        frames: u32,
+        frame_timeout: Duration,
+        configured: impl FnOnce(&mut NodeMap, &mut GvcpPort) -> Result<T>,
+    ) -> Result<(Vec<Frame>, CaptureStats, T)> {
         let o = &self.options;
         let client = self.client();
         let control = client.take_control()?;
-        self.with_features(|n, p| n.take_over(p))?;
+        self.with_features(|n, p| {
+            n.take_over(p)?;
+            crate::settings::apply(n, p, &o.settings)
+        })?;
         let caps = client.read_reg(reg::GVCP_CAPABILITY)?;
         client.write_reg(reg::SCPS0, o.packet_size & 0xFFFF)?;
         let packet_size = (client.read_reg(reg::SCPS0)? & 0xFFFF) as usize;
@@ -210,6 +242,7 @@ impl GigeCamera {
                 ),
             }
         }
+        let before = self.with_features(configured)?;
         let local_ip = local_ip_towards(self.peer)?;
         let rcfg = StreamConfig {
             packet_size,
@@ -273,7 +306,7 @@ impl GigeCamera {
         result?;
         stop?;
         close?;
-        Ok((out, stats))
+        Ok((out, stats, before))
     }
 
     /// Enable the Range component (and Confidence when asked and offered) and ask for a
@@ -311,9 +344,10 @@ impl GigeCamera {
         frames: u32,
         frame_timeout: Duration,
     ) -> Result<(Vec<PointCloud>, CaptureStats)> {
-        let scan3d = self.scan3d_blocking()?;
-        let layout = self.with_features(ChunkLayout::read)?;
-        let (raw, stats) = self.capture_raw_blocking(frames, frame_timeout)?;
+        let (raw, stats, (scan3d, layout)) =
+            self.capture_configured(frames, frame_timeout, |n, p| {
+                Ok((Scan3d::read(n, p)?, ChunkLayout::read(n, p)?))
+            })?;
         let clouds = raw
             .iter()
             .map(|f| decode::decode_payload(&f.parts, layout.as_ref(), &scan3d))

@@ -180,12 +180,15 @@ fn judge(
             Some(cur) if !usable.iter().any(|(_, m)| m.contains(&cur.as_str())) => {
                 return Err(format!(
                     "Scan3dOutputMode is {cur}, which none of {} carries; set \
-                     Scan3dOutputMode to {mode} (with PixelFormat {})",
+                     Scan3dOutputMode to {mode} (with PixelFormat {}; in handeye's \
+                     configuration: [camera.features] PixelFormat = \"{}\", \
+                     Scan3dOutputMode = \"{mode}\")",
                     usable
                         .iter()
                         .map(|(f, _)| f.name)
                         .collect::<Vec<_>>()
                         .join(", "),
+                    first.name,
                     first.name
                 ));
             }
@@ -199,6 +202,15 @@ fn judge(
             )),
         }
     }
+    // handeye sets them itself when configured so (issue 44).
+    let mut features = vec![format!("PixelFormat = \"{}\"", first.name)];
+    if let Some(mode) = first_modes.first() {
+        features.push(format!("Scan3dOutputMode = \"{mode}\""));
+    }
+    settings.push(format!(
+        "or let handeye set them before every capture: [camera.features] {}",
+        features.join(", ")
+    ));
     if nm.has("Scan3dDistanceUnit") {
         let units = nm.enum_entries("Scan3dDistanceUnit").unwrap_or_default();
         let known = |u: &str| DISTANCE_UNITS.iter().any(|(n, _)| *n == u);
@@ -374,6 +386,14 @@ mod tests {
             "{:?}",
             d.settings
         );
+        // Issue 44: handeye can set them itself; the advice says how.
+        assert!(
+            d.settings.iter().any(|s| s
+                == "or let handeye set them before every capture: [camera.features] \
+                    PixelFormat = \"Coord3D_ABC32f_Planar\", Scan3dOutputMode = \"CalibratedABC_Grid\""),
+            "{:?}",
+            d.settings
+        );
         // The output mode written in the description as RectifiedC: an XYZ format does not
         // carry it, and the verdict names the setting that would.
         let xml = only_format("Coord3D_ABC32f", "0x026000C0")
@@ -381,7 +401,8 @@ mod tests {
         let mut nm = NodeMap::from_xml(&xml).expect("xml");
         let why = describe(&mut nm).verdict.expect_err("RectifiedC");
         assert!(
-            why.contains("set Scan3dOutputMode to CalibratedABC_Grid"),
+            why.contains("set Scan3dOutputMode to CalibratedABC_Grid")
+                && why.contains("[camera.features] PixelFormat = \"Coord3D_ABC32f\", Scan3dOutputMode = \"CalibratedABC_Grid\""),
             "{why}"
         );
         // A depth map without intrinsics does not work; Lucid's Calib* features would do.

@@ -70,6 +70,17 @@ pub enum GigeError {
         /// Details.
         detail: String,
     },
+    /// A setting from the configuration (`camera.user_set`, `[camera.features]`) the camera
+    /// refused.
+    #[error("{setting}: the camera {camera} refuses it: {detail}; change it in the configuration (`handeye camera probe` lists what the camera accepts)")]
+    Setting {
+        /// The setting as configured (`camera.features.ExposureTime = 5`).
+        setting: String,
+        /// The camera (`VendorName ModelName`).
+        camera: String,
+        /// Why (the feature's refusal, with what it accepts).
+        detail: String,
+    },
     /// A GenICam feature is missing, of the wrong type or refused a value.
     #[error("GenICam feature `{feature}`: {detail}")]
     Feature {
@@ -140,6 +151,7 @@ impl From<GigeError> for HalError {
             other @ (GigeError::DeviceStatus { .. }
             | GigeError::ControlLost { .. }
             | GigeError::Feature { .. }
+            | GigeError::Setting { .. }
             | GigeError::UnsupportedFormat { .. }) => HalError::Refused {
                 device: "GigE Vision camera".into(),
                 request: "camera operation".into(),

@@ -16,7 +16,9 @@ use cameleon_genapi::ValueCtxt;
 use crate::client::GvcpClient;
 use crate::error::{GigeError, Result};
 
+mod settable;
 mod url;
+pub use settable::{takes, FeatureState};
 
 pub use url::{fetch_xml, load_xml, xml_text, XmlUrl, MAX_XML_BYTES};
 

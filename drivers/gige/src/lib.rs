@@ -4,7 +4,8 @@
 //! Layout: [`gvcp`] (control packets), [`client`] (control channel, discovery, heartbeat),
 //! [`genicam`] (XML fetch and node map), [`gvsp`] (stream packets and the frame receiver),
 //! [`decode`] (PFNC 3D formats to point clouds), [`camera`] (the `DepthCamera`), [`describe`]
-//! (what the driver makes of a description, offline), [`trigger`] (how frames are started), [`sim`]
+//! (what the driver makes of a description, offline), [`settings`] (camera settings from the
+//! configuration), [`trigger`] (how frames are started), [`sim`]
 //! (a simulated 3D camera that speaks the same protocols).
 #![deny(missing_docs)]
 
@@ -21,6 +22,7 @@ mod error;
 pub mod genicam;
 pub mod gvcp;
 pub mod gvsp;
+pub mod settings;
 pub mod sim;
 pub mod trigger;
 mod udp_batch;

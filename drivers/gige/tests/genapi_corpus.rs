@@ -10,6 +10,9 @@
 //! message without the reference, unless env `CI` is set. Prints a summary
 //! (`cargo test -p handeye-gige --test genapi_corpus -- --nocapture`).
 
+mod common;
+use common::reference_python;
+
 use std::collections::HashMap;
 use std::io::Write as _;
 use std::panic::AssertUnwindSafe;
@@ -254,29 +257,6 @@ fn corpus_files() -> Vec<PathBuf> {
     }
     files.sort();
     files
-}
-
-fn reference_python() -> Option<PathBuf> {
-    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
-    let ok = python.exists()
-        && Command::new(&python)
-            .args(["-c", "import genicam.genapi"])
-            .status()
-            .is_ok_and(|s| s.success());
-    if ok {
-        return Some(python);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "no genicam in {}; run .ci/install.d/aravis.sh",
-        python.display()
-    );
-    let _ = writeln!(
-        std::io::stderr(),
-        "SKIP: no `genicam` in {}; run .ci/install.d/aravis.sh",
-        python.display()
-    );
-    None
 }
 
 #[test]

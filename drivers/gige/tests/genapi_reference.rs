@@ -2,8 +2,9 @@
 //! `$REPO/.venv` by `.ci/install.d/aravis.sh`). Skips with a message without the venv, unless
 //! env `CI` is set.
 
-use std::io::Write as _;
-use std::path::Path;
+mod common;
+use common::reference_python;
+
 use std::process::Command;
 
 use handeye_gige::sim::{SimCamera, SimOptions};
@@ -26,26 +27,9 @@ print("genicam-ok", len(names))
 
 #[test]
 fn simulated_camera_xml_passes_the_emva_reference_genapi() {
-    let python = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../.venv/bin/python");
-    let has_genicam = python.exists()
-        && Command::new(&python)
-            .args(["-c", "import genicam.genapi"])
-            .status()
-            .is_ok_and(|s| s.success());
-    if !has_genicam {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "no genicam in {}; run .ci/install.d/aravis.sh",
-            python.display()
-        );
-        // Straight to stderr: the harness captures eprintln! and shows it only on failure.
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIP: no `genicam` in {}; run .ci/install.d/aravis.sh",
-            python.display()
-        );
+    let Some(python) = reference_python() else {
         return;
-    }
+    };
     let dir = std::env::temp_dir().join(format!("handeye-gige-xml-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("tmp");
     let xml = dir.join("sim.xml");

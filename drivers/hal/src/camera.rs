@@ -66,6 +66,81 @@ impl Trigger {
     }
 }
 
+/// A value for a camera feature (`[camera.features]`), as written in the configuration: the
+/// driver writes it through the camera's GenApi, which decides what it means (an entry's name
+/// for an enumeration, a number for an integer or float, `true`/`false` for a boolean).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum FeatureValue {
+    /// `true` / `false`.
+    Bool(bool),
+    /// A whole number.
+    Int(i64),
+    /// A number with a fraction or exponent.
+    Float(f64),
+    /// Text: an enumeration entry's symbolic name or a string feature's value.
+    Text(String),
+}
+
+impl std::fmt::Display for FeatureValue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FeatureValue::Bool(b) => write!(f, "{b}"),
+            FeatureValue::Int(i) => write!(f, "{i}"),
+            FeatureValue::Float(x) => write!(f, "{x}"),
+            FeatureValue::Text(t) => write!(f, "\"{t}\""),
+        }
+    }
+}
+
+/// Camera settings from the configuration, applied before every capture: the user set is
+/// loaded first (`UserSetSelector` + `UserSetLoad`), then each feature is written in the
+/// configured order, through the camera's GenApi with its ranges and access checks.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraSettings {
+    /// `camera.user_set`: the `UserSetSelector` entry to load (`"Default"`, `"UserSet1"`, …).
+    pub user_set: Option<String>,
+    /// `[camera.features]`: feature name and value, in the order written.
+    pub features: Vec<(String, FeatureValue)>,
+}
+
+impl CameraSettings {
+    /// Nothing to set.
+    pub fn is_empty(&self) -> bool {
+        self.user_set.is_none() && self.features.is_empty()
+    }
+}
+
+/// Features the drivers set themselves, which `[camera.features]` may not name, each with the
+/// configuration key (or the reason) that decides it.
+pub const FEATURES_SET_BY_HANDEYE: &[(&str, &str)] = &[
+    ("TriggerSelector", "camera.trigger"),
+    ("TriggerMode", "camera.trigger"),
+    ("TriggerSource", "camera.trigger"),
+    ("TriggerSoftware", "camera.trigger"),
+    ("ExposureTime", "camera.exposure_us"),
+    ("UserSetSelector", "camera.user_set"),
+    ("UserSetLoad", "camera.user_set"),
+    (
+        "AcquisitionMode",
+        "handeye sets it for every capture (Continuous)",
+    ),
+    ("AcquisitionStart", "handeye starts and stops every capture"),
+    ("AcquisitionStop", "handeye starts and stops every capture"),
+    (
+        "TLParamsLocked",
+        "handeye locks and unlocks it around every capture",
+    ),
+];
+
+/// Why `[camera.features]` may not name `feature` (`None`: it may).
+pub fn set_by_handeye(feature: &str) -> Option<&'static str> {
+    FEATURES_SET_BY_HANDEYE
+        .iter()
+        .find(|(f, _)| *f == feature)
+        .map(|(_, why)| *why)
+}
+
 /// A 3D camera that delivers point clouds in its own frame (metres, OpenCV axes).
 ///
 /// Capture is blocking I/O in most backends; implementations run it off the async runtime.

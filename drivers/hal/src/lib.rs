@@ -22,7 +22,10 @@ pub mod skips;
 pub mod ur_dh;
 pub mod ur_limits;
 
-pub use camera::{CameraInfo, CaptureSettings, DepthCamera, Trigger};
+pub use camera::{
+    set_by_handeye, CameraInfo, CameraSettings, CaptureSettings, DepthCamera, FeatureValue,
+    Trigger, FEATURES_SET_BY_HANDEYE,
+};
 pub use cloud::PointCloud;
 pub use error::HalError;
 pub use pose::{UrPose, UrPoseParseError};

@@ -45,6 +45,8 @@ pub(crate) const EVENT_NEW_BUFFER: i32 = 1;
 pub(crate) const GENTL_INFINITE: u64 = u64::MAX;
 /// `PAYLOAD_TYPE_MULTI_PART`.
 pub(crate) const PAYLOAD_TYPE_MULTI_PART: u64 = 10;
+/// `PAYLOAD_TYPE_GENDC` (GenICam Data Container).
+pub(crate) const PAYLOAD_TYPE_GENDC: u64 = 11;
 /// `PIXELFORMAT_NAMESPACE_PFNC_32BIT`.
 pub(crate) const PIXELFORMAT_NAMESPACE_PFNC_32BIT: u64 = 4;
 /// `DEVICE_ACCESS_STATUS_READWRITE` / `_OPEN_READWRITE`.

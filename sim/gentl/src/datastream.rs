@@ -508,6 +508,8 @@ pub unsafe extern "C" fn DSGetBufferInfo(
     size: *mut usize,
 ) -> GcError {
     call(|p| {
+        // A camera left in GenDCStreamingMode On (issue 44's refusal test).
+        let gendc = p.camera().is_ok_and(|c| c.device.gendc_streaming());
         let info = with_slot(p, ds, handle, |slot, queued| {
             // The multi-part buffer's image fields are the Range part's.
             let range = slot
@@ -532,6 +534,7 @@ pub unsafe extern "C" fn DSGetBufferInfo(
                 16 => Info::U64(filled(slot)?.frame_id),
                 17 => Info::Bool(true),
                 18 => Info::SizeT(range()?.offset),
+                19 if gendc => Info::SizeT(abi::PAYLOAD_TYPE_GENDC as usize),
                 19 => Info::SizeT(abi::PAYLOAD_TYPE_MULTI_PART as usize),
                 20 => Info::U64(range()?.format),
                 21 => Info::U64(abi::PIXELFORMAT_NAMESPACE_PFNC_32BIT),

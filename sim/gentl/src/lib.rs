@@ -17,14 +17,16 @@
 //!
 //! Layout: `abi` (error codes, `...GetInfo` conventions), this file (the library's state, the
 //! handles, `GCInitLib`/`GCCloseLib`/`GCGetInfo`/`GCGetLastError`), `modules` (system,
-//! interface, device), `ports` (the remote device's registers and XML), `datastream` (its C
-//! functions) over `stream` (buffers, queues, the acquisition thread).
+//! interface, device), `ports` (the remote device's registers and XML; the modules' node maps
+//! in `nodemaps`), `datastream` (its C functions) over `stream` (buffers, queues, the
+//! acquisition thread).
 #![allow(non_snake_case)] // the GenTL standard's function names
 
 mod abi;
 mod datastream;
 mod faults;
 mod modules;
+mod nodemaps;
 mod ports;
 mod stream;
 

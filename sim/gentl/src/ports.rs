@@ -3,8 +3,8 @@
 use super::*;
 
 // ---------------------------------------------------------------------------------------
-// Ports: the remote device's registers; the GenTL modules' own ports have no registers and
-// no XML (consumers then show no module node map).
+// Ports: the remote device's registers; the GenTL modules' own ports hold their SFNC node
+// maps (`nodemaps`).
 
 fn remote(p: &Producer, port: *mut c_void) -> Res {
     match p.get(port)? {
@@ -13,6 +13,17 @@ fn remote(p: &Producer, port: *mut c_void) -> Res {
             err::NOT_AVAILABLE,
             "this module's port has no registers (only the remote device's port does)",
         )),
+    }
+}
+
+/// The port's XML URL: the remote device's, or a module's node map.
+fn port_url(p: &Producer, port: *mut c_void) -> Res<String> {
+    match nodemaps::Kind::of(p.get(port)?) {
+        Some(kind) => Ok(nodemaps::url(&kind)),
+        None => {
+            remote(p, port)?;
+            Ok(p.camera()?.device.xml_url())
+        }
     }
 }
 
@@ -35,7 +46,10 @@ pub unsafe extern "C" fn GCReadPort(
     size: *mut usize,
 ) -> GcError {
     call(|p| {
-        remote(p, port)?;
+        let module = nodemaps::Kind::of(p.get(port)?);
+        if module.is_none() {
+            remote(p, port)?;
+        }
         if buf.is_null() || size.is_null() {
             return Err(Fail::new(
                 err::INVALID_PARAMETER,
@@ -44,6 +58,9 @@ pub unsafe extern "C" fn GCReadPort(
         }
         // SAFETY: the caller's buffer of `*size` bytes (GenTL contract).
         let dst = unsafe { std::slice::from_raw_parts_mut(buf.cast::<u8>(), *size) };
+        if let Some(kind) = module {
+            return nodemaps::read(p, &kind, address, dst);
+        }
         p.camera()?
             .device
             .read(address, dst)
@@ -71,7 +88,10 @@ pub unsafe extern "C" fn GCWritePort(
     size: *mut usize,
 ) -> GcError {
     call(|p| {
-        remote(p, port)?;
+        let module = nodemaps::Kind::of(p.get(port)?);
+        if module.is_none() {
+            remote(p, port)?;
+        }
         if buf.is_null() || size.is_null() {
             return Err(Fail::new(
                 err::INVALID_PARAMETER,
@@ -80,6 +100,9 @@ pub unsafe extern "C" fn GCWritePort(
         }
         // SAFETY: the caller's buffer of `*size` bytes (GenTL contract).
         let src = unsafe { std::slice::from_raw_parts(buf.cast::<u8>(), *size) };
+        if let Some(kind) = module {
+            return nodemaps::write(&kind, address, src);
+        }
         // camera.xml's AcquisitionStartReg.
         if address == 0xA014 {
             crate::faults::at("AcquisitionStart");
@@ -213,7 +236,7 @@ pub unsafe extern "C" fn GCGetPortInfo(
 #[no_mangle]
 pub unsafe extern "C" fn GCGetNumPortURLs(port: *mut c_void, n: *mut u32) -> GcError {
     call(|p| {
-        remote(p, port)?;
+        port_url(p, port)?;
         // SAFETY: the caller's out-pointer.
         unsafe { out(n, 1, "piNumURLs") }
     })
@@ -228,8 +251,7 @@ pub unsafe extern "C" fn GCGetPortURL(
     size: *mut usize,
 ) -> GcError {
     call(|p| {
-        remote(p, port)?;
-        let u = p.camera()?.device.xml_url();
+        let u = port_url(p, port)?;
         // SAFETY: the caller's pointers.
         unsafe { Info::Str(u).write(std::ptr::null_mut(), url.cast(), size) }
     })
@@ -247,14 +269,13 @@ pub unsafe extern "C" fn GCGetPortURLInfo(
     size: *mut usize,
 ) -> GcError {
     call(|p| {
-        remote(p, port)?;
+        let url = port_url(p, port)?;
         if index != 0 {
             return Err(Fail::new(
                 err::INVALID_INDEX,
-                "the remote device has one URL (index 0)",
+                "a port has one URL (index 0)",
             ));
         }
-        let url = p.camera()?.device.xml_url();
         // `Local:NAME;ADDRESS;LENGTH` (hex).
         let mut fields = url.split_once(':').map_or("", |(_, rest)| rest).split(';');
         let name = fields.next().unwrap_or_default().to_string();

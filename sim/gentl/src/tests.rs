@@ -107,12 +107,12 @@ fn a_consumer_session_from_init_to_close() {
         unsafe { GCReadPortStacked(port, std::ptr::null_mut(), &mut n) },
         err::INVALID_PARAMETER
     );
-    // The system module's port has no registers.
+    // The system module's port holds its node map (issue 44), not the camera's registers.
     let mut word = [0u8; 4];
     let mut size = 4;
     assert_eq!(
         unsafe { GCReadPort(tl, 0xA000, word.as_mut_ptr().cast(), &mut size) },
-        err::NOT_AVAILABLE
+        err::INVALID_ADDRESS
     );
 
     let mut ds = std::ptr::null_mut();

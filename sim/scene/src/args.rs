@@ -9,7 +9,7 @@ use anyhow::Context as _;
 use handeye_calib::model::RobotModel;
 use handeye_calib::plan::{ViewConstraints, ViewPlanner};
 use handeye_calib::sim::{Intrinsics, KinematicError, SimSettings};
-use handeye_gige::sim::{FrameSource, SceneSource, SimOptions};
+use handeye_gige::sim::{FrameSource, SceneSource, SimOptions, VendorHabits, IMITATIONS};
 use handeye_hal::limits;
 use handeye_hal::ur_dh::PhysicalArm;
 use handeye_hal::UrPose;
@@ -61,6 +61,10 @@ pub struct SceneArgs {
     /// --factory-calibration SEED` drives.
     #[arg(long, value_name = "SEED")]
     pub factory_calibration: Option<u64>,
+    /// Describe and stream as this vendor's camera does (photoneo, lucid, sick, blaze: the
+    /// habits the book's camera pages list); default: by SFNC's letter.
+    #[arg(long, value_name = "VENDOR", value_parser = parse_imitation)]
+    pub imitate: Option<String>,
     /// Read the mount from this file (`x,y,z,rx,ry,rz`) whenever it changes: a simulator-only
     /// way to move the camera on its bracket while running (drift tests).
     #[arg(long, value_name = "FILE")]
@@ -86,6 +90,7 @@ impl SceneArgs {
         SimOptions {
             frame_rate: self.frame_rate,
             serial: self.serial.clone(),
+            habits: imitation(self.imitate.as_deref()),
             ..SimOptions::default()
         }
     }
@@ -300,6 +305,26 @@ fn not_found(name: &str, dir: &std::path::Path, urdfs: &[std::path::PathBuf]) ->
          {available}. Pick one of these, or give the arm's URDF (with its meshes) as robot.urdf",
         dir.display()
     )
+}
+
+/// `--imitate`: one of the simulated camera's imitations.
+pub fn parse_imitation(s: &str) -> Result<String, String> {
+    match VendorHabits::imitating(s) {
+        Some(_) => Ok(s.to_owned()),
+        None => Err(format!(
+            "no imitation `{s}`; the simulated camera imitates {}",
+            IMITATIONS
+                .iter()
+                .map(|(n, what)| format!("{n} ({what})"))
+                .collect::<Vec<_>>()
+                .join("; ")
+        )),
+    }
+}
+
+/// The habits of `--imitate` (checked by [`parse_imitation`]); SFNC's letter without it.
+pub fn imitation(vendor: Option<&str>) -> VendorHabits {
+    vendor.and_then(VendorHabits::imitating).unwrap_or_default()
 }
 
 #[cfg(test)]

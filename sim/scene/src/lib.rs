@@ -12,9 +12,9 @@ pub mod args;
 pub mod scene;
 
 pub use args::{
-    check_mount, check_pose_distance, factory_arm, parse_pose, resolve_robot, robots_dir,
-    robots_dir_candidates, SceneArgs, DEFAULT_HEIGHT, DEFAULT_WIDTH, MAX_MOUNT_DISTANCE_M,
-    MAX_PIXELS, MIN_PIXELS, PACKAGED_ROBOTS,
+    check_mount, check_pose_distance, factory_arm, imitation, parse_imitation, parse_pose,
+    resolve_robot, robots_dir, robots_dir_candidates, SceneArgs, DEFAULT_HEIGHT, DEFAULT_WIDTH,
+    MAX_MOUNT_DISTANCE_M, MAX_PIXELS, MIN_PIXELS, PACKAGED_ROBOTS,
 };
 pub use scene::{
     parse_robot_addr, read_mount_file, LiveJoints, RobotScene, SceneJoints, SceneMount,

@@ -93,6 +93,31 @@ impl ConverterNode {
     }
 }
 
+impl ConverterNode {
+    /// handeye patch: the bounds the EMVA reference gives a Converter: its pValue node's
+    /// bounds through FormulaFrom (Basler/U3V ExposureTime -> Converter -> Integer with
+    /// pMin/pMax); `None` when unbounded.
+    fn bounds<T: ValueStore, U: CacheStore>(
+        &self,
+        device: &mut impl Device,
+        store: &impl NodeStore,
+        cx: &mut ValueCtxt<T, U>,
+    ) -> GenApiResult<Option<(f64, f64)>> {
+        let bounds = utils::p_value_bounds(self.p_value, device, store, cx)?;
+        Ok(utils::converted_bounds(bounds, |to| {
+            let mut c = utils::FormulaEnvCollector::new(
+                &self.p_variables,
+                &self.constants,
+                &self.expressions,
+            );
+            c.insert_imm("TO", to);
+            let env = c.collect(device, store, cx)?;
+            self.formula_from.eval(&env)
+        })
+        .map(|(lo, hi)| (lo.as_float(), hi.as_float())))
+    }
+}
+
 impl INode for ConverterNode {
     fn node_base(&self) -> NodeBase {
         NodeBase::new(&self.attr_base, &self.elem_base)
@@ -146,20 +171,22 @@ impl IFloat for ConverterNode {
 
     fn min<T: ValueStore, U: CacheStore>(
         &self,
-        _: &mut impl Device,
-        _: &impl NodeStore,
-        _: &mut ValueCtxt<T, U>,
+        device: &mut impl Device,
+        store: &impl NodeStore,
+        cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<f64> {
-        Ok(f64::MIN)
+        // handeye patch: the pValue node's bounds through FormulaFrom (see `bounds`).
+        Ok(self.bounds(device, store, cx)?.map_or(f64::MIN, |(lo, _)| lo))
     }
 
     fn max<T: ValueStore, U: CacheStore>(
         &self,
-        _: &mut impl Device,
-        _: &impl NodeStore,
-        _: &mut ValueCtxt<T, U>,
+        device: &mut impl Device,
+        store: &impl NodeStore,
+        cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<f64> {
-        Ok(f64::MAX)
+        // handeye patch: see `min`.
+        Ok(self.bounds(device, store, cx)?.map_or(f64::MAX, |(_, hi)| hi))
     }
 
     fn inc_mode(&self, _: &impl NodeStore) -> Option<IncrementMode> {

@@ -224,8 +224,12 @@ impl IFloat for FloatNode {
         store: &impl NodeStore,
         cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<bool> {
+        // handeye patch: a node whose pMin/pMax is not available is not available itself
+        // (the EMVA reference: "Node is not readable").
         Ok(self.elem_base.is_readable(device, store, cx)?
-            && IValue::<f64>::is_readable(&self.value_kind, device, store, cx)?)
+            && IValue::<f64>::is_readable(&self.value_kind, device, store, cx)?
+            && IValue::<f64>::is_readable(&self.min, device, store, cx)?
+            && IValue::<f64>::is_readable(&self.max, device, store, cx)?)
     }
 
     #[tracing::instrument(skip(self, device, store, cx),
@@ -237,7 +241,11 @@ impl IFloat for FloatNode {
         store: &impl NodeStore,
         cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<bool> {
+        // handeye patch: a node whose pMin/pMax is not available is not available itself
+        // (the EMVA reference: "Node is not readable").
         Ok(self.elem_base.is_writable(device, store, cx)?
-            && IValue::<f64>::is_writable(&self.value_kind, device, store, cx)?)
+            && IValue::<f64>::is_writable(&self.value_kind, device, store, cx)?
+            && IValue::<f64>::is_readable(&self.min, device, store, cx)?
+            && IValue::<f64>::is_readable(&self.max, device, store, cx)?)
     }
 }

@@ -75,6 +75,30 @@ impl IntConverterNode {
     }
 }
 
+impl IntConverterNode {
+    /// handeye patch: the bounds the EMVA reference gives an IntConverter: its pValue node's
+    /// bounds through FormulaFrom, as integers; `None` when unbounded.
+    fn bounds<T: ValueStore, U: CacheStore>(
+        &self,
+        device: &mut impl Device,
+        store: &impl NodeStore,
+        cx: &mut ValueCtxt<T, U>,
+    ) -> GenApiResult<Option<(i64, i64)>> {
+        let bounds = utils::p_value_bounds(self.p_value, device, store, cx)?;
+        Ok(utils::converted_bounds(bounds, |to| {
+            let mut c = utils::FormulaEnvCollector::new(
+                &self.p_variables,
+                &self.constants,
+                &self.expressions,
+            );
+            c.insert_imm("TO", to);
+            let env = c.collect(device, store, cx)?;
+            self.formula_from.eval_integer(&env)
+        })
+        .map(|(lo, hi)| (lo.as_integer(), hi.as_integer())))
+    }
+}
+
 impl INode for IntConverterNode {
     fn node_base(&self) -> NodeBase {
         NodeBase::new(&self.attr_base, &self.elem_base)
@@ -128,20 +152,22 @@ impl IInteger for IntConverterNode {
 
     fn min<T: ValueStore, U: CacheStore>(
         &self,
-        _: &mut impl Device,
-        _: &impl NodeStore,
-        _: &mut ValueCtxt<T, U>,
+        device: &mut impl Device,
+        store: &impl NodeStore,
+        cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<i64> {
-        Ok(i64::MIN)
+        // handeye patch: the pValue node's bounds through FormulaFrom (see `bounds`).
+        Ok(self.bounds(device, store, cx)?.map_or(i64::MIN, |(lo, _)| lo))
     }
 
     fn max<T: ValueStore, U: CacheStore>(
         &self,
-        _: &mut impl Device,
-        _: &impl NodeStore,
-        _: &mut ValueCtxt<T, U>,
+        device: &mut impl Device,
+        store: &impl NodeStore,
+        cx: &mut ValueCtxt<T, U>,
     ) -> GenApiResult<i64> {
-        Ok(i64::MAX)
+        // handeye patch: see `min`.
+        Ok(self.bounds(device, store, cx)?.map_or(i64::MAX, |(_, hi)| hi))
     }
 
     fn inc_mode(&self, _: &impl NodeStore) -> Option<IncrementMode> {

@@ -403,3 +403,42 @@ mod tests {
         assert!(bytes_from_float(value, &mut [], Endianness::LE).is_err());
     }
 }
+
+/// handeye patch: the bounds of a Converter's/IntConverter's `pValue` node, as formula values
+/// (`None` when that node has no bounds: i64::MIN..=i64::MAX or f64::MIN..=f64::MAX).
+pub(super) fn p_value_bounds<T: ValueStore, U: CacheStore>(
+    nid: NodeId,
+    device: &mut impl Device,
+    store: &impl NodeStore,
+    cx: &mut ValueCtxt<T, U>,
+) -> GenApiResult<Option<(Expr, Expr)>> {
+    if let Some(n) = nid.as_iinteger_kind(store) {
+        let (lo, hi) = (n.min(device, store, cx)?, n.max(device, store, cx)?);
+        if lo == i64::MIN || hi == i64::MAX {
+            return Ok(None);
+        }
+        Ok(Some((lo.into(), hi.into())))
+    } else if let Some(n) = nid.as_ifloat_kind(store) {
+        let (lo, hi) = (n.min(device, store, cx)?, n.max(device, store, cx)?);
+        if lo <= f64::MIN || hi >= f64::MAX || !lo.is_finite() || !hi.is_finite() {
+            return Ok(None);
+        }
+        Ok(Some((lo.into(), hi.into())))
+    } else {
+        Ok(None)
+    }
+}
+
+/// handeye patch: a converter's bounds, as in the EMVA reference: its `pValue` node's
+/// `bounds` through `FormulaFrom` (`eval_at(TO)` for each bound), the smaller one the minimum
+/// (a decreasing formula swaps them). `None` when the `pValue` node has no bounds or the formula
+/// cannot be evaluated at them.
+pub(super) fn converted_bounds(
+    bounds: Option<(Expr, Expr)>,
+    mut eval_at: impl FnMut(Expr) -> GenApiResult<EvaluationResult>,
+) -> Option<(EvaluationResult, EvaluationResult)> {
+    let (lo, hi) = bounds?;
+    let a = eval_at(lo).ok()?;
+    let b = eval_at(hi).ok()?;
+    Some(if a.as_float() <= b.as_float() { (a, b) } else { (b, a) })
+}

@@ -193,7 +193,14 @@ pub fn check_output_mode(
             [m, ..] => (*m).to_owned(),
         }
     };
-    let refuse = |why: String| Err(GigeError::feature("Scan3dOutputMode", why));
+    let refuse = |why: String| {
+        Err(GigeError::feature(
+            "Scan3dOutputMode",
+            format!(
+                "{why} (in the vendor's tool, or [camera.features] in handeye's configuration)"
+            ),
+        ))
+    };
     let coordinate_maps = components
         .iter()
         .any(|c| COORDINATE_MAP_COMPONENTS.contains(&c.as_str()));

@@ -36,6 +36,12 @@ pub(super) const TRIGGER_MODE: u32 = 0xA048;
 pub(super) const TRIGGER_SOURCE: u32 = 0xA04C;
 pub(super) const TRIGGER_SOFTWARE: u32 = 0xA050;
 pub(super) const TRIGGER_SELECTOR: u32 = 0xA054;
+/// `UserSetSelector` (0 Default: the power-on pixel format; 1 UserSet1: saved with
+/// Coord3D_C16) and `UserSetLoad`.
+pub(super) const USER_SET_SELECTOR: u32 = 0xA058;
+pub(super) const USER_SET_LOAD: u32 = 0xA05C;
+/// `GenDCStreamingMode` ([`VendorHabits::gendc`]).
+pub(super) const GENDC_MODE: u32 = 0xA060;
 /// 8-byte doubles: scale, offset, invalid, focal, pu, pv, aspect ratio, rate, vertical focal.
 pub(super) const FLOAT_BASE: u32 = 0xA100;
 const FLOATS: u32 = 9;
@@ -292,6 +298,7 @@ impl State {
             {
                 None
             }
+            GENDC_MODE if !self.habits.gendc => None,
             OUTPUT_MODE if self.habits.projected_c => Some(2),
             OUTPUT_MODE => Some(u32::from(self.reg(PIXEL_FORMAT) == pfnc::COORD3D_C16)),
             COMPONENT_ENABLE => Some(match self.reg(COMPONENT_SELECTOR) {
@@ -364,6 +371,25 @@ impl State {
                 return Ok(());
             }
             TRIGGER_MODE | TRIGGER_SOURCE | TRIGGER_SELECTOR => {}
+            GENDC_MODE if !self.habits.gendc => return Err(0x8003),
+            GENDC_MODE if locked => return Err(0x8004),
+            GENDC_MODE if v > 1 => return Err(0x8002),
+            GENDC_MODE => {}
+            USER_SET_SELECTOR if v > 1 => return Err(0x8002),
+            USER_SET_LOAD => {
+                if locked {
+                    return Err(0x8004);
+                }
+                let format = match self.reg(USER_SET_SELECTOR) {
+                    0 => self.habits.pixel_formats()[0],
+                    _ => pfnc::COORD3D_C16,
+                };
+                if self.habits.pixel_formats().contains(&format) {
+                    self.regs.insert(PIXEL_FORMAT, format);
+                }
+                return Ok(());
+            }
+            USER_SET_SELECTOR => {}
             COMPONENT_SELECTOR if v > 2 || (v == 2 && !self.habits.intensity_first) => {
                 return Err(0x8002)
             }
@@ -487,6 +513,9 @@ impl State {
             (TRIGGER_MODE, u32::from(opts.habits.software_trigger)),
             (TRIGGER_SOURCE, 0),
             (TRIGGER_SELECTOR, 0),
+            (USER_SET_SELECTOR, 0),
+            (GENDC_MODE, u32::from(opts.habits.gendc)),
+            (USER_SET_LOAD, 0),
             (ACQ_MODE, 0),
             (ACQ_START, 0),
             (ACQ_STOP, 0),

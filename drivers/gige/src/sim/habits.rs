@@ -47,6 +47,10 @@ pub struct VendorHabits {
     /// Basler blaze: `Scan3dInvalidDataFlag`/`Value` per coordinate; Coord3D_ABC32f marks an
     /// invalid point (0, 0, 0) and flags only C (value 0), so a valid X or Y of 0 is a point.
     pub per_coordinate_invalid: bool,
+    /// `GenDCStreamingMode` (Off, On), On from power-on: the GenTL producer then labels its
+    /// buffers GenDC containers (payload type 11; the content stays multi-part, enough for a
+    /// consumer's refusal). The GigE Vision streamer ignores it.
+    pub gendc: bool,
 }
 
 /// How the simulated camera codes each coordinate of a pixel format: `raw · scale + offset`
@@ -79,7 +83,61 @@ pub(super) const C16_SCALE_MM: f64 = 0.1;
 const LUCID_SCALE_MM: f64 = 0.25;
 const LUCID_OFFSET_MM: f64 = -8192.0;
 
+/// The vendors the simulated camera imitates as a whole (`handeye sim camera --imitate`),
+/// each with what it imitates (imitated from the vendors' public documentation and examples,
+/// not measured on their cameras).
+pub const IMITATIONS: &[(&str, &str)] = &[
+    (
+        "photoneo",
+        "Photoneo: intensity first, chunk data as a last part, TriggerMode On with a software source",
+    ),
+    (
+        "lucid",
+        "Lucid Helios2: Coord3D_ABCY16 (also ABC16, C16) with CalibFocalLength*/CalibOpticalCenter*",
+    ),
+    (
+        "sick",
+        "SICK Visionary: Coord3D_C16 in ProjectedC, only CoordinateC, aspect ratio, chunk data",
+    ),
+    (
+        "blaze",
+        "Basler blaze: Scan3dInvalidDataFlag/Value per coordinate (only C flagged)",
+    ),
+    (
+        "gendc",
+        "a camera streaming GenDC containers (GenDCStreamingMode On; GenTL producer only)",
+    ),
+];
+
 impl VendorHabits {
+    /// The habits of one of the [`IMITATIONS`] (`None` for another name).
+    pub fn imitating(vendor: &str) -> Option<Self> {
+        let d = Self::default();
+        Some(match vendor {
+            "photoneo" => Self {
+                intensity_first: true,
+                chunk_part: true,
+                software_trigger: true,
+                ..d
+            },
+            "lucid" => Self { lucid: true, ..d },
+            "sick" => Self {
+                projected_c: true,
+                only_coordinate_c: true,
+                aspect_ratio: true,
+                chunk_part: true,
+                intensity_first: true,
+                ..d
+            },
+            "blaze" => Self {
+                per_coordinate_invalid: true,
+                ..d
+            },
+            "gendc" => Self { gendc: true, ..d },
+            _ => return None,
+        })
+    }
+
     /// The `PixelFormat` entries (PFNC codes), the power-on one first.
     pub(super) fn pixel_formats(&self) -> &'static [u32] {
         if self.lucid {
@@ -169,6 +227,14 @@ pub(super) fn xml_for(opts: &SimOptions) -> String {
                  <pFeature>TriggerSoftware</pFeature>",
             )
             .replace("</RegisterDescription>", TRIGGER_XML);
+    }
+    if h.gendc {
+        xml = xml
+            .replace(
+                "<pFeature>AcquisitionFrameRate</pFeature>",
+                "<pFeature>AcquisitionFrameRate</pFeature>\n    <pFeature>GenDCStreamingMode</pFeature>",
+            )
+            .replace("</RegisterDescription>", GENDC_XML);
     }
     if h.no_distance_unit {
         xml = remove_feature(&xml, "Enumeration", "Scan3dDistanceUnit");
@@ -293,6 +359,27 @@ fn lucid_xml(xml: String) -> String {
 </RegisterDescription>"#,
     )
 }
+
+/// `GenDCStreamingMode` of [`VendorHabits::gendc`].
+const GENDC_XML: &str = r#"  <Enumeration Name="GenDCStreamingMode" NameSpace="Standard">
+    <pIsLocked>TLParamsLocked</pIsLocked>
+    <EnumEntry Name="Off" NameSpace="Standard">
+      <Value>0</Value>
+    </EnumEntry>
+    <EnumEntry Name="On" NameSpace="Standard">
+      <Value>1</Value>
+    </EnumEntry>
+    <pValue>GenDCStreamingModeReg</pValue>
+  </Enumeration>
+  <IntReg Name="GenDCStreamingModeReg" NameSpace="Custom">
+    <Address>0xA060</Address>
+    <Length>4</Length>
+    <AccessMode>RW</AccessMode>
+    <pPort>Device</pPort>
+    <Sign>Unsigned</Sign>
+    <Endianess>BigEndian</Endianess>
+  </IntReg>
+</RegisterDescription>"#;
 
 /// The trigger features of [`VendorHabits::software_trigger`].
 const TRIGGER_XML: &str = r#"  <Enumeration Name="TriggerSelector" NameSpace="Standard">

@@ -17,7 +17,7 @@ mod stream;
 
 pub use device::{SimOptions, SimStats};
 pub use gvcp_server::SimCamera;
-pub use habits::VendorHabits;
+pub use habits::{VendorHabits, IMITATIONS};
 pub use scene::SceneSource;
 pub use sim_device::{PortError, SimDevice};
 

@@ -134,6 +134,13 @@ impl SimDevice {
         lock(&self.state).take_trigger()
     }
 
+    /// Whether the camera streams GenDC containers now (`GenDCStreamingMode` On, a
+    /// [`VendorHabits::gendc`](super::VendorHabits::gendc) camera).
+    pub fn gendc_streaming(&self) -> bool {
+        let s = lock(&self.state);
+        s.habits.gendc && s.reg(super::device::GENDC_MODE) == 1
+    }
+
     /// Frames per second while acquiring (`AcquisitionFrameRate`).
     pub fn frame_rate(&self) -> f64 {
         lock(&self.state).frame_rate
