@@ -144,6 +144,9 @@ struct Inputs {
     mount: Mount,
     base_frame: String,
     controller_dh: Option<DhParams>,
+    /// The flange poses were given on the command line (from anywhere: a ROS `world`, a URDF
+    /// root), not recorded from the controller in its `base`.
+    poses_from_elsewhere: bool,
 }
 
 /// The frames of a run's capture file.
@@ -170,6 +173,7 @@ fn from_capture(path: &Path, args: &Args) -> anyhow::Result<Inputs> {
         } else {
             capture.controller_dh
         },
+        poses_from_elsewhere: false,
     })
 }
 
@@ -396,6 +400,7 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
         },
         base_frame,
         controller_dh: None,
+        poses_from_elsewhere: !args.flange_pose.is_empty(),
     })
 }
 
@@ -478,6 +483,15 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
     // error; otherwise the nominal model's.
     if let Some(k) = args.kinematic_error {
         opts.register.kinematic_error = k;
+    }
+    // Poses from elsewhere than the controller, posed by the nominal URDF: nothing ties their
+    // frame to joint 1's axis closer than the arm's build, so the views estimate it.
+    if inputs.poses_from_elsewhere && opts.controller_dh.is_none() {
+        let arm = &opts.register.kinematic_error;
+        opts.pose_frame = Some((
+            arm.housing_translation_sigma_m,
+            arm.housing_rotation_sigma_rad,
+        ));
     }
     if let Some(class) = args.sensor {
         opts.register = opts.register.for_sensor(class);

@@ -67,7 +67,8 @@ pub struct BenchConfig {
     pub mount: Mount,
     /// 1σ per axis of the shift (m) and turn (rad) of the frame the flange poses are handed in
     /// off the controller's `base` (a ROS `world`, a URDF root whose z is not joint 1's axis),
-    /// drawn once per calibration run; `(0, 0)`: the poses are in `base`.
+    /// drawn once per calibration run, and the solver told so
+    /// ([`PipelineOptions::pose_frame`]); `(0, 0)`: the poses are in `base`.
     pub pose_frame: (f64, f64),
 }
 
@@ -687,6 +688,8 @@ pub fn run_views_trial(
         register: cfg.register.clone(),
         gate: cfg.gate,
         controller_dh: controller_dh.filter(|_| trial.calibrated_kinematics),
+        // Poses handed in another frame: the solver is told how far off it may be.
+        pose_frame: (cfg.pose_frame != (0.0, 0.0)).then_some(cfg.pose_frame),
         ..PipelineOptions::new(cfg.mount)
     };
     let calibration = match calibrate_frames(model, &frames, &opts) {

@@ -215,12 +215,10 @@ pub(crate) fn adjoint(model_from_frame: &Isometry3<f64>) -> Matrix6<f64> {
 /// what is left moves each view's pose its own way. `None` unless two views or more were
 /// used and every used frame's links were fitted.
 ///
-/// `pose_frame` (1σ per axis, m and rad): how well the frame the flange poses are in is known
-/// to be the model's. With the controller's DH the poses are checked against the joints to a
-/// micrometre ([`crate::model::reported`]), so `None`; with the nominal URDF nothing ties the
-/// two closer than the arm's build (its housings' tolerance), and poses in a frame that far
-/// off (a ROS `world`, a URDF root whose z is not joint 1's axis) would otherwise move the
-/// mount by as much while its σ could not say so: the views estimate that frame with the mount.
+/// `pose_frame` (1σ per axis, m and rad): the flange poses are in a frame known only to within
+/// this of the model's ([`super::pipeline::PipelineOptions::pose_frame`]); the views estimate
+/// it with the mount, whose σ then carries it. `None`: the poses are the controller's, in its
+/// `base`.
 pub(crate) fn fuse_solution(
     solution: &HandEyeSolution,
     inputs: &[FrameInput],

@@ -59,6 +59,12 @@ pub struct PipelineOptions {
     /// Frame the report's `base_from_camera` is expressed in (a fixed link of the model, e.g.
     /// `base` for the UR controller's frame); `None` = the model root.
     pub base_frame: Option<String>,
+    /// Eye-in-hand: the flange poses are in a frame known only to within this 1σ per axis
+    /// (shift m, turn rad) of the model's (poses from elsewhere than the controller, posed by
+    /// the nominal URDF: a ROS `world`, a URDF root whose z is not joint 1's axis); the views
+    /// estimate it with the mount. `None`: the controller's own poses, in its `base` (read from
+    /// it, or checked against its DH to a micrometre, [`crate::model::reported`]).
+    pub pose_frame: Option<(f64, f64)>,
 }
 
 impl PipelineOptions {
@@ -85,6 +91,7 @@ impl PipelineOptions {
             gate: GateThresholds::default(),
             previous: None,
             base_frame: None,
+            pose_frame: None,
         }
     }
 }
@@ -258,17 +265,12 @@ pub fn calibrate_frames(
     let mut solution = solve_setting_aside(opts.mount, &inputs, &opts.solve, &set_aside)?;
     // The views of one arm fitted together: what one view cannot tell apart from the mount
     // (its links' housings), several views can.
-    let arm = &opts.register.kinematic_error;
-    let pose_frame = opts.controller_dh.is_none().then_some((
-        arm.housing_translation_sigma_m,
-        arm.housing_rotation_sigma_rad,
-    ));
     if let Some((estimate, uncertainty)) = fuse_solution(
         &solution,
         &inputs,
         &registrations,
         opts.register.model_accuracy,
-        pose_frame,
+        opts.pose_frame,
     ) {
         solution.re_estimate(estimate, &inputs)?;
         solution.uncertainty = Some(uncertainty);
