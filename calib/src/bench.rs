@@ -123,6 +123,7 @@ impl BenchConfig {
     pub fn tuned_for_camera(mut self, camera: &str) -> Self {
         if let Some(class) = Intrinsics::preset_class(camera) {
             self.register = self.register.for_sensor(class);
+            self.gate = GateThresholds::for_sensor(class);
         }
         self
     }
