@@ -154,9 +154,9 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             .map(|r| resolve_robot(r.trim()).map_err(anyhow::Error::msg))
             .collect::<Result<_, _>>()?
     };
-    let mut register = BenchConfig::new(args.mount)
-        .tuned_for_camera(&args.camera)
-        .register;
+    // The registration and the gate tuned for the camera's sensor class.
+    let tuned = BenchConfig::new(args.mount).tuned_for_camera(&args.camera);
+    let mut register = tuned.register;
     // The housings' tolerance is the arm's, as a cell's configuration would say it.
     let built = settings.kinematic_error;
     register.kinematic_error.housing_translation_sigma_m = built.housing_translation_sigma_m;
@@ -176,6 +176,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             seed: args.seed.wrapping_add(i as u64 * 7919),
             kinematics: args.kinematics,
             register: register.clone(),
+            gate: tuned.gate,
             ..BenchConfig::new(args.mount)
         };
         eprint!("{:<16}", model.name());
