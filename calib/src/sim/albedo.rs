@@ -116,7 +116,13 @@ mod tests {
         );
         let w = image.width;
         let albedo: Vec<f64> = (0..image.depth.len())
-            .map(|i| if i % w < w / 2 { COVER_ALBEDO } else { CAP_ALBEDO })
+            .map(|i| {
+                if i % w < w / 2 {
+                    COVER_ALBEDO
+                } else {
+                    CAP_ALBEDO
+                }
+            })
             .collect();
         let tof = ScanNoise {
             multipath_m: 0.0,

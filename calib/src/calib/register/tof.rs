@@ -122,18 +122,7 @@ mod tests {
 
     use super::*;
     use crate::geometry::raycast::{raycast, SceneMesh};
-    use crate::model::TriMesh;
     use crate::sim::{look_at, Intrinsics};
-
-    fn quad(corners: [[f64; 3]; 4]) -> TriMesh {
-        TriMesh {
-            vertices: corners
-                .iter()
-                .map(|c| Point3::new(c[0], c[1], c[2]))
-                .collect(),
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-        }
-    }
 
     /// Issue 45: a time-of-flight scan (1 mm at 1 m of noise) of a floor meeting a wall, 0.7 m
     /// away, with a dark patch on the floor far from the corner. The scan's own geometry marks
@@ -142,25 +131,13 @@ mod tests {
     /// and wall are kept.
     #[test]
     fn issue_45_the_scans_concave_corner_and_dark_surfaces_are_marked_biased() {
-        let floor = quad([
-            [-1.0, -1.0, 0.0],
-            [1.0, -1.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [-1.0, 1.0, 0.0],
-        ]);
-        let wall = quad([
-            [0.0, -1.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [0.0, 1.0, 1.0],
-            [0.0, -1.0, 1.0],
-        ]);
+        let meshes = crate::testutil::floor_and_wall();
         let intr = Intrinsics::helios2_640x480().scaled(0.5);
         let model_from_camera = look_at(
             &Point3::new(-0.5, 0.1, 0.5),
             &Point3::new(0.0, 0.0, 0.0),
             &-Vector3::z(),
         );
-        let meshes = [floor, wall];
         let image = raycast(
             &SceneMesh::indexed(&meshes),
             &model_from_camera.inverse(),
@@ -184,7 +161,7 @@ mod tests {
             let p = ray * noisy;
             points.push(Point3::new(p.x as f32, p.y as f32, p.z as f32));
             let albedo = if dark { 0.08 } else { 0.6 };
-            let cos = f64::from(image.normal[i].cast::<f64>().dot(&-ray.normalize())).abs();
+            let cos = image.normal[i].cast::<f64>().dot(&-ray.normalize()).abs();
             amplitude.push((albedo * cos / p.norm_squared()) as f32);
             world.push(Some((in_model, dark)));
         }
