@@ -129,3 +129,29 @@ fn rigid(m: &serde_json::Value) -> Isometry3<f64> {
         UnitQuaternion::from_matrix(&rotation),
     )
 }
+
+/// A 2 m square floor (z = 0) meeting a wall (x = 0) along the line x = z = 0: a concave
+/// corner where a time-of-flight camera's light bounces between the two (model frame).
+pub fn floor_and_wall() -> [crate::model::TriMesh; 2] {
+    let quad = |corners: [[f64; 3]; 4]| crate::model::TriMesh {
+        vertices: corners
+            .iter()
+            .map(|c| nalgebra::Point3::new(c[0], c[1], c[2]))
+            .collect(),
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+    };
+    [
+        quad([
+            [-1.0, -1.0, 0.0],
+            [1.0, -1.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [-1.0, 1.0, 0.0],
+        ]),
+        quad([
+            [0.0, -1.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, 1.0, 1.0],
+            [0.0, -1.0, 1.0],
+        ]),
+    ]
+}

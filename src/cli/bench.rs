@@ -160,13 +160,15 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             .map(|r| resolve_robot(r.trim()).map_err(anyhow::Error::msg))
             .collect::<Result<_, _>>()?
     };
-    let register = BenchConfig {
+    // The registration and the gate tuned for the camera's sensor class, the solver told the
+    // arm's tolerances as a cell's configuration would say them.
+    let tuned = BenchConfig {
         settings,
         ..BenchConfig::new(args.mount)
     }
     .tuned_for_camera(&args.camera)
-    .solver_told_the_arm()
-    .register;
+    .solver_told_the_arm();
+    let register = tuned.register.clone();
     let mut summaries = Vec::new();
     for (i, path) in robots.iter().enumerate() {
         let model = RobotModel::load(path)?;
@@ -180,6 +182,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
             kinematics: args.kinematics,
             pose_frame: (args.pose_frame.0 * 1e-3, args.pose_frame.1 * 1e-3),
             register: register.clone(),
+            gate: tuned.gate,
             ..BenchConfig::new(args.mount)
         };
         eprint!("{:<16}", model.name());

@@ -495,6 +495,7 @@ fn solve(args: Args) -> anyhow::Result<ExitCode> {
     }
     if let Some(class) = args.sensor {
         opts.register = opts.register.for_sensor(class);
+        opts.gate = handeye::calib::GateThresholds::for_sensor(class);
     }
     if let Some((mm, deg)) = args.max_uncertainty {
         opts.gate.max_uncertainty_translation_mm = mm;

@@ -71,9 +71,13 @@ pub const SEED: u64 = 1;
 pub const FLOOR_CLEARANCE_M: f64 = 0.03;
 /// `views.return_to_start`.
 pub const RETURN_TO_START: bool = true;
-/// `[gate]`.
+/// `[gate]` (a structured-light camera's; [`gate_for`] another class's).
 pub fn gate() -> GateThresholds {
-    GateThresholds::default()
+    gate_for(SENSOR)
+}
+/// `[gate]` for a camera of `sensor`'s class.
+pub fn gate_for(sensor: crate::geometry::SensorClass) -> GateThresholds {
+    GateThresholds::for_sensor(sensor)
 }
 /// `check.max_drift_translation_mm`: three times the largest difference between a check and
 /// its calibration of an unmoved camera over 1 080 simulated checks (0.17 mm), a margin for

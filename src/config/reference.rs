@@ -166,7 +166,7 @@ pub fn keys() -> Vec<KeyDoc> {
         number("gate.max_free_space_violations", Some(gate.max_free_space_violations), FRACTION, "largest share of the expected surface the scan sees through"),
         number("gate.max_rmse_mm", Some(gate.max_rmse_mm), GATE_MM, "largest RMS residual for a precise scan (widens with the scan's noise)"),
         number("gate.min_inlier_fraction", Some(gate.min_inlier_fraction), FRACTION, "least share of scan points near the model that fit it"),
-        number("gate.max_uncertainty_translation_mm", Some(gate.max_uncertainty_translation_mm), GATE_MM, "largest 1σ of the camera position per registration (eye-to-hand: at the robot base)"),
+        number("gate.max_uncertainty_translation_mm", Some(gate.max_uncertainty_translation_mm), GATE_MM, "largest 1σ of the camera position per registration (eye-to-hand: at the robot base); time of flight (`camera.sensor`): 1.3 by default"),
         number("gate.max_uncertainty_rotation_deg", Some(gate.max_uncertainty_rotation_deg), GATE_DEG, "largest 1σ of the camera rotation per registration"),
         number("gate.max_residual_translation_mm", Some(gate.max_residual_translation_mm), GATE_MM, "largest disagreement of a frame or view with the fused result"),
         number("gate.max_residual_rotation_deg", Some(gate.max_residual_rotation_deg), GATE_DEG, "largest disagreement of a frame or view with the fused result"),

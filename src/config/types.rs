@@ -173,7 +173,8 @@ pub struct CameraConfig {
     pub settle: Duration,
     /// How the camera measures depth (`sensor`: `"structured-light"`, the default,
     /// `"active-stereo"` for a RealSense D4xx class, `"time-of-flight"`): the registration is
-    /// tuned for its errors ([`crate::calib::RegisterOptions::for_sensor`]).
+    /// tuned for its errors ([`crate::calib::RegisterOptions::for_sensor`]) and the `[gate]`
+    /// keys not given default to its class's ([`crate::calib::GateThresholds::for_sensor`]).
     pub sensor: crate::geometry::SensorClass,
     /// How frames are started (`trigger`: `"free"`, the default, clears a camera's
     /// `TriggerMode`; `"software"` fires `TriggerSoftware` per frame); gige and gentl only.

@@ -11,6 +11,7 @@ use handeye_hal::{CaptureSettings, MotionLimits, UrPose};
 use nalgebra::Isometry3;
 
 use crate::calib::{GateThresholds, Mount};
+use crate::geometry::SensorClass;
 
 use super::locate::KeyIndex;
 use super::raw::*;
@@ -284,7 +285,7 @@ impl Ctx<'_> {
         let camera = self.camera(raw.camera)?;
         let mount = self.mount(raw.mount)?;
         let views = self.views(raw.views, &mount)?;
-        let gate = self.gate(raw.gate)?;
+        let gate = self.gate(raw.gate, camera.sensor)?;
         let check = CheckConfig {
             max_drift_translation_mm: self.num(
                 "check.max_drift_translation_mm",
@@ -838,7 +839,9 @@ impl Ctx<'_> {
         })
     }
 
-    fn gate(&self, g: RawGate) -> Result<GateThresholds, ConfigError> {
+    /// `[gate]`: each key the user's, else the default of the camera's sensor class
+    /// ([`GateThresholds::for_sensor`]).
+    fn gate(&self, g: RawGate, sensor: SensorClass) -> Result<GateThresholds, ConfigError> {
         // Destructured without `..`: a new threshold fails to compile here until it has a key.
         let GateThresholds {
             min_coverage,
@@ -856,7 +859,7 @@ impl Ctx<'_> {
             max_depth_offset_mm,
             max_change_translation_mm,
             max_change_rotation_deg,
-        } = defaults::gate();
+        } = defaults::gate_for(sensor);
         use ranges::{DEPTH_SCALE_ERROR, FRACTION, GATE_DEG, GATE_MM};
         Ok(GateThresholds {
             min_coverage: self.num("gate.min_coverage", g.min_coverage, min_coverage, FRACTION)?,

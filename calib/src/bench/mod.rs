@@ -125,11 +125,13 @@ impl BenchConfig {
 
     /// This configuration with the registration tuned for camera preset `camera`'s sensor
     /// class ([`RegisterOptions::for_sensor`]: time of flight its range offset and multipath,
-    /// active stereo its scale bound and depth gradient), as `handeye bench --camera` runs it;
-    /// unchanged for a name that is no preset.
+    /// active stereo its scale bound and depth gradient) and the gate's defaults for it
+    /// ([`GateThresholds::for_sensor`]), as `handeye bench --camera` runs it; unchanged for a
+    /// name that is no preset.
     pub fn tuned_for_camera(mut self, camera: &str) -> Self {
         if let Some(class) = Intrinsics::preset_class(camera) {
             self.register = self.register.for_sensor(class);
+            self.gate = GateThresholds::for_sensor(class);
         }
         self
     }

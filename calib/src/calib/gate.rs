@@ -6,6 +6,7 @@ use nalgebra::Isometry3;
 use super::register::Registration;
 use super::solve::{distance, HandEyeSolution, Residual, OUTLIER_SIGMAS};
 use super::Outcome;
+use crate::geometry::SensorClass;
 
 /// Thresholds of [`gate`]; units are in the names. `Default` is conservative.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -80,6 +81,28 @@ impl Default for GateThresholds {
         }
     }
 }
+
+impl GateThresholds {
+    /// The gate's defaults for a sensor class: what a camera of that class can honestly hold
+    /// (a user's `[gate]` keys override them one by one, `handeye::config`). Structured light
+    /// and active stereo: [`Default`]. Time of flight: at most [`TOF_MAX_SIGMA_MM`] of 1σ per
+    /// registration: its wrist scans' error / σ reaches 1.6 at p95, and a result 2 mm off is
+    /// wrong (`handeye bench --camera helios2 --views 10`, both kinematics paths, 540 scans:
+    /// the two accepted 2.2–2.3 mm off had σ 1.45 mm).
+    pub fn for_sensor(class: SensorClass) -> Self {
+        match class {
+            SensorClass::StructuredLight | SensorClass::ActiveStereo => Self::default(),
+            SensorClass::TimeOfFlight => Self {
+                max_uncertainty_translation_mm: TOF_MAX_SIGMA_MM,
+                ..Self::default()
+            },
+        }
+    }
+}
+
+/// Largest 1σ of the camera position a time-of-flight registration may have, mm
+/// ([`GateThresholds::for_sensor`]).
+pub const TOF_MAX_SIGMA_MM: f64 = 1.3;
 
 /// The way out named when a result moved beyond `max_change_*`: a camera remounted on purpose
 /// is accepted explicitly, never by the gate. The reason ends with it; how to accept depends on

@@ -2,6 +2,7 @@
 //! and its cell, with the imperfections of real scans (see [`ScanNoise`], [`CellOptions`],
 //! [`KinematicError`]).
 
+mod albedo;
 mod camera;
 pub mod cell;
 mod noise;
@@ -12,6 +13,6 @@ pub use crate::geometry::{Intrinsics, SensorClass};
 pub use crate::model::KinematicError;
 pub use camera::look_at;
 pub use cell::{CellOptions, CellPart};
-pub use noise::ScanNoise;
+pub use noise::{ScanNoise, TOF_REFERENCE_ALBEDO};
 pub use scan::{simulate_scan, GroundTruth, Placement, ScanRequest, SimError, SimulatedScan};
 pub use settings::{SettingsError, SimSettings};

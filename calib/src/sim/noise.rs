@@ -1,6 +1,6 @@
 //! What makes real scans hard, each with a knob and a realistic default.
 
-use rand::Rng;
+use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
 use crate::geometry::SensorClass;
@@ -63,7 +63,35 @@ pub struct ScanNoise {
     pub multipath_m: f64,
     /// Half-width of the image window (pixels) searched for surfaces facing a pixel's surface.
     pub multipath_window_px: f64,
+    /// Reflectivity of the surfaces the sensor's figures are stated for (a time-of-flight
+    /// camera's precision is specified on a white or light target). Above 0 the scene's
+    /// surfaces have their own reflectivity (the simulator's albedo: a UR's light covers 0.6,
+    /// its dark joint caps and base ring 0.08, see `sim::scan`), and the camera reports its
+    /// amplitude image as the cloud's intensity: the noise grows as 1/√(albedo / this), dark
+    /// surfaces read long by [`Self::dark_range_bias_m`], multipath weighs each facing surface
+    /// by its albedo over this. 0: every surface alike, no amplitude image (structured light,
+    /// active stereo).
+    pub reference_albedo: f64,
+    /// Range bias of a black surface against one of [`Self::reference_albedo`] (metres,
+    /// longer): a surface of albedo `a` reads `this · (1 − a / reference)` long (none at or
+    /// above the reference). Time of flight: the intensity-related distance error.
+    pub dark_range_bias_m: f64,
+    /// 1σ of the range offset's drift from scan to scan (metres): a time-of-flight camera's
+    /// offset follows its temperature, and each scan draws its own offset around
+    /// [`Self::depth_offset_m`].
+    pub offset_drift_m: f64,
 }
+
+/// Albedo of the surfaces a time-of-flight camera's precision is stated for here: a UR's light
+/// grey covers in the near infrared (assumed; the datasheets' target is a 90 % white board).
+pub const TOF_REFERENCE_ALBEDO: f64 = 0.6;
+
+/// Mixed into a scan's seed for its range offset's drift.
+const OFFSET_DRIFT_SEED: u64 = 0x4452_4946_5430;
+
+/// Darkest albedo the simulator's amplitude effects are computed for (a black surface still
+/// returns a little light).
+const MIN_ALBEDO: f64 = 0.02;
 
 /// Largest `noise.depth_sigma_at_1m_m`, metres.
 pub(crate) const MAX_DEPTH_SIGMA_AT_1M_M: f64 = 0.05;
@@ -99,6 +127,9 @@ impl Default for ScanNoise {
             ripple_correlation_px: 14.0,
             multipath_m: 0.0,
             multipath_window_px: 12.0,
+            reference_albedo: 0.0,
+            dark_range_bias_m: 0.0,
+            offset_drift_m: 0.0,
         }
     }
 }
@@ -123,6 +154,9 @@ impl ScanNoise {
             ripple_correlation_px: 14.0,
             multipath_m: 0.0,
             multipath_window_px: 12.0,
+            reference_albedo: 0.0,
+            dark_range_bias_m: 0.0,
+            offset_drift_m: 0.0,
         }
     }
 
@@ -159,31 +193,39 @@ impl ScanNoise {
             ripple_correlation_px: 14.0,
             multipath_m: 0.0,
             multipath_window_px: 12.0,
+            reference_albedo: 0.0,
+            dark_range_bias_m: 0.0,
+            offset_drift_m: 0.0,
         }
     }
 
-    /// A time-of-flight camera (LUCID Helios2 / Azure Kinect class, continuous-wave phase
-    /// measurement) at 0.3–2.5 m. What it does that the others do not:
-    /// - **noise growing linearly with distance** (σ = 1 mm at 1 m, not z²): the order of
-    ///   the Helios2's documented sub-millimetre-to-millimetre precision at 1 m on a white
-    ///   target, worse on dark surfaces (the simulator has no per-surface reflectivity; this
-    ///   is the value for the robot's light-grey and white links);
-    /// - **multipath** at concave corners (base on the floor or plate, between links): up to
-    ///   [`ScanNoise::multipath_m`] = 8 mm farther where most of the window faces the pixel
-    ///   (a corner pixel sees about half: ~4 mm), none on open flat surfaces;
-    /// - **flying pixels** at depth edges (the sensor integrates both surfaces in one pixel):
-    ///   probability 0.9 where the depth jumps by more than 10 mm (the Helios2's own flying
-    ///   pixel filter uses a 20 mm threshold; unfiltered output is simulated);
-    /// - almost no depth-scale error but a small constant offset: Microsoft documents the Azure
-    ///   Kinect's systematic error as < 11 mm + 0.1 % of distance (we take 0.1 % and a 1 mm
-    ///   offset, a camera whose offset was calibrated); depths reported in 0.25 mm steps (the
-    ///   Helios `Coord3D_C16` scale).
+    /// A time-of-flight camera (LUCID Helios2 / Basler blaze / Azure Kinect class,
+    /// continuous-wave phase measurement) at 0.3–2.5 m, sized from published
+    /// characterisations (the book's "Time of flight" section lists the sources and which
+    /// values are assumed):
+    /// - **noise against amplitude**: σ = 1 mm at 1 m on the light covers (albedo
+    ///   [`TOF_REFERENCE_ALBEDO`]), linear in z (the returned light falls with z², the phase
+    ///   noise with its square root), × 1/√(albedo / reference): the dark caps (0.08) 2.7 ×
+    ///   noisier. The Helios2 and blaze state sub-millimetre to millimetre precision at 1 m on
+    ///   a 90 % white target;
+    /// - **range bias against reflectivity**: a black surface reads [`Self::dark_range_bias_m`]
+    ///   = 3 mm long against the covers (the dark caps: 2.6 mm), the order of the material
+    ///   offsets reported for the Kinect v2 and Azure Kinect;
+    /// - **multipath** at concave corners (base on the plate or floor, between links): up to
+    ///   [`ScanNoise::multipath_m`] = 8 mm farther where most of the window faces the pixel,
+    ///   each facing surface weighed by its albedo (the light plate and floor bounce more than
+    ///   a dark cable); none on open flat surfaces;
+    /// - **flying pixels** at depth edges: probability 0.9 where the depth jumps by more than
+    ///   10 mm (the Helios2's own flying-pixel filter uses a 20 mm threshold; unfiltered output
+    ///   is simulated);
+    /// - **a range offset that drifts with temperature**: 1 mm, plus 1.5 mm 1σ from scan to
+    ///   scan (Basler states its ±5 mm accuracy after 20 minutes of warm-up; the Azure Kinect
+    ///   needs 40–50 minutes to settle); a depth-scale error of 0.1 % (Microsoft: < 11 mm +
+    ///   0.1 % of the distance); depths in 0.25 mm steps (the Helios `Coord3D_C16` scale);
+    /// - **an amplitude image** as the cloud's intensity (albedo · cos(incidence) / range²),
+    ///   what a Helios2 or blaze delivers beside its depth.
     ///
-    /// Sources: Azure Kinect DK depth-camera page (learn.microsoft.com/azure/kinect-dk/
-    /// depth-camera: AMCW ToF, systematic and random error), LUCID Helios2 technical
-    /// reference (operating modes 1.25–8.3 m, flying pixel filter at 20 mm) and Helios
-    /// manual (0.25 mm depth scale). Not fitted to real frames: there are none of this class
-    /// in `../shared/realdata`.
+    /// Not fitted to real frames: there are none of this class in `../shared/realdata`.
     pub fn time_of_flight() -> Self {
         Self {
             depth_sigma_at_1m_m: 0.001,
@@ -202,6 +244,9 @@ impl ScanNoise {
             ripple_correlation_px: 14.0,
             multipath_m: 0.008,
             multipath_window_px: 12.0,
+            reference_albedo: TOF_REFERENCE_ALBEDO,
+            dark_range_bias_m: 0.003,
+            offset_drift_m: 0.0015,
         }
     }
 
@@ -321,6 +366,30 @@ impl ScanNoise {
             "half-width of the window searched for facing surfaces",
         )?;
         check_range(
+            "noise.reference_albedo",
+            self.reference_albedo,
+            0.0,
+            1.0,
+            "",
+            "the albedo the noise figures are stated for; 0 for surfaces all alike",
+        )?;
+        check_range(
+            "noise.dark_range_bias_m",
+            self.dark_range_bias_m,
+            -MAX_DEPTH_OFFSET_M,
+            MAX_DEPTH_OFFSET_M,
+            "m",
+            "the range bias of a black surface",
+        )?;
+        check_range(
+            "noise.offset_drift_m",
+            self.offset_drift_m,
+            0.0,
+            MAX_DEPTH_OFFSET_M,
+            "m",
+            "1σ of the range offset's drift from scan to scan",
+        )?;
+        check_range(
             "noise.depth_step_m",
             self.depth_step_m,
             0.0,
@@ -380,14 +449,80 @@ impl ScanNoise {
         range_per_depth: f64,
         rng: &mut impl Rng,
     ) -> f64 {
-        let sigma =
-            self.depth_sigma_at_1m_m * self.distance_factor(z) / incidence_rad.cos().max(0.2);
+        self.noisy_depth_of(z, incidence_rad, range_per_depth, 1.0, rng)
+    }
+
+    /// [`Self::noisy_depth`] on a surface of `albedo` ([`Self::reference_albedo`]): its noise
+    /// × [`Self::amplitude_noise_factor`], its range [`Self::dark_bias_m`] long.
+    pub(crate) fn noisy_depth_on(
+        &self,
+        z: f64,
+        incidence_rad: f64,
+        range_per_depth: f64,
+        albedo: f64,
+        rng: &mut impl Rng,
+    ) -> f64 {
+        let z = z + self.dark_bias_m(albedo) / range_per_depth;
+        self.noisy_depth_of(
+            z,
+            incidence_rad,
+            range_per_depth,
+            self.amplitude_noise_factor(albedo),
+            rng,
+        )
+    }
+
+    /// How much noisier a surface of `albedo` is than one of the reference albedo: the phase
+    /// noise grows as 1/√amplitude. 1 when surfaces are all alike.
+    pub(crate) fn amplitude_noise_factor(&self, albedo: f64) -> f64 {
+        if self.reference_albedo > 0.0 {
+            (self.reference_albedo / albedo.max(MIN_ALBEDO)).sqrt()
+        } else {
+            1.0
+        }
+    }
+
+    /// The range bias of a surface of `albedo` (metres, longer): [`Self::dark_range_bias_m`]
+    /// scaled by how much darker than the reference it is. 0 when surfaces are all alike.
+    pub(crate) fn dark_bias_m(&self, albedo: f64) -> f64 {
+        if self.reference_albedo > 0.0 {
+            self.dark_range_bias_m * (1.0 - albedo / self.reference_albedo).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    }
+
+    fn noisy_depth_of(
+        &self,
+        z: f64,
+        incidence_rad: f64,
+        range_per_depth: f64,
+        sigma_factor: f64,
+        rng: &mut impl Rng,
+    ) -> f64 {
+        let sigma = self.depth_sigma_at_1m_m * sigma_factor * self.distance_factor(z)
+            / incidence_rad.cos().max(0.2);
         let n = if sigma > 0.0 {
             Normal::new(0.0, sigma).map_or(0.0, |d| d.sample(rng))
         } else {
             0.0
         };
         (z + n) * (1.0 + self.depth_scale_error) + self.depth_offset_m / range_per_depth
+    }
+
+    /// These knobs as they are for the scan drawn from `seed`: the range offset drifted by a
+    /// draw of [`Self::offset_drift_m`] (its own stream: the scan's other draws are as
+    /// without it). Unchanged without drift.
+    pub(crate) fn drifted(&self, seed: u64) -> Self {
+        if self.offset_drift_m <= 0.0 {
+            return *self;
+        }
+        let mut rng = rand::rngs::StdRng::seed_from_u64(seed ^ OFFSET_DRIFT_SEED);
+        let drift = Normal::new(0.0, self.offset_drift_m).map_or(0.0, |d| d.sample(&mut rng));
+        Self {
+            depth_offset_m: self.depth_offset_m + drift,
+            ..*self
+        }
     }
 
     /// The factor [`Self::depth_gradient`] puts on the depth `z` of the pixel whose ray is
@@ -418,7 +553,6 @@ impl ScanNoise {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::SeedableRng;
 
     #[test]
     fn defaults_validate_and_bad_knobs_are_named() {

@@ -9,6 +9,7 @@ use rayon::prelude::*;
 use handeye_hal::ur_dh::{DhParams, PhysicalArm};
 use handeye_hal::PointCloud;
 
+use super::albedo::{albedo_image, amplitude, Surface};
 use super::cell::{build_cell, CellOptions, CellPart};
 use super::SimSettings;
 use super::{Intrinsics, ScanNoise};
@@ -235,6 +236,7 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
 
     // Posed scene: robot visual meshes (true kinematics) and the cell.
     let mut objects = Vec::new();
+    let mut surfaces = Vec::new();
     let mut posed: Vec<TriMesh> = Vec::new();
     for g in model.geometry(GeometryKind::Visual) {
         let Some(i) = model.link_names().iter().position(|l| *l == g.link) else {
@@ -242,16 +244,24 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
         };
         posed.push(g.mesh.transformed(&housing_poses[i]));
         objects.push(format!("link:{}", g.link));
+        surfaces.push(Surface::Link(housing_poses[i].rotation));
     }
     let base_radius = base_radius(model);
     for (part, mesh) in build_cell(&req.cell, base_radius, &mut rng) {
         objects.push(cell_part_name(part).to_string());
+        surfaces.push(Surface::Cell(part));
         posed.push(mesh);
     }
     let meshes = SceneMesh::indexed(&posed);
     let camera_from_model = model_from_camera.inverse();
     let image = raycast(&meshes, &camera_from_model, &req.intrinsics);
-    let cloud = measure(&image, &req.intrinsics, &req.noise, rng.random());
+    let albedo = if req.noise.reference_albedo > 0.0 {
+        albedo_image(&image, &surfaces, &model_from_camera.rotation)
+    } else {
+        Vec::new()
+    };
+    let noise = req.noise.drifted(req.seed);
+    let cloud = measure(&image, &req.intrinsics, &noise, &albedo, rng.random());
 
     Ok(SimulatedScan {
         cloud,
@@ -329,13 +339,21 @@ pub(crate) fn base_radius(model: &RobotModel) -> f64 {
         .max(0.03)
 }
 
-/// Turns exact depths into what the sensor reports.
-fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) -> PointCloud {
+/// Turns exact depths into what the sensor reports. `albedo`: every pixel's surface albedo
+/// ([`ScanNoise::reference_albedo`]), empty when surfaces are all alike; with it the cloud
+/// carries the camera's amplitude image as its intensity.
+pub(super) fn measure(
+    image: &DepthImage,
+    intr: &Intrinsics,
+    noise: &ScanNoise,
+    albedo: &[f64],
+    seed: u64,
+) -> PointCloud {
     let (w, h) = (image.width, image.height);
     let depth = &image.depth;
     let ripple = &Ripple::new(noise, seed, w, h);
-    let multipath = &multipath_shares(image, intr, noise.multipath_window_px, noise.multipath_m);
-    let points: Vec<Point3<f32>> = (0..h)
+    let multipath = &multipath_shares(image, intr, noise, albedo);
+    let measured: Vec<(Point3<f32>, f32)> = (0..h)
         .into_par_iter()
         .flat_map_iter(|v| {
             let mut rng = rand::rngs::StdRng::seed_from_u64(
@@ -343,7 +361,7 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
             );
             (0..w).map(move |u| {
                 let i = v * w + u;
-                let nan = Point3::new(f32::NAN, f32::NAN, f32::NAN);
+                let nan = (Point3::new(f32::NAN, f32::NAN, f32::NAN), f32::NAN);
                 let z = depth[i];
                 if !z.is_finite() {
                     return nan;
@@ -375,23 +393,28 @@ fn measure(image: &DepthImage, intr: &Intrinsics, noise: &ScanNoise, seed: u64) 
                     }
                 }
                 let z = z + ripple.at(u, v, z);
-                let z = noise.quantized(
-                    noise.noisy_depth(z, incidence, ray.norm(), &mut rng)
-                        * noise.gradient_factor(z, &ray),
-                );
+                let a = albedo.get(i).copied();
+                let noisy = match a {
+                    Some(a) => noise.noisy_depth_on(z, incidence, ray.norm(), a, &mut rng),
+                    None => noise.noisy_depth(z, incidence, ray.norm(), &mut rng),
+                };
+                let z = noise.quantized(noisy * noise.gradient_factor(z, &ray));
                 if z > noise.max_range_m {
                     return nan;
                 }
                 let p = ray * z;
-                Point3::new(p.x as f32, p.y as f32, p.z as f32)
+                let amp = a.map_or(f32::NAN, |a| amplitude(a, cos_inc, p.norm()) as f32);
+                (Point3::new(p.x as f32, p.y as f32, p.z as f32), amp)
             })
         })
         .collect();
+    let intensity =
+        (!albedo.is_empty()).then(|| measured.iter().map(|(_, a)| *a).collect::<Vec<f32>>());
     PointCloud {
         width: w as u32,
         height: h as u32,
-        points,
-        intensity: None,
+        points: measured.into_iter().map(|(p, _)| p).collect(),
+        intensity,
         confidence: None,
     }
 }
@@ -471,19 +494,33 @@ impl Ripple {
 /// other.
 const MULTIPATH_FACING_COS: f64 = 0.17;
 
-/// Per pixel, the share of its neighbours within `window_px` (a sparse grid of at most 9 × 9
-/// samples) whose surfaces face its surface and that its surface faces: the light those
-/// surfaces bounce onto it is the multipath of [`ScanNoise::multipath_m`]. Empty when
+/// Extra round-trip path of a bounce at which it pushes the range by its full share, metres.
+/// A continuous-wave camera measures the phase of the direct and the bounced light summed; for
+/// paths far shorter than the modulation wavelength (metres) the bounced light moves the
+/// phase by its strength times its extra path (Fuchs 2010), so a bounce off a fillet a few
+/// millimetres away pushes by a few tenths of its share, one off the plate centimetres away
+/// by all of it.
+const MULTIPATH_FULL_PATH_M: f64 = 0.05;
+
+/// Per pixel, the share of its neighbours within `multipath_window_px` (a sparse grid of at
+/// most 9 × 9 samples) whose surfaces face its surface and that its surface faces, each weighed
+/// by its albedo over the reference ([`ScanNoise::reference_albedo`]; 1 when surfaces are all
+/// alike) and by its bounce's extra path ([`MULTIPATH_FULL_PATH_M`]), at most 1: the light
+/// those surfaces bounce onto it is the multipath of [`ScanNoise::multipath_m`]. Empty when
 /// `multipath_m` is 0 (nothing to compute).
 fn multipath_shares(
     image: &DepthImage,
     intr: &Intrinsics,
-    window_px: f64,
-    multipath_m: f64,
+    noise: &ScanNoise,
+    albedo: &[f64],
 ) -> Vec<f64> {
-    if multipath_m == 0.0 {
+    if noise.multipath_m == 0.0 {
         return Vec::new();
     }
+    let window_px = noise.multipath_window_px;
+    // Each facing surface bounces light by its albedo (over the reference's); 1 when surfaces
+    // are all alike.
+    let bounce = |j: usize| albedo.get(j).map_or(1.0, |a| a / noise.reference_albedo);
     let (w, h) = (image.width, image.height);
     let reach = window_px.round().max(1.0) as i64;
     let stride = (reach / 4).max(1);
@@ -502,7 +539,7 @@ fn multipath_shares(
                     return 0.0;
                 };
                 let n = normal(i);
-                let (mut facing, mut seen) = (0usize, 0usize);
+                let (mut facing, mut seen) = (0.0f64, 0usize);
                 for dv in (-reach..=reach).step_by(stride as usize) {
                     for du in (-reach..=reach).step_by(stride as usize) {
                         let (x, y) = (u as i64 + du, v as i64 + dv);
@@ -520,14 +557,17 @@ fn multipath_shares(
                         if n.dot(&d) > MULTIPATH_FACING_COS
                             && -normal(j).dot(&d) > MULTIPATH_FACING_COS
                         {
-                            facing += 1;
+                            // The bounce's extra round trip: camera → q → p → camera against
+                            // camera → p → camera.
+                            let extra = q.norm() + (q - p).norm() - p.norm();
+                            facing += bounce(j) * (extra / MULTIPATH_FULL_PATH_M).clamp(0.0, 1.0);
                         }
                     }
                 }
                 if seen == 0 {
                     0.0
                 } else {
-                    facing as f64 / seen as f64
+                    (facing / seen as f64).min(1.0)
                 }
             })
         })
@@ -768,17 +808,6 @@ mod tests {
         assert_eq!(e.truth.controller_dh, Some(calibrated));
     }
 
-    /// A 2 m square quad through `corners` (counter-clockwise).
-    fn quad(corners: [[f64; 3]; 4]) -> TriMesh {
-        TriMesh {
-            vertices: corners
-                .iter()
-                .map(|c| Point3::new(c[0], c[1], c[2]))
-                .collect(),
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-        }
-    }
-
     /// Per pixel: (distance of the ideal point from the line x = z = 0, metres; how much
     /// farther `noise` measures it, metres) for a camera looking at the origin from above -x.
     fn depth_push(scene: &[TriMesh], noise: &ScanNoise) -> Vec<(f64, f64)> {
@@ -793,8 +822,8 @@ mod tests {
             &model_from_camera.inverse(),
             &intr,
         );
-        let ideal = measure(&image, &intr, &ScanNoise::none(), 1);
-        let measured = measure(&image, &intr, noise, 1);
+        let ideal = measure(&image, &intr, &ScanNoise::none(), &[], 1);
+        let measured = measure(&image, &intr, noise, &[], 1);
         ideal
             .points
             .iter()
@@ -809,18 +838,7 @@ mod tests {
 
     #[test]
     fn multipath_pushes_depths_farther_at_a_concave_corner_and_not_on_a_flat_surface() {
-        let floor = quad([
-            [-1.0, -1.0, 0.0],
-            [1.0, -1.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [-1.0, 1.0, 0.0],
-        ]);
-        let wall = quad([
-            [0.0, -1.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [0.0, 1.0, 1.0],
-            [0.0, -1.0, 1.0],
-        ]);
+        let [floor, wall] = crate::testutil::floor_and_wall();
         let noise = ScanNoise {
             multipath_m: 0.01,
             ..ScanNoise::none()
@@ -843,11 +861,15 @@ mod tests {
             v.iter().sum::<f64>() / v.len() as f64
         };
         let at_corner = mean(&|d| d < 0.02);
+        let near = mean(&|d| (0.03..0.06).contains(&d));
         let far = mean(&|d| d > 0.15);
+        // Each bounce pushes by its share times its extra path (full from 5 cm): within 2 cm of
+        // the corner the bounces are short, a little farther they are longer (issue 45).
         assert!(
-            (0.002..0.01).contains(&at_corner),
+            (0.001..0.005).contains(&at_corner),
             "pushed {at_corner} m at the corner"
         );
+        assert!(near > 0.0, "pushed {near} m 3–6 cm from the corner");
         assert!(far.abs() < 1e-9, "pushed {far} m far from the corner");
         assert!(corner.iter().all(|(_, push)| *push >= 0.0));
         assert!(corner.iter().all(|(_, push)| *push <= 0.01 + 1e-6));

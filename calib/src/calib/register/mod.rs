@@ -572,6 +572,9 @@ mod prepare;
 mod sim_tests;
 #[cfg(test)]
 mod tests;
+mod tof;
+#[cfg(test)]
+mod tof_tests;
 #[cfg(test)]
 mod ur_tests;
 

@@ -79,8 +79,15 @@ pub(super) fn preprocess<'a>(
     if surface.coarse.is_empty() {
         return Err(CalibError::NoModelGeometry);
     }
-    let pool = ScanPool::new(&range, 150_000);
-    let polish_pool = ScanPool::new(&range, 20_000);
+    // Time of flight: the pixels the scan shows biased (multipath, dark surfaces) are not
+    // drawn.
+    let biased = if opts.multipath_clearance_m.is_some() {
+        super::tof::biased_pixels(&range, scan)
+    } else {
+        Vec::new()
+    };
+    let pool = ScanPool::new(&range, 150_000, &biased);
+    let polish_pool = ScanPool::new(&range, 20_000, &biased);
     Ok(Prepared {
         range,
         surface,
@@ -191,10 +198,12 @@ pub(super) struct ScanPool {
 }
 
 impl ScanPool {
-    pub(super) fn new(range: &RangeImage<'_>, target: usize) -> ScanPool {
+    /// About `target` pixels of `range` on a grid, none of those `left_out` marks (empty:
+    /// none).
+    pub(super) fn new(range: &RangeImage<'_>, target: usize, left_out: &[bool]) -> ScanPool {
         let idx = range
             .grid(target, 31)
-            .filter(|&i| range.points[i].z > 0.0)
+            .filter(|&i| range.points[i].z > 0.0 && !left_out.get(i).copied().unwrap_or(false))
             .collect();
         ScanPool { idx }
     }
