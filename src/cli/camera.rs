@@ -19,8 +19,9 @@ pub(crate) struct Args {
 
 #[derive(Debug, clap::Subcommand)]
 enum CameraCommand {
-    /// Identify the camera: vendor, model, serial, firmware, size, pixel formats; with --gentl,
-    /// list the producer's interfaces and devices.
+    /// Identify the camera: vendor, model, serial, firmware, size, pixel formats, and the
+    /// settings a user would make (`[camera.features]`, `camera.user_set`); with --gentl, list
+    /// the producer's interfaces and devices, or with --device identify that one.
     #[command(group(clap::ArgGroup::new("source").required(true).args(["gige", "gentl"])))]
     Probe {
         /// Camera address, `IP` or `IP:PORT` (GVCP, default port 3956).
@@ -29,6 +30,10 @@ enum CameraCommand {
         /// A GenTL producer (the vendor's `.cti`): list its interfaces and devices.
         #[arg(long, value_name = "FILE.cti")]
         gentl: Option<PathBuf>,
+        /// With --gentl: the camera to identify, by serial number, model, GenTL id or index in
+        /// the listing (without it the devices are listed).
+        #[arg(long, requires = "gentl")]
+        device: Option<String>,
         /// With --gentl: each producer call's deadline (camera.call_timeout_s).
         #[arg(long, default_value_t = 10.0, value_name = "SECONDS")]
         call_timeout_s: f64,
@@ -133,6 +138,23 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
         CameraCommand::Xml { file, json } => blocking(move || xml::run(&file, json)).await,
         CameraCommand::Probe {
             gentl: Some(producer),
+            device: Some(device),
+            json,
+            call_timeout_s,
+            ..
+        } => {
+            let options = handeye_gentl::GentlOptions {
+                device: Some(device),
+                call_timeout: call_timeout(call_timeout_s)?,
+                ..Default::default()
+            };
+            let (info, features) = handeye_gentl::probe_device(&producer, &options)
+                .await
+                .with_context(|| format!("probing the GenTL producer {}", producer.display()))?;
+            emit_probe(info, features, json)
+        }
+        CameraCommand::Probe {
+            gentl: Some(producer),
             json,
             call_timeout_s,
             ..
@@ -160,6 +182,8 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
                 }
                 if index == 0 {
                     println!("no devices");
+                } else {
+                    println!("(--device N: what a device is and the settings it takes)");
                 }
             }
             Ok(ExitCode::SUCCESS)
@@ -171,18 +195,7 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
                 Ok((cam.info_blocking()?, cam.user_features_blocking()?))
             })
             .await?;
-            if json {
-                #[derive(serde::Serialize)]
-                struct Probe {
-                    #[serde(flatten)]
-                    info: handeye_hal::CameraInfo,
-                    features: Vec<handeye_gige::genicam::FeatureState>,
-                }
-                super::emit(&(serde_json::to_string_pretty(&Probe { info, features })? + "\n"))?;
-            } else {
-                super::emit(&probe_text(&info, &features))?;
-            }
-            Ok(ExitCode::SUCCESS)
+            emit_probe(info, features, json)
         }
         CameraCommand::Capture {
             gige,
@@ -267,6 +280,27 @@ async fn command(command: CameraCommand) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `camera probe --gige` (or `--gentl --device`): what the camera is and the features a user
+/// would set, as JSON or [`probe_text`].
+fn emit_probe(
+    info: handeye_hal::CameraInfo,
+    features: Vec<handeye_gige::genicam::FeatureState>,
+    json: bool,
+) -> anyhow::Result<ExitCode> {
+    if json {
+        #[derive(serde::Serialize)]
+        struct Probe {
+            #[serde(flatten)]
+            info: handeye_hal::CameraInfo,
+            features: Vec<handeye_gige::genicam::FeatureState>,
+        }
+        super::emit(&(serde_json::to_string_pretty(&Probe { info, features })? + "\n"))?;
+    } else {
+        super::emit(&probe_text(&info, &features))?;
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// `camera probe --gige`'s text: what the camera is, then the features a user would set

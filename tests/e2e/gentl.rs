@@ -103,6 +103,35 @@ fn probe_lists_the_reference_producers_devices() {
             .contains("2: Machine Vision Games Ltd. Viky (serial 2"),
         "{text}"
     );
+    // Issue 44: `--device` identifies one and lists the settings a user would make through
+    // `[camera.features]` (before: the GenTL probe only listed devices).
+    let one = run(
+        &[
+            "camera", "probe", "--gentl", cti_s, "--device", "2", "--json",
+        ],
+        secs(60),
+    )
+    .success();
+    let doc = one.json();
+    assert_eq!(doc["model"], "Viky", "{one}");
+    let features = doc["features"].as_array().expect("features");
+    let pixel_format = features
+        .iter()
+        .find(|f| f["name"] == "PixelFormat")
+        .unwrap_or_else(|| panic!("PixelFormat listed: {one}"));
+    assert!(pixel_format["value"].is_string(), "{pixel_format}");
+    assert!(pixel_format["access"].is_string(), "{pixel_format}");
+    let text = run(
+        &["camera", "probe", "--gentl", cti_s, "--device", "2"],
+        secs(60),
+    )
+    .success();
+    assert!(
+        text.stdout
+            .contains("settings ([camera.features], camera.user_set):")
+            && text.stdout.contains("  PixelFormat = "),
+        "{text}"
+    );
 }
 
 /// `camera capture --gentl viky.cti --out v.ply`: 400 x 400 valid points in metres, each equal

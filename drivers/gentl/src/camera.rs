@@ -112,6 +112,30 @@ pub async fn list_devices(
     }
 }
 
+/// Open the device `options.device` names (the first when `None`) through a host process and
+/// read what it is and the features a user would set (`camera probe --gentl --device`).
+pub async fn probe_device(
+    producer: &Path,
+    options: &GentlOptions,
+) -> Result<(CameraInfo, Vec<handeye_gige::genicam::FeatureState>)> {
+    check_producer(producer)?;
+    let mut host = open_host(producer, options).await?;
+    let info = match host
+        .ask(&Request::Info, "reading the camera's identity")
+        .await?
+    {
+        Answer::Info(info) => info,
+        other => return Err(host.unexpected(&other)),
+    };
+    match host
+        .ask(&Request::Features, "reading the camera's features")
+        .await?
+    {
+        Answer::Features(features) => Ok((info, features)),
+        other => Err(host.unexpected(&other)),
+    }
+}
+
 fn millis(d: Duration) -> u64 {
     u64::try_from(d.as_millis()).unwrap_or(u64::MAX)
 }

@@ -169,6 +169,11 @@ impl Open {
         })
     }
 
+    /// The features a user would set, with their value, range or entries and access.
+    pub(crate) fn features(&mut self) -> Vec<handeye_gige::genicam::FeatureState> {
+        handeye_gige::settings::probe(&mut self.nodes, &mut self.port)
+    }
+
     pub(crate) fn set_exposure(&mut self, exposure: Duration) -> Result<()> {
         let (n, p) = (&mut self.nodes, &mut self.port);
         if n.has("ExposureTime") {

@@ -149,6 +149,10 @@ pub fn serve() -> std::process::ExitCode {
                     Err(e) => failure(e),
                 });
             }
+            Request::Features => answer(&match open.as_mut() {
+                Some(o) => Answer::Features(o.features()),
+                None => failure(GentlError::Closed("no device is open".into())),
+            }),
             Request::Info => answer(&match open.as_mut() {
                 Some(o) => o.camera_info().map_or_else(failure, Answer::Info),
                 None => failure(GentlError::Closed("no device is open".into())),

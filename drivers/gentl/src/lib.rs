@@ -20,8 +20,8 @@ mod producer;
 mod wire;
 
 pub use camera::{
-    check_producer, list_devices, producers_on_path, resolve_producer, GentlCamera, GentlOptions,
-    GentlStats, InterfaceDevices, DEFAULT_CALL_TIMEOUT, HOST_SUBCOMMAND,
+    check_producer, list_devices, probe_device, producers_on_path, resolve_producer, GentlCamera,
+    GentlOptions, GentlStats, InterfaceDevices, DEFAULT_CALL_TIMEOUT, HOST_SUBCOMMAND,
 };
 pub use error::{GentlError, Result};
 pub use producer::DeviceInfo;

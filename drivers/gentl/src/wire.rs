@@ -40,6 +40,8 @@ pub(crate) enum Request {
     },
     /// The device's identity and size.
     Info,
+    /// The features a user would set (`camera probe --gentl --device`).
+    Features,
     /// Capture frames.
     Capture {
         frames: u32,
@@ -54,6 +56,7 @@ pub(crate) enum Answer {
     Listed(Vec<InterfaceDevices>),
     Opened,
     Info(CameraInfo),
+    Features(Vec<handeye_gige::genicam::FeatureState>),
     /// The clouds follow as [`Tag::Cloud`] frames, this many.
     Captured {
         clouds: u32,

@@ -9,7 +9,7 @@ use cameleon_genapi::prelude::*;
 use cameleon_genapi::store::NodeStore;
 
 /// What a feature is and allows now (`handeye camera probe`).
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FeatureState {
     /// The feature's name.
     pub name: String,
@@ -22,7 +22,7 @@ pub struct FeatureState {
     pub allowed: Option<String>,
     /// `read/write`, `read-only`, `write-only` or `not available` (now: a feature locked while
     /// streaming or behind a selector may change).
-    pub access: &'static str,
+    pub access: String,
 }
 
 /// A float as people read it: `1e308` rather than 309 digits, `0.25` as is.
@@ -164,7 +164,8 @@ impl NodeMap {
                 (true, false) => "read-only",
                 (false, true) => "write-only",
                 (false, false) => "not available",
-            },
+            }
+            .into(),
         })
     }
 
