@@ -662,6 +662,19 @@ pub const RECALIBRATE: &str = "recalibrate through the daemon: the Calibrate but
      camera was remounted on purpose, the Accept remount button or POST \
      /api/calibrate/accept-change";
 
+/// Whether the health check's `camera.info()` found the camera answering: it did when it
+/// described itself, and when it refused what the configuration asks of it (a setting its
+/// description cannot take, issue 44: a run's preflight then says what the camera refuses and
+/// what to change, where "does not answer" would send the user to its power and cable).
+fn camera_answers<E>(
+    info: &Result<Result<handeye_hal::CameraInfo, handeye_hal::HalError>, E>,
+) -> bool {
+    matches!(
+        info,
+        Ok(Ok(_)) | Ok(Err(handeye_hal::HalError::Refused { .. }))
+    )
+}
+
 impl State {
     /// Why a run cannot start now: the daemon still waits for a device, or the last health
     /// check found one not answering.
@@ -953,7 +966,7 @@ pub async fn run_with<R, C, F, Fut>(
                 if handle.status().current.is_none() {
                     let robot_up = tokio::time::timeout(HEALTH_TIMEOUT, robot.status()).await.is_ok_and(|r| r.is_ok());
                     let info = tokio::time::timeout(HEALTH_TIMEOUT, camera.info()).await;
-                    let camera_up = matches!(info, Ok(Ok(_)));
+                    let camera_up = camera_answers(&info);
                     if let Ok(Ok(info)) = info {
                         handle.lock().camera_size = Some((info.width, info.height));
                     }

@@ -183,3 +183,31 @@ fn issue_46_the_last_calibration_is_the_last_made_whatever_the_clock_said() {
         let _ = std::fs::remove_dir_all(dir);
     }
 }
+
+/// Issue 44: a camera that refuses a configured setting answers the health check (a run's
+/// preflight then says what it refuses); one that times out or fails otherwise does not.
+#[test]
+fn issue_44_a_camera_refusing_a_setting_still_answers_the_health_check() {
+    use handeye_hal::{CameraInfo, HalError};
+    let info = CameraInfo {
+        vendor: "v".into(),
+        model: "m".into(),
+        serial: "s".into(),
+        firmware: "f".into(),
+        width: 4,
+        height: 3,
+        pixel_formats: Vec::new(),
+    };
+    let refused = HalError::Refused {
+        device: "camera".into(),
+        request: "camera.features.PixelFormat = Coord3D_C32f".into(),
+        reason: "not an entry".into(),
+    };
+    assert!(camera_answers::<()>(&Ok(Ok(info))));
+    assert!(camera_answers::<()>(&Ok(Err(refused))));
+    assert!(!camera_answers::<()>(&Ok(Err(HalError::Timeout {
+        what: "camera info".into(),
+        timeout: std::time::Duration::from_secs(1),
+    }))));
+    assert!(!camera_answers(&Err(())));
+}
