@@ -163,27 +163,23 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     // The registration and the gate tuned for the camera's sensor class, the solver told the
     // arm's tolerances as a cell's configuration would say them.
     let tuned = BenchConfig {
+        views: args.views,
+        scans_per_view: args.scans_per_view,
+        views_per_run: args.views_per_run,
+        intrinsics,
         settings,
+        kinematics: args.kinematics,
+        pose_frame: (args.pose_frame.0 * 1e-3, args.pose_frame.1 * 1e-3),
         ..BenchConfig::new(args.mount)
     }
     .tuned_for_camera(&args.camera)
     .solver_told_the_arm();
-    let register = tuned.register.clone();
     let mut summaries = Vec::new();
     for (i, path) in robots.iter().enumerate() {
         let model = RobotModel::load(path)?;
         let cfg = BenchConfig {
-            views: args.views,
-            scans_per_view: args.scans_per_view,
-            views_per_run: args.views_per_run,
-            intrinsics,
-            settings,
             seed: args.seed.wrapping_add(i as u64 * 7919),
-            kinematics: args.kinematics,
-            pose_frame: (args.pose_frame.0 * 1e-3, args.pose_frame.1 * 1e-3),
-            register: register.clone(),
-            gate: tuned.gate,
-            ..BenchConfig::new(args.mount)
+            ..tuned.clone()
         };
         eprint!("{:<16}", model.name());
         let summary = match run_robot(&model, &cfg, |t| eprint!("{}", progress_mark(t))) {

@@ -11,13 +11,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     /// Moves to every view, settles, records joints and flange pose and captures frames.
     pub(super) async fn move_and_capture(&mut self) -> Result<Vec<Frame>, Failure> {
         let mut frames = Vec::new();
-        let views: Vec<Vec<f64>> = self.record.views.iter().map(|v| v.joints.clone()).collect();
+        let views = self.planned_joints();
         let keep = self.cfg.storage.keep_captures;
-        let start = self
-            .record
-            .preflight
-            .as_ref()
-            .map(|p| p.start_joints.clone());
+        let start = self.start_joints();
         let mut capture_file = CaptureFile {
             model: self.model.name().to_string(),
             mount: self.cfg.mount.mount,

@@ -358,6 +358,19 @@ async fn execute<R: Robot, C: DepthCamera>(
 }
 
 impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
+    /// Where the arm stood at preflight; `None` before it.
+    fn start_joints(&self) -> Option<Vec<f64>> {
+        self.record
+            .preflight
+            .as_ref()
+            .map(|p| p.start_joints.clone())
+    }
+
+    /// The planned views' joint targets, in order.
+    fn planned_joints(&self) -> Vec<Vec<f64>> {
+        self.record.views.iter().map(|v| v.joints.clone()).collect()
+    }
+
     /// Fails when the robot's or the camera's connection was re-established since the run
     /// started: what was measured before the drop and after it are not combined.
     fn links_intact(&self, stage: Stage) -> Result<(), Failure> {
@@ -625,12 +638,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         if !self.cfg.views.return_to_start || !self.moved {
             return;
         }
-        let Some(start) = self
-            .record
-            .preflight
-            .as_ref()
-            .map(|p| p.start_joints.clone())
-        else {
+        let Some(start) = self.start_joints() else {
             return;
         };
         let t = Instant::now();

@@ -169,12 +169,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     pub(super) fn plan(&mut self) -> Result<(), Failure> {
         let stage = Stage::Plan;
         let planner = self.planner();
-        let start = self
-            .record
-            .preflight
-            .as_ref()
-            .map(|p| p.start_joints.clone())
-            .unwrap_or_default();
+        let start = self.start_joints().unwrap_or_default();
         let targets: Vec<Vec<f64>> = match (&self.cfg.views.targets, self.cfg.mount.mount) {
             (ViewTargets::Joints(list), _) => list.iter().map(|q| q.to_vec()).collect(),
             // A camera fixed in the cell: measure from where the arm stands (no motion); give
@@ -239,13 +234,8 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     /// A dry run's forecast of the run it planned ([`forecast`]): the σ of its views simulated
     /// at the mount prior (a wrist camera) and its time at the configured caps.
     pub(super) async fn forecast(&mut self) -> Result<(), Failure> {
-        let start = self
-            .record
-            .preflight
-            .as_ref()
-            .map(|p| p.start_joints.clone())
-            .unwrap_or_default();
-        let views: Vec<Vec<f64>> = self.record.views.iter().map(|v| v.joints.clone()).collect();
+        let start = self.start_joints().unwrap_or_default();
+        let views = self.planned_joints();
         let model = Arc::clone(self.model);
         let cfg = self.cfg;
         let (limits, settle, frames, back, sensor) = (

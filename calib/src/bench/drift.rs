@@ -16,7 +16,7 @@ use nalgebra::{Isometry3, Unit, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use serde::Serialize;
 
-use super::{RobotSummary, Stats, Trial};
+use super::{percentile, RobotSummary, Stats, Trial};
 use crate::calib::solve::distance;
 use crate::calib::Outcome;
 
@@ -118,7 +118,7 @@ pub fn study(summaries: &[RobotSummary], limits: CheckLimits) -> Option<DriftStu
     let p999 = |f: fn(&(f64, f64)) -> f64| {
         let mut v: Vec<f64> = unmoved.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
-        v[((v.len() - 1) as f64 * 0.999).round() as usize]
+        percentile(&v, 0.999)
     };
     let directions = directions();
     // The smallest bump (in steps) whose checks raise the alarm in the detected share.
@@ -186,26 +186,14 @@ mod tests {
 
     fn trial(view: usize, outcome: Outcome, e: [f64; 6]) -> Trial {
         Trial {
-            view,
-            scan: 0,
             outcome,
-            reasons: Vec::new(),
             translation_error_mm: Vector3::new(e[0], e[1], e[2]).norm(),
-            workspace_distance_m: None,
-            camera_origin_error_mm: None,
             rotation_error_deg: Vector3::new(e[3], e[4], e[5]).norm(),
             uncertainty_translation_mm: 0.1,
             uncertainty_rotation_deg: 0.01,
             calibrated_kinematics: true,
-            simulate_ms: 0.0,
-            preprocess_ms: 0.0,
-            coarse_ms: 0.0,
-            fine_ms: 0.0,
-            verify_ms: 0.0,
-            register_ms: 0.0,
-            solve_ms: 0.0,
-            quality: None,
             error_pose: Some(e),
+            ..Trial::new(view, 0)
         }
     }
 

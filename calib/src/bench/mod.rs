@@ -285,6 +285,33 @@ pub struct Trial {
 }
 
 impl Trial {
+    /// Scan `scan` of view `view` before anything is known: an error without a result (NaN
+    /// errors and σ), no time spent.
+    pub fn new(view: usize, scan: usize) -> Self {
+        Self {
+            view,
+            scan,
+            outcome: Outcome::Error,
+            reasons: Vec::new(),
+            translation_error_mm: f64::NAN,
+            workspace_distance_m: None,
+            camera_origin_error_mm: None,
+            rotation_error_deg: f64::NAN,
+            uncertainty_translation_mm: f64::NAN,
+            uncertainty_rotation_deg: f64::NAN,
+            calibrated_kinematics: false,
+            simulate_ms: 0.0,
+            preprocess_ms: 0.0,
+            coarse_ms: 0.0,
+            fine_ms: 0.0,
+            verify_ms: 0.0,
+            register_ms: 0.0,
+            solve_ms: 0.0,
+            quality: None,
+            error_pose: None,
+        }
+    }
+
     /// Whether the result is off by more than the wrong-result thresholds.
     pub fn is_wrong(&self) -> bool {
         !(self.translation_error_mm <= WRONG_TRANSLATION_MM
@@ -334,15 +361,19 @@ impl Stats {
         let n = v.len() as f64;
         let mean = v.iter().sum::<f64>() / n;
         let std = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
-        let pick = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
         Self {
             mean,
-            median: pick(0.5),
+            median: percentile(&v, 0.5),
             std,
-            p95: pick(0.95),
+            p95: percentile(&v, 0.95),
             max: v[v.len() - 1],
         }
     }
+}
+
+/// The value at fraction `p` (0–1) of `sorted` (ascending, not empty): the nearest rank.
+pub(crate) fn percentile(sorted: &[f64], p: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
 /// Everything measured for one robot.
@@ -637,26 +668,8 @@ pub fn run_views_trial(
     scan_index: usize,
 ) -> Trial {
     let mut trial = Trial {
-        view,
-        scan: scan_index,
-        outcome: Outcome::Error,
-        reasons: Vec::new(),
-        translation_error_mm: f64::NAN,
-        workspace_distance_m: None,
-        camera_origin_error_mm: None,
-        rotation_error_deg: f64::NAN,
-        uncertainty_translation_mm: f64::NAN,
-        uncertainty_rotation_deg: f64::NAN,
         calibrated_kinematics: arm.is_some() && cfg.kinematics == BenchKinematics::Known,
-        simulate_ms: 0.0,
-        preprocess_ms: 0.0,
-        coarse_ms: 0.0,
-        fine_ms: 0.0,
-        verify_ms: 0.0,
-        register_ms: 0.0,
-        solve_ms: 0.0,
-        quality: None,
-        error_pose: None,
+        ..Trial::new(view, scan_index)
     };
     let t0 = Instant::now();
     let mut frames = Vec::with_capacity(views.len());
@@ -909,26 +922,13 @@ mod tests {
     #[test]
     fn a_wrong_accepted_result_is_counted_as_wrong() {
         let t = |outcome, e: f64| Trial {
-            view: 0,
-            scan: 0,
             outcome,
-            reasons: vec![],
             translation_error_mm: e,
-            workspace_distance_m: None,
-            camera_origin_error_mm: None,
             rotation_error_deg: 0.01,
             uncertainty_translation_mm: 0.1,
             uncertainty_rotation_deg: 0.01,
-            calibrated_kinematics: false,
-            simulate_ms: 0.0,
-            preprocess_ms: 0.0,
-            coarse_ms: 0.0,
-            fine_ms: 0.0,
-            verify_ms: 0.0,
             register_ms: 1.0,
-            solve_ms: 0.0,
-            quality: None,
-            error_pose: None,
+            ..Trial::new(0, 0)
         };
         let s = RobotSummary::new(
             "r",
