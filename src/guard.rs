@@ -16,11 +16,9 @@ use nalgebra::{Isometry3, Vector3};
 use crate::calib::{pipeline, Mount};
 use crate::config::Config;
 use crate::model::RobotModel;
+pub use crate::plan::PATH_STEP_RAD;
 use crate::plan::{Obstacle, ViewConstraints, ViewPlanner};
 use crate::sim::Intrinsics;
-
-/// Largest joint change between two configurations checked along a path, rad.
-pub const PATH_STEP_RAD: f64 = 0.02;
 
 /// What every move must respect: the arm's model, the camera on it, the floor, the obstacles
 /// and the speed caps of one cell.

@@ -577,6 +577,14 @@ impl<'a> ViewPlanner<'a> {
 /// the base's housing).
 pub const NEARBY_SPAN_RAD: [f64; 6] = [0.5, 0.3, 0.3, 0.9, 0.9, 1.6];
 
+/// Largest joint change between two configurations checked along a path, rad.
+pub const PATH_STEP_RAD: f64 = 0.02;
+
+/// Rounds of candidates [`ViewPlanner::extend_run`] draws for a view before it gives up.
+pub const RUN_VIEW_ROUNDS: usize = 8;
+/// Candidates drawn near a run's first view in each round.
+pub const RUN_VIEW_CANDIDATES: usize = 6;
+
 /// How far a run's first view moves each joint from where the arm stands at most, radians
 /// ([`ViewPlanner::nearby`]): the base a quarter turn, the rest anywhere within their limits.
 pub const FIRST_VIEW_SPAN_RAD: [f64; 6] = [std::f64::consts::FRAC_PI_2, PI, PI, PI, PI, PI];
@@ -614,6 +622,73 @@ impl ViewPlanner<'_> {
             }
         }
         Ok(found)
+    }
+
+    /// Extends a run's `views` (its first view at least) to `count` wrist-camera views near the
+    /// first ([`Self::nearby`] within [`NEARBY_SPAN_RAD`]: the base and upper arm turn a little,
+    /// the wrist far), each the one that turns the flange most from every view before it (what
+    /// separates the mount from the base's housing when the views are fitted together) among
+    /// those `safe` admits on the path from the view before. Draws from `seed` on; a view none
+    /// of [`RUN_VIEW_ROUNDS`] rounds finds is [`PlanError::NotEnoughViews`].
+    pub fn extend_run(
+        &self,
+        views: &mut Vec<Vec<f64>>,
+        count: usize,
+        seed: u64,
+        mut safe: impl FnMut(&[f64], &[f64]) -> Result<bool, PlanError>,
+    ) -> Result<(), PlanError> {
+        let Some(first) = views.first().cloned() else {
+            return Err(PlanError::NotEnoughViews {
+                found: 0,
+                wanted: count,
+                tries: 0,
+            });
+        };
+        let mut next_seed = seed;
+        while views.len() < count {
+            let mut picked = None;
+            for _ in 0..RUN_VIEW_ROUNDS {
+                let candidates = self.nearby(
+                    &first,
+                    &NEARBY_SPAN_RAD,
+                    RUN_VIEW_CANDIDATES,
+                    20 * RUN_VIEW_CANDIDATES,
+                    next_seed,
+                )?;
+                next_seed = next_seed.wrapping_add(1);
+                let mut scored = Vec::new();
+                for q in candidates {
+                    if !differs_from_all(views, &q, self.constraints.min_joint_change_rad) {
+                        continue;
+                    }
+                    let mut turn = f64::INFINITY;
+                    for v in views.iter() {
+                        turn = turn.min(self.flange_turn(v, &q)?);
+                    }
+                    scored.push((turn, q));
+                }
+                scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+                let from = views.last().cloned().unwrap_or_default();
+                for (_, q) in scored {
+                    if safe(&from, &q)? {
+                        picked = Some(q);
+                        break;
+                    }
+                }
+                if picked.is_some() {
+                    break;
+                }
+            }
+            let Some(q) = picked else {
+                return Err(PlanError::NotEnoughViews {
+                    found: views.len(),
+                    wanted: count,
+                    tries: RUN_VIEW_ROUNDS * 20 * RUN_VIEW_CANDIDATES,
+                });
+            };
+            views.push(q);
+        }
+        Ok(())
     }
 
     /// The angle between the flange's orientations at joints `a` and `b`, radians.

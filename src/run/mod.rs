@@ -49,8 +49,8 @@ use crate::frames::to_row_major;
 use crate::guard::{self, PATH_STEP_RAD};
 use crate::model::RobotModel;
 use crate::plan::{
-    differs_from_all, joint_span, CancelCheck, PlanError, ViewConstraints, ViewPlanner,
-    ViewRejection, FIRST_VIEW_SPAN_RAD, NEARBY_SPAN_RAD,
+    joint_span, CancelCheck, PlanError, ViewConstraints, ViewPlanner, ViewRejection,
+    FIRST_VIEW_SPAN_RAD,
 };
 use crate::sim::Intrinsics;
 

@@ -11,8 +11,6 @@ const AUTO_VIEW_TRIES: usize = 8;
 const FIRST_VIEW_CANDIDATES: usize = 4;
 /// Draws for them (most random poses do not see the base).
 const FIRST_VIEW_DRAWS: usize = 200_000;
-/// Candidates drawn near the first view for each further view.
-const NEARBY_CANDIDATES: usize = 6;
 
 impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     pub(super) fn planner(&self) -> ViewPlanner<'_> {
@@ -65,7 +63,6 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                 format!("{}; configure joint targets under [views]", error_chain(&e)),
             ),
         };
-        let min_change = ViewConstraints::default().min_joint_change_rad;
         let mut last_refusal = None;
         // Whether the path from `from` to `to` is safe (a refusal is remembered for the error).
         let mut safe = |from: &[f64], to: &[f64]| -> Result<bool, Failure> {
@@ -117,50 +114,23 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             return Err(not_found(1, last_refusal));
         };
         let mut views = vec![first];
-        while views.len() < count {
-            let mut picked = None;
-            for _ in 0..AUTO_VIEW_TRIES {
-                let candidates = planner
-                    .nearby(
-                        &views[0],
-                        &NEARBY_SPAN_RAD,
-                        NEARBY_CANDIDATES,
-                        20 * NEARBY_CANDIDATES,
-                        next_seed,
-                    )
-                    .map_err(plan_error)?;
-                next_seed = next_seed.wrapping_add(1);
-                let mut scored = Vec::new();
-                for q in candidates {
-                    let distinct = differs_from_all(&views, &q, min_change);
-                    if !distinct {
-                        continue;
-                    }
-                    let mut turn = f64::INFINITY;
-                    for v in &views {
-                        let t = planner
-                            .flange_turn(v, &q)
-                            .map_err(|e| Failure::error(stage, error_chain(&e)))?;
-                        turn = turn.min(t);
-                    }
-                    scored.push((turn, q));
-                }
-                scored.sort_by(|a, b| b.0.total_cmp(&a.0));
-                let from = views.last().cloned().unwrap_or_default();
-                for (_, q) in scored {
-                    if safe(&from, &q)? {
-                        picked = Some(q);
-                        break;
-                    }
-                }
-                if picked.is_some() {
-                    break;
+        let refusal = std::cell::RefCell::new(last_refusal);
+        let extended = planner.extend_run(&mut views, count, next_seed, |from, to| {
+            match planner.check_path(from, to, PATH_STEP_RAD)? {
+                Ok(_) => Ok(true),
+                Err(ViewRejection::Cancelled) => Err(PlanError::Cancelled),
+                Err(r) => {
+                    *refusal.borrow_mut() = Some(r.to_string());
+                    Ok(false)
                 }
             }
-            let Some(q) = picked else {
-                return Err(not_found(views.len() + 1, last_refusal));
-            };
-            views.push(q);
+        });
+        match extended {
+            Ok(()) => {}
+            Err(PlanError::NotEnoughViews { found, .. }) => {
+                return Err(not_found(found + 1, refusal.into_inner()))
+            }
+            Err(e) => return Err(plan_error(e)),
         }
         Ok(views)
     }

@@ -20,7 +20,9 @@ use crate::calib::register::elapsed_ms;
 use crate::calib::solve::{distance, distance_at};
 use crate::calib::{GateThresholds, Mount, Outcome, Quality, RegisterOptions};
 use crate::model::{KinematicError, RobotModel};
-use crate::plan::{differs_from_all, random_joints, PlanError, ViewConstraints, ViewPlanner};
+use crate::plan::{
+    differs_from_all, random_joints, PlanError, ViewConstraints, ViewPlanner, PATH_STEP_RAD,
+};
 use crate::sim::{look_at, simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings};
 
 /// A result off by more than this is wrong (and must have been rejected), mm: at the camera
@@ -514,7 +516,7 @@ pub fn plan_trials(model: &RobotModel, cfg: &BenchConfig) -> Result<TrialPlan, P
             let mount = random_mount(&mut rng);
             let planner =
                 ViewPlanner::new(model, mount, cfg.intrinsics, ViewConstraints::default());
-            (mount, planner.generate(cfg.views, rng.random())?)
+            (mount, wrist_views(&planner, cfg, &mut rng)?)
         }
         Mount::EyeToHand => {
             let camera = random_fixed_camera(model, &cfg.intrinsics, &mut rng);
@@ -531,6 +533,31 @@ pub fn plan_trials(model: &RobotModel, cfg: &BenchConfig) -> Result<TrialPlan, P
         views,
         scan_seeds,
     })
+}
+
+/// A wrist camera's views: one view per run, `cfg.views` random views; several, each run
+/// planned as `calibrate` plans its views (a random first view, the others near it turning the
+/// flange, [`ViewPlanner::extend_run`], on paths clear of the floor).
+fn wrist_views(
+    planner: &ViewPlanner<'_>,
+    cfg: &BenchConfig,
+    rng: &mut impl rand::Rng,
+) -> Result<Vec<Vec<f64>>, PlanError> {
+    let per_run = cfg.views_per_run.max(1);
+    if per_run == 1 {
+        return planner.generate(cfg.views, rng.random());
+    }
+    let firsts = planner.generate(cfg.views.div_ceil(per_run), rng.random())?;
+    let mut views = Vec::with_capacity(firsts.len() * per_run);
+    for first in firsts {
+        let mut run = vec![first];
+        planner.extend_run(&mut run, per_run, rng.random(), |from, to| {
+            Ok(planner.check_path(from, to, PATH_STEP_RAD)?.is_ok())
+        })?;
+        views.extend(run);
+    }
+    views.truncate(cfg.views);
+    Ok(views)
 }
 
 /// Nearest and farthest distance of the fixed camera of an eye-to-hand benchmark from the point
@@ -863,6 +890,50 @@ mod tests {
             off_mm < WRONG_TRANSLATION_MM && turn_deg < WRONG_ROTATION_DEG,
             "{off_mm} mm {turn_deg}°"
         );
+    }
+
+    /// Issue 43: with several views per run the bench measures the runs `calibrate` plans: a
+    /// random first view, the others near it (the base and upper arm turned a little, within
+    /// [`NEARBY_SPAN_RAD`]), the flange turned between them, every path clear. Random views
+    /// grouped three at a time swung the base anywhere, which no run does.
+    #[test]
+    fn issue_43_a_run_s_views_are_planned_as_calibrate_plans_them() {
+        use crate::plan::NEARBY_SPAN_RAD;
+        let Some(model) = crate::testutil::shared_robot("ur/ur5e/ur5e.urdf") else {
+            return;
+        };
+        let cfg = BenchConfig {
+            views: 6,
+            scans_per_view: 1,
+            views_per_run: 3,
+            ..BenchConfig::new(Mount::EyeInHand)
+        };
+        let plan = plan_trials(&model, &cfg).expect("plans");
+        assert_eq!(plan.views.len(), 6);
+        let planner = ViewPlanner::new(
+            &model,
+            plan.mount,
+            cfg.intrinsics,
+            ViewConstraints::default(),
+        );
+        for run in plan.views.chunks(3) {
+            for q in &run[1..] {
+                for (k, span) in NEARBY_SPAN_RAD.iter().enumerate() {
+                    assert!(
+                        (q[k] - run[0][k]).abs() <= span + 1e-9,
+                        "joint {k}: {q:?} vs {:?}",
+                        run[0]
+                    );
+                }
+                assert!(planner.flange_turn(&run[0], q).expect("posed") > 0.1);
+            }
+            for pair in run.windows(2) {
+                let path = planner
+                    .check_path(&pair[0], &pair[1], PATH_STEP_RAD)
+                    .expect("posed");
+                assert!(path.is_ok(), "{path:?}");
+            }
+        }
     }
 
     /// Issue 43: flange poses handed in a frame 0.3 mm / 0.3 mrad off the model's (a ROS

@@ -15,6 +15,13 @@
 //! parameters — summed over the views, and the prior added once. One view alone gives back
 //! its own estimate and covariance. The frames of one view (captured without moving) share
 //! their errors: together they count as one view.
+//!
+//! Each view's flange pose is the controller's from its joint readings, which are off by the
+//! encoders' errors and the arm's sag ([`FlangeError`]). Those errors are parameters of the
+//! fit too, one per view and joint, with a prior that correlates two views by how far apart
+//! they hold each joint ([`reading_correlation`]): views that barely turn the base share its
+//! reading's error, which only moves the base's housing, while the wrist turned far between
+//! them gives independent errors that the views average. One parameter scales the run's sag.
 
 use std::collections::BTreeMap;
 
@@ -23,6 +30,7 @@ use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix6, Translation3, Unit
 use super::links::LinkParam;
 use super::register::covariance::{position_sigma_m, rotation_sigma_deg};
 use super::{FrameInput, HandEyeSolution, Mount, Registration, Uncertainty};
+use crate::model::reading::FlangeError;
 
 /// A registration's link parameters and their joint covariance with its camera pose: what
 /// fitting the views of one arm together needs ([`super::Registration::link_fit`]).
@@ -58,11 +66,109 @@ pub(crate) struct View<'a> {
     pub(crate) model_from_flange: Isometry3<f64>,
     /// A frame's link fit.
     pub(crate) fit: &'a LinkFit,
+    /// Which view of the run (its frames share it).
+    pub(crate) view: usize,
     /// How many frames the view has (each counts `1 / frames`).
     pub(crate) frames: usize,
-    /// The covariance of `model_from_flange` (a left perturbation in the model frame, its
-    /// joint readings' errors); `None`: exact.
-    pub(crate) flange_covariance: Option<Matrix6<f64>>,
+    /// How `model_from_flange` is off (its joint readings' errors); `None`: exact.
+    pub(crate) flange_error: Option<&'a FlangeError>,
+}
+
+/// How one joint's reading errors at two views of a run correlate, by the angle `delta`
+/// between the joint's readings (radians; 1 for a view with itself): a third independent from
+/// view to view (the arm's repeatability, anything not periodic in the angle), a third the
+/// encoder's once-per-turn error, a third its twice-per-turn error (see
+/// [`crate::model::reading`]). Views that barely turn a joint share most of its error, which
+/// the views together cannot average away; the base housing's offset absorbs what they share.
+fn reading_correlation(same_view: bool, delta: f64) -> f64 {
+    let periodic = (delta.cos() + (2.0 * delta).cos()) / 3.0;
+    if same_view {
+        1.0
+    } else {
+        periodic
+    }
+}
+
+/// The joint readings' errors of a run's views as parameters of the joint fit: per view and
+/// joint one, in units of the reading's 1σ, correlated between views by
+/// [`reading_correlation`]; and one for the run's sag (its size, 1σ the configured
+/// deflection's), since the arm sags alike where it stands alike.
+struct Readings<'a> {
+    /// The views' errors, in order of their parameters.
+    views: Vec<(usize, &'a FlangeError)>,
+    dof: usize,
+    /// Whether there is a sag parameter (after the views' readings).
+    sag: bool,
+}
+
+impl<'a> Readings<'a> {
+    fn new(views: &[View<'a>]) -> Self {
+        let mut by_view: BTreeMap<usize, &'a FlangeError> = BTreeMap::new();
+        for v in views {
+            if let Some(e) = v.flange_error {
+                by_view.entry(v.view).or_insert(e);
+            }
+        }
+        let views: Vec<(usize, &FlangeError)> = by_view.into_iter().collect();
+        let sigma = views.iter().any(|(_, e)| e.reading_sigma_rad > 0.0);
+        let dof = if sigma {
+            views
+                .iter()
+                .map(|(_, e)| e.columns.len())
+                .max()
+                .unwrap_or(0)
+        } else {
+            0
+        };
+        let sag = views
+            .iter()
+            .any(|(_, e)| e.sag_rad.iter().any(|s| *s != 0.0));
+        Self { views, dof, sag }
+    }
+
+    fn len(&self) -> usize {
+        self.views.len() * self.dof + usize::from(self.sag)
+    }
+
+    /// The columns (of `n`, from `first`) by which view `view`'s flange error moves its pose.
+    fn columns(&self, view: usize, first: usize, j: &mut DMatrix<f64>) {
+        let Some(slot) = self.views.iter().position(|(v, _)| *v == view) else {
+            return;
+        };
+        let e = self.views[slot].1;
+        for (k, c) in e.columns.iter().enumerate().take(self.dof) {
+            j.view_mut((0, first + slot * self.dof + k), (6, 1))
+                .copy_from(&(c * e.reading_sigma_rad));
+        }
+        if self.sag {
+            let sag: nalgebra::Vector6<f64> =
+                e.columns.iter().zip(&e.sag_rad).map(|(c, s)| c * *s).sum();
+            j.view_mut((0, first + self.views.len() * self.dof), (6, 1))
+                .copy_from(&sag);
+        }
+    }
+
+    /// Adds their prior information to `h` (parameters from `first`).
+    fn add_prior(&self, first: usize, h: &mut DMatrix<f64>) -> Option<()> {
+        let n = self.views.len();
+        for k in 0..self.dof {
+            let angle = |slot: usize| self.views[slot].1.joints.get(k).copied().unwrap_or(0.0);
+            let r = DMatrix::from_fn(n, n, |a, b| {
+                reading_correlation(a == b, angle(a) - angle(b))
+            });
+            let info = r.try_inverse()?;
+            for a in 0..n {
+                for b in 0..n {
+                    h[(first + a * self.dof + k, first + b * self.dof + k)] += info[(a, b)];
+                }
+            }
+        }
+        if self.sag {
+            let i = first + n * self.dof;
+            h[(i, i)] += 1.0;
+        }
+        Some(())
+    }
 }
 
 /// Relinearisations of the joint fit (the views' estimates are within a millimetre of each
@@ -89,17 +195,13 @@ pub(crate) fn fuse_views(
     // The poses' frame off the model's: a left perturbation in the model frame shared by every
     // view, its prior 1σ per axis.
     let frame_columns = if pose_frame.is_some() { 6 } else { 0 };
-    let n = 6 + q + frame_columns;
+    let readings = Readings::new(views);
+    let first_reading = 6 + q + frame_columns;
+    let n = first_reading + readings.len();
     // Each view's data information and information vector, in its own parameters.
     let data: Vec<(DMatrix<f64>, DVector<f64>)> = views
         .iter()
-        .map(|v| {
-            let (d, b) = data_information(v.fit)?;
-            Some(match &v.flange_covariance {
-                Some(f) => with_flange_error(&d, &b, f),
-                None => (d, b),
-            })
-        })
+        .map(|v| data_information(v.fit))
         .collect::<Option<_>>()?;
     let mut mount = *start;
     let mut covariance = Matrix6::zeros();
@@ -122,6 +224,7 @@ pub(crate) fn fuse_views(
                     j[(3 + a, 6 + q + 3 + a)] = turn_rad;
                 }
             }
+            readings.columns(v.view, first_reading, &mut j);
             let predicted = v.model_from_flange * mount;
             let step = predicted * v.fit.model_from_camera.inverse();
             let mut c = DVector::<f64>::zeros(6 + p);
@@ -130,9 +233,10 @@ pub(crate) fn fuse_views(
             h += j.transpose() * d * &j * weight;
             g += j.transpose() * (b - d * c) * weight;
         }
-        for k in 6..n {
+        for k in 6..first_reading {
             h[(k, k)] += 1.0;
         }
+        readings.add_prior(first_reading, &mut h)?;
         let inv = h.try_inverse()?;
         let theta = &inv * g;
         let step = Isometry3::from_parts(
@@ -169,29 +273,6 @@ fn data_information(fit: &LinkFit) -> Option<(DMatrix<f64>, DVector<f64>)> {
     let clamped = eig.eigenvalues.map(|e| e.max(0.0));
     let d = &eig.eigenvectors * DMatrix::from_diagonal(&clamped) * eig.eigenvectors.transpose();
     Some((d, b))
-}
-
-/// A view's data information `d` and information vector `b` when the flange pose it was
-/// predicted from is itself off by an error of covariance `flange` (a left perturbation in the
-/// model frame, which moves the predicted camera pose by as much): the pose block's covariance
-/// grows by `flange`, so the information about it shrinks (Woodbury, exact for a singular `d`):
-/// `d' = d − d G K Gᵀ d`, `b' = b − d G K Gᵀ b`, `K = F (I + Gᵀ d G F)⁻¹`, `G` the pose's rows.
-/// A direction the view alone pins to a micrometre is then worth what the flange pose is.
-fn with_flange_error(
-    d: &DMatrix<f64>,
-    b: &DVector<f64>,
-    flange: &Matrix6<f64>,
-) -> (DMatrix<f64>, DVector<f64>) {
-    let f = DMatrix::from_fn(6, 6, |r, c| flange[(r, c)]);
-    let dg = d.columns(0, 6).into_owned();
-    let gdg = dg.rows(0, 6).into_owned();
-    let Some(inner) = (DMatrix::identity(6, 6) + &gdg * &f).try_inverse() else {
-        return (d.clone(), b.clone());
-    };
-    let k = &f * inner;
-    let d_out = d - &dg * &k * dg.transpose();
-    let b_out = b - &dg * (&k * b.rows(0, 6));
-    ((&d_out + d_out.transpose()) / 2.0, b_out)
 }
 
 /// How a left perturbation `(α, β)` in the frame of `model_from_frame` moves things in the
@@ -245,8 +326,9 @@ pub(crate) fn fuse_solution(
             Some(View {
                 model_from_flange: inputs[i].model_from_flange?,
                 fit: registrations.get(i)?.link_fit.as_ref()?,
+                view: inputs[i].view,
                 frames: per_view[&inputs[i].view],
-                flange_covariance: registrations.get(i)?.flange_covariance,
+                flange_error: registrations.get(i)?.flange_error.as_ref(),
             })
         })
         .collect::<Option<Vec<_>>>()?;
@@ -303,6 +385,18 @@ mod tests {
         }
     }
 
+    /// A flange pose's error of covariance `cov` (six joints, a reading error of 1σ each,
+    /// every joint at `angle`).
+    fn flange_error(cov: &Matrix6<f64>, angle: f64) -> FlangeError {
+        let l = cov.cholesky().expect("positive definite").l();
+        FlangeError {
+            joints: vec![angle; 6],
+            columns: (0..6).map(|k| l.column(k).into_owned()).collect(),
+            reading_sigma_rad: 1.0,
+            sag_rad: vec![0.0; 6],
+        }
+    }
+
     /// A flange pose and a wrist camera's mount.
     fn flange_and_mount() -> (Isometry3<f64>, Isometry3<f64>) {
         (
@@ -328,8 +422,9 @@ mod tests {
             &[View {
                 model_from_flange,
                 fit: &f,
+                view: 0,
                 frames: 1,
-                flange_covariance: None,
+                flange_error: None,
             }],
             &(off * mount),
             None,
@@ -365,11 +460,13 @@ mod tests {
         }
         flange[(0, 4)] = 1e-8;
         flange[(4, 0)] = 1e-8;
+        let error = flange_error(&flange, 0.0);
         let view = View {
             model_from_flange,
             fit: &f,
+            view: 0,
             frames: 1,
-            flange_covariance: Some(flange),
+            flange_error: Some(&error),
         };
         let fused = fuse_views(&[view], &mount, None).expect("fused");
         let inv = adjoint(&model_from_flange)
@@ -383,25 +480,28 @@ mod tests {
             fused.covariance,
             want
         );
-        // Two views whose flange poses are off by more than their scans' σ: the fused
-        // covariance keeps about half of one view's flange error.
+        // Two views whose flange poses are off by more than their scans' σ, their joints
+        // turned so far that their readings' errors are independent: the fused covariance
+        // keeps about half of one view's flange error.
         let flange2 = Isometry3::new(Vector3::new(-0.2, 0.3, 0.4), Vector3::new(-0.6, 0.8, 1.0));
         let f2 = fit(flange2 * mount, [0.2, -0.1]);
+        let error2 = flange_error(&flange, std::f64::consts::FRAC_PI_3);
         let second = View {
             model_from_flange: flange2,
             fit: &f2,
-            flange_covariance: Some(flange),
+            view: 1,
+            flange_error: Some(&error2),
             ..view
         };
         let honest = fuse_views(&[view, second], &mount, None).expect("fused");
         let trusting = fuse_views(
             &[
                 View {
-                    flange_covariance: None,
+                    flange_error: None,
                     ..view
                 },
                 View {
-                    flange_covariance: None,
+                    flange_error: None,
                     ..second
                 },
             ],
@@ -423,8 +523,9 @@ mod tests {
         let view = View {
             model_from_flange,
             fit: &f,
+            view: 0,
             frames: 2,
-            flange_covariance: None,
+            flange_error: None,
         };
         let two = fuse_views(&[view, view], &mount, None).expect("fused");
         let one = fuse_views(&[View { frames: 1, ..view }], &mount, None).expect("fused");

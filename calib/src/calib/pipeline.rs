@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use handeye_hal::ur_dh::DhParams;
 use handeye_hal::PointCloud;
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::Isometry3;
 
 use crate::calib::fuse::fuse_solution;
 use crate::calib::gate::frame_quality_reasons;
@@ -18,7 +18,7 @@ use crate::calib::{
     CalibrationReport, FrameInput, GateThresholds, HandEyeSolution, Mount, RegisterOptions,
     Registration, SolveOptions, Verdict,
 };
-use crate::model::reading::flange_covariance;
+use crate::model::reading::FlangeError;
 use crate::model::{KinematicError, RobotModel};
 
 /// One captured frame, ready to register.
@@ -332,7 +332,7 @@ fn may_set_aside(mount: Mount, views: &[usize], aside: &[bool], th: &GateThresho
 
 /// A wrist camera's registration with the error of the flange pose it was captured at: the
 /// joint readings' errors of `sizes` (encoder error and unmodelled sag at `joints`) carried
-/// through the arm's Jacobian ([`flange_covariance`]) into the registration's σ, where the
+/// through the arm's Jacobian ([`FlangeError`]) into the registration's σ, where the
 /// mount of this view alone is off by as much, and kept for the views fitted together.
 fn carry_flange_error(
     reg: &mut Registration,
@@ -340,7 +340,7 @@ fn carry_flange_error(
     joints: &[f64],
     sizes: &KinematicError,
 ) {
-    let Some(cov) = flange_covariance(
+    let Some(error) = FlangeError::at(
         model,
         joints,
         sizes.joint_reading_sigma_rad,
@@ -348,9 +348,10 @@ fn carry_flange_error(
     ) else {
         return;
     };
-    if cov == Matrix6::zeros() {
+    if error.is_exact() {
         return;
     }
+    let cov = error.covariance();
     // Where the mount's σ is measured: the camera origin, in the model frame.
     let origin = reg.camera_from_model.inverse().translation.vector;
     let position_mm = position_sigma_m(&cov, &origin) * 1e3;
@@ -358,7 +359,7 @@ fn carry_flange_error(
     let u = &mut reg.uncertainty;
     u.translation_mm = u.translation_mm.hypot(position_mm);
     u.rotation_deg = u.rotation_deg.hypot(rotation_deg);
-    reg.flange_covariance = Some(cov);
+    reg.flange_error = Some(error);
 }
 
 #[cfg(test)]

@@ -293,7 +293,7 @@ pub(crate) fn good_registration() -> Registration {
         depth_offset_m: Some(0.001),
         timings_ms: StageTimings::default(),
         link_fit: None,
-        flange_covariance: None,
+        flange_error: None,
     }
 }
 

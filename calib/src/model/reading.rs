@@ -140,10 +140,76 @@ pub fn physical_joints(
         .collect()
 }
 
-/// The covariance of a reported flange pose (a left perturbation `(ρ, φ)` in the model frame:
-/// a point `x` moves by `ρ + φ × x`, m² and rad²) when each joint reading is off by an
-/// independent error of 1σ `reading_sigma_rad` plus an unmodelled sag of the size
-/// [`gravity_sag`] gives at `q` for `deflection_rad`, carried through the model's Jacobian.
+/// How a reported flange pose is off: each joint reading's error moves it along that joint's
+/// column of the arm's Jacobian. What the solver knows of it: the joints, the columns, the
+/// readings' 1σ and each joint's sag at this pose for the configured deflection (see the
+/// module's doc).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FlangeError {
+    /// The joint readings, radians.
+    pub joints: Vec<f64>,
+    /// Per joint: how a reading error of one radian moves the flange pose (a left perturbation
+    /// `(ρ, φ)` in the model frame: a point `x` moves by `ρ + φ × x`).
+    pub columns: Vec<Vector6<f64>>,
+    /// 1σ of each reading's encoder error, radians.
+    pub reading_sigma_rad: f64,
+    /// Each joint's sag at these joints ([`gravity_sag`]), radians.
+    pub sag_rad: Vec<f64>,
+}
+
+impl FlangeError {
+    /// The error of the flange pose `model` computes at readings `q`, for encoder errors of
+    /// 1σ `reading_sigma_rad` and a sag of `deflection_rad` stretched; `None` when the model
+    /// cannot pose `q`.
+    pub fn at(
+        model: &RobotModel,
+        q: &[f64],
+        reading_sigma_rad: f64,
+        deflection_rad: f64,
+    ) -> Option<Self> {
+        let at = model.frame_pose(model.flange_link(), q).ok()?;
+        const STEP: f64 = 1e-6;
+        let columns = (0..q.len())
+            .map(|k| {
+                let mut moved = q.to_vec();
+                moved[k] += STEP;
+                let d = model.frame_pose(model.flange_link(), &moved).ok()? * at.inverse();
+                let mut column = Vector6::zeros();
+                column
+                    .fixed_rows_mut::<3>(0)
+                    .copy_from(&(d.translation.vector / STEP));
+                column
+                    .fixed_rows_mut::<3>(3)
+                    .copy_from(&(d.rotation.scaled_axis() / STEP));
+                Some(column)
+            })
+            .collect::<Option<Vec<_>>>()?;
+        Some(Self {
+            joints: q.to_vec(),
+            columns,
+            reading_sigma_rad,
+            sag_rad: gravity_sag(model, q, deflection_rad),
+        })
+    }
+
+    /// The covariance of the flange pose (the left perturbation of [`Self::columns`], m² and
+    /// rad²) when each reading is off by an independent error of its 1σ plus its sag: what
+    /// one view alone is off by.
+    pub fn covariance(&self) -> Matrix6<f64> {
+        self.columns
+            .iter()
+            .zip(&self.sag_rad)
+            .map(|(c, sag)| c * c.transpose() * (self.reading_sigma_rad.powi(2) + sag.powi(2)))
+            .sum()
+    }
+
+    /// Whether the flange pose is taken as exact (no reading error and no sag).
+    pub fn is_exact(&self) -> bool {
+        self.reading_sigma_rad == 0.0 && self.sag_rad.iter().all(|s| *s == 0.0)
+    }
+}
+
+/// The covariance of a reported flange pose ([`FlangeError::covariance`]) at readings `q`.
 /// `None` when the model cannot pose `q`.
 pub fn flange_covariance(
     model: &RobotModel,
@@ -151,28 +217,7 @@ pub fn flange_covariance(
     reading_sigma_rad: f64,
     deflection_rad: f64,
 ) -> Option<Matrix6<f64>> {
-    let at = model.frame_pose(model.flange_link(), q).ok()?;
-    let sag = gravity_sag(model, q, deflection_rad);
-    let mut cov = Matrix6::zeros();
-    const STEP: f64 = 1e-6;
-    for k in 0..q.len() {
-        let variance = reading_sigma_rad.powi(2) + sag[k].powi(2);
-        if variance == 0.0 {
-            continue;
-        }
-        let mut moved = q.to_vec();
-        moved[k] += STEP;
-        let d = model.frame_pose(model.flange_link(), &moved).ok()? * at.inverse();
-        let mut column = Vector6::zeros();
-        column
-            .fixed_rows_mut::<3>(0)
-            .copy_from(&(d.translation.vector / STEP));
-        column
-            .fixed_rows_mut::<3>(3)
-            .copy_from(&(d.rotation.scaled_axis() / STEP));
-        cov += column * column.transpose() * variance;
-    }
-    Some(cov)
+    FlangeError::at(model, q, reading_sigma_rad, deflection_rad).map(|e| e.covariance())
 }
 
 #[cfg(test)]

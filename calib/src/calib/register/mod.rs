@@ -404,12 +404,12 @@ pub struct Registration {
     /// The fitted links' parameters and their joint covariance with the pose, for fitting the
     /// views of one arm together (`None` when the links were trusted as posed).
     pub link_fit: Option<LinkFit>,
-    /// A wrist camera's: the covariance of the flange pose the controller reported with the
-    /// scan (its joint readings' errors, [`crate::model::reading::flange_covariance`]) as a
-    /// left perturbation `(ρ, φ)` in the model frame. [`Self::uncertainty`] includes it (the
-    /// mount of one view is off by as much); the views fitted together carry it per view.
+    /// A wrist camera's: how the flange pose the controller reported with the scan is off
+    /// (its joint readings' errors, [`crate::model::reading::FlangeError`]).
+    /// [`Self::uncertainty`] includes its covariance (the mount of one view is off by as
+    /// much); the views fitted together estimate the readings' errors with the mount.
     /// `None`: the flange pose is taken as exact (a fixed camera, or no reading error).
-    pub flange_covariance: Option<Matrix6<f64>>,
+    pub flange_error: Option<crate::model::reading::FlangeError>,
 }
 
 /// Registers `scan` (camera frame) against `model` posed at `joints` (radians, URDF order),
@@ -657,7 +657,7 @@ pub fn register_posed(
             .then(|| estimate.depth.range_offset_m()),
         timings_ms: timings,
         link_fit,
-        flange_covariance: None,
+        flange_error: None,
     })
 }
 
