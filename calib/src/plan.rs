@@ -580,10 +580,15 @@ pub const NEARBY_SPAN_RAD: [f64; 6] = [0.5, 0.3, 0.3, 0.9, 0.9, 1.6];
 /// Largest joint change between two configurations checked along a path, rad.
 pub const PATH_STEP_RAD: f64 = 0.02;
 
+/// A base housing's turn off joint 1's axis (1σ, 0.3 mrad) over a view's error of the flange
+/// turn (its joint readings', ~0.1 mrad): how much the views must turn the flange to separate
+/// the mount from it ([`ViewPlanner::mount_turn_spread`]).
+pub const HOUSING_OVER_VIEW: f64 = 3.0;
+
 /// Rounds of candidates [`ViewPlanner::extend_run`] draws for a view before it gives up.
 pub const RUN_VIEW_ROUNDS: usize = 8;
 /// Candidates drawn near a run's first view in each round.
-pub const RUN_VIEW_CANDIDATES: usize = 6;
+pub const RUN_VIEW_CANDIDATES: usize = 12;
 
 /// How far a run's first view moves each joint from where the arm stands at most, radians
 /// ([`ViewPlanner::nearby`]): the base a quarter turn, the rest anywhere within their limits.
@@ -626,9 +631,9 @@ impl ViewPlanner<'_> {
 
     /// Extends a run's `views` (its first view at least) to `count` wrist-camera views near the
     /// first ([`Self::nearby`] within [`NEARBY_SPAN_RAD`]: the base and upper arm turn a little,
-    /// the wrist far), each the one that turns the flange most from every view before it (what
-    /// separates the mount from the base's housing when the views are fitted together) among
-    /// those `safe` admits on the path from the view before. Draws from `seed` on; a view none
+    /// the wrist far), each the one that best separates the mount from the base's housing with
+    /// the views before it ([`Self::mount_turn_spread`]) among those `safe` admits on the path
+    /// from the view before. Draws from `seed` on; a view none
     /// of [`RUN_VIEW_ROUNDS`] rounds finds is [`PlanError::NotEnoughViews`].
     pub fn extend_run(
         &self,
@@ -661,13 +666,11 @@ impl ViewPlanner<'_> {
                     if !differs_from_all(views, &q, self.constraints.min_joint_change_rad) {
                         continue;
                     }
-                    let mut turn = f64::INFINITY;
-                    for v in views.iter() {
-                        turn = turn.min(self.flange_turn(v, &q)?);
-                    }
-                    scored.push((turn, q));
+                    let mut with = views.clone();
+                    with.push(q.clone());
+                    scored.push((self.mount_turn_spread(&with)?, q));
                 }
-                scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+                scored.sort_by(|a, b| a.0.total_cmp(&b.0));
                 let from = views.last().cloned().unwrap_or_default();
                 for (_, q) in scored {
                     if safe(&from, &q)? {
@@ -689,6 +692,35 @@ impl ViewPlanner<'_> {
             views.push(q);
         }
         Ok(())
+    }
+
+    /// How well `views` fitted together separate the mount's turn from the base housing's
+    /// (smaller is better): each view sees the mount's turn `ε` (flange frame) plus the
+    /// housing's `δ` (model frame) carried to the flange, `ε + Rᵢᵀ δ`, with the same error
+    /// each; the housing's prior is [`HOUSING_OVER_VIEW`] times a view's error. The trace of
+    /// `ε`'s covariance in units of a view's error²: 1/n when the flange turns about every
+    /// axis between the views, up to 1 + the prior's when it never turns.
+    pub fn mount_turn_spread(&self, views: &[Vec<f64>]) -> Result<f64, ModelError> {
+        let mut info = nalgebra::Matrix6::<f64>::zeros();
+        for q in views {
+            let r = self
+                .model
+                .frame_pose(self.model.flange_link(), q)?
+                .rotation
+                .to_rotation_matrix()
+                .into_inner();
+            let mut a = nalgebra::Matrix3x6::<f64>::zeros();
+            a.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&nalgebra::Matrix3::identity());
+            a.fixed_view_mut::<3, 3>(0, 3).copy_from(&r.transpose());
+            info += a.transpose() * a;
+        }
+        for k in 3..6 {
+            info[(k, k)] += HOUSING_OVER_VIEW.powi(-2);
+        }
+        Ok(info
+            .try_inverse()
+            .map_or(f64::INFINITY, |c| c.fixed_view::<3, 3>(0, 0).trace()))
     }
 
     /// The angle between the flange's orientations at joints `a` and `b`, radians.

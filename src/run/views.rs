@@ -44,10 +44,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
 
     /// A wrist camera's views, generated: the first, of a few that see the base and are
     /// reached on a safe path, the one nearest to where the arm stands; the others near the
-    /// first ([`ViewPlanner::nearby`]: the base and upper arm turn a little, the wrist far),
-    /// each the one that turns the flange most from every view before it (what separates the
-    /// mount from the base's housing when the views are fitted together) among those reached
-    /// on a safe path from the view before. Short moves, the flange turned between views.
+    /// first, each the one that best separates the mount from the base's housing with the
+    /// views before it, on a safe path from the view before ([`ViewPlanner::extend_run`], as
+    /// the bench plans its runs). Short moves, the flange turned between views.
     pub(super) fn auto_views(
         &self,
         planner: &ViewPlanner<'_>,

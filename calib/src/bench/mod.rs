@@ -535,6 +535,9 @@ pub fn plan_trials(model: &RobotModel, cfg: &BenchConfig) -> Result<TrialPlan, P
     })
 }
 
+/// How many times the bench draws a run's first view again when no view near it is found.
+const FIRST_VIEW_REDRAWS: usize = 10;
+
 /// A wrist camera's views: one view per run, `cfg.views` random views; several, each run
 /// planned as `calibrate` plans its views (a random first view, the others near it turning the
 /// flange, [`ViewPlanner::extend_run`], on paths clear of the floor).
@@ -550,10 +553,23 @@ fn wrist_views(
     let firsts = planner.generate(cfg.views.div_ceil(per_run), rng.random())?;
     let mut views = Vec::with_capacity(firsts.len() * per_run);
     for first in firsts {
-        let mut run = vec![first];
-        planner.extend_run(&mut run, per_run, rng.random(), |from, to| {
-            Ok(planner.check_path(from, to, PATH_STEP_RAD)?.is_ok())
-        })?;
+        // A first view with no safe view near it is drawn again, as a run would start from
+        // elsewhere.
+        let mut first = first;
+        let mut redraws = 0;
+        let run = loop {
+            let mut run = vec![first.clone()];
+            match planner.extend_run(&mut run, per_run, rng.random(), |from, to| {
+                Ok(planner.check_path(from, to, PATH_STEP_RAD)?.is_ok())
+            }) {
+                Ok(()) => break run,
+                Err(PlanError::NotEnoughViews { .. }) if redraws < FIRST_VIEW_REDRAWS => {
+                    redraws += 1;
+                    first = planner.generate(1, rng.random())?.remove(0);
+                }
+                Err(e) => return Err(e),
+            }
+        };
         views.extend(run);
     }
     views.truncate(cfg.views);
