@@ -268,6 +268,7 @@ fn check_capture(
                 joints: view.joints.clone(),
                 model_from_flange: Some(model_from_base * base_from_flange),
                 source: p.display().to_string(),
+                image: None,
             });
         }
     }
@@ -387,6 +388,7 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
             joints,
             model_from_flange,
             source: scan_path.display().to_string(),
+            image: None,
         });
     }
     Ok(Inputs {

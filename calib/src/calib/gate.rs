@@ -244,10 +244,13 @@ pub fn gate(
             || rotation_deg > th.max_uncertainty_rotation_deg
     };
     if let Some(u) = solution.uncertainty {
-        if over(u.translation_mm, u.rotation_deg) {
+        // Eye-to-hand at the robot base, as a single frame's.
+        let (position_mm, base_m) = u.position_mm(solution.mount);
+        if over(position_mm, u.rotation_deg) {
             reasons.push(format!(
-                "the views fitted together: uncertainty {:.2} mm / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links in each view, or add views",
-                u.translation_mm,
+                "the views fitted together: uncertainty {:.2} mm{} / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links in each view, or add views",
+                position_mm,
+                base_m.map(at_the_robot_base).unwrap_or_default(),
                 u.rotation_deg,
                 th.max_uncertainty_translation_mm,
                 th.max_uncertainty_rotation_deg

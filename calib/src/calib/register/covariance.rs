@@ -97,7 +97,7 @@ fn rss(cov: &Matrix3<f64>) -> f64 {
 
 /// The 1-σ summary of a camera-frame pose covariance `cov` (see
 /// [`super::Registration::covariance_6x6`]); `base` is the model origin in the camera frame.
-fn summary(cov: &Matrix6<f64>, base: &Vector3<f64>) -> Uncertainty {
+pub(crate) fn summary(cov: &Matrix6<f64>, base: &Vector3<f64>) -> Uncertainty {
     Uncertainty {
         translation_mm: position_sigma_m(cov, &Vector3::zeros()) * 1000.0,
         rotation_deg: rotation_sigma_deg(cov),
@@ -108,7 +108,8 @@ fn summary(cov: &Matrix6<f64>, base: &Vector3<f64>) -> Uncertainty {
     }
 }
 
-/// Covariance in the camera frame (inflated), its 1-σ summary, the summary of the part the
+/// Covariance in the camera frame (inflated), the part of it the camera's own depth errors
+/// give, its 1-σ summary, the summary of the part the
 /// camera's own depth errors give ([`super::Registration::camera_error`]) and the degenerate
 /// directions.
 ///
@@ -120,7 +121,13 @@ pub(super) fn uncertainty(
     even: &IcpResult,
     camera_from_model: &Isometry3<f64>,
     opts: &RegisterOptions,
-) -> (Matrix6<f64>, Uncertainty, Uncertainty, Vec<Vector6<f64>>) {
+) -> (
+    Matrix6<f64>,
+    Matrix6<f64>,
+    Uncertainty,
+    Uncertainty,
+    Vec<Vector6<f64>>,
+) {
     let r: Matrix3<f64> = camera_from_model.rotation.to_rotation_matrix().into_inner();
     let ad = adjoint(camera_from_model);
     let (floor_m, floor_rad) = opts.model_accuracy;
@@ -155,7 +162,7 @@ pub(super) fn uncertainty(
             degenerate.push(dc.normalize());
         }
     }
-    (cov, unc, camera_error, degenerate)
+    (cov, camera, unc, camera_error, degenerate)
 }
 
 #[cfg(test)]

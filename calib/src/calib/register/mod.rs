@@ -387,6 +387,9 @@ pub struct Registration {
     /// [`RegisterOptions::depth_gradient_error`]): every frame of this camera shares it, and
     /// fusing frames does not shrink it. Zero when the fit estimates them all.
     pub camera_error: Uncertainty,
+    /// The covariance of [`Self::camera_error`] (as [`Self::covariance_6x6`], of which it is
+    /// a part): fitting frames together counts it as shared by all of them.
+    pub camera_covariance_6x6: Matrix6<f64>,
     /// Support of the result in the scan.
     pub quality: Quality,
     /// Directions the visible geometry leaves unconstrained, empty when the pose is fully
@@ -613,7 +616,7 @@ pub fn register_posed(
     );
     timings.fine = elapsed_ms(t2);
     let t3 = Instant::now();
-    let (covariance_6x6, uncertainty, camera_error, degenerate_directions) =
+    let (covariance_6x6, camera_covariance_6x6, uncertainty, camera_error, degenerate_directions) =
         covariance::uncertainty(&estimate, &judged.fine, &camera_from_model, opts);
     // The pose's own share of a smooth depth error is this view's, as in its covariance.
     let link_fit = links.map(|mut fit| {
@@ -629,6 +632,7 @@ pub fn register_posed(
         covariance_6x6,
         uncertainty,
         camera_error,
+        camera_covariance_6x6,
         quality: Quality {
             coverage: e.coverage(),
             free_space_violations: e.violation_fraction(),
