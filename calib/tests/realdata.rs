@@ -419,12 +419,30 @@ fn issue_45_the_outline_beside_the_depth() {
         return;
     };
     assert!(set.frames.iter().all(|f| f.image.is_some()));
+    if std::env::var_os("HANDEYE_OUTLINE_FROM_REFERENCE").is_some() {
+        let t = set.model_from_camera().inverse();
+        let q = t.rotation.into_inner();
+        std::env::set_var(
+            "HANDEYE_OUTLINE_START",
+            format!(
+                "{},{},{},{},{},{},{}",
+                t.translation.x, t.translation.y, t.translation.z, q.i, q.j, q.k, q.w
+            ),
+        );
+    }
     let show = |name: &str, frames: &[Frame]| {
         let c = calibrate_frames(&set.model, frames, &set.options(true)).expect("registered");
         let (mm, deg) = apart(&c.base_from_camera, &set.reference);
         let base = base_apart(&c.base_from_camera, &set.reference);
         let u = c.report.uncertainty;
         let sigma_base = u.workspace.map_or(f64::NAN, |w| w.translation_mm);
+        // The error in camera axes: camera_true_from_camera.
+        let e = set.reference.inverse() * c.base_from_camera;
+        eprintln!(
+            "{name}: error in camera axes: shift {:.1?} mm, turn {:.2?} deg",
+            (e.translation.vector * 1e3).as_slice(),
+            e.rotation.scaled_axis().map(f64::to_degrees).as_slice()
+        );
         eprintln!(
             "{name}: {mm:.1} mm / {deg:.2}° (base {base:.1} mm), σ base {sigma_base:.1} mm / {:.2}°, error/σ base {:.2} rot {:.2}; outline {:?}; split half {:?}; accepted {} {:?}",
             u.rotation_deg,

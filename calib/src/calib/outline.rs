@@ -9,26 +9,41 @@
 //! At the current `camera_from_model` the posed model is ray-cast; its silhouette contour
 //! (model pixels beside empty ones, or beside model surface far behind) is sampled, one point per
 //! [`STEP_PX`]-square block. From each contour point the image is searched along the
-//! silhouette's normal for the arm's edge, only where the scan says the contour is one: inside,
-//! scan depth near the model's; outside, at the end of the search, nothing or background far
-//! behind (a contour against the table, the second arm, a cable in front, tells nothing and is
-//! left out). The edge is the strongest colour step within [`DEPTH_EDGE_PX`] of where the scan's
-//! depth leaves the arm, to a tenth of a pixel; its offset from the predicted contour is the
-//! residual (pixels along the normal), under a Cauchy kernel (cables, the CAD's missing parts,
-//! background edges next to the arm).
+//! silhouette's normal for the arm's edge, only where the scan says the contour is one: at the
+//! outer end of the search, nothing or background far behind (a contour against the table, the
+//! second arm, a cable in front, tells nothing and is left out), and inside, scan depth near the
+//! model's. Stereo depth spills past the arm's edge by its matching window, so the edge is
+//! looked for inside where the depth ends (up to [`DEPTH_EDGE_PX`] beyond): of the colour steps
+//! there, the strongest near the predicted outline, to a tenth of a pixel. Its offset from the
+//! predicted outline is the residual (pixels along the normal), under a Cauchy kernel (cables,
+//! the CAD's missing parts, background edges next to the arm).
 //!
-//! The depth fit enters as what it is: each frame's pose estimate with its covariance (the
-//! smooth depth errors and the depth gradient included, so the directions the depth bends are
-//! loose in it), the part every frame of the camera shares counted once over the frames. The
-//! outline then holds the directions in the image plane, the depth holds the range, and the
-//! two are solved together (Gauss-Newton on a left perturbation of `camera_from_model`, the
-//! contour re-extracted every step). Several configurations seen by a camera fixed in the cell
-//! share the one pose (eye-to-hand). The covariance is a sandwich over image cells of
-//! [`CELL_PX`] (an edge's error is shared along a stretch of contour), with a colour-to-depth
-//! misalignment of [`ALIGNMENT_PX`] shared by the whole image.
+//! The outline cannot see a turn of the arm towards or away from the camera (about the base,
+//! across the line of sight): its silhouette barely changes. That is the turn a stereo camera's
+//! depth gradient down the image fakes. The surface the base stands on holds it: its normal,
+//! fitted to the scan around the base's foot ([`support_plane`]), is the base's axis (a
+//! table's flatness and the base's seat within [`SUPPORT_FLATNESS_RAD`]), and a depth error
+//! growing across the image moves a surface seen edge-on along itself, not its normal.
+//!
+//! The depth fit enters as what it is: each frame's pose estimate with its covariance, of which
+//! the part the camera's own depth errors give (scale, offset, gradient: the same in every
+//! frame) is estimated once over the frames as shared parameters. The outline then holds the
+//! directions in the image plane, the depth the range, the support the tilt, solved together
+//! (Gauss-Newton on a left perturbation of `camera_from_model`, the contour re-extracted every
+//! step). Several configurations seen by a camera fixed in the cell share the one pose
+//! (eye-to-hand). The covariance is a sandwich (edges weighed by image cells of [`CELL_PX`],
+//! their scores summed per model part), with what the residuals cannot show added: each
+//! part's outline off the real part's by [`PART_SHIFT_PX`] (kinematic error, CAD) and the
+//! colour image off the depth by [`ALIGNMENT_PX`].
+
+use std::ops::AddAssign;
 
 use handeye_hal::PointCloud;
-use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion, Vector2, Vector3, Vector6};
+
+use nalgebra::{
+    Isometry3, Matrix6, Matrix6x4, Point3, SMatrix, SVector, Translation3, UnitQuaternion, Vector2,
+    Vector3, Vector6,
+};
 use rayon::prelude::*;
 
 use super::range::RangeImage;
@@ -67,6 +82,10 @@ const CELL_PX: usize = 40;
 /// 1σ of the colour image's misalignment with the depth, pixels per axis, shared by every edge
 /// of a view (the factory calibration between a stereo camera's colour imager and its depth).
 const ALIGNMENT_PX: f64 = 0.5;
+/// 1σ of a model part's outline off the real part's, pixels per axis, shared by its edges: the
+/// arm's kinematic error at the measured joints and the CAD's (a few millimetres at a metre or
+/// more). The residuals cannot show it where the pose absorbs it.
+const PART_SHIFT_PX: f64 = 1.5;
 /// Fewest edges a fit needs over all views.
 const MIN_EDGES: usize = 40;
 /// Gauss-Newton steps.
@@ -86,9 +105,10 @@ pub(crate) struct OutlineView<'a> {
     /// Its covariance, a left perturbation in the camera frame
     /// ([`super::Registration::covariance_6x6`]).
     pub(crate) depth_covariance: Matrix6<f64>,
-    /// The part of it the camera's own depth errors give, shared by every frame
-    /// ([`super::Registration::camera_covariance_6x6`]).
-    pub(crate) camera_covariance: Matrix6<f64>,
+    /// How the camera's own depth errors (scale, offset, gradient across and down the image,
+    /// each at its 1σ) move it ([`super::Registration::camera_error_columns`]): the same errors
+    /// in every frame of the camera, estimated once over the views.
+    pub(crate) camera_error: Matrix6x4<f64>,
 }
 
 /// The result of [`fit_outline`].
@@ -127,8 +147,11 @@ struct Edge {
     f: f64,
     /// The edge's offset from the predicted outline along `n`, pixels.
     r: f64,
-    /// Image cell, for the shared errors.
+    /// Image cell: the edges of a stretch of contour share their error.
     cell: usize,
+    /// The model part whose outline it is: the edges of a part share its error against the
+    /// real arm (its kinematic error, the CAD).
+    part: u32,
 }
 
 /// The views that can be fitted: an organized scan with an image of its size.
@@ -171,9 +194,21 @@ fn prepare<'a>(views: &[OutlineView<'a>]) -> Vec<Prepared<'a>> {
         .collect()
 }
 
+/// Parameters of the joint fit: the pose perturbation `δ` (6) and the camera's shared depth
+/// errors `z` (4, prior `N(0, I)`).
+const NJ: usize = 10;
+type MatJ = SMatrix<f64, NJ, NJ>;
+type VecJ = SVector<f64, NJ>;
+
 /// Fits the one `camera_from_model` that the outlines of all `views` and their depth fits
 /// support (see the module docs), started at `start`. `None` when no view can be used or too
 /// few edges are found.
+///
+/// Each view's depth estimate `δᵢ` (about the current pose) is `δ + Mᵢ z + εᵢ`: the shared pose,
+/// the camera's depth errors `z` carried by that view's `Mᵢ`, and its own error `εᵢ` of
+/// covariance `Cᵢ − Mᵢ Mᵢᵀ`. The camera's errors are thus counted once, whatever the number of
+/// views, and where the views' `Mᵢ` differ (the arm elsewhere in the image) the views estimate
+/// them.
 pub(crate) fn fit_outline(
     views: &[OutlineView<'_>],
     start: &Isometry3<f64>,
@@ -182,75 +217,134 @@ pub(crate) fn fit_outline(
     if prepared.is_empty() {
         return None;
     }
-    let n = prepared.len() as f64;
-    // Each view's depth information, the camera's shared part counted once over the views.
-    let depth: Vec<(Isometry3<f64>, Matrix6<f64>)> = prepared
+    // The surface the base stands on, the same in every view: its normal, averaged over the
+    // views that show it, with one view's σ.
+    let planes: Vec<(Vector3<f64>, f64)> = prepared
+        .iter()
+        .filter_map(|p| support_plane(p.view.cloud, p.view.posed, start))
+        .collect();
+    let support = (!planes.is_empty()).then(|| {
+        let n = planes.iter().map(|(n, _)| n).sum::<Vector3<f64>>().normalize();
+        let sigma = planes.iter().map(|(_, s)| s).sum::<f64>() / planes.len() as f64;
+        (n, sigma)
+    });
+    // Each view's own depth information (without the camera's shared errors).
+    let depth: Vec<(Isometry3<f64>, Matrix6<f64>, Matrix6x4<f64>)> = prepared
         .iter()
         .map(|p| {
-            let c = p.view.depth_covariance + p.view.camera_covariance * (n - 1.0);
-            let c = (c + c.transpose()) / 2.0;
-            c.try_inverse().map(|w| (p.view.depth_pose, w))
+            let m = p.view.camera_error;
+            let own = p.view.depth_covariance - m * m.transpose();
+            let own = (own + own.transpose()) / 2.0;
+            // What the subtraction leaves below a micrometre / microradian is held there.
+            let eig = own.symmetric_eigen();
+            let floor = eig.eigenvalues.map(|e| e.max(1e-12));
+            let w = eig.eigenvectors
+                * Matrix6::from_diagonal(&floor.map(|e| 1.0 / e))
+                * eig.eigenvectors.transpose();
+            (p.view.depth_pose, w, m)
         })
-        .collect::<Option<_>>()?;
-    let w_depth: Matrix6<f64> = depth.iter().map(|(_, w)| w).sum();
+        .collect();
+    // The depth's part of the normal equations about pose `t` and shared errors `z`: its
+    // information (also the sandwich's meat) and gradient.
+    let depth_terms = |t: &Isometry3<f64>, z: &SVector<f64, 4>| {
+        let mut h = MatJ::zeros();
+        let mut g = VecJ::zeros();
+        for (pose, w, m) in &depth {
+            // e = δᵢ − δ − M z, ∂e/∂(δ, z) = −[I, M].
+            let mut j = SMatrix::<f64, 6, NJ>::zeros();
+            j.fixed_view_mut::<6, 6>(0, 0).copy_from(&Matrix6::identity());
+            j.fixed_view_mut::<6, 4>(0, 6).copy_from(m);
+            let e = log(&(pose * t.inverse())) - m * z;
+            h += j.transpose() * w * j;
+            g += j.transpose() * w * e;
+        }
+        for k in 6..NJ {
+            h[(k, k)] += 1.0;
+            g[k] -= z[k - 6];
+        }
+        // The base's axis along the support's normal: r = n × a, a = R e_z, which a turn φ
+        // moves by n × (φ × a) = −[n]×[a]× φ.
+        if let Some((n, sigma)) = support {
+            let a = t.rotation * Vector3::z();
+            let r = n.cross(&a);
+            let j = -(n.cross_matrix() * a.cross_matrix());
+            let w = 1.0 / (sigma * sigma);
+            let mut hv = h.fixed_view_mut::<3, 3>(3, 3);
+            hv += j.transpose() * j * w;
+            let mut gv = g.fixed_rows_mut::<3>(3);
+            gv -= j.transpose() * r * w;
+        }
+        (h, g)
+    };
     let mut t = *start;
-    let mut kernel = f64::INFINITY;
+    let mut z = SVector::<f64, 4>::zeros();
+    let mut kernel = SEARCH_PX / 2.0;
     let mut last = None;
     for step in 0..=MAX_STEPS {
-        let found: Vec<(Vec<Edge>, usize)> = prepared.par_iter().map(|p| edges(p, &t)).collect();
+        let found: Vec<(Vec<Edge>, usize)> =
+            prepared.par_iter().map(|p| edges(p, &t, kernel)).collect();
         let all: Vec<&Edge> = found.iter().flat_map(|(e, _)| e).collect();
         if all.len() < MIN_EDGES {
             return None;
         }
         let spread = robust_spread(all.iter().map(|e| e.r)).max(0.3);
-        // The kernel follows the residuals down to its floor (far off, every edge is far).
-        kernel = kernel.min((2.5 * spread).max(KERNEL_PX));
         let normal = normal_equations(&found, kernel, spread);
-        // The depth fits' pull towards their estimates, about the current pose.
-        let mut h = normal.h + w_depth;
-        let mut g = normal.g;
-        for (pose, w) in &depth {
-            g += w * log(&(pose * t.inverse()));
-        }
-        for k in 0..6 {
-            h[(k, k)] += 1e-12;
-        }
+        let (hd, gd) = depth_terms(&t, &z);
+        let mut h = hd;
+        let mut g = gd;
+        h.fixed_view_mut::<6, 6>(0, 0).add_assign(&normal.h);
+        g.fixed_rows_mut::<6>(0).add_assign(&normal.g);
         let h_inv = h.try_inverse()?;
-        let delta = h_inv * g;
         let checked: usize = found.iter().map(|(_, c)| c).sum();
         let near = all.iter().filter(|e| e.r.abs() < 3.0 * kernel).count();
-        last = Some((normal, h_inv, all.len(), spread, near as f64 / checked.max(1) as f64));
-        if step == MAX_STEPS {
+        let converged_kernel = kernel;
+        // The kernel follows the residuals down to its floor (far off, every edge is far).
+        kernel = kernel.min((2.5 * spread).max(KERNEL_PX));
+        let delta = h_inv * g;
+        tracing::debug!(
+            step,
+            edges = all.len(),
+            spread_px = spread,
+            kernel_px = converged_kernel,
+            step_mm = delta.fixed_rows::<3>(0).norm() * 1e3,
+            "outline fit"
+        );
+        let small = delta.fixed_rows::<3>(0).norm() < 2e-5
+            && delta.fixed_rows::<3>(3).norm() < 2e-5
+            && delta.fixed_rows::<4>(6).amax() < 1e-3;
+        last = Some((
+            normal,
+            hd,
+            h_inv,
+            all.len(),
+            spread,
+            near as f64 / checked.max(1) as f64,
+        ));
+        if step == MAX_STEPS || (small && step >= 2 && converged_kernel <= kernel) {
             break;
         }
-        t = exp(&delta) * t;
-        let small = delta.fixed_rows::<3>(0).norm() < 2e-5 && delta.fixed_rows::<3>(3).norm() < 2e-5;
-        if small && step >= 2 && kernel <= KERNEL_PX {
-            // One more pass at the converged pose for its covariance.
-            let found: Vec<(Vec<Edge>, usize)> =
-                prepared.par_iter().map(|p| edges(p, &t)).collect();
-            let all: Vec<&Edge> = found.iter().flat_map(|(e, _)| e).collect();
-            if all.len() < MIN_EDGES {
-                return None;
-            }
-            let spread = robust_spread(all.iter().map(|e| e.r)).max(0.3);
-            let normal = normal_equations(&found, kernel, spread);
-            let h_inv = (normal.h + w_depth).try_inverse()?;
-            let checked: usize = found.iter().map(|(_, c)| c).sum();
-            let near = all.iter().filter(|e| e.r.abs() < 3.0 * kernel).count();
-            last = Some((normal, h_inv, all.len(), spread, near as f64 / checked.max(1) as f64));
-            break;
-        }
+        t = exp(&delta.fixed_rows::<6>(0).into_owned()) * t;
+        z += delta.fixed_rows::<4>(6);
     }
-    let (normal, h_inv, edges_used, spread_px, support) = last?;
-    // Sandwich: the depth fits' information as it is, the edges' by their cells' scores, and
-    // the image's misalignment moving every edge of a view together.
-    let meat = normal.meat + w_depth;
-    let mut covariance = h_inv * meat * h_inv.transpose();
+    let (normal, hd, h_inv, edges_used, spread_px, support) = last?;
+    // Sandwich: the depth's information as it is, the edges' by their cells' scores, and the
+    // image's misalignment moving every edge of a view together.
+    let mut meat = hd;
+    meat.fixed_view_mut::<6, 6>(0, 0).add_assign(&normal.meat);
+    let mut full = h_inv * meat * h_inv.transpose();
     for shift in &normal.alignment {
-        let d = h_inv * shift;
-        covariance += d * d.transpose() * ALIGNMENT_PX.powi(2);
+        let mut s = VecJ::zeros();
+        s.fixed_rows_mut::<6>(0).copy_from(shift);
+        let d = h_inv * s;
+        full += d * d.transpose() * ALIGNMENT_PX.powi(2);
     }
+    for shift in &normal.parts_moved {
+        let mut s = VecJ::zeros();
+        s.fixed_rows_mut::<6>(0).copy_from(shift);
+        let d = h_inv * s;
+        full += d * d.transpose() * PART_SHIFT_PX.powi(2);
+    }
+    let covariance: Matrix6<f64> = full.fixed_view::<6, 6>(0, 0).into_owned();
     let covariance = (covariance + covariance.transpose()) / 2.0;
     Some(OutlineFit {
         camera_from_model: t,
@@ -270,6 +364,8 @@ struct Normal {
     g: Vector6<f64>,
     meat: Matrix6<f64>,
     alignment: Vec<Vector6<f64>>,
+    /// How the solution moves per pixel of image shift of each part's outline, along x and y.
+    parts_moved: Vec<Vector6<f64>>,
 }
 
 fn normal_equations(found: &[(Vec<Edge>, usize)], kernel: f64, spread: f64) -> Normal {
@@ -277,12 +373,15 @@ fn normal_equations(found: &[(Vec<Edge>, usize)], kernel: f64, spread: f64) -> N
     let mut g = Vector6::zeros();
     let mut meat = Matrix6::zeros();
     let mut alignment = Vec::new();
+    let mut parts_moved = Vec::new();
     for (edges, _) in found {
-        // An edge's error is shared along its stretch of contour: the cells count, not the
-        // edges.
-        let mut cells: std::collections::BTreeMap<usize, Vector6<f64>> = Default::default();
+        // An edge's error is shared along its stretch of contour: the cells weigh, not the
+        // edges. The parts' outlines share theirs (kinematic error, CAD): the meat sums them.
+        let mut cells = std::collections::BTreeSet::new();
+        let mut parts: std::collections::BTreeMap<u32, Vector6<f64>> = Default::default();
+        let mut part_shift: std::collections::BTreeMap<u32, [Vector6<f64>; 2]> = Default::default();
         for e in edges {
-            cells.entry(e.cell).or_default();
+            cells.insert(e.cell);
         }
         let share = edges.len() as f64 / cells.len().max(1) as f64;
         let scale = 1.0 / (spread * spread * share);
@@ -292,14 +391,16 @@ fn normal_equations(found: &[(Vec<Edge>, usize)], kernel: f64, spread: f64) -> N
             let w = 1.0 / (1.0 + (e.r / kernel).powi(2)) * scale;
             h += j * j.transpose() * w;
             g -= j * (w * e.r);
-            if let Some(score) = cells.get_mut(&e.cell) {
-                *score += j * (w * e.r);
-            }
+            *parts.entry(e.part).or_default() += j * (w * e.r);
             // An image shifted by one pixel along x (y) moves this edge's residual by n.x (n.y).
             shift[0] -= j * (w * e.n.x);
             shift[1] -= j * (w * e.n.y);
+            let ps = part_shift.entry(e.part).or_default();
+            ps[0] -= j * (w * e.n.x);
+            ps[1] -= j * (w * e.n.y);
         }
-        for s in cells.values() {
+        parts_moved.extend(part_shift.into_values().flatten());
+        for s in parts.values() {
             meat += s * s.transpose();
         }
         alignment.extend(shift);
@@ -309,6 +410,7 @@ fn normal_equations(found: &[(Vec<Edge>, usize)], kernel: f64, spread: f64) -> N
         g,
         meat,
         alignment,
+        parts_moved,
     }
 }
 
@@ -329,7 +431,7 @@ fn jacobian(e: &Edge) -> Vector6<f64> {
 
 /// The contour points of the posed model at `camera_from_model` and the edges found from them
 /// (see the module docs), with how many contour points the scan confirmed as a contour.
-fn edges(p: &Prepared<'_>, camera_from_model: &Isometry3<f64>) -> (Vec<Edge>, usize) {
+fn edges(p: &Prepared<'_>, camera_from_model: &Isometry3<f64>, kernel: f64) -> (Vec<Edge>, usize) {
     let scenes = SceneMesh::indexed(&p.meshes);
     let render = raycast(&scenes, camera_from_model, &p.intr);
     let (w, h) = (render.width, render.height);
@@ -353,7 +455,7 @@ fn edges(p: &Prepared<'_>, camera_from_model: &Isometry3<f64>) -> (Vec<Edge>, us
             };
             taken[block] = true;
             let z0 = render.depth[v * w + u];
-            let Some(r) = find_edge(p, (u, v), n, z0, search) else {
+            let Some(r) = find_edge(p, (u, v), n, z0, search, kernel) else {
                 continue;
             };
             checked += 1;
@@ -367,6 +469,7 @@ fn edges(p: &Prepared<'_>, camera_from_model: &Isometry3<f64>) -> (Vec<Edge>, us
                 f,
                 r,
                 cell: (v / CELL_PX) * cells_across + u / CELL_PX,
+                part: render.object[v * w + u],
             });
         }
     }
@@ -407,6 +510,7 @@ fn find_edge(
     n: Vector2<f64>,
     z0: f64,
     search: i64,
+    kernel: f64,
 ) -> Option<Option<f64>> {
     let (w, h) = (p.intr.width as i64, p.intr.height as i64);
     let pixel = |s: f64| {
@@ -453,21 +557,31 @@ fn find_edge(
                 .fold(0.0, f64::max),
         )
     };
-    let lo = (edge - DEPTH_EDGE_PX).max(-search + 1);
+    // Stereo depth spills past the arm's edge onto the background (its matching window), never
+    // short of it by more than a pixel or two: the edge is inside where the depth ends. Of the
+    // colour steps there (local maxima), the strongest near the predicted outline.
     let hi = (edge + DEPTH_EDGE_PX).min(search - 1);
     let mut best: Option<(i64, f64)> = None;
-    for s in lo..=hi {
-        let g = step(s)?;
-        if best.is_none_or(|(_, b)| g > b) {
+    let mut best_score = 0.0;
+    let steps: Vec<Option<f64>> = (-search..=search).map(step).collect();
+    let g_at = |s: i64| steps.get((s + search) as usize).copied().flatten();
+    for s in (-search + 1)..=hi {
+        let Some(g) = g_at(s) else { continue };
+        let peak = g >= g_at(s - 1).unwrap_or(0.0) && g >= g_at(s + 1).unwrap_or(0.0);
+        if !peak || g < MIN_CONTRAST {
+            continue;
+        }
+        let score = g / (1.0 + (s as f64 / kernel.max(2.0)).powi(2));
+        if score > best_score {
+            best_score = score;
             best = Some((s, g));
         }
     }
-    let (s, g) = best?;
-    if g < MIN_CONTRAST {
+    let Some((s, g)) = best else {
         return Some(None);
-    }
+    };
     // A tenth of a pixel from the parabola through the step and its neighbours.
-    let (gm, gp) = (step(s - 1).unwrap_or(g), step(s + 1).unwrap_or(g));
+    let (gm, gp) = (g_at(s - 1).unwrap_or(g), g_at(s + 1).unwrap_or(g));
     let curvature = gm - 2.0 * g + gp;
     let sub = if curvature < -1e-9 {
         (0.5 * (gm - gp) / curvature).clamp(-0.5, 0.5)
@@ -513,3 +627,98 @@ fn exp(d: &Vector6<f64>) -> Isometry3<f64> {
         UnitQuaternion::from_scaled_axis(Vector3::new(d[3], d[4], d[5])),
     )
 }
+
+/// The surface the robot base stands on, as the scan sees it: a plane fitted (robustly) to the
+/// scan points around the base, near its foot, at `camera_from_model`. Its normal (camera
+/// frame, towards the robot) with its 1σ, radians; `None` where too little of it is in view.
+pub(crate) fn support_plane(
+    cloud: &PointCloud,
+    posed: &PosedModel,
+    camera_from_model: &Isometry3<f64>,
+) -> Option<(Vector3<f64>, f64)> {
+    // The base's footprint: its widest point near the foot.
+    let foot = posed
+        .parts
+        .iter()
+        .filter(|p| p.chain_depth == 0)
+        .flat_map(|p| p.mesh.vertices.iter().map(|v| p.model_from_link * v))
+        .filter(|v| v.z < FOOT_HEIGHT_M)
+        .map(|v| v.coords.xy().norm())
+        .fold(0.0, f64::max);
+    let (r_min, r_max) = (foot + SUPPORT_MARGIN_M, foot + SUPPORT_MARGIN_M + SUPPORT_WIDTH_M);
+    let model_from_camera = camera_from_model.inverse();
+    let pts: Vec<Vector3<f64>> = cloud
+        .points
+        .iter()
+        .step_by(2)
+        .filter(|p| p.z.is_finite())
+        .map(|p| Vector3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)))
+        .filter(|p| {
+            let q = model_from_camera * Point3::from(*p);
+            let r = q.coords.xy().norm();
+            q.z.abs() < SUPPORT_BAND_M && (r_min..r_max).contains(&r)
+        })
+        .collect();
+    if pts.len() < MIN_SUPPORT_POINTS {
+        return None;
+    }
+    // Start from the model's own z axis through the base; reweight by distance (Cauchy).
+    let mut n = camera_from_model.rotation * Vector3::z();
+    let mut c = camera_from_model.translation.vector;
+    let mut spread = SUPPORT_KERNEL_M;
+    let mut extent = 0.0;
+    for _ in 0..6 {
+        let w: Vec<f64> = pts
+            .iter()
+            .map(|p| 1.0 / (1.0 + ((p - c).dot(&n) / SUPPORT_KERNEL_M).powi(2)))
+            .collect();
+        let ws: f64 = w.iter().sum();
+        let mean = pts.iter().zip(&w).map(|(p, w)| p * *w).sum::<Vector3<f64>>() / ws;
+        let cov = pts
+            .iter()
+            .zip(&w)
+            .map(|(p, w)| (p - mean) * (p - mean).transpose() * *w)
+            .sum::<nalgebra::Matrix3<f64>>()
+            / ws;
+        let eig = cov.symmetric_eigen();
+        let k = eig.eigenvalues.imin();
+        let mut normal = eig.eigenvectors.column(k).into_owned();
+        if normal.dot(&n) < 0.0 {
+            normal = -normal;
+        }
+        n = normal;
+        c = mean;
+        spread = eig.eigenvalues[k].max(0.0).sqrt();
+        let mut others: Vec<f64> = (0..3).filter(|&j| j != k).map(|j| eig.eigenvalues[j]).collect();
+        others.sort_by(f64::total_cmp);
+        extent = others[0].max(0.0).sqrt();
+    }
+    if extent < MIN_SUPPORT_EXTENT_M {
+        return None;
+    }
+    // The normal's statistical σ over independent patches, and the flatness of a table and
+    // the base's seat on it.
+    let patches = (pts.len() as f64 / SUPPORT_POINTS_PER_PATCH).max(1.0);
+    let sigma = (spread / (extent * patches.sqrt())).hypot(SUPPORT_FLATNESS_RAD);
+    Some((n, sigma))
+}
+
+/// The base's foot: its vertices this close to the model's z = 0, metres.
+const FOOT_HEIGHT_M: f64 = 0.03;
+/// Scan points this far beyond the foot (clear of the base and its cable), metres…
+const SUPPORT_MARGIN_M: f64 = 0.03;
+/// …out to this much farther, metres.
+const SUPPORT_WIDTH_M: f64 = 0.30;
+/// …and within this of the model's z = 0 (a mounting plate under the base), metres.
+const SUPPORT_BAND_M: f64 = 0.04;
+/// Cauchy kernel of the plane fit, metres.
+const SUPPORT_KERNEL_M: f64 = 0.004;
+/// Fewest scan points for a plane.
+const MIN_SUPPORT_POINTS: usize = 400;
+/// Smallest in-plane spread (1σ of the points across their narrower direction), metres.
+const MIN_SUPPORT_EXTENT_M: f64 = 0.04;
+/// Scan points taken as one independent patch of the plane's error.
+const SUPPORT_POINTS_PER_PATCH: f64 = 200.0;
+/// 1σ of the angle between the base's axis and the surface around it: a table's flatness and
+/// the base's seat on it, radians.
+const SUPPORT_FLATNESS_RAD: f64 = 0.005;

@@ -308,12 +308,19 @@ pub fn calibrate_frames(
         &solution,
         outline.is_some(),
     );
-    let verdict = gate(
+    let mut verdict = gate(
         &registrations,
         &solution,
         opts.previous.as_ref(),
         &opts.gate,
     );
+    if let Some(reason) = split_half
+        .as_ref()
+        .and_then(|s| crate::calib::gate::split_half_reason(s, &opts.gate))
+    {
+        verdict.reasons.push(reason);
+        verdict.outcome = crate::calib::Outcome::Rejected;
+    }
     let solve_ms = t_solve.elapsed().as_secs_f64() * 1e3;
     let model_from_camera = solution
         .model_from_camera(inputs.first().and_then(|f| f.model_from_flange.as_ref()))
@@ -368,7 +375,7 @@ fn outline_fit(
                 posed: poseds.get(i)?,
                 depth_pose: r.camera_from_model,
                 depth_covariance: r.covariance_6x6,
-                camera_covariance: r.camera_covariance_6x6,
+                camera_error: r.camera_error_columns,
             })
         })
         .collect();
