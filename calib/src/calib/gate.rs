@@ -138,10 +138,7 @@ pub const ACTIVE_STEREO_MAX_SEE_THROUGH: f64 = 0.12;
 pub const ACTIVE_STEREO_MAX_SPLIT_HALF: (f64, f64) = ACTIVE_STEREO_MAX_SIGMA;
 
 /// Why a result's split-half agreement ([`super::report::SplitHalf`]) fails `th`, if it does.
-pub fn split_half_reason(
-    split: &super::report::SplitHalf,
-    th: &GateThresholds,
-) -> Option<String> {
+pub fn split_half_reason(split: &super::report::SplitHalf, th: &GateThresholds) -> Option<String> {
     let (max_mm, max_deg) = th.max_split_half?;
     let position_mm = split.workspace_mm.unwrap_or(split.translation_mm);
     let at = if split.workspace_mm.is_some() {

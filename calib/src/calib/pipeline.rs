@@ -10,13 +10,13 @@ use handeye_hal::PointCloud;
 use nalgebra::{Isometry3, Matrix6};
 
 use crate::calib::fuse::fuse_solution;
+use crate::calib::gate::frame_quality_reasons;
 use crate::calib::outline::{fit_outline, OutlineFit, OutlineView};
+use crate::calib::register::covariance::{position_sigma_m, rotation_sigma_deg};
 use crate::calib::report::{OutlineReport, SplitHalf};
 use crate::calib::solve::distance;
-use crate::calib::surface::PosedModel;
-use crate::calib::gate::frame_quality_reasons;
-use crate::calib::register::covariance::{position_sigma_m, rotation_sigma_deg};
 use crate::calib::solve::solve_setting_aside;
+use crate::calib::surface::PosedModel;
 use crate::calib::{
     gate, posed_model, posed_model_with_controller_kinematics, register_posed, CalibError,
     CalibrationReport, FrameInput, GateThresholds, HandEyeSolution, Mount, RegisterOptions,

@@ -69,7 +69,9 @@ pub fn read_png(path: &Path) -> Result<ColorImage, CloudError> {
         png::ColorType::Rgb => 3,
         png::ColorType::Rgba => 4,
         png::ColorType::Indexed => {
-            return Err(bad("an indexed (palette) PNG: give an RGB or grey PNG".into()))
+            return Err(bad(
+                "an indexed (palette) PNG: give an RGB or grey PNG".into()
+            ))
         }
     };
     let stride = frame.line_size;
