@@ -475,8 +475,15 @@ fn issue_45_the_outline_beside_the_depth() {
         with / n,
         without / n
     );
-    let (fused, _) = show("fused", &set.frames);
+    let (fused, deg) = show("fused", &set.frames);
     let split = fused.report.split_half.expect("split half");
     assert_eq!(split.frames, [3, 2]);
+    // The fused σ is not below what the two halves' disagreement shows.
+    let sigma = fused.report.uncertainty.rotation_deg;
+    assert!(
+        sigma >= split.rotation_deg / 2.0,
+        "σ {sigma:.2}°, {split:?}"
+    );
+    assert!(deg <= 1.5 * sigma, "fused: {deg:.2}°, σ {sigma:.2}°");
     show("fused depth only", &depth_only(&set.frames));
 }

@@ -148,7 +148,7 @@ pub fn split_half_reason(split: &super::report::SplitHalf, th: &GateThresholds) 
     };
     (position_mm > max_mm || split.rotation_deg > max_deg).then(|| {
         format!(
-            "two halves of the configurations ({} and {} frames), fitted apart, disagree by {position_mm:.1} mm{at} / {:.2}° (max {max_mm:.1} mm / {max_deg:.2}°): the result is not as accurate as its σ says; add configurations that show the arm elsewhere in the image, or raise max_split_half in the cell config's [gate] if that is accurate enough for the cell",
+            "two halves of the configurations ({} and {} frames), fitted apart, disagree by {position_mm:.1} mm{at} / {:.2}° (max {max_mm:.1} mm / {max_deg:.2}°): the result is not as accurate as its σ says; add configurations that show the arm elsewhere in the image, or raise max_split_half_mm / max_split_half_deg in the cell config's [gate] if that is accurate enough for the cell",
             split.frames[0], split.frames[1], split.rotation_deg
         )
     })

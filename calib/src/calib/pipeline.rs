@@ -308,6 +308,19 @@ pub fn calibrate_frames(
         &solution,
         outline.is_some(),
     );
+    // The outline's σ is a model of its errors (each part's outline a pixel or two off); two
+    // halves of the frames that disagree by more than it allows show errors it does not model.
+    // Two halves, each with half the frames, differ by twice the whole's σ: the σ is at least
+    // half their disagreement.
+    if let (Some(split), Some(u), true) =
+        (&split_half, &mut solution.uncertainty, outline.is_some())
+    {
+        u.translation_mm = u.translation_mm.max(split.translation_mm / 2.0);
+        u.rotation_deg = u.rotation_deg.max(split.rotation_deg / 2.0);
+        if let (Some(w), Some(mm)) = (&mut u.workspace, split.workspace_mm) {
+            w.translation_mm = w.translation_mm.max(mm / 2.0);
+        }
+    }
     let mut verdict = gate(
         &registrations,
         &solution,
