@@ -9,7 +9,7 @@ use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion};
 
 use crate::calib::pipeline::{fixed_frame, Frame, PipelineOptions};
 use crate::calib::Mount;
-use crate::cloud::read_cloud;
+use crate::cloud::{read_cloud, read_png};
 use crate::geometry::SensorClass;
 use crate::model::RobotModel;
 
@@ -80,6 +80,7 @@ impl RealSet {
     pub fn options(&self, guess: bool) -> PipelineOptions {
         let mut opts = PipelineOptions::new(Mount::EyeToHand);
         opts.register = opts.register.for_sensor(SensorClass::ActiveStereo);
+        opts.gate = crate::calib::GateThresholds::for_sensor(SensorClass::ActiveStereo);
         opts.base_frame = Some("link_base".into());
         opts.prior = guess.then(|| self.model_from_camera());
         opts
@@ -110,6 +111,9 @@ pub fn real_set() -> Option<RealSet> {
                     .collect(),
                 model_from_flange: None,
                 source: scan.display().to_string(),
+                image: f["color"]
+                    .as_str()
+                    .map(|name| Arc::new(read_png(&dir.join(name)).expect("the image reads"))),
             }
         })
         .collect();

@@ -466,6 +466,8 @@ mod tests {
                     timings_ms: ReportTimings::default(),
                     frames: vec![],
                     views: vec![],
+                    split_half: None,
+                    outline: None,
                 },
             }),
             drift: (mode == RunMode::Check).then(|| DriftRecord {

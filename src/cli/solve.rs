@@ -53,6 +53,11 @@ pub(crate) struct Args {
     /// Scan file (PLY or PCD, camera frame, metres); repeat for several frames/views.
     #[arg(long)]
     scan: Vec<PathBuf>,
+    /// The colour (or intensity) image registered to each scan, pixel for pixel (PNG, 8- or
+    /// 16-bit, grey or RGB): once per `--scan`, in the same order. A fixed camera's result then
+    /// fits the arm's outline in it beside the depth (active stereo: the tilt its depth bends).
+    #[arg(long, value_name = "FILE.png")]
+    image: Vec<PathBuf>,
     /// Flange pose reported by the controller, `x,y,z,rx,ry,rz` in `--base-frame` (once, or
     /// once per scan). Without it the model's own forward kinematics is used.
     #[arg(long, allow_hyphen_values = true)]
@@ -268,6 +273,7 @@ fn check_capture(
                 joints: view.joints.clone(),
                 model_from_flange: Some(model_from_base * base_from_flange),
                 source: p.display().to_string(),
+                image: None,
             });
         }
     }
@@ -341,6 +347,12 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
     let model_from_base =
         fixed_frame(&model, &base_frame).with_context(|| format!("--base-frame `{base_frame}`"))?;
     let n = args.scan.len();
+    if !args.image.is_empty() && args.image.len() != n {
+        bail!(
+            "{} --image files for {n} scans: give one per --scan, in the same order",
+            args.image.len()
+        );
+    }
     let mut view_keys: Vec<String> = Vec::new();
     let mut frames = Vec::new();
     for (i, scan_path) in args.scan.iter().enumerate() {
@@ -387,6 +399,15 @@ fn from_scans(args: &Args) -> anyhow::Result<Inputs> {
             joints,
             model_from_flange,
             source: scan_path.display().to_string(),
+            image: args
+                .image
+                .get(i)
+                .map(|p| {
+                    handeye::cloud::read_png(p)
+                        .map(std::sync::Arc::new)
+                        .with_context(|| format!("reading image {}", p.display()))
+                })
+                .transpose()?,
         });
     }
     Ok(Inputs {
@@ -629,6 +650,7 @@ mod tests {
             robot: Some(robot),
             joints: vec![joints.to_string()],
             scan: vec![scan],
+            image: vec![],
             flange_pose: flange.into_iter().collect(),
             base_frame: Some("base".into()),
             guess_flange_from_camera: None,

@@ -212,6 +212,8 @@ pub(super) struct RawGate {
     pub(super) max_depth_offset_mm: Option<f64>,
     pub(super) max_change_translation_mm: Option<f64>,
     pub(super) max_change_rotation_deg: Option<f64>,
+    pub(super) max_split_half_mm: Option<f64>,
+    pub(super) max_split_half_deg: Option<f64>,
 }
 
 #[derive(Debug, Default, Deserialize)]

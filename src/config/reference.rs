@@ -176,6 +176,8 @@ pub fn keys() -> Vec<KeyDoc> {
         number("gate.max_depth_offset_mm", Some(gate.max_depth_offset_mm), GATE_MM, "largest estimated range offset (time of flight)"),
         number("gate.max_change_translation_mm", Some(gate.max_change_translation_mm), GATE_MM, "largest move from the previous calibration (a remount: see Recovering)"),
         number("gate.max_change_rotation_deg", Some(gate.max_change_rotation_deg), GATE_DEG, "largest turn from the previous calibration (a remount: see Recovering)"),
+        number("gate.max_split_half_mm", gate.max_split_half.map(|s| s.0), GATE_MM, "several configurations: largest disagreement of two halves fitted apart (eye-to-hand: at the robot base); active stereo (`camera.sensor`): 5 by default; otherwise not checked"),
+        number("gate.max_split_half_deg", gate.max_split_half.map(|s| s.1), GATE_DEG, "same, degrees; active stereo: 0.5 by default"),
         // [check]
         number("check.max_drift_translation_mm", Some(defaults::MAX_DRIFT_TRANSLATION_MM), DRIFT_MM, "a check beyond this has drifted and raises the alarm"),
         number("check.max_drift_rotation_deg", Some(defaults::MAX_DRIFT_ROTATION_DEG), DRIFT_DEG, "a check beyond this has drifted and raises the alarm"),

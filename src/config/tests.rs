@@ -822,3 +822,32 @@ fn issue_44_camera_features_in_order_and_user_set() {
         "{e}"
     );
 }
+
+/// Issue 45 (active stereo): the class's gate holds what a RealSense-class camera can (σ 5 mm
+/// at the robot base / 0.5°, see-through 12 %, split half 5 mm / 0.5°); a `[gate]` key the user
+/// sets still wins, the split half's too; structured light checks no split half unless asked.
+#[test]
+fn issue_45_active_stereo_gate_defaults_and_the_split_half_keys() {
+    use crate::geometry::SensorClass;
+    let sl = parse(MINIMAL).expect("minimal");
+    assert_eq!(sl.gate.max_split_half, None);
+    let text = with("camera", "sensor = \"active-stereo\"");
+    let stereo = parse(&text).expect("active stereo");
+    assert_eq!(
+        stereo.gate,
+        GateThresholds::for_sensor(SensorClass::ActiveStereo)
+    );
+    assert_eq!(
+        (
+            stereo.gate.max_uncertainty_translation_mm,
+            stereo.gate.max_uncertainty_rotation_deg,
+            stereo.gate.max_free_space_violations,
+            stereo.gate.max_split_half
+        ),
+        (5.0, 0.5, 0.12, Some((5.0, 0.5)))
+    );
+    let own = parse(&format!("{text}\n[gate]\nmax_split_half_deg = 1.0\n")).expect("own");
+    assert_eq!(own.gate.max_split_half, Some((5.0, 1.0)));
+    let asked = parse(&format!("{MINIMAL}\n[gate]\nmax_split_half_mm = 2.0\n")).expect("asked");
+    assert_eq!(asked.gate.max_split_half, Some((2.0, 180.0)));
+}

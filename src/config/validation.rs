@@ -859,6 +859,7 @@ impl Ctx<'_> {
             max_depth_offset_mm,
             max_change_translation_mm,
             max_change_rotation_deg,
+            max_split_half,
         } = defaults::gate_for(sensor);
         use ranges::{DEPTH_SCALE_ERROR, FRACTION, GATE_DEG, GATE_MM};
         Ok(GateThresholds {
@@ -942,6 +943,25 @@ impl Ctx<'_> {
                 max_change_rotation_deg,
                 GATE_DEG,
             )?,
+            // Checked when the class checks it or the user gives either key (the other then
+            // unbounded).
+            max_split_half: match (max_split_half, g.max_split_half_mm, g.max_split_half_deg) {
+                (None, None, None) => None,
+                (class, mm, deg) => Some((
+                    self.num(
+                        "gate.max_split_half_mm",
+                        mm,
+                        class.map_or(GATE_MM.hi, |c| c.0),
+                        GATE_MM,
+                    )?,
+                    self.num(
+                        "gate.max_split_half_deg",
+                        deg,
+                        class.map_or(GATE_DEG.hi, |c| c.1),
+                        GATE_DEG,
+                    )?,
+                )),
+            },
         })
     }
 

@@ -71,6 +71,7 @@ fn a_right_fit_looks_right_and_a_wrong_one_wrong() {
         joints: q.clone(),
         model_from_flange: Some(sim.truth.model_from_flange_reported),
         source: "simulated".into(),
+        image: None,
     };
     let calibration = calibrate_frames(
         &model,

@@ -116,6 +116,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
                     cloud,
                     joints: record.joints.clone(),
                     model_from_flange: Some(self.model_from_base * base_from_flange),
+                    image: None,
                 });
             }
             // The capture file names its scans relative to itself: a run folder can move.

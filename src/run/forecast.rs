@@ -112,6 +112,7 @@ fn simulated_sigma(
                 joints: q.clone(),
                 model_from_flange: Some(scan.truth.model_from_flange_reported),
                 source: format!("view {} simulated", k + 1),
+                image: None,
             })
         })
         .collect::<Result<Vec<_>, String>>()?;

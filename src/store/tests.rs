@@ -57,6 +57,8 @@ pub(crate) fn record(run_id: &str, mode: RunMode, outcome: Outcome, started: f64
         timings_ms: ReportTimings::default(),
         frames: vec![],
         views: vec![],
+        split_half: None,
+        outline: None,
     };
     let accepted = outcome == Outcome::Accepted;
     RunRecord {

@@ -739,6 +739,7 @@ pub fn run_views_trial(
             joints: joints.to_vec(),
             model_from_flange: Some(handed_from_model * scan.truth.model_from_flange_reported),
             source: format!("view {} scan {scan_index}", view + k),
+            image: None,
         });
     }
     trial.simulate_ms = elapsed_ms(t0);
@@ -884,6 +885,7 @@ mod tests {
             joints: plan.views[0].clone(),
             model_from_flange: Some(scan.truth.model_from_flange_reported),
             source: "far".into(),
+            image: None,
         };
         let c = calibrate_frames(&model, &[frame], &PipelineOptions::new(Mount::EyeToHand))
             .expect("registered");

@@ -56,6 +56,12 @@ pub struct GateThresholds {
     pub max_change_translation_mm: f64,
     /// Maximum change from the previous calibration, degrees (checked when one is given).
     pub max_change_rotation_deg: f64,
+    /// Several configurations: the largest disagreement of two disjoint halves of them, each
+    /// fitted on its own ([`super::report::SplitHalf`]), mm (eye-to-hand at the robot base)
+    /// and degrees. A shared σ cannot show a systematic error each configuration makes its
+    /// own way; two halves that disagree by more than the result's accuracy can. `None`: not
+    /// checked (reported only).
+    pub max_split_half: Option<(f64, f64)>,
 }
 
 impl Default for GateThresholds {
@@ -78,26 +84,74 @@ impl Default for GateThresholds {
             max_depth_offset_mm: 10.0,
             max_change_translation_mm: 5.0,
             max_change_rotation_deg: 1.0,
+            max_split_half: None,
         }
     }
 }
 
 impl GateThresholds {
     /// The gate's defaults for a sensor class: what a camera of that class can honestly hold
-    /// (a user's `[gate]` keys override them one by one, `handeye::config`). Structured light
-    /// and active stereo: [`Default`]. Time of flight: at most [`TOF_MAX_SIGMA_MM`] of 1σ per
-    /// registration: its wrist scans' error / σ reaches 1.6 at p95, and a result 2 mm off is
-    /// wrong (`handeye bench --camera helios2 --views 10`, both kinematics paths, 540 scans:
-    /// the two accepted 2.2–2.3 mm off had σ 1.45 mm).
+    /// (a user's `[gate]` keys override them one by one, `handeye::config`). Structured light:
+    /// [`Default`]. Time of flight: at most [`TOF_MAX_SIGMA_MM`] of 1σ per registration: its
+    /// wrist scans' error / σ reaches 1.6 at p95, and a result 2 mm off is wrong (`handeye
+    /// bench --camera helios2 --views 10`, both kinematics paths, 540 scans: the two accepted
+    /// 2.2–2.3 mm off had σ 1.45 mm). Active stereo: see [`ACTIVE_STEREO_MAX_SIGMA`],
+    /// [`ACTIVE_STEREO_MAX_SEE_THROUGH`] and [`ACTIVE_STEREO_MAX_SPLIT_HALF`].
     pub fn for_sensor(class: SensorClass) -> Self {
         match class {
-            SensorClass::StructuredLight | SensorClass::ActiveStereo => Self::default(),
+            SensorClass::StructuredLight => Self::default(),
+            SensorClass::ActiveStereo => Self {
+                max_uncertainty_translation_mm: ACTIVE_STEREO_MAX_SIGMA.0,
+                max_uncertainty_rotation_deg: ACTIVE_STEREO_MAX_SIGMA.1,
+                max_free_space_violations: ACTIVE_STEREO_MAX_SEE_THROUGH,
+                max_split_half: Some(ACTIVE_STEREO_MAX_SPLIT_HALF),
+                ..Self::default()
+            },
             SensorClass::TimeOfFlight => Self {
                 max_uncertainty_translation_mm: TOF_MAX_SIGMA_MM,
                 ..Self::default()
             },
         }
     }
+}
+
+/// Largest 1σ an active-stereo result may have (mm at the robot base, degrees): a RealSense
+/// D4xx 1.3 m from an arm bends its depth by 1 % of the distance and by blobs of 10–20 mm, and
+/// a depth-only fit of one frame has σ 9–19 mm / 1.5°, of which the camera's own depth
+/// gradient is 4–18 mm / 1.2° (`calib/tests/realdata.rs`); with the arm's outline in its
+/// colour image and the surface it stands on, 4–9 mm / 0.65–0.96° per frame and 2.5 mm /
+/// 0.3° for five configurations together. The limit is the accuracy such a camera is bought
+/// for (a few millimetres where it looks, half a degree), not the structured-light 1.5 mm /
+/// 0.2° no such camera holds at that distance.
+pub const ACTIVE_STEREO_MAX_SIGMA: (f64, f64) = (5.0, 0.5);
+
+/// Largest share of the posed model an active-stereo scan may see through: its depth lies up
+/// to 1 % of the distance behind the arm (`calib/tests/realdata.rs`), and the real frames of a
+/// D4xx at 1.3 m see through 4.8–10.6 % of the model where their fits put it; a wrong pose
+/// sees through a quarter or more ([`crate::calib::RegisterOptions::max_violation_found`]).
+pub const ACTIVE_STEREO_MAX_SEE_THROUGH: f64 = 0.12;
+
+/// Largest split-half disagreement of an active-stereo result (mm at the robot base, degrees):
+/// the σ limit ([`ACTIVE_STEREO_MAX_SIGMA`]). Two halves of a D4xx's five configurations
+/// disagree by 1–8 mm / 0.9–1.3° (systematic depth and outline errors each configuration
+/// makes its own way), which the fused σ of 0.3° does not show.
+pub const ACTIVE_STEREO_MAX_SPLIT_HALF: (f64, f64) = ACTIVE_STEREO_MAX_SIGMA;
+
+/// Why a result's split-half agreement ([`super::report::SplitHalf`]) fails `th`, if it does.
+pub fn split_half_reason(split: &super::report::SplitHalf, th: &GateThresholds) -> Option<String> {
+    let (max_mm, max_deg) = th.max_split_half?;
+    let position_mm = split.workspace_mm.unwrap_or(split.translation_mm);
+    let at = if split.workspace_mm.is_some() {
+        " at the robot base"
+    } else {
+        ""
+    };
+    (position_mm > max_mm || split.rotation_deg > max_deg).then(|| {
+        format!(
+            "two halves of the configurations ({} and {} frames), fitted apart, disagree by {position_mm:.1} mm{at} / {:.2}° (max {max_mm:.1} mm / {max_deg:.2}°): the result is not as accurate as its σ says; add configurations that show the arm elsewhere in the image, or raise max_split_half_mm / max_split_half_deg in the cell config's [gate] if that is accurate enough for the cell",
+            split.frames[0], split.frames[1], split.rotation_deg
+        )
+    })
 }
 
 /// Largest 1σ of the camera position a time-of-flight registration may have, mm
@@ -244,10 +298,13 @@ pub fn gate(
             || rotation_deg > th.max_uncertainty_rotation_deg
     };
     if let Some(u) = solution.uncertainty {
-        if over(u.translation_mm, u.rotation_deg) {
+        // Eye-to-hand at the robot base, as a single frame's.
+        let (position_mm, base_m) = u.position_mm(solution.mount);
+        if over(position_mm, u.rotation_deg) {
             reasons.push(format!(
-                "the views fitted together: uncertainty {:.2} mm / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links in each view, or add views",
-                u.translation_mm,
+                "the views fitted together: uncertainty {:.2} mm{} / {:.3}° (max {:.2} mm / {:.3}°): show more of the base and first links in each view, or add views",
+                position_mm,
+                base_m.map(at_the_robot_base).unwrap_or_default(),
                 u.rotation_deg,
                 th.max_uncertainty_translation_mm,
                 th.max_uncertainty_rotation_deg

@@ -19,6 +19,7 @@ mod fuse;
 pub mod gate;
 mod kdtree;
 mod links;
+pub(crate) mod outline;
 pub mod pipeline;
 pub mod range;
 pub mod register;
@@ -51,7 +52,7 @@ pub use register::{
     register_posed, Quality, RegisterOptions, Registration, StageTimings, Uncertainty,
     WorkspaceSigma,
 };
-pub use report::CalibrationReport;
+pub use report::{CalibrationReport, OutlineReport, SplitHalf};
 pub use solve::{solve, FrameInput, HandEyeSolution, Mount, Residual, SolveOptions};
 pub use surface::{PosedJoint, PosedModel, PosedPart};
 

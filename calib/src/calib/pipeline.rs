@@ -11,8 +11,12 @@ use nalgebra::Isometry3;
 
 use crate::calib::fuse::fuse_solution;
 use crate::calib::gate::frame_quality_reasons;
+use crate::calib::outline::{fit_outline, OutlineFit, OutlineView};
 use crate::calib::register::covariance::{position_sigma_m, rotation_sigma_deg};
+use crate::calib::report::{OutlineReport, SplitHalf};
+use crate::calib::solve::distance;
 use crate::calib::solve::solve_setting_aside;
+use crate::calib::surface::PosedModel;
 use crate::calib::{
     gate, posed_model, posed_model_with_controller_kinematics, register_posed, CalibError,
     CalibrationReport, FrameInput, GateThresholds, HandEyeSolution, Mount, RegisterOptions,
@@ -35,6 +39,10 @@ pub struct Frame {
     pub model_from_flange: Option<Isometry3<f64>>,
     /// Where the scan came from (file name, camera and frame number), for the report.
     pub source: String,
+    /// The colour (or intensity) image registered to the scan, pixel for pixel, when the
+    /// camera gives one: the arm's outline in it is fitted beside the depth
+    /// ([`crate::calib::outline`]). `None`: depth only.
+    pub image: Option<std::sync::Arc<crate::cloud::ColorImage>>,
 }
 
 /// How to turn frames into a result.
@@ -186,6 +194,7 @@ pub fn calibrate_frames(
     let register = opts.register.clone();
     let mut registrations = Vec::with_capacity(frames.len());
     let mut inputs = Vec::with_capacity(frames.len());
+    let mut poseds = Vec::with_capacity(frames.len());
     // Frames in which the robot is not found, and why.
     let mut lost: Vec<(usize, CalibError)> = Vec::new();
     for (i, f) in frames.iter().enumerate() {
@@ -233,6 +242,7 @@ pub fn calibrate_frames(
             )),
         });
         registrations.push(reg);
+        poseds.push(posed);
     }
     // A run of views set aside a frame in which the robot is not found, as a poor one; a single
     // view (or too many lost) ends with the error.
@@ -275,12 +285,55 @@ pub fn calibrate_frames(
         solution.re_estimate(estimate, &inputs)?;
         solution.uncertainty = Some(uncertainty);
     }
-    let verdict = gate(
+    // A fixed camera with a colour image: the arm's outline in it, fitted with the depth.
+    let outline = match opts.mount {
+        Mount::EyeToHand => {
+            let used: Vec<usize> = (0..registrations.len())
+                .filter(|&i| solution.frames.get(i).is_some_and(|r| r.used))
+                .collect();
+            outline_fit(&frames, &registrations, &poseds, &used, &solution.estimate)
+        }
+        Mount::EyeInHand => None,
+    };
+    if let Some(fit) = &outline {
+        solution.re_estimate(fit.camera_from_model.inverse(), &inputs)?;
+        solution.uncertainty = Some(fit.uncertainty);
+    }
+    let split_half = split_half(
+        opts,
+        &frames,
+        &registrations,
+        &poseds,
+        &inputs,
+        &solution,
+        outline.is_some(),
+    );
+    // The outline's σ is a model of its errors (each part's outline a pixel or two off); two
+    // halves of the frames that disagree by more than it allows show errors it does not model.
+    // Two halves, each with half the frames, differ by twice the whole's σ: the σ is at least
+    // half their disagreement.
+    if let (Some(split), Some(u), true) =
+        (&split_half, &mut solution.uncertainty, outline.is_some())
+    {
+        u.translation_mm = u.translation_mm.max(split.translation_mm / 2.0);
+        u.rotation_deg = u.rotation_deg.max(split.rotation_deg / 2.0);
+        if let (Some(w), Some(mm)) = (&mut u.workspace, split.workspace_mm) {
+            w.translation_mm = w.translation_mm.max(mm / 2.0);
+        }
+    }
+    let mut verdict = gate(
         &registrations,
         &solution,
         opts.previous.as_ref(),
         &opts.gate,
     );
+    if let Some(reason) = split_half
+        .as_ref()
+        .and_then(|s| crate::calib::gate::split_half_reason(s, &opts.gate))
+    {
+        verdict.reasons.push(reason);
+        verdict.outcome = crate::calib::Outcome::Rejected;
+    }
     let solve_ms = t_solve.elapsed().as_secs_f64() * 1e3;
     let model_from_camera = solution
         .model_from_camera(inputs.first().and_then(|f| f.model_from_flange.as_ref()))
@@ -297,6 +350,13 @@ pub fn calibrate_frames(
         solve_ms,
         t0.elapsed().as_secs_f64() * 1e3,
     );
+    let mut report = report;
+    report.split_half = split_half;
+    report.outline = outline.map(|f| OutlineReport {
+        edges: f.edges,
+        spread_px: f.spread_px,
+        support: f.support,
+    });
     Ok(Calibration {
         registrations,
         frames: kept,
@@ -306,6 +366,98 @@ pub fn calibrate_frames(
         base_from_camera,
         report,
     })
+}
+
+/// The outline fit ([`crate::calib::outline`]) of the registered frames `used` (indices into
+/// `registrations`, `poseds` and `frames`) that carry an image, started at the eye-to-hand
+/// estimate `model_from_camera`; `None` when none has an image or the fit finds too little.
+fn outline_fit(
+    frames: &[&Frame],
+    registrations: &[Registration],
+    poseds: &[PosedModel],
+    used: &[usize],
+    model_from_camera: &Isometry3<f64>,
+) -> Option<OutlineFit> {
+    let views: Vec<OutlineView<'_>> = used
+        .iter()
+        .filter_map(|&i| {
+            let r = registrations.get(i)?;
+            Some(OutlineView {
+                cloud: &frames.get(i)?.cloud,
+                image: frames[i].image.as_deref()?,
+                posed: poseds.get(i)?,
+                depth_pose: r.camera_from_model,
+                depth_covariance: r.covariance_6x6,
+                camera_error: r.camera_error_columns,
+            })
+        })
+        .collect();
+    if views.is_empty() {
+        return None;
+    }
+    let fit = fit_outline(&views, &model_from_camera.inverse());
+    if fit.is_none() {
+        tracing::warn!("the arm's outline was not found in the images: the depth alone is used");
+    }
+    fit
+}
+
+/// A reference-free measure of agreement for several configurations: the used frames split
+/// into two disjoint halves (alternate frames), each fitted on its own as the whole was (the
+/// fusion, and the outline when `with_outline`), and how far apart the two put the camera.
+/// `None` for fewer than two used frames.
+fn split_half(
+    opts: &PipelineOptions,
+    frames: &[&Frame],
+    registrations: &[Registration],
+    poseds: &[PosedModel],
+    inputs: &[FrameInput],
+    solution: &HandEyeSolution,
+    with_outline: bool,
+) -> Option<SplitHalf> {
+    let used: Vec<usize> = (0..registrations.len())
+        .filter(|&i| solution.frames.get(i).is_some_and(|r| r.used))
+        .collect();
+    if used.len() < 2 {
+        return None;
+    }
+    let halves: [Vec<usize>; 2] = [
+        used.iter().step_by(2).copied().collect(),
+        used.iter().skip(1).step_by(2).copied().collect(),
+    ];
+    let fit = |half: &[usize]| -> Option<Isometry3<f64>> {
+        let part: Vec<FrameInput> = half.iter().map(|&i| inputs[i].clone()).collect();
+        let depth = crate::calib::solve(opts.mount, &part, &opts.solve).ok()?;
+        if with_outline {
+            let regs: Vec<Registration> = half.iter().map(|&i| registrations[i].clone()).collect();
+            let posed: Vec<PosedModel> = half.iter().map(|&i| poseds[i].clone()).collect();
+            let fr: Vec<&Frame> = half.iter().map(|&i| frames[i]).collect();
+            let all: Vec<usize> = (0..half.len()).collect();
+            return outline_fit(&fr, &regs, &posed, &all, &depth.estimate)
+                .map(|f| f.camera_from_model.inverse());
+        }
+        let model_from_flange = part.first().and_then(|f| f.model_from_flange);
+        depth.model_from_camera(model_from_flange.as_ref())
+    };
+    let (a, b) = (fit(&halves[0])?, fit(&halves[1])?);
+    // Eye-in-hand halves are compared at the first frame's flange pose.
+    let at = |x: Isometry3<f64>| match opts.mount {
+        Mount::EyeToHand => x,
+        Mount::EyeInHand => inputs[used[0]].model_from_flange.unwrap_or_default() * x,
+    };
+    let (a, b) = (at(a), at(b));
+    let (translation_mm, rotation_deg) = distance(&a, &b);
+    Some(SplitHalf {
+        frames: [halves[0].len(), halves[1].len()],
+        translation_mm,
+        workspace_mm: solution.workspace_point.map(|_| base_apart_mm(&a, &b)),
+        rotation_deg,
+    })
+}
+
+/// How far apart two `model_from_camera` put the model origin as the camera sees it, mm.
+fn base_apart_mm(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
+    (a.inverse().translation.vector - b.inverse().translation.vector).norm() * 1e3
 }
 
 /// Whether a run may set aside the frames marked in `aside` (frame `i` captured at view

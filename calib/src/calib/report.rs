@@ -110,6 +110,41 @@ pub struct CalibrationReport {
     pub frames: Vec<FrameReport>,
     /// Per view.
     pub views: Vec<Residual>,
+    /// Several configurations: how far apart two disjoint halves of them, fitted separately,
+    /// put the camera (a measure of agreement that needs no reference). `None` for fewer than
+    /// two used frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub split_half: Option<SplitHalf>,
+    /// The arm's outline in the colour image, when it was fitted beside the depth.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outline: Option<OutlineReport>,
+}
+
+/// How far apart two disjoint halves of the configurations put the camera, each half fitted
+/// on its own as the whole was (alternate frames in input order).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
+pub struct SplitHalf {
+    /// Frames in each half.
+    pub frames: [usize; 2],
+    /// Distance of the two camera origins, mm.
+    pub translation_mm: f64,
+    /// Eye-to-hand: distance at the robot base, mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub workspace_mm: Option<f64>,
+    /// Rotation between the two, degrees.
+    pub rotation_deg: f64,
+}
+
+/// The outline's part in a result ([`crate::calib::outline`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, serde::Deserialize)]
+pub struct OutlineReport {
+    /// Image edges fitted.
+    pub edges: usize,
+    /// Robust spread of their distances from the model's outline, pixels.
+    pub spread_px: f64,
+    /// Share of the contour points the scan shows as a contour whose image edge lies on the
+    /// model's outline.
+    pub support: f64,
 }
 
 impl CalibrationReport {
@@ -238,6 +273,8 @@ impl CalibrationReport {
             uncertainty,
             quality,
             timings_ms: timings,
+            split_half: None,
+            outline: None,
             frames,
             views: solution.views.clone(),
         }

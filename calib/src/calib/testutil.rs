@@ -275,6 +275,7 @@ pub(crate) fn good_registration() -> Registration {
             workspace: None,
         },
         camera_error: Uncertainty::default(),
+        camera_error_columns: nalgebra::Matrix6x4::zeros(),
         quality: Quality {
             noise_mm: None,
             coverage: 0.9,

@@ -20,6 +20,7 @@
 //! offset, element and property) and what to do. Counts in headers are checked against the
 //! file size before anything is allocated.
 
+mod image;
 mod pcd;
 mod ply;
 mod scalar;
@@ -31,6 +32,7 @@ use std::path::{Path, PathBuf};
 use handeye_hal::nalgebra::Point3;
 use handeye_hal::PointCloud;
 
+pub use image::{read_png, ColorImage};
 pub use pcd::{read_pcd, write_pcd};
 pub use ply::{read_ply, write_ply, PlyEncoding};
 pub use voxel::voxel_downsample;
@@ -175,6 +177,14 @@ pub enum CloudError {
         feature: String,
         /// What to do instead.
         advice: &'static str,
+    },
+    /// An image file (the colour registered to a scan) cannot be used.
+    #[error("image {path}: {reason}")]
+    Image {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
     },
     /// A cloud given to a writer is inconsistent (grid size, attribute lengths).
     #[error("cannot write the cloud: {reason}; fix the cloud's width/height or attribute vectors")]

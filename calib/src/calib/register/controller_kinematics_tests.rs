@@ -342,6 +342,7 @@ fn the_views_of_one_arm_fitted_together_separate_its_housings_from_the_mount() {
                     joints: q.clone(),
                     model_from_flange: Some(scan.truth.model_from_flange_reported),
                     source: format!("view {k}"),
+                    image: None,
                 }
             })
             .collect();

@@ -1,7 +1,7 @@
 //! Stage 4, `verify` (its covariance): the result's covariance in the camera frame, its 1-σ
 //! summary and the directions the visible geometry leaves unconstrained.
 
-use nalgebra::{Isometry3, Matrix3, Matrix3x6, Matrix6, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix3, Matrix3x6, Matrix6, Matrix6x4, Vector3, Vector6};
 
 use super::{RegisterOptions, Uncertainty, WorkspaceSigma};
 use crate::calib::fine::IcpResult;
@@ -54,13 +54,12 @@ pub(super) fn smooth_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -
 /// each one's 1σ ([`RegisterOptions::fixed_depth_error`],
 /// [`RegisterOptions::depth_gradient_error`]) times how far it moves the pose
 /// ([`IcpResult::pose_per_fixed_depth`], [`IcpResult::pose_per_depth_gradient`]).
-fn fixed_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6<f64> {
+fn fixed_depth_error(estimate: &IcpResult, opts: &RegisterOptions) -> Matrix6x4<f64> {
     let (scale, offset_m) = opts.fixed_depth_error;
     let [by_scale, by_offset] = estimate.pose_per_fixed_depth;
     let [by_x, by_y] = estimate.pose_per_depth_gradient;
-    by_scale * by_scale.transpose() * scale.powi(2)
-        + by_offset * by_offset.transpose() * offset_m.powi(2)
-        + (by_x * by_x.transpose() + by_y * by_y.transpose()) * opts.depth_gradient_error.powi(2)
+    let g = opts.depth_gradient_error;
+    Matrix6x4::from_columns(&[by_scale * scale, by_offset * offset_m, by_x * g, by_y * g])
 }
 
 /// The covariance of a shift of `metres` and a turn of `radians` (each the 1σ length of the
@@ -97,7 +96,7 @@ fn rss(cov: &Matrix3<f64>) -> f64 {
 
 /// The 1-σ summary of a camera-frame pose covariance `cov` (see
 /// [`super::Registration::covariance_6x6`]); `base` is the model origin in the camera frame.
-fn summary(cov: &Matrix6<f64>, base: &Vector3<f64>) -> Uncertainty {
+pub(crate) fn summary(cov: &Matrix6<f64>, base: &Vector3<f64>) -> Uncertainty {
     Uncertainty {
         translation_mm: position_sigma_m(cov, &Vector3::zeros()) * 1000.0,
         rotation_deg: rotation_sigma_deg(cov),
@@ -108,7 +107,9 @@ fn summary(cov: &Matrix6<f64>, base: &Vector3<f64>) -> Uncertainty {
     }
 }
 
-/// Covariance in the camera frame (inflated), its 1-σ summary, the summary of the part the
+/// Covariance in the camera frame (inflated), how the camera's own depth errors move the pose
+/// (camera frame, one column per error at its 1σ: [`super::Registration::camera_error_columns`]),
+/// its 1-σ summary, the summary of the part the
 /// camera's own depth errors give ([`super::Registration::camera_error`]) and the degenerate
 /// directions.
 ///
@@ -120,12 +121,19 @@ pub(super) fn uncertainty(
     even: &IcpResult,
     camera_from_model: &Isometry3<f64>,
     opts: &RegisterOptions,
-) -> (Matrix6<f64>, Uncertainty, Uncertainty, Vec<Vector6<f64>>) {
+) -> (
+    Matrix6<f64>,
+    Matrix6x4<f64>,
+    Uncertainty,
+    Uncertainty,
+    Vec<Vector6<f64>>,
+) {
     let r: Matrix3<f64> = camera_from_model.rotation.to_rotation_matrix().into_inner();
     let ad = adjoint(camera_from_model);
     let (floor_m, floor_rad) = opts.model_accuracy;
     let floor = isotropic(floor_m, floor_rad);
-    let camera = ad * fixed_depth_error(estimate, opts) * ad.transpose();
+    let columns = ad * fixed_depth_error(estimate, opts);
+    let camera = columns * columns.transpose();
     let cov =
         ad * (estimate.cov6 + smooth_depth_error(estimate, opts)) * ad.transpose() + camera + floor;
     let base = camera_from_model.translation.vector;
@@ -155,7 +163,7 @@ pub(super) fn uncertainty(
             degenerate.push(dc.normalize());
         }
     }
-    (cov, unc, camera_error, degenerate)
+    (cov, columns, unc, camera_error, degenerate)
 }
 
 #[cfg(test)]

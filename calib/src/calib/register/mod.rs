@@ -35,7 +35,7 @@ use std::time::Instant;
 
 use handeye_hal::ur_dh::DhParams;
 use handeye_hal::PointCloud;
-use nalgebra::{Isometry3, Matrix6, Vector6};
+use nalgebra::{Isometry3, Matrix6, Matrix6x4, Vector6};
 use serde::Serialize;
 
 use super::fuse::LinkFit;
@@ -387,6 +387,12 @@ pub struct Registration {
     /// [`RegisterOptions::depth_gradient_error`]): every frame of this camera shares it, and
     /// fusing frames does not shrink it. Zero when the fit estimates them all.
     pub camera_error: Uncertainty,
+    /// How the camera's own depth errors move the pose, one column per error at its 1σ (a
+    /// left perturbation in the camera frame, as [`Self::covariance_6x6`]): the depth scale,
+    /// the range offset, the depth gradient across and down the image. Their outer product is
+    /// the covariance of [`Self::camera_error`]; frames of one camera share the errors, and a
+    /// fit of them together estimates them once.
+    pub camera_error_columns: Matrix6x4<f64>,
     /// Support of the result in the scan.
     pub quality: Quality,
     /// Directions the visible geometry leaves unconstrained, empty when the pose is fully
@@ -613,7 +619,7 @@ pub fn register_posed(
     );
     timings.fine = elapsed_ms(t2);
     let t3 = Instant::now();
-    let (covariance_6x6, uncertainty, camera_error, degenerate_directions) =
+    let (covariance_6x6, camera_error_columns, uncertainty, camera_error, degenerate_directions) =
         covariance::uncertainty(&estimate, &judged.fine, &camera_from_model, opts);
     // The pose's own share of a smooth depth error is this view's, as in its covariance.
     let link_fit = links.map(|mut fit| {
@@ -629,6 +635,7 @@ pub fn register_posed(
         covariance_6x6,
         uncertainty,
         camera_error,
+        camera_error_columns,
         quality: Quality {
             coverage: e.coverage(),
             free_space_violations: e.violation_fraction(),
