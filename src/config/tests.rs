@@ -823,8 +823,8 @@ fn issue_44_camera_features_in_order_and_user_set() {
     );
 }
 
-/// Issue 45 (active stereo): the class's gate holds what a RealSense-class camera can (σ 5 mm
-/// at the robot base / 0.5°, see-through 12 %, split half 5 mm / 0.5°); a `[gate]` key the user
+/// Issue 45 (active stereo): the class's gate holds what a RealSense-class camera can (σ 2.5 mm
+/// at the robot base / 0.25°, see-through 12 %, split half 5 mm / 0.5°); a `[gate]` key the user
 /// sets still wins, the split half's too; structured light checks no split half unless asked.
 #[test]
 fn issue_45_active_stereo_gate_defaults_and_the_split_half_keys() {
@@ -844,7 +844,7 @@ fn issue_45_active_stereo_gate_defaults_and_the_split_half_keys() {
             stereo.gate.max_free_space_violations,
             stereo.gate.max_split_half
         ),
-        (5.0, 0.5, 0.12, Some((5.0, 0.5)))
+        (2.5, 0.25, 0.12, Some((5.0, 0.5)))
     );
     let own = parse(&format!("{text}\n[gate]\nmax_split_half_deg = 1.0\n")).expect("own");
     assert_eq!(own.gate.max_split_half, Some((5.0, 1.0)));
