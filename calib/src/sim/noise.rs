@@ -642,13 +642,19 @@ mod tests {
         let tof = ScanNoise::time_of_flight();
         let a = TOF_REFERENCE_ALBEDO;
         let ratio = sd(&tof, Some(a), 60.0, 7) / sd(&tof, Some(a), 0.0, 8);
-        assert!((ratio - 2f64.sqrt()).abs() < 0.05, "time of flight at 60°: {ratio}");
+        assert!(
+            (ratio - 2f64.sqrt()).abs() < 0.05,
+            "time of flight at 60°: {ratio}"
+        );
         // A dark surface is noisier by the same law: 1/√(albedo / reference).
         let dark = sd(&tof, Some(a / 4.0), 0.0, 9) / sd(&tof, Some(a), 0.0, 8);
         assert!((dark - 2.0).abs() < 0.06, "a quarter of the light: {dark}");
         let sl = ScanNoise::default();
         let ratio = sd(&sl, None, 60.0, 10) / sd(&sl, None, 0.0, 11);
-        assert!((ratio - 2.0).abs() < 0.06, "structured light at 60°: {ratio}");
+        assert!(
+            (ratio - 2.0).abs() < 0.06,
+            "structured light at 60°: {ratio}"
+        );
     }
 
     #[test]
