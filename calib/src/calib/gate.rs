@@ -276,7 +276,7 @@ pub fn gate(
             } else if solution.mount == Mount::EyeInHand {
                 // One wrist view leaves the housings' offsets in its σ; views fitted together
                 // separate them from the mount (time of flight: 79.6 % of single scans accepted,
-                // 242 of 243 three-view runs, docs/src/benchmarks.md).
+                // 781 of 783 three-view runs, docs/src/benchmarks.md).
                 "show more of the base and first links, or fit three views or more together ([views])"
                     .to_string()
             } else {
