@@ -15,7 +15,8 @@ use crate::geometry::SensorClass;
 #[serde(deny_unknown_fields, default)]
 pub struct ScanNoise {
     /// Depth noise standard deviation at 1 m (metres); it grows with z^`depth_sigma_exponent`
-    /// and with 1/cos of the incidence angle.
+    /// and with 1/cos of the incidence angle (1/√cos with [`Self::reference_albedo`] set: the
+    /// noise of the returned light's amplitude).
     pub depth_sigma_at_1m_m: f64,
     /// How depth noise grows with distance: σ(z) = `depth_sigma_at_1m_m` · z^this (z in
     /// metres). 2 for triangulation (structured light, stereo), 1 for time of flight (the
@@ -67,7 +68,8 @@ pub struct ScanNoise {
     /// camera's precision is specified on a white or light target). Above 0 the scene's
     /// surfaces have their own reflectivity (the simulator's albedo: a UR's light covers 0.6,
     /// its dark joint caps and base ring 0.08, see `sim::scan`), and the camera reports its
-    /// amplitude image as the cloud's intensity: the noise grows as 1/√(albedo / this), dark
+    /// amplitude image as the cloud's intensity: the noise grows as 1/√amplitude (× 1/√(albedo
+    /// / this) and 1/√cos of the incidence instead of 1/cos), dark
     /// surfaces read long by [`Self::dark_range_bias_m`], multipath weighs each facing surface
     /// by its albedo over this. 0: every surface alike, no amplitude image (structured light,
     /// active stereo).
@@ -206,7 +208,8 @@ impl ScanNoise {
     /// - **noise against amplitude**: σ = 1 mm at 1 m on the light covers (albedo
     ///   [`TOF_REFERENCE_ALBEDO`]), linear in z (the returned light falls with z², the phase
     ///   noise with its square root), × 1/√(albedo / reference): the dark caps (0.08) 2.7 ×
-    ///   noisier. The Helios2 and blaze state sub-millimetre to millimetre precision at 1 m on
+    ///   noisier; × 1/√cos(incidence) (the returned light falls with the cosine, as with the
+    ///   albedo). The Helios2 and blaze state sub-millimetre to millimetre precision at 1 m on
     ///   a 90 % white target;
     /// - **range bias against reflectivity**: a black surface reads [`Self::dark_range_bias_m`]
     ///   = 3 mm long against the covers (the dark caps: 2.6 mm), the order of the material
@@ -449,11 +452,14 @@ impl ScanNoise {
         range_per_depth: f64,
         rng: &mut impl Rng,
     ) -> f64 {
-        self.noisy_depth_of(z, incidence_rad, range_per_depth, 1.0, rng)
+        self.noisy_depth_of(z, incidence_rad.cos().max(0.2), range_per_depth, 1.0, rng)
     }
 
     /// [`Self::noisy_depth`] on a surface of `albedo` ([`Self::reference_albedo`]): its noise
-    /// × [`Self::amplitude_noise_factor`], its range [`Self::dark_bias_m`] long.
+    /// × [`Self::amplitude_noise_factor`], its range [`Self::dark_bias_m`] long. With the
+    /// amplitude model on, the incidence enters as the albedo does, through the returned light
+    /// (amplitude ∝ albedo · cos(incidence) / range², noise ∝ 1/√amplitude): × 1/√cos rather
+    /// than the triangulating sensors' 1/cos.
     pub(crate) fn noisy_depth_on(
         &self,
         z: f64,
@@ -463,9 +469,14 @@ impl ScanNoise {
         rng: &mut impl Rng,
     ) -> f64 {
         let z = z + self.dark_bias_m(albedo) / range_per_depth;
+        let by_incidence = if self.reference_albedo > 0.0 {
+            incidence_rad.cos().max(0.2).sqrt()
+        } else {
+            incidence_rad.cos().max(0.2)
+        };
         self.noisy_depth_of(
             z,
-            incidence_rad,
+            by_incidence,
             range_per_depth,
             self.amplitude_noise_factor(albedo),
             rng,
@@ -492,16 +503,18 @@ impl ScanNoise {
         }
     }
 
+    /// A noisy depth whose σ is the noise at `z` × `sigma_factor` / `by_incidence` (how the
+    /// surface's incidence weakens the measurement, 1 head-on).
     fn noisy_depth_of(
         &self,
         z: f64,
-        incidence_rad: f64,
+        by_incidence: f64,
         range_per_depth: f64,
         sigma_factor: f64,
         rng: &mut impl Rng,
     ) -> f64 {
-        let sigma = self.depth_sigma_at_1m_m * sigma_factor * self.distance_factor(z)
-            / incidence_rad.cos().max(0.2);
+        let sigma =
+            self.depth_sigma_at_1m_m * sigma_factor * self.distance_factor(z) / by_incidence;
         let n = if sigma > 0.0 {
             Normal::new(0.0, sigma).map_or(0.0, |d| d.sample(rng))
         } else {
@@ -608,6 +621,40 @@ mod tests {
         let (_, a) = spread(&sl, 1.0, 4);
         let (_, b) = spread(&sl, 2.0, 5);
         assert!((b / a - 4.0).abs() < 0.2, "{a} {b}");
+    }
+
+    /// Issue 45: a time-of-flight camera's noise follows the returned light's amplitude
+    /// (albedo · cos(incidence) / range²) as 1/√amplitude, the incidence included: at 60° it
+    /// is √2 × the head-on noise, not the 2 × of a triangulating sensor (which keeps 1/cos).
+    #[test]
+    fn issue_45_time_of_flight_noise_grows_with_incidence_as_the_amplitude_falls() {
+        let sd = |n: &ScanNoise, albedo: Option<f64>, incidence_deg: f64, seed: u64| {
+            let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+            let s: Vec<f64> = (0..20_000)
+                .map(|_| match albedo {
+                    Some(a) => n.noisy_depth_on(1.0, incidence_deg.to_radians(), 1.0, a, &mut rng),
+                    None => n.noisy_depth(1.0, incidence_deg.to_radians(), 1.0, &mut rng),
+                })
+                .collect();
+            let mean = s.iter().sum::<f64>() / s.len() as f64;
+            (s.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / s.len() as f64).sqrt()
+        };
+        let tof = ScanNoise::time_of_flight();
+        let a = TOF_REFERENCE_ALBEDO;
+        let ratio = sd(&tof, Some(a), 60.0, 7) / sd(&tof, Some(a), 0.0, 8);
+        assert!(
+            (ratio - 2f64.sqrt()).abs() < 0.05,
+            "time of flight at 60°: {ratio}"
+        );
+        // A dark surface is noisier by the same law: 1/√(albedo / reference).
+        let dark = sd(&tof, Some(a / 4.0), 0.0, 9) / sd(&tof, Some(a), 0.0, 8);
+        assert!((dark - 2.0).abs() < 0.06, "a quarter of the light: {dark}");
+        let sl = ScanNoise::default();
+        let ratio = sd(&sl, None, 60.0, 10) / sd(&sl, None, 0.0, 11);
+        assert!(
+            (ratio - 2.0).abs() < 0.06,
+            "structured light at 60°: {ratio}"
+        );
     }
 
     #[test]
