@@ -45,8 +45,9 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
     /// A wrist camera's views, generated: the first, of a few that see the base and are
     /// reached on a safe path, the one nearest to where the arm stands; the others near the
     /// first, each the one that best separates the mount from the base's housing with the
-    /// views before it, on a safe path from the view before ([`ViewPlanner::extend_run`], as
-    /// the bench plans its runs). Short moves, the flange turned between views.
+    /// views before it, on a safe path from the view before and (returning to the start) back
+    /// to the start ([`ViewPlanner::extend_run`], as the bench plans its runs). Short moves,
+    /// the flange turned between views.
     pub(super) fn auto_views(
         &self,
         planner: &ViewPlanner<'_>,
@@ -114,15 +115,21 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         };
         let mut views = vec![first];
         let refusal = std::cell::RefCell::new(last_refusal);
+        // A view is reached from the one before, and left for the start: at the end of the
+        // run, or from wherever a stopped run stands.
+        let back = self.cfg.views.return_to_start.then_some(start);
         let extended = planner.extend_run(&mut views, count, next_seed, |from, to| {
-            match planner.check_path(from, to, PATH_STEP_RAD)? {
-                Ok(_) => Ok(true),
-                Err(ViewRejection::Cancelled) => Err(PlanError::Cancelled),
-                Err(r) => {
-                    *refusal.borrow_mut() = Some(r.to_string());
-                    Ok(false)
+            for (a, b) in std::iter::once((from, to)).chain(back.map(|s| (to, s))) {
+                match planner.check_path(a, b, PATH_STEP_RAD)? {
+                    Ok(_) => {}
+                    Err(ViewRejection::Cancelled) => return Err(PlanError::Cancelled),
+                    Err(r) => {
+                        *refusal.borrow_mut() = Some(r.to_string());
+                        return Ok(false);
+                    }
                 }
             }
+            Ok(true)
         });
         match extended {
             Ok(()) => {}
