@@ -9,7 +9,7 @@
 
 use std::f64::consts::PI;
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Vector3};
 
 /// `base_from_base_link` for UR arms: rotation by π about z, no translation.
 ///
@@ -39,6 +39,19 @@ pub fn from_row_major(m: &[[f64; 4]; 4]) -> Option<Isometry3<f64>> {
         nalgebra::Translation3::new(m[0][3], m[1][3], m[2][3]),
         rot,
     ))
+}
+
+/// How a left perturbation `(α, β)` in the frame of `model_from_frame` moves things in the
+/// model frame: `ρ = R α + p × R β`, `φ = R β`.
+pub fn adjoint(model_from_frame: &Isometry3<f64>) -> Matrix6<f64> {
+    let r: Matrix3<f64> = model_from_frame.rotation.to_rotation_matrix().into_inner();
+    let p = model_from_frame.translation.vector;
+    let mut ad = Matrix6::zeros();
+    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    ad.fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&(p.cross_matrix() * r));
+    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    ad
 }
 
 #[cfg(test)]

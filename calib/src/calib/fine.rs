@@ -19,8 +19,7 @@ use nalgebra::{
 use rayon::prelude::*;
 
 use super::coarse::Oriented;
-use super::fuse::LinkFit;
-use super::links::LinkParam;
+use super::links::{LinkFit, LinkParam};
 use super::surface::ModelSurface;
 
 /// Parameters of the fit before the links': the pose (ρ, φ), the depth scale κ and the range

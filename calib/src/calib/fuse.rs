@@ -25,28 +25,13 @@
 
 use std::collections::BTreeMap;
 
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Translation3, UnitQuaternion};
 
-use super::links::LinkParam;
+use super::links::{LinkFit, LinkParam};
 use super::register::covariance::{position_sigma_m, rotation_sigma_deg};
 use super::{FrameInput, HandEyeSolution, Mount, Registration, Uncertainty};
+use crate::frames::adjoint;
 use crate::model::reading::FlangeError;
-
-/// A registration's link parameters and their joint covariance with its camera pose: what
-/// fitting the views of one arm together needs ([`super::Registration::link_fit`]).
-#[derive(Debug, Clone, PartialEq)]
-pub struct LinkFit {
-    /// What each parameter is.
-    pub(crate) params: Vec<LinkParam>,
-    /// Their estimates, prior 1σ units.
-    pub(crate) z: DVector<f64>,
-    /// Covariance of the pose (a left perturbation `(ρ, φ)` of `model_from_camera` in the
-    /// model frame: a point `x` moves by `ρ + φ × x`) and `z`, `6 + z.len()` square, the
-    /// links' prior included.
-    pub(crate) covariance: DMatrix<f64>,
-    /// The registration's camera pose in the model frame.
-    pub(crate) model_from_camera: Isometry3<f64>,
-}
 
 /// The mount fitted from several views.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -273,19 +258,6 @@ fn data_information(fit: &LinkFit) -> Option<(DMatrix<f64>, DVector<f64>)> {
     let clamped = eig.eigenvalues.map(|e| e.max(0.0));
     let d = &eig.eigenvectors * DMatrix::from_diagonal(&clamped) * eig.eigenvectors.transpose();
     Some((d, b))
-}
-
-/// How a left perturbation `(α, β)` in the frame of `model_from_frame` moves things in the
-/// model frame: `ρ = R α + p × R β`, `φ = R β`.
-pub(crate) fn adjoint(model_from_frame: &Isometry3<f64>) -> Matrix6<f64> {
-    let r: Matrix3<f64> = model_from_frame.rotation.to_rotation_matrix().into_inner();
-    let p = model_from_frame.translation.vector;
-    let mut ad = Matrix6::zeros();
-    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(0, 3)
-        .copy_from(&(p.cross_matrix() * r));
-    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-    ad
 }
 
 /// The mount of an eye-in-hand solution refitted from its used views together, and its 1σ:

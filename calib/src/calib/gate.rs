@@ -138,23 +138,6 @@ pub const ACTIVE_STEREO_MAX_SEE_THROUGH: f64 = 0.12;
 /// makes its own way), which the fused σ of 0.3° does not show.
 pub const ACTIVE_STEREO_MAX_SPLIT_HALF: (f64, f64) = (5.0, 0.5);
 
-/// Why a result's split-half agreement ([`super::report::SplitHalf`]) fails `th`, if it does.
-pub fn split_half_reason(split: &super::report::SplitHalf, th: &GateThresholds) -> Option<String> {
-    let (max_mm, max_deg) = th.max_split_half?;
-    let position_mm = split.workspace_mm.unwrap_or(split.translation_mm);
-    let at = if split.workspace_mm.is_some() {
-        " at the robot base"
-    } else {
-        ""
-    };
-    (position_mm > max_mm || split.rotation_deg > max_deg).then(|| {
-        format!(
-            "two halves of the configurations ({} and {} frames), fitted apart, disagree by {position_mm:.1} mm{at} / {:.2}° (max {max_mm:.1} mm / {max_deg:.2}°): the result is not as accurate as its σ says; add configurations that show the arm elsewhere in the image, or raise max_split_half_mm / max_split_half_deg in the cell config's [gate] if that is accurate enough for the cell",
-            split.frames[0], split.frames[1], split.rotation_deg
-        )
-    })
-}
-
 /// Largest 1σ of the camera position a time-of-flight registration may have, mm
 /// ([`GateThresholds::for_sensor`]).
 pub const TOF_MAX_SIGMA_MM: f64 = 1.3;

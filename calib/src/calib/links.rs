@@ -30,10 +30,26 @@
 //! frame, a point `x` moves by `t + ω × x`) by `(t, ω) = A_d · z`.
 
 use handeye_hal::ur_dh::PARALLEL_SINE;
-use nalgebra::{Isometry3, Matrix6xX, Point3, Vector3};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6xX, Point3, Vector3};
 
 use super::surface::PosedModel;
 use crate::model::KinematicError;
+
+/// A registration's link parameters and their joint covariance with its camera pose: what
+/// fitting the views of one arm together needs ([`super::Registration::link_fit`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinkFit {
+    /// What each parameter is.
+    pub(crate) params: Vec<LinkParam>,
+    /// Their estimates, prior 1σ units.
+    pub(crate) z: DVector<f64>,
+    /// Covariance of the pose (a left perturbation `(ρ, φ)` of `model_from_camera` in the
+    /// model frame: a point `x` moves by `ρ + φ × x`) and `z`, `6 + z.len()` square, the
+    /// links' prior included.
+    pub(crate) covariance: DMatrix<f64>,
+    /// The registration's camera pose in the model frame.
+    pub(crate) model_from_camera: Isometry3<f64>,
+}
 
 /// Which of the arm's parameters a column of [`LinkModel::a`] is. Each is a constant of the
 /// arm, expressed in frames that move with it (a joint's axis or its parent link, a link's own
@@ -315,7 +331,7 @@ mod tests {
         );
         let prior = prior.view((6, 6), (12, 12));
         let j = &posed.joints[0];
-        let ad = crate::calib::fuse::adjoint(&j.model_from_joint);
+        let ad = crate::frames::adjoint(&j.model_from_joint);
         let expected = ad * error.joint_covariance(&j.axis, true) * ad.transpose();
         let got = prior.view((0, 0), (6, 6));
         for r in 0..6 {

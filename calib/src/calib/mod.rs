@@ -45,8 +45,8 @@ mod probe;
 #[cfg(test)]
 pub(crate) mod testutil;
 
-pub use fuse::LinkFit;
 pub use gate::{gate, GateThresholds, Verdict};
+pub use links::LinkFit;
 pub use register::{
     posed_model, posed_model_with_controller_kinematics, posed_model_with_kinematics, register,
     register_posed, Quality, RegisterOptions, Registration, StageTimings, Uncertainty,

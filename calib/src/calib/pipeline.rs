@@ -327,10 +327,7 @@ pub fn calibrate_frames(
         opts.previous.as_ref(),
         &opts.gate,
     );
-    if let Some(reason) = split_half
-        .as_ref()
-        .and_then(|s| crate::calib::gate::split_half_reason(s, &opts.gate))
-    {
+    if let Some(reason) = split_half.as_ref().and_then(|s| s.reason(&opts.gate)) {
         verdict.reasons.push(reason);
         verdict.outcome = crate::calib::Outcome::Rejected;
     }

@@ -5,7 +5,7 @@
 use nalgebra::Isometry3;
 use serde::Serialize;
 
-use super::gate::Verdict;
+use super::gate::{GateThresholds, Verdict};
 use super::register::{Quality, Registration, StageTimings, Uncertainty, WorkspaceSigma};
 use super::solve::{HandEyeSolution, Mount, Residual};
 use super::Outcome;
@@ -133,6 +133,25 @@ pub struct SplitHalf {
     pub workspace_mm: Option<f64>,
     /// Rotation between the two, degrees.
     pub rotation_deg: f64,
+}
+
+impl SplitHalf {
+    /// Why this agreement fails `th`'s split-half limit, if it does.
+    pub fn reason(&self, th: &GateThresholds) -> Option<String> {
+        let (max_mm, max_deg) = th.max_split_half?;
+        let position_mm = self.workspace_mm.unwrap_or(self.translation_mm);
+        let at = if self.workspace_mm.is_some() {
+            " at the robot base"
+        } else {
+            ""
+        };
+        (position_mm > max_mm || self.rotation_deg > max_deg).then(|| {
+            format!(
+                "two halves of the configurations ({} and {} frames), fitted apart, disagree by {position_mm:.1} mm{at} / {:.2}° (max {max_mm:.1} mm / {max_deg:.2}°): the result is not as accurate as its σ says; add configurations that show the arm elsewhere in the image, or raise max_split_half_mm / max_split_half_deg in the cell config's [gate] if that is accurate enough for the cell",
+                self.frames[0], self.frames[1], self.rotation_deg
+            )
+        })
+    }
 }
 
 /// The outline's part in a result ([`crate::calib::outline`]).

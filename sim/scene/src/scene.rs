@@ -15,7 +15,7 @@ use handeye_ur::client::{RtdeClient, RtdeConfig};
 use nalgebra::Isometry3;
 use tokio_util::sync::CancellationToken;
 
-use crate::args::{check_mount, parse_pose};
+use crate::pose::{check_mount, parse_pose};
 
 /// The camera mount used when none is given: 8 cm off the tool axis, tilted 15° towards it.
 pub const DEFAULT_MOUNT: &str = "0,-0.08,0.04,-0.26,0,0";

@@ -5,7 +5,7 @@ use nalgebra::{Isometry3, Matrix3, Matrix3x6, Matrix6, Matrix6x4, Vector3, Vecto
 
 use super::{RegisterOptions, Uncertainty, WorkspaceSigma};
 use crate::calib::fine::IcpResult;
-use crate::calib::fuse::adjoint;
+use crate::frames::adjoint;
 
 /// The residual spread ([`IcpResult::residual_spread_m`]) of the scans the registration was
 /// tuned on and the uncertainty checked against: the simulator's structured-light camera leaves

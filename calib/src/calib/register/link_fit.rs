@@ -9,8 +9,8 @@ use super::contenders::Judged;
 use super::prepare::Prepared;
 use super::RegisterOptions;
 use crate::calib::fine::{icp_with_links, IcpResult, LinkPrior, Stage};
-use crate::calib::fuse::LinkFit;
 use crate::calib::links::link_error_model;
+use crate::calib::links::LinkFit;
 use crate::calib::surface::PosedModel;
 use crate::calib::CalibError;
 

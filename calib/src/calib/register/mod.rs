@@ -38,7 +38,7 @@ use handeye_hal::PointCloud;
 use nalgebra::{Isometry3, Matrix6, Matrix6x4, Vector6};
 use serde::Serialize;
 
-use super::fuse::LinkFit;
+use super::links::LinkFit;
 use super::solve::Mount;
 use super::surface::{PosedJoint, PosedModel};
 use super::verify::{evidence_per_depth, Evidence};
