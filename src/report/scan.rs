@@ -144,15 +144,7 @@ impl ScanView {
         let posed: Vec<(Vec<Point3<f64>>, usize)> = model
             .parts
             .iter()
-            .map(|part| {
-                let v = part
-                    .mesh
-                    .vertices
-                    .iter()
-                    .map(|p| part.model_from_link * p)
-                    .collect();
-                (v, part.chain_depth)
-            })
+            .map(|part| (part.vertices_in_model(), part.chain_depth))
             .collect();
         let meshes: Vec<SceneMesh<'_>> = posed
             .iter()

@@ -48,7 +48,7 @@ use rayon::prelude::*;
 
 use super::range::RangeImage;
 use super::register::covariance::summary;
-use super::surface::PosedModel;
+use super::surface::{PosedModel, PosedPart};
 use super::Uncertainty;
 use crate::cloud::ColorImage;
 use crate::geometry::raycast::{raycast, DepthImage, SceneMesh};
@@ -171,20 +171,7 @@ fn prepare<'a>(views: &[OutlineView<'a>]) -> Vec<Prepared<'a>> {
                 );
                 return None;
             }
-            let meshes = v
-                .posed
-                .parts
-                .iter()
-                .map(|part| TriMesh {
-                    vertices: part
-                        .mesh
-                        .vertices
-                        .iter()
-                        .map(|p| part.model_from_link * p)
-                        .collect(),
-                    triangles: part.mesh.triangles.clone(),
-                })
-                .collect();
+            let meshes = v.posed.parts.iter().map(PosedPart::mesh_in_model).collect();
             Some(Prepared {
                 view: *v,
                 intr: range.cam,
@@ -760,19 +747,7 @@ mod tests {
         camera_from_model: &Isometry3<f64>,
         intr: &Intrinsics,
     ) -> (PointCloud, ColorImage) {
-        let mut meshes: Vec<TriMesh> = posed
-            .parts
-            .iter()
-            .map(|part| TriMesh {
-                vertices: part
-                    .mesh
-                    .vertices
-                    .iter()
-                    .map(|p| part.model_from_link * p)
-                    .collect(),
-                triangles: part.mesh.triangles.clone(),
-            })
-            .collect();
+        let mut meshes: Vec<TriMesh> = posed.parts.iter().map(PosedPart::mesh_in_model).collect();
         let floor = 0.6;
         meshes.push(TriMesh {
             vertices: [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]

@@ -23,6 +23,25 @@ pub struct PosedPart {
     pub mesh: Arc<TriMesh>,
 }
 
+impl PosedPart {
+    /// The link's mesh vertices in the model frame.
+    pub fn vertices_in_model(&self) -> Vec<Point3<f64>> {
+        self.mesh
+            .vertices
+            .iter()
+            .map(|p| self.model_from_link * p)
+            .collect()
+    }
+
+    /// The link's mesh in the model frame.
+    pub fn mesh_in_model(&self) -> TriMesh {
+        TriMesh {
+            vertices: self.vertices_in_model(),
+            triangles: self.mesh.triangles.clone(),
+        }
+    }
+}
+
 /// The robot posed at the measured joints: every link with geometry, in the model frame.
 #[derive(Debug, Clone, Default)]
 pub struct PosedModel {
