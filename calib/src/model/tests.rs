@@ -6,6 +6,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
+use super::load::{from_scene, parse_mesh, read_mesh};
 use super::*;
 use crate::testutil::shared_robots;
 
