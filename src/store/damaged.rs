@@ -9,8 +9,8 @@ use serde::{Deserialize, Serialize};
 use super::error::{StoreError, BUSY_TIMEOUT};
 use crate::calendar::unix_now;
 
-/// A damaged history file that [`Store::open`](super::Store::open) moved aside (kept, never deleted) before it
-/// started a new one.
+/// A damaged history file that [`Store::open`](super::Store::open) moved aside (kept, never
+/// deleted) before it started a new one.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SetAside {
     /// Where the damaged file is now (its -wal and -shm files beside it, same name + suffix).

@@ -5,8 +5,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::record::{Outcome, RunMode, RunRecord, Stage, Trigger, WriteTarget};
 
-/// A run that started ([`Store::begin`](super::Store::begin)): the row's first columns, copied from the run's
-/// starting record ([`RunStart::new`]).
+/// A run that started ([`Store::begin`](super::Store::begin)): the row's first columns,
+/// copied from the run's starting record ([`RunStart::new`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunStart {
     /// Its id ([`crate::storage::new_run_id`]); also its folder under `runs/`.
@@ -174,8 +174,8 @@ pub struct RunSummary {
     pub written: Vec<WriteTarget>,
     /// The run's capture file (`capture.json`, for `handeye solve --capture`).
     pub capture_file: Option<String>,
-    /// When the raw scans were removed ([`Store::mark_pruned`](super::Store::mark_pruned)), unix s (replay is then
-    /// impossible; the record stays).
+    /// When the raw scans were removed ([`Store::mark_pruned`](super::Store::mark_pruned)),
+    /// unix s (replay is then impossible; the record stays).
     pub captures_pruned_unix_s: Option<f64>,
 }
 

@@ -48,8 +48,8 @@ const MIGRATIONS: &[&str] = &[
     CREATE INDEX runs_outcome ON runs (outcome, started_unix_s);",
 ];
 
-/// Busy timeout, WAL and `synchronous=FULL` (see the module docs of [`crate::store`]). This is the first
-/// statement that reads the file, so a file that is not a database fails here.
+/// Busy timeout, WAL and `synchronous=FULL` (see the module docs of [`crate::store`]). This
+/// is the first statement that reads the file, so a file that is not a database fails here.
 pub(super) fn configure(conn: &Connection, path: &Path, read_only: bool) -> Result<(), StoreError> {
     conn.busy_timeout(BUSY_TIMEOUT)
         .map_err(|e| sql_error(path, "set the busy timeout", e))?;
