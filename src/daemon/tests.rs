@@ -2,6 +2,7 @@
 //! restart.
 
 use super::*;
+use crate::config::{WhenBusy, QUEUE_LIMIT};
 
 fn store(tag: &str) -> (Arc<Store>, std::path::PathBuf) {
     let dir = std::env::temp_dir().join(format!("handeye-daemon-{}-{tag}", std::process::id()));

@@ -65,15 +65,14 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         };
         let mut last_refusal = None;
         // Whether the path from `from` to `to` is safe (a refusal is remembered for the error).
-        let mut safe = |from: &[f64], to: &[f64]| -> Result<bool, Failure> {
-            match planner.check_path(from, to, PATH_STEP_RAD) {
-                Ok(Ok(_)) => Ok(true),
-                Ok(Err(ViewRejection::Cancelled)) => Err(Failure::cancelled(stage)),
-                Ok(Err(r)) => {
+        let mut safe = |from: &[f64], to: &[f64]| -> Result<bool, PlanError> {
+            match planner.check_path(from, to, PATH_STEP_RAD)? {
+                Ok(_) => Ok(true),
+                Err(ViewRejection::Cancelled) => Err(PlanError::Cancelled),
+                Err(r) => {
                     last_refusal = Some(r.to_string());
                     Ok(false)
                 }
-                Err(e) => Err(Failure::error(stage, error_chain(&e))),
             }
         };
         let mut next_seed = seed;
@@ -92,7 +91,11 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             next_seed = next_seed.wrapping_add(1);
             candidates.sort_by(|a, b| joint_span(start, a).total_cmp(&joint_span(start, b)));
             for q in candidates {
-                if safe(start, &q)? {
+                let is_safe = safe(start, &q).map_err(|e| match e {
+                    PlanError::Model(e) => Failure::error(stage, error_chain(&e)),
+                    e => plan_error(e),
+                })?;
+                if is_safe {
                     first = Some(q);
                     break;
                 }
@@ -114,19 +117,13 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
             return Err(not_found(1, last_refusal));
         };
         let mut views = vec![first];
-        let refusal = std::cell::RefCell::new(last_refusal);
         // A view is reached from the one before, and left for the start: at the end of the
         // run, or from wherever a stopped run stands.
         let back = self.cfg.views.return_to_start.then_some(start);
         let extended = planner.extend_run(&mut views, count, next_seed, |from, to| {
             for (a, b) in std::iter::once((from, to)).chain(back.map(|s| (to, s))) {
-                match planner.check_path(a, b, PATH_STEP_RAD)? {
-                    Ok(_) => {}
-                    Err(ViewRejection::Cancelled) => return Err(PlanError::Cancelled),
-                    Err(r) => {
-                        *refusal.borrow_mut() = Some(r.to_string());
-                        return Ok(false);
-                    }
+                if !safe(a, b)? {
+                    return Ok(false);
                 }
             }
             Ok(true)
@@ -134,7 +131,7 @@ impl<R: Robot, C: DepthCamera> Context<'_, R, C> {
         match extended {
             Ok(()) => {}
             Err(PlanError::NotEnoughViews { found, .. }) => {
-                return Err(not_found(found + 1, refusal.into_inner()))
+                return Err(not_found(found + 1, last_refusal))
             }
             Err(e) => return Err(plan_error(e)),
         }

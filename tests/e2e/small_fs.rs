@@ -1,5 +1,5 @@
 //! A small file system of its own (tmpfs) for the storage-full tests: a real `ENOSPC` from
-//! the kernel, not a simulated error. Shared by the run's unit tests (`src/run/tests.rs`) and the
+//! the kernel, not a simulated error. Shared by the run's unit tests (`src/run/tests/mod.rs`) and the
 //! end-to-end tests. Mounting needs root (CI runs as root); elsewhere the test prints SKIP.
 
 use std::path::{Path, PathBuf};
