@@ -19,7 +19,7 @@ use nalgebra::{
 use rayon::prelude::*;
 
 use super::coarse::Oriented;
-use super::links::{LinkFit, LinkParam};
+use super::links::{LinkFit, LinkParam, ScanInformation};
 use super::surface::ModelSurface;
 
 /// Parameters of the fit before the links': the pose (ρ, φ), the depth scale κ and the range
@@ -884,9 +884,9 @@ pub(crate) fn icp_with_links(
     let dof = 6.0 + free_depth.len() as f64 + link_dof;
     let h_used = h.select_rows(&used).select_columns(&used);
     let meat_used = meat.select_rows(&used).select_columns(&used);
-    let h_inv = h_used.try_inverse()?;
+    let h_inv = h_used.clone().try_inverse()?;
     let small_sample = patches.len() as f64 / (patches.len() as f64 - dof).max(1.0);
-    let cov = &h_inv * meat_used * &h_inv * small_sample;
+    let cov = &h_inv * &meat_used * &h_inv * small_sample;
     let cov6: Matrix6<f64> = cov.fixed_view::<6, 6>(0, 0).into_owned();
     // The pose and the link parameters (the depth parameters dropped: marginalised).
     let pose_and_links: Vec<usize> = used
@@ -895,9 +895,25 @@ pub(crate) fn icp_with_links(
         .filter(|&(_, &k)| !(6..NP).contains(&k))
         .map(|(i, _)| i)
         .collect();
-    let links_cov = cov
-        .select_rows(&pose_and_links)
-        .select_columns(&pose_and_links);
+    let link_prior: Vec<(usize, f64)> = used
+        .iter()
+        .enumerate()
+        .filter(|&(_, &k)| k >= NP)
+        .map(|(i, _)| (i, prior.residual_var))
+        .collect();
+    // The fit's estimate where it was linearised: the pose and depth at zero, the links at z.
+    let at = DVector::from_iterator(
+        used.len(),
+        used.iter().map(|&k| if k >= NP { z[k - NP] } else { 0.0 }),
+    );
+    let scan = ScanInformation::new(
+        &h_used,
+        &meat_used,
+        &link_prior,
+        &at,
+        &pose_and_links,
+        small_sample,
+    )?;
     // An error of a depth parameter the fit does not estimate shifts the gradient by its
     // column of H: the pose follows by −H⁻¹ of that column over the parameters in use.
     let pose_shift = |col: nalgebra::DVectorView<'_, f64>| {
@@ -955,7 +971,8 @@ pub(crate) fn icp_with_links(
         LinkFit {
             params: prior.params.clone(),
             z,
-            covariance: links_cov,
+            information: scan.information,
+            information_vector: scan.vector,
             model_from_camera: t,
         },
     ))

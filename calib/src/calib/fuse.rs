@@ -8,13 +8,14 @@
 //! separate: the base housing's offset is fixed in the base frame, the mount in the flange
 //! frame, and the flange turns between views.
 //!
-//! Each view's registration estimated its camera pose and the link parameters it sees, with
-//! their joint covariance, the links' prior `z ~ N(0, I)` included ([`LinkFit`]). Here each
-//! view's information without the prior (its data alone) is carried to the shared parameters
-//! — the mount's small turn and shift in the flange frame, and the union of the link
-//! parameters — summed over the views, and the prior added once. One view alone gives back
-//! its own estimate and covariance. The frames of one view (captured without moving) share
-//! their errors: together they count as one view.
+//! Each view's registration estimated its camera pose and the link parameters it sees with
+//! the links' prior `z ~ N(0, I)`, and kept what its scan alone tells of them: their robust
+//! information and information vector, the prior left out ([`LinkFit`],
+//! [`super::links::ScanInformation`]). Here each view's is carried to the shared parameters —
+//! the mount's small turn and shift in the flange frame, and the union of the link parameters
+//! — summed over the views, and the prior added once. One view alone gives back its own
+//! estimate. The frames of one view (captured without moving) share their errors: together
+//! they count as one view.
 //!
 //! Each view's flange pose is the controller's from its joint readings, which are off by the
 //! encoders' errors and the arm's sag ([`FlangeError`]). Those errors are parameters of the
@@ -184,16 +185,13 @@ pub(crate) fn fuse_views(
     let first_reading = 6 + q + frame_columns;
     let n = first_reading + readings.len();
     // Each view's data information and information vector, in its own parameters.
-    let data: Vec<(DMatrix<f64>, DVector<f64>)> = views
-        .iter()
-        .map(|v| data_information(v.fit))
-        .collect::<Option<_>>()?;
     let mut mount = *start;
     let mut covariance = Matrix6::zeros();
     for _ in 0..ROUNDS {
         let mut h = DMatrix::<f64>::zeros(n, n);
         let mut g = DVector::<f64>::zeros(n);
-        for (v, (d, b)) in views.iter().zip(&data) {
+        for v in views {
+            let (d, b) = (&v.fit.information, &v.fit.information_vector);
             let p = v.fit.params.len();
             let weight = 1.0 / v.frames.max(1) as f64;
             // x_v = J θ + c: the view's pose perturbation and parameters at θ = (η, z).
@@ -238,26 +236,6 @@ pub(crate) fn fuse_views(
         flange_from_camera: mount,
         covariance: (covariance + covariance.transpose()) / 2.0,
     })
-}
-
-/// A view's information about its pose and link parameters without the links' prior, and its
-/// information vector (both at its own estimate): the posterior's information less the
-/// prior's identity, with what the sandwich covariance leaves below the prior clamped to none.
-fn data_information(fit: &LinkFit) -> Option<(DMatrix<f64>, DVector<f64>)> {
-    let n = fit.covariance.nrows();
-    let cov = (&fit.covariance + fit.covariance.transpose()) / 2.0;
-    let posterior = cov.try_inverse()?;
-    let mut mean = DVector::<f64>::zeros(n);
-    mean.rows_mut(6, n - 6).copy_from(&fit.z);
-    let b = &posterior * mean;
-    let mut d = posterior;
-    for k in 6..n {
-        d[(k, k)] -= 1.0;
-    }
-    let eig = ((&d + d.transpose()) / 2.0).symmetric_eigen();
-    let clamped = eig.eigenvalues.map(|e| e.max(0.0));
-    let d = &eig.eigenvectors * DMatrix::from_diagonal(&clamped) * eig.eigenvectors.transpose();
-    Some((d, b))
 }
 
 /// The mount of an eye-in-hand solution refitted from its used views together, and its 1σ:
@@ -317,6 +295,13 @@ pub(crate) fn fuse_solution(
             .sum::<f64>()
             / n
     };
+    tracing::debug!(
+        fit_mm,
+        fit_deg,
+        camera_mm = camera(|u| u.translation_mm).sqrt(),
+        camera_deg = camera(|u| u.rotation_deg).sqrt(),
+        "fused views' σ"
+    );
     let uncertainty = Uncertainty {
         translation_mm: (fit_mm.powi(2)
             + camera(|u| u.translation_mm)
@@ -336,7 +321,8 @@ mod tests {
     use super::*;
     use nalgebra::Vector3;
 
-    /// A view's fit with a pose covariance and two link parameters correlated with it.
+    /// A view's fit with a pose covariance and two link parameters correlated with it (the
+    /// links' prior included).
     fn fit(model_from_camera: Isometry3<f64>, z: [f64; 2]) -> LinkFit {
         let mut cov = DMatrix::<f64>::identity(8, 8) * 1e-8;
         for k in 0..6 {
@@ -346,13 +332,20 @@ mod tests {
         cov[(7, 7)] = 0.8;
         cov[(0, 6)] = 2e-5;
         cov[(6, 0)] = 2e-5;
+        let posterior = cov.try_inverse().expect("positive definite");
+        let mut information = posterior.clone();
+        for k in 6..8 {
+            information[(k, k)] -= 1.0;
+        }
+        let mean = DVector::from_row_slice(&[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, z[0], z[1]]);
         LinkFit {
             params: vec![
                 LinkParam::Housing { depth: 0, index: 0 },
                 LinkParam::Housing { depth: 0, index: 1 },
             ],
             z: DVector::from_row_slice(&z),
-            covariance: cov,
+            information,
+            information_vector: posterior * mean,
             model_from_camera,
         }
     }
@@ -408,7 +401,12 @@ mod tests {
         // The pose block of the view's covariance, in the flange frame.
         let ad = adjoint(&model_from_flange);
         let inv = ad.try_inverse().expect("invertible");
-        let pose: Matrix6<f64> = f.covariance.fixed_view::<6, 6>(0, 0).into_owned();
+        let pose: Matrix6<f64> = f
+            .posterior_information()
+            .try_inverse()
+            .expect("covariance")
+            .fixed_view::<6, 6>(0, 0)
+            .into_owned();
         let want = inv * pose * inv.transpose();
         assert!(
             (fused.covariance - want).norm() < 1e-6 * want.norm(),
@@ -444,7 +442,12 @@ mod tests {
         let inv = adjoint(&model_from_flange)
             .try_inverse()
             .expect("invertible");
-        let pose: Matrix6<f64> = f.covariance.fixed_view::<6, 6>(0, 0).into_owned();
+        let pose: Matrix6<f64> = f
+            .posterior_information()
+            .try_inverse()
+            .expect("covariance")
+            .fixed_view::<6, 6>(0, 0)
+            .into_owned();
         let want = inv * (pose + flange) * inv.transpose();
         assert!(
             (fused.covariance - want).norm() < 1e-6 * want.norm(),

@@ -43,12 +43,130 @@ pub struct LinkFit {
     pub(crate) params: Vec<LinkParam>,
     /// Their estimates, prior 1σ units.
     pub(crate) z: DVector<f64>,
-    /// Covariance of the pose (a left perturbation `(ρ, φ)` of `model_from_camera` in the
-    /// model frame: a point `x` moves by `ρ + φ × x`) and `z`, `6 + z.len()` square, the
-    /// links' prior included.
-    pub(crate) covariance: DMatrix<f64>,
+    /// What the scan alone tells of the pose (a left perturbation `(ρ, φ)` of
+    /// `model_from_camera` in the model frame: a point `x` moves by `ρ + φ × x`) and of `z`:
+    /// its information, `6 + z.len()` square, the links' prior (`I` on `z`) not included
+    /// ([`ScanInformation`]).
+    pub(crate) information: DMatrix<f64>,
+    /// The information vector that goes with it: the information times where the scan alone
+    /// puts the pose and `z` (relative to this fit's pose).
+    pub(crate) information_vector: DVector<f64>,
     /// The registration's camera pose in the model frame.
     pub(crate) model_from_camera: Isometry3<f64>,
+}
+
+impl LinkFit {
+    /// The information with the links' prior: [`Self::information`] plus `I` on `z`.
+    #[cfg(test)]
+    pub(crate) fn posterior_information(&self) -> DMatrix<f64> {
+        let mut info = self.information.clone();
+        for k in 6..info.nrows() {
+            info[(k, k)] += 1.0;
+        }
+        info
+    }
+
+    /// The pose moved by a further error of covariance `noise` (model frame, as the pose's
+    /// perturbation) that the scan cannot tell: the scan's estimate stays, its information
+    /// is that of the estimate with the noise added (`(D⁻¹ + E N Eᵀ)⁻¹ = D − D E V (I + Vᵀ Eᵀ
+    /// D E V)⁻¹ Vᵀ Eᵀ D` with `N = V Vᵀ`, which needs no inverse of `D`).
+    pub(crate) fn add_pose_noise(&mut self, noise: &nalgebra::Matrix6<f64>) {
+        let eig = ((noise + noise.transpose()) / 2.0).symmetric_eigen();
+        let n = self.information.nrows();
+        let mut v = DMatrix::<f64>::zeros(n, 6);
+        for k in 0..6 {
+            let scale = eig.eigenvalues[k].max(0.0).sqrt();
+            v.view_mut((0, k), (6, 1))
+                .copy_from(&(eig.eigenvectors.column(k) * scale));
+        }
+        let dv = &self.information * &v;
+        let inner = DMatrix::<f64>::identity(6, 6) + v.transpose() * &dv;
+        if let Some(inv) = inner.try_inverse() {
+            let gain = &dv * inv;
+            self.information -= &gain * dv.transpose();
+            self.information = (&self.information + self.information.transpose()) / 2.0;
+            self.information_vector -= gain * (v.transpose() * &self.information_vector);
+        }
+    }
+}
+
+/// Relative size below which a direction of the scan's score variance counts as none (the
+/// parameters scaled to unit information first).
+const SINGULAR_RATIO: f64 = 1e-10;
+
+/// What a scan alone tells about a fit's parameters, robustly: its information and
+/// information vector.
+///
+/// The fit's normal matrix `H` and score variance `M` (the "meat") hold the links' prior: `s`
+/// on a link parameter's diagonal of `H` (`prior`: index, `s`), `s²` on the meat's. Without it,
+/// `H_d` and `M_d`, the data's sandwich information is `H_d M_d⁺ H_d` over `small_sample`:
+/// positive semi-definite by construction (a scan whose residuals scatter more than the fit
+/// assumed tells less, never less than nothing), `H_d / s` with residuals as the fit assumed
+/// (`M_d = s H_d`), the prior's units. The fit stopped where its data's gradient balances the
+/// prior's pull, `g_d = −P x̂`; the data alone would go on to `x_d = x̂ + H_d⁻¹ P x̂`, whose
+/// information vector is the information times `x_d`.
+pub(crate) struct ScanInformation {
+    /// The information over the kept parameters, the others marginalised.
+    pub(crate) information: DMatrix<f64>,
+    /// The information vector over the kept parameters.
+    pub(crate) vector: DVector<f64>,
+}
+
+impl ScanInformation {
+    /// From the fit's `h` and `meat` at its estimate `at` (its parameters relative to where
+    /// they were linearised: zero but the links'), keeping parameters `keep` (indices into
+    /// `h`). `None` when the scaled score variance has no pseudo-inverse.
+    pub(crate) fn new(
+        h: &DMatrix<f64>,
+        meat: &DMatrix<f64>,
+        prior: &[(usize, f64)],
+        at: &DVector<f64>,
+        keep: &[usize],
+        small_sample: f64,
+    ) -> Option<Self> {
+        let n = h.nrows();
+        let (mut hd, mut md) = (h.clone(), meat.clone());
+        let mut pull = DVector::<f64>::zeros(n);
+        for &(k, s) in prior {
+            hd[(k, k)] -= s;
+            md[(k, k)] -= s * s;
+            pull[k] = s * at[k];
+        }
+        // Scaled so that every parameter has unit information with its prior (metres, radians
+        // and prior units alike), so the pseudo-inverse's cut is relative.
+        let d = DVector::from_fn(n, |k, _| 1.0 / h[(k, k)].max(f64::MIN_POSITIVE).sqrt());
+        let scale = |m: &DMatrix<f64>| DMatrix::from_fn(n, n, |a, b| m[(a, b)] * d[a] * d[b]);
+        let (hs, ms) = (scale(&hd), scale(&md));
+        let ms = (&ms + ms.transpose()) / 2.0;
+        let cut = ms.amax() * SINGULAR_RATIO;
+        let hm = &hs * ms.pseudo_inverse(cut).ok()? / small_sample;
+        let info = &hm * &hs;
+        let info = (&info + info.transpose()) / 2.0;
+        let at_s = at.component_div(&d);
+        let vector = &info * at_s + hm * pull.component_mul(&d);
+        let rest: Vec<usize> = (0..n).filter(|k| !keep.contains(k)).collect();
+        let kk = info.select_rows(keep).select_columns(keep);
+        let vk = vector.select_rows(keep);
+        let (marginal, vk) = if rest.is_empty() {
+            (kk, vk)
+        } else {
+            let rr = info.select_rows(&rest).select_columns(&rest);
+            let kr = info.select_rows(keep).select_columns(&rest);
+            let cut = rr.amax() * SINGULAR_RATIO;
+            let gain = &kr * rr.pseudo_inverse(cut).ok()?;
+            (
+                kk - &gain * kr.transpose(),
+                vk - gain * vector.select_rows(&rest),
+            )
+        };
+        let unscaled = DMatrix::from_fn(keep.len(), keep.len(), |a, b| {
+            marginal[(a, b)] / (d[keep[a]] * d[keep[b]])
+        });
+        Some(Self {
+            information: (&unscaled + unscaled.transpose()) / 2.0,
+            vector: DVector::from_fn(keep.len(), |a, _| vk[a] / d[keep[a]]),
+        })
+    }
 }
 
 /// Which of the arm's parameters a column of [`LinkModel::a`] is. Each is a constant of the
@@ -235,6 +353,128 @@ mod tests {
     use crate::testutil::shared_robot;
     use handeye_hal::ur_dh::PhysicalArm;
     use rand::SeedableRng;
+
+    /// A data normal matrix over a pose-like parameter, a nuisance (a depth parameter) and two
+    /// link parameters, one of which the scan barely sees.
+    fn data_normal() -> DMatrix<f64> {
+        let j = DMatrix::from_row_slice(
+            5,
+            4,
+            &[
+                1.0, 0.2, 0.5, 1e-3, //
+                0.3, 1.0, 0.1, 0.0, //
+                -0.4, 0.6, 0.9, 2e-3, //
+                0.8, -0.1, 0.3, 0.0, //
+                0.1, 0.4, -0.7, 1e-3,
+            ],
+        );
+        j.transpose() * j * 1e4
+    }
+
+    /// The fit's normal matrix and score variance with the links' prior (`s2` on their
+    /// diagonal, its square in the meat), the data's score variance `inflation` times what
+    /// the fit assumed.
+    fn with_prior(hd: &DMatrix<f64>, s2: f64, inflation: f64) -> (DMatrix<f64>, DMatrix<f64>) {
+        let (mut h, mut meat) = (hd.clone(), hd * (s2 * inflation));
+        for k in 2..4 {
+            h[(k, k)] += s2;
+            meat[(k, k)] += s2 * s2;
+        }
+        (h, meat)
+    }
+
+    /// Residuals as the fit assumed: the scan's information is `H_d / s` (the prior's units)
+    /// and its vector `(H_d + P) x̂ / s` (the data's gradient balanced the prior's pull at
+    /// the estimate `x̂`), the nuisance marginalised by the Schur complement; residuals that
+    /// scatter twice as far tell a quarter; a direction the scan barely sees never gets less
+    /// than none (the sandwich's posterior covariance less the prior had given its inflation
+    /// there as negative information).
+    #[test]
+    fn the_scan_s_information_is_its_own_and_never_negative() {
+        let hd = data_normal();
+        let s = 1.0;
+        let prior = [(2, s), (3, s)];
+        let at = DVector::from_row_slice(&[0.0, 0.0, 0.4, -0.7]);
+        let keep = [0, 2, 3];
+        let rest = [1];
+        let schur = |info: &DMatrix<f64>, v: &DVector<f64>| {
+            let kk = info.select_rows(&keep).select_columns(&keep);
+            let kr = info.select_rows(&keep).select_columns(&rest);
+            let gain = &kr / info[(1, 1)];
+            (
+                kk - &gain * kr.transpose(),
+                v.select_rows(&keep) - gain * v[1],
+            )
+        };
+        for inflation in [1.0, 4.0] {
+            let (h, meat) = with_prior(&hd, s, inflation);
+            let got =
+                ScanInformation::new(&h, &meat, &prior, &at, &keep, 1.0).expect("information");
+            let info = &hd / (s * inflation);
+            let mut pull = DVector::zeros(4);
+            for &(k, s) in &prior {
+                pull[k] = s * at[k];
+            }
+            let (want, want_v) = schur(&info, &((&hd * &at + pull) / (s * inflation)));
+            assert!(
+                (&got.information - &want).norm() < 1e-6 * want.norm(),
+                "{inflation}: {} vs {want}",
+                got.information
+            );
+            assert!(
+                (&got.vector - &want_v).norm() < 1e-6 * want_v.norm(),
+                "{inflation}: {} vs {want_v}",
+                got.vector
+            );
+            assert!(got.information.symmetric_eigen().eigenvalues.min() > -1e-9 * want.norm());
+        }
+        // The sandwich's posterior less the prior: negative where the scan barely sees.
+        let (h, meat) = with_prior(&hd, s, 4.0);
+        let h_inv = h.clone().try_inverse().expect("invertible");
+        let cov = &h_inv * meat * &h_inv;
+        let cov = cov.select_rows(&keep).select_columns(&keep);
+        let mut posterior_less_prior = cov.try_inverse().expect("invertible");
+        for k in 1..3 {
+            posterior_less_prior[(k, k)] -= 1.0;
+        }
+        assert!(posterior_less_prior.symmetric_eigen().eigenvalues.min() < 0.0);
+    }
+
+    /// A further pose error the scan cannot tell adds its covariance to the pose estimate's;
+    /// the estimate stays.
+    #[test]
+    fn pose_noise_adds_to_the_pose_s_covariance() {
+        let mut info = DMatrix::<f64>::identity(7, 7) * 1e6;
+        info[(0, 6)] = 2e5;
+        info[(6, 0)] = 2e5;
+        info[(6, 6)] = 3.0;
+        let estimate = DVector::from_row_slice(&[1e-4, 0.0, -2e-4, 1e-3, 0.0, 0.0, 0.5]);
+        let mut fit = LinkFit {
+            params: vec![LinkParam::Housing { depth: 0, index: 0 }],
+            z: DVector::zeros(1),
+            information: info.clone(),
+            information_vector: &info * &estimate,
+            model_from_camera: Isometry3::identity(),
+        };
+        let mut noise = nalgebra::Matrix6::<f64>::zeros();
+        noise[(0, 0)] = 4e-7;
+        noise[(3, 3)] = 1e-7;
+        noise[(0, 3)] = 1e-7;
+        noise[(3, 0)] = 1e-7;
+        fit.add_pose_noise(&noise);
+        let mut cov = info.try_inverse().expect("invertible");
+        let mut pose = cov.view_mut((0, 0), (6, 6));
+        pose += noise;
+        let want = cov.try_inverse().expect("invertible");
+        assert!(
+            (&fit.information - &want).norm() < 1e-8 * want.norm(),
+            "{} vs {}",
+            fit.information,
+            want
+        );
+        let v = want * estimate;
+        assert!((&fit.information_vector - &v).norm() < 1e-8 * v.norm());
+    }
 
     /// Posed by a controller's DH, what is left of each fitted link's error is a turn about
     /// and a slide along its calibrated axis; over many physical arms their spread is what the

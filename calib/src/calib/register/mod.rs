@@ -623,8 +623,7 @@ pub fn register_posed(
         covariance::uncertainty(&estimate, &judged.fine, &camera_from_model, opts);
     // The pose's own share of a smooth depth error is this view's, as in its covariance.
     let link_fit = links.map(|mut fit| {
-        let mut pose = fit.covariance.view_mut((0, 0), (6, 6));
-        pose += covariance::smooth_depth_error(&estimate, opts);
+        fit.add_pose_noise(&covariance::smooth_depth_error(&estimate, opts));
         fit
     });
     timings.verify = elapsed_ms(t3);
