@@ -194,14 +194,17 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     }
     print_table(&summaries, &args, &settings.kinematic_error);
     // The trials of one run are a calibration and checks of an unmoved camera at the same
-    // views: what a drift check at the `[check]` defaults can tell.
+    // views: what a drift check at the `[check]` defaults of the camera's class can tell.
+    let (translation_mm, rotation_deg) = handeye::config::defaults::drift_for(
+        Intrinsics::preset_class(&args.camera).unwrap_or(handeye::config::defaults::SENSOR),
+    );
     let checks = (args.views_per_run > 1 && args.scans_per_view > 1)
         .then(|| {
             drift::study(
                 &summaries,
                 CheckLimits {
-                    translation_mm: handeye::config::defaults::MAX_DRIFT_TRANSLATION_MM,
-                    rotation_deg: handeye::config::defaults::MAX_DRIFT_ROTATION_DEG,
+                    translation_mm,
+                    rotation_deg,
                 },
             )
         })

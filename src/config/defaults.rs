@@ -79,14 +79,36 @@ pub fn gate() -> GateThresholds {
 pub fn gate_for(sensor: crate::geometry::SensorClass) -> GateThresholds {
     GateThresholds::for_sensor(sensor)
 }
-/// `check.max_drift_translation_mm`: three times the largest difference between a check and
-/// its calibration of an unmoved camera over 1 080 simulated checks (0.17 mm), a margin for
-/// what the simulator leaves out (the arm's random repeatability, warm-up); a shift of
-/// 0.56 mm is caught in 95 % of checks (docs/src/benchmarks.md, "Drift checks").
+/// `check.max_drift_translation_mm` for a structured-light camera: about three times the 95th
+/// percentile of the difference between a check and its calibration of an unmoved camera at
+/// the calibration's views (0.148 mm over 540 simulated checks), above the largest of them
+/// (0.38 mm), a margin for what the simulator leaves out (the arm's random repeatability,
+/// warm-up); a shift of 0.58 mm is caught in 95 % of checks (docs/src/benchmarks.md, "Drift
+/// checks"). Another class's: [`drift_for`].
 pub const MAX_DRIFT_TRANSLATION_MM: f64 = 0.5;
-/// `check.max_drift_rotation_deg`: three times the largest of the same checks (0.016°); a turn
-/// of 0.056° is caught in 95 % of checks.
+/// `check.max_drift_rotation_deg` for a structured-light camera: about three times the 95th
+/// percentile of the same checks (0.013°), above their largest (0.033°); a turn of 0.058° is
+/// caught in 95 % of checks.
 pub const MAX_DRIFT_ROTATION_DEG: f64 = 0.05;
+/// `[check]` limits (mm, degrees) of a time-of-flight camera, sized as structured light's:
+/// three times the 95th percentile of 536 simulated checks of an unmoved camera (0.425 mm /
+/// 0.051°; `handeye bench --camera helios2 --views-per-run 3`), above their largest (0.77 mm /
+/// 0.10°). At structured light's limits 34 of those 536 checks raised a false alarm.
+pub const TOF_MAX_DRIFT: (f64, f64) = (1.3, 0.15);
+/// `check.max_drift_translation_mm` / `max_drift_rotation_deg` for a camera of `sensor`'s
+/// class. Active stereo's are the split halves' limits of its gate
+/// ([`GateThresholds::for_sensor`]): a check is a second fit from other frames, and two fits of
+/// such a camera may disagree by that much with neither wrong.
+pub fn drift_for(sensor: crate::geometry::SensorClass) -> (f64, f64) {
+    use crate::geometry::SensorClass;
+    match sensor {
+        SensorClass::StructuredLight => (MAX_DRIFT_TRANSLATION_MM, MAX_DRIFT_ROTATION_DEG),
+        SensorClass::TimeOfFlight => TOF_MAX_DRIFT,
+        SensorClass::ActiveStereo => GateThresholds::for_sensor(sensor)
+            .max_split_half
+            .unwrap_or((MAX_DRIFT_TRANSLATION_MM, MAX_DRIFT_ROTATION_DEG)),
+    }
+}
 /// `write_back.tcp` for eye-in-hand (eye-to-hand: always false).
 pub const WRITE_BACK_TCP_EYE_IN_HAND: bool = true;
 /// `write_back.files`.

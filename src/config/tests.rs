@@ -744,6 +744,48 @@ fn issue_45_the_gate_defaults_to_the_sensor_class_and_gate_keys_override() {
     );
 }
 
+/// Issue 45: a drift check's limits follow the camera's sensor class too: a time-of-flight
+/// camera's checks of an unmoved camera spread to 0.77 mm / 0.10°, and at structured light's
+/// 0.5 mm / 0.05° 34 of 536 simulated checks raised a false alarm; a `[check]` key the user
+/// sets still wins.
+#[test]
+fn issue_45_drift_limits_default_to_the_sensor_class() {
+    use crate::geometry::SensorClass;
+    let sl = parse(MINIMAL).expect("minimal");
+    assert_eq!(
+        (
+            sl.check.max_drift_translation_mm,
+            sl.check.max_drift_rotation_deg
+        ),
+        (0.5, 0.05)
+    );
+    let text = with("camera", "sensor = \"time-of-flight\"");
+    let tof = parse(&text).expect("time of flight");
+    assert_eq!(
+        (
+            tof.check.max_drift_translation_mm,
+            tof.check.max_drift_rotation_deg
+        ),
+        defaults::drift_for(SensorClass::TimeOfFlight)
+    );
+    assert!(tof.check.max_drift_translation_mm > 0.77 && tof.check.max_drift_rotation_deg > 0.10);
+    let stereo = parse(&with("camera", "sensor = \"active-stereo\"")).expect("active stereo");
+    assert_eq!(
+        Some((
+            stereo.check.max_drift_translation_mm,
+            stereo.check.max_drift_rotation_deg
+        )),
+        stereo.gate.max_split_half
+    );
+    let text = format!("{text}\n[check]\nmax_drift_rotation_deg = 0.3\n");
+    let own = parse(&text).expect("the user's check");
+    assert_eq!(own.check.max_drift_rotation_deg, 0.3);
+    assert_eq!(
+        own.check.max_drift_translation_mm,
+        tof.check.max_drift_translation_mm
+    );
+}
+
 /// A value with control characters is echoed escaped, never raw into the message (a tab in
 /// `daemon.listen` and `daemon.startup`, as the config fuzzer found).
 #[test]

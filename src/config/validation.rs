@@ -286,17 +286,18 @@ impl Ctx<'_> {
         let mount = self.mount(raw.mount)?;
         let views = self.views(raw.views, &mount)?;
         let gate = self.gate(raw.gate, camera.sensor)?;
+        let (drift_mm, drift_deg) = defaults::drift_for(camera.sensor);
         let check = CheckConfig {
             max_drift_translation_mm: self.num(
                 "check.max_drift_translation_mm",
                 raw.check.max_drift_translation_mm,
-                defaults::MAX_DRIFT_TRANSLATION_MM,
+                drift_mm,
                 ranges::DRIFT_MM,
             )?,
             max_drift_rotation_deg: self.num(
                 "check.max_drift_rotation_deg",
                 raw.check.max_drift_rotation_deg,
-                defaults::MAX_DRIFT_ROTATION_DEG,
+                drift_deg,
                 ranges::DRIFT_DEG,
             )?,
         };
