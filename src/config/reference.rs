@@ -179,7 +179,7 @@ pub fn keys() -> Vec<KeyDoc> {
         number("gate.max_split_half_mm", gate.max_split_half.map(|s| s.0), GATE_MM, "several configurations: largest disagreement of two halves fitted apart (eye-to-hand: at the robot base); active stereo (`camera.sensor`): 5 by default; otherwise not checked"),
         number("gate.max_split_half_deg", gate.max_split_half.map(|s| s.1), GATE_DEG, "same, degrees; active stereo: 0.5 by default"),
         // [check]
-        number("check.max_drift_translation_mm", Some(defaults::MAX_DRIFT_TRANSLATION_MM), DRIFT_MM, "a check beyond this has drifted and raises the alarm; time of flight (`camera.sensor`): 1.3 by default; active stereo: 5"),
+        number("check.max_drift_translation_mm", Some(defaults::MAX_DRIFT_TRANSLATION_MM), DRIFT_MM, "a check beyond this has drifted and raises the alarm; time of flight (`camera.sensor`): 1.5 by default; active stereo: 5"),
         number("check.max_drift_rotation_deg", Some(defaults::MAX_DRIFT_ROTATION_DEG), DRIFT_DEG, "a check beyond this has drifted and raises the alarm; time of flight (`camera.sensor`): 0.15 by default; active stereo: 0.5"),
         // [write_back]
         row("write_back.tcp", "true/false", format!("{} (eye-to-hand: false, and true is refused)", defaults::WRITE_BACK_TCP_EYE_IN_HAND), "", "set the result as the controller's TCP (volatile: persist it)"),
