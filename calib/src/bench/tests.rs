@@ -102,6 +102,16 @@ fn a_fixed_camera_far_from_the_arm_is_judged_at_the_robot_base() {
     );
 }
 
+/// A wrist camera's bench of six views, one scan each, calibrated three views at a time.
+fn two_runs_of_three_views() -> BenchConfig {
+    BenchConfig {
+        views: 6,
+        scans_per_view: 1,
+        views_per_run: 3,
+        ..BenchConfig::new(Mount::EyeInHand)
+    }
+}
+
 /// Issue 43: with several views per run the bench measures the runs `calibrate` plans: a
 /// random first view, the others near it (the base and upper arm turned a little, within
 /// [`NEARBY_SPAN_RAD`]), the flange turned between them, every path clear. Random views
@@ -112,12 +122,7 @@ fn issue_43_a_run_s_views_are_planned_as_calibrate_plans_them() {
     let Some(model) = crate::testutil::shared_robot("ur/ur5e/ur5e.urdf") else {
         return;
     };
-    let cfg = BenchConfig {
-        views: 6,
-        scans_per_view: 1,
-        views_per_run: 3,
-        ..BenchConfig::new(Mount::EyeInHand)
-    };
+    let cfg = two_runs_of_three_views();
     let plan = plan_trials(&model, &cfg).expect("plans");
     assert_eq!(plan.views.len(), 6);
     let planner = ViewPlanner::new(
@@ -157,13 +162,10 @@ fn issue_43_poses_in_a_frame_off_the_model_s_stay_within_their_sigma() {
         return;
     };
     let cfg = BenchConfig {
-        views: 6,
-        scans_per_view: 1,
-        views_per_run: 3,
         seed: 1,
         kinematics: BenchKinematics::Unknown,
         pose_frame: (3e-4, 3e-4),
-        ..BenchConfig::new(Mount::EyeInHand)
+        ..two_runs_of_three_views()
     }
     .solver_told_the_arm();
     let summary = run_robot(&model, &cfg, |_| ()).expect("plans");

@@ -886,9 +886,11 @@ pub(crate) fn icp_with_links(
     let meat_used = meat.select_rows(&used).select_columns(&used);
     let h_inv = h_used.clone().try_inverse()?;
     let small_sample = patches.len() as f64 / (patches.len() as f64 - dof).max(1.0);
-    let cov = &h_inv * &meat_used * &h_inv * small_sample;
+    // The pose block of the sandwich (the link parameters' is the scan information's below).
+    let pose_rows = h_inv.rows(0, 6);
+    let cov = pose_rows * &meat_used * pose_rows.transpose() * small_sample;
     let cov6: Matrix6<f64> = cov.fixed_view::<6, 6>(0, 0).into_owned();
-    // The pose and the link parameters (the depth parameters dropped: marginalised).
+    // The pose and the link parameters (the depth parameters marginalised).
     let pose_and_links: Vec<usize> = used
         .iter()
         .enumerate()

@@ -295,22 +295,17 @@ pub(crate) fn fuse_solution(
             .sum::<f64>()
             / n
     };
+    let (camera_mm2, camera_deg2) = (camera(|u| u.translation_mm), camera(|u| u.rotation_deg));
     tracing::debug!(
         fit_mm,
         fit_deg,
-        camera_mm = camera(|u| u.translation_mm).sqrt(),
-        camera_deg = camera(|u| u.rotation_deg).sqrt(),
+        camera_mm = camera_mm2.sqrt(),
+        camera_deg = camera_deg2.sqrt(),
         "fused views' σ"
     );
     let uncertainty = Uncertainty {
-        translation_mm: (fit_mm.powi(2)
-            + camera(|u| u.translation_mm)
-            + floor(model_accuracy.0 * 1e3))
-        .sqrt(),
-        rotation_deg: (fit_deg.powi(2)
-            + camera(|u| u.rotation_deg)
-            + floor(model_accuracy.1.to_degrees()))
-        .sqrt(),
+        translation_mm: (fit_mm.powi(2) + camera_mm2 + floor(model_accuracy.0 * 1e3)).sqrt(),
+        rotation_deg: (fit_deg.powi(2) + camera_deg2 + floor(model_accuracy.1.to_degrees())).sqrt(),
         workspace: None,
     };
     Some((fused.flange_from_camera, uncertainty))
@@ -348,6 +343,23 @@ mod tests {
             information_vector: posterior * mean,
             model_from_camera,
         }
+    }
+
+    /// The pose block of a view's covariance, its links' prior included (model frame).
+    fn pose_covariance(f: &LinkFit) -> Matrix6<f64> {
+        f.posterior_information()
+            .try_inverse()
+            .expect("covariance")
+            .fixed_view::<6, 6>(0, 0)
+            .into_owned()
+    }
+
+    /// A model-frame pose covariance of a view at `model_from_flange`, in the flange frame.
+    fn in_flange_frame(cov: &Matrix6<f64>, model_from_flange: &Isometry3<f64>) -> Matrix6<f64> {
+        let inv = adjoint(model_from_flange)
+            .try_inverse()
+            .expect("invertible");
+        inv * cov * inv.transpose()
     }
 
     /// A flange pose's error of covariance `cov` (six joints, a reading error of 1σ each,
@@ -398,16 +410,7 @@ mod tests {
         let d = fused.flange_from_camera.inverse() * mount;
         assert!(d.translation.vector.norm() < 1e-9, "{d:?}");
         assert!(d.rotation.angle() < 1e-9, "{d:?}");
-        // The pose block of the view's covariance, in the flange frame.
-        let ad = adjoint(&model_from_flange);
-        let inv = ad.try_inverse().expect("invertible");
-        let pose: Matrix6<f64> = f
-            .posterior_information()
-            .try_inverse()
-            .expect("covariance")
-            .fixed_view::<6, 6>(0, 0)
-            .into_owned();
-        let want = inv * pose * inv.transpose();
+        let want = in_flange_frame(&pose_covariance(&f), &model_from_flange);
         assert!(
             (fused.covariance - want).norm() < 1e-6 * want.norm(),
             "{} vs {}",
@@ -439,16 +442,7 @@ mod tests {
             flange_error: Some(&error),
         };
         let fused = fuse_views(&[view], &mount, None).expect("fused");
-        let inv = adjoint(&model_from_flange)
-            .try_inverse()
-            .expect("invertible");
-        let pose: Matrix6<f64> = f
-            .posterior_information()
-            .try_inverse()
-            .expect("covariance")
-            .fixed_view::<6, 6>(0, 0)
-            .into_owned();
-        let want = inv * (pose + flange) * inv.transpose();
+        let want = in_flange_frame(&(pose_covariance(&f) + flange), &model_from_flange);
         assert!(
             (fused.covariance - want).norm() < 1e-6 * want.norm(),
             "{} vs {}",

@@ -371,14 +371,14 @@ mod tests {
         j.transpose() * j * 1e4
     }
 
-    /// The fit's normal matrix and score variance with the links' prior (`s2` on their
+    /// The fit's normal matrix and score variance with the links' prior (`s` on their
     /// diagonal, its square in the meat), the data's score variance `inflation` times what
     /// the fit assumed.
-    fn with_prior(hd: &DMatrix<f64>, s2: f64, inflation: f64) -> (DMatrix<f64>, DMatrix<f64>) {
-        let (mut h, mut meat) = (hd.clone(), hd * (s2 * inflation));
+    fn with_prior(hd: &DMatrix<f64>, s: f64, inflation: f64) -> (DMatrix<f64>, DMatrix<f64>) {
+        let (mut h, mut meat) = (hd.clone(), hd * (s * inflation));
         for k in 2..4 {
-            h[(k, k)] += s2;
-            meat[(k, k)] += s2 * s2;
+            h[(k, k)] += s;
+            meat[(k, k)] += s * s;
         }
         (h, meat)
     }
