@@ -241,7 +241,10 @@ fn parse_header(bytes: &[u8]) -> Result<Header, CloudError> {
             other => {
                 return Err(bad_header(
                     line_no,
-                    format!("unknown header keyword `{other}`"),
+                    format!(
+                        "unknown header keyword `{}`",
+                        handeye_hal::limits::Quoted(other)
+                    ),
                 ));
             }
         }

@@ -936,6 +936,8 @@ fn issue_16_hostile_header_tokens_are_echoed_bounded_and_escaped() {
     let tokens = [
         long.as_str(),
         "\u{1b}[2J\u{1b}]0;pwned\u{7}",
+        // A PCD comment's mark, no comment in PLY: its control character still echoed.
+        "#\u{18}",
         "x\u{202e}y",
         "1e309",
         "-0",
