@@ -10,7 +10,7 @@
 //! - with or without a guess, no result far from the reference is accepted, per frame or
 //!   fused.
 
-use handeye_calib::calib::pipeline::{calibrate_frames, Frame};
+use handeye_calib::calib::pipeline::{calibrate_frames, Calibration, Frame};
 use handeye_calib::calib::range::RangeImage;
 use handeye_calib::testutil::RealSet;
 use nalgebra::Isometry3;
@@ -29,8 +29,8 @@ fn apart(a: &Isometry3<f64>, b: &Isometry3<f64>) -> (f64, f64) {
 }
 
 /// Calibrates `frames` and checks the one rule no configuration may break: an accepted result
-/// agrees with the reference. Returns how far the result is from it, and whether accepted.
-fn calibrate_and_check(set: &RealSet, frames: &[Frame], guess: bool) -> Option<(f64, f64, bool)> {
+/// agrees with the reference. Returns the calibration, `None` when it fails.
+fn calibrate_and_check(set: &RealSet, frames: &[Frame], guess: bool) -> Option<Calibration> {
     let names: Vec<&str> = frames.iter().map(|f| f.source.as_str()).collect();
     match calibrate_frames(&set.model, frames, &set.options(guess)) {
         Err(e) => {
@@ -48,7 +48,7 @@ fn calibrate_and_check(set: &RealSet, frames: &[Frame], guess: bool) -> Option<(
                 !accepted || (mm <= AGREE_MM && deg <= AGREE_DEG),
                 "{names:?}: accepted {mm:.1} mm / {deg:.2}° from the reference"
             );
-            Some((mm, deg, accepted))
+            Some(c)
         }
     }
 }
@@ -301,7 +301,7 @@ fn the_guess_is_honoured_on_every_real_frame() {
         return;
     };
     for f in &set.frames {
-        let Some((mm, deg, _)) = calibrate_and_check(&set, std::slice::from_ref(f), true) else {
+        let Some(c) = calibrate_and_check(&set, std::slice::from_ref(f), true) else {
             panic!(
                 "{}: the arm was not found where the guess puts it",
                 f.source
@@ -309,6 +309,7 @@ fn the_guess_is_honoured_on_every_real_frame() {
         };
         // Found near the guess: the registration stayed in its basin. (How near is what the
         // real-scan work measures; 10 cm / 5° is the basin, not the accuracy.)
+        let (mm, deg) = apart(&c.base_from_camera, &set.reference);
         assert!(
             mm < 100.0 && deg < 5.0,
             "{}: {mm:.1} mm / {deg:.2}°",
@@ -332,30 +333,52 @@ fn without_a_guess_the_arm_is_found_among_the_clutter() {
     assert_found_everywhere(&set, &set.frames);
 }
 
-/// Every frame of `frames`, calibrated without a guess, is found: near the reference (not
-/// half-turned, not on the second arm), and not accepted unless it agrees with it.
+/// Every frame of `frames`, calibrated without a guess, is found: where the reference as a
+/// guess ends (not half-turned, not on the second arm), and not accepted unless it agrees
+/// with the reference.
 fn assert_found_everywhere(set: &RealSet, frames: &[Frame]) {
     for f in frames {
-        let found = calibrate_and_check(set, std::slice::from_ref(f), false);
+        let apart = search_apart_from_guess(set, f);
         assert!(
-            found.is_some_and(|(mm, deg, _)| mm <= FOUND_MM && deg <= FOUND_DEG),
-            "{}: the arm was not found ({found:?})",
+            apart.is_some_and(|(mm, deg)| mm <= SAME_MM && deg <= SAME_DEG),
+            "{}: the arm was not found ({apart:?} mm / ° from where the guess ends)",
             f.source
         );
     }
 }
 
+/// How far (mm, °) the search without a guess ends from where the reference as a guess
+/// ends on frame `f`; `None` when it finds nothing. Nothing far from the reference may be
+/// accepted ([`calibrate_and_check`]).
+fn search_apart_from_guess(set: &RealSet, f: &Frame) -> Option<(f64, f64)> {
+    let one = std::slice::from_ref(f);
+    let searched = calibrate_and_check(set, one, false)?;
+    let guided = calibrate_frames(&set.model, one, &set.options(true)).expect("registered");
+    let (mm, deg) = apart(&searched.base_from_camera, &guided.base_from_camera);
+    eprintln!(
+        "{}: {mm:.1} mm / {deg:.2}° from where the guess ends",
+        f.source
+    );
+    Some((mm, deg))
+}
+
+/// A search without a guess that ends this close to where the reference as a guess ends
+/// found the arm (a wrong turn of it is 10° or more away, another object decimetres).
+const SAME_MM: f64 = 20.0;
+const SAME_DEG: f64 = 1.0;
+
 /// Issue 45 (found everywhere): the frames as a coarser and noisier stereo camera gives them
 /// (a ZED 2i-like sensor: half the resolution, its depth bent by smooth blobs of 10 mm 1σ a
-/// few centimetres wide and 3 mm of pixel noise, 3 % of the pixels dropped), two draws of the
-/// errors each. Without a guess the arm is found in every one, never half-turned; nothing far
-/// from the reference is accepted.
+/// few centimetres wide and 3 mm of pixel noise, 3 % of the pixels dropped), three draws of
+/// the errors each (in the third, frames 0 and 1 join the arm to the far background through
+/// flying pixels). Without a guess the arm is found in every one, never half-turned; nothing
+/// far from the reference is accepted.
 #[test]
 fn issue_45_a_coarser_noisier_camera_finds_the_arm_too() {
     let Some(set) = handeye_calib::testutil::real_set() else {
         return;
     };
-    for draw in [0, 10] {
+    for draw in [0, 10, 1020] {
         let frames: Vec<Frame> = set
             .frames
             .iter()
@@ -439,10 +462,6 @@ fn coarser_camera(f: &Frame, blob_m: f64, noise_m: f64, seed: u64) -> Frame {
         ..f.clone()
     }
 }
-
-/// A pose this close to the reference is the arm found (the guess's own results are within).
-const FOUND_MM: f64 = 65.0;
-const FOUND_DEG: f64 = 3.0;
 
 /// Where the fixed camera puts the robot base: how far `base_from_camera` is from the reference
 /// there (mm), the point the camera looks at and the error that matters for it.
@@ -585,4 +604,33 @@ fn issue_45_the_outline_beside_the_depth() {
     );
     assert!(deg <= 1.5 * sigma, "fused: {deg:.2}°, σ {sigma:.2}°");
     show("fused depth only", &depth_only(&set.frames));
+}
+
+/// Issue 45, by hand (`cargo test --release -p handeye-calib --test realdata -- --ignored
+/// --nocapture`): how often the arm is found without a guess on the frames made coarser and
+/// noisier, per depth error, over four draws of each frame (the book's real-scan section).
+#[test]
+#[ignore = "diagnostics, run by hand"]
+fn issue_45_how_often_a_coarser_camera_finds_the_arm() {
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
+    for (blob, noise) in [(0.01, 0.003), (0.01, 0.0005), (0.02, 0.003), (0.015, 0.005)] {
+        let (mut found, mut lost, mut elsewhere) = (0, 0, 0);
+        for draw in 100..104u64 {
+            for (k, f) in set.frames.iter().enumerate() {
+                let frame = coarser_camera(f, blob, noise, draw * 10 + k as u64);
+                match search_apart_from_guess(&set, &frame) {
+                    None => lost += 1,
+                    Some((mm, deg)) if mm <= SAME_MM && deg <= SAME_DEG => found += 1,
+                    Some(_) => elsewhere += 1,
+                }
+            }
+        }
+        eprintln!(
+            "blobs {:.0} mm, pixel noise {:.1} mm: found {found}, not found {lost}, elsewhere (rejected) {elsewhere}",
+            blob * 1e3,
+            noise * 1e3
+        );
+    }
 }

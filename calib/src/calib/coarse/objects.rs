@@ -11,7 +11,7 @@
 //! clump's (in the plane), and the pose is scored on the range image: positions and the plane
 //! alone, no normals but the model's.
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::f64::consts::PI;
 
 use nalgebra::{Isometry3, Point3, Vector2, Vector3};
@@ -26,8 +26,6 @@ use crate::calib::verify::{evidence, score, Tolerances};
 /// Cell of the occupancy grid the clumps are separated on, metres: objects this far apart on
 /// the plane are told apart.
 const CELL_M: f64 = 0.03;
-/// Largest grid side, cells (12 m at [`CELL_M`]); points beyond are left out.
-const MAX_CELLS: usize = 400;
 /// Turns of the arm about its axis tried per clump (5° apart).
 const TURNS: usize = 72;
 /// Distinct turns kept per clump.
@@ -38,6 +36,8 @@ const MAX_CLUMPS: usize = 8;
 const MIN_CLUMP_POINTS: usize = 30;
 /// How far above the plane a scan point must at least be to belong to an object, metres.
 const ABOVE_M: f64 = 0.02;
+/// Fewest scan points in a grid cell for it to be occupied.
+const MIN_CELL_POINTS: usize = 1;
 
 /// Candidate `camera_from_model` poses of the robot standing on `plane` with their scores (at
 /// most `max_out`): the posed model's camera-facing surface placed on each clump of scan points
@@ -383,72 +383,52 @@ struct Clump {
 /// connected occupied cells of a [`CELL_M`] grid, the [`MAX_CLUMPS`] with most points, each
 /// with at least [`MIN_CLUMP_POINTS`].
 fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
-    if above.is_empty() {
-        return Vec::new();
-    }
-    let (mut lo, mut hi) = (
-        Vector2::repeat(f64::INFINITY),
-        Vector2::repeat(f64::NEG_INFINITY),
-    );
+    let key = |q: &Point3<f64>| ((q.x / CELL_M).floor() as i64, (q.y / CELL_M).floor() as i64);
+    let mut count: HashMap<(i64, i64), usize> = HashMap::new();
     for q in above {
-        lo = lo.inf(&q.xy().coords);
-        hi = hi.sup(&q.xy().coords);
+        *count.entry(key(q)).or_default() += 1;
     }
-    let side = |a: f64, b: f64| (((b - a) / CELL_M) as usize + 1).min(MAX_CELLS);
-    let (nx, ny) = (side(lo.x, hi.x), side(lo.y, hi.y));
-    let cell = |q: &Point3<f64>| {
-        let ix = ((q.x - lo.x) / CELL_M) as usize;
-        let iy = ((q.y - lo.y) / CELL_M) as usize;
-        (ix < nx && iy < ny).then_some(iy * nx + ix)
-    };
-    let cells: Vec<Option<usize>> = above.iter().map(cell).collect();
-    let mut count = vec![0usize; nx * ny];
-    for &i in cells.iter().flatten() {
-        count[i] += 1;
-    }
-    // Connected components of the occupied cells (8-neighbourhood), each labelled by its first
-    // cell: (points, label).
-    let mut label = vec![usize::MAX; nx * ny];
+    // Connected components of the occupied cells (8-neighbourhood), in the cells' order (the
+    // same every run): (points, component).
+    let mut cells: Vec<(i64, i64)> = count
+        .iter()
+        .filter(|(_, &n)| n >= MIN_CELL_POINTS)
+        .map(|(c, _)| *c)
+        .collect();
+    cells.sort_unstable();
+    let mut label: HashMap<(i64, i64), usize> = HashMap::new();
     let mut found: Vec<(usize, usize)> = Vec::new();
-    for start in 0..nx * ny {
-        if count[start] == 0 || label[start] != usize::MAX {
+    for start in cells {
+        if label.contains_key(&start) {
             continue;
         }
+        let id = found.len();
         let mut n = 0usize;
         let mut queue = VecDeque::from([start]);
-        label[start] = start;
-        while let Some(i) = queue.pop_front() {
-            n += count[i];
-            let (x, y) = ((i % nx) as isize, (i / nx) as isize);
-            for (dx, dy) in [
-                (-1, -1),
-                (0, -1),
-                (1, -1),
-                (-1, 0),
-                (1, 0),
-                (-1, 1),
-                (0, 1),
-                (1, 1),
-            ] {
-                let (xx, yy) = (x + dx, y + dy);
-                if xx < 0 || yy < 0 || xx as usize >= nx || yy as usize >= ny {
-                    continue;
-                }
-                let j = yy as usize * nx + xx as usize;
-                if count[j] > 0 && label[j] == usize::MAX {
-                    label[j] = start;
-                    queue.push_back(j);
+        label.insert(start, id);
+        while let Some((x, y)) = queue.pop_front() {
+            n += count[&(x, y)];
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let j = (x + dx, y + dy);
+                    if count.get(&j).is_some_and(|&c| c >= MIN_CELL_POINTS)
+                        && !label.contains_key(&j)
+                    {
+                        label.insert(j, id);
+                        queue.push_back(j);
+                    }
                 }
             }
         }
-        found.push((n, start));
+        found.push((n, id));
     }
     found.sort_by_key(|f| std::cmp::Reverse(f.0));
     found.retain(|(n, _)| *n >= MIN_CLUMP_POINTS);
     found.truncate(MAX_CLUMPS);
     let mut members: Vec<Vec<&Point3<f64>>> = vec![Vec::new(); found.len()];
-    for (q, c) in above.iter().zip(&cells) {
-        if let Some(k) = c.and_then(|i| found.iter().position(|f| f.1 == label[i])) {
+    for q in above {
+        let component = label.get(&key(q));
+        if let Some(k) = component.and_then(|id| found.iter().position(|f| f.1 == *id)) {
             members[k].push(q);
         }
     }
