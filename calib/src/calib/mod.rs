@@ -125,7 +125,7 @@ pub enum CalibError {
     #[error("the robot model has no meshes on its base and first links; check the URDF's <visual> meshes")]
     NoModelGeometry,
     /// No pose of the robot explains the scan.
-    #[error("the robot was not found in the scan ({detail}); make sure the base and the first links are in view, 0.3–1.2 m from the camera")]
+    #[error("the robot was not found in the scan ({detail}); make sure the base and the first links are in view (0.3–1.2 m from a wrist camera, 0.8–2 m from a fixed one)")]
     RobotNotFound {
         /// What the search saw (best coverage, planes, …).
         detail: String,
