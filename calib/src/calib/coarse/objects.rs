@@ -36,8 +36,6 @@ const MAX_CLUMPS: usize = 8;
 const MIN_CLUMP_POINTS: usize = 30;
 /// How far above the plane a scan point must at least be to belong to an object, metres.
 const ABOVE_M: f64 = 0.02;
-/// Fewest scan points in a grid cell for it to be occupied.
-const MIN_CELL_POINTS: usize = 1;
 
 /// Candidate `camera_from_model` poses of the robot standing on `plane` with their scores (at
 /// most `max_out`): the posed model's camera-facing surface placed on each clump of scan points
@@ -281,7 +279,8 @@ const VOTE_HEIGHT_M: f64 = 0.03;
 /// Clump points and model samples [`vote`] pairs (evenly thinned beyond).
 const VOTE_POINTS: usize = 1500;
 const VOTE_SAMPLES: usize = 120;
-/// Largest side of [`vote`]'s grid, cells.
+/// Largest side of [`vote`]'s grid, cells (6 m of offsets at [`VOTE_CELL_M`]: a clump wider
+/// than that, less the arm's own width, leaves offsets out).
 const VOTE_MAX_CELLS: usize = 300;
 
 /// Where the robot's origin stands (plane x, y) so that most of the `front` samples (turned,
@@ -390,11 +389,7 @@ fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
     }
     // Connected components of the occupied cells (8-neighbourhood), in the cells' order (the
     // same every run): (points, component).
-    let mut cells: Vec<(i64, i64)> = count
-        .iter()
-        .filter(|(_, &n)| n >= MIN_CELL_POINTS)
-        .map(|(c, _)| *c)
-        .collect();
+    let mut cells: Vec<(i64, i64)> = count.keys().copied().collect();
     cells.sort_unstable();
     let mut label: HashMap<(i64, i64), usize> = HashMap::new();
     let mut found: Vec<(usize, usize)> = Vec::new();
@@ -411,9 +406,7 @@ fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
             for dy in -1..=1 {
                 for dx in -1..=1 {
                     let j = (x + dx, y + dy);
-                    if count.get(&j).is_some_and(|&c| c >= MIN_CELL_POINTS)
-                        && !label.contains_key(&j)
-                    {
+                    if count.contains_key(&j) && !label.contains_key(&j) {
                         label.insert(j, id);
                         queue.push_back(j);
                     }
