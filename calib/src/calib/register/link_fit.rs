@@ -70,15 +70,21 @@ pub(super) fn refine_with_links(
             tracing::debug!(z = ?fit.z.as_slice(), "link parameters (prior 1σ units)");
             Ok((r.model_from_camera.inverse(), r, Some(fit)))
         }
-        other => Err(CalibError::RobotNotFound {
-            detail: format!(
-                "the fit with the arm's kinematic error {} the best pose",
-                if other.is_some() {
-                    "wandered away from"
-                } else {
-                    "did not converge near"
-                }
-            ),
+        Some((r, _)) => {
+            let moved = r.model_from_camera * camera_from_model;
+            Err(CalibError::RobotNotFound {
+                detail: format!(
+                    "the fit with the arm's kinematic error moved {:.0} mm / {:.1}° from the best pose, more than the {:.0} mm / {:.1}° this scan's noise allows: on this scan the links' error cannot be told from the pose (depth bent by the camera, or too little of the arm in view)",
+                    moved.translation.vector.norm() * 1e3,
+                    moved.rotation.angle().to_degrees(),
+                    p.m(0.01) * 1e3,
+                    2.0 * p.k
+                ),
+            })
+        }
+        None => Err(CalibError::RobotNotFound {
+            detail: "the fit with the arm's kinematic error did not converge near the best pose"
+                .into(),
         }),
     }
 }
