@@ -73,6 +73,7 @@ pub(crate) fn hypotheses(
         .collect();
     let clumps = clumps(&above);
     let scoring = super::ranking_samples(surface);
+    let score_at = |pose: &Isometry3<f64>| score(&evidence(range, &scoring, pose, fit_depth, tol));
     let jobs: Vec<(usize, usize)> = (0..clumps.len())
         .flat_map(|c| (0..TURNS).map(move |t| (c, t)))
         .collect();
@@ -82,8 +83,7 @@ pub(crate) fn hypotheses(
             let yaw = t as f64 * 2.0 * PI / TURNS as f64;
             let at = place(&model, &clumps[c], yaw, &camera);
             let pose = cam_from_plane * plane_pose(at.x, at.y, 0.0, yaw);
-            let e = evidence(range, &scoring, &pose, fit_depth, tol);
-            (c, pose, score(&e))
+            (c, pose, score_at(&pose))
         })
         .collect();
     // Per clump its best distinct turns, each refined between the grid's steps and off the
@@ -93,7 +93,6 @@ pub(crate) fn hypotheses(
     for (c, pose, s) in scored {
         per_clump[c].push((pose, s));
     }
-    let score_at = |pose: &Isometry3<f64>| score(&evidence(range, &scoring, pose, fit_depth, tol));
     per_clump.par_iter_mut().for_each(|v| {
         v.sort_by(|a, b| b.1.total_cmp(&a.1));
         let mut starts: Vec<Isometry3<f64>> = Vec::new();
@@ -290,48 +289,25 @@ const VOTE_MAX_CELLS: usize = 300;
 /// its base, a box a cable links it to: 20 cm off on the real frames of `../shared/realdata`);
 /// the votes of the arm's own points agree, the others' scatter. `None` without pairs.
 fn vote(front: &[&(Vector3<f64>, Vector3<f64>)], clump: &Clump) -> Option<Vector2<f64>> {
-    let pts: Vec<&Point3<f32>> = clump
-        .points
-        .iter()
-        .step_by((clump.points.len() / VOTE_POINTS).max(1))
-        .collect();
+    let voters = &clump.voters;
     let samples: Vec<Vector3<f64>> = front
         .iter()
         .step_by((front.len() / VOTE_SAMPLES).max(1))
         .map(|(p, _)| *p)
         .collect();
-    if pts.is_empty() || samples.is_empty() {
+    if voters.bands.is_empty() || samples.is_empty() {
         return None;
     }
-    let bounds = |it: &mut dyn Iterator<Item = Vector2<f64>>| {
-        it.fold(
-            (
-                Vector2::repeat(f64::INFINITY),
-                Vector2::repeat(f64::NEG_INFINITY),
-            ),
-            |(lo, hi), p| (lo.inf(&p), hi.sup(&p)),
-        )
-    };
-    let (plo, phi) = bounds(&mut pts.iter().map(|q| q.coords.xy().cast::<f64>()));
     let (mlo, mhi) = bounds(&mut samples.iter().map(|m| m.xy()));
-    let lo = plo - mhi;
-    let side =
-        |k: usize| (((phi[k] - mlo[k] - lo[k]) / VOTE_CELL_M) as usize + 1).min(VOTE_MAX_CELLS);
+    let lo = voters.lo - mhi;
+    let side = |k: usize| {
+        (((voters.hi[k] - mlo[k] - lo[k]) / VOTE_CELL_M) as usize + 1).min(VOTE_MAX_CELLS)
+    };
     let (nx, ny) = (side(0), side(1));
-    // The clump's points by height band: a sample looks only at its own band and the two
-    // beside it.
-    let band = |z: f64| (z / VOTE_HEIGHT_M).floor().max(0.0) as usize;
-    let mut bands: Vec<Vec<&Point3<f32>>> = Vec::new();
-    for q in &pts {
-        let b = band(f64::from(q.z));
-        if b >= bands.len() {
-            bands.resize_with(b + 1, Vec::new);
-        }
-        bands[b].push(q);
-    }
+    let bands = &voters.bands;
     let mut votes = vec![0u32; nx * ny];
     for m in &samples {
-        let b = band(m.z);
+        let b = vote_band(m.z);
         let near = bands
             .get(b.saturating_sub(1)..(b + 2).min(bands.len()))
             .unwrap_or_default();
@@ -366,6 +342,50 @@ fn vote(front: &[&(Vector3<f64>, Vector3<f64>)], clump: &Clump) -> Option<Vector
     })
 }
 
+/// A clump's points as [`vote`] pairs them, the same for every turn: evenly thinned to
+/// [`VOTE_POINTS`], by height band ([`VOTE_HEIGHT_M`]: a sample looks only at its own band and
+/// the two beside it), with their extent in the plane.
+struct Voters {
+    bands: Vec<Vec<Point3<f32>>>,
+    lo: Vector2<f64>,
+    hi: Vector2<f64>,
+}
+
+impl Voters {
+    fn new(points: &[Point3<f32>]) -> Self {
+        let pts: Vec<&Point3<f32>> = points
+            .iter()
+            .step_by((points.len() / VOTE_POINTS).max(1))
+            .collect();
+        let (lo, hi) = bounds(&mut pts.iter().map(|q| q.coords.xy().cast::<f64>()));
+        let mut bands: Vec<Vec<Point3<f32>>> = Vec::new();
+        for q in pts {
+            let b = vote_band(f64::from(q.z));
+            if b >= bands.len() {
+                bands.resize_with(b + 1, Vec::new);
+            }
+            bands[b].push(*q);
+        }
+        Self { bands, lo, hi }
+    }
+}
+
+/// The height band of [`Voters`] a height above the plane falls in.
+fn vote_band(z: f64) -> usize {
+    (z / VOTE_HEIGHT_M).floor().max(0.0) as usize
+}
+
+/// The smallest and largest coordinates of `it`.
+fn bounds(it: &mut dyn Iterator<Item = Vector2<f64>>) -> (Vector2<f64>, Vector2<f64>) {
+    it.fold(
+        (
+            Vector2::repeat(f64::INFINITY),
+            Vector2::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi), p| (lo.inf(&p), hi.sup(&p)),
+    )
+}
+
 fn median(v: &mut [f64]) -> f64 {
     let mid = v.len() / 2;
     *v.select_nth_unstable_by(mid, f64::total_cmp).1
@@ -376,6 +396,7 @@ struct Clump {
     centroid: Vector2<f64>,
     points: Vec<Point3<f32>>,
     tree: KdTree,
+    voters: Voters,
 }
 
 /// The clumps of `above` (points in the plane frame): the
@@ -433,6 +454,7 @@ fn clumps(above: &[Point3<f64>]) -> Vec<Clump> {
             Clump {
                 centroid,
                 tree: KdTree::new(&points),
+                voters: Voters::new(&points),
                 points,
             }
         })

@@ -51,6 +51,8 @@ pub(super) fn refine_with_links(
         offset: fine.offset_estimated,
         iterations: 15,
     };
+    // How far the refit may move the pose: the scan's noise widens it.
+    let (allowed_m, allowed_deg) = (p.m(0.01), 2.0 * p.k);
     match icp_with_links(
         &pts,
         &p.surface,
@@ -63,8 +65,8 @@ pub(super) fn refine_with_links(
             if crate::calib::within(
                 &r.model_from_camera.inverse(),
                 &camera_from_model,
-                p.m(0.01),
-                2.0 * p.k,
+                allowed_m,
+                allowed_deg,
             ) =>
         {
             tracing::debug!(z = ?fit.z.as_slice(), "link parameters (prior 1σ units)");
@@ -77,8 +79,8 @@ pub(super) fn refine_with_links(
                     "the fit with the arm's kinematic error moved {:.0} mm / {:.1}° from the best pose, more than the {:.0} mm / {:.1}° this scan's noise allows: on this scan the links' error cannot be told from the pose (depth bent by the camera, or too little of the arm in view)",
                     moved.translation.vector.norm() * 1e3,
                     moved.rotation.angle().to_degrees(),
-                    p.m(0.01) * 1e3,
-                    2.0 * p.k
+                    allowed_m * 1e3,
+                    allowed_deg
                 ),
             })
         }
