@@ -322,7 +322,7 @@ fn the_guess_is_honoured_on_every_real_frame() {
 
 /// Without a guess the global search finds the arm among the second arm, the monitor, cables
 /// and boxes, as an object standing on the table: on every frame it ends where the reference
-/// as a guess ends (7–35 mm / 0.5–1.1° from it: the frames' depth errors, not the search,
+/// as a guess ends (11–36 mm / 0.5–1.1° from it: the frames' depth errors, not the search,
 /// keep it there), never half-turned, and nothing it returns is accepted far from the
 /// reference.
 #[test]
