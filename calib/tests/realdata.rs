@@ -371,19 +371,26 @@ const SAME_DEG: f64 = 1.0;
 /// (a ZED 2i-like sensor: half the resolution, its depth bent by smooth blobs of 10 mm 1σ a
 /// few centimetres wide and 3 mm of pixel noise, 3 % of the pixels dropped), three draws of
 /// the errors each (in the third, frames 0 and 1 join the arm to the far background through
-/// flying pixels). Without a guess the arm is found in every one, never half-turned; nothing
-/// far from the reference is accepted.
+/// flying pixels); and one draw with 15 mm blobs and 5 mm of pixel noise, whose noise went
+/// unmeasured (every patch's depths spread over more than 2 cm), so that the scan was fitted
+/// as a precise one and the arm not found in 19 of 20 frames. Without a guess the arm is found
+/// in every one, never half-turned; nothing far from the reference is accepted.
 #[test]
 fn issue_45_a_coarser_noisier_camera_finds_the_arm_too() {
     let Some(set) = handeye_calib::testutil::real_set() else {
         return;
     };
-    for draw in [0, 10, 1020] {
+    for (blob, noise, draw) in [
+        (0.01, 0.003, 0),
+        (0.01, 0.003, 10),
+        (0.01, 0.003, 1020),
+        (0.015, 0.005, 1000),
+    ] {
         let frames: Vec<Frame> = set
             .frames
             .iter()
             .enumerate()
-            .map(|(k, f)| coarser_camera(f, 0.01, 0.003, draw + k as u64))
+            .map(|(k, f)| coarser_camera(f, blob, noise, draw + k as u64))
             .collect();
         assert_found_everywhere(&set, &frames);
     }
@@ -615,7 +622,13 @@ fn issue_45_how_often_a_coarser_camera_finds_the_arm() {
     let Some(set) = handeye_calib::testutil::real_set() else {
         return;
     };
-    for (blob, noise) in [(0.01, 0.003), (0.01, 0.0005), (0.02, 0.003), (0.015, 0.005)] {
+    for (blob, noise) in [
+        (0.01, 0.003),
+        (0.01, 0.0005),
+        (0.02, 0.003),
+        (0.015, 0.005),
+        (0.015, 0.008),
+    ] {
         let (mut found, mut lost, mut elsewhere) = (0, 0, 0);
         for draw in 100..104u64 {
             for (k, f) in set.frames.iter().enumerate() {

@@ -140,10 +140,13 @@ pub(super) fn judge(
         .collect();
     // A pose whose expected surface is mostly hidden (behind a link close to the camera) can
     // cover much of the little it expects while explaining a fraction of what the others do:
-    // support below half the best counts against it in proportion.
+    // support below half the best counts against it in proportion. On a noisy scan every key
+    // can be below zero (its free-space violations outweigh its fit), and scaling a negative
+    // key down would favour the pose with less support: the shortfall is taken off the key's
+    // size either way.
     let most_matched = fitted.iter().map(|f| f.2.matched).fold(0.0, f64::max);
     let judged_key = |f: &(IcpResult, Isometry3<f64>, Evidence, f64)| {
-        f.3 * (f.2.matched / (0.5 * most_matched).max(1.0)).min(1.0)
+        supported_key(f.3, f.2.matched, most_matched)
     };
     let Some(win) = (0..fitted.len())
         .max_by(|&a, &b| judged_key(&fitted[a]).total_cmp(&judged_key(&fitted[b])))
@@ -213,6 +216,14 @@ pub(super) fn judge(
     })
 }
 
+/// A contender's `key` with its support counted: `matched` scan points against the
+/// `most_matched` of any contender, below half of that in proportion, taken off the key's size
+/// whatever its sign.
+fn supported_key(key: f64, matched: f64, most_matched: f64) -> f64 {
+    let support = (matched / (0.5 * most_matched).max(1.0)).min(1.0);
+    key - key.abs() * (1.0 - support)
+}
+
 /// Whether two `camera_from_model` poses are the same result (camera within 2 mm and 0.3°).
 pub(super) fn same_pose(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
     let d = a.inverse() * b;
@@ -263,4 +274,22 @@ fn evidence_measured(
         surface.fit_depth,
         tol,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::supported_key;
+
+    /// Less support never helps a contender: with keys below zero (a noisy scan's violations
+    /// outweigh every fit) the pose explaining a ninth of the points had won by its key being
+    /// scaled towards zero.
+    #[test]
+    fn less_support_ranks_lower_whatever_the_keys_sign() {
+        for key in [0.3, -0.2] {
+            assert_eq!(supported_key(key, 1000.0, 1000.0), key);
+            assert_eq!(supported_key(key, 600.0, 1000.0), key);
+            assert!(supported_key(key, 100.0, 1000.0) < key);
+        }
+        assert!(supported_key(-0.13, 1942.0, 16859.0) < -0.13 * 1.7);
+    }
 }
