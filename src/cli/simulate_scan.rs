@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use nalgebra::Isometry3;
 
-use handeye::cloud::{write_ply, PlyEncoding};
+use handeye::cloud::{write_ply, write_png, PlyEncoding};
 use handeye::frames::to_row_major;
 use handeye::model::RobotModel;
 use handeye::sim::{simulate_scan, Intrinsics, Placement, ScanRequest, SimSettings, SimulatedScan};
@@ -56,7 +56,9 @@ pub(crate) struct Args {
     /// its controller publishes goes into the ground truth as `controller_dh`.
     #[arg(long, value_name = "SEED")]
     factory_calibration: Option<u64>,
-    /// Output PLY (binary); the ground truth goes beside it as `<stem>.gt.json`.
+    /// Output PLY (binary); the ground truth goes beside it as `<stem>.gt.json`, and a camera
+    /// with a colour image (`realsense-d435`) writes it as `<stem>.png`, pixel for pixel (for
+    /// `solve --image`).
     #[arg(long)]
     out: PathBuf,
 }
@@ -115,9 +117,17 @@ pub(crate) fn run(args: Args) -> anyhow::Result<ExitCode> {
     let gt = ground_truth_json(&model, &req, &scan, &settings);
     std::fs::write(&gt_path, serde_json::to_string_pretty(&gt)?)
         .with_context(|| format!("writing {}", gt_path.display()))?;
+    let png_path = match &scan.image {
+        Some(image) => {
+            let path = args.out.with_extension("png");
+            write_png(&path, image).with_context(|| format!("writing {}", path.display()))?;
+            format!(" and its colour image {}", path.display())
+        }
+        None => String::new(),
+    };
     let seen = base_in_view(&model, &scan);
     println!(
-        "wrote {} ({}×{}, {} valid points; the robot's base and shoulder cover {:.1} % of the image) and {}",
+        "wrote {} ({}×{}, {} valid points; the robot's base and shoulder cover {:.1} % of the image){png_path} and {}",
         args.out.display(),
         scan.cloud.width,
         scan.cloud.height,

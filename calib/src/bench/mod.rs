@@ -739,7 +739,7 @@ pub fn run_views_trial(
             joints: joints.to_vec(),
             model_from_flange: Some(handed_from_model * scan.truth.model_from_flange_reported),
             source: format!("view {} scan {scan_index}", view + k),
-            image: None,
+            image: scan.image.map(std::sync::Arc::new),
         });
     }
     trial.simulate_ms = elapsed_ms(t0);
@@ -776,8 +776,9 @@ pub fn run_views_trial(
         Mount::EyeToHand => calibration.base_from_camera,
     };
     let err = mount.inverse() * estimate;
-    // One scan: its registration's σ; a run: the fused result's.
-    let uncertainty = if views.len() == 1 {
+    // One scan: its registration's σ; a run, or a scan whose colour image's outline was fitted
+    // with its depth: the result's.
+    let uncertainty = if views.len() == 1 && calibration.report.outline.is_none() {
         reg.uncertainty
     } else {
         calibration.report.uncertainty

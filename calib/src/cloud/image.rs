@@ -91,9 +91,44 @@ pub fn read_png(path: &Path) -> Result<ColorImage, CloudError> {
     Ok(ColorImage { width, height, rgb })
 }
 
+/// Writes `image` as an 8-bit RGB PNG (what [`read_png`] reads back pixel for pixel).
+pub fn write_png(path: &Path, image: &ColorImage) -> Result<(), CloudError> {
+    let bad = |reason: String| CloudError::Image {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let (Ok(w), Ok(h)) = (u32::try_from(image.width), u32::try_from(image.height)) else {
+        return Err(bad("too large for a PNG".into()));
+    };
+    let file = std::fs::File::create(path).map_err(|e| CloudError::io("create", path, e))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let data: Vec<u8> = image.rgb.iter().flatten().copied().collect();
+    enc.write_header()
+        .and_then(|mut writer| writer.write_image_data(&data))
+        .map_err(|e| bad(e.to_string()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What is written reads back pixel for pixel.
+    #[test]
+    fn a_written_png_reads_back() {
+        let dir = std::env::temp_dir().join(format!("handeye-image-w-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let image = ColorImage {
+            width: 4,
+            height: 3,
+            rgb: (0..12u8).map(|k| [k, 2 * k, 255 - k]).collect(),
+        };
+        let path = dir.join("w.png");
+        write_png(&path, &image).expect("written");
+        assert_eq!(read_png(&path).expect("reads"), image);
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     /// An RGB and a 16-bit grey PNG written here read back pixel for pixel.
     #[test]

@@ -32,7 +32,7 @@ use std::path::{Path, PathBuf};
 use handeye_hal::nalgebra::Point3;
 use handeye_hal::PointCloud;
 
-pub use image::{read_png, ColorImage};
+pub use image::{read_png, write_png, ColorImage};
 pub use pcd::{read_pcd, write_pcd};
 pub use ply::{read_ply, write_ply, PlyEncoding};
 pub use voxel::voxel_downsample;

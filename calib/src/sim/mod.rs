@@ -5,6 +5,7 @@
 mod albedo;
 mod camera;
 pub mod cell;
+mod colour;
 mod noise;
 mod scan;
 mod settings;

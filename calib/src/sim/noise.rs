@@ -82,6 +82,14 @@ pub struct ScanNoise {
     /// offset follows its temperature, and each scan draws its own offset around
     /// [`Self::depth_offset_m`].
     pub offset_drift_m: f64,
+    /// A camera that registers a colour image to its depth, pixel for pixel (an active-stereo
+    /// camera's RGB imager aligned to the depth): the simulator renders it
+    /// (`sim::colour`) and hands it with the scan. `false`: depth only.
+    pub colour_image: bool,
+    /// 1σ per axis of that image's shift against the depth, pixels: the factory calibration
+    /// between the colour imager and the depth, off by a sub-pixel amount (each scan draws its
+    /// own).
+    pub colour_misalignment_px: f64,
 }
 
 /// Albedo of the surfaces a time-of-flight camera's precision is stated for here: a UR's light
@@ -132,6 +140,8 @@ impl Default for ScanNoise {
             reference_albedo: 0.0,
             dark_range_bias_m: 0.0,
             offset_drift_m: 0.0,
+            colour_image: false,
+            colour_misalignment_px: 0.0,
         }
     }
 }
@@ -159,6 +169,8 @@ impl ScanNoise {
             reference_albedo: 0.0,
             dark_range_bias_m: 0.0,
             offset_drift_m: 0.0,
+            colour_image: false,
+            colour_misalignment_px: 0.0,
         }
     }
 
@@ -198,6 +210,8 @@ impl ScanNoise {
             reference_albedo: 0.0,
             dark_range_bias_m: 0.0,
             offset_drift_m: 0.0,
+            colour_image: true,
+            colour_misalignment_px: 0.5,
         }
     }
 
@@ -250,6 +264,8 @@ impl ScanNoise {
             reference_albedo: TOF_REFERENCE_ALBEDO,
             dark_range_bias_m: 0.003,
             offset_drift_m: 0.0015,
+            colour_image: false,
+            colour_misalignment_px: 0.0,
         }
     }
 
@@ -282,6 +298,14 @@ impl ScanNoise {
             3.0,
             "",
             "how noise grows with distance: 2 for triangulation, 1 for time of flight",
+        )?;
+        check_range(
+            "noise.colour_misalignment_px",
+            self.colour_misalignment_px,
+            0.0,
+            10.0,
+            "pixels",
+            "the colour image's shift against the depth; a factory calibration is off by a pixel at most",
         )?;
         check_range(
             "noise.flying_pixel_probability",

@@ -11,6 +11,7 @@ use handeye_hal::PointCloud;
 
 use super::albedo::{albedo_image, amplitude, Surface};
 use super::cell::{build_cell, CellOptions, CellPart};
+use super::colour::colour_image;
 use super::SimSettings;
 use super::{Intrinsics, ScanNoise};
 use crate::geometry::raycast::{raycast, DepthImage, SceneMesh};
@@ -158,6 +159,9 @@ pub struct SimulatedScan {
     pub labels: Vec<u32>,
     /// Names of the scene objects (`link:<name>` for robot links, else the cell part).
     pub objects: Vec<String>,
+    /// The colour image registered to the cloud, for a camera that has one
+    /// ([`ScanNoise::colour_image`]).
+    pub image: Option<crate::cloud::ColorImage>,
 }
 
 /// Errors of the simulator.
@@ -171,6 +175,9 @@ pub enum SimError {
     #[error("invalid simulator setting: {0}")]
     Setting(String),
 }
+
+/// Mixed into a scan's seed for its colour image's misalignment and noise.
+const COLOUR_SEED: u64 = 0x434f_4c4f_5552;
 
 /// Renders one scan.
 pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
@@ -262,9 +269,20 @@ pub fn simulate_scan(req: &ScanRequest<'_>) -> Result<SimulatedScan, SimError> {
     };
     let noise = req.noise.drifted(req.seed);
     let cloud = measure(&image, &req.intrinsics, &noise, &albedo, rng.random());
+    // Its own stream: the depth is drawn as without it.
+    let colour = req.noise.colour_image.then(|| {
+        colour_image(
+            &image,
+            &surfaces,
+            &model_from_camera.rotation,
+            req.noise.colour_misalignment_px,
+            req.seed ^ COLOUR_SEED,
+        )
+    });
 
     Ok(SimulatedScan {
         cloud,
+        image: colour,
         labels: image.object,
         objects,
         truth: GroundTruth {
