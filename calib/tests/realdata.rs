@@ -647,3 +647,59 @@ fn issue_45_how_often_a_coarser_camera_finds_the_arm() {
         );
     }
 }
+
+/// Issue 45 (found everywhere): the frames as a camera of one and a half times the resolution
+/// gives them (1920×1080, a ZED 2i at 1080p: each pixel's depth the nearest frame pixel's,
+/// placed on the finer pixel's own ray). Without a guess the arm is found in every one.
+#[test]
+fn issue_45_a_finer_camera_finds_the_arm_too() {
+    let Some(set) = handeye_calib::testutil::real_set() else {
+        return;
+    };
+    let frames: Vec<Frame> = set.frames.iter().map(finer_camera).collect();
+    assert_found_everywhere(&set, &frames);
+}
+
+/// `f` at 1.5 times its resolution: each finer pixel takes the depth (and colour) of the frame
+/// pixel it falls in, placed on the finer pixel's ray through the frame's intrinsics scaled.
+fn finer_camera(f: &Frame) -> Frame {
+    let cam = RangeImage::new(&f.cloud).expect("an organized frame").cam;
+    let (w, h) = (f.cloud.width as usize, f.cloud.height as usize);
+    let (w2, h2) = (w * 3 / 2, h * 3 / 2);
+    let source = |u: usize, v: usize| (v * 2 / 3) * w + u * 2 / 3;
+    // A pixel's centre at the finer scale: (u + ½) / 1.5 − ½ in the frame's pixels.
+    let ray = |u: usize, v: usize| {
+        let x = ((u as f64 + 0.5) / 1.5 - 0.5 - cam.cx) / cam.fx;
+        let y = ((v as f64 + 0.5) / 1.5 - 0.5 - cam.cy) / cam.fy;
+        (x, y)
+    };
+    let points = (0..h2)
+        .flat_map(|v| (0..w2).map(move |u| (u, v)))
+        .map(|(u, v)| {
+            let z = f.cloud.points[source(u, v)].z;
+            let (x, y) = ray(u, v);
+            nalgebra::Point3::new((x * f64::from(z)) as f32, (y * f64::from(z)) as f32, z)
+        })
+        .collect();
+    Frame {
+        cloud: handeye_hal::PointCloud {
+            width: w2 as u32,
+            height: h2 as u32,
+            points,
+            intensity: None,
+            confidence: None,
+        },
+        image: f.image.as_ref().map(|img| {
+            std::sync::Arc::new(handeye_calib::cloud::ColorImage {
+                width: w2,
+                height: h2,
+                rgb: (0..h2)
+                    .flat_map(|v| (0..w2).map(move |u| (u, v)))
+                    .map(|(u, v)| img.rgb[source(u, v)])
+                    .collect(),
+            })
+        }),
+        source: format!("{} (finer camera)", f.source),
+        ..f.clone()
+    }
+}
