@@ -161,7 +161,7 @@ impl BenchConfig {
         mount: Isometry3<f64>,
         seed: u64,
     ) -> ScanRequest<'a> {
-        ScanRequest::new(
+        let mut req = ScanRequest::new(
             model,
             joints.to_vec(),
             match self.mount {
@@ -175,7 +175,11 @@ impl BenchConfig {
             self.intrinsics,
             &self.settings,
             seed,
-        )
+        );
+        // The registration fits a colour image's outline for a fixed camera only: a wrist
+        // camera's image is not rendered (its depth is the same either way).
+        req.noise.colour_image &= self.mount == Mount::EyeToHand;
+        req
     }
 
     /// The physical arm seen in the view whose first scan has seed `view_seed`: joint errors of
