@@ -450,22 +450,37 @@ fn coarser_camera(f: &Frame, blob_m: f64, noise_m: f64, seed: u64) -> Frame {
             }
         }
     }
+    let rgb = f.image.is_some().then_some(rgb);
+    resized(
+        f,
+        (w2, h2),
+        points,
+        rgb,
+        &format!("coarser camera, draw {seed}"),
+    )
+}
+
+/// `f` as another camera gave it: `points` and `rgb` (when `f` has an image) on a grid of
+/// `size` pixels, its source marked with `what`.
+fn resized(
+    f: &Frame,
+    (width, height): (usize, usize),
+    points: Vec<nalgebra::Point3<f32>>,
+    rgb: Option<Vec<[u8; 3]>>,
+    what: &str,
+) -> Frame {
     Frame {
         cloud: handeye_hal::PointCloud {
-            width: w2 as u32,
-            height: h2 as u32,
+            width: width as u32,
+            height: height as u32,
             points,
             intensity: None,
             confidence: None,
         },
-        image: f.image.as_ref().map(|_| {
-            std::sync::Arc::new(handeye_calib::cloud::ColorImage {
-                width: w2,
-                height: h2,
-                rgb,
-            })
+        image: rgb.map(|rgb| {
+            std::sync::Arc::new(handeye_calib::cloud::ColorImage { width, height, rgb })
         }),
-        source: format!("{} (coarser camera, draw {seed})", f.source),
+        source: format!("{} ({what})", f.source),
         ..f.clone()
     }
 }
@@ -681,25 +696,11 @@ fn finer_camera(f: &Frame) -> Frame {
             nalgebra::Point3::new((x * f64::from(z)) as f32, (y * f64::from(z)) as f32, z)
         })
         .collect();
-    Frame {
-        cloud: handeye_hal::PointCloud {
-            width: w2 as u32,
-            height: h2 as u32,
-            points,
-            intensity: None,
-            confidence: None,
-        },
-        image: f.image.as_ref().map(|img| {
-            std::sync::Arc::new(handeye_calib::cloud::ColorImage {
-                width: w2,
-                height: h2,
-                rgb: (0..h2)
-                    .flat_map(|v| (0..w2).map(move |u| (u, v)))
-                    .map(|(u, v)| img.rgb[source(u, v)])
-                    .collect(),
-            })
-        }),
-        source: format!("{} (finer camera)", f.source),
-        ..f.clone()
-    }
+    let rgb = f.image.as_ref().map(|img| {
+        (0..h2)
+            .flat_map(|v| (0..w2).map(move |u| (u, v)))
+            .map(|(u, v)| img.rgb[source(u, v)])
+            .collect()
+    });
+    resized(f, (w2, h2), points, rgb, "finer camera")
 }
